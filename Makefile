@@ -1,0 +1,46 @@
+# Entry points. Each target installs what it needs (scripts/setup.sh is a quick no-op
+# when everything is present), configures and builds.
+BUILD       ?= build
+BUILD_ASAN  ?= build-asan
+JOBS        ?= 2
+CMAKE_FLAGS ?=
+
+.PHONY: all setup configure build demo test test-fast asan bench fuzz clean
+
+all: build
+
+setup:
+	@bash scripts/setup.sh
+
+configure: setup
+	cmake -S . -B $(BUILD) -DCMAKE_BUILD_TYPE=Release $(CMAKE_FLAGS)
+
+build: configure
+	cmake --build $(BUILD) -j $(JOBS)
+
+# The main job on bundled data; prints where its outputs are.
+demo: build
+	@bash scripts/demo.sh $(BUILD)
+
+# The whole suite: release build + AddressSanitizer/UBSan build of the format tests.
+test: build asan
+	cd $(BUILD) && ctest --output-on-failure -j $(JOBS)
+	cd $(BUILD_ASAN) && ctest --output-on-failure -j $(JOBS) -L asan
+
+# Release tests only (quicker while developing).
+test-fast: build
+	cd $(BUILD) && ctest --output-on-failure -j $(JOBS)
+
+asan: setup
+	cmake -S . -B $(BUILD_ASAN) -DCMAKE_BUILD_TYPE=RelWithDebInfo -DLTB_SANITIZE=ON -DLTB_BUILD_BENCH=OFF -DLTB_ARCH=
+	cmake --build $(BUILD_ASAN) -j $(JOBS) --target ltb_format_tests ltb_damage_tests ltbake
+
+bench: build
+	@bash bench/run_container_io.sh $(BUILD)
+
+fuzz: setup
+	CC=clang CXX=clang++ cmake -S . -B build-fuzz -DLTB_BUILD_FUZZERS=ON -DLTB_BUILD_TESTS=OFF -DLTB_BUILD_BENCH=OFF -DLTB_ARCH=
+	cmake --build build-fuzz -j $(JOBS) --target ltm_reader_fuzzer
+
+clean:
+	rm -rf $(BUILD) $(BUILD_ASAN) build-fuzz

@@ -1,0 +1,66 @@
+// ltbake convert IN OUT
+#include <iostream>
+
+#include "cli/commands.h"
+#include "cli/common.h"
+#include "stages/convert/convert.h"
+
+namespace ltb::cli {
+namespace {
+
+class ConvertCommand : public Command {
+ public:
+  explicit ConvertCommand(CLI::App* parent) {
+    auto* app = parent->add_subcommand(
+        "convert", ".npy (2-D float32/float64, C order) -> .ltm, or .ltm -> dense float32 .npy (by extension)");
+    app->add_option("IN", options_.input, "input file")->required();
+    app->add_option("OUT", options_.output, "output file")->required();
+    app->add_option("--chunk-size", chunk_size_, "target bytes per chunk (npy -> ltm)")->default_val("8MiB");
+    app->add_option("--layout", layout_, "chunk layout of the .ltm: rows (row blocks) or cols (column blocks)")
+        ->default_val("rows")
+        ->check(CLI::IsMember({"rows", "cols"}));
+    app->add_flag("--zstd", options_.zstd, "zstd-compress chunks where it saves at least 10%");
+    app->add_flag("--overwrite", options_.overwrite, "replace an output that was written with other parameters");
+    AddCommonFlags(app, &flags_);
+  }
+
+  int Run() override {
+    auto chunk = ParseSize(chunk_size_);
+    if (!chunk.ok()) return ReportFailure(chunk.status().WithContext("--chunk-size"));
+    auto mem = ParseSize(flags_.mem_limit);
+    if (!mem.ok()) return ReportFailure(mem.status().WithContext("--mem-limit"));
+    options_.chunk_bytes = *chunk;
+    options_.mem_limit = *mem;
+    options_.jobs = flags_.jobs;
+    options_.layout = layout_ == "cols" ? format::Layout::kCols : format::Layout::kRows;
+    ProgressBar bar(flags_, "convert");
+    auto r = stages::RunConvert(options_, bar.hook());
+    bar.Done();
+    if (!r.ok()) return ReportFailure(r.status());
+    if (!flags_.quiet) {
+      std::cout << "wrote " << options_.output << ": " << r->rows << " x " << r->cols << ", " << r->chunks_total
+                << " chunks";
+      if (r->chunks_already_committed > 0) {
+        std::cout << " (resumed: " << r->chunks_already_committed << " already committed, " << r->chunks_written
+                  << " written";
+        if (r->discarded_tail_bytes) std::cout << ", " << r->discarded_tail_bytes << " uncommitted bytes discarded";
+        std::cout << ")";
+      }
+      if (r->zero_chunks) std::cout << ", " << r->zero_chunks << " all-zero";
+      if (r->zstd_chunks) std::cout << ", " << r->zstd_chunks << " zstd";
+      std::cout << ", " << r->bytes_out << " bytes\n";
+    }
+    return kExitOk;
+  }
+
+ private:
+  stages::ConvertOptions options_;
+  std::string chunk_size_ = "8MiB", layout_ = "rows";
+  CommonFlags flags_;
+};
+
+}  // namespace
+
+std::unique_ptr<Command> RegisterConvert(CLI::App* parent) { return std::make_unique<ConvertCommand>(parent); }
+
+}  // namespace ltb::cli

@@ -1,0 +1,169 @@
+// ltbake inspect FILE [--json] [--chunks] [--no-content]
+#include <cmath>
+#include <cstdio>
+#include <iostream>
+
+#include <nlohmann/json.hpp>
+
+#include "cli/commands.h"
+#include "cli/common.h"
+#include "format/io/array_summary.h"
+#include "format/io/container_reader.h"
+
+namespace ltb::cli {
+namespace {
+
+using namespace ltb::format;
+using nlohmann::json;
+
+std::string HumanBytes(uint64_t b) {
+  const char* units[] = {"B", "KiB", "MiB", "GiB", "TiB"};
+  double v = static_cast<double>(b);
+  int u = 0;
+  while (v >= 1024 && u < 4) {
+    v /= 1024;
+    ++u;
+  }
+  char buf[32];
+  std::snprintf(buf, sizeof buf, u == 0 ? "%.0f %s" : "%.1f %s", v, units[u]);
+  return buf;
+}
+
+json NumberOrNull(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
+
+class InspectCommand : public Command {
+ public:
+  explicit InspectCommand(CLI::App* parent) {
+    auto* app = parent->add_subcommand("inspect", "describe a container: shape, layout, chunks, content_hash, stats");
+    app->add_option("FILE", path_, "the .ltm file")->required();
+    app->add_flag("--json", json_, "print one JSON object (stable keys, for scripts)");
+    app->add_flag("--chunks", chunks_, "list every committed chunk frame");
+    app->add_flag("--no-content", no_content_, "skip reading chunk payloads (no content_hash or stats)");
+    AddCommonFlags(app, &flags_);
+  }
+
+  int Run() override {
+    auto reader_or = io::ContainerReader::Open(path_);
+    if (!reader_or.ok()) return ReportFailure(reader_or.status());
+    const io::ContainerReader& reader = *reader_or;
+    const Metadata& meta = reader.metadata();
+
+    json out;
+    out["file"] = path_;
+    out["file_bytes"] = reader.file_size();
+    out["format_version"] = std::to_string(reader.header().major) + "." + std::to_string(reader.header().minor);
+    out["sealed"] = reader.sealed();
+    out["complete"] = reader.complete();
+    out["uncommitted_tail_bytes"] = reader.uncommitted_tail_bytes();
+    out["problems"] = reader.problems();
+    out["basis"] = meta.json.value("basis", json(nullptr));
+    out["provenance"] = meta.json.value("provenance", json(nullptr));
+    out["arrays"] = json::array();
+    for (uint32_t i = 0; i < meta.arrays.size(); ++i) {
+      const ArraySpec& a = meta.arrays[i];
+      json j = a.ToJson();
+      json chunks = {{"expected", a.ChunkCount()}, {"committed", reader.committed(i)},
+                     {"missing", a.ChunkCount() - reader.committed(i)}};
+      uint64_t by_enc[3] = {0, 0, 0}, stored = 0;
+      for (const auto& e : reader.chunk_frames()) {
+        if (e.header.array != i) continue;
+        by_enc[e.header.encoding]++;
+        stored += e.header.payload_length;
+      }
+      chunks["raw"] = by_enc[0];
+      chunks["zero"] = by_enc[1];
+      chunks["zstd"] = by_enc[2];
+      chunks["stored_bytes"] = stored;
+      j["chunks"] = chunks;
+      if (!no_content_) {
+        ProgressBar bar(flags_, "inspect " + a.name);
+        auto summary = io::SummarizeArray(reader, i, flags_.jobs, bar.hook());
+        bar.Done();
+        if (!summary.ok()) return ReportFailure(summary.status());
+        const io::ArrayStats& s = summary->stats;
+        j["content_hash"] = summary->content_hash.empty() ? json(nullptr) : json(summary->content_hash);
+        uint64_t finite = s.count - s.nan - s.inf;
+        j["stats"] = {{"count", s.count},
+                      {"min", NumberOrNull(finite ? s.min : NAN)},
+                      {"max", NumberOrNull(finite ? s.max : NAN)},
+                      {"mean", NumberOrNull(finite ? s.sum / static_cast<double>(finite) : NAN)},
+                      {"nan_count", s.nan},
+                      {"inf_count", s.inf},
+                      {"nonzero_fraction", s.count ? static_cast<double>(s.nonzero) / static_cast<double>(s.count) : 0.0}};
+      }
+      out["arrays"].push_back(j);
+    }
+    // The matrix (array 0) at top level, as DESIGN.md lists the keys.
+    const json& m = out["arrays"][0];
+    for (const char* k : {"shape", "dtype", "layout", "block", "chunks", "content_hash", "stats"}) {
+      if (m.contains(k)) out[k] = m[k];
+    }
+    if (chunks_) {
+      out["chunk_list"] = json::array();
+      for (const auto& e : reader.chunk_frames()) {
+        out["chunk_list"].push_back({{"array", meta.arrays[e.header.array].name},
+                                     {"index", e.header.chunk_index},
+                                     {"offset", e.frame_offset},
+                                     {"encoding", EncodingName(static_cast<Encoding>(e.header.encoding))},
+                                     {"stored_bytes", e.header.payload_length},
+                                     {"decoded_bytes", e.header.decoded_length},
+                                     {"checksum", Hex64(e.header.payload_checksum)}});
+      }
+    }
+    if (json_) {
+      std::cout << out.dump(2) << "\n";
+    } else {
+      PrintText(out);
+    }
+    return kExitOk;
+  }
+
+ private:
+  void PrintText(const json& out) {
+    std::cout << path_ << ": .ltm format " << out["format_version"].get<std::string>() << ", "
+              << HumanBytes(out["file_bytes"]) << ", "
+              << (out["complete"].get<bool>() ? "complete" : "INCOMPLETE")
+              << (out["sealed"].get<bool>() ? " (sealed)" : " (not sealed)") << "\n";
+    for (const json& a : out["arrays"]) {
+      const json& c = a["chunks"];
+      std::cout << "  " << a["name"].get<std::string>() << ": " << a["shape"][0] << " x " << a["shape"][1] << " "
+                << a["dtype"].get<std::string>() << ", layout " << a["layout"].get<std::string>() << " (block "
+                << a["block"] << "), chunks " << c["committed"] << "/" << c["expected"] << " (raw " << c["raw"]
+                << ", zero " << c["zero"] << ", zstd " << c["zstd"] << "), stored "
+                << HumanBytes(c["stored_bytes"]) << "\n";
+      if (a.contains("content_hash")) {
+        std::cout << "    content_hash: "
+                  << (a["content_hash"].is_null() ? "(incomplete)" : a["content_hash"].get<std::string>()) << "\n";
+        const json& s = a["stats"];
+        std::cout << "    stats: min " << s["min"].dump() << ", max " << s["max"].dump() << ", mean "
+                  << s["mean"].dump() << ", nonzero " << s["nonzero_fraction"].dump() << ", NaN "
+                  << s["nan_count"] << ", Inf " << s["inf_count"] << "\n";
+      }
+    }
+    if (!out["basis"].is_null()) std::cout << "  basis: " << out["basis"].dump() << "\n";
+    if (!out["provenance"].is_null()) std::cout << "  provenance: " << out["provenance"].dump() << "\n";
+    if (out["uncommitted_tail_bytes"].get<uint64_t>() > 0) {
+      std::cout << "  uncommitted tail: " << out["uncommitted_tail_bytes"]
+                << " bytes (a chunk in flight when the writer stopped; a rerun discards it)\n";
+    }
+    for (const json& p : out["problems"]) std::cout << "  problem: " << p.get<std::string>() << "\n";
+    if (out.contains("chunk_list")) {
+      std::cout << "  chunks (array index offset encoding stored decoded checksum):\n";
+      for (const json& c : out["chunk_list"]) {
+        std::cout << "    " << c["array"].get<std::string>() << " " << c["index"] << " " << c["offset"] << " "
+                  << c["encoding"].get<std::string>() << " " << c["stored_bytes"] << " " << c["decoded_bytes"] << " "
+                  << c["checksum"].get<std::string>() << "\n";
+      }
+    }
+  }
+
+  std::string path_;
+  bool json_ = false, chunks_ = false, no_content_ = false;
+  CommonFlags flags_;
+};
+
+}  // namespace
+
+std::unique_ptr<Command> RegisterInspect(CLI::App* parent) { return std::make_unique<InspectCommand>(parent); }
+
+}  // namespace ltb::cli

@@ -1,0 +1,21 @@
+// The subcommands of `ltbake`. Each registers its flags on a CLI11 subcommand and runs
+// after parsing, returning the process exit code.
+#pragma once
+
+#include <memory>
+
+#include <CLI/CLI.hpp>
+
+namespace ltb::cli {
+
+class Command {
+ public:
+  virtual ~Command() = default;
+  virtual int Run() = 0;
+};
+
+std::unique_ptr<Command> RegisterInspect(CLI::App* parent);
+std::unique_ptr<Command> RegisterVerify(CLI::App* parent);
+std::unique_ptr<Command> RegisterConvert(CLI::App* parent);
+
+}  // namespace ltb::cli

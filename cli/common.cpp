@@ -1,0 +1,111 @@
+#include "cli/common.h"
+
+#include <unistd.h>
+
+#include <atomic>
+#include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <iostream>
+
+namespace ltb::cli {
+
+namespace {
+std::atomic<int> g_signal{0};  // signal handlers can only reach a global
+
+void OnSignal(int sig) { g_signal.store(sig); }
+}  // namespace
+
+void AddCommonFlags(CLI::App* app, CommonFlags* f) {
+  app->add_option("--jobs,-j", f->jobs, "worker threads")->default_val(2)->check(CLI::Range(1, 1024));
+  app->add_option("--mem-limit", f->mem_limit, "memory budget for buffers, e.g. 512MiB, 4GiB")->default_val("1GiB");
+  app->add_option("--progress", f->progress, "progress bar on stderr")
+      ->default_val("auto")
+      ->check(CLI::IsMember({"auto", "always", "never"}));
+  app->add_flag("-q,--quiet", f->quiet, "print only errors");
+  app->add_flag("-v,--verbose", f->verbose, "print more detail");
+}
+
+Result<uint64_t> ParseSize(const std::string& text) {
+  const char* begin = text.c_str();
+  char* end = nullptr;
+  double v = std::strtod(begin, &end);
+  if (end == begin || !std::isdigit(static_cast<unsigned char>(text[0]))) {
+    return InvalidArgument("size \"" + text + "\" does not start with a number (e.g. 512MiB, 4GiB)");
+  }
+  std::string unit(end);
+  double mult = 0;
+  if (unit.empty() || unit == "B") mult = 1;
+  else if (unit == "K" || unit == "KiB" || unit == "k") mult = 1024.0;
+  else if (unit == "M" || unit == "MiB") mult = 1024.0 * 1024;
+  else if (unit == "G" || unit == "GiB") mult = 1024.0 * 1024 * 1024;
+  else if (unit == "T" || unit == "TiB") mult = 1024.0 * 1024 * 1024 * 1024;
+  else if (unit == "KB") mult = 1e3;
+  else if (unit == "MB") mult = 1e6;
+  else if (unit == "GB") mult = 1e9;
+  else return InvalidArgument("size \"" + text + "\" has unknown unit \"" + unit + "\" (use B, KiB, MiB, GiB, TiB)");
+  double bytes = v * mult;
+  if (bytes < 1 || bytes > 9.0e18) return InvalidArgument("size \"" + text + "\" is out of range");
+  return static_cast<uint64_t>(bytes);
+}
+
+void InstallSignalHandlers() {
+  struct sigaction sa {};
+  sa.sa_handler = OnSignal;
+  sigemptyset(&sa.sa_mask);
+  sigaction(SIGINT, &sa, nullptr);
+  sigaction(SIGTERM, &sa, nullptr);
+}
+
+int ReceivedSignal() { return g_signal.load(); }
+
+int ReportFailure(const Status& status) {
+  std::cerr << "ltbake: error: " << status.message() << "\n";
+  int sig = ReceivedSignal();
+  if (status.code() == StatusCode::kCancelled || sig != 0) {
+    if (sig == SIGTERM) return 143;
+    return 130;
+  }
+  return kExitFailed;
+}
+
+ProgressBar::ProgressBar(const CommonFlags& flags, std::string label) : label_(std::move(label)) {
+  enabled_ = !flags.quiet && (flags.progress == "always" || (flags.progress == "auto" && ::isatty(2)));
+  start_ = last_ = std::chrono::steady_clock::now();
+}
+
+ProgressBar::~ProgressBar() { Done(); }
+
+Progress ProgressBar::hook() {
+  Progress p;
+  p.update = [this](uint64_t done, uint64_t total, const char* unit) { Update(done, total, unit); };
+  p.cancelled = [] { return ReceivedSignal() != 0; };
+  return p;
+}
+
+void ProgressBar::Update(uint64_t done, uint64_t total, const char* unit) {
+  if (!enabled_) return;
+  std::lock_guard<std::mutex> lock(mu_);
+  auto now = std::chrono::steady_clock::now();
+  if (done < total && now - last_ < std::chrono::milliseconds(160)) return;
+  last_ = now;
+  double secs = std::chrono::duration<double>(now - start_).count();
+  double rate = secs > 0 ? static_cast<double>(done) / secs : 0;
+  double frac = total ? static_cast<double>(done) / static_cast<double>(total) : 1;
+  int width = 24, filled = static_cast<int>(frac * width);
+  std::string bar(filled, '#');
+  bar.resize(width, ' ');
+  char eta[32] = "";
+  if (rate > 0 && done < total) std::snprintf(eta, sizeof eta, " ETA %.0fs", static_cast<double>(total - done) / rate);
+  std::fprintf(stderr, "\r%s [%s] %3.0f%% %llu/%llu %s, %.1f %s/s%s   ", label_.c_str(), bar.c_str(), frac * 100,
+               static_cast<unsigned long long>(done), static_cast<unsigned long long>(total), unit, rate, unit, eta);
+  drawn_ = true;
+}
+
+void ProgressBar::Done() {
+  std::lock_guard<std::mutex> lock(mu_);
+  if (drawn_) std::fprintf(stderr, "\n");
+  drawn_ = false;
+}
+
+}  // namespace ltb::cli

@@ -1,0 +1,62 @@
+// Shared pieces of the command-line mains: common flags, size parsing, progress bar,
+// signal handling and the Status -> exit code mapping (DESIGN.md "CLI contract").
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <mutex>
+#include <string>
+
+#include <CLI/CLI.hpp>
+
+#include "format/progress.h"
+#include "format/status.h"
+
+namespace ltb::cli {
+
+inline constexpr int kExitOk = 0;
+inline constexpr int kExitFailed = 1;
+inline constexpr int kExitUsage = 2;
+
+struct CommonFlags {
+  int jobs = 2;
+  std::string mem_limit = "1GiB";
+  std::string progress = "auto";  // auto | always | never
+  bool quiet = false;
+  int verbose = 0;
+};
+
+// Adds --jobs, --mem-limit, --progress, -q, -v to a subcommand.
+void AddCommonFlags(CLI::App* app, CommonFlags* flags);
+
+// "1GiB", "512MiB", "64M", "4096": bytes. Errors name the text.
+Result<uint64_t> ParseSize(const std::string& text);
+
+// Installs SIGINT/SIGTERM handlers that ask running work to stop and commit.
+void InstallSignalHandlers();
+int ReceivedSignal();
+
+// Prints the error to stderr and returns the exit code: 130/143 after SIGINT/SIGTERM,
+// 1 otherwise.
+int ReportFailure(const Status& status);
+
+// A progress bar on stderr: only on a TTY unless --progress always; at most ~6 updates/s;
+// shows rate and ETA.
+class ProgressBar {
+ public:
+  ProgressBar(const CommonFlags& flags, std::string label);
+  ~ProgressBar();
+  // The callback struct handed to libraries (also carries cancellation).
+  Progress hook();
+  void Done();
+
+ private:
+  void Update(uint64_t done, uint64_t total, const char* unit);
+  bool enabled_;
+  std::string label_;
+  std::mutex mu_;
+  std::chrono::steady_clock::time_point start_, last_;
+  bool drawn_ = false;
+};
+
+}  // namespace ltb::cli

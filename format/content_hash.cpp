@@ -1,0 +1,93 @@
+#include "format/content_hash.h"
+
+#include <xxhash.h>
+
+#include <algorithm>
+#include <array>
+#include <cstring>
+#include <vector>
+
+namespace ltb::format {
+namespace {
+
+constexpr uint64_t kK1 = 0x9E3779B97F4A7C15ull;
+constexpr uint64_t kK2 = 0xC2B2AE3D27D4EB4Full;
+constexpr uint64_t kK3 = 0x165667B19E3779F9ull;
+constexpr uint64_t kSeed = 0x27D4EB2F165667C5ull;
+
+inline uint64_t Fmix64(uint64_t k) {
+  k ^= k >> 33;
+  k *= 0xFF51AFD7ED558CCDull;
+  k ^= k >> 33;
+  k *= 0xC4CEB9FE1A85EC53ull;
+  k ^= k >> 33;
+  return k;
+}
+
+inline uint64_t RowKey(uint64_t i) { return Fmix64((i * kK1) ^ kSeed); }
+
+template <typename U>
+uint64_t HashRowMajor(const U* data, uint64_t row0, uint64_t rows, uint64_t col0, uint64_t cols) {
+  uint64_t sum = 0;
+  for (uint64_t r = 0; r < rows; ++r) {
+    const U* row = data + r * cols;
+    uint64_t pos = RowKey(row0 + r) + col0 * kK2;
+    for (uint64_t c = 0; c < cols; ++c, pos += kK2) {
+      uint64_t u = row[c];
+      uint64_t h = Fmix64(pos ^ (u * kK3));
+      sum += u != 0 ? h : 0;
+    }
+  }
+  return sum;
+}
+
+template <typename U>
+uint64_t HashColMajor(const U* data, uint64_t row0, uint64_t rows, uint64_t col0, uint64_t cols) {
+  constexpr uint64_t kTile = 4096;
+  std::array<uint64_t, kTile> keys;
+  uint64_t sum = 0;
+  for (uint64_t t0 = 0; t0 < rows; t0 += kTile) {
+    uint64_t tn = std::min(kTile, rows - t0);
+    for (uint64_t r = 0; r < tn; ++r) keys[r] = RowKey(row0 + t0 + r);
+    for (uint64_t c = 0; c < cols; ++c) {
+      const U* col = data + c * rows + t0;
+      uint64_t cpart = (col0 + c) * kK2;
+      for (uint64_t r = 0; r < tn; ++r) {
+        uint64_t u = col[r];
+        uint64_t h = Fmix64((keys[r] + cpart) ^ (u * kK3));
+        sum += u != 0 ? h : 0;
+      }
+    }
+  }
+  return sum;
+}
+
+template <typename U>
+uint64_t HashTyped(const std::byte* bytes, const ArraySpec& spec, const ChunkExtent& e) {
+  const U* data = reinterpret_cast<const U*>(bytes);
+  if (spec.layout == Layout::kRows) return HashRowMajor(data, e.row0, e.rows, e.col0, e.cols);
+  return HashColMajor(data, e.row0, e.rows, e.col0, e.cols);
+}
+
+}  // namespace
+
+void ContentHasher::AddChunk(const ArraySpec& spec, const ChunkExtent& extent, ByteSpan decoded) {
+  // Chunk payloads are 64-byte aligned (mmap) or come from vectors, so typed access is aligned.
+  switch (DTypeSize(spec.dtype)) {
+    case 1: sum_ += HashTyped<uint8_t>(decoded.data(), spec, extent); break;
+    case 4: sum_ += HashTyped<uint32_t>(decoded.data(), spec, extent); break;
+    case 8: sum_ += HashTyped<uint64_t>(decoded.data(), spec, extent); break;
+  }
+}
+
+std::string ContentHasher::Finish(const ArraySpec& spec) const {
+  std::array<std::byte, 40> rec{};
+  std::memcpy(rec.data(), "LTMCH1\0\0", 8);
+  StoreU64(&rec[8], static_cast<uint64_t>(spec.dtype));
+  StoreU64(&rec[16], spec.rows);
+  StoreU64(&rec[24], spec.cols);
+  StoreU64(&rec[32], sum_);
+  return Hex64(XXH3_64bits(rec.data(), rec.size())).substr(2);
+}
+
+}  // namespace ltb::format

@@ -1,0 +1,224 @@
+#include "format/io/container_reader.h"
+
+#include "format/chunk_codec.h"
+#include "format/io/frame_scan.h"
+
+namespace ltb::io {
+
+using namespace ltb::format;
+
+namespace {
+uint64_t Key(uint32_t array, uint64_t chunk) { return (uint64_t{array} << 40) | chunk; }
+}  // namespace
+
+Result<ContainerPrelude> ReadPrelude(const File& file, uint64_t file_size) {
+  ContainerPrelude p;
+  std::array<std::byte, kHeaderSize> hb{};
+  if (file_size >= kHeaderSize) LTB_RETURN_IF_ERROR(file.ReadAt(0, hb));
+  LTB_ASSIGN_OR_RETURN(p.header, DecodeFileHeader(ByteSpan(hb.data(), file_size >= kHeaderSize ? kHeaderSize : 0),
+                                                  file_size));
+  // DecodeFileHeader has checked metadata_length against the cap and the file size.
+  p.metadata_bytes.resize(p.header.metadata_length);
+  LTB_RETURN_IF_ERROR(
+      file.ReadAt(kHeaderSize, MutableByteSpan(reinterpret_cast<std::byte*>(p.metadata_bytes.data()),
+                                               p.metadata_bytes.size())));
+  ByteSpan mb(reinterpret_cast<const std::byte*>(p.metadata_bytes.data()), p.metadata_bytes.size());
+  uint64_t actual = Checksum(mb);
+  if (actual != p.header.metadata_checksum) {
+    return DataLoss("metadata checksum mismatch: expected=" + Hex64(p.header.metadata_checksum) +
+                    ", actual=" + Hex64(actual));
+  }
+  auto m = ParseMetadata(mb);
+  if (!m.ok()) return m.status().WithContext("metadata");
+  p.metadata = std::move(m).value();
+  return p;
+}
+
+Result<ContainerReader> ContainerReader::Open(const std::string& path) {
+  ContainerReader r;
+  LTB_ASSIGN_OR_RETURN(r.file_, File::Open(path, File::Mode::kRead));
+  LTB_ASSIGN_OR_RETURN(r.file_size_, r.file_.Size());
+  auto prelude = ReadPrelude(r.file_, r.file_size_);
+  if (!prelude.ok()) return prelude.status().WithContext(path);
+  r.header_ = prelude->header;
+  r.metadata_ = std::move(prelude->metadata);
+  r.committed_.assign(r.metadata_.arrays.size(), 0);
+
+  // A valid trailer means the file is sealed: read its index instead of scanning.
+  bool loaded = false;
+  if (r.file_size_ >= r.header_.FirstFrameOffset() + kTrailerSize) {
+    std::array<std::byte, kTrailerSize> tb;
+    LTB_RETURN_IF_ERROR(r.file_.ReadAt(r.file_size_ - kTrailerSize, tb));
+    auto trailer = DecodeTrailer(tb, r.file_size_);
+    if (trailer.ok() && trailer->index_offset >= r.header_.FirstFrameOffset()) {
+      Status s = r.LoadFromIndex(trailer->index_offset);
+      if (s.ok()) {
+        r.sealed_ = true;
+        loaded = true;
+      } else {
+        // Fall back to scanning; the damaged index is a problem to report.
+        r.problems_.push_back("index: " + s.message() + " (read the file by scanning its frames instead)");
+        r.chunk_frames_.clear();
+        r.by_key_.clear();
+        r.committed_.assign(r.metadata_.arrays.size(), 0);
+      }
+    }
+  }
+  if (!loaded) {
+    Status s = r.LoadByScan();
+    if (!s.ok()) return s.WithContext(path);
+  }
+  return r;
+}
+
+Status ContainerReader::LoadFromIndex(uint64_t index_offset) {
+  std::array<std::byte, kFrameHeaderSize> hb;
+  LTB_RETURN_IF_ERROR(file_.ReadAt(index_offset, hb));
+  LTB_ASSIGN_OR_RETURN(FrameHeader h, DecodeFrameHeader(hb, index_offset, file_size_));
+  if (h.type != static_cast<uint16_t>(FrameType::kIndex)) return DataLoss("trailer does not point at an index frame");
+  std::vector<std::byte> payload(h.payload_length);  // bounded by the file size (checked above)
+  LTB_RETURN_IF_ERROR(file_.ReadAt(index_offset + kFrameHeaderSize, payload));
+  uint64_t actual = Checksum(payload);
+  if (actual != h.payload_checksum) {
+    return DataLoss("index payload checksum mismatch: expected=" + Hex64(h.payload_checksum) +
+                    ", actual=" + Hex64(actual));
+  }
+  LTB_ASSIGN_OR_RETURN(std::vector<IndexEntry> entries,
+                       DecodeIndex(payload, header_.FirstFrameOffset(), index_offset));
+  for (const IndexEntry& e : entries) AddFrame(e);
+  scan_end_ = index_offset;
+  return Status::Ok();
+}
+
+Status ContainerReader::LoadByScan() {
+  LTB_ASSIGN_OR_RETURN(ScanResult scan, ScanFrames(file_, header_.FirstFrameOffset(), file_size_));
+  for (const ScanGap& g : scan.gaps) {
+    problems_.push_back("damaged region at offset " + std::to_string(g.offset) + " (" + g.reason +
+                        "); next valid frame at offset " + std::to_string(g.resume));
+  }
+  for (const IndexEntry& e : scan.frames) {
+    if (e.header.type == static_cast<uint16_t>(FrameType::kChunk)) {
+      AddFrame(e);
+    } else if (e.header.type == static_cast<uint16_t>(FrameType::kIndex)) {
+      // An index without a valid trailer: sealing was interrupted, or the trailer is damaged.
+    } else if ((e.header.flags & kFrameFlagOptional) == 0) {
+      return Unimplemented("frame at offset " + std::to_string(e.frame_offset) + " has type " +
+                           std::to_string(e.header.type) +
+                           ", which this build does not know and which is not optional — upgrade ltbake");
+    }
+  }
+  scan_end_ = scan.chain_end;
+  tail_bytes_ = file_size_ - std::min(file_size_, scan.chain_end);
+  return Status::Ok();
+}
+
+void ContainerReader::AddFrame(const IndexEntry& e) {
+  const FrameHeader& h = e.header;
+  std::string where = "frame at offset " + std::to_string(e.frame_offset);
+  if (h.type != static_cast<uint16_t>(FrameType::kChunk)) return;
+  if (h.array >= metadata_.arrays.size()) {
+    problems_.push_back(where + ": array " + std::to_string(h.array) + " does not exist (the metadata lists " +
+                        std::to_string(metadata_.arrays.size()) + ")");
+    return;
+  }
+  const ArraySpec& a = metadata_.arrays[h.array];
+  if (h.chunk_index >= a.ChunkCount()) {
+    problems_.push_back(where + ": chunk " + std::to_string(h.chunk_index) + " of array \"" + a.name +
+                        "\" is out of range (it has " + std::to_string(a.ChunkCount()) + " chunks)");
+    return;
+  }
+  Status len = CheckChunkLengths(h, a.ChunkBytes(h.chunk_index));
+  if (!len.ok()) {
+    problems_.push_back(where + ": " + ChunkName(h.array, h.chunk_index) + ": " + len.message());
+    return;
+  }
+  uint64_t key = Key(h.array, h.chunk_index);
+  if (by_key_.count(key) != 0) {
+    problems_.push_back(where + ": " + ChunkName(h.array, h.chunk_index) + " committed twice (first copy kept)");
+    return;
+  }
+  by_key_[key] = chunk_frames_.size();
+  chunk_frames_.push_back(e);
+  committed_[h.array] += 1;
+}
+
+std::string ContainerReader::ChunkName(uint32_t array, uint64_t chunk) const {
+  const ArraySpec& a = metadata_.arrays[array];
+  ChunkExtent e = a.Extent(chunk);
+  std::string range = a.layout == Layout::kRows
+                          ? "rows " + std::to_string(e.row0) + "-" + std::to_string(e.row0 + e.rows - 1)
+                          : "cols " + std::to_string(e.col0) + "-" + std::to_string(e.col0 + e.cols - 1);
+  return "array \"" + a.name + "\" chunk " + std::to_string(chunk) + " (" + range + ")";
+}
+
+bool ContainerReader::complete() const {
+  for (size_t i = 0; i < metadata_.arrays.size(); ++i)
+    if (committed_[i] != metadata_.arrays[i].ChunkCount()) return false;
+  return true;
+}
+
+const IndexEntry* ContainerReader::Find(uint32_t array, uint64_t chunk) const {
+  auto it = by_key_.find(Key(array, chunk));
+  return it == by_key_.end() ? nullptr : &chunk_frames_[it->second];
+}
+
+Result<Chunk> ContainerReader::ReadChunk(uint32_t array, uint64_t chunk, const ReadOptions& options) const {
+  if (array >= metadata_.arrays.size()) return InvalidArgument("no array " + std::to_string(array));
+  const ArraySpec& a = metadata_.arrays[array];
+  if (chunk >= a.ChunkCount()) {
+    return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name +
+                           "\" out of range (" + std::to_string(a.ChunkCount()) + " chunks)");
+  }
+  const IndexEntry* e = Find(array, chunk);
+  std::string where = path() + ": " + ChunkName(array, chunk);
+  if (e == nullptr) {
+    return NotFound(where + " is missing (never committed; the file is incomplete — rerun the stage that writes it to resume)");
+  }
+  const FrameHeader& h = e->header;
+  Chunk c;
+  c.encoding_ = static_cast<Encoding>(h.encoding);
+  c.extent_ = a.Extent(chunk);
+  uint64_t payload_offset = e->frame_offset + kFrameHeaderSize;
+  switch (c.encoding_) {
+    case Encoding::kZero:
+      c.owned_.assign(h.decoded_length, std::byte{0});
+      return c;
+    case Encoding::kRaw: {
+      auto region = MappedRegion::Map(file_.fd(), payload_offset, h.payload_length, options.sequential);
+      if (!region.ok()) return region.status().WithContext(where);
+      c.region_ = std::move(region).value();
+      if (options.verify_checksum) {
+        uint64_t actual = Checksum(c.region_.bytes());
+        if (actual != h.payload_checksum) {
+          return DataLoss(where + " at offset " + std::to_string(payload_offset) + ": checksum mismatch: expected=" +
+                          Hex64(h.payload_checksum) + ", actual=" + Hex64(actual));
+        }
+      }
+      return c;
+    }
+    case Encoding::kZstd: {
+      auto region = MappedRegion::Map(file_.fd(), payload_offset, h.payload_length, options.sequential);
+      if (!region.ok()) return region.status().WithContext(where);
+      uint64_t actual = Checksum(region->bytes());
+      if (actual != h.payload_checksum) {
+        return DataLoss(where + " at offset " + std::to_string(payload_offset) + ": checksum mismatch: expected=" +
+                        Hex64(h.payload_checksum) + ", actual=" + Hex64(actual));
+      }
+      c.owned_.resize(h.decoded_length);  // checked against the metadata's chunk size at open
+      Status s = DecodeZstd(region->bytes(), c.owned_);
+      if (!s.ok()) return s.WithContext(where);
+      return c;
+    }
+  }
+  return Internal(where + ": unhandled encoding");
+}
+
+Status ContainerReader::Refresh() {
+  if (sealed_) return Status::Ok();
+  auto reopened = Open(path());
+  if (!reopened.ok()) return reopened.status();
+  *this = std::move(reopened).value();
+  return Status::Ok();
+}
+
+}  // namespace ltb::io

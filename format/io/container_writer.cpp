@@ -1,0 +1,275 @@
+#include "format/io/container_writer.h"
+
+#include <unistd.h>
+
+#include <cstdio>
+
+#include "format/io/container_reader.h"
+#include "format/io/frame_scan.h"
+#include "format/version.h"
+
+namespace ltb::io {
+
+using namespace ltb::format;
+
+ContainerWriter::ContainerWriter(ContainerWriter&& o) noexcept { *this = std::move(o); }
+
+ContainerWriter& ContainerWriter::operator=(ContainerWriter&& o) noexcept {
+  if (this != &o) {
+    file_ = std::move(o.file_);
+    metadata_ = std::move(o.metadata_);
+    header_ = o.header_;
+    resume_ = o.resume_;
+    options_ = o.options_;
+    end_ = o.end_;
+    sealed_ = o.sealed_;
+    frames_ = std::move(o.frames_);
+    committed_ = std::move(o.committed_);
+  }
+  return *this;
+}
+
+ContainerWriter::~ContainerWriter() = default;
+
+namespace {
+
+// Writes header + metadata to a temporary file and renames it into place, so the path
+// never holds a half-written header.
+Status CreateFile(const std::string& path, const std::string& metadata_bytes) {
+  ByteSpan mb(reinterpret_cast<const std::byte*>(metadata_bytes.data()), metadata_bytes.size());
+  FileHeader h;
+  h.major = kFormatMajor;
+  h.minor = kFormatMinor;
+  h.metadata_length = mb.size();
+  h.metadata_checksum = Checksum(mb);
+  auto hb = EncodeFileHeader(h);
+  std::string tmp = path + ".creating-" + std::to_string(::getpid());
+  std::remove(tmp.c_str());
+  {
+    LTB_ASSIGN_OR_RETURN(File f, File::Open(tmp, File::Mode::kCreateExclusive));
+    LTB_RETURN_IF_ERROR(f.WriteAt(0, hb));
+    LTB_RETURN_IF_ERROR(f.WriteAt(kHeaderSize, mb));
+    LTB_RETURN_IF_ERROR(f.Truncate(h.FirstFrameOffset()));  // zero padding up to the first frame
+    LTB_RETURN_IF_ERROR(f.DataSync());
+    LTB_RETURN_IF_ERROR(f.Close());
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    Status s = IoError(path + ": rename from " + tmp, errno);
+    std::remove(tmp.c_str());
+    return s;
+  }
+  return SyncParentDirectory(path);
+}
+
+// Names the first top-level metadata key whose value differs.
+std::string FirstDifference(const nlohmann::json& file, const nlohmann::json& wanted) {
+  for (auto it = wanted.begin(); it != wanted.end(); ++it) {
+    if (!file.contains(it.key())) return "key \"" + it.key() + "\" is not in the file";
+    if (file[it.key()] != it.value()) {
+      std::string a = file[it.key()].dump(), b = it.value().dump();
+      if (a.size() > 200) a = a.substr(0, 200) + "...";
+      if (b.size() > 200) b = b.substr(0, 200) + "...";
+      return "\"" + it.key() + "\": file has " + a + ", this run wants " + b;
+    }
+  }
+  for (auto it = file.begin(); it != file.end(); ++it) {
+    if (!wanted.contains(it.key())) return "the file has key \"" + it.key() + "\", this run does not";
+  }
+  return "metadata differs";
+}
+
+}  // namespace
+
+Result<ContainerWriter> ContainerWriter::Open(const std::string& path, const nlohmann::json& metadata,
+                                              const WriterOptions& options) {
+  auto parsed = MetadataFromJson(metadata);
+  if (!parsed.ok()) return parsed.status().WithContext(path);
+  std::string bytes = SerializeMetadata(metadata);
+  if (bytes.size() > kMaxMetadataBytes) {
+    return InvalidArgument(path + ": metadata is " + std::to_string(bytes.size()) + " bytes, over the cap of " +
+                           std::to_string(kMaxMetadataBytes));
+  }
+
+  ContainerWriter w;
+  w.options_ = options;
+  w.metadata_ = std::move(parsed).value();
+
+  if (PathExists(path)) {
+    LTB_ASSIGN_OR_RETURN(File f, File::Open(path, File::Mode::kReadWrite));
+    LTB_ASSIGN_OR_RETURN(uint64_t size, f.Size());
+    auto prelude = ReadPrelude(f, size);
+    if (!prelude.ok()) {
+      if (prelude.status().code() == StatusCode::kUnimplemented) return prelude.status().WithContext(path);
+      if (!options.overwrite_mismatch) {
+        return FailedPrecondition(path + ": exists and is not a readable .ltm container (" +
+                                  prelude.status().message() + "); remove it or choose another output path");
+      }
+    } else if (prelude->metadata_bytes != bytes) {
+      if (!options.overwrite_mismatch) {
+        return FailedPrecondition(path + ": exists and was written with other parameters (" +
+                                  FirstDifference(prelude->metadata.json, metadata) +
+                                  "); remove it, or rerun with --overwrite to replace it");
+      }
+    } else {
+      w.file_ = std::move(f);
+      w.header_ = prelude->header;
+      Status s = w.Resume(size);
+      if (!s.ok()) return s.WithContext(path);
+      return w;
+    }
+  }
+  LTB_RETURN_IF_ERROR(CreateFile(path, bytes));
+  LTB_ASSIGN_OR_RETURN(w.file_, File::Open(path, File::Mode::kReadWrite));
+  LTB_ASSIGN_OR_RETURN(uint64_t size, w.file_.Size());
+  auto prelude = ReadPrelude(w.file_, size);
+  if (!prelude.ok()) return prelude.status().WithContext(path + " (just created)");
+  w.header_ = prelude->header;
+  w.end_ = w.header_.FirstFrameOffset();
+  return w;
+}
+
+Status ContainerWriter::Resume(uint64_t file_size) {
+  resume_.resumed = true;
+  LTB_ASSIGN_OR_RETURN(ScanResult scan, ScanFrames(file_, header_.FirstFrameOffset(), file_size));
+  if (!scan.gaps.empty()) {
+    return DataLoss("damaged at offset " + std::to_string(scan.gaps.front().offset) + " (" +
+                    scan.gaps.front().reason + ") with committed chunks after it; refusing to append. Run `ltbake verify " +
+                    file_.path() + "` and remove the file to start over");
+  }
+  uint64_t end = header_.FirstFrameOffset();
+  bool saw_index = false;
+  for (const IndexEntry& e : scan.frames) {
+    if (e.header.type == static_cast<uint16_t>(FrameType::kIndex)) {
+      saw_index = true;
+      break;  // frames after an index are not expected; the seal is redone below
+    }
+    end = e.frame_offset + e.header.FrameSize();
+    if (e.header.type != static_cast<uint16_t>(FrameType::kChunk)) continue;
+    const FrameHeader& h = e.header;
+    if (h.array >= metadata_.arrays.size() || h.chunk_index >= metadata_.arrays[h.array].ChunkCount()) {
+      return DataLoss("frame at offset " + std::to_string(e.frame_offset) + " names a chunk outside the metadata");
+    }
+    LTB_RETURN_IF_ERROR(CheckChunkLengths(h, metadata_.arrays[h.array].ChunkBytes(h.chunk_index))
+                            .WithContext("frame at offset " + std::to_string(e.frame_offset)));
+    if (committed_.insert(Key(h.array, h.chunk_index)).second) frames_.push_back(e);
+  }
+  resume_.committed_chunks = frames_.size();
+  // Sealed and intact: nothing to do.
+  if (saw_index && file_size >= kTrailerSize) {
+    std::array<std::byte, kTrailerSize> tb;
+    LTB_RETURN_IF_ERROR(file_.ReadAt(file_size - kTrailerSize, tb));
+    if (DecodeTrailer(tb, file_size).ok()) {
+      sealed_ = true;
+      resume_.already_complete = true;
+      end_ = file_size;
+      return Status::Ok();
+    }
+  }
+  // Cut off the uncommitted tail (a chunk in flight when the writer stopped, or an
+  // interrupted seal); the next frame goes where the last committed one ended.
+  end_ = end;
+  if (file_size > end_) {
+    resume_.discarded_tail_bytes = file_size - end_;
+    LTB_RETURN_IF_ERROR(file_.Truncate(end_));
+  }
+  return Status::Ok();
+}
+
+bool ContainerWriter::Has(uint32_t array, uint64_t chunk) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return committed_.count(Key(array, chunk)) != 0;
+}
+
+std::vector<uint64_t> ContainerWriter::Missing(uint32_t array) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  std::vector<uint64_t> out;
+  uint64_t n = metadata_.arrays.at(array).ChunkCount();
+  for (uint64_t i = 0; i < n; ++i)
+    if (committed_.count(Key(array, i)) == 0) out.push_back(i);
+  return out;
+}
+
+Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChunk& encoded) {
+  if (array >= metadata_.arrays.size()) return InvalidArgument(path() + ": no array " + std::to_string(array));
+  const ArraySpec& a = metadata_.arrays[array];
+  if (chunk >= a.ChunkCount()) {
+    return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name +
+                           "\" out of range (" + std::to_string(a.ChunkCount()) + " chunks)");
+  }
+  if (encoded.decoded_length != a.ChunkBytes(chunk)) {
+    return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name + "\" has " +
+                           std::to_string(encoded.decoded_length) + " bytes, expected " +
+                           std::to_string(a.ChunkBytes(chunk)));
+  }
+  FrameHeader h;
+  h.type = static_cast<uint16_t>(FrameType::kChunk);
+  h.payload_length = encoded.payload.size();
+  h.array = array;
+  h.encoding = static_cast<uint16_t>(encoded.encoding);
+  h.chunk_index = chunk;
+  h.decoded_length = encoded.decoded_length;
+  h.payload_checksum = encoded.checksum;
+  auto hb = EncodeFrameHeader(h);
+  static const std::array<std::byte, kAlignment> kZeros{};
+
+  std::lock_guard<std::mutex> lock(mu_);
+  if (sealed_) return FailedPrecondition(path() + ": is sealed; no chunk can be added");
+  if (committed_.count(Key(array, chunk)) != 0) {
+    return FailedPrecondition(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name +
+                              "\" is already committed");
+  }
+  uint64_t offset = end_;
+  // Payload and its zero padding first, the header last: the header write is the commit.
+  LTB_RETURN_IF_ERROR(file_.WriteAt(offset + kFrameHeaderSize, encoded.payload));
+  uint64_t pad = AlignUp(h.payload_length, kAlignment) - h.payload_length;
+  if (pad > 0) LTB_RETURN_IF_ERROR(file_.WriteAt(offset + kFrameHeaderSize + h.payload_length, ByteSpan(kZeros.data(), pad)));
+  if (options_.sync_each_chunk) LTB_RETURN_IF_ERROR(file_.DataSync());
+  LTB_RETURN_IF_ERROR(file_.WriteAt(offset, hb));
+  end_ = offset + h.FrameSize();
+  frames_.push_back({offset, h});
+  committed_.insert(Key(array, chunk));
+  return Status::Ok();
+}
+
+Status ContainerWriter::Put(uint32_t array, uint64_t chunk, ByteSpan data, const EncodeOptions& options) {
+  EncodedChunk c = EncodeChunk(data, options);
+  return Append(array, chunk, c);
+}
+
+Status ContainerWriter::Finish() {
+  std::lock_guard<std::mutex> lock(mu_);
+  if (sealed_) return Status::Ok();
+  uint64_t missing = 0;
+  std::string first;
+  for (uint32_t a = 0; a < metadata_.arrays.size(); ++a) {
+    for (uint64_t i = 0; i < metadata_.arrays[a].ChunkCount(); ++i) {
+      if (committed_.count(Key(a, i)) != 0) continue;
+      if (missing++ == 0) first = "array \"" + metadata_.arrays[a].name + "\" chunk " + std::to_string(i);
+    }
+  }
+  if (missing > 0) {
+    return FailedPrecondition(path() + ": cannot seal: " + std::to_string(missing) + " chunks missing (first: " +
+                              first + ")");
+  }
+  std::vector<std::byte> index = EncodeIndex(frames_);
+  FrameHeader h;
+  h.type = static_cast<uint16_t>(FrameType::kIndex);
+  h.payload_length = index.size();
+  h.decoded_length = index.size();
+  h.payload_checksum = Checksum(index);
+  uint64_t index_offset = end_;
+  LTB_RETURN_IF_ERROR(file_.WriteAt(index_offset + kFrameHeaderSize, index));
+  uint64_t trailer_offset = index_offset + h.FrameSize();
+  Trailer t;
+  t.index_offset = index_offset;
+  t.file_length = trailer_offset + kTrailerSize;
+  LTB_RETURN_IF_ERROR(file_.Truncate(trailer_offset));  // zero padding after the index payload
+  LTB_RETURN_IF_ERROR(file_.WriteAt(index_offset, EncodeFrameHeader(h)));
+  LTB_RETURN_IF_ERROR(file_.WriteAt(trailer_offset, EncodeTrailer(t)));
+  LTB_RETURN_IF_ERROR(file_.DataSync());
+  end_ = t.file_length;
+  sealed_ = true;
+  return Status::Ok();
+}
+
+}  // namespace ltb::io

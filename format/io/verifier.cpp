@@ -1,0 +1,234 @@
+#include "format/io/verifier.h"
+
+#include <zstd.h>
+
+#include <set>
+
+#include "format/array_spec.h"
+#include "format/chunk_codec.h"
+#include "format/io/container_reader.h"
+#include "format/io/frame_scan.h"
+#include "format/io/mapped_region.h"
+
+namespace ltb::io {
+
+using namespace ltb::format;
+
+namespace {
+
+// Decodes a zstd payload through a fixed-size window, returning the decoded byte count.
+Result<uint64_t> StreamZstdSize(ByteSpan payload, uint64_t cap) {
+  struct Ctx {
+    ZSTD_DStream* s = ZSTD_createDStream();
+    ~Ctx() { ZSTD_freeDStream(s); }
+  } ctx;
+  if (ctx.s == nullptr) return Internal("cannot create a zstd stream");
+  std::vector<std::byte> window(ZSTD_DStreamOutSize());
+  ZSTD_inBuffer in{payload.data(), payload.size(), 0};
+  uint64_t total = 0;
+  size_t ret = 1;
+  while (in.pos < in.size || ret != 0) {
+    ZSTD_outBuffer out{window.data(), window.size(), 0};
+    size_t before = in.pos;
+    ret = ZSTD_decompressStream(ctx.s, &out, &in);
+    if (ZSTD_isError(ret)) return DataLoss(std::string("zstd: ") + ZSTD_getErrorName(ret));
+    total += out.pos;
+    if (total > cap) return DataLoss("zstd payload decodes to more than the " + std::to_string(cap) + " bytes expected");
+    if (out.pos == 0 && in.pos == before) {
+      if (ret != 0) return DataLoss("zstd payload is truncated");
+      break;
+    }
+  }
+  if (in.pos != in.size) return DataLoss("zstd payload has trailing bytes");
+  return total;
+}
+
+bool RangeIsZero(const File& f, uint64_t offset, uint64_t length, std::string* error) {
+  std::array<std::byte, 4096> buf;
+  while (length > 0) {
+    uint64_t n = std::min<uint64_t>(length, buf.size());
+    Status s = f.ReadAt(offset, MutableByteSpan(buf.data(), n));
+    if (!s.ok()) {
+      *error = s.message();
+      return false;
+    }
+    for (uint64_t i = 0; i < n; ++i)
+      if (buf[i] != std::byte{0}) {
+        *error = "nonzero padding byte at offset " + std::to_string(offset + i);
+        return false;
+      }
+    offset += n;
+    length -= n;
+  }
+  return true;
+}
+
+}  // namespace
+
+VerifyReport VerifyContainer(const std::string& path) {
+  VerifyReport r;
+  r.path = path;
+  auto file = File::Open(path, File::Mode::kRead);
+  if (!file.ok()) {
+    r.problems.push_back(file.status().message());
+    return r;
+  }
+  auto size_or = file->Size();
+  if (!size_or.ok()) {
+    r.problems.push_back(size_or.status().message());
+    return r;
+  }
+  uint64_t size = *size_or;
+  auto prelude = ReadPrelude(*file, size);
+  if (!prelude.ok()) {
+    r.problems.push_back(prelude.status().message());
+    return r;
+  }
+  r.readable = true;
+  const Metadata& meta = prelude->metadata;
+  for (const ArraySpec& a : meta.arrays) r.chunks_expected += a.ChunkCount();
+  uint64_t first = prelude->header.FirstFrameOffset();
+  std::string err;
+  if (first > size) {
+    r.problems.push_back("file ends at " + std::to_string(size) + " inside the metadata padding (truncated)");
+    return r;
+  }
+  if (!RangeIsZero(*file, kHeaderSize + prelude->header.metadata_length,
+                   first - kHeaderSize - prelude->header.metadata_length, &err)) {
+    r.problems.push_back("metadata padding: " + err);
+  }
+
+  auto scan = ScanFrames(*file, first, size);
+  if (!scan.ok()) {
+    r.problems.push_back(scan.status().message());
+    return r;
+  }
+  for (const ScanGap& g : scan->gaps) {
+    r.problems.push_back("offset " + std::to_string(g.offset) + ": " + g.reason + " (" +
+                         std::to_string(g.resume - g.offset) + " unreadable bytes; next valid frame at offset " +
+                         std::to_string(g.resume) + ")");
+  }
+
+  std::set<uint64_t> seen;
+  std::vector<IndexEntry> chunk_frames;
+  const IndexEntry* index_frame = nullptr;
+  for (const IndexEntry& e : scan->frames) {
+    const FrameHeader& h = e.header;
+    std::string where = "frame at offset " + std::to_string(e.frame_offset);
+    uint64_t payload_offset = e.frame_offset + kFrameHeaderSize;
+    uint64_t padded_end = std::min(size, e.frame_offset + h.FrameSize());
+    if (index_frame != nullptr) {
+      r.problems.push_back(where + ": frame after the index frame at offset " + std::to_string(index_frame->frame_offset));
+    }
+    if (!RangeIsZero(*file, payload_offset + h.payload_length, padded_end - payload_offset - h.payload_length, &err)) {
+      r.problems.push_back(where + ": payload padding: " + err);
+    }
+    auto region = MappedRegion::Map(file->fd(), payload_offset, h.payload_length, true);
+    if (!region.ok()) {
+      r.problems.push_back(where + ": " + region.status().message());
+      continue;
+    }
+    uint64_t actual = Checksum(region->bytes());
+    if (actual != h.payload_checksum) {
+      r.problems.push_back(where + ": payload checksum mismatch: expected=" + Hex64(h.payload_checksum) +
+                           ", actual=" + Hex64(actual));
+      continue;
+    }
+    if (h.type == static_cast<uint16_t>(FrameType::kIndex)) {
+      index_frame = &e;
+      continue;
+    }
+    if (h.type != static_cast<uint16_t>(FrameType::kChunk)) {
+      if (h.flags & kFrameFlagOptional) {
+        r.notes.push_back(where + ": skipped optional frame of unknown type " + std::to_string(h.type));
+      } else {
+        r.problems.push_back(where + ": unknown frame type " + std::to_string(h.type) +
+                             " that is not optional (written by a newer ltbake?)");
+      }
+      continue;
+    }
+    if (h.array >= meta.arrays.size()) {
+      r.problems.push_back(where + ": array " + std::to_string(h.array) + " does not exist");
+      continue;
+    }
+    const ArraySpec& a = meta.arrays[h.array];
+    where += ": array \"" + a.name + "\" chunk " + std::to_string(h.chunk_index);
+    if (h.chunk_index >= a.ChunkCount()) {
+      r.problems.push_back(where + ": out of range (" + std::to_string(a.ChunkCount()) + " chunks)");
+      continue;
+    }
+    Status len = CheckChunkLengths(h, a.ChunkBytes(h.chunk_index));
+    if (!len.ok()) {
+      r.problems.push_back(where + ": " + len.message());
+      continue;
+    }
+    if (h.encoding == static_cast<uint16_t>(Encoding::kZstd)) {
+      auto n = StreamZstdSize(region->bytes(), h.decoded_length);
+      if (!n.ok() || *n != h.decoded_length) {
+        r.problems.push_back(where + ": " + (n.ok() ? "zstd payload decodes to " + std::to_string(*n) +
+                                                          " bytes, expected " + std::to_string(h.decoded_length)
+                                                    : n.status().message()));
+        continue;
+      }
+    }
+    uint64_t key = (uint64_t{h.array} << 40) | h.chunk_index;
+    if (!seen.insert(key).second) {
+      r.problems.push_back(where + ": committed twice");
+      continue;
+    }
+    chunk_frames.push_back(e);
+    r.chunks_ok++;
+  }
+
+  // Seal: a valid trailer pointing at the index frame, whose entries match the scan.
+  bool trailer_ok = false;
+  if (size >= first + kTrailerSize) {
+    std::array<std::byte, kTrailerSize> tb;
+    if (file->ReadAt(size - kTrailerSize, tb).ok()) {
+      auto t = DecodeTrailer(tb, size);
+      if (t.ok()) {
+        trailer_ok = true;
+        if (index_frame == nullptr || index_frame->frame_offset != t->index_offset) {
+          r.problems.push_back("trailer points at offset " + std::to_string(t->index_offset) +
+                               ", where there is no valid index frame");
+        } else if (scan->chain_end != size - kTrailerSize) {
+          r.problems.push_back("bytes between the index frame and the trailer at offset " +
+                               std::to_string(scan->chain_end));
+        } else {
+          r.sealed = true;
+        }
+      }
+    }
+  }
+  if (index_frame != nullptr) {
+    if (!trailer_ok) r.problems.push_back("index frame at offset " + std::to_string(index_frame->frame_offset) +
+                                          " but no valid trailer at the end of the file (damaged or truncated)");
+    auto region = MappedRegion::Map(file->fd(), index_frame->frame_offset + kFrameHeaderSize,
+                                    index_frame->header.payload_length, false);
+    auto entries = region.ok() ? DecodeIndex(region->bytes(), first, index_frame->frame_offset)
+                               : Result<std::vector<IndexEntry>>(region.status());
+    if (!entries.ok()) {
+      r.problems.push_back("index frame at offset " + std::to_string(index_frame->frame_offset) + ": " +
+                           entries.status().message());
+    } else {
+      std::set<std::pair<uint64_t, uint64_t>> listed, scanned;
+      for (const IndexEntry& e : *entries) listed.insert({e.frame_offset, e.header.payload_checksum});
+      for (const IndexEntry& e : scan->frames)
+        if (e.header.type == static_cast<uint16_t>(FrameType::kChunk)) scanned.insert({e.frame_offset, e.header.payload_checksum});
+      if (listed != scanned) {
+        r.problems.push_back("index lists " + std::to_string(listed.size()) + " chunk frames, the scan found " +
+                             std::to_string(scanned.size()) + " (or at other offsets)");
+      }
+    }
+  } else if (!r.sealed) {
+    r.uncommitted_tail_bytes = size - std::min(size, scan->chain_end);
+  }
+  if (r.sealed && r.chunks_ok != r.chunks_expected) {
+    r.problems.push_back("sealed file has " + std::to_string(r.chunks_ok) + " intact chunks of " +
+                         std::to_string(r.chunks_expected));
+  }
+  r.complete = r.sealed && r.problems.empty() && r.chunks_ok == r.chunks_expected;
+  return r;
+}
+
+}  // namespace ltb::io

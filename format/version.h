@@ -1,0 +1,23 @@
+// Format and tool versions. The byte-level spec is docs/FORMAT.md; change both together.
+#pragma once
+
+#include <cstdint>
+
+namespace ltb {
+
+inline constexpr const char* kToolVersion = "0.1.0";
+
+namespace format {
+
+// Current format version written by this build.
+inline constexpr uint16_t kFormatMajor = 1;
+inline constexpr uint16_t kFormatMinor = 0;
+// Version history (named so code can say when a feature arrived):
+inline constexpr uint16_t kMinorInitial = 0;  // 1.0: header, JSON metadata, chunk frames, index, trailer
+
+// Required-feature bits (header): a reader must refuse a file with a bit it does not know.
+// 1.0 defines none; raw, all-zero and zstd chunk encodings are part of the base format.
+inline constexpr uint64_t kKnownRequiredFeatures = 0;
+
+}  // namespace format
+}  // namespace ltb

@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# Installs every ltbake dependency from Debian packages. Idempotent: when everything is
+# already present it only checks (no network, well under a second).
+# Run as root (or through sudo). Used by `make demo`, `make test` and .ci/run.
+set -euo pipefail
+
+# Package -> why ltbake needs it (README "Dependencies" mirrors this list).
+PACKAGES=(
+  cmake make g++ pkg-config        # build
+  libembree-dev embree-tools       # ray casting (sample stage); Cornell box model
+  libopenexr-dev libimath-dev      # EXR images and environment maps
+  libdraco-dev draco               # Draco meshes (.drc) and draco_encoder/decoder tools
+  libopenmesh-dev                  # OBJ/PLY/OFF/STL meshes
+  libglm-dev                       # vector math
+  libtbb-dev                       # threads
+  libeigen3-dev                    # CPCA linear algebra
+  libzstd-dev                      # zstd chunk encoding in .ltm
+  libxxhash-dev                    # chunk checksums and content_hash
+  libcli11-dev                     # command line parsing
+  nlohmann-json3-dev               # container metadata, --json output
+  libtomlplusplus-dev              # scene files and recipes
+  libgtest-dev libgmock-dev        # unit tests
+  libbenchmark-dev                 # micro-benchmarks
+  libstb-dev                       # Radiance .hdr reading
+  clang libclang-rt-14-dev         # libFuzzer target (LTB_BUILD_FUZZERS)
+  python3 python3-numpy python3-pywt python3-h5py python3-matplotlib  # oracles, baselines, plots
+)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "ok installed"; then
+    missing+=("$p")
+  fi
+done
+
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "setup: all ${#PACKAGES[@]} Debian packages present"
+  exit 0
+fi
+
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then
+  if command -v sudo >/dev/null 2>&1; then SUDO="sudo"; else
+    echo "setup: missing packages: ${missing[*]}" >&2
+    echo "setup: run this script as root (apt-get install needs it)" >&2
+    exit 1
+  fi
+fi
+
+echo "setup: installing ${missing[*]}"
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+echo "setup: done"

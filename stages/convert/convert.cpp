@@ -1,0 +1,320 @@
+#include "stages/convert/convert.h"
+
+#include <atomic>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <limits>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "format/io/container_reader.h"
+#include "format/io/container_writer.h"
+#include "format/io/file.h"
+#include "format/io/mapped_region.h"
+#include "format/npy.h"
+#include "format/version.h"
+
+namespace ltb::stages {
+
+using namespace ltb::format;
+using io::File;
+
+namespace {
+
+bool EndsWith(const std::string& s, const std::string& suffix) {
+  return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+// Runs fn(i) for i in items on `jobs` threads; stops at the first error or cancellation.
+template <typename Fn>
+Status ParallelFor(const std::vector<uint64_t>& items, int jobs, const Progress& progress, Fn fn) {
+  std::atomic<size_t> next{0};
+  std::atomic<uint64_t> done{0};
+  std::mutex mu;
+  Status first;
+  auto work = [&] {
+    for (;;) {
+      {
+        std::lock_guard<std::mutex> lock(mu);
+        if (!first.ok()) return;
+      }
+      if (progress.Cancelled()) {
+        std::lock_guard<std::mutex> lock(mu);
+        if (first.ok()) first = Cancelled("interrupted; committed chunks are kept, rerun to resume");
+        return;
+      }
+      size_t k = next.fetch_add(1);
+      if (k >= items.size()) return;
+      Status s = fn(items[k]);
+      if (!s.ok()) {
+        std::lock_guard<std::mutex> lock(mu);
+        if (first.ok()) first = s;
+        return;
+      }
+      progress.Report(done.fetch_add(1) + 1, items.size(), "chunks");
+    }
+  };
+  std::vector<std::thread> pool;
+  for (int t = 1; t < std::max(1, jobs); ++t) pool.emplace_back(work);
+  work();
+  for (auto& th : pool) th.join();
+  return first;
+}
+
+struct NpyInput {
+  File file;
+  NpyHeader header;
+  uint64_t rows = 0, cols = 0;
+};
+
+Result<NpyInput> OpenNpy(const std::string& path) {
+  NpyInput in;
+  LTB_ASSIGN_OR_RETURN(in.file, File::Open(path, File::Mode::kRead));
+  LTB_ASSIGN_OR_RETURN(uint64_t size, in.file.Size());
+  std::vector<std::byte> head(std::min<uint64_t>(size, kMaxNpyHeaderBytes + 12));
+  LTB_RETURN_IF_ERROR(in.file.ReadAt(0, head));
+  auto h = ParseNpyHeader(head);
+  if (!h.ok()) return h.status().WithContext(path);
+  in.header = *h;
+  const NpyHeader& hd = in.header;
+  if (hd.itemsize == 0) {
+    return InvalidArgument(path + ": dtype '" + hd.descr +
+                           "' is not supported; convert accepts little-endian float32 ('<f4') or float64 ('<f8') — "
+                           "save with arr.astype('<f4')");
+  }
+  if (hd.fortran_order) {
+    return InvalidArgument(path + ": array is in Fortran (column-major) order; save it with np.ascontiguousarray(arr)");
+  }
+  if (hd.shape.size() != 2) {
+    std::string shape;
+    for (uint64_t d : hd.shape) shape += (shape.empty() ? "" : ", ") + std::to_string(d);
+    return InvalidArgument(path + ": array has shape (" + shape + "), " + std::to_string(hd.shape.size()) +
+                           "-D; convert needs a 2-D matrix (reshape to (1, N) or (N, 1))");
+  }
+  in.rows = hd.shape[0];
+  in.cols = hd.shape[1];
+  if (in.rows == 0 || in.cols == 0 || in.rows > kMaxDim || in.cols > kMaxDim) {
+    return InvalidArgument(path + ": shape (" + std::to_string(in.rows) + ", " + std::to_string(in.cols) +
+                           ") is empty or beyond " + std::to_string(kMaxDim) + " per axis");
+  }
+  uint64_t bytes;
+  if (MulOverflows(in.rows, in.cols, &bytes) || MulOverflows(bytes, hd.itemsize, &bytes) ||
+      AddOverflows(bytes, hd.data_offset, &bytes) || bytes != size) {
+    return InvalidArgument(path + ": shape (" + std::to_string(in.rows) + ", " + std::to_string(in.cols) + ") of '" +
+                           hd.descr + "' needs " + std::to_string(bytes) + " bytes with the header, the file has " +
+                           std::to_string(size) + " (truncated or damaged?)");
+  }
+  return in;
+}
+
+// Converts f64 values to f32; a finite value beyond the f32 range is an error.
+Status NarrowToF32(const double* src, float* dst, uint64_t n, const std::string& path,
+                   uint64_t first_element, uint64_t cols, bool col_major, uint64_t rows) {
+  for (uint64_t k = 0; k < n; ++k) {
+    double v = src[k];
+    if (std::isfinite(v) && std::fabs(v) > static_cast<double>(std::numeric_limits<float>::max())) {
+      uint64_t e = first_element + k;
+      uint64_t r = col_major ? e % rows : e / cols, c = col_major ? e / rows : e % cols;
+      char buf[64];
+      std::snprintf(buf, sizeof buf, "%.17g", v);
+      return InvalidArgument(path + ": value " + buf + " at row " + std::to_string(r) + ", column " +
+                             std::to_string(c) + " is beyond the float32 range; scale the matrix first");
+    }
+    dst[k] = static_cast<float>(v);
+  }
+  return Status::Ok();
+}
+
+Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress) {
+  LTB_ASSIGN_OR_RETURN(NpyInput in, OpenNpy(o.input));
+  int jobs = std::max(1, o.jobs);
+  // Buffers per worker: f32 chunk + source bytes + zstd bound: about 3-4 chunk sizes.
+  uint64_t chunk_bytes = std::max<uint64_t>(1, std::min(o.chunk_bytes, o.mem_limit / (4 * jobs)));
+  ArraySpec spec;
+  spec.name = "matrix";
+  spec.dtype = DType::kF32;
+  spec.rows = in.rows;
+  spec.cols = in.cols;
+  spec.layout = o.layout;
+  spec.block = BlockForTargetBytes(in.rows, in.cols, DType::kF32, o.layout, chunk_bytes);
+  LTB_RETURN_IF_ERROR(spec.Validate().WithContext(o.output));
+
+  nlohmann::json meta = {
+      {"arrays", {spec.ToJson()}},
+      {"basis", {{"rows", {{"kind", "generic"}}}, {"cols", {{"kind", "generic"}}}}},
+      {"provenance",
+       {{"tool", std::string("ltbake ") + kToolVersion},
+        {"stage", "convert"},
+        {"parameters",
+         {{"source", std::filesystem::path(o.input).filename().string()},
+          {"source_dtype", in.header.descr},
+          {"source_bytes", in.header.data_offset + in.rows * in.cols * in.header.itemsize},
+          {"zstd", o.zstd}}}}},
+  };
+  io::WriterOptions wo;
+  wo.overwrite_mismatch = o.overwrite;
+  LTB_ASSIGN_OR_RETURN(io::ContainerWriter writer, io::ContainerWriter::Open(o.output, meta, wo));
+
+  ConvertResult result;
+  result.rows = in.rows;
+  result.cols = in.cols;
+  result.chunks_total = spec.ChunkCount();
+  result.chunks_already_committed = writer.resume_info().committed_chunks;
+  result.discarded_tail_bytes = writer.resume_info().discarded_tail_bytes;
+  std::vector<uint64_t> missing = writer.Missing(0);
+
+  // Column blocks gather strided values: map the input once for that.
+  io::MappedRegion whole;
+  if (o.layout == Layout::kCols && !missing.empty()) {
+    LTB_ASSIGN_OR_RETURN(whole, io::MappedRegion::Map(in.file.fd(), 0, in.header.data_offset +
+                                                                           in.rows * in.cols * in.header.itemsize,
+                                                      false));
+  }
+  EncodeOptions eo;
+  eo.zstd = o.zstd;
+  std::atomic<uint64_t> zeros{0}, zstds{0}, written{0};
+  Status s = ParallelFor(missing, jobs, progress, [&](uint64_t chunk) -> Status {
+    ChunkExtent e = spec.Extent(chunk);
+    uint64_t n = e.Elements();
+    std::vector<float> values(n);
+    uint64_t item = in.header.itemsize;
+    if (o.layout == Layout::kRows) {
+      uint64_t first = e.row0 * in.cols;
+      uint64_t offset = in.header.data_offset + first * item;
+      if (item == 4) {
+        LTB_RETURN_IF_ERROR(in.file.ReadAt(offset, MutableByteSpan(reinterpret_cast<std::byte*>(values.data()), n * 4)));
+      } else {
+        std::vector<double> src(n);
+        LTB_RETURN_IF_ERROR(in.file.ReadAt(offset, MutableByteSpan(reinterpret_cast<std::byte*>(src.data()), n * 8)));
+        LTB_RETURN_IF_ERROR(NarrowToF32(src.data(), values.data(), n, o.input, first, in.cols, false, in.rows));
+      }
+    } else {
+      const std::byte* base = whole.bytes().data() + in.header.data_offset;
+      for (uint64_t c = 0; c < e.cols; ++c) {
+        for (uint64_t r = 0; r < in.rows; ++r) {
+          const std::byte* p = base + (r * in.cols + e.col0 + c) * item;
+          if (item == 4) {
+            std::memcpy(&values[c * in.rows + r], p, 4);
+          } else {
+            double v;
+            std::memcpy(&v, p, 8);
+            LTB_RETURN_IF_ERROR(NarrowToF32(&v, &values[c * in.rows + r], 1, o.input, r * in.cols + e.col0 + c,
+                                            in.cols, false, in.rows));
+          }
+        }
+      }
+    }
+    EncodedChunk enc = EncodeChunk(ByteSpan(reinterpret_cast<const std::byte*>(values.data()), n * 4), eo);
+    if (enc.encoding == Encoding::kZero) zeros++;
+    if (enc.encoding == Encoding::kZstd) zstds++;
+    LTB_RETURN_IF_ERROR(writer.Append(0, chunk, enc));
+    written++;
+    return Status::Ok();
+  });
+  result.chunks_written = written;
+  result.zero_chunks = zeros;
+  result.zstd_chunks = zstds;
+  LTB_RETURN_IF_ERROR(s);
+  LTB_RETURN_IF_ERROR(writer.Finish());
+  LTB_ASSIGN_OR_RETURN(File out, File::Open(o.output, File::Mode::kRead));
+  LTB_ASSIGN_OR_RETURN(result.bytes_out, out.Size());
+  return result;
+}
+
+Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress) {
+  LTB_ASSIGN_OR_RETURN(io::ContainerReader reader, io::ContainerReader::Open(o.input));
+  const ArraySpec& a = reader.metadata().matrix();
+  if (a.dtype != DType::kF32) {
+    return InvalidArgument(o.input + ": matrix dtype is " + DTypeName(a.dtype) + "; convert to .npy handles f32");
+  }
+  uint64_t missing = a.ChunkCount() - reader.committed(0);
+  if (missing > 0) {
+    uint64_t first = 0;
+    while (reader.Find(0, first) != nullptr) ++first;
+    return FailedPrecondition(o.input + ": incomplete: " + std::to_string(missing) + " of " +
+                              std::to_string(a.ChunkCount()) + " chunks missing (first: chunk " +
+                              std::to_string(first) + "); rerun the stage that writes it to resume");
+  }
+  ConvertResult result;
+  result.rows = a.rows;
+  result.cols = a.cols;
+  result.chunks_total = a.ChunkCount();
+
+  std::vector<std::byte> header = EncodeNpyHeader("<f4", {a.rows, a.cols});
+  uint64_t data_offset = header.size();
+  uint64_t total = data_offset + a.rows * a.cols * 4;
+  // Write beside the output and rename at the end: OUT never holds a partial matrix.
+  std::string tmp = o.output + ".partial";
+  std::remove(tmp.c_str());
+  LTB_ASSIGN_OR_RETURN(File out, File::Open(tmp, File::Mode::kCreateExclusive));
+  LTB_RETURN_IF_ERROR(out.WriteAt(0, header));
+  LTB_RETURN_IF_ERROR(out.Truncate(total));  // zero chunks need no write
+
+  std::vector<uint64_t> chunks;
+  for (uint64_t i = 0; i < a.ChunkCount(); ++i) {
+    if (reader.Find(0, i)->header.encoding == static_cast<uint16_t>(Encoding::kZero)) {
+      result.zero_chunks++;
+      continue;
+    }
+    chunks.push_back(i);
+  }
+  Status s;
+  if (a.layout == Layout::kRows) {
+    s = ParallelFor(chunks, o.jobs, progress, [&](uint64_t i) -> Status {
+      LTB_ASSIGN_OR_RETURN(io::Chunk c, reader.ReadChunk(0, i));
+      return out.WriteAt(data_offset + c.extent().row0 * a.cols * 4, c.bytes());
+    });
+  } else {
+    // Column blocks: assemble bands of whole rows in memory, one write per band.
+    uint64_t band = std::max<uint64_t>(1, std::min(a.rows, (o.mem_limit / 2) / (a.cols * 4)));
+    std::vector<float> buf;
+    for (uint64_t r0 = 0; r0 < a.rows && s.ok(); r0 += band) {
+      uint64_t nr = std::min(band, a.rows - r0);
+      buf.assign(nr * a.cols, 0.0f);
+      io::ReadOptions ro;
+      ro.verify_checksum = r0 == 0;  // each chunk is verified once, on the first band
+      s = ParallelFor(chunks, o.jobs, Progress{}, [&](uint64_t i) -> Status {
+        LTB_ASSIGN_OR_RETURN(io::Chunk c, reader.ReadChunk(0, i, ro));
+        const ChunkExtent& e = c.extent();
+        auto v = c.as<float>();
+        for (uint64_t col = 0; col < e.cols; ++col)
+          for (uint64_t r = 0; r < nr; ++r) buf[r * a.cols + e.col0 + col] = v[col * a.rows + r0 + r];
+        return Status::Ok();
+      });
+      if (s.ok()) {
+        s = out.WriteAt(data_offset + r0 * a.cols * 4,
+                        ByteSpan(reinterpret_cast<const std::byte*>(buf.data()), buf.size() * 4));
+      }
+      progress.Report(r0 + nr, a.rows, "rows");
+      if (s.ok() && progress.Cancelled()) s = Cancelled("interrupted; no output written");
+    }
+  }
+  if (s.ok()) s = out.DataSync();
+  if (s.ok()) s = out.Close();
+  if (!s.ok()) {
+    std::remove(tmp.c_str());
+    return s;
+  }
+  if (std::rename(tmp.c_str(), o.output.c_str()) != 0) {
+    Status e = IoError(o.output + ": rename from " + tmp, errno);
+    std::remove(tmp.c_str());
+    return e;
+  }
+  result.chunks_written = a.ChunkCount();
+  result.bytes_out = total;
+  return result;
+}
+
+}  // namespace
+
+Result<ConvertResult> RunConvert(const ConvertOptions& o, const Progress& progress) {
+  if (EndsWith(o.input, ".npy") && EndsWith(o.output, ".ltm")) return NpyToLtm(o, progress);
+  if (EndsWith(o.input, ".ltm") && EndsWith(o.output, ".npy")) return LtmToNpy(o, progress);
+  return InvalidArgument("convert " + o.input + " " + o.output +
+                         ": supported conversions are .npy -> .ltm and .ltm -> .npy (by file extension)");
+}
+
+}  // namespace ltb::stages

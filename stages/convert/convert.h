@@ -1,0 +1,38 @@
+// `ltbake convert IN OUT`: .npy (2-D float32/float64, C order) to .ltm, and any .ltm
+// matrix back to a dense float32 .npy in its logical (rows × columns) order.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "format/array_spec.h"
+#include "format/progress.h"
+#include "format/status.h"
+
+namespace ltb::stages {
+
+struct ConvertOptions {
+  std::string input;
+  std::string output;
+  int jobs = 2;
+  uint64_t mem_limit = 1ull << 30;   // bytes of buffers across all workers
+  uint64_t chunk_bytes = 8ull << 20;  // target size of one chunk (npy -> ltm)
+  format::Layout layout = format::Layout::kRows;
+  bool zstd = false;        // try zstd per chunk, keep it where it saves >= 10%
+  bool overwrite = false;   // replace an existing output written with other parameters
+};
+
+struct ConvertResult {
+  uint64_t rows = 0, cols = 0;
+  uint64_t chunks_total = 0;
+  uint64_t chunks_written = 0;
+  uint64_t chunks_already_committed = 0;  // resumed
+  uint64_t discarded_tail_bytes = 0;
+  uint64_t zero_chunks = 0;
+  uint64_t zstd_chunks = 0;
+  uint64_t bytes_out = 0;
+};
+
+Result<ConvertResult> RunConvert(const ConvertOptions& options, const Progress& progress);
+
+}  // namespace ltb::stages

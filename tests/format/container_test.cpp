@@ -1,0 +1,282 @@
+// Container behaviour: round trips, layouts, encodings, resume, readers during writes,
+// absent-is-not-zero, and content_hash independence from chunking and encoding.
+#include <gtest/gtest.h>
+
+#include <cstring>
+
+#include "format/content_hash.h"
+#include "format/io/array_summary.h"
+#include "format/io/container_reader.h"
+#include "format/io/container_writer.h"
+#include "format/io/verifier.h"
+#include "test_util.h"
+
+namespace ltb {
+namespace {
+
+using format::Layout;
+using test::TempDir;
+
+std::vector<float> ReadAll(const io::ContainerReader& r) {
+  const auto& a = r.metadata().matrix();
+  std::vector<float> m(a.rows * a.cols, -7.0f);
+  for (uint64_t i = 0; i < a.ChunkCount(); ++i) {
+    auto c = r.ReadChunk(0, i);
+    EXPECT_TRUE(c.ok()) << c.status().message();
+    if (!c.ok()) continue;
+    auto v = c->as<float>();
+    const auto& e = c->extent();
+    for (uint64_t rr = 0; rr < e.rows; ++rr)
+      for (uint64_t cc = 0; cc < e.cols; ++cc)
+        m[(e.row0 + rr) * a.cols + e.col0 + cc] =
+            a.layout == Layout::kRows ? v[rr * e.cols + cc] : v[cc * e.rows + rr];
+  }
+  return m;
+}
+
+struct Shape {
+  uint64_t rows, cols, block;
+  Layout layout;
+  bool zstd;
+};
+
+class RoundTrip : public ::testing::TestWithParam<Shape> {};
+
+TEST_P(RoundTrip, ReadsBackBitExact) {
+  Shape s = GetParam();
+  TempDir dir;
+  std::string path = dir.File("m.ltm");
+  test::WriteMatrix(path, s.rows, s.cols, s.layout, s.block, 42, s.zstd);
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_TRUE(r->sealed());
+  EXPECT_TRUE(r->complete());
+  EXPECT_TRUE(r->problems().empty());
+  auto expected = test::MakeMatrix(s.rows, s.cols, 42);
+  auto got = ReadAll(*r);
+  ASSERT_EQ(got.size(), expected.size());
+  EXPECT_EQ(0, std::memcmp(got.data(), expected.data(), got.size() * 4));
+  auto v = io::VerifyContainer(path);
+  EXPECT_TRUE(v.complete);
+  EXPECT_TRUE(v.problems.empty()) << v.problems.front();
+}
+
+INSTANTIATE_TEST_SUITE_P(Shapes, RoundTrip,
+                         ::testing::Values(Shape{1, 37, 1, Layout::kRows, false}, Shape{37, 1, 5, Layout::kRows, false},
+                                           Shape{37, 1, 1, Layout::kCols, true}, Shape{1, 37, 8, Layout::kCols, false},
+                                           Shape{50, 24, 7, Layout::kRows, true}, Shape{50, 24, 5, Layout::kCols, true},
+                                           Shape{64, 96, 64, Layout::kRows, false}));
+
+TEST(ContentHash, IndependentOfChunkingLayoutAndEncoding) {
+  TempDir dir;
+  std::vector<std::string> hashes;
+  int k = 0;
+  for (Shape s : {Shape{50, 24, 7, Layout::kRows, false}, Shape{50, 24, 50, Layout::kRows, true},
+                  Shape{50, 24, 1, Layout::kCols, false}, Shape{50, 24, 5, Layout::kCols, true}}) {
+    std::string path = dir.File("h" + std::to_string(k++) + ".ltm");
+    test::WriteMatrix(path, s.rows, s.cols, s.layout, s.block, 9, s.zstd);
+    auto r = io::ContainerReader::Open(path);
+    ASSERT_TRUE(r.ok());
+    auto sum = io::SummarizeArray(*r, 0, 2);
+    ASSERT_TRUE(sum.ok()) << sum.status().message();
+    hashes.push_back(sum->content_hash);
+  }
+  for (const auto& h : hashes) EXPECT_EQ(h, hashes.front());
+  EXPECT_EQ(hashes.front().size(), 16u);
+}
+
+TEST(ContentHash, ChangesWithOneElementItsPositionAndTheShape) {
+  format::ArraySpec a;
+  a.name = "matrix";
+  a.rows = 4;
+  a.cols = 6;
+  a.block = 4;
+  std::vector<float> m(24, 0.0f);
+  m[5] = 1.0f;
+  auto hash = [&](const std::vector<float>& v, const format::ArraySpec& spec) {
+    format::ContentHasher h;
+    h.AddChunk(spec, spec.Extent(0), test::AsBytes(v));
+    return h.Finish(spec);
+  };
+  std::string base = hash(m, a);
+  auto moved = m;
+  std::swap(moved[5], moved[6]);
+  EXPECT_NE(base, hash(moved, a));
+  auto negzero = m;
+  negzero[0] = -0.0f;  // a different bit pattern is different content
+  EXPECT_NE(base, hash(negzero, a));
+  format::ArraySpec b = a;
+  b.rows = 6;
+  b.cols = 4;
+  b.block = 6;
+  EXPECT_NE(base, hash(m, b));
+}
+
+TEST(Container, MissingChunkIsReportedNotZero) {
+  TempDir dir;
+  std::string path = dir.File("partial.ltm");
+  {
+    auto w = io::ContainerWriter::Open(path, test::MatrixMetadata(10, 4, Layout::kRows, 2));
+    ASSERT_TRUE(w.ok());
+    std::vector<float> zeros(8, 0.0f);
+    ASSERT_TRUE(w->Put(0, 0, test::AsBytes(zeros)).ok());
+    ASSERT_TRUE(w->Put(0, 2, test::AsBytes(zeros)).ok());
+    Status s = w->Finish();
+    EXPECT_EQ(s.code(), StatusCode::kFailedPrecondition);
+    EXPECT_NE(s.message().find("3 chunks missing (first: array \"matrix\" chunk 1)"), std::string::npos)
+        << s.message();
+  }
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok());
+  EXPECT_FALSE(r->complete());
+  EXPECT_FALSE(r->sealed());
+  EXPECT_TRUE(r->ReadChunk(0, 0).ok());
+  auto missing = r->ReadChunk(0, 1);
+  EXPECT_EQ(missing.status().code(), StatusCode::kNotFound);
+  EXPECT_NE(missing.status().message().find("chunk 1 (rows 2-3) is missing"), std::string::npos)
+      << missing.status().message();
+  auto sum = io::SummarizeArray(*r, 0, 1);
+  ASSERT_TRUE(sum.ok());
+  EXPECT_TRUE(sum->content_hash.empty());
+  EXPECT_EQ(sum->chunks_missing, 3u);
+}
+
+TEST(Container, ResumeAppendsOnlyMissingChunks) {
+  TempDir dir;
+  std::string path = dir.File("resume.ltm");
+  auto meta = test::MatrixMetadata(12, 3, Layout::kRows, 2);
+  auto m = test::MakeMatrix(12, 3, 5);
+  {
+    auto w = io::ContainerWriter::Open(path, meta);
+    ASSERT_TRUE(w.ok());
+    for (uint64_t i : {0, 3, 4}) ASSERT_TRUE(w->Put(0, i, test::AsBytes(test::ChunkValues(w->metadata().matrix(), m, i))).ok());
+  }  // dropped without Finish: like a stopped writer
+  auto w = io::ContainerWriter::Open(path, meta);
+  ASSERT_TRUE(w.ok()) << w.status().message();
+  EXPECT_TRUE(w->resume_info().resumed);
+  EXPECT_EQ(w->resume_info().committed_chunks, 3u);
+  EXPECT_EQ(w->Missing(0), (std::vector<uint64_t>{1, 2, 5}));
+  for (uint64_t i : w->Missing(0)) ASSERT_TRUE(w->Put(0, i, test::AsBytes(test::ChunkValues(w->metadata().matrix(), m, i))).ok());
+  ASSERT_TRUE(w->Finish().ok());
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok());
+  EXPECT_TRUE(r->complete());
+  auto got = ReadAll(*r);
+  EXPECT_EQ(0, std::memcmp(got.data(), m.data(), m.size() * 4));
+  // Reopening a sealed file with the same metadata is a no-op.
+  auto again = io::ContainerWriter::Open(path, meta);
+  ASSERT_TRUE(again.ok());
+  EXPECT_TRUE(again->resume_info().already_complete);
+  EXPECT_TRUE(again->Missing(0).empty());
+}
+
+TEST(Container, RefusesToResumeWithOtherMetadata) {
+  TempDir dir;
+  std::string path = dir.File("other.ltm");
+  test::WriteMatrix(path, 6, 4, Layout::kRows, 2, 1, false);
+  auto meta = test::MatrixMetadata(6, 4, Layout::kRows, 3);
+  auto w = io::ContainerWriter::Open(path, meta);
+  EXPECT_EQ(w.status().code(), StatusCode::kFailedPrecondition);
+  EXPECT_NE(w.status().message().find("\"arrays\""), std::string::npos) << w.status().message();
+  EXPECT_NE(w.status().message().find("--overwrite"), std::string::npos);
+  io::WriterOptions o;
+  o.overwrite_mismatch = true;
+  auto w2 = io::ContainerWriter::Open(path, meta, o);
+  ASSERT_TRUE(w2.ok()) << w2.status().message();
+  EXPECT_FALSE(w2->resume_info().resumed);
+}
+
+TEST(Container, RefusesToClobberAFileThatIsNotAContainer) {
+  TempDir dir;
+  std::string path = dir.File("notes.ltm");
+  FILE* f = fopen(path.c_str(), "w");
+  fputs("my precious notes\n", f);
+  fclose(f);
+  auto w = io::ContainerWriter::Open(path, test::MatrixMetadata(2, 2, Layout::kRows, 1));
+  EXPECT_EQ(w.status().code(), StatusCode::kFailedPrecondition);
+  EXPECT_NE(w.status().message().find("is not a readable .ltm container"), std::string::npos);
+}
+
+TEST(Container, ReaderSeesExactlyTheCommittedChunksWhileAWriterAppends) {
+  TempDir dir;
+  std::string path = dir.File("live.ltm");
+  auto meta = test::MatrixMetadata(40, 16, Layout::kRows, 4);
+  auto m = test::MakeMatrix(40, 16, 3);
+  auto w = io::ContainerWriter::Open(path, meta);
+  ASSERT_TRUE(w.ok());
+  const auto& spec = w->metadata().matrix();
+  for (uint64_t i = 0; i < spec.ChunkCount(); ++i) {
+    auto r = io::ContainerReader::Open(path);
+    ASSERT_TRUE(r.ok()) << r.status().message();
+    EXPECT_EQ(r->committed(0), i);
+    for (uint64_t j = 0; j < spec.ChunkCount(); ++j) {
+      auto c = r->ReadChunk(0, j);
+      EXPECT_EQ(c.ok(), j < i) << "chunk " << j << " after " << i << " commits";
+    }
+    ASSERT_TRUE(w->Put(0, i, test::AsBytes(test::ChunkValues(spec, m, i))).ok());
+    ASSERT_TRUE(r->Refresh().ok());
+    EXPECT_EQ(r->committed(0), i + 1);
+  }
+  ASSERT_TRUE(w->Finish().ok());
+}
+
+TEST(Container, AllZeroChunksCostNoPayload) {
+  TempDir dir;
+  std::string path = dir.File("zeros.ltm");
+  auto w = io::ContainerWriter::Open(path, test::MatrixMetadata(1000, 256, Layout::kRows, 100));
+  ASSERT_TRUE(w.ok());
+  std::vector<float> zeros(100 * 256, 0.0f);
+  for (uint64_t i = 0; i < 10; ++i) ASSERT_TRUE(w->Put(0, i, test::AsBytes(zeros)).ok());
+  ASSERT_TRUE(w->Finish().ok());
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok());
+  EXPECT_LT(r->file_size(), 4096u);  // 1 MB of zeros: header, metadata, 10 frame headers, index
+  auto c = r->ReadChunk(0, 3);
+  ASSERT_TRUE(c.ok());
+  EXPECT_EQ(c->encoding(), format::Encoding::kZero);
+  for (float x : c->as<float>()) ASSERT_EQ(x, 0.0f);
+}
+
+TEST(Container, RawChunksAreMappedAlignedWithoutCopy) {
+  TempDir dir;
+  std::string path = dir.File("aligned.ltm");
+  test::WriteMatrix(path, 64, 33, Layout::kRows, 9, 4, false);
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok());
+  for (const auto& e : r->chunk_frames()) EXPECT_EQ(e.frame_offset % format::kAlignment, 0u);
+  auto c = r->ReadChunk(0, 0);
+  ASSERT_TRUE(c.ok());
+  ASSERT_EQ(c->encoding(), format::Encoding::kRaw);
+  EXPECT_EQ(reinterpret_cast<uintptr_t>(c->bytes().data()) % format::kAlignment, 0u);
+}
+
+TEST(Container, SideTablesAreChunksToo) {
+  TempDir dir;
+  std::string path = dir.File("side.ltm");
+  format::ArraySpec depth;
+  depth.name = "depth";
+  depth.dtype = format::DType::kU8;
+  depth.rows = 24;
+  depth.cols = 1;
+  depth.block = 24;
+  auto meta = test::MatrixMetadata(8, 24, Layout::kCols, 6);
+  meta["arrays"].push_back(depth.ToJson());
+  auto w = io::ContainerWriter::Open(path, meta);
+  ASSERT_TRUE(w.ok()) << w.status().message();
+  auto m = test::MakeMatrix(8, 24, 2);
+  for (uint64_t i = 0; i < 4; ++i) ASSERT_TRUE(w->Put(0, i, test::AsBytes(test::ChunkValues(w->metadata().matrix(), m, i))).ok());
+  EXPECT_EQ(w->Finish().code(), StatusCode::kFailedPrecondition);  // the depth table is missing
+  std::vector<uint8_t> d(24);
+  for (int i = 0; i < 24; ++i) d[i] = static_cast<uint8_t>(i % 5);
+  ASSERT_TRUE(w->Put(1, 0, format::ByteSpan(reinterpret_cast<const std::byte*>(d.data()), d.size())).ok());
+  ASSERT_TRUE(w->Finish().ok());
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok());
+  EXPECT_EQ(r->metadata().FindArray("depth"), 1);
+  auto c = r->ReadChunk(1, 0);
+  ASSERT_TRUE(c.ok());
+  EXPECT_EQ(0, std::memcmp(c->bytes().data(), d.data(), d.size()));
+}
+
+}  // namespace
+}  // namespace ltb

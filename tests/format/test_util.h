@@ -1,0 +1,86 @@
+// Helpers for format tests: temporary directories and small deterministic matrices.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <random>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "format/array_spec.h"
+#include "format/io/container_writer.h"
+
+namespace ltb::test {
+
+class TempDir {
+ public:
+  TempDir() {
+    std::string tmpl = (std::filesystem::temp_directory_path() / "ltb-test-XXXXXX").string();
+    path_ = mkdtemp(tmpl.data());
+  }
+  ~TempDir() { std::filesystem::remove_all(path_); }
+  std::string File(const std::string& name) const { return (std::filesystem::path(path_) / name).string(); }
+
+ private:
+  std::string path_;
+};
+
+// rows x cols values in row-major order; row r is all zero when r % 7 == 3 so that
+// some chunks are all-zero, and some rows repeat a pattern so zstd has work to do.
+inline std::vector<float> MakeMatrix(uint64_t rows, uint64_t cols, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  std::vector<float> m(rows * cols);
+  for (uint64_t r = 0; r < rows; ++r)
+    for (uint64_t c = 0; c < cols; ++c)
+      m[r * cols + c] = (r % 7 == 3) ? 0.0f : (r % 5 == 1 ? static_cast<float>(c % 4) : u(rng));
+  return m;
+}
+
+// The values of chunk `chunk` of `spec` (row- or column-major as the layout says).
+inline std::vector<float> ChunkValues(const format::ArraySpec& spec, const std::vector<float>& m, uint64_t chunk) {
+  format::ChunkExtent e = spec.Extent(chunk);
+  std::vector<float> v(e.Elements());
+  for (uint64_t r = 0; r < e.rows; ++r)
+    for (uint64_t c = 0; c < e.cols; ++c) {
+      float x = m[(e.row0 + r) * spec.cols + e.col0 + c];
+      if (spec.layout == format::Layout::kRows) v[r * e.cols + c] = x;
+      else v[c * e.rows + r] = x;
+    }
+  return v;
+}
+
+inline nlohmann::json MatrixMetadata(uint64_t rows, uint64_t cols, format::Layout layout, uint64_t block) {
+  format::ArraySpec s;
+  s.name = "matrix";
+  s.rows = rows;
+  s.cols = cols;
+  s.layout = layout;
+  s.block = block;
+  return {{"arrays", {s.ToJson()}}, {"note", "test"}};
+}
+
+inline format::ByteSpan AsBytes(const std::vector<float>& v) {
+  return {reinterpret_cast<const std::byte*>(v.data()), v.size() * sizeof(float)};
+}
+
+// Writes a complete container of MakeMatrix(rows, cols, seed).
+inline void WriteMatrix(const std::string& path, uint64_t rows, uint64_t cols, format::Layout layout, uint64_t block,
+                        uint32_t seed, bool zstd) {
+  auto w = io::ContainerWriter::Open(path, MatrixMetadata(rows, cols, layout, block));
+  if (!w.ok()) throw std::runtime_error(w.status().message());
+  auto m = MakeMatrix(rows, cols, seed);
+  format::EncodeOptions eo;
+  eo.zstd = zstd;
+  for (uint64_t i = 0; i < w->metadata().matrix().ChunkCount(); ++i) {
+    auto v = ChunkValues(w->metadata().matrix(), m, i);
+    auto s = w->Put(0, i, AsBytes(v), eo);
+    if (!s.ok()) throw std::runtime_error(s.message());
+  }
+  auto s = w->Finish();
+  if (!s.ok()) throw std::runtime_error(s.message());
+}
+
+}  // namespace ltb::test
