@@ -23,7 +23,7 @@ PACKAGES=(
   libbenchmark-dev                 # micro-benchmarks
   libstb-dev                       # Radiance .hdr reading
   clang libclang-rt-14-dev         # libFuzzer target (LTB_BUILD_FUZZERS)
-  python3 python3-numpy python3-pywt python3-h5py python3-matplotlib  # oracles, baselines, plots
+  python3 python3-numpy python3-pywt python3-h5py python3-matplotlib python3-xxhash  # oracles, baselines, plots
 )
 
 missing=()

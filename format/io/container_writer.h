@@ -39,6 +39,7 @@ struct ResumeInfo {
 
 class ContainerWriter {
  public:
+  ContainerWriter() = default;  // an empty writer (closes nothing)
   ContainerWriter(ContainerWriter&&) noexcept;
   ContainerWriter& operator=(ContainerWriter&&) noexcept;
   ~ContainerWriter();
@@ -64,7 +65,6 @@ class ContainerWriter {
   Status Finish();
 
  private:
-  ContainerWriter() = default;
   Status Resume(uint64_t file_size);
   static uint64_t Key(uint32_t array, uint64_t chunk) { return (uint64_t{array} << 40) | chunk; }
 

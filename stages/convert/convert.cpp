@@ -217,7 +217,15 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
   result.chunks_written = written;
   result.zero_chunks = zeros;
   result.zstd_chunks = zstds;
-  LTB_RETURN_IF_ERROR(s);
+  if (!s.ok()) {
+    // Bad input found part way: a file this run created cannot be finished, so it goes.
+    // An interrupted run keeps its file so the next run resumes it.
+    if (s.code() == StatusCode::kInvalidArgument && !writer.resume_info().resumed) {
+      writer = io::ContainerWriter();
+      std::remove(o.output.c_str());
+    }
+    return s;
+  }
   LTB_RETURN_IF_ERROR(writer.Finish());
   LTB_ASSIGN_OR_RETURN(File out, File::Open(o.output, File::Mode::kRead));
   LTB_ASSIGN_OR_RETURN(result.bytes_out, out.Size());
