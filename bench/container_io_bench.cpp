@@ -5,9 +5,12 @@
 //       Writes a container of about N bytes of random f32 (rows x 6144 columns, raw
 //       encoding, chunks of about M bytes) and seals it (Finish() fdatasyncs).
 //       A producer thread prepares and checksums chunks while the main thread appends.
-//   ltm_io_bench read PATH [--no-verify]
-//       Reads every chunk through ContainerReader::ReadChunk (zero-copy mmap), sums its
-//       floats, and reports time, throughput and its own peak RSS.
+//   ltm_io_bench read PATH [--no-verify] [--threads T] [--prefetch K]
+//       Reads every chunk through ContainerReader::ReadChunk (zero-copy mmap, checksum
+//       verified unless --no-verify), sums its floats, and reports time, throughput and
+//       its own peak RSS. Default: one thread, no prefetch (the plain loop a stage
+//       would write). --threads T: T threads read chunks concurrently. --prefetch K:
+//       posix_fadvise(WILLNEED) the next K chunks before reading each one.
 //   ltm_io_bench evict PATH      fdatasync + posix_fadvise(DONTNEED) on the whole file
 //   ltm_io_bench resident PATH   bytes of PATH in the page cache (mincore)
 //   ltm_io_bench gen --bytes N   N bytes of the same random data to stdout (for dd)
@@ -28,6 +31,7 @@
 #include <fstream>
 #include <mutex>
 #include <optional>
+#include <span>
 #include <string>
 #include <thread>
 #include <vector>
@@ -115,13 +119,15 @@ struct Args {
   uint64_t bytes = 4ull << 30;
   uint64_t chunk_bytes = 8ull << 20;
   bool verify = true;
+  int threads = 1;
+  uint64_t prefetch = 0;
   bool sync_each_chunk = false;
 };
 
 Args ParseArgs(int argc, char** argv) {
   if (argc < 2) {
     Die("usage: ltm_io_bench write PATH [--bytes N] [--chunk-bytes M] [--sync-each-chunk]\n"
-        "       ltm_io_bench read PATH [--no-verify]\n"
+        "       ltm_io_bench read PATH [--no-verify] [--threads T] [--prefetch K]\n"
         "       ltm_io_bench evict PATH | resident PATH | gen --bytes N");
   }
   Args a;
@@ -141,6 +147,8 @@ Args ParseArgs(int argc, char** argv) {
     if (f == "--bytes") a.bytes = ParseBytes(next());
     else if (f == "--chunk-bytes") a.chunk_bytes = ParseBytes(next());
     else if (f == "--no-verify") a.verify = false;
+    else if (f == "--threads") a.threads = std::max(1, std::atoi(next().c_str()));
+    else if (f == "--prefetch") a.prefetch = std::strtoull(next().c_str(), nullptr, 10);
     else if (f == "--sync-each-chunk") a.sync_each_chunk = true;
     else Die("unknown flag " + f);
   }
@@ -270,6 +278,22 @@ int Write(const Args& a) {
   return 0;
 }
 
+// Sums a chunk's floats; 16 independent accumulators vectorize without reassociating.
+double SumFloats(std::span<const float> v) {
+  float acc[16] = {};
+  size_t n = v.size() / 16 * 16;
+  for (size_t j = 0; j < n; j += 16)
+    for (int k = 0; k < 16; ++k) acc[k] += v[j + k];
+  for (size_t j = n; j < v.size(); ++j) acc[0] += v[j];
+  double total = 0;
+  for (float x : acc) total += x;
+  return total;
+}
+
+// Reads every chunk of array 0 in order. With --threads T, T threads take chunks from a
+// shared counter (still roughly in file order). With --prefetch K, before reading chunk
+// i the caller asks the kernel (posix_fadvise WILLNEED on its own descriptor) to read
+// chunks i+1..i+K ahead, using the frame offsets the reader exposes through Find().
 int Read(const Args& a) {
   auto t0 = Clock::now();
   auto r = ltb::io::ContainerReader::Open(a.path);
@@ -279,30 +303,67 @@ int Read(const Args& a) {
   ltb::io::ReadOptions ro;
   ro.verify_checksum = a.verify;
   ro.sequential = true;
+
+  int prefetch_fd = -1;
+  if (a.prefetch > 0) {
+    prefetch_fd = ::open(a.path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (prefetch_fd < 0) Die(a.path + ": " + std::strerror(errno));
+  }
+  auto prefetch = [&](uint64_t chunk) {
+    if (chunk >= chunks) return;
+    const ltb::format::IndexEntry* e = r->Find(0, chunk);
+    if (e == nullptr) return;
+    ::posix_fadvise(prefetch_fd, static_cast<off_t>(e->frame_offset),
+                    static_cast<off_t>(e->header.FrameSize()), POSIX_FADV_WILLNEED);
+  };
+
+  std::mutex mu;
+  uint64_t next = 0, prefetched = 0;  // next chunk to read; chunks [0, prefetched) asked for
   double total = 0;
   uint64_t bytes = 0;
   long rss_max_during = 0;
-  for (uint64_t i = 0; i < chunks; ++i) {
-    auto c = r->ReadChunk(0, i, ro);
-    if (!c.ok()) Die(c.status().message());
-    auto v = c->as<float>();
-    // 16 independent accumulators: vectorizes without reassociating a single sum.
-    float acc[16] = {};
-    size_t n = v.size() / 16 * 16;
-    for (size_t j = 0; j < n; j += 16)
-      for (int k = 0; k < 16; ++k) acc[k] += v[j + k];
-    for (size_t j = n; j < v.size(); ++j) acc[0] += v[j];
-    for (float x : acc) total += x;
-    bytes += c->bytes().size();
-    // Sample RSS while a chunk is mapped (VmHWM is updated lazily by the kernel).
-    if (i % 16 == 0 || i == chunks / 2) rss_max_during = std::max(rss_max_during, RssKiB().second);
-  }
+  std::string error;
+  auto worker = [&] {
+    for (;;) {
+      uint64_t i;
+      {
+        std::lock_guard<std::mutex> lock(mu);
+        if (next >= chunks || !error.empty()) return;
+        i = next++;
+        if (a.prefetch > 0) {  // ask for chunks (i, i + K] not asked for yet
+          uint64_t want = std::min(chunks, i + 1 + a.prefetch);
+          for (prefetched = std::max(prefetched, i + 1); prefetched < want; ++prefetched) prefetch(prefetched);
+        }
+      }
+      auto c = r->ReadChunk(0, i, ro);
+      if (!c.ok()) {
+        std::lock_guard<std::mutex> lock(mu);
+        error = c.status().message();
+        return;
+      }
+      double sum = SumFloats(c->as<float>());
+      // Sample RSS while the chunk is mapped (VmHWM is updated lazily by the kernel).
+      long rss = (i % 16 == 0 || i == chunks / 2) ? RssKiB().second : 0;
+      std::lock_guard<std::mutex> lock(mu);
+      total += sum;
+      bytes += c->bytes().size();
+      rss_max_during = std::max(rss_max_during, rss);
+    }
+  };
+  std::vector<std::thread> threads;
+  for (int t = 1; t < a.threads; ++t) threads.emplace_back(worker);
+  worker();
+  for (auto& t : threads) t.join();
+  if (!error.empty()) Die(error);
   auto t1 = Clock::now();
+  if (prefetch_fd >= 0) ::close(prefetch_fd);
   double secs = Seconds(t0, t1);
   auto [hwm, rss] = RssKiB();
   nlohmann::json out = {{"mode", "read"},
                         {"path", a.path},
                         {"verify_checksum", a.verify},
+                        {"threads", a.threads},
+                        {"prefetch_chunks", a.prefetch},
                         {"bytes", bytes},
                         {"file_bytes", r->file_size()},
                         {"chunks", chunks},

@@ -135,9 +135,16 @@ class InspectCommand : public Command {
         std::cout << "    content_hash: "
                   << (a["content_hash"].is_null() ? "(incomplete)" : a["content_hash"].get<std::string>()) << "\n";
         const json& s = a["stats"];
-        std::cout << "    stats: min " << s["min"].dump() << ", max " << s["max"].dump() << ", mean "
-                  << s["mean"].dump() << ", nonzero " << s["nonzero_fraction"].dump() << ", NaN "
-                  << s["nan_count"] << ", Inf " << s["inf_count"] << "\n";
+        auto num = [](const json& v) {
+          if (v.is_null()) return std::string("-");
+          char buf[32];
+          std::snprintf(buf, sizeof buf, "%.6g", v.get<double>());
+          return std::string(buf);
+        };
+        char nz[32];
+        std::snprintf(nz, sizeof nz, "%.2f%%", 100 * s["nonzero_fraction"].get<double>());
+        std::cout << "    stats: min " << num(s["min"]) << ", max " << num(s["max"]) << ", mean " << num(s["mean"])
+                  << ", nonzero " << nz << ", NaN " << s["nan_count"] << ", Inf " << s["inf_count"] << "\n";
       }
     }
     if (!out["basis"].is_null()) std::cout << "  basis: " << out["basis"].dump() << "\n";

@@ -32,6 +32,20 @@ int main(int argc, char** argv) {
     commands[app.get_subcommands({}).back()] = std::move(cmd);
   }
 
+  if (argc > 1 && argv[1][0] != '-') {
+    std::string name = argv[1];
+    bool known = false;
+    std::string names;
+    for (const auto* sub : app.get_subcommands({})) {
+      known = known || sub->get_name() == name;
+      names += (names.empty() ? "" : ", ") + sub->get_name();
+    }
+    if (!known) {
+      std::cerr << "ltbake: usage error: unknown command '" << name << "' (commands: " << names << ")\n"
+                << "Run 'ltbake --help' for usage.\n";
+      return kExitUsage;
+    }
+  }
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

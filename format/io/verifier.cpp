@@ -115,6 +115,9 @@ VerifyReport VerifyContainer(const std::string& path) {
   for (const IndexEntry& e : scan->frames) {
     const FrameHeader& h = e.header;
     std::string where = "frame at offset " + std::to_string(e.frame_offset);
+    if (h.type == static_cast<uint16_t>(FrameType::kChunk) && h.array < meta.arrays.size()) {
+      where += " (array \"" + meta.arrays[h.array].name + "\" chunk " + std::to_string(h.chunk_index) + ")";
+    }
     uint64_t payload_offset = e.frame_offset + kFrameHeaderSize;
     uint64_t padded_end = std::min(size, e.frame_offset + h.FrameSize());
     if (index_frame != nullptr) {
@@ -152,7 +155,6 @@ VerifyReport VerifyContainer(const std::string& path) {
       continue;
     }
     const ArraySpec& a = meta.arrays[h.array];
-    where += ": array \"" + a.name + "\" chunk " + std::to_string(h.chunk_index);
     if (h.chunk_index >= a.ChunkCount()) {
       r.problems.push_back(where + ": out of range (" + std::to_string(a.ChunkCount()) + " chunks)");
       continue;
