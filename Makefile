@@ -38,9 +38,13 @@ asan: setup
 bench: build
 	@bash bench/run_container_io.sh $(BUILD)
 
-fuzz: setup
-	CC=clang CXX=clang++ cmake -S . -B build-fuzz -DLTB_BUILD_FUZZERS=ON -DLTB_BUILD_TESTS=OFF -DLTB_BUILD_BENCH=OFF -DLTB_ARCH=
+# libFuzzer target for the container reader (docs/FUZZING.md); FUZZ_SECONDS of fuzzing.
+FUZZ_SECONDS ?= 60
+fuzz: build
+	CC=clang CXX=clang++ cmake -S . -B build-fuzz -DLTB_BUILD_FUZZERS=ON -DLTB_BUILD_TESTS=OFF -DLTB_BUILD_BENCH=OFF -DLTB_ARCH= -DLTB_SANITIZE=OFF
 	cmake --build build-fuzz -j $(JOBS) --target ltm_reader_fuzzer
+	bash scripts/fuzz_corpus.sh $(BUILD) build-fuzz/corpus
+	build-fuzz/tests/fuzz/ltm_reader_fuzzer -max_total_time=$(FUZZ_SECONDS) -max_len=65536 -rss_limit_mb=1024 build-fuzz/corpus
 
 clean:
 	rm -rf $(BUILD) $(BUILD_ASAN) build-fuzz
