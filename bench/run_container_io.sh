@@ -13,6 +13,7 @@
 #              evict C; ltm_io_bench read C                 (plain loop, checksums on)
 #              evict C; ltm_io_bench read C --no-verify
 #              evict C; ltm_io_bench read C --prefetch 4    (caller-side readahead)
+#              evict C; dd if=C of=/dev/null bs=8M          (dd over the same blocks)
 # "evict" = fdatasync + posix_fadvise(DONTNEED) on the file (ltm_io_bench evict), plus
 # `echo 3 > /proc/sys/vm/drop_caches` when this user may write it; the script checks
 # with mincore that no byte of the file is left in the page cache before each read.
@@ -114,6 +115,10 @@ run_ltm() {
   read_ltm ltm_read "$rep" "$LTM"
   read_ltm ltm_read_noverify "$rep" "$LTM" --no-verify
   read_ltm ltm_read_prefetch4 "$rep" "$LTM" --prefetch 4
+  # dd over the container file itself: the same blocks on disk, read the plain way.
+  evict "$LTM"
+  t0=$(now); dd if="$LTM" of=/dev/null bs=$BS status=none; t1=$(now)
+  record dd_read_container "$rep" "$(elapsed "$t0" "$t1")" "$(stat -c %s "$LTM")"
   rm -f "$LTM"; settle
 }
 

@@ -107,6 +107,7 @@ def main():
         ("dd_write_random", "dd write, random (reference)", "`ltm_io_bench gen \\| dd of=F bs=8M iflag=fullblock conv=fdatasync`"),
         ("ltm_write", "container write", "`ltm_io_bench write C --bytes N` (random f32, raw, 2 threads, Finish() fdatasyncs)"),
         ("dd_read", "dd read", "`dd if=F of=/dev/null bs=8M`"),
+        ("dd_read_container", "dd read of the container file", "`dd if=C of=/dev/null bs=8M`"),
         ("ltm_read", "container read", "`ltm_io_bench read C` (1 thread, checksums verified, floats summed)"),
         ("ltm_read_noverify", "container read, no checksum", "`ltm_io_bench read C --no-verify`"),
         ("ltm_read_prefetch4", "container read, caller prefetch", "`ltm_io_bench read C --prefetch 4` (checksums verified)"),
@@ -129,6 +130,8 @@ def main():
         ("ltm_read", "dd_read", "read / dd read"),
         ("ltm_read_noverify", "dd_read", "read no-verify / dd read"),
         ("ltm_read_prefetch4", "dd_read", "read with caller prefetch / dd read"),
+        ("ltm_read", "dd_read_container", "read / dd read of the container file"),
+        ("ltm_read_prefetch4", "dd_read_container", "read with caller prefetch / dd read of the container file"),
     ]:
         if not speeds(kind) or not speeds(ref):
             continue

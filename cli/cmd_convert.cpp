@@ -1,4 +1,5 @@
 // ltbake convert IN OUT
+#include <cstdio>
 #include <iostream>
 
 #include "cli/commands.h"
@@ -21,6 +22,9 @@ class ConvertCommand : public Command {
         ->check(CLI::IsMember({"rows", "cols"}));
     app->add_flag("--zstd", options_.zstd, "zstd-compress chunks where it saves at least 10%");
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was written with other parameters");
+    app->add_option("--cube-res", options_.cube_res,
+                    "declare the columns a pixel-basis cubemap with R×R faces (6·R² columns, R a power of two)");
+    app->add_option("--image", image_, "declare the rows the pixels of a WxH image (W·H rows, row y·W + x)");
     AddCommonFlags(app, &flags_);
   }
 
@@ -33,6 +37,17 @@ class ConvertCommand : public Command {
     options_.mem_limit = *mem;
     options_.jobs = flags_.jobs;
     options_.layout = layout_ == "cols" ? format::Layout::kCols : format::Layout::kRows;
+    if (!image_.empty()) {
+      unsigned long long w = 0, h = 0;
+      char x = 0, extra = 0;
+      if (std::sscanf(image_.c_str(), "%llu%c%llu%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X') || w == 0 ||
+          h == 0) {
+        std::cerr << "ltbake: usage error: --image \"" << image_ << "\" is not WIDTHxHEIGHT (e.g. 256x256)\n";
+        return kExitUsage;
+      }
+      options_.image_width = w;
+      options_.image_height = h;
+    }
     ProgressBar bar(flags_, "convert");
     auto r = stages::RunConvert(options_, bar.hook());
     bar.Done();
@@ -55,7 +70,7 @@ class ConvertCommand : public Command {
 
  private:
   stages::ConvertOptions options_;
-  std::string chunk_size_ = "8MiB", layout_ = "rows";
+  std::string chunk_size_ = "8MiB", layout_ = "rows", image_;
   CommonFlags flags_;
 };
 

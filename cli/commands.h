@@ -17,5 +17,9 @@ class Command {
 std::unique_ptr<Command> RegisterInspect(CLI::App* parent);
 std::unique_ptr<Command> RegisterVerify(CLI::App* parent);
 std::unique_ptr<Command> RegisterConvert(CLI::App* parent);
+std::unique_ptr<Command> RegisterRowTransform(CLI::App* parent);
+
+// The whole ltbake command line (main and the ltbake-<stage> executables call it).
+int LtbakeMain(int argc, char** argv);
 
 }  // namespace ltb::cli

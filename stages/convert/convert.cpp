@@ -16,6 +16,8 @@
 #include "format/io/mapped_region.h"
 #include "format/npy.h"
 #include "format/version.h"
+#include "stages/common/basis.h"
+#include "stages/common/parallel_for.h"
 
 namespace ltb::stages {
 
@@ -26,42 +28,6 @@ namespace {
 
 bool EndsWith(const std::string& s, const std::string& suffix) {
   return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
-}
-
-// Runs fn(i) for i in items on `jobs` threads; stops at the first error or cancellation.
-template <typename Fn>
-Status ParallelFor(const std::vector<uint64_t>& items, int jobs, const Progress& progress, Fn fn) {
-  std::atomic<size_t> next{0};
-  std::atomic<uint64_t> done{0};
-  std::mutex mu;
-  Status first;
-  auto work = [&] {
-    for (;;) {
-      {
-        std::lock_guard<std::mutex> lock(mu);
-        if (!first.ok()) return;
-      }
-      if (progress.Cancelled()) {
-        std::lock_guard<std::mutex> lock(mu);
-        if (first.ok()) first = Cancelled("interrupted; committed chunks are kept, rerun to resume");
-        return;
-      }
-      size_t k = next.fetch_add(1);
-      if (k >= items.size()) return;
-      Status s = fn(items[k]);
-      if (!s.ok()) {
-        std::lock_guard<std::mutex> lock(mu);
-        if (first.ok()) first = s;
-        return;
-      }
-      progress.Report(done.fetch_add(1) + 1, items.size(), "chunks");
-    }
-  };
-  std::vector<std::thread> pool;
-  for (int t = 1; t < std::max(1, jobs); ++t) pool.emplace_back(work);
-  work();
-  for (auto& th : pool) th.join();
-  return first;
 }
 
 struct NpyInput {
@@ -142,9 +108,29 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
   spec.block = BlockForTargetBytes(in.rows, in.cols, DType::kF32, o.layout, chunk_bytes);
   LTB_RETURN_IF_ERROR(spec.Validate().WithContext(o.output));
 
+  nlohmann::json rows_basis = GenericAxis(), cols_basis = GenericAxis();
+  if (o.cube_res != 0) {
+    if (!IsPowerOfTwo(o.cube_res) || o.cube_res > (1u << 16)) {
+      return InvalidArgument("--cube-res " + std::to_string(o.cube_res) + " is not a power of two");
+    }
+    if (in.cols != 6 * o.cube_res * o.cube_res) {
+      return InvalidArgument(o.input + ": has " + std::to_string(in.cols) + " columns; a cubemap with --cube-res " +
+                             std::to_string(o.cube_res) + " needs 6·R² = " +
+                             std::to_string(6 * o.cube_res * o.cube_res));
+    }
+    cols_basis = PixelCubemapCols(o.cube_res);
+  }
+  if (o.image_width != 0 || o.image_height != 0) {
+    if (o.image_width * o.image_height != in.rows) {
+      return InvalidArgument(o.input + ": has " + std::to_string(in.rows) + " rows; an image of " +
+                             std::to_string(o.image_width) + "x" + std::to_string(o.image_height) + " needs " +
+                             std::to_string(o.image_width * o.image_height));
+    }
+    rows_basis = ImageRows(o.image_width, o.image_height);
+  }
   nlohmann::json meta = {
       {"arrays", {spec.ToJson()}},
-      {"basis", {{"rows", {{"kind", "generic"}}}, {"cols", {{"kind", "generic"}}}}},
+      {"basis", {{"rows", rows_basis}, {"cols", cols_basis}}},
       {"provenance",
        {{"tool", std::string("ltbake ") + kToolVersion},
         {"stage", "convert"},
@@ -176,7 +162,7 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
   EncodeOptions eo;
   eo.zstd = o.zstd;
   std::atomic<uint64_t> zeros{0}, zstds{0}, written{0};
-  Status s = ParallelFor(missing, jobs, progress, [&](uint64_t chunk) -> Status {
+  Status s = ParallelFor(missing, jobs, progress, "chunks", [&](uint64_t chunk) -> Status {
     ChunkExtent e = spec.Extent(chunk);
     uint64_t n = e.Elements();
     std::vector<float> values(n);
@@ -271,7 +257,7 @@ Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress
   }
   Status s;
   if (a.layout == Layout::kRows) {
-    s = ParallelFor(chunks, o.jobs, progress, [&](uint64_t i) -> Status {
+    s = ParallelFor(chunks, o.jobs, progress, "chunks", [&](uint64_t i) -> Status {
       LTB_ASSIGN_OR_RETURN(io::Chunk c, reader.ReadChunk(0, i));
       return out.WriteAt(data_offset + c.extent().row0 * a.cols * 4, c.bytes());
     });
@@ -284,7 +270,7 @@ Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress
       buf.assign(nr * a.cols, 0.0f);
       io::ReadOptions ro;
       ro.verify_checksum = r0 == 0;  // each chunk is verified once, on the first band
-      s = ParallelFor(chunks, o.jobs, Progress{}, [&](uint64_t i) -> Status {
+      s = ParallelFor(chunks, o.jobs, Progress{}, "chunks", [&](uint64_t i) -> Status {
         LTB_ASSIGN_OR_RETURN(io::Chunk c, reader.ReadChunk(0, i, ro));
         const ChunkExtent& e = c.extent();
         auto v = c.as<float>();

@@ -20,6 +20,10 @@ struct ConvertOptions {
   format::Layout layout = format::Layout::kRows;
   bool zstd = false;        // try zstd per chunk, keep it where it saves >= 10%
   bool overwrite = false;   // replace an existing output written with other parameters
+  // Declares the columns a pixel-basis cubemap with faces of R×R texels (0: generic).
+  uint64_t cube_res = 0;
+  // Declares the rows the pixels of a W×H image, y·W + x (0: generic).
+  uint64_t image_width = 0, image_height = 0;
 };
 
 struct ConvertResult {

@@ -1,0 +1,54 @@
+// ltbake row-transform IN -o OUT [--filter haar|db2|db3|db4]
+#include <iostream>
+
+#include "cli/commands.h"
+#include "cli/common.h"
+#include "stages/row_transform/row_transform.h"
+
+namespace ltb::cli {
+namespace {
+
+class RowTransformCommand : public Command {
+ public:
+  explicit RowTransformCommand(CLI::App* parent) {
+    auto* app = parent->add_subcommand(
+        "row-transform", "2D wavelet transform of every row's six cube faces (input: pixel-basis row blocks)");
+    app->add_option("IN", options_.input, "input container (row blocks, pixel-basis cubemap columns)")->required();
+    app->add_option("-o,--output", options_.output, "output container")->required();
+    app->add_option("--filter", filter_, "orthonormal row filter")
+        ->default_val("haar")
+        ->check(CLI::IsMember({"haar", "db1", "db2", "db3", "db4"}));
+    app->add_flag("--zstd", options_.zstd, "zstd-compress chunks where it saves at least 10%");
+    app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
+    AddCommonFlags(app, &flags_);
+  }
+
+  int Run() override {
+    options_.filter = *wavelet::ParseFilter(filter_);  // checked by IsMember
+    options_.jobs = flags_.jobs;
+    ProgressBar bar(flags_, "row-transform");
+    auto r = stages::RunRowTransform(options_, bar.hook());
+    bar.Done();
+    if (!r.ok()) return ReportFailure(r.status());
+    if (!flags_.quiet) {
+      std::cout << "wrote " << options_.output << ": " << r->rows << " rows, R = " << r->cube_res << ", filter "
+                << filter_ << ", " << r->chunks_total << " chunks";
+      if (r->chunks_already_committed) std::cout << " (resumed: " << r->chunks_already_committed << " already committed)";
+      std::cout << "; skipped " << r->zero_chunks << " all-zero chunks and " << r->zero_rows << " all-zero rows\n";
+    }
+    return kExitOk;
+  }
+
+ private:
+  stages::RowTransformOptions options_;
+  std::string filter_ = "haar";
+  CommonFlags flags_;
+};
+
+}  // namespace
+
+std::unique_ptr<Command> RegisterRowTransform(CLI::App* parent) {
+  return std::make_unique<RowTransformCommand>(parent);
+}
+
+}  // namespace ltb::cli

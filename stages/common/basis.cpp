@@ -1,0 +1,102 @@
+#include "stages/common/basis.h"
+
+#include <xxhash.h>
+
+#include <algorithm>
+#include <filesystem>
+
+#include "format/version.h"
+
+namespace ltb::stages {
+
+nlohmann::json PixelCubemapCols(uint64_t r) { return {{"kind", "cubemap"}, {"cube_res", r}, {"basis", "pixel"}}; }
+
+nlohmann::json WaveletCubemapCols(uint64_t r, const std::string& filter) {
+  uint64_t depth = 0;
+  while ((uint64_t{1} << depth) < r) ++depth;
+  return {{"kind", "cubemap"}, {"cube_res", r}, {"basis", "wavelet"}, {"filter", filter}, {"depth", depth},
+          {"layout", "mallat per face"}};
+}
+
+nlohmann::json ImageRows(uint64_t w, uint64_t h) { return {{"kind", "image"}, {"width", w}, {"height", h}}; }
+nlohmann::json GenericAxis() { return {{"kind", "generic"}}; }
+
+bool IsPowerOfTwo(uint64_t v) { return v != 0 && (v & (v - 1)) == 0; }
+
+Result<std::optional<CubemapCols>> ReadCubemapCols(const format::Metadata& meta) {
+  const auto& j = meta.json;
+  if (!j.contains("basis") || !j["basis"].is_object() || !j["basis"].contains("cols")) return std::optional<CubemapCols>{};
+  const auto& c = j["basis"]["cols"];
+  if (!c.is_object() || c.value("kind", "") != "cubemap") return std::optional<CubemapCols>{};
+  CubemapCols out;
+  if (!c.contains("cube_res") || !c["cube_res"].is_number_unsigned()) {
+    return InvalidArgument("metadata basis.cols is a cubemap without a valid cube_res");
+  }
+  out.cube_res = c["cube_res"].get<uint64_t>();
+  out.basis = c.value("basis", "");
+  out.filter = c.value("filter", "");
+  if (!IsPowerOfTwo(out.cube_res) || out.cube_res > (1u << 16)) {
+    return InvalidArgument("metadata basis.cols.cube_res is " + std::to_string(out.cube_res) +
+                           "; it must be a power of two");
+  }
+  uint64_t want = 6 * out.cube_res * out.cube_res;
+  if (meta.matrix().cols != want) {
+    return InvalidArgument("metadata says the columns are a cubemap with R = " + std::to_string(out.cube_res) +
+                           " (6·R² = " + std::to_string(want) + " columns) but the matrix has " +
+                           std::to_string(meta.matrix().cols));
+  }
+  return std::optional<CubemapCols>{out};
+}
+
+std::optional<ImageSize> ReadImageRows(const format::Metadata& meta) {
+  const auto& j = meta.json;
+  if (!j.contains("basis") || !j["basis"].is_object() || !j["basis"].contains("rows")) return std::nullopt;
+  const auto& r = j["basis"]["rows"];
+  if (!r.is_object() || r.value("kind", "") != "image") return std::nullopt;
+  if (!r.contains("width") || !r.contains("height") || !r["width"].is_number_unsigned() ||
+      !r["height"].is_number_unsigned()) {
+    return std::nullopt;
+  }
+  ImageSize s{r["width"].get<uint64_t>(), r["height"].get<uint64_t>()};
+  if (s.width * s.height != meta.matrix().rows) return std::nullopt;
+  return s;
+}
+
+std::string Fingerprint(const io::ContainerReader& reader) {
+  struct Entry {
+    uint32_t array;
+    uint64_t chunk;
+    uint16_t encoding;
+    uint64_t checksum;
+  };
+  std::vector<Entry> entries;
+  for (const auto& e : reader.chunk_frames()) {
+    entries.push_back({e.header.array, e.header.chunk_index, e.header.encoding, e.header.payload_checksum});
+  }
+  std::sort(entries.begin(), entries.end(),
+            [](const Entry& a, const Entry& b) { return std::tie(a.array, a.chunk) < std::tie(b.array, b.chunk); });
+  XXH3_state_t* st = XXH3_createState();
+  XXH3_64bits_reset(st);
+  std::string meta = format::SerializeMetadata(reader.metadata().json);
+  XXH3_64bits_update(st, meta.data(), meta.size());
+  for (const Entry& e : entries) {
+    XXH3_64bits_update(st, &e.array, sizeof e.array);
+    XXH3_64bits_update(st, &e.chunk, sizeof e.chunk);
+    XXH3_64bits_update(st, &e.encoding, sizeof e.encoding);
+    XXH3_64bits_update(st, &e.checksum, sizeof e.checksum);
+  }
+  uint64_t h = XXH3_64bits_digest(st);
+  XXH3_freeState(st);
+  return format::Hex64(h).substr(2);
+}
+
+nlohmann::json Provenance(const std::string& stage, const nlohmann::json& parameters,
+                          const std::vector<const io::ContainerReader*>& inputs) {
+  nlohmann::json in = nlohmann::json::array();
+  for (const auto* r : inputs) {
+    in.push_back({{"file", std::filesystem::path(r->path()).filename().string()}, {"fingerprint", Fingerprint(*r)}});
+  }
+  return {{"tool", std::string("ltbake ") + kToolVersion}, {"stage", stage}, {"parameters", parameters}, {"inputs", in}};
+}
+
+}  // namespace ltb::stages

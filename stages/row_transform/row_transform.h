@@ -1,0 +1,39 @@
+// `ltbake row-transform IN -o OUT --filter F`: per matrix row and per cube face, the 2D
+// wavelet transform of the R×R face to full depth (log2 R steps), in the Mallat layout
+// of pywt.coeffs_to_array. Input: row blocks whose columns are a pixel-basis cubemap.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "format/progress.h"
+#include "format/status.h"
+#include "stages/wavelet/wavelet.h"
+
+namespace ltb::stages {
+
+struct RowTransformOptions {
+  std::string input;
+  std::string output;
+  wavelet::Filter filter = wavelet::Filter::kHaar;
+  int jobs = 2;
+  bool zstd = false;
+  bool overwrite = false;
+};
+
+struct RowTransformResult {
+  uint64_t rows = 0, cube_res = 0;
+  uint64_t chunks_total = 0, chunks_written = 0, chunks_already_committed = 0;
+  uint64_t zero_chunks = 0;  // all-zero input chunks, passed through without work
+  uint64_t zero_rows = 0;    // all-zero rows inside other chunks, skipped
+};
+
+Result<RowTransformResult> RunRowTransform(const RowTransformOptions& options, const Progress& progress);
+
+// The transform of one row block in place: `rows` rows of 6·R² values (row-major).
+// Exposed for benchmarks and tests. Scratch: see RowBlockScratchSize.
+size_t RowBlockScratchSize(uint64_t cube_res);
+void TransformRowBlock(wavelet::Filter filter, uint64_t cube_res, float* rows_data, uint64_t rows, float* scratch,
+                       uint64_t* zero_rows);
+
+}  // namespace ltb::stages
