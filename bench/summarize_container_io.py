@@ -93,24 +93,28 @@ def main():
     for k, v in machine(out_dir).items():
         w(f"- **{k}**: {v}")
     w(f"- **Benchmark directory**: `{out_dir}` (same filesystem as the repository)")
-    w(f"- **Page cache before every read**: evicted with `ltm_io_bench evict` (fdatasync + "
-      f"posix_fadvise DONTNEED){' and `echo 3 > /proc/sys/vm/drop_caches`' if drop == 'yes' else ''}; "
-      f"mincore showed 0 bytes of the file resident before each timed read (the script stops otherwise). "
-      f"drop_caches permitted: {drop}.")
+    w(f"- **Page cache before every read**: the file evicted with `ltm_io_bench evict` (fdatasync + "
+      f"posix_fadvise DONTNEED, no root needed){' plus `echo 3 > /proc/sys/vm/drop_caches`' if drop == 'yes' else ''}; "
+      f"mincore showed 0 bytes of the file resident before each timed read (the script stops otherwise).")
+    busy = [r.get("busy_before_pct", 0) for r in rows if "busy_before_pct" in r]
+    if busy:
+        w(f"- **Other load**: before each timed command the script waited (≤ 30 s) for the machine to be "
+          f"< 15% busy; busy % in the second before the commands: median {statistics.median(busy):.0f}, "
+          f"max {max(busy)} (other work was running on this shared 2-CPU machine during the run).")
     w("")
     w("## Throughput (GB/s = file bytes / wall seconds of the whole process, 1 GB = 1e9 bytes)")
     w("")
     w("| what | command | median GB/s | min–max GB/s | median s |")
     w("| --- | --- | ---: | ---: | ---: |")
     table = [
-        ("dd_write", "dd write, /dev/zero", "`dd if=/dev/zero of=F bs=8M count=N conv=fdatasync`"),
-        ("dd_write_random", "dd write, random (reference)", "`ltm_io_bench gen \\| dd of=F bs=8M iflag=fullblock conv=fdatasync`"),
-        ("ltm_write", "container write", "`ltm_io_bench write C --bytes N` (random f32, raw, 2 threads, Finish() fdatasyncs)"),
-        ("dd_read", "dd read", "`dd if=F of=/dev/null bs=8M`"),
+        ("dd_write", "dd write, zeros", "`dd if=/dev/zero of=Z bs=8M count=N conv=fdatasync`"),
+        ("dd_write_random", "dd write, random data", "`ltm_io_bench gen \\| dd of=F bs=8M iflag=fullblock conv=fdatasync`"),
+        ("ltm_write", "**container write**", "`ltm_io_bench write C --bytes N` (random f32, raw, checksums on a 2nd thread, Finish() fdatasyncs)"),
+        ("dd_read", "dd read (random dd file)", "`dd if=F of=/dev/null bs=8M`"),
         ("dd_read_container", "dd read of the container file", "`dd if=C of=/dev/null bs=8M`"),
-        ("ltm_read", "container read", "`ltm_io_bench read C` (1 thread, checksums verified, floats summed)"),
+        ("ltm_read", "**container read**", "`ltm_io_bench read C` (1 thread, ReadChunk, checksums verified, floats summed)"),
+        ("ltm_read_prefetch4", "container read + caller prefetch", "`ltm_io_bench read C --prefetch 4` (same, plus WILLNEED on the next 4 chunks)"),
         ("ltm_read_noverify", "container read, no checksum", "`ltm_io_bench read C --no-verify`"),
-        ("ltm_read_prefetch4", "container read, caller prefetch", "`ltm_io_bench read C --prefetch 4` (checksums verified)"),
     ]
     for kind, name, cmd in table:
         v = speeds(kind)
@@ -125,13 +129,13 @@ def main():
     w("| --- | ---: | --- | --- |")
     verdicts = {}
     for kind, ref, name in [
-        ("ltm_write", "dd_write", "write / dd write (zeros)"),
-        ("ltm_write", "dd_write_random", "write / dd write (random)"),
-        ("ltm_read", "dd_read", "read / dd read"),
-        ("ltm_read_noverify", "dd_read", "read no-verify / dd read"),
-        ("ltm_read_prefetch4", "dd_read", "read with caller prefetch / dd read"),
-        ("ltm_read", "dd_read_container", "read / dd read of the container file"),
-        ("ltm_read_prefetch4", "dd_read_container", "read with caller prefetch / dd read of the container file"),
+        ("ltm_write", "dd_write", "container write / dd write (zeros)"),
+        ("ltm_write", "dd_write_random", "container write / dd write (random)"),
+        ("ltm_read", "dd_read", "container read / dd read"),
+        ("ltm_read", "dd_read_container", "container read / dd read of the container file"),
+        ("ltm_read_prefetch4", "dd_read", "read + caller prefetch / dd read"),
+        ("ltm_read_prefetch4", "dd_read_container", "read + caller prefetch / dd read of the container file"),
+        ("ltm_read_noverify", "dd_read", "read, no checksum / dd read"),
     ]:
         if not speeds(kind) or not speeds(ref):
             continue

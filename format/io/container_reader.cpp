@@ -1,5 +1,7 @@
 #include "format/io/container_reader.h"
 
+#include <xxhash.h>
+
 #include "format/chunk_codec.h"
 #include "format/io/frame_scan.h"
 
@@ -211,6 +213,32 @@ Result<Chunk> ContainerReader::ReadChunk(uint32_t array, uint64_t chunk, const R
     }
   }
   return Internal(where + ": unhandled encoding");
+}
+
+Status ContainerReader::VerifyChunk(uint32_t array, uint64_t chunk, MutableByteSpan buffer) const {
+  const IndexEntry* e = Find(array, chunk);
+  if (e == nullptr) return NotFound(path() + ": " + ChunkName(array, chunk) + " is missing");
+  if (buffer.empty()) return InvalidArgument("VerifyChunk needs a non-empty buffer");
+  XXH3_state_t* st = XXH3_createState();
+  XXH3_64bits_reset(st);
+  uint64_t offset = e->frame_offset + kFrameHeaderSize, left = e->header.payload_length;
+  Status s;
+  while (left > 0 && s.ok()) {
+    uint64_t n = std::min<uint64_t>(left, buffer.size());
+    s = file_.ReadAt(offset, buffer.subspan(0, n));
+    if (s.ok()) XXH3_64bits_update(st, buffer.data(), n);
+    offset += n;
+    left -= n;
+  }
+  uint64_t actual = XXH3_64bits_digest(st);
+  XXH3_freeState(st);
+  LTB_RETURN_IF_ERROR(s);
+  if (actual != e->header.payload_checksum) {
+    return DataLoss(path() + ": " + ChunkName(array, chunk) + " at offset " +
+                    std::to_string(e->frame_offset + kFrameHeaderSize) + ": checksum mismatch: expected=" +
+                    Hex64(e->header.payload_checksum) + ", actual=" + Hex64(actual));
+  }
+  return Status::Ok();
 }
 
 Status ContainerReader::Refresh() {

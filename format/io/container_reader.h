@@ -65,6 +65,10 @@ class ContainerReader {
   // Fails with kNotFound when the chunk is missing, kDataLoss on checksum or decode errors.
   Result<Chunk> ReadChunk(uint32_t array, uint64_t chunk, const ReadOptions& options = {}) const;
 
+  // Checks a committed chunk's payload checksum by streaming it through `buffer` with
+  // positional reads (no mapping: memory use is the buffer's size).
+  Status VerifyChunk(uint32_t array, uint64_t chunk, format::MutableByteSpan buffer) const;
+
   // Picks up chunks committed since the file was opened (unsealed files only).
   Status Refresh();
 

@@ -1,0 +1,54 @@
+// ltbake transpose IN -o OUT [--mem-limit 1GiB]
+#include <iostream>
+
+#include "cli/commands.h"
+#include "cli/common.h"
+#include "stages/transpose/transpose.h"
+
+namespace ltb::cli {
+namespace {
+
+class TransposeCommand : public Command {
+ public:
+  explicit TransposeCommand(CLI::App* parent) {
+    auto* app = parent->add_subcommand(
+        "transpose", "row blocks -> column blocks (each column a W×H image), out of core within --mem-limit");
+    app->add_option("IN", options_.input, "input container (row blocks)")->required();
+    app->add_option("-o,--output", options_.output, "output container (column blocks)")->required();
+    app->add_flag("--zstd", options_.zstd, "zstd-compress chunks where it saves at least 10%");
+    app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
+    app->add_flag("!--no-verify-input", options_.verify_input,
+                  "skip the checksum pass over the input (saves one sequential read of it)");
+    AddCommonFlags(app, &flags_);
+  }
+
+  int Run() override {
+    auto mem = ParseSize(flags_.mem_limit);
+    if (!mem.ok()) return ReportFailure(mem.status().WithContext("--mem-limit"));
+    options_.mem_limit = *mem;
+    options_.jobs = flags_.jobs;
+    ProgressBar bar(flags_, "transpose");
+    auto r = stages::RunTranspose(options_, bar.hook());
+    bar.Done();
+    if (!r.ok()) return ReportFailure(r.status());
+    if (!flags_.quiet) {
+      std::cout << "wrote " << options_.output << ": " << r->rows << " x " << r->cols << " in chunks of "
+                << r->block_cols << " column(s); " << r->panels << " panel(s) of up to " << r->panel_cols
+                << " columns";
+      if (r->chunks_already_committed) std::cout << " (resumed: " << r->chunks_already_committed << " already committed)";
+      std::cout << "; " << r->zero_chunks_out << " all-zero chunks stored free; read " << r->bytes_read
+                << " + verified " << r->bytes_verified << " bytes, wrote " << r->bytes_written << "\n";
+    }
+    return kExitOk;
+  }
+
+ private:
+  stages::TransposeOptions options_;
+  CommonFlags flags_;
+};
+
+}  // namespace
+
+std::unique_ptr<Command> RegisterTranspose(CLI::App* parent) { return std::make_unique<TransposeCommand>(parent); }
+
+}  // namespace ltb::cli
