@@ -1,9 +1,14 @@
 #include "stages/row_transform/row_transform.h"
 
+#include <algorithm>
 #include <atomic>
 #include <cstring>
 #include <filesystem>
 #include <vector>
+
+#if defined(__AVX2__)
+#include <immintrin.h>
+#endif
 
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
@@ -19,6 +24,75 @@ namespace {
 // Rows transformed together: each pixel of a face becomes a vector of kLanes values (one
 // per matrix row), so every filter tap is one contiguous vector operation.
 constexpr uint64_t kLanes = 16;
+
+#if defined(__AVX2__)
+// Transposes the 8×8 block whose rows start at src[0..7] (8 floats each) into dst rows
+// dst + i * dst_stride (8 floats each).
+inline void Transpose8x8(const float* const* src, float* dst, size_t dst_stride) {
+  __m256 r0 = _mm256_loadu_ps(src[0]), r1 = _mm256_loadu_ps(src[1]), r2 = _mm256_loadu_ps(src[2]),
+         r3 = _mm256_loadu_ps(src[3]), r4 = _mm256_loadu_ps(src[4]), r5 = _mm256_loadu_ps(src[5]),
+         r6 = _mm256_loadu_ps(src[6]), r7 = _mm256_loadu_ps(src[7]);
+  __m256 t0 = _mm256_unpacklo_ps(r0, r1), t1 = _mm256_unpackhi_ps(r0, r1), t2 = _mm256_unpacklo_ps(r2, r3),
+         t3 = _mm256_unpackhi_ps(r2, r3), t4 = _mm256_unpacklo_ps(r4, r5), t5 = _mm256_unpackhi_ps(r4, r5),
+         t6 = _mm256_unpacklo_ps(r6, r7), t7 = _mm256_unpackhi_ps(r6, r7);
+  __m256 u0 = _mm256_shuffle_ps(t0, t2, 0x44), u1 = _mm256_shuffle_ps(t0, t2, 0xEE),
+         u2 = _mm256_shuffle_ps(t1, t3, 0x44), u3 = _mm256_shuffle_ps(t1, t3, 0xEE),
+         u4 = _mm256_shuffle_ps(t4, t6, 0x44), u5 = _mm256_shuffle_ps(t4, t6, 0xEE),
+         u6 = _mm256_shuffle_ps(t5, t7, 0x44), u7 = _mm256_shuffle_ps(t5, t7, 0xEE);
+  _mm256_storeu_ps(dst + 0 * dst_stride, _mm256_permute2f128_ps(u0, u4, 0x20));
+  _mm256_storeu_ps(dst + 1 * dst_stride, _mm256_permute2f128_ps(u1, u5, 0x20));
+  _mm256_storeu_ps(dst + 2 * dst_stride, _mm256_permute2f128_ps(u2, u6, 0x20));
+  _mm256_storeu_ps(dst + 3 * dst_stride, _mm256_permute2f128_ps(u3, u7, 0x20));
+  _mm256_storeu_ps(dst + 4 * dst_stride, _mm256_permute2f128_ps(u0, u4, 0x31));
+  _mm256_storeu_ps(dst + 5 * dst_stride, _mm256_permute2f128_ps(u1, u5, 0x31));
+  _mm256_storeu_ps(dst + 6 * dst_stride, _mm256_permute2f128_ps(u2, u6, 0x31));
+  _mm256_storeu_ps(dst + 7 * dst_stride, _mm256_permute2f128_ps(u3, u7, 0x31));
+}
+#endif
+
+// lanes[c * n + k] = rows[k][c] for k < n, c < cols. Moves bits only (no arithmetic).
+void Gather(float* const* rows, uint64_t n, uint64_t cols, float* lanes) {
+#if defined(__AVX2__)
+  if (n % 8 == 0 && cols % 8 == 0) {
+    for (uint64_t k0 = 0; k0 < n; k0 += 8)
+      for (uint64_t c0 = 0; c0 < cols; c0 += 8) {
+        const float* src[8];
+        for (int i = 0; i < 8; ++i) src[i] = rows[k0 + i] + c0;
+        Transpose8x8(src, lanes + c0 * n + k0, n);
+      }
+    return;
+  }
+#endif
+  constexpr uint64_t kTile = 64;
+  for (uint64_t c0 = 0; c0 < cols; c0 += kTile) {
+    uint64_t c1 = std::min(cols, c0 + kTile);
+    for (uint64_t k = 0; k < n; ++k)
+      for (uint64_t c = c0; c < c1; ++c) lanes[c * n + k] = rows[k][c];
+  }
+}
+
+// rows[k][c] = lanes[c * n + k].
+void Scatter(const float* lanes, uint64_t n, uint64_t cols, float* const* rows) {
+#if defined(__AVX2__)
+  if (n % 8 == 0 && cols % 8 == 0) {
+    for (uint64_t c0 = 0; c0 < cols; c0 += 8)
+      for (uint64_t k0 = 0; k0 < n; k0 += 8) {
+        const float* src[8];
+        for (int i = 0; i < 8; ++i) src[i] = lanes + (c0 + i) * n + k0;
+        float tmp[64];
+        Transpose8x8(src, tmp, 8);
+        for (int i = 0; i < 8; ++i) std::memcpy(rows[k0 + i] + c0, tmp + i * 8, 32);
+      }
+    return;
+  }
+#endif
+  constexpr uint64_t kTile = 64;
+  for (uint64_t c0 = 0; c0 < cols; c0 += kTile) {
+    uint64_t c1 = std::min(cols, c0 + kTile);
+    for (uint64_t k = 0; k < n; ++k)
+      for (uint64_t c = c0; c < c1; ++c) rows[k][c] = lanes[c * n + k];
+  }
+}
 
 bool RowIsZero(const float* row, uint64_t n) {
   const uint32_t* bits = reinterpret_cast<const uint32_t*>(row);
@@ -53,18 +127,13 @@ void TransformRowBlock(wavelet::Filter filter, uint64_t r, float* data, uint64_t
     }
     if (batch.empty()) continue;
     const uint64_t n = batch.size();
-    // Gather: lanes[c * n + k] = row batch[k], column c.
-    for (uint64_t k = 0; k < n; ++k) {
-      const float* row = data + batch[k] * cols;
-      for (uint64_t c = 0; c < cols; ++c) lanes[c * n + k] = row[c];
-    }
+    float* ptrs[kLanes];
+    for (uint64_t k = 0; k < n; ++k) ptrs[k] = data + batch[k] * cols;
+    Gather(ptrs, n, cols, lanes);
     for (uint64_t face = 0; face < 6; ++face) {
       wavelet::Forward2D(filter, lanes + face * r * r * n, r, r, n, depth, work);
     }
-    for (uint64_t k = 0; k < n; ++k) {
-      float* row = data + batch[k] * cols;
-      for (uint64_t c = 0; c < cols; ++c) row[c] = lanes[c * n + k];
-    }
+    Scatter(lanes, n, cols, ptrs);
   }
 }
 

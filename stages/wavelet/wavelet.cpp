@@ -53,26 +53,74 @@ inline void Axpy(T* __restrict y, const T* __restrict x, T c, size_t lanes) {
   for (size_t l = 0; l < lanes; ++l) y[l] += c * x[l];
 }
 
+// k mod n for k within a few periods of [0, n): tap offsets are at most F/2 out of range,
+// so this is one or two additions where `%` would be an integer division per tap.
+inline size_t Wrap(long long k, size_t n) {
+  const long long nn = static_cast<long long>(n);
+  while (k < 0) k += nn;
+  while (k >= nn) k -= nn;
+  return static_cast<size_t>(k);
+}
+
 // Periodized orthonormal analysis, PyWavelets indexing:
 //   a[o] = Σ_j lo[j] x[(2o + F/2 - j) mod n],  d[o] = Σ_j hi[j] x[(2o + F/2 - j) mod n].
-template <typename T>
-void OrthoAnalysis(Taps t, T* data, size_t n, size_t stride, size_t lanes, T* scratch) {
-  size_t half = n / 2;
-  std::fill(scratch, scratch + n * lanes, T(0));
+// F (taps) and L (lanes; 0 = given at run time) are compile-time so the lane loop is a
+// few vector operations. Every path accumulates from 0 in ascending j, so a lane's
+// result is bit-identical whichever path computed it.
+template <typename T, int F, size_t L>
+void OrthoAnalysisImpl(const double* taps, T* data, size_t n, size_t stride, size_t lanes_rt, T* scratch) {
+  const size_t lanes = L ? L : lanes_rt;
+  const size_t half = n / 2;
+  T lo[F], hi[F];
+  for (int j = 0; j < F; ++j) {
+    lo[j] = static_cast<T>(taps[j]);
+    hi[j] = static_cast<T>(((j & 1) ? 1.0 : -1.0) * taps[F - 1 - j]);
+  }
   for (size_t o = 0; o < half; ++o) {
-    T* lo_out = scratch + o * lanes;
-    T* hi_out = scratch + (half + o) * lanes;
-    for (int j = 0; j < t.size; ++j) {
-      long long k = (static_cast<long long>(2 * o) + t.size / 2 - j) % static_cast<long long>(n);
-      if (k < 0) k += static_cast<long long>(n);
-      const T* x = data + static_cast<size_t>(k) * stride;
-      T lo = static_cast<T>(t.lo[j]);
-      T hi = static_cast<T>(((j & 1) ? 1.0 : -1.0) * t.lo[t.size - 1 - j]);
-      Axpy(lo_out, x, lo, lanes);
-      Axpy(hi_out, x, hi, lanes);
+    const T* x[F];
+    for (int j = 0; j < F; ++j) x[j] = data + Wrap(static_cast<long long>(2 * o) + F / 2 - j, n) * stride;
+    T* __restrict lo_out = scratch + o * lanes;
+    T* __restrict hi_out = scratch + (half + o) * lanes;
+    if constexpr (L != 0) {
+      // Short fixed lanes: accumulate in registers.
+      for (size_t l = 0; l < lanes; ++l) {
+        T a = 0, d = 0;
+        for (int j = 0; j < F; ++j) {
+          a += lo[j] * x[j][l];
+          d += hi[j] * x[j][l];
+        }
+        lo_out[l] = a;
+        hi_out[l] = d;
+      }
+    } else {
+      // Long lanes (a whole band row): stream each tap over the lanes, the same sums in
+      // the same order.
+      std::fill(lo_out, lo_out + lanes, T(0));
+      std::fill(hi_out, hi_out + lanes, T(0));
+      for (int j = 0; j < F; ++j) {
+        Axpy(lo_out, x[j], lo[j], lanes);
+        Axpy(hi_out, x[j], hi[j], lanes);
+      }
     }
   }
-  Unpack(scratch, n, stride, lanes, data);
+  if (stride == lanes) std::memcpy(data, scratch, n * lanes * sizeof(T));
+  else Unpack(scratch, n, stride, lanes, data);
+}
+
+template <typename T, int F>
+void OrthoAnalysisTaps(const double* taps, T* data, size_t n, size_t stride, size_t lanes, T* scratch) {
+  if (lanes == 16) OrthoAnalysisImpl<T, F, 16>(taps, data, n, stride, lanes, scratch);
+  else OrthoAnalysisImpl<T, F, 0>(taps, data, n, stride, lanes, scratch);
+}
+
+template <typename T>
+void OrthoAnalysis(Taps t, T* data, size_t n, size_t stride, size_t lanes, T* scratch) {
+  switch (t.size) {
+    case 2: return OrthoAnalysisTaps<T, 2>(t.lo, data, n, stride, lanes, scratch);
+    case 4: return OrthoAnalysisTaps<T, 4>(t.lo, data, n, stride, lanes, scratch);
+    case 6: return OrthoAnalysisTaps<T, 6>(t.lo, data, n, stride, lanes, scratch);
+    case 8: return OrthoAnalysisTaps<T, 8>(t.lo, data, n, stride, lanes, scratch);
+  }
 }
 
 // The transpose of OrthoAnalysis (its inverse, the filters being orthonormal).
@@ -84,9 +132,7 @@ void OrthoSynthesis(Taps t, T* data, size_t n, size_t stride, size_t lanes, T* s
     const T* a = data + o * stride;
     const T* d = data + (half + o) * stride;
     for (int j = 0; j < t.size; ++j) {
-      long long k = (static_cast<long long>(2 * o) + t.size / 2 - j) % static_cast<long long>(n);
-      if (k < 0) k += static_cast<long long>(n);
-      T* x = scratch + static_cast<size_t>(k) * lanes;
+      T* x = scratch + Wrap(static_cast<long long>(2 * o) + t.size / 2 - j, n) * lanes;
       T lo = static_cast<T>(t.lo[j]);
       T hi = static_cast<T>(((j & 1) ? 1.0 : -1.0) * t.lo[t.size - 1 - j]);
       Axpy(x, a, lo, lanes);
