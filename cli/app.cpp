@@ -28,7 +28,7 @@ int LtbakeMain(int argc, char** argv) {
   app.add_flag("--version", version, "print the tool version and the .ltm format versions it reads and writes");
 
   std::map<CLI::App*, std::unique_ptr<Command>> commands;
-  for (auto reg : {RegisterInspect, RegisterVerify, RegisterConvert, RegisterRowTransform, RegisterTranspose}) {
+  for (auto reg : {RegisterInspect, RegisterVerify, RegisterConvert, RegisterRowTransform, RegisterTranspose, RegisterSample}) {
     auto cmd = reg(&app);
     commands[app.get_subcommands({}).back()] = std::move(cmd);
   }

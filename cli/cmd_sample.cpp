@@ -1,0 +1,62 @@
+// ltbake sample SCENE.toml -o raw.ltm [--cube-res R] [--spp N] [--bounces N] [--seed S]
+#include <cstdio>
+#include <iostream>
+
+#include "cli/commands.h"
+#include "cli/common.h"
+#include "stages/sample/sample.h"
+
+namespace ltb::cli {
+namespace {
+
+class SampleCommand : public Command {
+ public:
+  explicit SampleCommand(CLI::App* parent) {
+    auto* app = parent->add_subcommand("sample", "ray-cast the light transport matrix of a scene (Embree)");
+    app->add_option("SCENE", options_.scene, "scene file (TOML, see docs/SCENE.md)")->required()->check(CLI::ExistingFile);
+    app->add_option("-o,--output", options_.output, "output container (row blocks)")->required();
+    app->add_option("--cube-res", cube_res_, "cube face resolution R, a power of two (default: the scene's, else 32)");
+    app->add_option("--spp", spp_, "stratified jittered rays per texel (default: the scene's, else 4)");
+    app->add_option("--bounces", bounces_, "diffuse interreflection bounces (default: the scene's, else 0)");
+    app->add_option("--seed", seed_, "random seed (default: the scene's, else 1)");
+    app->add_option("--chunk-rows", options_.chunk_rows, "rows per chunk (default: ~2 MiB chunks)");
+    app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
+    AddCommonFlags(app, &flags_);
+  }
+
+  int Run() override {
+    if (cube_res_ >= 0) options_.cube_res = static_cast<uint32_t>(cube_res_);
+    if (spp_ >= 0) options_.spp = static_cast<uint32_t>(spp_);
+    if (bounces_ >= 0) options_.bounces = static_cast<uint32_t>(bounces_);
+    if (seed_ >= 0) options_.seed = static_cast<uint64_t>(seed_);
+    options_.jobs = flags_.jobs;
+    ProgressBar bar(flags_, "sample");
+    auto r = stages::RunSample(options_, bar.hook());
+    bar.Done();
+    if (!r.ok()) return ReportFailure(r.status());
+    if (!flags_.quiet) {
+      char rate[64];
+      std::snprintf(rate, sizeof rate, "%.3g", r->seconds > 0 ? r->rays / r->seconds : 0.0);
+      std::cout << "wrote " << options_.output << ": " << r->rows << " rows x " << 6ull * r->cube_res * r->cube_res
+                << " texels (R = " << r->cube_res << ", spp " << r->spp << ", bounces " << r->bounces << ")";
+      if (r->chunks_already_committed) std::cout << ", resumed (" << r->chunks_already_committed << " chunks were committed)";
+      std::cout << "\n  rows that see geometry: " << r->valid_rows << " (the rest are all-zero rows, mask 0)"
+                << "\n  rays traced: " << r->rays << " in " << r->seconds << " s (" << rate << " rays/s)"
+                << "\n  skipped: " << r->texels_below_horizon << " (row, texel) pairs wholly below the horizon, "
+                << r->samples_below_horizon << " samples below it"
+                << "\n  degenerate triangles dropped: " << r->degenerate_triangles << "\n";
+    }
+    return kExitOk;
+  }
+
+ private:
+  stages::SampleOptions options_;
+  long long cube_res_ = -1, spp_ = -1, bounces_ = -1, seed_ = -1;
+  CommonFlags flags_;
+};
+
+}  // namespace
+
+std::unique_ptr<Command> RegisterSample(CLI::App* parent) { return std::make_unique<SampleCommand>(parent); }
+
+}  // namespace ltb::cli

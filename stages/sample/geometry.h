@@ -1,0 +1,37 @@
+// Triangle geometry for the sampler: mesh files (OpenMesh: OBJ, PLY, OFF, STL; Draco: .drc),
+// built-in primitives and object transforms.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <glm/mat4x4.hpp>
+#include <glm/vec3.hpp>
+
+#include "format/status.h"
+#include "stages/sample/scene.h"
+
+namespace ltb::sample {
+
+struct TriangleMesh {
+  std::vector<glm::dvec3> positions;
+  std::vector<glm::uvec3> triangles;
+  std::vector<glm::dvec3> normals;  // per vertex, unit (area-weighted face normals)
+  uint64_t degenerate_dropped = 0;  // zero-area or repeated-vertex faces removed
+};
+
+// Loads a mesh file; polygons are triangulated. Fails naming the file and the reason when
+// it cannot be read, holds no triangles, or has a non-finite vertex.
+Result<TriangleMesh> LoadMeshFile(const std::string& path);
+
+TriangleMesh MakePlane(const glm::dvec3& size);  // size.x × size.y at z = 0, normal +z
+TriangleMesh MakeBox(const glm::dvec3& size, const glm::dvec3& center);
+
+// Scale, rotate (degrees about x, then y, then z), translate.
+glm::dmat4 ObjectTransform(const Object& o);
+void ApplyTransform(const glm::dmat4& m, TriangleMesh* mesh);
+// Drops zero-area triangles (counting them) and recomputes vertex normals.
+void Finalize(TriangleMesh* mesh);
+
+}  // namespace ltb::sample

@@ -1,0 +1,55 @@
+// The Embree side of the sampler: one device and one scene for the whole stage; triangle
+// meshes and exact spheres; closest-hit queries for camera rays and bounces, stream
+// occlusion queries for transport. Embree errors arrive through the device error
+// callback and become a Status.
+#pragma once
+
+#include <embree3/rtcore.h>
+
+#include <memory>
+#include <mutex>
+#include <vector>
+
+#include <glm/vec3.hpp>
+
+#include "format/status.h"
+#include "stages/sample/geometry.h"
+
+namespace ltb::sample {
+
+struct Hit {
+  bool hit = false;
+  double t = 0;
+  glm::dvec3 normal{0, 0, 1};  // unit geometric normal as Embree reports it (not oriented)
+  unsigned geom_id = 0;
+};
+
+class RayScene {
+ public:
+  ~RayScene();
+  RayScene(const RayScene&) = delete;
+  RayScene& operator=(const RayScene&) = delete;
+
+  static Result<std::unique_ptr<RayScene>> Create();
+  // Geometry ids are assigned in the order of these calls, from 0.
+  Status AddMesh(const TriangleMesh& mesh);
+  Status AddSphere(const glm::dvec3& center, double radius);
+  Status Commit();
+
+  Hit Intersect(const glm::dvec3& origin, const glm::dvec3& dir) const;
+  // Occlusion of every ray in place: an occluded ray's tfar becomes -inf. Thread-safe.
+  void Occluded(RTCRay* rays, size_t count) const;
+  // The first error Embree reported, if any.
+  Status error() const;
+
+ private:
+  RayScene() = default;
+  static void OnError(void* user, RTCError code, const char* message);
+
+  RTCDevice device_ = nullptr;
+  RTCScene scene_ = nullptr;
+  mutable std::mutex mu_;
+  Status error_;
+};
+
+}  // namespace ltb::sample

@@ -1,0 +1,465 @@
+#include "stages/sample/sample.h"
+
+#include <xxhash.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <vector>
+
+#include <glm/geometric.hpp>
+#include <glm/trigonometric.hpp>
+
+#include "format/io/container_writer.h"
+#include "format/version.h"
+#include "stages/common/basis.h"
+#include "stages/common/cubemap.h"
+#include "stages/common/parallel_for.h"
+#include "stages/sample/geometry.h"
+#include "stages/sample/ray_scene.h"
+#include "stages/sample/scene.h"
+
+namespace ltb::stages {
+
+using namespace ltb::format;
+using sample::Material;
+using sample::Object;
+using sample::SceneDesc;
+
+namespace {
+
+// Counter-based random numbers: one stream per (row, item), whatever thread runs it.
+struct Rng {
+  uint64_t state;
+  Rng(uint64_t seed, uint64_t row, uint64_t item) {
+    state = seed ^ (row * 0x9E3779B97F4A7C15ull) ^ (item * 0xC2B2AE3D27D4EB4Full);
+    Next();
+  }
+  uint64_t Next() {
+    uint64_t z = (state += 0x9E3779B97F4A7C15ull);
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+    return z ^ (z >> 31);
+  }
+  double Uniform() { return static_cast<double>(Next() >> 11) * 0x1.0p-53; }
+};
+
+struct TexelInfo {
+  int face;
+  double u0, v0;  // lower corner in face coordinates
+  glm::dvec3 centre;
+  double cos_limit;  // skip the texel when n·centre < cos_limit (wholly below the horizon)
+};
+
+struct RowPoint {
+  bool valid = false;
+  glm::dvec3 p{0}, n{0, 0, 1}, wo{0, 0, 1};
+  int material = 0;
+};
+
+struct Geometry {
+  std::unique_ptr<sample::RayScene> rays;
+  std::vector<int> geom_material;  // Embree geometry id -> material
+  std::vector<RowPoint> vertex_rows;
+  double epsilon = 1e-4;
+  uint64_t degenerate = 0;
+  std::string scene_hash;
+};
+
+Status HashFile(const std::string& path, XXH3_state_t* st) {
+  std::ifstream f(path, std::ios::binary);
+  if (!f) return NotFound(path + ": cannot open");
+  std::vector<char> buf(1 << 16);
+  while (f) {
+    f.read(buf.data(), static_cast<std::streamsize>(buf.size()));
+    XXH3_64bits_update(st, buf.data(), static_cast<size_t>(f.gcount()));
+  }
+  return Status::Ok();
+}
+
+Result<Geometry> BuildGeometry(const SceneDesc& s) {
+  Geometry g;
+  LTB_ASSIGN_OR_RETURN(g.rays, sample::RayScene::Create());
+  XXH3_state_t* st = XXH3_createState();
+  XXH3_64bits_reset(st);
+  Status hs = HashFile(s.path, st);
+  glm::dvec3 lo(std::numeric_limits<double>::infinity()), hi(-std::numeric_limits<double>::infinity());
+  for (const Object& o : s.objects) {
+    std::string where = s.path + ":" + std::to_string(o.line) + ": object \"" + o.name + "\"";
+    if (o.type == Object::Type::kSphere) {
+      glm::dvec3 sc = glm::abs(o.scale);
+      if (std::fabs(sc.x - sc.y) > 1e-12 * sc.x || std::fabs(sc.x - sc.z) > 1e-12 * sc.x) {
+        XXH3_freeState(st);
+        return InvalidArgument(where + ": a sphere needs a uniform scale");
+      }
+      glm::dvec3 c = glm::dvec3(sample::ObjectTransform(o) * glm::dvec4(o.center, 1.0));
+      double r = o.radius * sc.x;
+      LTB_RETURN_IF_ERROR(g.rays->AddSphere(c, r));
+      lo = glm::min(lo, c - r);
+      hi = glm::max(hi, c + r);
+    } else {
+      sample::TriangleMesh mesh;
+      if (o.type == Object::Type::kMesh) {
+        auto loaded = sample::LoadMeshFile(o.file);
+        if (!loaded.ok()) {
+          XXH3_freeState(st);
+          return loaded.status().WithContext(where);
+        }
+        mesh = std::move(loaded).value();
+        if (hs.ok()) hs = HashFile(o.file, st);
+      } else if (o.type == Object::Type::kPlane) {
+        mesh = sample::MakePlane(o.size);
+      } else {
+        mesh = sample::MakeBox(o.size, o.center);
+      }
+      g.degenerate += mesh.degenerate_dropped;
+      sample::ApplyTransform(sample::ObjectTransform(o), &mesh);
+      if (mesh.triangles.empty()) {
+        XXH3_freeState(st);
+        return InvalidArgument(where + ": has no triangles left after its transform (zero scale?)");
+      }
+      LTB_RETURN_IF_ERROR(g.rays->AddMesh(mesh));
+      for (const auto& p : mesh.positions) {
+        lo = glm::min(lo, p);
+        hi = glm::max(hi, p);
+      }
+      if (s.mode == SceneDesc::Mode::kVertex &&
+          std::find(s.vertex_objects.begin(), s.vertex_objects.end(), o.name) != s.vertex_objects.end()) {
+        for (size_t i = 0; i < mesh.positions.size(); ++i) {
+          g.vertex_rows.push_back({true, mesh.positions[i], mesh.normals[i], mesh.normals[i], o.material});
+        }
+      }
+    }
+    g.geom_material.push_back(o.material);
+  }
+  if (s.mode == SceneDesc::Mode::kVertex) {
+    for (const Object& o : s.objects) {
+      if (o.type == Object::Type::kSphere &&
+          std::find(s.vertex_objects.begin(), s.vertex_objects.end(), o.name) != s.vertex_objects.end()) {
+        XXH3_freeState(st);
+        return InvalidArgument(s.path + ":" + std::to_string(o.line) + ": object \"" + o.name +
+                               "\" is a sphere, which has no vertices to be rows");
+      }
+    }
+  }
+  uint64_t h = XXH3_64bits_digest(st);
+  XXH3_freeState(st);
+  LTB_RETURN_IF_ERROR(hs);
+  g.scene_hash = Hex64(h).substr(2);
+  LTB_RETURN_IF_ERROR(g.rays->Commit());
+  g.epsilon = std::max(1e-6, 1e-5 * glm::length(hi - lo));
+  return g;
+}
+
+std::vector<TexelInfo> TexelTable(uint32_t r) {
+  std::vector<TexelInfo> t(6ull * r * r);
+  for (uint64_t c = 0; c < t.size(); ++c) {
+    cubemap::Texel x = cubemap::ColumnToTexel(c, r);
+    TexelInfo& ti = t[c];
+    ti.face = x.face;
+    ti.u0 = 2.0 * x.s / r - 1.0;
+    ti.v0 = 2.0 * x.t / r - 1.0;
+    ti.centre = cubemap::TexelCenter(x, r);
+    // The texel lies in the cone of half-angle ρ around its centre; it is wholly below the
+    // horizon when the centre is at least 90° + ρ from the normal: n·centre <= -sin ρ.
+    ti.cos_limit = -std::sin(cubemap::TexelAngularRadius(x, r)) - 1e-12;
+  }
+  return t;
+}
+
+// An orthonormal frame around n.
+void Frame(const glm::dvec3& n, glm::dvec3* t, glm::dvec3* b) {
+  glm::dvec3 a = std::fabs(n.x) > 0.9 ? glm::dvec3(0, 1, 0) : glm::dvec3(1, 0, 0);
+  *t = glm::normalize(glm::cross(a, n));
+  *b = glm::cross(n, *t);
+}
+
+glm::dvec3 CosineSample(const glm::dvec3& n, Rng& rng) {
+  double u1 = rng.Uniform(), u2 = rng.Uniform();
+  double r = std::sqrt(u1), phi = 2 * M_PI * u2;
+  glm::dvec3 t, b;
+  Frame(n, &t, &b);
+  return glm::normalize(t * (r * std::cos(phi)) + b * (r * std::sin(phi)) + n * std::sqrt(std::max(0.0, 1 - u1)));
+}
+
+struct Brdf {
+  double diffuse;  // albedo / π
+  double ks_norm;  // ks (n+2) / (2π), 0 when not glossy
+  double exponent;
+  glm::dvec3 reflect;  // mirror direction of the view
+  double Eval(const glm::dvec3& w) const {
+    double f = diffuse;
+    if (ks_norm > 0) f += ks_norm * std::pow(std::max(0.0, glm::dot(reflect, w)), exponent);
+    return f;
+  }
+};
+
+struct RowScratch {
+  std::vector<RTCRay> rays;
+  std::vector<uint32_t> ray_column;
+  std::vector<double> ray_value;
+  std::vector<double> sum_value;
+};
+
+struct Counters {
+  std::atomic<uint64_t> rays{0}, below{0}, samples_below{0};
+};
+
+class Sampler {
+ public:
+  Sampler(const SceneDesc& s, const Geometry& g, uint32_t r, uint32_t spp, uint32_t bounces, uint64_t seed)
+      : s_(s), g_(g), r_(r), spp_(spp), bounces_(bounces), seed_(seed), texels_(TexelTable(r)) {
+    // Strata tile the texel exactly: kx · ky = spp, as square as spp allows.
+    kx_ = static_cast<uint32_t>(std::sqrt(static_cast<double>(spp)));
+    while (spp % kx_ != 0) --kx_;
+    ky_ = spp / kx_;
+  }
+
+  RowPoint Primary(uint64_t row) const {
+    if (s_.mode == SceneDesc::Mode::kVertex) return g_.vertex_rows[row];
+    const sample::Camera& c = s_.camera;
+    uint64_t y = row / c.width, x = row % c.width;
+    glm::dvec3 f = glm::normalize(c.target - c.eye);
+    glm::dvec3 right = glm::normalize(glm::cross(f, c.up));
+    glm::dvec3 up = glm::cross(right, f);
+    double th = std::tan(glm::radians(c.fov_degrees) / 2), aspect = double(c.width) / c.height;
+    double px = (2.0 * (x + 0.5) / c.width - 1.0) * th * aspect, py = (1.0 - 2.0 * (y + 0.5) / c.height) * th;
+    glm::dvec3 d = glm::normalize(f + px * right + py * up);
+    sample::Hit h = g_.rays->Intersect(c.eye, d);
+    RowPoint rp;
+    if (!h.hit) return rp;
+    rp.valid = true;
+    rp.p = c.eye + d * h.t;
+    rp.n = glm::dot(h.normal, d) > 0 ? -h.normal : h.normal;  // facing the camera
+    rp.wo = -d;
+    rp.material = g_.geom_material[h.geom_id];
+    return rp;
+  }
+
+  // One row of T (6R² values) for a valid point.
+  void Transport(uint64_t row, const RowPoint& rp, float* out, RowScratch& sc, Counters& cnt) const {
+    const Material& m = s_.materials[rp.material];
+    Brdf brdf{m.albedo / M_PI, 0, m.exponent, {}};
+    if (s_.mode == SceneDesc::Mode::kImage && m.ks > 0) {
+      brdf.ks_norm = m.ks * (m.exponent + 2) / (2 * M_PI);
+      brdf.reflect = 2 * glm::dot(rp.n, rp.wo) * rp.n - rp.wo;
+    }
+    const uint64_t cols = texels_.size();
+    glm::dvec3 origin = rp.p + rp.n * g_.epsilon;
+    sc.rays.clear();
+    sc.ray_column.clear();
+    sc.ray_value.clear();
+    sc.sum_value.assign(cols, 0.0);
+    const double h = 2.0 / r_;
+    uint64_t below = 0, samples_below = 0;
+    for (uint64_t c = 0; c < cols; ++c) {
+      const TexelInfo& t = texels_[c];
+      if (glm::dot(rp.n, t.centre) <= t.cos_limit) {
+        ++below;
+        continue;
+      }
+      Rng rng(seed_, row, c);
+      for (uint32_t i = 0; i < spp_; ++i) {
+        double u = t.u0 + (i % kx_ + rng.Uniform()) / kx_ * h;
+        double v = t.v0 + (i / kx_ + rng.Uniform()) / ky_ * h;
+        double w = std::pow(1.0 + u * u + v * v, -1.5);  // dω / du dv
+        glm::dvec3 d = glm::normalize(cubemap::FaceDirection(t.face, u, v));
+        double cosine = glm::dot(rp.n, d);
+        if (cosine <= 0) {
+          ++samples_below;
+          continue;
+        }
+        RTCRay ray{};
+        ray.org_x = static_cast<float>(origin.x);
+        ray.org_y = static_cast<float>(origin.y);
+        ray.org_z = static_cast<float>(origin.z);
+        ray.dir_x = static_cast<float>(d.x);
+        ray.dir_y = static_cast<float>(d.y);
+        ray.dir_z = static_cast<float>(d.z);
+        ray.tnear = 0.0f;
+        ray.tfar = std::numeric_limits<float>::infinity();
+        ray.mask = 0xFFFFFFFFu;
+        sc.rays.push_back(ray);
+        sc.ray_column.push_back(static_cast<uint32_t>(c));
+        sc.ray_value.push_back(w * brdf.Eval(d) * cosine);
+      }
+    }
+    g_.rays->Occluded(sc.rays.data(), sc.rays.size());
+    for (size_t k = 0; k < sc.rays.size(); ++k) {
+      if (sc.rays[k].tfar >= 0) sc.sum_value[sc.ray_column[k]] += sc.ray_value[k];  // not occluded
+    }
+    // Stratified estimate of ∫_texel f cos V dω = ∫∫ f cos V w du dv: each of the spp
+    // strata has area h²/spp in face coordinates (unbiased; docs/SAMPLE.md).
+    std::vector<double>& acc = sc.sum_value;
+    const double stratum_area = h * h / spp_;
+    for (uint64_t c = 0; c < cols; ++c) acc[c] *= stratum_area;
+    uint64_t rays = sc.rays.size();
+    if (bounces_ > 0) rays += Indirect(row, rp, brdf, origin, acc);
+    for (uint64_t c = 0; c < cols; ++c) out[c] = static_cast<float>(acc[c]);
+    cnt.rays += rays;
+    cnt.below += below;
+    cnt.samples_below += samples_below;
+  }
+
+ private:
+  // Paths that bounce at least once before escaping; each escaping path adds its
+  // throughput to the texel it leaves through. Diffuse at the bounces.
+  uint64_t Indirect(uint64_t row, const RowPoint& rp, const Brdf& brdf, const glm::dvec3& origin,
+                    std::vector<double>& acc) const {
+    const uint64_t cols = texels_.size();
+    const uint64_t paths = std::max<uint64_t>(1, spp_ * cols / 2);
+    uint64_t rays = 0;
+    for (uint64_t k = 0; k < paths; ++k) {
+      Rng rng(seed_, row, cols + k);
+      glm::dvec3 d = CosineSample(rp.n, rng);
+      double beta = brdf.Eval(d) * M_PI;  // f cos / pdf with pdf = cos / π
+      glm::dvec3 o = origin;
+      sample::Hit hit = g_.rays->Intersect(o, d);
+      ++rays;
+      if (!hit.hit) continue;  // escaped directly: that is the direct term
+      for (uint32_t b = 0; b < bounces_; ++b) {
+        glm::dvec3 y = o + d * hit.t;
+        glm::dvec3 ny = glm::dot(hit.normal, d) > 0 ? -hit.normal : hit.normal;
+        beta *= s_.materials[g_.geom_material[hit.geom_id]].albedo;
+        d = CosineSample(ny, rng);
+        o = y + ny * g_.epsilon;
+        hit = g_.rays->Intersect(o, d);
+        ++rays;
+        if (!hit.hit) {
+          acc[cubemap::Column(cubemap::DirectionToTexel(d, r_), r_)] += beta / static_cast<double>(paths);
+          break;
+        }
+      }
+    }
+    return rays;
+  }
+
+  const SceneDesc& s_;
+  const Geometry& g_;
+  uint32_t r_, spp_, bounces_;
+  uint64_t seed_;
+  std::vector<TexelInfo> texels_;
+  uint32_t kx_ = 1, ky_ = 1;
+};
+
+}  // namespace
+
+Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress) {
+  auto t0 = std::chrono::steady_clock::now();
+  LTB_ASSIGN_OR_RETURN(SceneDesc scene, sample::ParseScene(o.scene));
+  uint32_t r = o.cube_res.value_or(scene.cube_res);
+  uint32_t spp = o.spp.value_or(scene.spp);
+  uint32_t bounces = o.bounces.value_or(scene.bounces);
+  uint64_t seed = o.seed.value_or(scene.seed);
+  if (!IsPowerOfTwo(r) || r > 1024) {
+    return InvalidArgument("cube resolution " + std::to_string(r) + " is not a power of two in 1..1024 (--cube-res)");
+  }
+  if (spp == 0) return InvalidArgument("--spp must be at least 1");
+  LTB_ASSIGN_OR_RETURN(Geometry geo, BuildGeometry(scene));
+
+  const uint64_t rows = scene.mode == SceneDesc::Mode::kImage
+                            ? uint64_t{scene.camera.width} * scene.camera.height
+                            : geo.vertex_rows.size();
+  const uint64_t cols = 6ull * r * r;
+  uint64_t block = o.chunk_rows;
+  if (block == 0) {
+    block = std::max<uint64_t>(1, (2u << 20) / (cols * 4));
+    block = std::min(block, std::max<uint64_t>(1, (rows + 4 * o.jobs - 1) / (4 * o.jobs)));
+  }
+  block = std::min(block, rows);
+
+  auto spec = [&](const char* name, DType t, uint64_t c) {
+    ArraySpec a;
+    a.name = name;
+    a.dtype = t;
+    a.rows = rows;
+    a.cols = c;
+    a.layout = Layout::kRows;
+    a.block = block;
+    return a.ToJson();
+  };
+  nlohmann::json rows_basis =
+      scene.mode == SceneDesc::Mode::kImage
+          ? ImageRows(scene.camera.width, scene.camera.height)
+          : nlohmann::json{{"kind", "vertices"}, {"count", rows}, {"objects", scene.vertex_objects}};
+  nlohmann::json params = {{"cube_res", r}, {"spp", spp}, {"bounces", bounces}, {"seed", seed},
+                           {"scene", std::filesystem::path(o.scene).filename().string()},
+                           {"scene_hash", geo.scene_hash}};
+  nlohmann::json meta = {
+      {"arrays", {spec("matrix", DType::kF32, cols), spec("mask", DType::kU8, 1), spec("position", DType::kF32, 3),
+                  spec("normal", DType::kF32, 3)}},
+      {"basis", {{"rows", rows_basis}, {"cols", PixelCubemapCols(r)}}},
+      {"provenance", Provenance("sample", params, {})},
+  };
+  io::WriterOptions wo;
+  wo.overwrite_mismatch = o.overwrite;
+  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::ContainerWriter::Open(o.output, meta, wo));
+
+  SampleResult result;
+  result.rows = rows;
+  result.cube_res = r;
+  result.spp = spp;
+  result.bounces = bounces;
+  result.degenerate_triangles = geo.degenerate;
+  const uint64_t nchunks = (rows + block - 1) / block;
+  result.chunks_total = nchunks * 4;
+  result.chunks_already_committed = out.resume_info().committed_chunks;
+
+  std::vector<uint64_t> todo;
+  for (uint64_t c = 0; c < nchunks; ++c) {
+    bool all = true;
+    for (uint32_t a = 0; a < 4; ++a) all = all && out.Has(a, c);
+    if (!all) todo.push_back(c);
+  }
+  Sampler sampler(scene, geo, r, spp, bounces, seed);
+  Counters cnt;
+  std::atomic<uint64_t> valid{0}, written{0};
+  // Progress in rays, against an estimate (half of every row's texels above the horizon).
+  uint64_t estimate = std::max<uint64_t>(1, todo.size() * block * cols * spp / 2 * (bounces > 0 ? 2 : 1));
+  Status s = ParallelFor(todo, o.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
+                         [&](uint64_t chunk) -> Status {
+    uint64_t r0 = chunk * block, n = std::min(block, rows - r0);
+    thread_local RowScratch sc;
+    std::vector<float> mat(n * cols, 0.0f), pos(n * 3, 0.0f), nor(n * 3, 0.0f);
+    std::vector<uint8_t> mask(n, 0);
+    for (uint64_t i = 0; i < n; ++i) {
+      if (progress.Cancelled()) return Cancelled("interrupted; committed chunks are kept, rerun to resume");
+      RowPoint rp = sampler.Primary(r0 + i);
+      if (!rp.valid) continue;  // sees no geometry: an all-zero row, mask 0
+      mask[i] = 1;
+      valid++;
+      for (int k = 0; k < 3; ++k) {
+        pos[3 * i + k] = static_cast<float>(rp.p[k]);
+        nor[3 * i + k] = static_cast<float>(rp.n[k]);
+      }
+      sampler.Transport(r0 + i, rp, mat.data() + i * cols, sc, cnt);
+      progress.Report(std::min(cnt.rays.load(), estimate), estimate, "rays");
+    }
+    LTB_RETURN_IF_ERROR(geo.rays->error());
+    auto bytes = [](const auto& v) {
+      return ByteSpan(reinterpret_cast<const std::byte*>(v.data()), v.size() * sizeof(v[0]));
+    };
+    const ByteSpan parts[4] = {bytes(mat), bytes(mask), bytes(pos), bytes(nor)};
+    for (uint32_t a = 0; a < 4; ++a) {
+      if (out.Has(a, chunk)) continue;
+      LTB_RETURN_IF_ERROR(out.Put(a, chunk, parts[a]));
+      written++;
+    }
+    return Status::Ok();
+  });
+  result.chunks_written = written;
+  result.rays = cnt.rays;
+  result.texels_below_horizon = cnt.below;
+  result.samples_below_horizon = cnt.samples_below;
+  result.valid_rows = valid;
+  LTB_RETURN_IF_ERROR(s);
+  LTB_RETURN_IF_ERROR(out.Finish());
+  result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return result;
+}
+
+}  // namespace ltb::stages

@@ -1,0 +1,39 @@
+// `ltbake sample SCENE.toml -o raw.ltm`: ray-cast the light transport matrix T of a scene
+// with Embree (DESIGN.md "The math in one paragraph"), written as row blocks with per-row
+// side tables (mask, position, normal). docs/SAMPLE.md describes the estimator.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+
+#include "format/progress.h"
+#include "format/status.h"
+
+namespace ltb::stages {
+
+struct SampleOptions {
+  std::string scene;
+  std::string output;
+  // Override the scene's [sampling] values when set.
+  std::optional<uint32_t> cube_res, spp, bounces;
+  std::optional<uint64_t> seed;
+  uint64_t chunk_rows = 0;  // rows per chunk; 0 picks ~2 MiB chunks
+  int jobs = 2;
+  bool overwrite = false;
+};
+
+struct SampleResult {
+  uint64_t rows = 0, valid_rows = 0;  // rows that see geometry (image) or all vertices
+  uint32_t cube_res = 0, spp = 0, bounces = 0;
+  uint64_t chunks_total = 0, chunks_written = 0, chunks_already_committed = 0;
+  uint64_t rays = 0;                  // occlusion + bounce rays traced by this run
+  uint64_t texels_below_horizon = 0;  // (row, texel) pairs skipped without tracing
+  uint64_t samples_below_horizon = 0; // samples in partly visible texels that needed no ray
+  uint64_t degenerate_triangles = 0;
+  double seconds = 0;
+};
+
+Result<SampleResult> RunSample(const SampleOptions& options, const Progress& progress);
+
+}  // namespace ltb::stages

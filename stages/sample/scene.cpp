@@ -1,0 +1,237 @@
+#include "stages/sample/scene.h"
+
+#include <cmath>
+#include <filesystem>
+#include <map>
+#include <set>
+
+#include <toml++/toml.h>
+
+namespace ltb::sample {
+namespace {
+
+std::string Where(const std::string& path, const toml::node& n) {
+  return path + ":" + std::to_string(n.source().begin.line);
+}
+
+// Lists every key of `table` not in `allowed`, each with its line.
+Status CheckKeys(const std::string& path, const toml::table& table, const std::string& what,
+                 const std::set<std::string>& allowed) {
+  std::string bad;
+  for (const auto& [key, node] : table) {
+    if (allowed.count(std::string(key.str())) == 0) {
+      bad += (bad.empty() ? "" : ", ") + std::string("\"") + std::string(key.str()) + "\" (line " +
+             std::to_string(node.source().begin.line) + ")";
+    }
+  }
+  if (bad.empty()) return Status::Ok();
+  std::string known;
+  for (const auto& k : allowed) known += (known.empty() ? "" : ", ") + k;
+  return InvalidArgument(path + ": unknown key(s) in " + what + ": " + bad + "; known keys: " + known);
+}
+
+Result<double> GetNumber(const std::string& path, const toml::table& t, const char* key, double def, double lo,
+                         double hi) {
+  const toml::node* n = t.get(key);
+  if (n == nullptr) return def;
+  std::optional<double> v = n->value<double>();
+  if (!v || !std::isfinite(*v)) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be a number");
+  if (*v < lo || *v > hi) {
+    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + std::to_string(*v) + ", outside [" +
+                           std::to_string(lo) + ", " + std::to_string(hi) + "]");
+  }
+  return *v;
+}
+
+Result<uint64_t> GetUnsigned(const std::string& path, const toml::table& t, const char* key, uint64_t def, uint64_t lo,
+                             uint64_t hi) {
+  const toml::node* n = t.get(key);
+  if (n == nullptr) return def;
+  std::optional<int64_t> v = n->value<int64_t>();
+  if (!v || *v < static_cast<int64_t>(lo) || static_cast<uint64_t>(*v) > hi) {
+    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be an integer in [" + std::to_string(lo) + ", " +
+                           std::to_string(hi) + "]");
+  }
+  return static_cast<uint64_t>(*v);
+}
+
+Result<glm::dvec3> GetVec3(const std::string& path, const toml::table& t, const char* key, glm::dvec3 def,
+                           bool allow_scalar = false) {
+  const toml::node* n = t.get(key);
+  if (n == nullptr) return def;
+  if (allow_scalar) {
+    if (auto s = n->value<double>()) return glm::dvec3(*s);
+  }
+  const toml::array* a = n->as_array();
+  if (a == nullptr || a->size() != 3) {
+    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be [x, y, z]" + (allow_scalar ? " or a number" : ""));
+  }
+  glm::dvec3 v;
+  for (int i = 0; i < 3; ++i) {
+    auto x = (*a)[i].value<double>();
+    if (!x || !std::isfinite(*x)) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must hold 3 finite numbers");
+    v[i] = *x;
+  }
+  return v;
+}
+
+Result<std::string> GetString(const std::string& path, const toml::table& t, const char* key, std::string def) {
+  const toml::node* n = t.get(key);
+  if (n == nullptr) return def;
+  auto v = n->value<std::string>();
+  if (!v) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be a string");
+  return *v;
+}
+
+}  // namespace
+
+Result<SceneDesc> ParseScene(const std::string& path) {
+  if (!std::filesystem::exists(path)) return NotFound(path + ": scene file not found");
+  toml::table root;
+  try {
+    root = toml::parse_file(path);
+  } catch (const toml::parse_error& e) {
+    return InvalidArgument(path + ":" + std::to_string(e.source().begin.line) + ":" +
+                           std::to_string(e.source().begin.column) + ": " + std::string(e.description()));
+  }
+  SceneDesc s;
+  s.path = path;
+  LTB_RETURN_IF_ERROR(CheckKeys(path, root, "the scene", {"output", "camera", "sampling", "material", "object"}));
+
+  if (const toml::table* out = root["output"].as_table()) {
+    LTB_RETURN_IF_ERROR(CheckKeys(path, *out, "[output]", {"mode", "objects"}));
+    LTB_ASSIGN_OR_RETURN(std::string mode, GetString(path, *out, "mode", "image"));
+    if (mode == "image") s.mode = SceneDesc::Mode::kImage;
+    else if (mode == "vertex") s.mode = SceneDesc::Mode::kVertex;
+    else return InvalidArgument(Where(path, *out->get("mode")) + ": mode is \"" + mode + "\" (expected \"image\" or \"vertex\")");
+    if (const toml::array* objs = (*out)["objects"].as_array()) {
+      for (const auto& n : *objs) {
+        auto name = n.value<std::string>();
+        if (!name) return InvalidArgument(Where(path, n) + ": [output] objects must be a list of object names");
+        s.vertex_objects.push_back(*name);
+      }
+    }
+  }
+  if (const toml::table* cam = root["camera"].as_table()) {
+    LTB_RETURN_IF_ERROR(CheckKeys(path, *cam, "[camera]", {"eye", "target", "up", "fov", "width", "height"}));
+    LTB_ASSIGN_OR_RETURN(s.camera.eye, GetVec3(path, *cam, "eye", s.camera.eye));
+    LTB_ASSIGN_OR_RETURN(s.camera.target, GetVec3(path, *cam, "target", s.camera.target));
+    LTB_ASSIGN_OR_RETURN(s.camera.up, GetVec3(path, *cam, "up", s.camera.up));
+    LTB_ASSIGN_OR_RETURN(s.camera.fov_degrees, GetNumber(path, *cam, "fov", s.camera.fov_degrees, 1.0, 179.0));
+    LTB_ASSIGN_OR_RETURN(uint64_t w, GetUnsigned(path, *cam, "width", s.camera.width, 1, 1 << 16));
+    LTB_ASSIGN_OR_RETURN(uint64_t h, GetUnsigned(path, *cam, "height", s.camera.height, 1, 1 << 16));
+    s.camera.width = static_cast<uint32_t>(w);
+    s.camera.height = static_cast<uint32_t>(h);
+  } else if (s.mode == SceneDesc::Mode::kImage) {
+    return InvalidArgument(path + ": image mode needs a [camera] table");
+  }
+  if (const toml::table* smp = root["sampling"].as_table()) {
+    LTB_RETURN_IF_ERROR(CheckKeys(path, *smp, "[sampling]", {"cube_res", "spp", "bounces", "seed"}));
+    LTB_ASSIGN_OR_RETURN(uint64_t r, GetUnsigned(path, *smp, "cube_res", s.cube_res, 1, 4096));
+    LTB_ASSIGN_OR_RETURN(uint64_t spp, GetUnsigned(path, *smp, "spp", s.spp, 1, 1 << 16));
+    LTB_ASSIGN_OR_RETURN(uint64_t b, GetUnsigned(path, *smp, "bounces", s.bounces, 0, 16));
+    LTB_ASSIGN_OR_RETURN(s.seed, GetUnsigned(path, *smp, "seed", s.seed, 0, uint64_t{1} << 62));
+    s.cube_res = static_cast<uint32_t>(r);
+    s.spp = static_cast<uint32_t>(spp);
+    s.bounces = static_cast<uint32_t>(b);
+  }
+
+  std::map<std::string, int> material_index;
+  if (const toml::array* mats = root["material"].as_array()) {
+    for (const auto& node : *mats) {
+      const toml::table* m = node.as_table();
+      if (m == nullptr) return InvalidArgument(Where(path, node) + ": [[material]] entries must be tables");
+      LTB_RETURN_IF_ERROR(CheckKeys(path, *m, "[[material]] at line " + std::to_string(node.source().begin.line),
+                                    {"name", "albedo", "ks", "exponent"}));
+      Material mat;
+      LTB_ASSIGN_OR_RETURN(mat.name, GetString(path, *m, "name", ""));
+      if (mat.name.empty()) return InvalidArgument(Where(path, node) + ": [[material]] needs a name");
+      LTB_ASSIGN_OR_RETURN(mat.albedo, GetNumber(path, *m, "albedo", mat.albedo, 0.0, 1.0));
+      LTB_ASSIGN_OR_RETURN(mat.ks, GetNumber(path, *m, "ks", mat.ks, 0.0, 1.0));
+      LTB_ASSIGN_OR_RETURN(mat.exponent, GetNumber(path, *m, "exponent", mat.exponent, 0.0, 1e5));
+      if (mat.albedo + mat.ks > 1.0) {
+        return InvalidArgument(Where(path, node) + ": material \"" + mat.name + "\" has albedo + ks = " +
+                               std::to_string(mat.albedo + mat.ks) + " > 1 (it would create energy)");
+      }
+      if (!material_index.emplace(mat.name, static_cast<int>(s.materials.size())).second) {
+        return InvalidArgument(Where(path, node) + ": material \"" + mat.name + "\" defined twice");
+      }
+      s.materials.push_back(mat);
+    }
+  }
+  if (s.materials.empty()) s.materials.push_back(Material{"default"});
+
+  const toml::array* objs = root["object"].as_array();
+  if (objs == nullptr || objs->empty()) return InvalidArgument(path + ": the scene has no [[object]]");
+  std::filesystem::path base = std::filesystem::path(path).parent_path();
+  std::set<std::string> names;
+  for (const auto& node : *objs) {
+    const toml::table* o = node.as_table();
+    if (o == nullptr) return InvalidArgument(Where(path, node) + ": [[object]] entries must be tables");
+    Object obj;
+    obj.line = static_cast<int>(node.source().begin.line);
+    LTB_ASSIGN_OR_RETURN(std::string type, GetString(path, *o, "type", ""));
+    std::set<std::string> keys{"type", "name", "material", "translate", "rotate", "scale"};
+    if (type == "plane") {
+      obj.type = Object::Type::kPlane;
+      keys.insert("size");
+    } else if (type == "box") {
+      obj.type = Object::Type::kBox;
+      keys.insert({"size", "center"});
+    } else if (type == "sphere") {
+      obj.type = Object::Type::kSphere;
+      keys.insert({"center", "radius"});
+    } else if (type == "mesh") {
+      obj.type = Object::Type::kMesh;
+      keys.insert("file");
+    } else {
+      return InvalidArgument(Where(path, node) + ": [[object]] type is \"" + type +
+                             "\" (expected plane, box, sphere or mesh)");
+    }
+    LTB_RETURN_IF_ERROR(CheckKeys(path, *o, "[[object]] (" + type + ") at line " + std::to_string(obj.line), keys));
+    LTB_ASSIGN_OR_RETURN(obj.name, GetString(path, *o, "name", type + "@" + std::to_string(obj.line)));
+    if (!names.insert(obj.name).second) return InvalidArgument(Where(path, node) + ": object name \"" + obj.name + "\" used twice");
+    LTB_ASSIGN_OR_RETURN(std::string mat, GetString(path, *o, "material", s.materials.front().name));
+    auto mi = material_index.find(mat);
+    if (mi == material_index.end() && !(material_index.empty() && mat == "default")) {
+      return InvalidArgument(Where(path, node) + ": object \"" + obj.name + "\" uses material \"" + mat +
+                             "\", which no [[material]] defines");
+    }
+    obj.material = mi == material_index.end() ? 0 : mi->second;
+    glm::dvec3 def_size = obj.type == Object::Type::kPlane ? glm::dvec3(2, 2, 0) : glm::dvec3(1, 1, 1);
+    if (obj.type == Object::Type::kPlane && o->contains("size")) {
+      const toml::array* a = (*o)["size"].as_array();
+      if (a == nullptr || a->size() != 2 || !(*a)[0].value<double>() || !(*a)[1].value<double>()) {
+        return InvalidArgument(Where(path, *o->get("size")) + ": plane \"size\" must be [x, y]");
+      }
+      obj.size = {*(*a)[0].value<double>(), *(*a)[1].value<double>(), 0};
+    } else {
+      LTB_ASSIGN_OR_RETURN(obj.size, GetVec3(path, *o, "size", def_size));
+    }
+    LTB_ASSIGN_OR_RETURN(obj.center, GetVec3(path, *o, "center", obj.center));
+    LTB_ASSIGN_OR_RETURN(obj.radius, GetNumber(path, *o, "radius", obj.radius, 1e-9, 1e9));
+    LTB_ASSIGN_OR_RETURN(obj.translate, GetVec3(path, *o, "translate", obj.translate));
+    LTB_ASSIGN_OR_RETURN(obj.rotate_degrees, GetVec3(path, *o, "rotate", obj.rotate_degrees));
+    LTB_ASSIGN_OR_RETURN(obj.scale, GetVec3(path, *o, "scale", obj.scale, /*allow_scalar=*/true));
+    if (obj.type == Object::Type::kMesh) {
+      LTB_ASSIGN_OR_RETURN(std::string file, GetString(path, *o, "file", ""));
+      if (file.empty()) return InvalidArgument(Where(path, node) + ": mesh object \"" + obj.name + "\" needs \"file\"");
+      std::filesystem::path f(file);
+      obj.file = (f.is_absolute() ? f : base / f).lexically_normal().string();
+    }
+    s.objects.push_back(obj);
+  }
+  if (s.mode == SceneDesc::Mode::kVertex) {
+    if (s.vertex_objects.empty()) {
+      for (const Object& o : s.objects)
+        if (o.type == Object::Type::kMesh) s.vertex_objects.push_back(o.name);
+    }
+    for (const std::string& n : s.vertex_objects) {
+      if (names.count(n) == 0) return InvalidArgument(path + ": [output] objects names \"" + n + "\", which no [[object]] has");
+    }
+    if (s.vertex_objects.empty()) return InvalidArgument(path + ": vertex mode needs [output] objects = [names]");
+  }
+  return s;
+}
+
+}  // namespace ltb::sample

@@ -1,0 +1,57 @@
+// Scene description for `ltbake sample` (docs/SCENE.md): camera or vertex output, materials,
+// objects (built-in plane, box, sphere; mesh files) with transforms. Parsed strictly:
+// every unknown key is an error naming its line.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <glm/vec3.hpp>
+
+#include "format/status.h"
+
+namespace ltb::sample {
+
+struct Material {
+  std::string name;
+  double albedo = 0.8;    // Lambertian reflectance, f = albedo / π
+  double ks = 0.0;        // normalised Phong lobe ks (n+2)/(2π) cos^n(r·ω); image mode only
+  double exponent = 20.0;
+};
+
+struct Camera {
+  glm::dvec3 eye{0, -3, 1.5}, target{0, 0, 0}, up{0, 0, 1};
+  double fov_degrees = 40.0;  // vertical
+  uint32_t width = 64, height = 64;
+};
+
+struct Object {
+  enum class Type { kPlane, kBox, kSphere, kMesh } type = Type::kPlane;
+  std::string name;        // for vertex mode and messages
+  std::string file;        // kMesh: absolute path (resolved against the scene file)
+  int material = 0;        // index into SceneDesc::materials
+  glm::dvec3 size{1, 1, 1};     // plane: size.x × size.y at z = 0; box: edge lengths
+  glm::dvec3 center{0, 0, 0};   // sphere centre, box centre
+  double radius = 0.5;          // sphere
+  glm::dvec3 translate{0, 0, 0}, rotate_degrees{0, 0, 0}, scale{1, 1, 1};
+  int line = 0;            // where it is defined, for messages
+};
+
+struct SceneDesc {
+  std::string path;
+  enum class Mode { kImage, kVertex } mode = Mode::kImage;
+  Camera camera;
+  std::vector<std::string> vertex_objects;  // vertex mode: names of the objects whose vertices are rows
+  std::vector<Material> materials;
+  std::vector<Object> objects;
+  // [sampling] defaults, overridden by the command line.
+  uint32_t cube_res = 32;
+  uint32_t spp = 4;
+  uint32_t bounces = 0;
+  uint64_t seed = 1;
+};
+
+Result<SceneDesc> ParseScene(const std::string& path);
+
+}  // namespace ltb::sample
