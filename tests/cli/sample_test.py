@@ -1,0 +1,242 @@
+"""sample through the ltbake binary, against closed forms.
+
+Each row of T is a sum of n = 6·R²·spp independent stratum estimates (each stratum of
+face-coordinate area h²/spp, h = 2/R, evaluated once at a jittered point), each in
+[0, b] with b = (h²/spp)·max(w·f·cos) <= (h²/spp)·(albedo/π) (w = dω/du dv <= 1). The
+estimator is unbiased, so by Hoeffding's inequality a row deviates from its exact value
+by more than t = b·sqrt(n·ln(2/δ)/2) with probability below δ, and the mean of N rows
+(independent seeds) by more than t/sqrt(N). We use δ = 1e-9.
+
+1. An unoccluded Lambertian plane under uniform radiance 1: every row sums to the albedo.
+2. A plane under a sphere of radius r: a point whose sphere subtends half-angle α at
+   zenith angle θ (sphere fully above the horizon) sees the fraction 1 − sin²α·cos θ of
+   the cosine-weighted hemisphere, so its row sums to albedo·(1 − sin²α·cos θ).
+3. --jobs 1 and --jobs 2 give the same content_hash; so does a run killed at random
+   moments and resumed.
+4. Bad input: each a clear message naming the file/line/value, exit 1 or 2, and no output
+   that claims to be complete.
+
+usage: sample_test.py PATH_TO_LTBAKE
+"""
+import json
+import math
+import os
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+LTBAKE = sys.argv[1]
+failures = []
+checks = 0
+DELTA = 1e-9
+
+
+def check(cond, what):
+    global checks
+    checks += 1
+    if not cond:
+        failures.append(what)
+
+
+def run(*args, expect=0):
+    p = subprocess.run([LTBAKE, *map(str, args)], capture_output=True, text=True, timeout=600)
+    if expect is not None and p.returncode != expect:
+        failures.append(f"ltbake {' '.join(map(str, args))}: exit {p.returncode}, expected {expect}\n{p.stdout}{p.stderr}")
+    return p
+
+
+def hoeffding(R, spp, albedo):
+    h = 2.0 / R
+    n = 6 * R * R * spp
+    b = h * h / spp * albedo / math.pi
+    return b * math.sqrt(n * math.log(2 / DELTA) / 2)
+
+
+def load(d, ltm):
+    out = os.path.join(d, "m.npy")
+    run("convert", ltm, out)
+    T = np.load(out).astype(np.float64)
+    return T
+
+
+def side_table(ltm, name):
+    """Reads a side table's raw chunks (row blocks) straight from the file."""
+    info = json.loads(run("inspect", ltm, "--json", "--chunks").stdout)
+    arr = next(a for a in info["arrays"] if a["name"] == name)
+    rows, cols, block = arr["shape"][0], arr["shape"][1], arr["block"]
+    dtype = {"f32": np.float32, "u8": np.uint8}[arr["dtype"]]
+    raw = open(ltm, "rb").read()
+    out = np.zeros((rows, cols), dtype)
+    for c in info["chunk_list"]:
+        if c["array"] != name or c["encoding"] == "zero":
+            continue
+        r0 = c["index"] * block
+        v = np.frombuffer(raw, dtype, count=c["decoded_bytes"] // np.dtype(dtype).itemsize, offset=c["offset"] + 64)
+        out[r0:r0 + len(v) // cols] = v.reshape(-1, cols)
+    return out
+
+
+def scene(d, name, body):
+    path = os.path.join(d, name)
+    with open(path, "w") as f:
+        f.write(body)
+    return path
+
+
+with tempfile.TemporaryDirectory() as d:
+    R, spp, albedo = 16, 16, 0.8
+    t_row = hoeffding(R, spp, albedo)
+
+    # 1. Unoccluded plane.
+    s1 = scene(d, "plane.toml", f"""
+[camera]
+eye = [0.0, 0.0, 5.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov = 30.0
+width = 8
+height = 8
+[sampling]
+cube_res = {R}
+spp = {spp}
+[[material]]
+name = "m"
+albedo = {albedo}
+[[object]]
+type = "plane"
+size = [100.0, 100.0]
+material = "m"
+""")
+    out1 = os.path.join(d, "plane.ltm")
+    run("sample", s1, "-o", out1)
+    T = load(d, out1)
+    sums = T.sum(axis=1)
+    err = np.abs(sums - albedo)
+    print(f"plane: row sums {sums.min():.5f}..{sums.max():.5f} (albedo {albedo}); max error {err.max():.2e}, "
+          f"Hoeffding bound per row {t_row:.2e}, mean error {abs(sums.mean() - albedo):.2e} "
+          f"(bound {t_row / math.sqrt(len(sums)):.2e})")
+    check(len(sums) == 64, f"plane: {len(sums)} rows")
+    check(err.max() <= t_row, f"plane: a row sum is off by {err.max():.3g} > {t_row:.3g}")
+    check(abs(sums.mean() - albedo) <= t_row / math.sqrt(len(sums)),
+          f"plane: mean row sum {sums.mean():.6f} off by more than {t_row / math.sqrt(len(sums)):.3g}")
+    check(T.min() >= 0, "plane: negative transport")
+    # Texels below the horizon (z < 0 half of the sphere of directions) carry nothing.
+    mask = side_table(out1, "mask")
+    check(mask.sum() == 64, "plane: every pixel should see the plane")
+
+    # 2. Plane under a sphere.
+    c, r = np.array([0.0, 0.0, 1.0]), 0.5
+    s2 = scene(d, "sphere.toml", f"""
+[camera]
+eye = [3.0, 0.0, 6.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 0.0, 1.0]
+fov = 40.0
+width = 12
+height = 12
+[sampling]
+cube_res = {R}
+spp = {spp}
+[[material]]
+name = "m"
+albedo = {albedo}
+[[object]]
+type = "plane"
+size = [100.0, 100.0]
+material = "m"
+[[object]]
+type = "sphere"
+center = [0.0, 0.0, 1.0]
+radius = {r}
+material = "m"
+""")
+    out2 = os.path.join(d, "sphere.ltm")
+    run("sample", s2, "-o", out2)
+    T2 = load(d, out2)
+    pos = side_table(out2, "position").astype(np.float64)
+    on_plane = np.abs(pos[:, 2]) < 1e-4
+    check(on_plane.sum() > 50 and (~on_plane).sum() > 5, f"sphere: {on_plane.sum()} plane rows, {(~on_plane).sum()} sphere rows")
+    v = c[None, :] - pos[on_plane]
+    dist = np.linalg.norm(v, axis=1)
+    alpha = np.arcsin(r / dist)
+    cos_t = v[:, 2] / dist
+    want = albedo * (1 - np.sin(alpha) ** 2 * cos_t)
+    got = T2[on_plane].sum(axis=1)
+    err2 = np.abs(got - want)
+    print(f"sphere: {on_plane.sum()} plane rows, visible fractions {want.min() / albedo:.3f}..{want.max() / albedo:.3f}; "
+          f"max error {err2.max():.2e} (bound {t_row:.2e}), mean signed error {np.mean(got - want):.2e} "
+          f"(bound {t_row / math.sqrt(len(got)):.2e})")
+    check(err2.max() <= t_row, f"sphere: a row is off by {err2.max():.3g} > {t_row:.3g}")
+    check(abs(np.mean(got - want)) <= t_row / math.sqrt(len(got)), "sphere: mean error beyond the bound")
+    # The occluded part really is occluded: shadowed rows sum well below the albedo.
+    check(want.min() < 0.9 * albedo and got.min() < 0.9 * albedo, "sphere: no row is noticeably shadowed")
+
+    # 3. Determinism across jobs and interruption.
+    h = {}
+    for jobs in (1, 2):
+        o = os.path.join(d, f"j{jobs}.ltm")
+        run("sample", s2, "-o", o, "--jobs", jobs, "--chunk-rows", 7)
+        h[jobs] = json.loads(run("inspect", o, "--json").stdout)["content_hash"]
+    check(h[1] == h[2], f"content_hash differs between --jobs 1 and 2: {h}")
+    big = scene(d, "big.toml", open(s2).read().replace("width = 12", "width = 48").replace("height = 12", "height = 48"))
+    ref = os.path.join(d, "big-ref.ltm")
+    t0 = time.monotonic()
+    run("sample", big, "-o", ref, "--chunk-rows", 16)
+    full = time.monotonic() - t0
+    ref_hash = json.loads(run("inspect", ref, "--json").stdout)["content_hash"]
+    out = os.path.join(d, "big-k.ltm")
+    rnd = random.Random(3)
+    for k in range(6):
+        p = subprocess.Popen([LTBAKE, "sample", big, "-o", out, "--chunk-rows", "16"], stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)
+        time.sleep(rnd.uniform(0, full))
+        p.send_signal(signal.SIGKILL)
+        p.wait()
+        if os.path.exists(out):
+            v = json.loads(run("verify", "--allow-incomplete", "--json", out).stdout)[0]
+            check(v["ok"], f"kill {k}: partial output does not verify")
+    run("sample", big, "-o", out, "--chunk-rows", 16, "--jobs", 1)
+    check(json.loads(run("inspect", out, "--json").stdout)["content_hash"] == ref_hash,
+          "sample resumed after kills differs from the uninterrupted run")
+
+    # 4. Bad input.
+    base = open(s1).read()
+
+    def bad(name, body, needle, expect=1, extra=()):
+        path = scene(d, name, body)
+        o = os.path.join(d, name + ".ltm")
+        p = run("sample", path, "-o", o, *extra, expect=None)
+        check(p.returncode in (1, 2) and (expect is None or p.returncode == expect),
+              f"{name}: exit {p.returncode}")
+        check(needle in p.stderr, f"{name}: stderr lacks {needle!r}: {p.stderr}")
+        if os.path.exists(o):
+            check(not json.loads(run("inspect", o, "--json", "--no-content").stdout)["complete"],
+                  f"{name}: left a complete-looking output")
+
+    bad("unknown.toml", base.replace("fov = 30.0", "fov = 30.0\nfocus = 2.0\nzoom = 1"),
+        "unknown key(s) in [camera]: \"focus\" (line 7), \"zoom\" (line 8)")
+    bad("missing.toml", base + '[[object]]\ntype = "mesh"\nfile = "nope.obj"\n', "nope.obj: cannot open mesh file")
+    with open(os.path.join(d, "empty.obj"), "w") as f:
+        f.write("# nothing\nv 0 0 0\nv 1 0 0\n")
+    bad("empty.toml", base + '[[object]]\ntype = "mesh"\nfile = "empty.obj"\n', "empty.obj: the mesh holds no triangles")
+    # A binary PLY carries a NaN float through the reader (an OBJ's text "nan" is not parsed).
+    import struct
+    with open(os.path.join(d, "nan.ply"), "wb") as f:
+        f.write(b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                b"property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n")
+        f.write(struct.pack("<9f", 0, 0, 0, 1, 0, 0, float("nan"), 1, 0))
+        f.write(struct.pack("<B3i", 3, 0, 1, 2))
+    bad("nan.toml", base + '[[object]]\ntype = "mesh"\nfile = "nan.ply"\n', "nan.ply: vertex 2 is (nan, 1.000000")
+    bad("r6.toml", base, "cube resolution 6 is not a power of two", extra=("--cube-res", "6"))
+    bad("albedo.toml", base.replace(f"albedo = {albedo}", "albedo = 1.5"), "\"albedo\" is 1.500000, outside [0.000000, 1.000000]")
+    bad("mat.toml", base.replace('material = "m"', 'material = "steel"'), "uses material \"steel\", which no [[material]] defines")
+
+for f in failures:
+    print(f)
+print(f"{checks - len(failures)} passed, {len(failures)} failed")
+sys.exit(1 if failures else 0)
