@@ -7,17 +7,6 @@
 
 namespace ltb::cubemap {
 
-glm::dvec3 FaceDirection(int face, double u, double v) {
-  switch (face) {
-    case 0: return {1, -v, -u};
-    case 1: return {-1, -v, u};
-    case 2: return {u, 1, v};
-    case 3: return {u, -1, -v};
-    case 4: return {u, -v, 1};
-    default: return {-u, -v, -1};
-  }
-}
-
 void DirectionToFace(const glm::dvec3& d, int* face, double* u, double* v) {
   double ax = std::fabs(d.x), ay = std::fabs(d.y), az = std::fabs(d.z);
   // Ties go to the earlier face in the order +X, -X, +Y, -Y, +Z, -Z.

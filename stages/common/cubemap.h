@@ -14,8 +14,17 @@ struct Texel {
   uint32_t s = 0, t = 0;
 };
 
-// Unnormalised direction through face point (u, v) in [-1, 1]².
-glm::dvec3 FaceDirection(int face, double u, double v);
+// Unnormalised direction through face point (u, v) in [-1, 1]² (|d| = sqrt(1 + u² + v²)).
+inline glm::dvec3 FaceDirection(int face, double u, double v) {
+  switch (face) {
+    case 0: return {1, -v, -u};
+    case 1: return {-1, -v, u};
+    case 2: return {u, 1, v};
+    case 3: return {u, -1, -v};
+    case 4: return {u, -v, 1};
+    default: return {-u, -v, -1};
+  }
+}
 // Face and face coordinates (u, v) of a direction (any length > 0).
 void DirectionToFace(const glm::dvec3& d, int* face, double* u, double* v);
 // The texel a direction falls in.

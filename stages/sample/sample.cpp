@@ -186,19 +186,33 @@ glm::dvec3 CosineSample(const glm::dvec3& n, Rng& rng) {
   return glm::normalize(t * (r * std::cos(phi)) + b * (r * std::sin(phi)) + n * std::sqrt(std::max(0.0, 1 - u1)));
 }
 
+// x^e for x > 0: repeated squaring when e is a small whole number (the usual case).
+inline double Power(double x, double e, int int_e) {
+  if (int_e < 0) return std::pow(x, e);
+  double r = 1.0;
+  for (int k = int_e; k > 0; k >>= 1, x *= x)
+    if (k & 1) r *= x;
+  return r;
+}
+
 struct Brdf {
   double diffuse;  // albedo / π
   double ks_norm;  // ks (n+2) / (2π), 0 when not glossy
   double exponent;
   glm::dvec3 reflect;  // mirror direction of the view
+  int int_exponent = -1;  // exponent when it is a whole number up to 4096, else -1
   double Eval(const glm::dvec3& w) const {
     double f = diffuse;
-    if (ks_norm > 0) f += ks_norm * std::pow(std::max(0.0, glm::dot(reflect, w)), exponent);
+    if (ks_norm > 0) {
+      double c = glm::dot(reflect, w);
+      if (c > 0) f += ks_norm * Power(c, exponent, int_exponent);
+    }
     return f;
   }
 };
 
 struct RowScratch {
+  size_t n = 0;  // rays in use (the arrays keep their size between rows)
   std::vector<RTCRay> rays;
   std::vector<uint32_t> ray_column;
   std::vector<double> ray_value;
@@ -240,70 +254,94 @@ class Sampler {
     return rp;
   }
 
-  // One row of T (6R² values) for a valid point.
-  void Transport(uint64_t row, const RowPoint& rp, float* out, RowScratch& sc, Counters& cnt) const {
+  // The occlusion rays of one row (for a valid point) into sc, with each ray's texel and
+  // value w·f·cos; texels wholly below the horizon get none.
+  Brdf GenerateRays(uint64_t row, const RowPoint& rp, RowScratch& sc, uint64_t* below, uint64_t* samples_below) const {
     const Material& m = s_.materials[rp.material];
     Brdf brdf{m.albedo / M_PI, 0, m.exponent, {}};
     if (s_.mode == SceneDesc::Mode::kImage && m.ks > 0) {
       brdf.ks_norm = m.ks * (m.exponent + 2) / (2 * M_PI);
       brdf.reflect = 2 * glm::dot(rp.n, rp.wo) * rp.n - rp.wo;
+      if (m.exponent == std::floor(m.exponent) && m.exponent <= 4096) brdf.int_exponent = static_cast<int>(m.exponent);
     }
     const uint64_t cols = texels_.size();
-    glm::dvec3 origin = rp.p + rp.n * g_.epsilon;
-    sc.rays.clear();
-    sc.ray_column.clear();
-    sc.ray_value.clear();
-    sc.sum_value.assign(cols, 0.0);
-    const double h = 2.0 / r_;
-    uint64_t below = 0, samples_below = 0;
+    const glm::dvec3 origin = Origin(rp);
+    const float ox = static_cast<float>(origin.x), oy = static_cast<float>(origin.y), oz = static_cast<float>(origin.z);
+    // At most spp rays per texel: size the arrays once, fill by index.
+    if (sc.rays.size() < cols * spp_) {
+      sc.rays.resize(cols * spp_);
+      sc.ray_column.resize(cols * spp_);
+      sc.ray_value.resize(cols * spp_);
+    }
+    size_t n = 0;
+    const double h = 2.0 / r_, hx = h / kx_, hy = h / ky_;
     for (uint64_t c = 0; c < cols; ++c) {
       const TexelInfo& t = texels_[c];
       if (glm::dot(rp.n, t.centre) <= t.cos_limit) {
-        ++below;
+        ++*below;
         continue;
       }
       Rng rng(seed_, row, c);
-      for (uint32_t i = 0; i < spp_; ++i) {
-        double u = t.u0 + (i % kx_ + rng.Uniform()) / kx_ * h;
-        double v = t.v0 + (i / kx_ + rng.Uniform()) / ky_ * h;
-        double w = std::pow(1.0 + u * u + v * v, -1.5);  // dω / du dv
-        glm::dvec3 d = glm::normalize(cubemap::FaceDirection(t.face, u, v));
-        double cosine = glm::dot(rp.n, d);
-        if (cosine <= 0) {
-          ++samples_below;
-          continue;
+      for (uint32_t sy = 0; sy < ky_; ++sy) {
+        for (uint32_t sx = 0; sx < kx_; ++sx) {
+          double u = t.u0 + (sx + rng.Uniform()) * hx;
+          double v = t.v0 + (sy + rng.Uniform()) * hy;
+          // |FaceDirection(u, v)| = sqrt(1 + u² + v²); dω / du dv = |.|^-3.
+          double inv = 1.0 / std::sqrt(1.0 + u * u + v * v);
+          glm::dvec3 d = cubemap::FaceDirection(t.face, u, v) * inv;
+          double cosine = glm::dot(rp.n, d);
+          if (cosine <= 0) {
+            ++*samples_below;
+            continue;
+          }
+          RTCRay& ray = sc.rays[n];
+          ray.org_x = ox;
+          ray.org_y = oy;
+          ray.org_z = oz;
+          ray.tnear = 0.0f;
+          ray.dir_x = static_cast<float>(d.x);
+          ray.dir_y = static_cast<float>(d.y);
+          ray.dir_z = static_cast<float>(d.z);
+          ray.time = 0.0f;
+          ray.tfar = std::numeric_limits<float>::infinity();
+          ray.mask = 0xFFFFFFFFu;
+          ray.id = 0;
+          ray.flags = 0;
+          sc.ray_column[n] = static_cast<uint32_t>(c);
+          sc.ray_value[n] = inv * inv * inv * brdf.Eval(d) * cosine;
+          ++n;
         }
-        RTCRay ray{};
-        ray.org_x = static_cast<float>(origin.x);
-        ray.org_y = static_cast<float>(origin.y);
-        ray.org_z = static_cast<float>(origin.z);
-        ray.dir_x = static_cast<float>(d.x);
-        ray.dir_y = static_cast<float>(d.y);
-        ray.dir_z = static_cast<float>(d.z);
-        ray.tnear = 0.0f;
-        ray.tfar = std::numeric_limits<float>::infinity();
-        ray.mask = 0xFFFFFFFFu;
-        sc.rays.push_back(ray);
-        sc.ray_column.push_back(static_cast<uint32_t>(c));
-        sc.ray_value.push_back(w * brdf.Eval(d) * cosine);
       }
     }
-    g_.rays->Occluded(sc.rays.data(), sc.rays.size());
-    for (size_t k = 0; k < sc.rays.size(); ++k) {
-      if (sc.rays[k].tfar >= 0) sc.sum_value[sc.ray_column[k]] += sc.ray_value[k];  // not occluded
+    sc.n = n;
+    return brdf;
+  }
+
+  // One row of T (6R² values) for a valid point.
+  void Transport(uint64_t row, const RowPoint& rp, float* out, RowScratch& sc, Counters& cnt) const {
+    uint64_t below = 0, samples_below = 0;
+    Brdf brdf = GenerateRays(row, rp, sc, &below, &samples_below);
+    g_.rays->Occluded(sc.rays.data(), sc.n);
+    const uint64_t cols = texels_.size();
+    std::vector<double>& acc = sc.sum_value;
+    acc.assign(cols, 0.0);
+    for (size_t k = 0; k < sc.n; ++k) {
+      if (sc.rays[k].tfar >= 0) acc[sc.ray_column[k]] += sc.ray_value[k];  // not occluded
     }
     // Stratified estimate of ∫_texel f cos V dω = ∫∫ f cos V w du dv: each of the spp
     // strata has area h²/spp in face coordinates (unbiased; docs/SAMPLE.md).
-    std::vector<double>& acc = sc.sum_value;
-    const double stratum_area = h * h / spp_;
+    const double h = 2.0 / r_, stratum_area = h * h / spp_;
     for (uint64_t c = 0; c < cols; ++c) acc[c] *= stratum_area;
-    uint64_t rays = sc.rays.size();
-    if (bounces_ > 0) rays += Indirect(row, rp, brdf, origin, acc);
+    uint64_t rays = sc.n;
+    if (bounces_ > 0) rays += Indirect(row, rp, brdf, Origin(rp), acc);
     for (uint64_t c = 0; c < cols; ++c) out[c] = static_cast<float>(acc[c]);
     cnt.rays += rays;
     cnt.below += below;
     cnt.samples_below += samples_below;
   }
+
+  glm::dvec3 Origin(const RowPoint& rp) const { return rp.p + rp.n * g_.epsilon; }
+  const sample::RayScene& rays() const { return *g_.rays; }
 
  private:
   // Paths that bounce at least once before escaping; each escaping path adds its
@@ -348,22 +386,72 @@ class Sampler {
 
 }  // namespace
 
+namespace {
+
+// The parsed scene, its Embree geometry and the effective sampling parameters.
+struct Prepared {
+  SceneDesc scene;
+  Geometry geo;
+  uint32_t r = 0, spp = 0, bounces = 0;
+  uint64_t seed = 0, rows = 0;
+};
+
+Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o) {
+  auto p = std::make_unique<Prepared>();
+  LTB_ASSIGN_OR_RETURN(p->scene, sample::ParseScene(o.scene));
+  p->r = o.cube_res.value_or(p->scene.cube_res);
+  p->spp = o.spp.value_or(p->scene.spp);
+  p->bounces = o.bounces.value_or(p->scene.bounces);
+  p->seed = o.seed.value_or(p->scene.seed);
+  if (!IsPowerOfTwo(p->r) || p->r > 1024) {
+    return InvalidArgument("cube resolution " + std::to_string(p->r) + " is not a power of two in 1..1024 (--cube-res)");
+  }
+  if (p->spp == 0) return InvalidArgument("--spp must be at least 1");
+  LTB_ASSIGN_OR_RETURN(p->geo, BuildGeometry(p->scene));
+  p->rows = p->scene.mode == SceneDesc::Mode::kImage ? uint64_t{p->scene.camera.width} * p->scene.camera.height
+                                                     : p->geo.vertex_rows.size();
+  return p;
+}
+
+}  // namespace
+
+Result<BareTraceResult> TraceBare(const SampleOptions& o) {
+  LTB_ASSIGN_OR_RETURN(std::unique_ptr<Prepared> p, Prepare(o));
+  Sampler sampler(p->scene, p->geo, p->r, p->spp, p->bounces, p->seed);
+  std::vector<uint64_t> blocks;
+  const uint64_t block = 64;
+  for (uint64_t r0 = 0; r0 < p->rows; r0 += block) blocks.push_back(r0);
+  std::atomic<uint64_t> rays{0}, nanos{0};
+  auto t0 = std::chrono::steady_clock::now();
+  LTB_RETURN_IF_ERROR(ParallelFor(blocks, o.jobs, Progress{}, "rows", [&](uint64_t r0) -> Status {
+    thread_local RowScratch sc;
+    for (uint64_t row = r0; row < std::min(p->rows, r0 + block); ++row) {
+      RowPoint rp = sampler.Primary(row);
+      if (!rp.valid) continue;
+      uint64_t below = 0, samples_below = 0;
+      sampler.GenerateRays(row, rp, sc, &below, &samples_below);
+      auto a = std::chrono::steady_clock::now();
+      sampler.rays().Occluded(sc.rays.data(), sc.n);
+      nanos += static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                         std::chrono::steady_clock::now() - a).count());
+      rays += sc.n;
+    }
+    return Status::Ok();
+  }));
+  BareTraceResult out;
+  out.rays = rays;
+  out.trace_thread_seconds = static_cast<double>(nanos.load()) * 1e-9;
+  out.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return out;
+}
+
 Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress) {
   auto t0 = std::chrono::steady_clock::now();
-  LTB_ASSIGN_OR_RETURN(SceneDesc scene, sample::ParseScene(o.scene));
-  uint32_t r = o.cube_res.value_or(scene.cube_res);
-  uint32_t spp = o.spp.value_or(scene.spp);
-  uint32_t bounces = o.bounces.value_or(scene.bounces);
-  uint64_t seed = o.seed.value_or(scene.seed);
-  if (!IsPowerOfTwo(r) || r > 1024) {
-    return InvalidArgument("cube resolution " + std::to_string(r) + " is not a power of two in 1..1024 (--cube-res)");
-  }
-  if (spp == 0) return InvalidArgument("--spp must be at least 1");
-  LTB_ASSIGN_OR_RETURN(Geometry geo, BuildGeometry(scene));
-
-  const uint64_t rows = scene.mode == SceneDesc::Mode::kImage
-                            ? uint64_t{scene.camera.width} * scene.camera.height
-                            : geo.vertex_rows.size();
+  LTB_ASSIGN_OR_RETURN(std::unique_ptr<Prepared> prep, Prepare(o));
+  const SceneDesc& scene = prep->scene;
+  const Geometry& geo = prep->geo;
+  const uint32_t r = prep->r, spp = prep->spp, bounces = prep->bounces;
+  const uint64_t seed = prep->seed, rows = prep->rows;
   const uint64_t cols = 6ull * r * r;
   uint64_t block = o.chunk_rows;
   if (block == 0) {

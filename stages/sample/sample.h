@@ -36,4 +36,14 @@ struct SampleResult {
 
 Result<SampleResult> RunSample(const SampleOptions& options, const Progress& progress);
 
+// Benchmark baseline: builds the same scene and generates exactly the occlusion rays
+// RunSample traces (direct term), but only traces them: no transport bookkeeping, no
+// output. trace_thread_seconds sums the time threads spent inside Embree.
+struct BareTraceResult {
+  uint64_t rays = 0;
+  double trace_thread_seconds = 0;
+  double wall_seconds = 0;
+};
+Result<BareTraceResult> TraceBare(const SampleOptions& options);
+
 }  // namespace ltb::stages
