@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# The demo job on bundled data: build a light transport matrix (closed form, see
-# scripts/make_demo_matrix.py), write it to an .ltm container, inspect and verify it,
-# convert it back and check the round trip. Prints where the outputs are.
+# The demo on bundled data: bake the bunny scene (samples/medium.toml at R = 8 so it takes
+# seconds) through the stages that exist so far — sample, row-transform, transpose — then
+# inspect and verify every container and write preview images. Prints where outputs are.
 set -euo pipefail
 BUILD=${1:-build}
 cd "$(dirname "$0")/.."
@@ -9,33 +9,44 @@ OUT=out/demo
 LTBAKE=$BUILD/ltbake
 mkdir -p "$OUT"
 
-echo "== building the demo matrix"
-/usr/bin/python3 scripts/make_demo_matrix.py "$OUT/transport.npy" --width 64 --cube-res 8
+echo "== sample: ray-cast the transport matrix of samples/medium.toml (bunny on a plane)"
+"$LTBAKE" sample samples/medium.toml -o "$OUT/raw.ltm" --cube-res 8 --spp 4 --overwrite
 
-echo "== writing it to a container"
-rm -f "$OUT/transport.ltm"
-"$LTBAKE" convert "$OUT/transport.npy" "$OUT/transport.ltm" --zstd --chunk-size 256KiB
+echo "== row-transform: Haar wavelets over each row's six cube faces"
+"$LTBAKE" row-transform "$OUT/raw.ltm" -o "$OUT/rows.ltm" --filter haar --overwrite
+
+echo "== transpose: column blocks (each light's image contiguous), within 256 MiB"
+"$LTBAKE" transpose "$OUT/rows.ltm" -o "$OUT/cols.ltm" --mem-limit 256MiB --overwrite
 
 echo "== inspect"
-"$LTBAKE" inspect "$OUT/transport.ltm"
-"$LTBAKE" inspect --json "$OUT/transport.ltm" > "$OUT/transport.inspect.json"
+"$LTBAKE" inspect "$OUT/raw.ltm"
+"$LTBAKE" inspect --json "$OUT/cols.ltm" > "$OUT/cols.inspect.json"
 
 echo "== verify"
-"$LTBAKE" verify "$OUT/transport.ltm"
+"$LTBAKE" verify "$OUT/raw.ltm" "$OUT/rows.ltm" "$OUT/cols.ltm"
 
-echo "== round trip back to .npy"
-"$LTBAKE" convert "$OUT/transport.ltm" "$OUT/transport-roundtrip.npy"
+echo "== previews"
+"$LTBAKE" convert "$OUT/raw.ltm" "$OUT/raw.npy" -q
 /usr/bin/python3 - "$OUT" <<'PY'
-import sys, numpy as np
+import json, sys
+import numpy as np
+import matplotlib
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
 d = sys.argv[1]
-a, b = np.load(f"{d}/transport.npy"), np.load(f"{d}/transport-roundtrip.npy")
-assert a.tobytes() == b.tobytes(), "round trip differs"
-print(f"round trip bit-exact: {a.shape[0]} x {a.shape[1]} float32")
+T = np.load(f"{d}/raw.npy")
+R = 8
+W = H = 256
+sky = T.sum(axis=1).reshape(H, W)                       # uniform white sky
+top = T[:, 4 * R * R + (R // 2) * R + R // 2].reshape(H, W)  # one texel near the zenith
+plt.imsave(f"{d}/preview-sky.png", sky, cmap="gray", vmin=0, vmax=sky.max())
+plt.imsave(f"{d}/preview-zenith-texel.png", top, cmap="gray", vmin=0, vmax=top.max())
+print(f"preview images: {d}/preview-sky.png (uniform sky), {d}/preview-zenith-texel.png (one light overhead)")
 PY
 
 echo
 echo "demo outputs in $(pwd)/$OUT:"
-echo "  transport.npy              the matrix (4096 pixels x 384 cubemap texels)"
-echo "  transport.ltm              the container (zstd chunks; all-zero chunks stored free)"
-echo "  transport.inspect.json     ltbake inspect --json of it"
-echo "  transport-roundtrip.npy    converted back, bit-exact"
+echo "  raw.ltm    sampled transport matrix: 65536 pixels x 384 lights (+ mask, position, normal tables)"
+echo "  rows.ltm   after row-transform (Haar, per cube face)"
+echo "  cols.ltm   after transpose (one chunk per light: its 256x256 image); cols.inspect.json"
+echo "  preview-sky.png, preview-zenith-texel.png"
