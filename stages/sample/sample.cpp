@@ -46,11 +46,18 @@ struct Rng {
     return z ^ (z >> 31);
   }
   double Uniform() { return static_cast<double>(Next() >> 11) * 0x1.0p-53; }
+  // Two independent uniforms in [0, 1) with 24 bits each, from one draw.
+  void Uniform2(double* a, double* b) {
+    uint64_t z = Next();
+    *a = static_cast<double>(z >> 40) * 0x1.0p-24;
+    *b = static_cast<double>((z >> 16) & 0xFFFFFF) * 0x1.0p-24;
+  }
 };
 
 struct TexelInfo {
   int face;
   double u0, v0;  // lower corner in face coordinates
+  glm::dvec3 a, b, c;  // the face as an affine map: FaceDirection(face, u, v) = a + u·b + v·c
   glm::dvec3 centre;
   double cos_limit;  // skip the texel when n·centre < cos_limit (wholly below the horizon)
 };
@@ -163,6 +170,9 @@ std::vector<TexelInfo> TexelTable(uint32_t r) {
     ti.face = x.face;
     ti.u0 = 2.0 * x.s / r - 1.0;
     ti.v0 = 2.0 * x.t / r - 1.0;
+    ti.a = cubemap::FaceDirection(x.face, 0, 0);
+    ti.b = cubemap::FaceDirection(x.face, 1, 0) - ti.a;
+    ti.c = cubemap::FaceDirection(x.face, 0, 1) - ti.a;
     ti.centre = cubemap::TexelCenter(x, r);
     // The texel lies in the cone of half-angle ρ around its centre; it is wholly below the
     // horizon when the centre is at least 90° + ρ from the normal: n·centre <= -sin ρ.
@@ -223,6 +233,8 @@ struct Counters {
   std::atomic<uint64_t> rays{0}, below{0}, samples_below{0};
 };
 
+constexpr uint64_t kBatchRays = 4096;
+
 class Sampler {
  public:
   Sampler(const SceneDesc& s, const Geometry& g, uint32_t r, uint32_t spp, uint32_t bounces, uint64_t seed)
@@ -256,7 +268,11 @@ class Sampler {
 
   // The occlusion rays of one row (for a valid point) into sc, with each ray's texel and
   // value w·f·cos; texels wholly below the horizon get none.
-  Brdf GenerateRays(uint64_t row, const RowPoint& rp, RowScratch& sc, uint64_t* below, uint64_t* samples_below) const {
+  // Texels per batch of rays: about kBatchRays rays, so a batch stays in L2 cache between
+  // being generated and being traced.
+  uint64_t TexelsPerBatch() const { return std::max<uint64_t>(1, kBatchRays / spp_); }
+
+  Brdf MakeBrdf(const RowPoint& rp) const {
     const Material& m = s_.materials[rp.material];
     Brdf brdf{m.albedo / M_PI, 0, m.exponent, {}};
     if (s_.mode == SceneDesc::Mode::kImage && m.ks > 0) {
@@ -264,10 +280,17 @@ class Sampler {
       brdf.reflect = 2 * glm::dot(rp.n, rp.wo) * rp.n - rp.wo;
       if (m.exponent == std::floor(m.exponent) && m.exponent <= 4096) brdf.int_exponent = static_cast<int>(m.exponent);
     }
-    const uint64_t cols = texels_.size();
+    return brdf;
+  }
+
+  // The occlusion rays of texels [c0, c1) of one row (a valid point) into sc, with each
+  // ray's texel and value w·f·cos; texels wholly below the horizon get none.
+  void GenerateRays(uint64_t row, const RowPoint& rp, const Brdf& brdf, uint64_t c0, uint64_t c1, RowScratch& sc,
+                    uint64_t* below, uint64_t* samples_below) const {
+    const uint64_t cols = c1 - c0;
     const glm::dvec3 origin = Origin(rp);
     const float ox = static_cast<float>(origin.x), oy = static_cast<float>(origin.y), oz = static_cast<float>(origin.z);
-    // At most spp rays per texel: size the arrays once, fill by index.
+    // At most spp rays per texel: size the arrays for the batch, fill by index.
     if (sc.rays.size() < cols * spp_) {
       sc.rays.resize(cols * spp_);
       sc.ray_column.resize(cols * spp_);
@@ -275,25 +298,29 @@ class Sampler {
     }
     size_t n = 0;
     const double h = 2.0 / r_, hx = h / kx_, hy = h / ky_;
-    for (uint64_t c = 0; c < cols; ++c) {
+    for (uint64_t c = c0; c < c1; ++c) {
       const TexelInfo& t = texels_[c];
       if (glm::dot(rp.n, t.centre) <= t.cos_limit) {
         ++*below;
         continue;
       }
       Rng rng(seed_, row, c);
+      // n·(a + u b + v c) has the sign of the cosine: test the horizon before the sqrt.
+      const double na = glm::dot(rp.n, t.a), nb = glm::dot(rp.n, t.b), nc = glm::dot(rp.n, t.c);
       for (uint32_t sy = 0; sy < ky_; ++sy) {
         for (uint32_t sx = 0; sx < kx_; ++sx) {
-          double u = t.u0 + (sx + rng.Uniform()) * hx;
-          double v = t.v0 + (sy + rng.Uniform()) * hy;
-          // |FaceDirection(u, v)| = sqrt(1 + u² + v²); dω / du dv = |.|^-3.
-          double inv = 1.0 / std::sqrt(1.0 + u * u + v * v);
-          glm::dvec3 d = cubemap::FaceDirection(t.face, u, v) * inv;
-          double cosine = glm::dot(rp.n, d);
-          if (cosine <= 0) {
+          double ju, jv;
+          rng.Uniform2(&ju, &jv);
+          const double u = t.u0 + (sx + ju) * hx;
+          const double v = t.v0 + (sy + jv) * hy;
+          const double cos_num = na + u * nb + v * nc;
+          if (cos_num <= 0) {
             ++*samples_below;
             continue;
           }
+          // |a + u b + v c| = sqrt(1 + u² + v²); dω / du dv = |.|^-3.
+          const double inv = 1.0 / std::sqrt(1.0 + u * u + v * v);
+          const glm::dvec3 d = (t.a + u * t.b + v * t.c) * inv;
           RTCRay& ray = sc.rays[n];
           ray.org_x = ox;
           ray.org_y = oy;
@@ -308,31 +335,33 @@ class Sampler {
           ray.id = 0;
           ray.flags = 0;
           sc.ray_column[n] = static_cast<uint32_t>(c);
-          sc.ray_value[n] = inv * inv * inv * brdf.Eval(d) * cosine;
+          sc.ray_value[n] = inv * inv * inv * brdf.Eval(d) * (cos_num * inv);
           ++n;
         }
       }
     }
     sc.n = n;
-    return brdf;
   }
 
   // One row of T (6R² values) for a valid point.
   void Transport(uint64_t row, const RowPoint& rp, float* out, RowScratch& sc, Counters& cnt) const {
-    uint64_t below = 0, samples_below = 0;
-    Brdf brdf = GenerateRays(row, rp, sc, &below, &samples_below);
-    g_.rays->Occluded(sc.rays.data(), sc.n);
-    const uint64_t cols = texels_.size();
+    uint64_t below = 0, samples_below = 0, rays = 0;
+    const Brdf brdf = MakeBrdf(rp);
+    const uint64_t cols = texels_.size(), step = TexelsPerBatch();
     std::vector<double>& acc = sc.sum_value;
     acc.assign(cols, 0.0);
-    for (size_t k = 0; k < sc.n; ++k) {
-      if (sc.rays[k].tfar >= 0) acc[sc.ray_column[k]] += sc.ray_value[k];  // not occluded
+    for (uint64_t c0 = 0; c0 < cols; c0 += step) {
+      GenerateRays(row, rp, brdf, c0, std::min(cols, c0 + step), sc, &below, &samples_below);
+      g_.rays->Occluded(sc.rays.data(), sc.n);
+      for (size_t k = 0; k < sc.n; ++k) {
+        if (sc.rays[k].tfar >= 0) acc[sc.ray_column[k]] += sc.ray_value[k];  // not occluded
+      }
+      rays += sc.n;
     }
     // Stratified estimate of ∫_texel f cos V dω = ∫∫ f cos V w du dv: each of the spp
     // strata has area h²/spp in face coordinates (unbiased; docs/SAMPLE.md).
     const double h = 2.0 / r_, stratum_area = h * h / spp_;
     for (uint64_t c = 0; c < cols; ++c) acc[c] *= stratum_area;
-    uint64_t rays = sc.n;
     if (bounces_ > 0) rays += Indirect(row, rp, brdf, Origin(rp), acc);
     for (uint64_t c = 0; c < cols; ++c) out[c] = static_cast<float>(acc[c]);
     cnt.rays += rays;
@@ -429,12 +458,16 @@ Result<BareTraceResult> TraceBare(const SampleOptions& o) {
       RowPoint rp = sampler.Primary(row);
       if (!rp.valid) continue;
       uint64_t below = 0, samples_below = 0;
-      sampler.GenerateRays(row, rp, sc, &below, &samples_below);
-      auto a = std::chrono::steady_clock::now();
-      sampler.rays().Occluded(sc.rays.data(), sc.n);
-      nanos += static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
-                                         std::chrono::steady_clock::now() - a).count());
-      rays += sc.n;
+      const Brdf brdf = sampler.MakeBrdf(rp);
+      const uint64_t cols = 6ull * p->r * p->r, step = sampler.TexelsPerBatch();
+      for (uint64_t c0 = 0; c0 < cols; c0 += step) {  // the same batches RunSample traces
+        sampler.GenerateRays(row, rp, brdf, c0, std::min(cols, c0 + step), sc, &below, &samples_below);
+        auto a = std::chrono::steady_clock::now();
+        sampler.rays().Occluded(sc.rays.data(), sc.n);
+        nanos += static_cast<uint64_t>(
+            std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - a).count());
+        rays += sc.n;
+      }
     }
     return Status::Ok();
   }));
