@@ -3,6 +3,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <sstream>
 
 #include <OpenMesh/Core/IO/MeshIO.hh>
@@ -63,13 +64,15 @@ Result<TriangleMesh> LoadDraco(const std::string& path) {
 Result<TriangleMesh> LoadOpenMesh(const std::string& path) {
   OmMesh mesh;
   OpenMesh::IO::Options opt;
-  // OpenMesh reports on omerr; a library must not print, so capture and count instead.
+  // OpenMesh reports on omerr, which writes to std::cerr; a library must not print, so
+  // capture that into a string (and count what it says) while the mesh is read. (Its
+  // connect/disconnect would leak a wrapper per call.) Meshes are read before any worker
+  // thread starts.
   std::ostringstream log;
-  omerr().disconnect(std::cerr);
-  omerr().connect(log);
+  std::streambuf* saved = std::cerr.rdbuf(log.rdbuf());
   bool ok = OpenMesh::IO::read_mesh(mesh, path, opt);
-  omerr().disconnect(log);
-  omerr().connect(std::cerr);
+  omerr().flush();
+  std::cerr.rdbuf(saved);
   if (!ok) {
     std::string why = log.str();
     while (!why.empty() && (why.back() == '\n' || why.back() == ' ')) why.pop_back();
