@@ -14,9 +14,10 @@
 #   ... prefetch       ltm_io_bench read C --prefetch 4   (caller-side readahead)
 #   ... no checksum    ltm_io_bench read C --no-verify
 #   dd read of C       dd if=C of=/dev/null bs=8M         (dd over the container's blocks)
-# The order of the writes and of the reads alternates between repetitions, since on a
-# shared VM the position in the sequence matters. Before each timed command the script
-# waits (up to 30 s) for the machine to be idle and records how busy it was.
+# The order of the writes and of the reads rotates between repetitions, since on a
+# shared VM the position in the sequence matters (REPS = 15 balances both exactly).
+# Before each timed command the script waits (up to 30 s) for the machine to be idle
+# and records how busy it was.
 #
 # Eviction: `ltm_io_bench evict` = fdatasync + posix_fadvise(DONTNEED) on the file; it
 # needs no root and leaves other users' caches alone. LTB_BENCH_DROP_CACHES=1 adds
@@ -158,23 +159,19 @@ read_ltm() {  # KIND REP FILE [flags...]
 
 : >"$JSONL"
 echo "ltm_io_bench: ${SIZE_GIB} GiB, $REPS repetitions, files in $OUT (drop_caches: $DROP)"
+# One step each; every repetition runs them rotated by one, so over REPS = 3 (writes)
+# or 5 (reads) repetitions each step takes each position once.
+WRITES=(write_dd_zero write_dd_random write_ltm)
+r_dd() { read_dd dd_read "$1" "$DDF"; }
+r_ltm() { read_ltm ltm_read "$1" "$LTM"; }
+r_prefetch() { read_ltm ltm_read_prefetch4 "$1" "$LTM" --prefetch 4; }
+r_noverify() { read_ltm ltm_read_noverify "$1" "$LTM" --no-verify; }
+r_dd_container() { read_dd dd_read_container "$1" "$LTM"; }
+READS=(r_dd r_ltm r_prefetch r_noverify r_dd_container)
 for ((rep = 1; rep <= REPS; rep++)); do
   rm -f "$ZERO" "$DDF" "$LTM"
-  if ((rep % 2 == 1)); then
-    write_dd_zero "$rep"; write_dd_random "$rep"; write_ltm "$rep"
-    read_dd dd_read "$rep" "$DDF"
-    read_ltm ltm_read "$rep" "$LTM"
-    read_ltm ltm_read_prefetch4 "$rep" "$LTM" --prefetch 4
-    read_ltm ltm_read_noverify "$rep" "$LTM" --no-verify
-    read_dd dd_read_container "$rep" "$LTM"
-  else
-    write_ltm "$rep"; write_dd_zero "$rep"; write_dd_random "$rep"
-    read_dd dd_read_container "$rep" "$LTM"
-    read_ltm ltm_read_noverify "$rep" "$LTM" --no-verify
-    read_ltm ltm_read_prefetch4 "$rep" "$LTM" --prefetch 4
-    read_ltm ltm_read "$rep" "$LTM"
-    read_dd dd_read "$rep" "$DDF"
-  fi
+  for ((i = 0; i < ${#WRITES[@]}; i++)); do "${WRITES[(i + rep - 1) % ${#WRITES[@]}]}" "$rep"; done
+  for ((i = 0; i < ${#READS[@]}; i++)); do "${READS[(i + rep - 1) % ${#READS[@]}]}" "$rep"; done
   rm -f "$DDF" "$LTM"
 done
 

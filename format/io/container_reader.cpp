@@ -1,6 +1,9 @@
 #include "format/io/container_reader.h"
 
+#include <fcntl.h>
 #include <xxhash.h>
+
+#include <algorithm>
 
 #include "format/chunk_codec.h"
 #include "format/io/frame_scan.h"
@@ -177,6 +180,17 @@ Result<Chunk> ContainerReader::ReadChunk(uint32_t array, uint64_t chunk, const R
     return NotFound(where + " is missing (never committed; the file is incomplete — rerun the stage that writes it to resume)");
   }
   const FrameHeader& h = e->header;
+  if (options.sequential && options.readahead_chunks > 0) {
+    // chunk_frames_ is in file order; ask the kernel for the frames that follow.
+    size_t slot = static_cast<size_t>(e - chunk_frames_.data());
+    size_t last = std::min(chunk_frames_.size() - 1, slot + options.readahead_chunks);
+    if (last > slot) {
+      uint64_t from = chunk_frames_[slot + 1].frame_offset;
+      uint64_t to = chunk_frames_[last].frame_offset + chunk_frames_[last].header.FrameSize();
+      ::posix_fadvise(file_.fd(), static_cast<off_t>(from), static_cast<off_t>(std::min(to, file_size_) - from),
+                      POSIX_FADV_WILLNEED);
+    }
+  }
   Chunk c;
   c.encoding_ = static_cast<Encoding>(h.encoding);
   c.extent_ = a.Extent(chunk);

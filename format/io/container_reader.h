@@ -38,7 +38,10 @@ class Chunk {
 
 struct ReadOptions {
   bool verify_checksum = true;
-  bool sequential = true;  // hint readahead of the chunk
+  // Reading chunks in file order: read the chunk ahead and start the I/O of the next
+  // `readahead_chunks` frames, so it overlaps the caller's work on this one.
+  bool sequential = true;
+  uint32_t readahead_chunks = 2;
 };
 
 class ContainerReader {
