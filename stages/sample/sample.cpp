@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <bit>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
@@ -222,6 +223,8 @@ struct Brdf {
 };
 
 struct RowScratch {
+  // Per-texel sample arrays (spp long): cosine sign, direction, value.
+  std::vector<double> cn, dx, dy, dz, wc, gl, pw;
   size_t n = 0;  // rays in use (the arrays keep their size between rows)
   std::vector<RTCRay> rays;
   std::vector<uint32_t> ray_column;
@@ -234,6 +237,36 @@ struct Counters {
 };
 
 constexpr uint64_t kBatchRays = 4096;
+constexpr uint64_t kGolden = 0x9E3779B97F4A7C15ull;
+
+inline uint64_t Mix(uint64_t z) {
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
+
+// The glossy lobe max(0, r·d)^e for spp sample directions into gl, by squaring over the
+// exponent's bits in the outer loop so the lane loops vectorise.
+void GlossyLobe(const Brdf& brdf, RowScratch& sc, uint32_t spp) {
+  double* __restrict gl = sc.gl.data();
+  double* __restrict x = sc.pw.data();
+  const double* dx = sc.dx.data();
+  const double* dy = sc.dy.data();
+  const double* dz = sc.dz.data();
+  for (uint32_t i = 0; i < spp; ++i) {
+    x[i] = std::max(0.0, brdf.reflect.x * dx[i] + brdf.reflect.y * dy[i] + brdf.reflect.z * dz[i]);
+  }
+  if (brdf.int_exponent >= 0) {
+    for (uint32_t i = 0; i < spp; ++i) gl[i] = 1.0;
+    for (int k = brdf.int_exponent; k > 0; k >>= 1) {
+      if (k & 1)
+        for (uint32_t i = 0; i < spp; ++i) gl[i] *= x[i];
+      for (uint32_t i = 0; i < spp; ++i) x[i] *= x[i];
+    }
+  } else {
+    for (uint32_t i = 0; i < spp; ++i) gl[i] = x[i] > 0 ? std::pow(x[i], brdf.exponent) : 0.0;
+  }
+}
 
 class Sampler {
  public:
@@ -243,6 +276,10 @@ class Sampler {
     kx_ = static_cast<uint32_t>(std::sqrt(static_cast<double>(spp)));
     while (spp % kx_ != 0) --kx_;
     ky_ = spp / kx_;
+    for (uint32_t i = 0; i < spp; ++i) {
+      stratum_x_.push_back(static_cast<double>(i % kx_));
+      stratum_y_.push_back(static_cast<double>(i / kx_));
+    }
   }
 
   RowPoint Primary(uint64_t row) const {
@@ -291,6 +328,9 @@ class Sampler {
     const glm::dvec3 origin = Origin(rp);
     const float ox = static_cast<float>(origin.x), oy = static_cast<float>(origin.y), oz = static_cast<float>(origin.z);
     // At most spp rays per texel: size the arrays for the batch, fill by index.
+    if (sc.cn.size() < spp_) {
+      for (auto* v : {&sc.cn, &sc.dx, &sc.dy, &sc.dz, &sc.wc, &sc.gl, &sc.pw}) v->resize(spp_);
+    }
     if (sc.rays.size() < cols * spp_) {
       sc.rays.resize(cols * spp_);
       sc.ray_column.resize(cols * spp_);
@@ -304,40 +344,62 @@ class Sampler {
         ++*below;
         continue;
       }
-      Rng rng(seed_, row, c);
-      // n·(a + u b + v c) has the sign of the cosine: test the horizon before the sqrt.
+      // Pass 1, vectorisable across the texel's strata: jittered point, direction, weight.
+      // SplitMix64 is counter-based: draw k of the (row, texel) stream is Mix(s0 + (k+2)·G).
+      const uint64_t s0 = StreamStart(row, c);
       const double na = glm::dot(rp.n, t.a), nb = glm::dot(rp.n, t.b), nc = glm::dot(rp.n, t.c);
-      for (uint32_t sy = 0; sy < ky_; ++sy) {
-        for (uint32_t sx = 0; sx < kx_; ++sx) {
-          double ju, jv;
-          rng.Uniform2(&ju, &jv);
-          const double u = t.u0 + (sx + ju) * hx;
-          const double v = t.v0 + (sy + jv) * hy;
-          const double cos_num = na + u * nb + v * nc;
-          if (cos_num <= 0) {
-            ++*samples_below;
-            continue;
-          }
-          // |a + u b + v c| = sqrt(1 + u² + v²); dω / du dv = |.|^-3.
-          const double inv = 1.0 / std::sqrt(1.0 + u * u + v * v);
-          const glm::dvec3 d = (t.a + u * t.b + v * t.c) * inv;
-          RTCRay& ray = sc.rays[n];
-          ray.org_x = ox;
-          ray.org_y = oy;
-          ray.org_z = oz;
-          ray.tnear = 0.0f;
-          ray.dir_x = static_cast<float>(d.x);
-          ray.dir_y = static_cast<float>(d.y);
-          ray.dir_z = static_cast<float>(d.z);
-          ray.time = 0.0f;
-          ray.tfar = std::numeric_limits<float>::infinity();
-          ray.mask = 0xFFFFFFFFu;
-          ray.id = 0;
-          ray.flags = 0;
-          sc.ray_column[n] = static_cast<uint32_t>(c);
-          sc.ray_value[n] = inv * inv * inv * brdf.Eval(d) * (cos_num * inv);
-          ++n;
+      double* __restrict cn = sc.cn.data();
+      double* __restrict dx = sc.dx.data();
+      double* __restrict dy = sc.dy.data();
+      double* __restrict dz = sc.dz.data();
+      double* __restrict wc = sc.wc.data();
+      const double u0 = t.u0, v0 = t.v0;
+      const double ax = t.a.x, ay = t.a.y, az = t.a.z, bx = t.b.x, by = t.b.y, bz = t.b.z;
+      const double cx = t.c.x, cy = t.c.y, cz = t.c.z;
+      const double* __restrict stx = stratum_x_.data();
+      const double* __restrict sty = stratum_y_.data();
+      const uint64_t spp = spp_;
+#pragma omp simd
+      for (uint64_t i = 0; i < spp; ++i) {
+        const uint64_t z = Mix(s0 + (i + 2) * kGolden);
+        // (z >> 40)·2^-24 and ((z >> 16) & 0xFFFFFF)·2^-24, exactly, built from bits (AVX2
+        // has no vector uint64 -> double conversion): 1 + m·2^-24 has m in the mantissa.
+        const double ju = std::bit_cast<double>(0x3FF0000000000000ull | ((z >> 40) << 28)) - 1.0;
+        const double jv = std::bit_cast<double>(0x3FF0000000000000ull | (((z >> 16) & 0xFFFFFFull) << 28)) - 1.0;
+        const double u = u0 + (stx[i] + ju) * hx;
+        const double v = v0 + (sty[i] + jv) * hy;
+        // |a + u b + v c| = sqrt(1 + u² + v²); dω / du dv = |.|^-3.
+        const double inv = 1.0 / std::sqrt(1.0 + u * u + v * v);
+        cn[i] = na + u * nb + v * nc;  // n·(a + u b + v c): the sign of the cosine
+        dx[i] = (ax + u * bx + v * cx) * inv;
+        dy[i] = (ay + u * by + v * cy) * inv;
+        dz[i] = (az + u * bz + v * cz) * inv;
+        wc[i] = inv * inv * inv * (cn[i] * inv);  // w · cos
+      }
+      const bool glossy = brdf.ks_norm > 0;
+      if (glossy) GlossyLobe(brdf, sc, spp_);
+      // Pass 2: rays for the samples above the horizon.
+      for (uint32_t i = 0; i < spp_; ++i) {
+        if (cn[i] <= 0) {
+          ++*samples_below;
+          continue;
         }
+        RTCRay& ray = sc.rays[n];
+        ray.org_x = ox;
+        ray.org_y = oy;
+        ray.org_z = oz;
+        ray.tnear = 0.0f;
+        ray.dir_x = static_cast<float>(dx[i]);
+        ray.dir_y = static_cast<float>(dy[i]);
+        ray.dir_z = static_cast<float>(dz[i]);
+        ray.time = 0.0f;
+        ray.tfar = std::numeric_limits<float>::infinity();
+        ray.mask = 0xFFFFFFFFu;
+        ray.id = 0;
+        ray.flags = 0;
+        sc.ray_column[n] = static_cast<uint32_t>(c);
+        sc.ray_value[n] = wc[i] * (glossy ? brdf.diffuse + brdf.ks_norm * sc.gl[i] : brdf.diffuse);
+        ++n;
       }
     }
     sc.n = n;
@@ -411,6 +473,12 @@ class Sampler {
   uint64_t seed_;
   std::vector<TexelInfo> texels_;
   uint32_t kx_ = 1, ky_ = 1;
+  std::vector<double> stratum_x_, stratum_y_;  // stratum column and row of sample i
+
+  // The (row, texel) stream's counter origin, as Rng(seed, row, texel) sets it.
+  uint64_t StreamStart(uint64_t row, uint64_t c) const {
+    return seed_ ^ (row * 0x9E3779B97F4A7C15ull) ^ (c * 0xC2B2AE3D27D4EB4Full);
+  }
 };
 
 }  // namespace
