@@ -63,7 +63,13 @@ with tempfile.TemporaryDirectory() as d:
     committed_sum = 0
 
     def kill_once(delay):
+        """Starts a writer and SIGKILLs it `delay` seconds after its output file appears
+        (timing from process start would mostly measure start-up on a loaded machine)."""
+        existed = os.path.exists(out)
         p = subprocess.Popen([LTBAKE, "convert", src, out, *flags], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        deadline = time.monotonic() + 10
+        while not existed and not os.path.exists(out) and p.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.0005)
         time.sleep(delay)
         p.send_signal(signal.SIGKILL)
         p.wait()
