@@ -62,6 +62,25 @@ std::optional<ImageSize> ReadImageRows(const format::Metadata& meta) {
   return s;
 }
 
+Status RequireCompleteF32Matrix(const io::ContainerReader& in) {
+  const format::ArraySpec& a = in.metadata().matrix();
+  if (a.dtype != format::DType::kF32) {
+    return FailedPrecondition(in.path() + ": matrix dtype is " + std::string(format::DTypeName(a.dtype)) +
+                              "; expected f32");
+  }
+  if (!in.complete()) {
+    uint64_t committed = 0, expected = 0;
+    for (uint32_t i = 0; i < in.metadata().arrays.size(); ++i) {
+      committed += in.committed(i);
+      expected += in.metadata().arrays[i].ChunkCount();
+    }
+    return FailedPrecondition(in.path() + ": is incomplete (" + std::to_string(committed) + " of " +
+                              std::to_string(expected) +
+                              " chunks); finish the stage that writes it first (rerun it to resume)");
+  }
+  return Status::Ok();
+}
+
 std::string Fingerprint(const io::ContainerReader& reader) {
   struct Entry {
     uint32_t array;

@@ -39,6 +39,9 @@ std::optional<ImageSize> ReadImageRows(const format::Metadata& meta);
 
 bool IsPowerOfTwo(uint64_t v);
 
+// A stage's input: its matrix must be f32 and every chunk of every array committed.
+Status RequireCompleteF32Matrix(const io::ContainerReader& in);
+
 // {"tool", "stage", "parameters", "inputs": [{"file", "fingerprint"}]}
 nlohmann::json Provenance(const std::string& stage, const nlohmann::json& parameters,
                           const std::vector<const io::ContainerReader*>& inputs);

@@ -161,14 +161,7 @@ Result<RowTransformResult> RunRowTransform(const RowTransformOptions& o, const P
     return FailedPrecondition(o.input + ": is stored in column blocks; row-transform needs row blocks — run it "
                               "before `ltbake transpose`, on the output of `ltbake sample`");
   }
-  if (a.dtype != DType::kF32) {
-    return FailedPrecondition(o.input + ": matrix dtype is " + std::string(DTypeName(a.dtype)) + "; expected f32");
-  }
-  if (!in.complete()) {
-    return FailedPrecondition(o.input + ": is incomplete (" + std::to_string(in.committed(0)) + " of " +
-                              std::to_string(a.ChunkCount()) +
-                              " chunks); finish the stage that writes it first (rerun it to resume)");
-  }
+  LTB_RETURN_IF_ERROR(RequireCompleteF32Matrix(in));
 
   nlohmann::json out_meta = meta.json;
   out_meta["basis"]["cols"] = WaveletCubemapCols(cc.cube_res, wavelet::FilterName(o.filter));

@@ -90,14 +90,7 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
     return FailedPrecondition(o.input + ": is already stored in column blocks; transpose takes row blocks (the "
                               "output of `ltbake row-transform`)");
   }
-  if (a.dtype != DType::kF32) {
-    return FailedPrecondition(o.input + ": matrix dtype is " + std::string(DTypeName(a.dtype)) + "; expected f32");
-  }
-  if (!in.complete()) {
-    return FailedPrecondition(o.input + ": is incomplete (" + std::to_string(in.committed(0)) + " of " +
-                              std::to_string(a.ChunkCount()) +
-                              " chunks); finish the stage that writes it first (rerun it to resume)");
-  }
+  LTB_RETURN_IF_ERROR(RequireCompleteF32Matrix(in));
   const uint64_t rows = a.rows, cols = a.cols;
   const uint64_t col_bytes = rows * 4;
   const uint64_t block = std::min<uint64_t>(cols, std::max<uint64_t>(1, kMinChunkBytes / col_bytes));

@@ -18,25 +18,13 @@ import tempfile
 
 import numpy as np
 
-LTBAKE = sys.argv[1]
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from ltbtest import LTBAKE, check, failures, finish, run  # noqa: E402
+
 ROOT = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 MESHES = os.path.join(ROOT, "data", "meshes")
-failures = []
-checks = 0
 
 
-def check(cond, what):
-    global checks
-    checks += 1
-    if not cond:
-        failures.append(what)
-
-
-def run(*args, expect=0):
-    p = subprocess.run([LTBAKE, *map(str, args)], capture_output=True, text=True, timeout=900)
-    if expect is not None and p.returncode != expect:
-        failures.append(f"ltbake {' '.join(map(str, args))}: exit {p.returncode}\n{p.stdout}{p.stderr}")
-    return p
 
 
 def matrix(d, ltm):
@@ -160,7 +148,4 @@ radius = 0.4
         if name == "bunny-vertices":
             check(info["shape"][0] == 1839 and info["basis"]["rows"]["kind"] == "vertices", f"vertex rows: {info['shape']}")
 
-for f in failures:
-    print(f)
-print(f"{checks - len(failures)} passed, {len(failures)} failed")
-sys.exit(1 if failures else 0)
+finish()

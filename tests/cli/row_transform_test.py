@@ -22,26 +22,14 @@ import time
 import warnings
 
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from ltbtest import LTBAKE, check, failures, finish, run  # noqa: E402
 import pywt
 
-LTBAKE = sys.argv[1]
 warnings.simplefilter("ignore")
-failures = []
-checks = 0
 
 
-def check(cond, what):
-    global checks
-    checks += 1
-    if not cond:
-        failures.append(what)
-
-
-def run(*args, expect=0):
-    p = subprocess.run([LTBAKE, *map(str, args)], capture_output=True, text=True, timeout=600)
-    if expect is not None and p.returncode != expect:
-        failures.append(f"ltbake {' '.join(map(str, args))}: exit {p.returncode}, expected {expect}\n{p.stdout}{p.stderr}")
-    return p
 
 
 def content_hash(path):
@@ -143,7 +131,4 @@ with tempfile.TemporaryDirectory() as d:
     run("row-transform", bigraw, "-o", out, "--filter", "db4")
     check(content_hash(out) == ref_hash, "row-transform resumed after kills differs from the uninterrupted run")
 
-for f in failures:
-    print(f)
-print(f"{checks - len(failures)} passed, {len(failures)} failed")
-sys.exit(1 if failures else 0)
+finish()

@@ -30,24 +30,12 @@ import time
 
 import numpy as np
 
-LTBAKE = sys.argv[1]
-failures = []
-checks = 0
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from ltbtest import LTBAKE, check, failures, finish, run  # noqa: E402
+
 DELTA = 1e-9
 
 
-def check(cond, what):
-    global checks
-    checks += 1
-    if not cond:
-        failures.append(what)
-
-
-def run(*args, expect=0):
-    p = subprocess.run([LTBAKE, *map(str, args)], capture_output=True, text=True, timeout=600)
-    if expect is not None and p.returncode != expect:
-        failures.append(f"ltbake {' '.join(map(str, args))}: exit {p.returncode}, expected {expect}\n{p.stdout}{p.stderr}")
-    return p
 
 
 def hoeffding(R, spp, albedo):
@@ -236,7 +224,4 @@ material = "m"
     bad("albedo.toml", base.replace(f"albedo = {albedo}", "albedo = 1.5"), "\"albedo\" is 1.500000, outside [0.000000, 1.000000]")
     bad("mat.toml", base.replace('material = "m"', 'material = "steel"'), "uses material \"steel\", which no [[material]] defines")
 
-for f in failures:
-    print(f)
-print(f"{checks - len(failures)} passed, {len(failures)} failed")
-sys.exit(1 if failures else 0)
+finish()

@@ -23,23 +23,11 @@ import time
 
 import numpy as np
 
-LTBAKE = sys.argv[1]
-failures = []
-checks = 0
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from ltbtest import LTBAKE, check, failures, finish, run  # noqa: E402
 
 
-def check(cond, what):
-    global checks
-    checks += 1
-    if not cond:
-        failures.append(what)
 
-
-def run(*args, expect=0):
-    p = subprocess.run([LTBAKE, *map(str, args)], capture_output=True, text=True, timeout=600)
-    if expect is not None and p.returncode != expect:
-        failures.append(f"ltbake {' '.join(map(str, args))}: exit {p.returncode}, expected {expect}\n{p.stdout}{p.stderr}")
-    return p
 
 
 def info(path):
@@ -135,7 +123,4 @@ with tempfile.TemporaryDirectory() as d:
     p = run("transpose", bigl, "-o", os.path.join(d, "x.ltm"), "--mem-limit", "2100KiB", expect=1)
     check("is too small" in p.stderr and "MiB)" in p.stderr, f"tiny mem-limit: {p.stderr}")
 
-for f in failures:
-    print(f)
-print(f"{checks - len(failures)} passed, {len(failures)} failed")
-sys.exit(1 if failures else 0)
+finish()

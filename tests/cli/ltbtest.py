@@ -1,0 +1,31 @@
+"""Shared harness for the CLI tests: run ltbake, record checks, print the summary line
+('N passed, M failed') that CI reads, and exit non-zero on any failure."""
+import subprocess
+import sys
+
+LTBAKE = sys.argv[1] if len(sys.argv) > 1 else "ltbake"
+failures = []
+checks = 0
+
+
+def check(cond, what):
+    """Records one check; `what` says what went wrong when cond is false."""
+    global checks
+    checks += 1
+    if not cond:
+        failures.append(what)
+
+
+def run(*args, expect=0, timeout=900):
+    """Runs `ltbake ARGS`; an exit code other than `expect` (None: any) is a failure."""
+    p = subprocess.run([LTBAKE, *map(str, args)], capture_output=True, text=True, timeout=timeout)
+    if expect is not None and p.returncode != expect:
+        failures.append(f"ltbake {' '.join(map(str, args))}: exit {p.returncode}, expected {expect}\n{p.stdout}{p.stderr}")
+    return p
+
+
+def finish():
+    for f in failures:
+        print(f)
+    print(f"{checks - len(failures)} passed, {len(failures)} failed")
+    sys.exit(1 if failures else 0)
