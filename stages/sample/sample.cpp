@@ -607,8 +607,9 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   Sampler sampler(scene, geo, r, spp, bounces, seed);
   Counters cnt;
   std::atomic<uint64_t> valid{0}, written{0};
-  // Progress in rays, against an estimate (half of every row's texels above the horizon).
-  uint64_t estimate = std::max<uint64_t>(1, todo.size() * block * cols * spp / 2 * (bounces > 0 ? 2 : 1));
+  // Progress in rays; the total is extrapolated from the rays per row seen so far.
+  const uint64_t rows_todo = std::min(rows, todo.size() * block);
+  std::atomic<uint64_t> rows_done{0};
   Status s = ParallelFor(todo, o.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
                          [&](uint64_t chunk) -> Status {
     uint64_t r0 = chunk * block, n = std::min(block, rows - r0);
@@ -617,6 +618,7 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
     std::vector<uint8_t> mask(n, 0);
     for (uint64_t i = 0; i < n; ++i) {
       if (progress.Cancelled()) return Cancelled("interrupted; committed chunks are kept, rerun to resume");
+      uint64_t done_rows = rows_done.fetch_add(1) + 1;
       RowPoint rp = sampler.Primary(r0 + i);
       if (!rp.valid) continue;  // sees no geometry: an all-zero row, mask 0
       mask[i] = 1;
@@ -626,7 +628,9 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
         nor[3 * i + k] = static_cast<float>(rp.n[k]);
       }
       sampler.Transport(r0 + i, rp, mat.data() + i * cols, sc, cnt);
-      progress.Report(std::min(cnt.rays.load(), estimate), estimate, "rays");
+      uint64_t rays = cnt.rays.load();
+      uint64_t estimate = std::max(rays, static_cast<uint64_t>(static_cast<double>(rays) / done_rows * rows_todo));
+      progress.Report(rays, done_rows >= rows_todo ? rays : estimate, "rays");
     }
     LTB_RETURN_IF_ERROR(geo.rays->error());
     auto bytes = [](const auto& v) {
