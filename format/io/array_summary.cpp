@@ -1,5 +1,6 @@
 #include "format/io/array_summary.h"
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <mutex>
@@ -50,7 +51,6 @@ void AddChunkStats(const ArraySpec& a, const Chunk& c, ArrayStats* s) {
 struct PerChunk {
   uint64_t hash_sum = 0;
   ArrayStats stats;
-  bool present = false;
 };
 
 }  // namespace
@@ -58,25 +58,30 @@ struct PerChunk {
 Result<ArraySummary> SummarizeArray(const ContainerReader& reader, uint32_t array, int threads,
                                     const Progress& progress) {
   const ArraySpec& a = reader.metadata().arrays.at(array);
-  uint64_t n = a.ChunkCount();
+  // Work items are the committed chunks (never a table sized by the metadata's chunk
+  // count, which a hostile file can make huge), in chunk order for a deterministic reduce.
+  std::vector<uint64_t> chunks;
+  for (const auto& e : reader.chunk_frames())
+    if (e.header.array == array) chunks.push_back(e.header.chunk_index);
+  std::sort(chunks.begin(), chunks.end());
+  const uint64_t n = chunks.size();
   std::vector<PerChunk> results(n);
   std::atomic<uint64_t> next{0}, done{0};
   std::mutex mu;
   Status first_error;
   auto work = [&] {
     for (;;) {
-      uint64_t i = next.fetch_add(1);
-      if (i >= n) return;
-      if (reader.Find(array, i) == nullptr) continue;
+      uint64_t k = next.fetch_add(1);
+      if (k >= n) return;
       {
         std::lock_guard<std::mutex> lock(mu);
         if (!first_error.ok()) return;
       }
-      PerChunk& pc = results[i];
+      const uint64_t i = chunks[k];
+      PerChunk& pc = results[k];
       if (reader.Find(array, i)->header.encoding == static_cast<uint16_t>(Encoding::kZero)) {
         pc.stats.count = a.Extent(i).Elements();  // all zero: no hash contribution, no payload to read
         pc.stats.min = pc.stats.max = 0;
-        pc.present = true;
       } else {
         auto chunk = reader.ReadChunk(array, i);
         if (!chunk.ok()) {
@@ -88,7 +93,6 @@ Result<ArraySummary> SummarizeArray(const ContainerReader& reader, uint32_t arra
         h.AddChunk(a, chunk->extent(), chunk->bytes());
         pc.hash_sum = h.sum();
         AddChunkStats(a, *chunk, &pc.stats);
-        pc.present = true;
       }
       progress.Report(done.fetch_add(1) + 1, n, "chunks");
     }
@@ -102,13 +106,10 @@ Result<ArraySummary> SummarizeArray(const ContainerReader& reader, uint32_t arra
 
   // Reduce in chunk order so floating-point sums do not depend on the thread count.
   ArraySummary out;
+  out.chunks_read = n;
+  out.chunks_missing = a.ChunkCount() - n;
   uint64_t hash_sum = 0;
   for (const PerChunk& pc : results) {
-    if (!pc.present) {
-      out.chunks_missing++;
-      continue;
-    }
-    out.chunks_read++;
     hash_sum += pc.hash_sum;
     ArrayStats& s = out.stats;
     s.count += pc.stats.count;

@@ -8,6 +8,7 @@
 #include <fstream>
 #include <optional>
 
+#include "format/io/array_summary.h"
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
 #include "format/io/verifier.h"
@@ -186,6 +187,12 @@ TEST(Hostile, HugeChunkCountIsNotAllocated) {
   auto v = io::VerifyContainer(path);
   EXPECT_EQ(v.chunks_expected, uint64_t(1) << 40);
   EXPECT_TRUE(v.problems.empty());
+  // inspect's content pass visits the committed chunks only.
+  auto sum = io::SummarizeArray(*r, 0, 2);
+  ASSERT_TRUE(sum.ok()) << sum.status().message();
+  EXPECT_EQ(sum->chunks_read, 1u);
+  EXPECT_EQ(sum->chunks_missing, (uint64_t(1) << 40) - 1);
+  EXPECT_TRUE(sum->content_hash.empty());
 }
 
 TEST(Hostile, ShapeBeyondCaps) {
