@@ -5,7 +5,8 @@ BUILD_ASAN  ?= build-asan
 JOBS        ?= 2
 CMAKE_FLAGS ?=
 
-.PHONY: all setup samples configure build demo test test-fast asan bench fuzz clean
+.PHONY: all setup samples configure build demo test test-fast asan bench bench-row-transform bench-transpose \
+        bench-sample fuzz clean
 
 all: build
 
@@ -39,8 +40,20 @@ asan: setup
 	cmake -S . -B $(BUILD_ASAN) -DCMAKE_BUILD_TYPE=RelWithDebInfo -DLTB_SANITIZE=ON -DLTB_BUILD_BENCH=OFF -DLTB_ARCH=
 	cmake --build $(BUILD_ASAN) -j $(JOBS) --target ltb_format_tests ltb_damage_tests ltbake
 
+# Benchmarks (bench/README.md). Not timed tests: they print and record figures.
 bench: build
 	@bash bench/run_container_io.sh $(BUILD)
+
+bench-row-transform: build
+	$(BUILD)/bench/ltb_row_transform_bench --rows 65536 --cube-res 32 --threads 2 --reps 5
+
+bench-transpose: build
+	@bash bench/run_transpose.sh $(BUILD) 3
+
+bench-sample: build
+	mkdir -p bench/out
+	$(BUILD)/bench/ltb_sample_bench samples/medium.toml bench/out --cube-res 32 --reps 3
+	$(BUILD)/bench/ltb_sample_bench samples/medium.toml bench/out --cube-res 64 --reps 1
 
 # libFuzzer target for the container reader (docs/FUZZING.md); FUZZ_SECONDS of fuzzing.
 FUZZ_SECONDS ?= 60
