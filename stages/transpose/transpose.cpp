@@ -1,5 +1,7 @@
 #include "stages/transpose/transpose.h"
 
+#include <fcntl.h>
+
 #include <algorithm>
 #include <atomic>
 #include <condition_variable>
@@ -239,6 +241,14 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
         bytes_read += entry->header.payload_length;
       }
       uint64_t payload = entry->frame_offset + kFrameHeaderSize;
+      if (src == nullptr) {
+        // Start the reads of this block's column range for every row at once, so the disk
+        // has them all queued instead of one small pread at a time (page cache, no RSS).
+        for (uint64_t r = 0; r < e.rows; ++r) {
+          ::posix_fadvise(in_file.fd(), static_cast<off_t>(payload + (r * cols + p.col0) * 4),
+                          static_cast<off_t>(p.cols * 4), POSIX_FADV_WILLNEED);
+        }
+      }
       for (uint64_t r0 = 0; r0 < e.rows; r0 += kTileRows) {
         uint64_t nr = std::min(kTileRows, e.rows - r0);
         for (uint64_t r = 0; r < nr; ++r) {
