@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cstdio>
 #include <condition_variable>
 #include <cstring>
 #include <deque>
@@ -165,25 +166,32 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
   for (uint64_t i = 0; i < a.ChunkCount(); ++i) {
     if (in.Find(0, i)->header.encoding != static_cast<uint16_t>(Encoding::kZero)) in_chunks.push_back(i);
   }
-  if (o.verify_input && !panels.empty()) {
-    std::atomic<uint64_t> verified{0};
-    const uint64_t piece = std::clamp<uint64_t>(budget / (4 * jobs), 4096, 1 << 20);
-    LTB_RETURN_IF_ERROR(ParallelFor(in_chunks, jobs, Progress{.update = nullptr, .cancelled = progress.cancelled},
-                                    "chunks", [&](uint64_t ci) -> Status {
-      thread_local std::vector<std::byte> buf;
-      buf.resize(piece);
-      LTB_RETURN_IF_ERROR(in.VerifyChunk(0, ci, buf));
-      verified += in.Find(0, ci)->header.payload_length;
-      return Status::Ok();
-    }));
-    result.bytes_verified = verified;
-  }
+  LTB_ASSIGN_OR_RETURN(io::File in_file, io::File::Open(o.input, io::File::Mode::kRead));
 
+  // The checksum pass runs beside the panels (it reads the input sequentially while they
+  // read column ranges; both share the page cache). Panel filling stops if it fails, and
+  // the output, possibly built from damaged input, is removed.
+  std::atomic<bool> verify_failed{false};
+  std::atomic<uint64_t> verified{0};
+  Status verify_status;  // written by the verifier thread, read after it is joined
+  std::thread verifier;
+  if (o.verify_input && !panels.empty()) {
+    const uint64_t piece = std::clamp<uint64_t>(budget / (4 * jobs), 4096, 1 << 20);
+    verifier = std::thread([&, piece] {
+      std::vector<std::byte> buf(piece);
+      verify_status = ParallelFor(in_chunks, 1, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
+                                  [&](uint64_t ci) -> Status {
+        LTB_RETURN_IF_ERROR(in.VerifyChunk(0, ci, buf));
+        verified += in.Find(0, ci)->header.payload_length;
+        return Status::Ok();
+      });
+      if (!verify_status.ok()) verify_failed = true;
+    });
+  }
   const uint64_t panel_floats = result.panel_cols * rows;
   std::vector<float> buffers[2];
   buffers[0].resize(panel_floats);
   if (panels.size() > 1) buffers[1].resize(panel_floats);
-  LTB_ASSIGN_OR_RETURN(io::File in_file, io::File::Open(o.input, io::File::Mode::kRead));
 
   PanelQueue queue;
   std::atomic<uint64_t> written{0}, zero_out{0}, bytes_written{0}, bytes_read{0}, cols_done{0};
@@ -219,7 +227,7 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
     const Panel& p = panels[pi];
     size_t slot = pi % 2;
     queue.Acquire(slot);
-    if (writer_failed) break;
+    if (writer_failed || verify_failed) break;
     if (progress.Cancelled()) {
       status = Cancelled("interrupted; committed columns are kept, rerun the same command to resume");
       break;
@@ -275,10 +283,19 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
   }
   queue.Close();
   writer.join();
+  if (verifier.joinable()) verifier.join();
   result.chunks_written += written;
   result.zero_chunks_out = zero_out;
   result.bytes_read = bytes_read;
   result.bytes_written = bytes_written;
+  result.bytes_verified = verified;
+  if (!verify_status.ok() && verify_status.code() != StatusCode::kCancelled) {
+    out = io::ContainerWriter();
+    std::remove(o.output.c_str());
+    return verify_status.WithContext("input checksum pass (" + o.output + " removed: it may hold columns built from the "
+                                     "damaged input); repair or regenerate the input and rerun");
+  }
+  LTB_RETURN_IF_ERROR(verify_status);
   LTB_RETURN_IF_ERROR(status);
   LTB_RETURN_IF_ERROR(writer_status);
   LTB_RETURN_IF_ERROR(out.Finish());

@@ -117,6 +117,19 @@ with tempfile.TemporaryDirectory() as d:
     run("transpose", bigl, "-o", out2, "--mem-limit", "4MiB")
     check(info(out2)["content_hash"] == ref_hash, "transpose after SIGTERM differs from the input")
 
+    # A damaged input chunk: the checksum pass catches it, the run fails naming the chunk,
+    # and no output built from it is left behind.
+    raw = bytearray(open(bigl, "rb").read())
+    chunks = json.loads(run("inspect", bigl, "--json", "--chunks", "--no-content").stdout)["chunk_list"]
+    victim = chunks[len(chunks) // 2]
+    raw[victim["offset"] + 64 + 1000] ^= 0x01
+    bad_in = os.path.join(d, "damaged.ltm")
+    open(bad_in, "wb").write(raw)
+    bad_out = os.path.join(d, "from-damaged.ltm")
+    p = run("transpose", bad_in, "-o", bad_out, "--mem-limit", "4MiB", expect=1)
+    check(f"chunk {victim['index']}" in p.stderr and "checksum mismatch" in p.stderr, f"damaged input: {p.stderr}")
+    check(not os.path.exists(bad_out), "a transpose of a damaged input left its output behind")
+
     # Bad requests.
     p = run("transpose", os.path.join(d, "big-t.ltm"), "-o", os.path.join(d, "x.ltm"), expect=1)
     check("already stored in column blocks" in p.stderr, f"column input: {p.stderr}")
