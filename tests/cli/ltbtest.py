@@ -29,3 +29,22 @@ def finish():
         print(f)
     print(f"{checks - len(failures)} passed, {len(failures)} failed")
     sys.exit(1 if failures else 0)
+
+
+def kill_storm(args, out, kills, max_delay, seed):
+    """Runs `ltbake ARGS` `kills` times, SIGKILLing it after a random delay in
+    [0, max_delay); after each kill the partial `out` (if any) must verify as intact."""
+    import json
+    import os
+    import random
+    import signal
+    import time
+    rnd = random.Random(seed)
+    for k in range(kills):
+        p = subprocess.Popen([LTBAKE, *map(str, args)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        time.sleep(rnd.uniform(0.0, max_delay))
+        p.send_signal(signal.SIGKILL)
+        p.wait()
+        if os.path.exists(out):
+            v = json.loads(run("verify", "--allow-incomplete", "--json", out).stdout)[0]
+            check(v["ok"], f"kill {k}: partial output does not verify: {v}")

@@ -14,8 +14,6 @@ usage: row_transform_test.py PATH_TO_LTBAKE
 import json
 import os
 import random
-import signal
-import subprocess
 import sys
 import tempfile
 import time
@@ -24,7 +22,7 @@ import warnings
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ltbtest import LTBAKE, check, failures, finish, run  # noqa: E402
+from ltbtest import LTBAKE, check, failures, finish, kill_storm, run  # noqa: E402
 import pywt
 
 warnings.simplefilter("ignore")
@@ -118,16 +116,7 @@ with tempfile.TemporaryDirectory() as d:
     full = time.monotonic() - t0
     ref_hash = content_hash(ref)
     out = os.path.join(d, "big-out.ltm")
-    rnd = random.Random(7)
-    for k in range(5):
-        p = subprocess.Popen([LTBAKE, "row-transform", bigraw, "-o", out, "--filter", "db4"],
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        time.sleep(rnd.uniform(0.0, full))
-        p.send_signal(signal.SIGKILL)
-        p.wait()
-        if os.path.exists(out):
-            v = json.loads(run("verify", "--allow-incomplete", "--json", out).stdout)[0]
-            check(v["ok"], f"kill {k}: partial output does not verify: {v}")
+    kill_storm(["row-transform", bigraw, "-o", out, "--filter", "db4"], out, kills=5, max_delay=full, seed=7)
     run("row-transform", bigraw, "-o", out, "--filter", "db4")
     check(content_hash(out) == ref_hash, "row-transform resumed after kills differs from the uninterrupted run")
 

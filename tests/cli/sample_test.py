@@ -21,9 +21,6 @@ usage: sample_test.py PATH_TO_LTBAKE
 import json
 import math
 import os
-import random
-import signal
-import subprocess
 import sys
 import tempfile
 import time
@@ -31,7 +28,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ltbtest import LTBAKE, check, failures, finish, run  # noqa: E402
+from ltbtest import LTBAKE, check, failures, finish, kill_storm, run  # noqa: E402
 
 DELTA = 1e-9
 
@@ -81,14 +78,16 @@ with tempfile.TemporaryDirectory() as d:
     t_row = hoeffding(R, spp, albedo)
 
     # 1. Unoccluded plane.
-    s1 = scene(d, "plane.toml", f"""
+    def plane_scene(name, eye, up, fov, size, extra=""):
+        """A white plane of the test's albedo, a camera, [sampling] R and spp, plus `extra`."""
+        return scene(d, name, f"""
 [camera]
-eye = [0.0, 0.0, 5.0]
+eye = {eye}
 target = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-fov = 30.0
-width = 8
-height = 8
+up = {up}
+fov = {fov}
+width = {size}
+height = {size}
 [sampling]
 cube_res = {R}
 spp = {spp}
@@ -99,7 +98,9 @@ albedo = {albedo}
 type = "plane"
 size = [100.0, 100.0]
 material = "m"
-""")
+""" + extra)
+
+    s1 = plane_scene("plane.toml", "[0.0, 0.0, 5.0]", "[0.0, 1.0, 0.0]", 30.0, 8)
     out1 = os.path.join(d, "plane.ltm")
     run("sample", s1, "-o", out1)
     T = load(d, out1)
@@ -119,25 +120,7 @@ material = "m"
 
     # 2. Plane under a sphere.
     c, r = np.array([0.0, 0.0, 1.0]), 0.5
-    s2 = scene(d, "sphere.toml", f"""
-[camera]
-eye = [3.0, 0.0, 6.0]
-target = [0.0, 0.0, 0.0]
-up = [0.0, 0.0, 1.0]
-fov = 40.0
-width = 12
-height = 12
-[sampling]
-cube_res = {R}
-spp = {spp}
-[[material]]
-name = "m"
-albedo = {albedo}
-[[object]]
-type = "plane"
-size = [100.0, 100.0]
-material = "m"
-[[object]]
+    s2 = plane_scene("sphere.toml", "[3.0, 0.0, 6.0]", "[0.0, 0.0, 1.0]", 40.0, 12, f"""[[object]]
 type = "sphere"
 center = [0.0, 0.0, 1.0]
 radius = {r}
@@ -178,16 +161,7 @@ material = "m"
     full = time.monotonic() - t0
     ref_hash = json.loads(run("inspect", ref, "--json").stdout)["content_hash"]
     out = os.path.join(d, "big-k.ltm")
-    rnd = random.Random(3)
-    for k in range(6):
-        p = subprocess.Popen([LTBAKE, "sample", big, "-o", out, "--chunk-rows", "16"], stdout=subprocess.DEVNULL,
-                             stderr=subprocess.DEVNULL)
-        time.sleep(rnd.uniform(0, full))
-        p.send_signal(signal.SIGKILL)
-        p.wait()
-        if os.path.exists(out):
-            v = json.loads(run("verify", "--allow-incomplete", "--json", out).stdout)[0]
-            check(v["ok"], f"kill {k}: partial output does not verify")
+    kill_storm(["sample", big, "-o", out, "--chunk-rows", 16], out, kills=6, max_delay=full, seed=3)
     run("sample", big, "-o", out, "--chunk-rows", 16, "--jobs", 1)
     check(json.loads(run("inspect", out, "--json").stdout)["content_hash"] == ref_hash,
           "sample resumed after kills differs from the uninterrupted run")

@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ltbtest import LTBAKE, check, failures, finish, run  # noqa: E402
+from ltbtest import LTBAKE, check, failures, finish, kill_storm, run  # noqa: E402
 
 
 
@@ -93,16 +93,7 @@ with tempfile.TemporaryDirectory() as d:
     t0 = time.monotonic()
     run("transpose", bigl, "-o", os.path.join(d, "big-timing.ltm"), "--mem-limit", "4MiB")
     full = time.monotonic() - t0
-    rnd = random.Random(5)
-    for k in range(10):
-        p = subprocess.Popen([LTBAKE, "transpose", bigl, "-o", out, "--mem-limit", "4MiB"],
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        time.sleep(rnd.uniform(0, full))
-        p.send_signal(signal.SIGKILL)
-        p.wait()
-        if os.path.exists(out):
-            v = json.loads(run("verify", "--allow-incomplete", "--json", out).stdout)[0]
-            check(v["ok"], f"kill {k}: partial output does not verify: {v}")
+    kill_storm(["transpose", bigl, "-o", out, "--mem-limit", "4MiB"], out, kills=10, max_delay=full, seed=5)
     run("transpose", bigl, "-o", out, "--mem-limit", "4MiB")
     check(info(out)["content_hash"] == ref_hash, "resumed transpose differs from the input")
 
