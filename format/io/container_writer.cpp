@@ -23,6 +23,7 @@ ContainerWriter& ContainerWriter::operator=(ContainerWriter&& o) noexcept {
     options_ = o.options_;
     end_ = o.end_;
     sealed_ = o.sealed_;
+    mutations_ = o.mutations_;
     frames_ = std::move(o.frames_);
     committed_ = std::move(o.committed_);
   }
@@ -175,6 +176,14 @@ Status ContainerWriter::Resume(uint64_t file_size) {
   return Status::Ok();
 }
 
+Status ContainerWriter::CountMutation() {
+  if (mutations_ >= options_.stop_after_mutations) {
+    return Internal(path() + ": stopped after " + std::to_string(mutations_) + " writes (stop_after_mutations)");
+  }
+  ++mutations_;
+  return Status::Ok();
+}
+
 bool ContainerWriter::Has(uint32_t array, uint64_t chunk) const {
   std::lock_guard<std::mutex> lock(mu_);
   return committed_.count(Key(array, chunk)) != 0;
@@ -220,10 +229,18 @@ Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChun
   }
   uint64_t offset = end_;
   // Payload and its zero padding first, the header last: the header write is the commit.
+  LTB_RETURN_IF_ERROR(CountMutation());
   LTB_RETURN_IF_ERROR(file_.WriteAt(offset + kFrameHeaderSize, encoded.payload));
   uint64_t pad = AlignUp(h.payload_length, kAlignment) - h.payload_length;
-  if (pad > 0) LTB_RETURN_IF_ERROR(file_.WriteAt(offset + kFrameHeaderSize + h.payload_length, ByteSpan(kZeros.data(), pad)));
-  if (options_.sync_each_chunk) LTB_RETURN_IF_ERROR(file_.DataSync());
+  if (pad > 0) {
+    LTB_RETURN_IF_ERROR(CountMutation());
+    LTB_RETURN_IF_ERROR(file_.WriteAt(offset + kFrameHeaderSize + h.payload_length, ByteSpan(kZeros.data(), pad)));
+  }
+  if (options_.sync_each_chunk) {
+    LTB_RETURN_IF_ERROR(CountMutation());
+    LTB_RETURN_IF_ERROR(file_.DataSync());
+  }
+  LTB_RETURN_IF_ERROR(CountMutation());
   LTB_RETURN_IF_ERROR(file_.WriteAt(offset, hb));
   end_ = offset + h.FrameSize();
   frames_.push_back({offset, h});
@@ -258,14 +275,24 @@ Status ContainerWriter::Finish() {
   h.decoded_length = index.size();
   h.payload_checksum = Checksum(index);
   uint64_t index_offset = end_;
-  LTB_RETURN_IF_ERROR(file_.WriteAt(index_offset + kFrameHeaderSize, index));
   uint64_t trailer_offset = index_offset + h.FrameSize();
   Trailer t;
   t.index_offset = index_offset;
   t.file_length = trailer_offset + kTrailerSize;
-  LTB_RETURN_IF_ERROR(file_.Truncate(trailer_offset));  // zero padding after the index payload
+  // The index frame's region is zero-extended first and its header written before its
+  // payload, so a writer killed at any point of sealing leaves either zeros (an
+  // uncommitted tail) or an index frame whose declared length covers the partial payload.
+  // The payload holds copies of chunk frame headers; written before its own header, those
+  // copies would read as frames to a scanner.
+  LTB_RETURN_IF_ERROR(CountMutation());
+  LTB_RETURN_IF_ERROR(file_.Truncate(trailer_offset));
+  LTB_RETURN_IF_ERROR(CountMutation());
   LTB_RETURN_IF_ERROR(file_.WriteAt(index_offset, EncodeFrameHeader(h)));
-  LTB_RETURN_IF_ERROR(file_.WriteAt(trailer_offset, EncodeTrailer(t)));
+  LTB_RETURN_IF_ERROR(CountMutation());
+  LTB_RETURN_IF_ERROR(file_.WriteAt(index_offset + kFrameHeaderSize, index));
+  LTB_RETURN_IF_ERROR(CountMutation());
+  LTB_RETURN_IF_ERROR(file_.WriteAt(trailer_offset, EncodeTrailer(t)));  // the trailer seals
+  LTB_RETURN_IF_ERROR(CountMutation());
   LTB_RETURN_IF_ERROR(file_.DataSync());
   end_ = t.file_length;
   sealed_ = true;

@@ -28,6 +28,9 @@ struct WriterOptions {
   bool overwrite_mismatch = false;
   // fdatasync after every chunk (survives power loss per chunk, at a large cost).
   bool sync_each_chunk = false;
+  // For crash tests: every file mutation (write, extend, sync) after the first
+  // `stop_after_mutations` fails, leaving the file exactly as a writer killed there would.
+  uint64_t stop_after_mutations = UINT64_MAX;
 };
 
 struct ResumeInfo {
@@ -66,6 +69,7 @@ class ContainerWriter {
 
  private:
   Status Resume(uint64_t file_size);
+  Status CountMutation();  // fails once options_.stop_after_mutations is reached
   static uint64_t Key(uint32_t array, uint64_t chunk) { return (uint64_t{array} << 40) | chunk; }
 
   File file_;
@@ -76,6 +80,7 @@ class ContainerWriter {
   mutable std::mutex mu_;
   uint64_t end_ = 0;  // where the next frame goes
   bool sealed_ = false;
+  uint64_t mutations_ = 0;
   std::vector<format::IndexEntry> frames_;
   std::unordered_set<uint64_t> committed_;
 };

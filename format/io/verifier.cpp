@@ -112,6 +112,7 @@ VerifyReport VerifyContainer(const std::string& path) {
   std::set<uint64_t> seen;
   std::vector<IndexEntry> chunk_frames;
   const IndexEntry* index_frame = nullptr;
+  const IndexEntry* partial_index = nullptr;  // last frame: an index whose payload does not verify
   for (const IndexEntry& e : scan->frames) {
     const FrameHeader& h = e.header;
     std::string where = "frame at offset " + std::to_string(e.frame_offset);
@@ -132,6 +133,11 @@ VerifyReport VerifyContainer(const std::string& path) {
       continue;
     }
     uint64_t actual = Checksum(region->bytes());
+    if (actual != h.payload_checksum && h.type == static_cast<uint16_t>(FrameType::kIndex) &&
+        &e == &scan->frames.back() && scan->chain_end == size) {
+      partial_index = &e;  // judged below, once the trailer is known: an interrupted seal, or damage
+      continue;
+    }
     if (actual != h.payload_checksum) {
       r.problems.push_back(where + ": payload checksum mismatch: expected=" + Hex64(h.payload_checksum) +
                            ", actual=" + Hex64(actual));
@@ -202,9 +208,29 @@ VerifyReport VerifyContainer(const std::string& path) {
       }
     }
   }
-  if (index_frame != nullptr) {
-    if (!trailer_ok) r.problems.push_back("index frame at offset " + std::to_string(index_frame->frame_offset) +
-                                          " but no valid trailer at the end of the file (damaged or truncated)");
+  // The writer zero-extends the index frame's region, writes its header, then its payload,
+  // then the trailer. A file that ends with the index frame and has no trailer was being
+  // sealed when its writer stopped: that is an uncommitted tail (resuming redoes the seal),
+  // not damage. Bytes after the index frame that are not a valid trailer are damage.
+  bool index_is_tail = !trailer_ok && scan->chain_end == size;
+  if (partial_index != nullptr) {
+    if (index_is_tail) {
+      r.notes.push_back("index frame at offset " + std::to_string(partial_index->frame_offset) +
+                        " is incomplete: sealing was interrupted; resuming the writer redoes it");
+      r.uncommitted_tail_bytes = size - partial_index->frame_offset;
+    } else {
+      r.problems.push_back("frame at offset " + std::to_string(partial_index->frame_offset) +
+                           ": index payload checksum mismatch");
+    }
+  } else if (index_frame != nullptr) {
+    if (index_is_tail) {
+      r.notes.push_back("index frame at offset " + std::to_string(index_frame->frame_offset) +
+                        " has no trailer: sealing was interrupted; resuming the writer redoes it");
+      r.uncommitted_tail_bytes = size - index_frame->frame_offset;
+    } else if (!trailer_ok) {
+      r.problems.push_back("index frame at offset " + std::to_string(index_frame->frame_offset) +
+                           " but no valid trailer at the end of the file (damaged or truncated)");
+    }
     auto region = MappedRegion::Map(file->fd(), index_frame->frame_offset + kFrameHeaderSize,
                                     index_frame->header.payload_length, false);
     auto entries = region.ok() ? DecodeIndex(region->bytes(), first, index_frame->frame_offset)

@@ -50,10 +50,6 @@ namespace {
 
 constexpr int64_t kSmallConstant = 1 << 20;
 
-std::vector<char> ReadBytes(const std::string& path) {
-  std::ifstream f(path, std::ios::binary);
-  return std::vector<char>(std::istreambuf_iterator<char>(f), {});
-}
 void WriteBytes(const std::string& path, const std::vector<char>& b, size_t n) {
   std::ofstream(path, std::ios::binary | std::ios::trunc).write(b.data(), static_cast<std::streamsize>(n));
 }
@@ -103,7 +99,7 @@ class DamageSweep : public ::testing::Test {
     std::vector<uint8_t> mk(21, 1);
     ASSERT_TRUE(w->Put(1, 0, format::ByteSpan(reinterpret_cast<const std::byte*>(mk.data()), mk.size())).ok());
     ASSERT_TRUE(w->Finish().ok());
-    bytes_ = ReadBytes(good_);
+    bytes_ = test::ReadFileBytes(good_);
     auto r = io::ContainerReader::Open(good_);
     ASSERT_TRUE(r.ok());
     int encodings[3] = {0, 0, 0};

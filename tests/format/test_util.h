@@ -3,6 +3,8 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <random>
 #include <string>
 #include <vector>
@@ -26,6 +28,11 @@ class TempDir {
  private:
   std::string path_;
 };
+
+inline std::vector<char> ReadFileBytes(const std::string& path) {
+  std::ifstream f(path, std::ios::binary);
+  return std::vector<char>(std::istreambuf_iterator<char>(f), {});
+}
 
 // rows x cols values in row-major order; row r is all zero when r % 7 == 3 so that
 // some chunks are all-zero, and some rows repeat a pattern so zstd has work to do.
