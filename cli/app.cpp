@@ -28,7 +28,8 @@ int LtbakeMain(int argc, char** argv) {
   app.add_flag("--version", version, "print the tool version and the .ltm format versions it reads and writes");
 
   std::map<CLI::App*, std::unique_ptr<Command>> commands;
-  for (auto reg : {RegisterInspect, RegisterVerify, RegisterConvert, RegisterRowTransform, RegisterTranspose, RegisterSample}) {
+  for (auto reg : {RegisterInspect, RegisterVerify, RegisterConvert, RegisterRowTransform, RegisterTranspose, RegisterSample,
+                   RegisterColumnTransform, RegisterQuantize}) {
     auto cmd = reg(&app);
     commands[app.get_subcommands({}).back()] = std::move(cmd);
   }

@@ -25,6 +25,11 @@ class ConvertCommand : public Command {
     app->add_option("--cube-res", options_.cube_res,
                     "declare the columns a pixel-basis cubemap with R×R faces (6·R² columns, R a power of two)");
     app->add_option("--image", image_, "declare the rows the pixels of a WxH image (W·H rows, row y·W + x)");
+    app->add_option("--basis", basis_,
+                    "ltm -> npy: stored (default; column-transform and quantize outputs decode to the row-transformed "
+                    "basis) or pixels (also invert the row transform)")
+        ->default_val("stored")
+        ->check(CLI::IsMember({"stored", "pixels"}));
     AddCommonFlags(app, &flags_);
   }
 
@@ -36,6 +41,7 @@ class ConvertCommand : public Command {
     options_.chunk_bytes = *chunk;
     options_.mem_limit = *mem;
     options_.jobs = flags_.jobs;
+    options_.pixel_basis = basis_ == "pixels";
     options_.layout = layout_ == "cols" ? format::Layout::kCols : format::Layout::kRows;
     if (!image_.empty()) {
       unsigned long long w = 0, h = 0;
@@ -70,7 +76,7 @@ class ConvertCommand : public Command {
 
  private:
   stages::ConvertOptions options_;
-  std::string chunk_size_ = "8MiB", layout_ = "rows", image_;
+  std::string chunk_size_ = "8MiB", layout_ = "rows", image_, basis_ = "stored";
   CommonFlags flags_;
 };
 

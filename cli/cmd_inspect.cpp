@@ -9,6 +9,8 @@
 #include "cli/common.h"
 #include "format/io/array_summary.h"
 #include "format/io/container_reader.h"
+#include "stages/column_transform/column_transform.h"
+#include "stages/quantize/quantize.h"
 
 namespace ltb::cli {
 namespace {
@@ -64,15 +66,19 @@ class InspectCommand : public Command {
       json j = a.ToJson();
       json chunks = {{"expected", a.ChunkCount()}, {"committed", reader.committed(i)},
                      {"missing", a.ChunkCount() - reader.committed(i)}};
-      uint64_t by_enc[3] = {0, 0, 0}, stored = 0;
+      uint64_t by_enc[5] = {0, 0, 0, 0, 0}, stored = 0;
       for (const auto& e : reader.chunk_frames()) {
         if (e.header.array != i) continue;
-        by_enc[e.header.encoding]++;
+        if (e.header.encoding < 5) by_enc[e.header.encoding]++;  // the reader refuses unknown encodings
         stored += e.header.payload_length;
       }
       chunks["raw"] = by_enc[0];
       chunks["zero"] = by_enc[1];
       chunks["zstd"] = by_enc[2];
+      if (by_enc[3] + by_enc[4] > 0) {
+        chunks["sparse"] = by_enc[3];
+        chunks["sparse_zstd"] = by_enc[4];
+      }
       chunks["stored_bytes"] = stored;
       j["chunks"] = chunks;
       if (!no_content_) {
@@ -97,6 +103,28 @@ class InspectCommand : public Command {
     const json& m = out["arrays"][0];
     for (const char* k : {"shape", "dtype", "layout", "block", "chunks", "content_hash", "stats"}) {
       if (m.contains(k)) out[k] = m[k];
+    }
+    // Column-transform / quantize outputs: chosen depths, error, bytes per nonzero.
+    if (meta.json.contains("column_transform") && reader.complete()) {
+      auto ct = stages::SummarizeColumnTransform(path_);
+      if (ct.ok()) {
+        json c = meta.json["column_transform"];
+        c["depth_histogram"] = ct->depth_histogram;
+        c["empty_columns"] = ct->empty_columns;
+        c["nonzeros_kept"] = ct->nonzeros;
+        c["relative_rms_error"] = ct->energy > 0 ? std::sqrt(ct->error / ct->energy) : 0.0;
+        out["column_transform"] = c;
+      }
+      if (meta.json.contains("quantization")) {
+        auto q = stages::SummarizeQuantized(path_);
+        if (q.ok()) {
+          json qj = meta.json["quantization"];
+          qj["nonzeros"] = q->nonzeros_out;
+          qj["matrix_bytes"] = q->matrix_bytes;
+          qj["bytes_per_nonzero"] = q->BytesPerNonzero();
+          out["quantization"] = qj;
+        }
+      }
     }
     if (chunks_) {
       out["chunk_list"] = json::array();
@@ -129,7 +157,10 @@ class InspectCommand : public Command {
       std::cout << "  " << a["name"].get<std::string>() << ": " << a["shape"][0] << " x " << a["shape"][1] << " "
                 << a["dtype"].get<std::string>() << ", layout " << a["layout"].get<std::string>() << " (block "
                 << a["block"] << "), chunks " << c["committed"] << "/" << c["expected"] << " (raw " << c["raw"]
-                << ", zero " << c["zero"] << ", zstd " << c["zstd"] << "), stored "
+                << ", zero " << c["zero"] << ", zstd " << c["zstd"]
+                << (c.contains("sparse") ? ", sparse " + c["sparse"].dump() + ", sparse+zstd " + c["sparse_zstd"].dump()
+                                         : std::string())
+                << "), stored "
                 << HumanBytes(c["stored_bytes"]) << "\n";
       if (a.contains("content_hash")) {
         std::cout << "    content_hash: "
@@ -149,6 +180,20 @@ class InspectCommand : public Command {
     }
     if (!out["basis"].is_null()) std::cout << "  basis: " << out["basis"].dump() << "\n";
     if (!out["provenance"].is_null()) std::cout << "  provenance: " << out["provenance"].dump() << "\n";
+    if (out.contains("column_transform")) {
+      const json& c = out["column_transform"];
+      std::cout << "  column transform: filter " << c.value("filter", "?") << ", depth " << c.value("depth", "?")
+                << ", " << c["nonzeros_kept"] << " nonzeros kept, relative RMS error " << c["relative_rms_error"]
+                << "\n    columns per depth:";
+      for (size_t d = 0; d < c["depth_histogram"].size(); ++d) std::cout << " " << d << ":" << c["depth_histogram"][d];
+      std::cout << " (and " << c["empty_columns"] << " empty)\n";
+    }
+    if (out.contains("quantization")) {
+      const json& q = out["quantization"];
+      std::cout << "  quantization: " << q["bits"] << " bits, scaling " << q.value("scaling", "?") << ", "
+                << q["nonzeros"] << " nonzeros in " << HumanBytes(q["matrix_bytes"]) << " ("
+                << q["bytes_per_nonzero"].get<double>() << " bytes per nonzero)\n";
+    }
     if (out["uncommitted_tail_bytes"].get<uint64_t>() > 0) {
       std::cout << "  uncommitted tail: " << out["uncommitted_tail_bytes"]
                 << " bytes (a chunk in flight when the writer stopped; a rerun discards it)\n";

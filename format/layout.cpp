@@ -24,11 +24,13 @@ const char* EncodingName(Encoding e) {
     case Encoding::kRaw: return "raw";
     case Encoding::kZero: return "zero";
     case Encoding::kZstd: return "zstd";
+    case Encoding::kSparse: return "sparse";
+    case Encoding::kSparseZstd: return "sparse-zstd";
   }
   return "unknown";
 }
 
-bool IsKnownEncoding(uint16_t e) { return e <= static_cast<uint16_t>(Encoding::kZstd); }
+bool IsKnownEncoding(uint16_t e) { return e <= static_cast<uint16_t>(Encoding::kSparseZstd); }
 
 // File header, 64 bytes:
 //   0 magic[8]  8 major u16  10 minor u16  12 header_size u32  16 required_features u64

@@ -24,7 +24,9 @@ inline constexpr std::array<unsigned char, 8> kTrailerMagic = {'L', 'T', 'M', 'T
 enum class FrameType : uint16_t { kChunk = 1, kIndex = 2 };
 inline constexpr uint16_t kFrameFlagOptional = 1;  // readers skip unknown optional frames
 
-enum class Encoding : uint16_t { kRaw = 0, kZero = 1, kZstd = 2 };
+// Chunk payload encodings (docs/FORMAT.md "Frames"). kSparse and kSparseZstd arrived in
+// format 1.1 (kMinorSparse); a 1.0 reader refuses them as unknown encodings.
+enum class Encoding : uint16_t { kRaw = 0, kZero = 1, kZstd = 2, kSparse = 3, kSparseZstd = 4 };
 const char* EncodingName(Encoding e);
 bool IsKnownEncoding(uint16_t e);
 

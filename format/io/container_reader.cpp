@@ -167,7 +167,7 @@ const IndexEntry* ContainerReader::Find(uint32_t array, uint64_t chunk) const {
   return it == by_key_.end() ? nullptr : &chunk_frames_[it->second];
 }
 
-Result<Chunk> ContainerReader::ReadChunk(uint32_t array, uint64_t chunk, const ReadOptions& options) const {
+Result<const IndexEntry*> ContainerReader::Locate(uint32_t array, uint64_t chunk, std::string* where) const {
   if (array >= metadata_.arrays.size()) return InvalidArgument("no array " + std::to_string(array));
   const ArraySpec& a = metadata_.arrays[array];
   if (chunk >= a.ChunkCount()) {
@@ -175,58 +175,105 @@ Result<Chunk> ContainerReader::ReadChunk(uint32_t array, uint64_t chunk, const R
                            "\" out of range (" + std::to_string(a.ChunkCount()) + " chunks)");
   }
   const IndexEntry* e = Find(array, chunk);
-  std::string where = path() + ": " + ChunkName(array, chunk);
+  *where = path() + ": " + ChunkName(array, chunk);
   if (e == nullptr) {
-    return NotFound(where + " is missing (never committed; the file is incomplete — rerun the stage that writes it to resume)");
+    return NotFound(*where + " is missing (never committed; the file is incomplete — rerun the stage that writes it to resume)");
   }
-  const FrameHeader& h = e->header;
-  if (options.sequential && options.readahead_chunks > 0) {
-    // chunk_frames_ is in file order; ask the kernel for the frames that follow.
-    size_t slot = static_cast<size_t>(e - chunk_frames_.data());
-    size_t last = std::min(chunk_frames_.size() - 1, slot + options.readahead_chunks);
-    if (last > slot) {
-      uint64_t from = chunk_frames_[slot + 1].frame_offset;
-      uint64_t to = chunk_frames_[last].frame_offset + chunk_frames_[last].header.FrameSize();
-      ::posix_fadvise(file_.fd(), static_cast<off_t>(from), static_cast<off_t>(std::min(to, file_size_) - from),
-                      POSIX_FADV_WILLNEED);
+  return e;
+}
+
+void ContainerReader::Readahead(const IndexEntry* e, const ReadOptions& options) const {
+  if (!options.sequential || options.readahead_chunks == 0) return;
+  // chunk_frames_ is in file order; ask the kernel for the frames that follow.
+  size_t slot = static_cast<size_t>(e - chunk_frames_.data());
+  size_t last = std::min(chunk_frames_.size() - 1, slot + options.readahead_chunks);
+  if (last > slot) {
+    uint64_t from = chunk_frames_[slot + 1].frame_offset;
+    uint64_t to = chunk_frames_[last].frame_offset + chunk_frames_[last].header.FrameSize();
+    ::posix_fadvise(file_.fd(), static_cast<off_t>(from), static_cast<off_t>(std::min(to, file_size_) - from),
+                    POSIX_FADV_WILLNEED);
+  }
+}
+
+Result<MappedRegion> ContainerReader::MapPayload(const IndexEntry& e, const std::string& where, bool sequential,
+                                                 bool verify) const {
+  uint64_t payload_offset = e.frame_offset + kFrameHeaderSize;
+  auto region = MappedRegion::Map(file_.fd(), payload_offset, e.header.payload_length, sequential);
+  if (!region.ok()) return region.status().WithContext(where);
+  if (verify) {
+    uint64_t actual = Checksum(region->bytes());
+    if (actual != e.header.payload_checksum) {
+      return DataLoss(where + " at offset " + std::to_string(payload_offset) + ": checksum mismatch: expected=" +
+                      Hex64(e.header.payload_checksum) + ", actual=" + Hex64(actual));
     }
   }
+  return region;
+}
+
+Result<Chunk> ContainerReader::ReadChunk(uint32_t array, uint64_t chunk, const ReadOptions& options) const {
+  std::string where;
+  LTB_ASSIGN_OR_RETURN(const IndexEntry* e, Locate(array, chunk, &where));
+  const ArraySpec& a = metadata_.arrays[array];
+  const FrameHeader& h = e->header;
+  Readahead(e, options);
   Chunk c;
   c.encoding_ = static_cast<Encoding>(h.encoding);
   c.extent_ = a.Extent(chunk);
-  uint64_t payload_offset = e->frame_offset + kFrameHeaderSize;
   switch (c.encoding_) {
     case Encoding::kZero:
       c.owned_.assign(h.decoded_length, std::byte{0});
       return c;
     case Encoding::kRaw: {
-      auto region = MappedRegion::Map(file_.fd(), payload_offset, h.payload_length, options.sequential);
-      if (!region.ok()) return region.status().WithContext(where);
-      c.region_ = std::move(region).value();
-      if (options.verify_checksum) {
-        uint64_t actual = Checksum(c.region_.bytes());
-        if (actual != h.payload_checksum) {
-          return DataLoss(where + " at offset " + std::to_string(payload_offset) + ": checksum mismatch: expected=" +
-                          Hex64(h.payload_checksum) + ", actual=" + Hex64(actual));
-        }
-      }
+      LTB_ASSIGN_OR_RETURN(c.region_, MapPayload(*e, where, options.sequential, options.verify_checksum));
       return c;
     }
-    case Encoding::kZstd: {
-      auto region = MappedRegion::Map(file_.fd(), payload_offset, h.payload_length, options.sequential);
-      if (!region.ok()) return region.status().WithContext(where);
-      uint64_t actual = Checksum(region->bytes());
-      if (actual != h.payload_checksum) {
-        return DataLoss(where + " at offset " + std::to_string(payload_offset) + ": checksum mismatch: expected=" +
-                        Hex64(h.payload_checksum) + ", actual=" + Hex64(actual));
+    case Encoding::kZstd:
+    case Encoding::kSparse:
+    case Encoding::kSparseZstd: {
+      if (c.encoding_ != Encoding::kZstd && c.extent_.Elements() > kMaxSparseElements) {
+        // Refused before the dense buffer is allocated.
+        return DataLoss(where + ": a chunk of " + std::to_string(c.extent_.Elements()) +
+                        " elements cannot be sparse (at most " + std::to_string(kMaxSparseElements) + ")");
       }
+      // Decoded payloads are always checked: decoding damaged bytes could mislead.
+      LTB_ASSIGN_OR_RETURN(MappedRegion region, MapPayload(*e, where, options.sequential, true));
       c.owned_.resize(h.decoded_length);  // checked against the metadata's chunk size at open
-      Status s = DecodeZstd(region->bytes(), c.owned_);
+      Status s = c.encoding_ == Encoding::kZstd     ? DecodeZstd(region.bytes(), c.owned_)
+                 : c.encoding_ == Encoding::kSparse ? DecodeSparseInto(region.bytes(), a.dtype, c.owned_)
+                                                    : DecodeSparseZstdInto(region.bytes(), a.dtype, c.owned_);
       if (!s.ok()) return s.WithContext(where);
       return c;
     }
   }
   return Internal(where + ": unhandled encoding");
+}
+
+Result<SparseChunk> ContainerReader::ReadSparse(uint32_t array, uint64_t chunk, const ReadOptions& options) const {
+  std::string where;
+  LTB_ASSIGN_OR_RETURN(const IndexEntry* e, Locate(array, chunk, &where));
+  const ArraySpec& a = metadata_.arrays[array];
+  const Encoding encoding = static_cast<Encoding>(e->header.encoding);
+  SparseChunk out;
+  out.extent = a.Extent(chunk);
+  out.dtype = a.dtype;
+  const uint64_t elements = out.extent.Elements();
+  if (encoding == Encoding::kSparse || encoding == Encoding::kSparseZstd) {
+    Readahead(e, options);
+    LTB_ASSIGN_OR_RETURN(MappedRegion region, MapPayload(*e, where, options.sequential, true));
+    Status s = encoding == Encoding::kSparse ? DecodeSparsePayload(region.bytes(), a.dtype, elements, &out)
+                                             : DecodeSparseZstdPayload(region.bytes(), a.dtype, elements, &out);
+    if (!s.ok()) return s.WithContext(where);
+    return out;
+  }
+  if (elements > kMaxSparseElements) {
+    return InvalidArgument(where + " has " + std::to_string(elements) + " elements, more than a sparse chunk indexes (" +
+                           std::to_string(kMaxSparseElements) + "); read it with ReadChunk");
+  }
+  if (encoding == Encoding::kZero) return out;
+  LTB_ASSIGN_OR_RETURN(Chunk dense, ReadChunk(array, chunk, options));
+  Status s = SparseFromDense(dense.bytes(), a.dtype, &out);
+  if (!s.ok()) return s.WithContext(where);
+  return out;
 }
 
 Status ContainerReader::VerifyChunk(uint32_t array, uint64_t chunk, MutableByteSpan buffer) const {

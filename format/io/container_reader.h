@@ -10,13 +10,14 @@
 #include <vector>
 
 #include "format/array_spec.h"
+#include "format/chunk_codec.h"
 #include "format/io/file.h"
 #include "format/io/mapped_region.h"
 #include "format/layout.h"
 
 namespace ltb::io {
 
-// One decoded chunk: raw chunks are a zero-copy mapping, others an owned buffer.
+// One decoded (dense) chunk: raw chunks are a zero-copy mapping, others an owned buffer.
 class Chunk {
  public:
   format::ByteSpan bytes() const { return owned_.empty() ? region_.bytes() : format::ByteSpan(owned_); }
@@ -65,8 +66,15 @@ class ContainerReader {
   const std::vector<std::string>& problems() const { return problems_; }
   uint64_t uncommitted_tail_bytes() const { return tail_bytes_; }
 
-  // Fails with kNotFound when the chunk is missing, kDataLoss on checksum or decode errors.
+  // The dense chunk, whatever its encoding. Fails with kNotFound when the chunk is missing,
+  // kDataLoss on checksum or decode errors (naming file, array, chunk and what is wrong).
   Result<Chunk> ReadChunk(uint32_t array, uint64_t chunk, const ReadOptions& options = {}) const;
+
+  // The chunk's stored (nonzero-bit-pattern) elements: decoded without densifying for the
+  // sparse encodings, derived from the dense chunk for raw, zstd and all-zero ones, so every
+  // encoding gives the same result. Errors as ReadChunk; kInvalidArgument for a dense-encoded
+  // chunk of more than format::kMaxSparseElements elements (use ReadChunk).
+  Result<format::SparseChunk> ReadSparse(uint32_t array, uint64_t chunk, const ReadOptions& options = {}) const;
 
   // Checks a committed chunk's payload checksum by streaming it through `buffer` with
   // positional reads (no mapping: memory use is the buffer's size).
@@ -80,6 +88,12 @@ class ContainerReader {
   Status LoadByScan();
   void AddFrame(const format::IndexEntry& e);
   std::string ChunkName(uint32_t array, uint64_t chunk) const;
+  // The committed frame of a chunk (range-checked; kNotFound when missing), and its name.
+  Result<const format::IndexEntry*> Locate(uint32_t array, uint64_t chunk, std::string* where) const;
+  void Readahead(const format::IndexEntry* e, const ReadOptions& options) const;
+  // Maps a chunk's payload and checks its checksum (when `verify`).
+  Result<MappedRegion> MapPayload(const format::IndexEntry& e, const std::string& where, bool sequential,
+                                  bool verify) const;
 
   File file_;
   uint64_t file_size_ = 0;

@@ -210,6 +210,19 @@ Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChun
                            std::to_string(encoded.decoded_length) + " bytes, expected " +
                            std::to_string(a.ChunkBytes(chunk)));
   }
+  if (encoded.encoding == Encoding::kSparse || encoded.encoding == Encoding::kSparseZstd) {
+    // A sparse payload is read back with the array's dtype and 32-bit indices.
+    if (encoded.dtype != a.dtype) {
+      return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name +
+                             "\" was sparse-encoded as " + DTypeName(encoded.dtype) + ", the array is " +
+                             DTypeName(a.dtype));
+    }
+    if (a.Extent(chunk).Elements() > kMaxSparseElements) {
+      return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name + "\" has " +
+                             std::to_string(a.Extent(chunk).Elements()) + " elements, more than a sparse chunk holds (" +
+                             std::to_string(kMaxSparseElements) + ")");
+    }
+  }
   FrameHeader h;
   h.type = static_cast<uint16_t>(FrameType::kChunk);
   h.payload_length = encoded.payload.size();
@@ -249,7 +262,19 @@ Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChun
 }
 
 Status ContainerWriter::Put(uint32_t array, uint64_t chunk, ByteSpan data, const EncodeOptions& options) {
-  EncodedChunk c = EncodeChunk(data, options);
+  if (!options.sparse || array >= metadata_.arrays.size()) {
+    EncodedChunk c = EncodeChunk(data, options);
+    return Append(array, chunk, c);
+  }
+  const ArraySpec& a = metadata_.arrays[array];
+  if (chunk < a.ChunkCount() && a.Extent(chunk).Elements() > kMaxSparseElements) {
+    return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name + "\" has " +
+                           std::to_string(a.Extent(chunk).Elements()) + " elements, more than a sparse chunk holds (" +
+                           std::to_string(kMaxSparseElements) + "); use smaller chunks or no sparse encoding");
+  }
+  EncodeOptions eo = options;
+  eo.dtype = a.dtype;  // the sparse payload depends on the element type: always the array's
+  EncodedChunk c = EncodeChunk(data, eo);
   return Append(array, chunk, c);
 }
 

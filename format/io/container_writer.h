@@ -59,8 +59,12 @@ class ContainerWriter {
   std::vector<uint64_t> Missing(uint32_t array) const;
 
   // Appends one encoded chunk. Thread-safe; encode outside, in parallel, then append.
+  // A sparse-encoded chunk must have been encoded with the array's dtype and have at most
+  // format::kMaxSparseElements elements (kInvalidArgument otherwise).
   Status Append(uint32_t array, uint64_t chunk, const format::EncodedChunk& encoded);
-  // Encodes and appends `data` (the chunk in the array's layout and dtype).
+  // Encodes and appends `data` (the chunk in the array's layout and dtype). With
+  // options.sparse the array's dtype is used whatever options.dtype says, and a chunk of
+  // more than format::kMaxSparseElements elements is refused (kInvalidArgument).
   Status Put(uint32_t array, uint64_t chunk, format::ByteSpan data, const format::EncodeOptions& options = {});
 
   // Seals the file (index + trailer + fdatasync). Fails, naming the first missing chunk,

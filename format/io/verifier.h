@@ -1,6 +1,6 @@
 // Checks every checksum and structural invariant of a container and lists every problem
 // with its offset and chunk. Memory use is bounded by a small constant plus the frame
-// table (zstd payloads are decoded in a streaming fashion, never materialized).
+// table (zstd and sparse payloads are decoded in a streaming fashion, never materialized).
 #pragma once
 
 #include <cstdint>

@@ -7,6 +7,8 @@
 #include <filesystem>
 #include <limits>
 #include <mutex>
+#include <optional>
+#include <span>
 #include <thread>
 #include <vector>
 
@@ -16,6 +18,7 @@
 #include "format/io/mapped_region.h"
 #include "format/npy.h"
 #include "format/version.h"
+#include "stages/column_transform/column_codec.h"
 #include "stages/common/basis.h"
 #include "stages/common/parallel_for.h"
 
@@ -221,9 +224,36 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
 Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress) {
   LTB_ASSIGN_OR_RETURN(io::ContainerReader reader, io::ContainerReader::Open(o.input));
   const ArraySpec& a = reader.metadata().matrix();
-  if (a.dtype != DType::kF32) {
+  std::optional<ColumnCodec> codec;
+  if (ColumnCodec::IsColumnTransformed(reader.metadata())) {
+    LTB_ASSIGN_OR_RETURN(ColumnCodec c, ColumnCodec::FromMetadata(reader.metadata(), o.input));
+    codec = std::move(c);
+  } else if (a.dtype != DType::kF32) {
     return InvalidArgument(o.input + ": matrix dtype is " + DTypeName(a.dtype) + "; convert to .npy handles f32");
   }
+  // --basis pixels: the row filter to invert.
+  std::optional<wavelet::Filter> row_filter;
+  uint64_t cube_res = 0;
+  if (o.pixel_basis) {
+    auto cube = ReadCubemapCols(reader.metadata());
+    if (!cube.ok()) return cube.status().WithContext(o.input);
+    if (!cube->has_value() || (*cube)->basis != "wavelet") {
+      return FailedPrecondition(o.input + ": --basis pixels needs row-transformed (wavelet-basis cubemap) columns");
+    }
+    LTB_ASSIGN_OR_RETURN(wavelet::Filter f, wavelet::ParseFilter((*cube)->filter));
+    row_filter = f;
+    cube_res = (*cube)->cube_res;
+  }
+  auto to_pixels = [&](float* rows_data, uint64_t n) {
+    if (!row_filter) return;
+    std::vector<float> scratch(wavelet::ScratchSize(cube_res, cube_res, 1));
+    const int depth = wavelet::MaxDepth(cube_res, cube_res);
+    for (uint64_t r = 0; r < n; ++r)
+      for (uint64_t face = 0; face < 6; ++face) {
+        wavelet::Inverse2D(*row_filter, rows_data + r * a.cols + face * cube_res * cube_res, cube_res, cube_res, 1,
+                           depth, scratch.data());
+      }
+  };
   uint64_t missing = a.ChunkCount() - reader.committed(0);
   if (missing > 0) {
     uint64_t first = 0;
@@ -259,7 +289,12 @@ Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress
   if (a.layout == Layout::kRows) {
     s = ParallelFor(chunks, o.jobs, progress, "chunks", [&](uint64_t i) -> Status {
       LTB_ASSIGN_OR_RETURN(io::Chunk c, reader.ReadChunk(0, i));
-      return out.WriteAt(data_offset + c.extent().row0 * a.cols * 4, c.bytes());
+      if (!row_filter) return out.WriteAt(data_offset + c.extent().row0 * a.cols * 4, c.bytes());
+      auto v = c.as<float>();
+      std::vector<float> rows_data(v.begin(), v.end());
+      to_pixels(rows_data.data(), c.extent().rows);
+      return out.WriteAt(data_offset + c.extent().row0 * a.cols * 4,
+                         ByteSpan(reinterpret_cast<const std::byte*>(rows_data.data()), rows_data.size() * 4));
     });
   } else {
     // Column blocks: assemble bands of whole rows in memory, one write per band.
@@ -271,13 +306,23 @@ Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress
       io::ReadOptions ro;
       ro.verify_checksum = r0 == 0;  // each chunk is verified once, on the first band
       s = ParallelFor(chunks, o.jobs, Progress{}, "chunks", [&](uint64_t i) -> Status {
-        LTB_ASSIGN_OR_RETURN(io::Chunk c, reader.ReadChunk(0, i, ro));
-        const ChunkExtent& e = c.extent();
-        auto v = c.as<float>();
+        const ChunkExtent e = a.Extent(i);
+        std::span<const float> v;
+        io::Chunk c;
+        std::vector<float> decoded;
+        if (codec) {
+          ColumnCodec local = *codec;  // its level cache is per thread
+          LTB_RETURN_IF_ERROR(local.DecodeChunk(reader, i, &decoded, ro));
+          v = decoded;
+        } else {
+          LTB_ASSIGN_OR_RETURN(c, reader.ReadChunk(0, i, ro));
+          v = c.as<float>();
+        }
         for (uint64_t col = 0; col < e.cols; ++col)
           for (uint64_t r = 0; r < nr; ++r) buf[r * a.cols + e.col0 + col] = v[col * a.rows + r0 + r];
         return Status::Ok();
       });
+      if (s.ok()) to_pixels(buf.data(), nr);
       if (s.ok()) {
         s = out.WriteAt(data_offset + r0 * a.cols * 4,
                         ByteSpan(reinterpret_cast<const std::byte*>(buf.data()), buf.size() * 4));

@@ -1,5 +1,7 @@
 // `ltbake convert IN OUT`: .npy (2-D float32/float64, C order) to .ltm, and any .ltm
-// matrix back to a dense float32 .npy in its logical (rows × columns) order.
+// matrix back to a dense float32 .npy in its logical (rows × columns) order. Outputs of
+// column-transform and quantize are decoded (dequantized, inverse column transform) to the
+// row-transformed basis they came from.
 #pragma once
 
 #include <cstdint>
@@ -24,6 +26,10 @@ struct ConvertOptions {
   uint64_t cube_res = 0;
   // Declares the rows the pixels of a W×H image, y·W + x (0: generic).
   uint64_t image_width = 0, image_height = 0;
+  // .ltm -> .npy of a row-transformed matrix: also invert the row transform, so the .npy
+  // is in the pixel basis of the cubemap (column-transformed inputs are always decoded
+  // to the row-transformed basis first).
+  bool pixel_basis = false;
 };
 
 struct ConvertResult {

@@ -243,7 +243,7 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
       std::vector<std::byte> decoded;  // zstd chunks are decoded whole
       const float* src = nullptr;
       io::Chunk whole;
-      if (entry->header.encoding == static_cast<uint16_t>(Encoding::kZstd)) {
+      if (entry->header.encoding != static_cast<uint16_t>(Encoding::kRaw)) {  // zstd, sparse: decoded whole
         LTB_ASSIGN_OR_RETURN(whole, in.ReadChunk(0, ci));
         src = whole.as<float>().data();
         bytes_read += entry->header.payload_length;

@@ -76,37 +76,38 @@ class DamageSweep : public ::testing::Test {
  protected:
   void SetUp() override {
     good_ = dir_.File("good.ltm");
-    // Row blocks with raw, zstd and all-zero chunks, plus a side table.
+    // Row blocks with raw, all-zero, zstd, sparse and sparse+zstd chunks, plus a side table.
     format::ArraySpec mask;
     mask.name = "mask";
     mask.dtype = format::DType::kU8;
-    mask.rows = 21;
+    mask.rows = 35;
     mask.cols = 1;
-    mask.block = 21;
-    auto meta = test::MatrixMetadata(21, 12, format::Layout::kRows, 7);
+    mask.block = 35;
+    auto meta = test::MatrixMetadata(35, 12, format::Layout::kRows, 7);
     meta["arrays"].push_back(mask.ToJson());
     auto w = io::ContainerWriter::Open(good_, meta);
     ASSERT_TRUE(w.ok());
-    std::vector<float> m = test::MakeMatrix(21, 12, 11);
+    std::vector<float> m = test::MakeMatrix(35, 12, 11);
     for (size_t i = 7; i < 14; ++i)
       for (size_t c = 0; c < 12; ++c) m[i * 12 + c] = 0.0f;  // chunk 1 all zero
     for (size_t c = 0; c < 12 * 7; ++c) m[14 * 12 + c] = static_cast<float>(c % 3);  // chunk 2 compressible
+    for (size_t c = 0; c < 12 * 7; ++c) m[21 * 12 + c] = c % 23 == 5 ? 0.25f * static_cast<float>(c) : 0.0f;  // 3: sparse
+    for (size_t c = 0; c < 12 * 7; ++c) m[28 * 12 + c] = (c * c) % 11 < 4 ? 1.0f : 0.0f;  // 4: sparse, compressible
     format::EncodeOptions eo;
     eo.zstd = true;
-    for (uint64_t i = 0; i < 3; ++i) {
+    for (uint64_t i = 0; i < 5; ++i) {
+      eo.sparse = i >= 3;
       ASSERT_TRUE(w->Put(0, i, test::AsBytes(test::ChunkValues(w->metadata().matrix(), m, i)), eo).ok());
     }
-    std::vector<uint8_t> mk(21, 1);
+    std::vector<uint8_t> mk(35, 1);
     ASSERT_TRUE(w->Put(1, 0, format::ByteSpan(reinterpret_cast<const std::byte*>(mk.data()), mk.size())).ok());
     ASSERT_TRUE(w->Finish().ok());
     bytes_ = test::ReadFileBytes(good_);
     auto r = io::ContainerReader::Open(good_);
     ASSERT_TRUE(r.ok());
-    int encodings[3] = {0, 0, 0};
+    int encodings[5] = {0, 0, 0, 0, 0};
     for (const auto& e : r->chunk_frames()) encodings[e.header.encoding]++;
-    ASSERT_GT(encodings[0], 0);
-    ASSERT_GT(encodings[1], 0);
-    ASSERT_GT(encodings[2], 0);
+    for (int e = 0; e < 5; ++e) ASSERT_GT(encodings[e], 0) << format::EncodingName(static_cast<format::Encoding>(e));
   }
 
   test::TempDir dir_;
@@ -147,6 +148,51 @@ TEST_F(DamageSweep, EveryTruncationIsReported) {
     EXPECT_FALSE(r.complete) << "truncated to " << n;
     EXPECT_TRUE(!r.problems.empty() || r.readable) << "truncated to " << n;
   }
+}
+
+// A sparse chunk whose payload (checksum intact) claims as many stored elements as the chunk
+// has, in a few bytes: nothing may be sized by that count before the payload bears it out.
+TEST(SparseCount, HostileCountIsNotAllocated) {
+  test::TempDir dir;
+  std::string path = dir.File("count.ltm");
+  const uint64_t elements = uint64_t(1) << 22;
+  format::ArraySpec s;
+  s.name = "matrix";
+  s.dtype = format::DType::kU8;
+  s.rows = 1;
+  s.cols = elements;
+  s.layout = format::Layout::kCols;
+  s.block = elements;
+  {
+    auto w = io::ContainerWriter::Open(path, {{"arrays", {s.ToJson()}}});
+    ASSERT_TRUE(w.ok()) << w.status().message();
+    format::EncodedChunk c;
+    c.encoding = format::Encoding::kSparse;
+    c.decoded_length = elements;
+    c.dtype = format::DType::kU8;
+    c.owned = {std::byte{0x80}, std::byte{0x80}, std::byte{0x80}, std::byte{0x02}, std::byte{0x00}};  // n = 2^22
+    c.payload = c.owned;
+    c.checksum = format::Checksum(c.payload);
+    ASSERT_TRUE(w->Append(0, 0, c).ok());
+    ASSERT_TRUE(w->Finish().ok());
+  }
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  g_peak.store(g_live.load());
+  int64_t base = g_live.load();
+  auto sparse = r->ReadSparse(0, 0);
+  EXPECT_EQ(sparse.status().code(), StatusCode::kDataLoss);
+  EXPECT_NE(sparse.status().message().find("payload ends inside index 1 of 4194304"), std::string::npos)
+      << sparse.status().message();
+  auto v = io::VerifyContainer(path);
+  ASSERT_FALSE(v.problems.empty());
+  EXPECT_NE(v.problems[0].find("payload ends inside index 1 of 4194304"), std::string::npos) << v.problems[0];
+  EXPECT_LE(g_peak.load() - base, kSmallConstant);
+  // The dense read allocates the chunk the metadata describes (4 MiB), no more.
+  g_peak.store(g_live.load());
+  base = g_live.load();
+  EXPECT_EQ(r->ReadChunk(0, 0).status().code(), StatusCode::kDataLoss);
+  EXPECT_LE(g_peak.load() - base, static_cast<int64_t>(elements) + kSmallConstant);
 }
 
 }  // namespace

@@ -8,6 +8,7 @@
 #include <fstream>
 #include <optional>
 
+#include "format/chunk_codec.h"
 #include "format/io/array_summary.h"
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
@@ -103,7 +104,7 @@ TEST(Version, RefusesNewerMajorNamingBothVersions) {
   Status s = OpenStatus(path);
   EXPECT_EQ(s.code(), StatusCode::kUnimplemented);
   EXPECT_NE(s.message().find("format 2.3"), std::string::npos) << s.message();
-  EXPECT_NE(s.message().find("reads up to 1.0"), std::string::npos) << s.message();
+  EXPECT_NE(s.message().find("reads up to 1.1"), std::string::npos) << s.message();  // 1.1: sparse chunks
   EXPECT_NE(s.message().find("upgrade ltbake"), std::string::npos) << s.message();
 }
 
@@ -115,6 +116,43 @@ TEST(Version, ReadsNewerMinor) {
   auto r = io::ContainerReader::Open(WriteFile(dir, b));
   ASSERT_TRUE(r.ok()) << r.status().message();
   EXPECT_TRUE(r->complete());
+}
+
+TEST(Version, MinorIsInformationalEncodingsAreCheckedPerChunk) {
+  // A file labelled 1.0 holding a sparse chunk (a 1.0 file resumed by a 1.1 writer) reads:
+  // readers go by each chunk's encoding, never by the header's minor.
+  test::TempDir dir;
+  Bytes b = Header(1, 0);
+  AppendFrame(b, 1, 0, 0, 3, 0, {0x01, 0x02, 0x00, 0x00, 0x80, 0x3F}, 16);  // index 2 = 1.0f
+  AppendFrame(b, 1, 0, 0, 1, 1, {}, 16);
+  auto r = io::ContainerReader::Open(WriteFile(dir, b));
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_TRUE(r->complete());
+  auto c = r->ReadChunk(0, 0);
+  ASSERT_TRUE(c.ok()) << c.status().message();
+  EXPECT_EQ(std::vector<float>(c->as<float>().begin(), c->as<float>().end()),
+            std::vector<float>({0.0f, 0.0f, 1.0f, 0.0f}));
+}
+
+TEST(Version, RefusesUnknownEncodingAsNewer) {
+  // What a 1.0 reader does with a sparse chunk, this build does with encoding 5: the file
+  // opens, that chunk is refused (reported, never read as data), the others read.
+  test::TempDir dir;
+  Bytes b = Header(1, 9);
+  AppendFrame(b, 1, 0, 0, 5, 0, {0x01, 0x02, 0x03}, 16);
+  AppendFrame(b, 1, 0, 0, 0, 1, RawChunk(5), 16);
+  auto path = WriteFile(dir, b);
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_EQ(r->committed(0), 1u);
+  ASSERT_EQ(r->problems().size(), 1u);
+  EXPECT_NE(r->problems()[0].find("unknown chunk encoding 5 (written by a newer ltbake?)"), std::string::npos)
+      << r->problems()[0];
+  EXPECT_EQ(r->ReadChunk(0, 0).status().code(), StatusCode::kNotFound);
+  EXPECT_TRUE(r->ReadChunk(0, 1).ok());
+  auto v = io::VerifyContainer(path);
+  ASSERT_FALSE(v.problems.empty());
+  EXPECT_NE(v.problems[0].find("unknown chunk encoding 5"), std::string::npos) << v.problems[0];
 }
 
 TEST(Version, RefusesUnknownRequiredFeature) {
@@ -311,6 +349,195 @@ TEST(Hostile, EmptyAndTinyFiles) {
     EXPECT_FALSE(s.ok());
     EXPECT_NE(s.message().find("shorter than the 64-byte .ltm header"), std::string::npos) << s.message();
   }
+}
+
+// ---- Sparse payloads (format 1.1), laid out by hand from docs/FORMAT.md ----
+
+// One zstd frame of `bytes` (EncodeChunk's zstd candidate, accepted at any size).
+Bytes Zstd(const Bytes& bytes) {
+  format::EncodeOptions eo;
+  eo.detect_zero = false;
+  eo.zstd = true;
+  eo.min_saving = -1e9;
+  auto c = format::EncodeChunk(format::ByteSpan(reinterpret_cast<const std::byte*>(bytes.data()), bytes.size()), eo);
+  auto p = reinterpret_cast<const unsigned char*>(c.payload.data());
+  return Bytes(p, p + c.payload.size());
+}
+
+Bytes DropLast(Bytes b, size_t n) {
+  b.resize(b.size() - n);
+  return b;
+}
+
+Bytes Cat(std::initializer_list<Bytes> parts) {
+  Bytes out;
+  for (const Bytes& p : parts) out.insert(out.end(), p.begin(), p.end());
+  return out;
+}
+
+const Bytes kOne = {0x00, 0x00, 0x80, 0x3F};  // 1.0f
+
+TEST(Sparse, HandBuiltChunksRead) {
+  test::TempDir dir;
+  // Chunk 0 (rows 0-1, row-major): index 1 = 1.0f, index 3 = -0.0f. Chunk 1: the same
+  // payload as a zstd frame.
+  Bytes payload = Cat({{0x02, 0x01, 0x01}, kOne, {0x00, 0x00, 0x00, 0x80}});
+  Bytes b = Header(1, 1);
+  AppendFrame(b, 1, 0, 0, 3, 0, payload, 16);
+  AppendFrame(b, 1, 0, 0, 4, 1, Zstd(payload), 16);
+  auto path = WriteFile(dir, b);
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_TRUE(r->complete());
+  for (uint64_t i = 0; i < 2; ++i) {
+    auto c = r->ReadChunk(0, i);
+    ASSERT_TRUE(c.ok()) << c.status().message();
+    uint32_t bits[4];
+    std::memcpy(bits, c->bytes().data(), 16);
+    EXPECT_EQ(bits[0], 0u);
+    EXPECT_EQ(bits[1], 0x3F800000u);
+    EXPECT_EQ(bits[2], 0u);
+    EXPECT_EQ(bits[3], 0x80000000u);
+    auto s = r->ReadSparse(0, i);
+    ASSERT_TRUE(s.ok()) << s.status().message();
+    EXPECT_EQ(s->index, std::vector<uint32_t>({1, 3}));
+    EXPECT_EQ(s->extent.row0, 2 * i);
+  }
+  auto v = io::VerifyContainer(path);
+  EXPECT_TRUE(v.problems.empty()) << v.problems.front();
+  EXPECT_EQ(v.chunks_ok, 2u);
+  EXPECT_FALSE(v.sealed);  // hand-built: no index, no trailer
+  auto sum = io::SummarizeArray(*r, 0, 1);
+  ASSERT_TRUE(sum.ok()) << sum.status().message();
+  EXPECT_EQ(sum->stats.count, 8u);
+}
+
+TEST(Sparse, ColumnChunksIndexColumnMajor) {
+  test::TempDir dir;
+  std::string meta = R"({"arrays":[{"block":3,"dtype":"f32","layout":"cols","name":"matrix","shape":[2,3]}]})";
+  Bytes b = Header(1, 1, 0, meta);
+  AppendFrame(b, 1, 0, 0, 3, 0, Cat({{0x01, 0x05}, kOne}), 24);  // index 5 = column 2 * 2 rows + row 1
+  auto r = io::ContainerReader::Open(WriteFile(dir, b));
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  auto c = r->ReadChunk(0, 0);
+  ASSERT_TRUE(c.ok()) << c.status().message();
+  EXPECT_EQ(c->as<float>()[5], 1.0f);
+  auto s = r->ReadSparse(0, 0);
+  ASSERT_TRUE(s.ok());
+  EXPECT_EQ(s->index, std::vector<uint32_t>({5}));
+}
+
+struct BadSparse {
+  const char* name;
+  std::string dtype;
+  uint16_t encoding;
+  Bytes payload;
+  const char* expect;  // in the DataLoss message
+};
+
+class MalformedSparse : public ::testing::TestWithParam<BadSparse> {};
+
+// Chunk 0 holds the malformed payload (checksums valid), chunk 1 is fine.
+TEST_P(MalformedSparse, IsDataLossNamingChunkAndFault) {
+  const BadSparse& p = GetParam();
+  test::TempDir dir;
+  std::string meta = R"({"arrays":[{"block":2,"dtype":")" + p.dtype +
+                     R"(","layout":"rows","name":"matrix","shape":[4,2]}]})";
+  uint64_t bytes = p.dtype == "u8" ? 4 : 16;
+  Bytes b = Header(1, 1, 0, meta);
+  AppendFrame(b, 1, 0, 0, p.encoding, 0, p.payload, bytes);
+  AppendFrame(b, 1, 0, 0, 1, 1, {}, bytes);
+  auto path = WriteFile(dir, b);
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_TRUE(r->complete());  // the frame is intact; its payload is what is wrong
+  for (int sparse = 0; sparse < 2; ++sparse) {
+    Status s = sparse ? r->ReadSparse(0, 0).status() : r->ReadChunk(0, 0).status();
+    EXPECT_EQ(s.code(), StatusCode::kDataLoss) << s.message();
+    EXPECT_NE(s.message().find(path + ": array \"matrix\" chunk 0 (rows 0-1)"), std::string::npos) << s.message();
+    EXPECT_NE(s.message().find(p.expect), std::string::npos) << s.message();
+  }
+  EXPECT_TRUE(r->ReadChunk(0, 1).ok());
+  auto sum = io::SummarizeArray(*r, 0, 1);
+  EXPECT_EQ(sum.status().code(), StatusCode::kDataLoss);
+  auto v = io::VerifyContainer(path);
+  EXPECT_FALSE(v.complete);
+  EXPECT_EQ(v.chunks_ok, 1u);
+  ASSERT_EQ(v.problems.size(), 1u);
+  EXPECT_NE(v.problems[0].find("(array \"matrix\" chunk 0)"), std::string::npos) << v.problems[0];
+  EXPECT_NE(v.problems[0].find(p.expect), std::string::npos) << v.problems[0];
+}
+
+const Bytes kGood = Cat({{0x01, 0x00}, kOne});
+
+INSTANTIATE_TEST_SUITE_P(
+    Payloads, MalformedSparse,
+    ::testing::Values(
+        BadSparse{"truncated_count", "f32", 3, {0x81}, "payload ends inside the element count"},
+        BadSparse{"count_above_elements", "f32", 3, Cat({{0x05, 0, 0, 0, 0, 0}, kOne, kOne, kOne, kOne, kOne}),
+                  "stores 5 elements, the chunk has 4"},
+        BadSparse{"huge_count", "f32", 3, {0xFF, 0xFF, 0xFF, 0xFF, 0x0F}, "stores 4294967295 elements, the chunk has 4"},
+        BadSparse{"varint_over_64_bits", "f32", 3,
+                  Cat({{0x01, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0x02}, kOne}),
+                  "varint longer than 64 bits at byte 1"},
+        BadSparse{"non_canonical_varint", "f32", 3, Cat({{0x01, 0x80, 0x00}, kOne}), "non-canonical varint"},
+        BadSparse{"index_out_of_range", "f32", 3, Cat({{0x01, 0x04}, kOne}), "past the chunk's 4 elements"},
+        BadSparse{"second_index_out_of_range", "f32", 3, Cat({{0x02, 0x02, 0x01}, kOne, kOne}),
+                  "index 1 of 2 (gap 1 after position 3) is past the chunk's 4 elements"},
+        BadSparse{"index_wraps_around", "f32", 3,
+                  Cat({{0x02, 0x01, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0x01}, kOne, kOne}),
+                  "index 1 of 2 (gap 18446744073709551615"},
+        BadSparse{"missing_index", "f32", 3, {0x02, 0x00}, "payload ends inside index 1 of 2"},
+        BadSparse{"missing_value_bytes", "f32", 3, {0x01, 0x00, 0x00, 0x00, 0x80}, "payload ends inside value 0 of 1"},
+        BadSparse{"trailing_bytes", "f32", 3, Cat({kGood, {0x00}}), "trailing bytes after the last value, from byte 6"},
+        BadSparse{"zero_value", "f32", 3, {0x01, 0x00, 0x00, 0x00, 0x00, 0x00}, "value 0 of 1 is zero"},
+        BadSparse{"i32_value_too_large", "i32", 3, {0x01, 0x00, 0xFF, 0xFF, 0xFF, 0xFF, 0x1F}, "too large for i32"},
+        BadSparse{"u8_value_too_large", "u8", 3, {0x01, 0x00, 0x80, 0x02}, "value 0 of 1 is 256, too large for u8"},
+        BadSparse{"u8_zero_value", "u8", 3, {0x01, 0x00, 0x00}, "value 0 of 1 is zero"},
+        BadSparse{"zstd_not_a_frame", "f32", 4, {1, 2, 3, 4, 5, 6, 7, 8}, "zstd: "},
+        BadSparse{"zstd_truncated", "f32", 4, DropLast(Zstd(kGood), 3), "zstd"},
+        BadSparse{"zstd_trailing_bytes", "f32", 4, Cat({Zstd(kGood), {0x00}}), "trailing bytes after its frame"},
+        BadSparse{"zstd_of_zero_value", "f32", 4, Zstd({0x01, 0x00, 0x00, 0x00, 0x00, 0x00}), "value 0 of 1 is zero"},
+        BadSparse{"zstd_of_short_payload", "f32", 4, Zstd({0x02, 0x00, 0x00}), "payload ends inside value 0 of 2"},
+        BadSparse{"zstd_of_long_payload", "f32", 4, Zstd(Cat({kGood, kOne})), "trailing bytes after the last value"}),
+    [](const ::testing::TestParamInfo<BadSparse>& info) { return std::string(info.param.name); });
+
+TEST(Sparse, EmptyPayloadIsNotCommitted) {
+  test::TempDir dir;
+  Bytes b = Header(1, 1);
+  AppendFrame(b, 1, 0, 0, 3, 0, {}, 16);
+  AppendFrame(b, 1, 0, 0, 4, 1, {}, 16);
+  auto path = WriteFile(dir, b);
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_EQ(r->committed(0), 0u);
+  ASSERT_EQ(r->problems().size(), 2u);
+  EXPECT_NE(r->problems()[0].find("sparse chunk with an empty payload"), std::string::npos) << r->problems()[0];
+  EXPECT_NE(r->problems()[1].find("sparse-zstd chunk with an empty payload"), std::string::npos) << r->problems()[1];
+  auto v = io::VerifyContainer(path);
+  EXPECT_EQ(v.problems.size(), 2u);
+}
+
+TEST(Sparse, OversizedSparseChunkIsRefusedBeforeAllocating) {
+  // One u8 chunk of 2^33 elements (8 GiB) stored sparse: its indices cannot be 32-bit.
+  test::TempDir dir;
+  std::string meta =
+      R"({"arrays":[{"block":8589934592,"dtype":"u8","layout":"cols","name":"matrix","shape":[1,8589934592]}]})";
+  Bytes b = Header(1, 1, 0, meta);
+  AppendFrame(b, 1, 0, 0, 3, 0, {0x00}, uint64_t(1) << 33);
+  auto path = WriteFile(dir, b);
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  for (int sparse = 0; sparse < 2; ++sparse) {
+    Status s = sparse ? r->ReadSparse(0, 0).status() : r->ReadChunk(0, 0).status();
+    EXPECT_EQ(s.code(), StatusCode::kDataLoss);
+    EXPECT_NE(s.message().find("a chunk of 8589934592 elements cannot be sparse (at most 4294967295)"),
+              std::string::npos)
+        << s.message();
+  }
+  auto v = io::VerifyContainer(path);
+  ASSERT_EQ(v.problems.size(), 1u);
+  EXPECT_NE(v.problems[0].find("cannot be sparse"), std::string::npos) << v.problems[0];
 }
 
 }  // namespace

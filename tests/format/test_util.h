@@ -46,13 +46,15 @@ inline std::vector<float> MakeMatrix(uint64_t rows, uint64_t cols, uint32_t seed
   return m;
 }
 
-// The values of chunk `chunk` of `spec` (row- or column-major as the layout says).
-inline std::vector<float> ChunkValues(const format::ArraySpec& spec, const std::vector<float>& m, uint64_t chunk) {
+// The values of chunk `chunk` of `spec` (row- or column-major as the layout says) from
+// the row-major matrix `m`.
+template <typename T>
+std::vector<T> ChunkValues(const format::ArraySpec& spec, const std::vector<T>& m, uint64_t chunk) {
   format::ChunkExtent e = spec.Extent(chunk);
-  std::vector<float> v(e.Elements());
+  std::vector<T> v(e.Elements());
   for (uint64_t r = 0; r < e.rows; ++r)
     for (uint64_t c = 0; c < e.cols; ++c) {
-      float x = m[(e.row0 + r) * spec.cols + e.col0 + c];
+      T x = m[(e.row0 + r) * spec.cols + e.col0 + c];
       if (spec.layout == format::Layout::kRows) v[r * e.cols + c] = x;
       else v[c * e.rows + r] = x;
     }
@@ -69,8 +71,9 @@ inline nlohmann::json MatrixMetadata(uint64_t rows, uint64_t cols, format::Layou
   return {{"arrays", {s.ToJson()}}, {"note", "test"}};
 }
 
-inline format::ByteSpan AsBytes(const std::vector<float>& v) {
-  return {reinterpret_cast<const std::byte*>(v.data()), v.size() * sizeof(float)};
+template <typename T>
+format::ByteSpan AsBytes(const std::vector<T>& v) {
+  return {reinterpret_cast<const std::byte*>(v.data()), v.size() * sizeof(T)};
 }
 
 // Writes a complete container of MakeMatrix(rows, cols, seed).

@@ -1,5 +1,6 @@
 // libFuzzer target: any byte string as an .ltm file. Opens it, reads every committed
-// chunk, summarizes every array and runs verify; none of it may crash, hang or leak.
+// chunk (dense and sparse), summarizes every array and runs verify; none of it may crash,
+// hang or leak.
 // Build and run: docs/FUZZING.md.
 #include <sys/mman.h>
 #include <unistd.h>
@@ -24,7 +25,10 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   std::string path = "/proc/self/fd/" + std::to_string(fd);
   auto reader = ltb::io::ContainerReader::Open(path);
   if (reader.ok()) {
-    for (const auto& e : reader->chunk_frames()) (void)reader->ReadChunk(e.header.array, e.header.chunk_index);
+    for (const auto& e : reader->chunk_frames()) {
+      (void)reader->ReadChunk(e.header.array, e.header.chunk_index);
+      (void)reader->ReadSparse(e.header.array, e.header.chunk_index);
+    }
     for (uint32_t a = 0; a < reader->metadata().arrays.size(); ++a) (void)ltb::io::SummarizeArray(*reader, a, 1);
   }
   (void)ltb::io::VerifyContainer(path);

@@ -1,0 +1,67 @@
+// Reading column-transformed matrices (cols4d.ltm from `column-transform`, final.ltm from
+// `quantize`): what their metadata says, the level of every coefficient, dequantization
+// and the inverse column transform back to the image (the row-transformed basis).
+//
+// Levels (for quantize's scaling, §4.3 of Cheslack-Postava et al.): in a column at depth d,
+// the low band and the detail bands of the coarsest step d are level 0; the detail bands
+// of analysis step s are level d − s (step 1, the finest, is level d − 1).
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "format/array_spec.h"
+#include "format/io/container_reader.h"
+#include "format/status.h"
+#include "stages/wavelet/wavelet.h"
+
+namespace ltb::stages {
+
+struct Quantization {
+  int bits = 0;          // 0: not quantized (column-transform output)
+  bool level_scaling = true;
+  bool dither = true;
+  uint64_t seed = 0;
+  double Levels() const { return static_cast<double>((int64_t{1} << (bits - 1)) - 1); }  // Q = 2^(bits−1) − 1
+};
+
+class ColumnCodec {
+ public:
+  // From the metadata of a column-transform or quantize output; fails for other files.
+  static Result<ColumnCodec> FromMetadata(const format::Metadata& meta, const std::string& path);
+  static bool IsColumnTransformed(const format::Metadata& meta);
+
+  wavelet::Filter filter() const { return filter_; }
+  uint64_t width() const { return width_; }
+  uint64_t height() const { return height_; }
+  int max_depth() const { return max_depth_; }
+  const Quantization& quantization() const { return quant_; }
+  int depth_array() const { return depth_array_; }
+  int scale_array() const { return scale_array_; }  // −1 when not quantized
+
+  // Level of every coefficient position of a column at depth d (cached per depth).
+  const std::vector<uint8_t>& Levels(int depth);
+  static std::vector<uint8_t> ComputeLevels(uint64_t width, uint64_t height, int depth);
+
+  // Coefficients of one column (dense W·H, Mallat layout at `depth`) from its stored
+  // sparse values: f32 as is, or quantized integers q → q / Q · scale / 2^level.
+  void DenseCoefficients(int depth, double scale, const uint32_t* index, const void* values, size_t n, float* out);
+  // Inverse column transform of one dense column in place: coefficients → image.
+  void ToImage(int depth, float* column, std::vector<float>* scratch) const;
+
+  // Decodes column chunk `chunk` of an open reader into dense image columns
+  // (column-major: e.cols × W·H floats).
+  Status DecodeChunk(const io::ContainerReader& reader, uint64_t chunk, std::vector<float>* out,
+                     const io::ReadOptions& options = {});
+
+ private:
+  wavelet::Filter filter_ = wavelet::Filter::kLeGall53;
+  uint64_t width_ = 0, height_ = 0;
+  int max_depth_ = 0;
+  Quantization quant_;
+  int depth_array_ = -1, scale_array_ = -1;
+  std::vector<std::vector<uint8_t>> levels_;
+};
+
+}  // namespace ltb::stages

@@ -1,0 +1,115 @@
+// The per-column core of `column-transform` (Cheslack-Postava et al. 2007, §4.2): each
+// column of the transposed matrix is a W×H image; it is transformed step by step, and at
+// every depth in the allowed range the error of its best N-term approximation is measured
+// in the image domain. The column keeps the depth with the least error (on a tie of two
+// exact approximations, the one with fewer nonzeros, then the shallower one).
+//
+// Selection ranks coefficients by their contribution to the image-domain error,
+// c² · ‖ψ̃‖², where ψ̃ is the synthesis function of the coefficient's band: 1 for the
+// orthonormal filters (Parseval), the numerically measured band norm for the biorthogonal
+// ones (whose bands do not preserve energy). Errors are exact: for orthonormal filters the
+// energy of the dropped coefficients, for biorthogonal ones the energy of the
+// reconstructed dropped part. Energies and errors are accumulated in double.
+//
+// No full sort: the N-th largest is found by selection (linear time), and every extra
+// depth is one more analysis step on the low band. docs/COLUMN-TRANSFORM.md has the
+// numerical guarantees.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "format/status.h"
+#include "stages/wavelet/wavelet.h"
+
+namespace ltb::stages {
+
+// Relative energy below which an approximation counts as exact: (64 ε_f32)², about
+// 1.5e-11 (relative RMS error 4e-6), a bound on the rounding of up to ~12 f32 analysis
+// and synthesis steps.
+inline constexpr double kExactRelativeEnergy = (64.0 * 0x1p-24) * (64.0 * 0x1p-24);
+
+// Energy bins for the rate–distortion budget: bin(e) = floor(8 · log2 e) for e > 0,
+// computed exactly from the binary exponent and fixed thresholds 2^(k/8).
+inline constexpr int kBinsPerOctave = 8;
+int EnergyBin(double e);
+double BinLowerEdge(int bin);  // 2^(bin/8): EnergyBin(e) >= bin  <=>  e >= BinLowerEdge(bin)
+
+struct ColumnChoice {
+  int depth = 0;
+  double energy = 0;  // Σ x² of the column image
+  double error = 0;   // Σ (x − x̂)² of the kept approximation at `depth`
+  std::vector<uint32_t> index;  // kept coefficient positions (y·W + x in the Mallat layout), ascending
+  std::vector<float> value;     // their coefficients
+};
+
+// How the coefficients to keep are chosen at a given depth.
+struct Selection {
+  enum class Kind { kTerms, kThreshold } kind = Kind::kTerms;
+  uint64_t terms = 0;     // kTerms: keep the `terms` largest (by weighted energy)
+  int threshold_bin = 0;  // kThreshold: keep those with EnergyBin(weighted energy) >= threshold_bin
+};
+
+// Per (column, depth) histogram of weighted coefficient energies, for the budget search.
+struct EnergyHistogram {
+  std::vector<int32_t> bin;      // ascending
+  std::vector<uint64_t> count;   // coefficients in the bin
+  std::vector<double> energy;    // Σ weighted energy in the bin
+};
+
+class ColumnCompressor {
+ public:
+  // Columns are width × height images (pixel (y, x) at y·width + x); depths
+  // [min_depth, max_depth] are examined. Fails on sizes the filter cannot take.
+  static Result<ColumnCompressor> Create(wavelet::Filter filter, uint64_t width, uint64_t height, int min_depth,
+                                         int max_depth);
+
+  static constexpr size_t kLanes = 8;  // columns transformed together (one vector lane each)
+
+  // Chooses the depth and the kept coefficients of `n` ≤ kLanes columns (n pointers to
+  // width·height floats). `selection[k]` applies to column k; `depth_override[k]` ≥ 0
+  // fixes column k's depth (used by the budget's second pass), −1 examines the range.
+  // All-zero columns get depth min_depth, energy 0 and nothing kept. Fails on a NaN or
+  // an infinity, naming the column (by its position in the call) and the pixel.
+  Status Choose(const float* const* columns, size_t n, const Selection* selection, const int* depth_override,
+                ColumnChoice* out);
+
+  // For the budget's first pass: the energy histograms of column k at every depth of the
+  // range (out[k * depths() + (d − min_depth)]), and each column's energy.
+  Status Histograms(const float* const* columns, size_t n, EnergyHistogram* out, double* energy);
+
+  // Weighted energy factor ‖ψ̃‖² of every coefficient position at depth d.
+  const std::vector<double>& Weights(int depth) const { return weights_[depth]; }
+
+  wavelet::Filter filter() const { return filter_; }
+  int min_depth() const { return min_depth_; }
+  int max_depth() const { return max_depth_; }
+  int depths() const { return max_depth_ - min_depth_ + 1; }
+  uint64_t width() const { return width_; }
+  uint64_t height() const { return height_; }
+  // Bytes of working memory one compressor uses (for --mem-limit).
+  static uint64_t WorkingBytes(uint64_t width, uint64_t height, int max_depth, bool orthonormal);
+
+ private:
+  Status Load(const float* const* columns, size_t n, double* energy, bool* live);
+  // Selects at the current depth for lane k; fills kept positions (ascending).
+  void Select(size_t lane, int depth, const Selection& sel, double energy, std::vector<uint32_t>* kept);
+  // Image-domain error of dropping everything but `kept[k]` at `depth`, for every live lane.
+  void Errors(int depth, const std::vector<uint32_t>* kept, const bool* live, double* error);
+
+  wavelet::Filter filter_ = wavelet::Filter::kLeGall53;
+  bool orthonormal_ = false;
+  uint64_t width_ = 0, height_ = 0, pixels_ = 0;
+  int min_depth_ = 0, max_depth_ = 0;
+  std::vector<wavelet::BandSize> bands_;
+  std::vector<std::vector<double>> weights_;  // per depth (biorthogonal only; empty = all 1)
+  std::vector<float> coeffs_;                 // [pixel][lane]
+  std::vector<float> work_;                   // reconstruction buffer [pixel][lane]
+  std::vector<float> scratch_;
+  std::vector<double> mag_, sel_;             // weighted energies of one lane, selection copy
+  std::vector<int32_t> bins_;
+  std::vector<uint64_t> hist_count_;
+  std::vector<double> hist_energy_;
+};
+
+}  // namespace ltb::stages

@@ -1,0 +1,76 @@
+// `ltbake column-transform IN -o OUT`: the adaptive 4D step (Cheslack-Postava et al.
+// 2007, §4.2). Input: column blocks from `transpose`, each column a W×H image. Every
+// column is transformed to the depth whose N-term approximation has the least
+// image-domain error (ColumnCompressor) and only the kept coefficients are stored.
+//
+// Output (docs/COLUMN-TRANSFORM.md): the matrix in column blocks, each column the kept
+// coefficients of its Mallat layout at its depth (sparse chunks); side tables "depth"
+// (u8 per column) and "column_stats" (f64 per column: energy, error, nonzeros), chunked
+// like the matrix so each chunk commits with its tables; the row side tables of the input
+// unchanged. Resumable, deterministic whatever --jobs.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "format/progress.h"
+#include "format/status.h"
+#include "stages/wavelet/wavelet.h"
+
+namespace ltb::stages {
+
+struct DepthMode {
+  enum class Kind { kAdaptive, kNone, kFull, kFixed } kind = Kind::kAdaptive;
+  int fixed = 0;  // kFixed
+};
+// "adaptive", "none", "full" or a depth K >= 0.
+Result<DepthMode> ParseDepthMode(const std::string& text);
+std::string DepthModeName(const DepthMode& mode);
+
+// How many coefficients each column keeps.
+struct TermsMode {
+  enum class Kind { kTerms, kKeep, kBudget } kind = Kind::kKeep;
+  uint64_t terms = 0;   // kTerms: N per column
+  double keep = 0.05;   // kKeep: fraction of each column's W·H
+  std::string budget;   // kBudget: as given ("0.02", "2%", "150000", "64MiB")
+};
+// The budget as a number of nonzeros for a rows × cols matrix: a fraction ("0.02",
+// "2%") of its elements, a count ("150000"), or a size ("64MiB") at 8 bytes per nonzero
+// (a u32 position and an f32 value).
+Result<uint64_t> ParseBudget(const std::string& text, uint64_t rows, uint64_t cols);
+
+struct ColumnTransformOptions {
+  std::string input;
+  std::string output;
+  wavelet::Filter filter = wavelet::Filter::kLeGall53;
+  DepthMode depth;
+  TermsMode terms;
+  int jobs = 2;
+  uint64_t mem_limit = 1ull << 30;
+  bool zstd = true;  // zstd over the sparse chunks where it saves 10%
+  bool overwrite = false;
+};
+
+struct ColumnTransformResult {
+  uint64_t rows = 0, cols = 0, width = 0, height = 0;
+  int min_depth = 0, max_depth = 0;
+  uint64_t chunks_total = 0, chunks_written = 0, chunks_already_committed = 0;
+  int jobs_used = 0;
+  // Over the whole output (read back from its side tables, so also right after a resume):
+  uint64_t empty_columns = 0;
+  uint64_t nonzeros = 0;
+  double energy = 0, error = 0;  // Σ over columns, image domain
+  std::vector<uint64_t> depth_histogram;  // columns per depth 0..max_depth (empty ones excluded)
+  // Budget mode:
+  uint64_t budget = 0;
+  double lambda = 0;
+  uint64_t histogram_bytes = 0;
+};
+
+Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& options, const Progress& progress);
+
+// Totals of a column-transform output from its side tables (also used by `inspect`).
+Result<ColumnTransformResult> SummarizeColumnTransform(const std::string& path);
+
+}  // namespace ltb::stages

@@ -1,0 +1,204 @@
+#include "stages/quantize/quantize.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+
+#include "format/io/container_reader.h"
+#include "format/io/container_writer.h"
+#include "stages/column_transform/column_codec.h"
+#include "stages/common/basis.h"
+#include "stages/common/parallel_for.h"
+
+namespace ltb::stages {
+
+using namespace ltb::format;
+
+namespace {
+
+constexpr const char* kScaleArray = "scale";
+
+uint64_t SplitMix64(uint64_t x) {
+  x += 0x9E3779B97F4A7C15ull;
+  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+  return x ^ (x >> 31);
+}
+
+}  // namespace
+
+int32_t QuantizeValue(double v, double m, double levels, bool dither, uint64_t seed, uint64_t column,
+                      uint32_t position) {
+  double x = v / m * levels;  // in [−Q, Q]
+  double q;
+  if (dither) {
+    uint64_t h = SplitMix64(seed ^ SplitMix64(column * 0x100000001B3ull ^ SplitMix64(position)));
+    double u = static_cast<double>(h >> 11) * 0x1p-53;  // [0, 1)
+    q = std::floor(x + u);
+  } else {
+    q = std::round(x);
+  }
+  q = std::clamp(q, -levels, levels);
+  return static_cast<int32_t>(q);
+}
+
+Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& progress) {
+  if (o.bits < 2 || o.bits > 24) {
+    return InvalidArgument("--bits " + std::to_string(o.bits) + ": expected 2..24 (f32 coefficients carry 24 bits)");
+  }
+  LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(o.input));
+  const Metadata& meta = in.metadata();
+  if (meta.json.contains("quantization")) {
+    return FailedPrecondition(o.input + ": is already quantized; quantize takes the output of `ltbake column-transform`");
+  }
+  if (!ColumnCodec::IsColumnTransformed(meta)) {
+    return FailedPrecondition(o.input + ": is not a column-transform output; run `ltbake column-transform` first "
+                              "(after `ltbake transpose`)");
+  }
+  LTB_RETURN_IF_ERROR(RequireCompleteF32Matrix(in));
+  LTB_ASSIGN_OR_RETURN(ColumnCodec codec, ColumnCodec::FromMetadata(meta, o.input));
+  const ArraySpec& a = meta.matrix();
+  const uint64_t pixels = a.rows;
+
+  nlohmann::json out_meta = meta.json;
+  ArraySpec m = a;
+  m.dtype = DType::kI32;
+  out_meta["arrays"][0] = m.ToJson();
+  ArraySpec scale_spec;
+  scale_spec.name = kScaleArray;
+  scale_spec.dtype = DType::kF64;
+  scale_spec.rows = a.cols;
+  scale_spec.cols = 1;
+  scale_spec.layout = Layout::kRows;
+  scale_spec.block = a.block;
+  if (meta.FindArray(kScaleArray) >= 0) return FailedPrecondition(o.input + ": already has a \"scale\" array");
+  const uint32_t scale_array = static_cast<uint32_t>(meta.arrays.size());
+  out_meta["arrays"].push_back(scale_spec.ToJson());
+  out_meta["basis"]["rows"]["coefficients"] = "column_transform, quantized";
+  out_meta["quantization"] = {{"bits", o.bits},
+                              {"scaling", o.level_scaling ? "level" : "none"},
+                              {"dither", o.dither},
+                              {"seed", o.seed},
+                              {"scale_array", kScaleArray},
+                              {"decode", "v = q / (2^(bits-1) - 1) * scale / 2^level"}};
+  out_meta["provenance"] = Provenance(
+      "quantize",
+      {{"bits", o.bits}, {"scaling", o.level_scaling ? "level" : "none"}, {"dither", o.dither}, {"seed", o.seed},
+       {"zstd", o.zstd}},
+      {&in});
+  io::WriterOptions wo;
+  wo.overwrite_mismatch = o.overwrite;
+  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::ContainerWriter::Open(o.output, out_meta, wo));
+
+  QuantizeResult result;
+  result.rows = a.rows;
+  result.cols = a.cols;
+  for (const ArraySpec& s : out.metadata().arrays) result.chunks_total += s.ChunkCount();
+  result.chunks_already_committed = out.resume_info().committed_chunks;
+
+  for (uint32_t arr = 1; arr < meta.arrays.size(); ++arr) {
+    for (uint64_t c : out.Missing(arr)) {
+      LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(arr, c));
+      LTB_RETURN_IF_ERROR(out.Put(arr, c, chunk.bytes()));
+      result.chunks_written++;
+    }
+  }
+  std::vector<uint64_t> items = out.Missing(0);
+  for (uint64_t c : out.Missing(scale_array)) items.push_back(c);
+  std::sort(items.begin(), items.end());
+  items.erase(std::unique(items.begin(), items.end()), items.end());
+
+  const double levels = Quantization{o.bits}.Levels();
+  EncodeOptions eo;
+  eo.sparse = true;
+  eo.dtype = DType::kI32;
+  eo.zstd = o.zstd;
+  std::atomic<uint64_t> written{0};
+  std::mutex levels_mu;
+  Status s = ParallelFor(items, o.jobs, progress, "chunks", [&](uint64_t c) -> Status {
+    LTB_ASSIGN_OR_RETURN(SparseChunk sc, in.ReadSparse(0, c));
+    LTB_ASSIGN_OR_RETURN(io::Chunk dc, in.ReadChunk(static_cast<uint32_t>(codec.depth_array()), c));
+    auto depths = dc.as<uint8_t>();
+    auto values = sc.as<float>();
+    const ChunkExtent& e = sc.extent;
+    std::vector<int32_t> dense(e.cols * pixels, 0);
+    std::vector<double> scales(e.cols, 0.0);
+    std::vector<double> scaled;
+    size_t pos = 0;
+    for (uint64_t k = 0; k < e.cols; ++k) {
+      size_t begin = pos;
+      while (pos < sc.index.size() && sc.index[pos] < (k + 1) * pixels) ++pos;
+      if (begin == pos) continue;
+      int d = depths[k];
+      if (d > codec.max_depth()) {
+        return DataLoss(o.input + ": column " + std::to_string(e.col0 + k) + " has depth " + std::to_string(d));
+      }
+      const std::vector<uint8_t>* lv = nullptr;
+      if (o.level_scaling) {
+        std::lock_guard<std::mutex> lock(levels_mu);  // Levels() fills a per-depth cache
+        lv = &codec.Levels(d);
+      }
+      scaled.resize(pos - begin);
+      double mx = 0;
+      for (size_t i = begin; i < pos; ++i) {
+        uint32_t p = sc.index[i] - static_cast<uint32_t>(k * pixels);
+        double v = values[i];
+        if (lv) v = std::ldexp(v, (*lv)[p]);
+        scaled[i - begin] = v;
+        mx = std::max(mx, std::fabs(v));
+      }
+      if (!(mx > 0) || !std::isfinite(mx)) {
+        if (mx == 0) continue;  // only signed zeros
+        return DataLoss(o.input + ": column " + std::to_string(e.col0 + k) + " holds a non-finite coefficient");
+      }
+      scales[k] = mx;
+      for (size_t i = begin; i < pos; ++i) {
+        uint32_t p = sc.index[i] - static_cast<uint32_t>(k * pixels);
+        dense[sc.index[i]] = QuantizeValue(scaled[i - begin], mx, levels, o.dither, o.seed, e.col0 + k, p);
+      }
+    }
+    if (!out.Has(0, c)) {
+      LTB_RETURN_IF_ERROR(out.Put(0, c, ByteSpan(reinterpret_cast<const std::byte*>(dense.data()), dense.size() * 4), eo));
+    }
+    if (!out.Has(scale_array, c)) {
+      LTB_RETURN_IF_ERROR(
+          out.Put(scale_array, c, ByteSpan(reinterpret_cast<const std::byte*>(scales.data()), scales.size() * 8)));
+    }
+    written++;
+    return Status::Ok();
+  });
+  result.chunks_written += written;
+  LTB_RETURN_IF_ERROR(s);
+  LTB_RETURN_IF_ERROR(out.Finish());
+
+  LTB_ASSIGN_OR_RETURN(QuantizeResult totals, SummarizeQuantized(o.output));
+  result.nonzeros_out = totals.nonzeros_out;
+  result.matrix_bytes = totals.matrix_bytes;
+  // Coefficients the input kept, from its side table.
+  int stats = meta.FindArray(meta.json["column_transform"].value("stats_array", std::string("column_stats")));
+  if (stats >= 0) {
+    for (uint64_t c = 0; c < meta.arrays[stats].ChunkCount(); ++c) {
+      LTB_ASSIGN_OR_RETURN(io::Chunk sc, in.ReadChunk(static_cast<uint32_t>(stats), c));
+      auto v = sc.as<double>();
+      for (size_t i = 2; i < v.size(); i += 3) result.nonzeros_in += static_cast<uint64_t>(v[i]);
+    }
+  }
+  return result;
+}
+
+Result<QuantizeResult> SummarizeQuantized(const std::string& path) {
+  LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(path));
+  QuantizeResult t;
+  t.rows = r.metadata().matrix().rows;
+  t.cols = r.metadata().matrix().cols;
+  for (uint64_t c = 0; c < r.metadata().matrix().ChunkCount(); ++c) {
+    const IndexEntry* e = r.Find(0, c);
+    if (e == nullptr) return FailedPrecondition(path + ": chunk " + std::to_string(c) + " is missing");
+    t.matrix_bytes += e->header.payload_length;
+    LTB_ASSIGN_OR_RETURN(SparseChunk sc, r.ReadSparse(0, c));
+    t.nonzeros_out += sc.index.size();
+  }
+  return t;
+}
+
+}  // namespace ltb::stages

@@ -1,0 +1,246 @@
+"""column-transform and quantize through the ltbake binary, against NumPy/PyWavelets.
+
+- haar, fixed depth and adaptive: the decoded matrix equals an independent PyWavelets
+  computation (wavedec2 with mode='periodization', keep the N largest, waverec2), and the
+  reported total error equals the error of the decoded matrix.
+- --keep 1 (every term) round-trips to float precision for every filter; --depth none is
+  the N largest pixels of each column.
+- --budget K at the nonzero count of a --terms run gives no more total error.
+- quantize: decoded final.ltm stays close to cols4d.ltm; --scaling level keeps more
+  nonzeros than none; results are identical across --jobs; SIGKILL + rerun resumes.
+- refusals: row-block input (names transpose), rows that are not an image (names cpca).
+
+usage: column_transform_test.py PATH_TO_LTBAKE
+"""
+import json
+import os
+import sys
+import tempfile
+
+import numpy as np
+import pywt
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from ltbtest import check, finish, kill_storm, run  # noqa: E402
+
+
+def info(path):
+    return json.loads(run("inspect", path, "--json").stdout)
+
+
+def decode(path, d, name="dec.npy", *extra):
+    out = os.path.join(d, name)
+    run("convert", path, out, "--progress", "never", *extra)
+    return np.load(out)
+
+
+def column_images(w, h, cols, seed):
+    """cols column images (h×w), mixing smooth light, hard shadows, single pixels and noise."""
+    g = np.random.default_rng(seed)
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64)
+    out = []
+    for j in range(cols):
+        kind = j % 6
+        if kind == 0:
+            img = 1.0 + 0.3 * np.sin(0.2 * x + 0.05 * j) * np.cos(0.15 * y)
+        elif kind == 1:
+            img = np.where(x * (1 + j % 3) > y + w / 2, 0.8, 0.1) + 0.01 * g.standard_normal((h, w))
+        elif kind == 2:
+            img = np.zeros((h, w))
+            img[g.integers(h), g.integers(w)] = 2.0
+        elif kind == 3:
+            img = g.standard_normal((h, w)) * 0.1
+        elif kind == 4:
+            img = np.full((h, w), 0.5)
+        else:
+            img = np.exp(-((x - w / 3) ** 2 + (y - h / 2) ** 2) / (2 * (w / 5) ** 2))
+        out.append(img)
+    out[7] = np.zeros((h, w))  # an empty column
+    return np.stack([im.reshape(-1) for im in out], axis=1).astype(np.float32)  # rows = y*w + x
+
+
+def nterm_haar(img, depth, n):
+    """(error, reconstruction, kept) of the best n-term haar approximation at depth."""
+    if depth == 0:
+        c = img.astype(np.float64)
+        flat = c.reshape(-1)
+        keep = np.argsort(-np.abs(flat), kind="stable")[:n]
+        keep = keep[flat[keep] != 0]
+        rec = np.zeros_like(flat)
+        rec[keep] = flat[keep]
+        return float(((flat - rec) ** 2).sum()), rec.reshape(img.shape), len(keep)
+    coeffs = pywt.wavedec2(img.astype(np.float64), "haar", mode="periodization", level=depth)
+    arr, slices = pywt.coeffs_to_array(coeffs)
+    flat = arr.reshape(-1)
+    keep = np.argsort(-np.abs(flat), kind="stable")[:n]
+    keep = keep[np.abs(flat[keep]) > 1e-6 * np.abs(flat).max()]
+    kept = np.zeros_like(flat)
+    kept[keep] = flat[keep]
+    rec = pywt.waverec2(pywt.array_to_coeffs(kept.reshape(arr.shape), slices, output_format="wavedec2"), "haar",
+                        mode="periodization")
+    return float(((img - rec) ** 2).sum()), rec, len(keep)
+
+
+with tempfile.TemporaryDirectory() as d:
+    W = H = 16
+    R = 2
+    m = column_images(W, H, 6 * R * R, seed=4)
+    src = os.path.join(d, "m.npy")
+    np.save(src, m)
+    cols = os.path.join(d, "cols.ltm")
+    run("convert", src, cols, "--cube-res", R, "--image", f"{W}x{H}", "--layout", "cols", "--chunk-size", "4KiB",
+        "--progress", "never")
+    energy = float((m.astype(np.float64) ** 2).sum())
+
+    def ct(out, *args, jobs=2):
+        p = run("column-transform", cols, "-o", out, "--json", "--progress", "never", "--jobs", jobs, *args)
+        return json.loads(p.stdout) if p.returncode == 0 else None
+
+    # 1. haar at fixed depths and adaptive, against PyWavelets.
+    N = 12
+    for depth_arg in ["0", "2", "4", "adaptive"]:
+        out = os.path.join(d, f"haar_{depth_arg}.ltm")
+        rep = ct(out, "--filter", "haar", "--depth", depth_arg, "--terms", N)
+        dec = decode(out, d)
+        expect = np.zeros_like(m, dtype=np.float64)
+        total = 0.0
+        for j in range(m.shape[1]):
+            img = m[:, j].reshape(H, W).astype(np.float64)
+            if depth_arg == "adaptive":
+                tries = [nterm_haar(img, dd, N) for dd in range(0, 5)]
+                tol = (64 * 2.0 ** -24) ** 2 * (img ** 2).sum()
+                best = 0
+                for dd in range(1, 5):
+                    e, _, k = tries[dd]
+                    be, _, bk = tries[best]
+                    if (e <= tol and be <= tol and k < bk) or (not (e <= tol and be <= tol) and e < be):
+                        best = dd
+                err, rec, _ = tries[best]
+            else:
+                err, rec, _ = nterm_haar(img, int(depth_arg), N)
+            expect[:, j] = rec.reshape(-1)
+            total += err
+        scale = np.abs(m).max()
+        diff = np.abs(dec - expect).max()
+        check(diff <= 1e-5 * scale, f"haar depth {depth_arg}: decoded differs from PyWavelets by {diff}")
+        actual = float(((dec.astype(np.float64) - m) ** 2).sum())
+        check(abs(rep["error"] - actual) <= 1e-4 * actual + 1e-9 * energy,
+              f"haar depth {depth_arg}: reported error {rep['error']} but decoded error is {actual}")
+        check(abs(rep["error"] - total) <= 1e-4 * total + 1e-9 * energy,
+              f"haar depth {depth_arg}: reported error {rep['error']}, PyWavelets {total}")
+        check(rep["empty_columns"] == 1, f"empty columns: {rep['empty_columns']}")
+
+    # 2. --depth none keeps the N largest pixels of each column.
+    out = os.path.join(d, "none.ltm")
+    ct(out, "--depth", "none", "--terms", 5)
+    dec = decode(out, d)
+    for j in range(m.shape[1]):
+        col = m[:, j]
+        order = np.argsort(-np.abs(col), kind="stable")[:5]
+        thresh = np.abs(col[order[-1]])
+        kept = dec[:, j] != 0
+        check(np.all(dec[kept, j] == col[kept]), f"depth none column {j}: kept values changed")
+        check(kept.sum() <= 5 and np.all(np.abs(col[kept]) >= thresh), f"depth none column {j}: wrong terms kept")
+
+    # 3. Every term kept: exact to float precision, every filter (odd sizes too).
+    for filt in ["haar", "db2", "db3", "db4", "legall53", "cdf97"]:
+        out = os.path.join(d, f"all_{filt}.ltm")
+        rep = ct(out, "--filter", filt, "--keep", 1)
+        dec = decode(out, d)
+        err = np.abs(dec - m).max()
+        check(err <= 1e-5 * np.abs(m).max(), f"{filt} --keep 1: max error {err}")
+    odd = column_images(13, 7, 24, seed=8)
+    np.save(os.path.join(d, "odd.npy"), odd)
+    odd_ltm = os.path.join(d, "odd.ltm")
+    run("convert", os.path.join(d, "odd.npy"), odd_ltm, "--image", "13x7", "--layout", "cols", "--progress", "never")
+    for filt in ["legall53", "cdf97"]:
+        out = os.path.join(d, f"odd_{filt}.ltm")
+        run("column-transform", odd_ltm, "-o", out, "--filter", filt, "--keep", 1, "--progress", "never")
+        dec = decode(out, d)
+        check(np.abs(dec - odd).max() <= 1e-5 * np.abs(odd).max(), f"odd 13x7 {filt}: not exact")
+    p = run("column-transform", odd_ltm, "-o", os.path.join(d, "odd_haar.ltm"), "--filter", "haar", expect=1)
+    check("power-of-two" in p.stderr, f"haar on 13x7 should explain the size: {p.stderr}")
+
+    # 4. Budget vs per-column N at the same number of nonzeros.
+    for filt in ["haar", "legall53"]:
+        per = ct(os.path.join(d, f"per_{filt}.ltm"), "--filter", filt, "--terms", 10)
+        bud = ct(os.path.join(d, f"bud_{filt}.ltm"), "--filter", filt, "--budget", per["nonzeros"])
+        check(bud["nonzeros"] <= per["nonzeros"], f"{filt}: budget kept {bud['nonzeros']} > {per['nonzeros']}")
+        check(bud["error"] <= per["error"],
+              f"{filt}: budget error {bud['error']} > per-column error {per['error']} at {per['nonzeros']} nonzeros")
+        dec = decode(os.path.join(d, f"bud_{filt}.ltm"), d)
+        actual = float(((dec.astype(np.float64) - m) ** 2).sum())
+        check(abs(bud["error"] - actual) <= 1e-4 * actual + 1e-9 * energy,
+              f"{filt} budget: reported error {bud['error']}, decoded {actual}")
+
+    # 5. quantize.
+    c4 = os.path.join(d, "c4.ltm")
+    ct(c4, "--terms", 40)
+    ref = decode(c4, d, "c4.npy")
+    fin = os.path.join(d, "final.ltm")
+    q = json.loads(run("quantize", c4, "-o", fin, "--json", "--progress", "never").stdout)
+    got = decode(fin, d, "final.npy")
+    rel = np.sqrt(((got - ref) ** 2).sum() / (ref.astype(np.float64) ** 2).sum())
+    check(rel < 0.01, f"quantize 9 bits: relative RMS change {rel}")
+    check(q["bytes_per_nonzero"] > 0 and q["nonzeros_out"] <= q["nonzeros_in"], f"quantize report: {q}")
+    q_none = json.loads(run("quantize", c4, "-o", os.path.join(d, "fin_none.ltm"), "--scaling", "none", "--bits", 5,
+                            "--json", "--progress", "never").stdout)
+    q_lvl = json.loads(run("quantize", c4, "-o", os.path.join(d, "fin_lvl.ltm"), "--scaling", "level", "--bits", 5,
+                           "--json", "--progress", "never").stdout)
+    check(q_lvl["nonzeros_out"] >= q_none["nonzeros_out"],
+          f"level scaling should keep at least as many nonzeros: {q_lvl['nonzeros_out']} < {q_none['nonzeros_out']}")
+    inspected = json.loads(run("inspect", fin, "--json").stdout)
+    check("depth_histogram" in inspected.get("column_transform", {}) and
+          "bytes_per_nonzero" in inspected.get("quantization", {}), f"inspect misses depths/bytes: {inspected.keys()}")
+
+    # 6. Determinism across --jobs (column-transform, budget, quantize).
+    for args in [("--terms", 9), ("--budget", "3%")]:
+        a = os.path.join(d, "j1.ltm")
+        b = os.path.join(d, "j2.ltm")
+        for p_ in (a, b):
+            if os.path.exists(p_):
+                os.remove(p_)
+        ct(a, *args, jobs=1)
+        ct(b, *args, jobs=2)
+        check(info(a)["content_hash"] == info(b)["content_hash"], f"{args}: content_hash differs across --jobs")
+    qa, qb = os.path.join(d, "qa.ltm"), os.path.join(d, "qb.ltm")
+    run("quantize", c4, "-o", qa, "--jobs", 1, "--progress", "never")
+    run("quantize", c4, "-o", qb, "--jobs", 2, "--progress", "never")
+    check(info(qa)["content_hash"] == info(qb)["content_hash"], "quantize: content_hash differs across --jobs")
+
+    # 7. Kill and resume on a larger input.
+    big = column_images(64, 64, 6 * 8 * 8, seed=2)
+    np.save(os.path.join(d, "big.npy"), big)
+    big_ltm = os.path.join(d, "big.ltm")
+    run("convert", os.path.join(d, "big.npy"), big_ltm, "--image", "64x64", "--cube-res", 8, "--layout", "cols",
+        "--chunk-size", "16KiB", "--progress", "never")
+    ref_out = os.path.join(d, "big_ref.ltm")
+    run("column-transform", big_ltm, "-o", ref_out, "--terms", 50, "--progress", "never")
+    out = os.path.join(d, "big_out.ltm")
+    kill_storm(["column-transform", big_ltm, "-o", out, "--terms", 50, "--progress", "never"], out, kills=6,
+               max_delay=0.6, seed=3)
+    run("column-transform", big_ltm, "-o", out, "--terms", 50, "--progress", "never")
+    check(info(out)["content_hash"] == info(ref_out)["content_hash"], "column-transform after kills: content differs")
+    qref = os.path.join(d, "big_q_ref.ltm")
+    run("quantize", ref_out, "-o", qref, "--progress", "never")
+    qout = os.path.join(d, "big_q.ltm")
+    kill_storm(["quantize", ref_out, "-o", qout, "--progress", "never"], qout, kills=4, max_delay=0.3, seed=4)
+    run("quantize", ref_out, "-o", qout, "--progress", "never")
+    check(info(qout)["content_hash"] == info(qref)["content_hash"], "quantize after kills: content differs")
+
+    # 8. Refusals.
+    rows_ltm = os.path.join(d, "rows.ltm")
+    run("convert", src, rows_ltm, "--cube-res", R, "--image", f"{W}x{H}", "--progress", "never")
+    p = run("column-transform", rows_ltm, "-o", os.path.join(d, "x.ltm"), expect=1)
+    check("ltbake transpose" in p.stderr, f"row-block input should point at transpose: {p.stderr}")
+    gen = os.path.join(d, "generic.ltm")
+    run("convert", src, gen, "--layout", "cols", "--progress", "never")
+    p = run("column-transform", gen, "-o", os.path.join(d, "y.ltm"), expect=1)
+    check("cpca" in p.stderr and "--depth none" in p.stderr, f"non-image rows should point at cpca: {p.stderr}")
+    run("column-transform", gen, "-o", os.path.join(d, "z.ltm"), "--depth", "none", "--terms", 3)
+    p = run("quantize", cols, "-o", os.path.join(d, "q.ltm"), expect=1)
+    check("column-transform" in p.stderr, f"quantize of a non-transformed file: {p.stderr}")
+    p = run("quantize", fin, "-o", os.path.join(d, "qq.ltm"), expect=1)
+    check("already quantized" in p.stderr, f"quantize twice: {p.stderr}")
+
+finish()
