@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cstring>
 #include <cmath>
 #include <functional>
 #include <string>
@@ -60,8 +61,9 @@ Result<ColumnCompressor> ColumnCompressor::Create(wavelet::Filter filter, uint64
   c.coeffs_.resize(c.pixels_ * kLanes);
   c.scratch_.resize(wavelet::ScratchSize(width, height, kLanes));
   c.mag_.resize(c.pixels_);
-  c.sel_.reserve(c.pixels_);
   c.bins_.resize(c.pixels_);
+  c.keys_.resize(c.pixels_ * kLanes);
+  c.key_hist_.resize(kKeyBins * kLanes);
   c.weights_.resize(max_depth + 1);
   if (!c.orthonormal_ && max_depth > 0) {
     c.work_.resize(c.pixels_ * kLanes);
@@ -106,17 +108,20 @@ Result<ColumnCompressor> ColumnCompressor::Create(wavelet::Filter filter, uint64
           for (uint64_t x = 0; x < c.bands_[d].width; ++x) w[y * width + x] = low;
       }
     }
+    c.root_weights_.resize((max_depth + 1) * c.pixels_);
+    for (int d = 0; d <= max_depth; ++d)
+      for (uint64_t p = 0; p < c.pixels_; ++p) c.root_weights_[d * c.pixels_ + p] = static_cast<float>(std::sqrt(c.weights_[d][p]));
   }
   return c;
 }
 
 uint64_t ColumnCompressor::WorkingBytes(uint64_t width, uint64_t height, int max_depth, bool orthonormal) {
   uint64_t p = width * height;
-  uint64_t b = p * kLanes * 4 * 2        // coefficients + wavelet scratch
-               + p * (8 + 8 + 4)         // weighted energies, selection copy, bins
+  uint64_t b = p * kLanes * 4 * 3        // coefficients, wavelet scratch, selection keys
+               + p * (8 + 4 + 4)         // weighted energies, bins, candidates
                + p * kLanes * (4 + 4)    // kept positions and values per lane (worst case)
                + p * kLanes * 4;         // the caller's output chunk
-  if (!orthonormal) b += p * kLanes * 4 + p * 8 * static_cast<uint64_t>(max_depth + 1);
+  if (!orthonormal) b += p * kLanes * 4 + p * (8 + 4) * static_cast<uint64_t>(max_depth + 1);
   return b;
 }
 
@@ -146,67 +151,123 @@ Status ColumnCompressor::Load(const float* const* columns, size_t n, double* ene
   return Status::Ok();
 }
 
-void ColumnCompressor::Select(size_t lane, int depth, const Selection& sel, double energy,
-                              std::vector<uint32_t>* kept) {
-  kept->clear();
-  const bool weighted = !orthonormal_ && depth > 0;
-  const double* w = weighted ? weights_[depth].data() : nullptr;
-  uint64_t positive = 0;
-  for (uint64_t p = 0; p < pixels_; ++p) {
-    double c = coeffs_[p * kLanes + lane];
-    double m = c * c;
-    if (weighted) m *= w[p];
-    mag_[p] = m;
-    positive += m > 0;
-  }
-  if (sel.kind == Selection::Kind::kThreshold) {
-    for (uint64_t p = 0; p < pixels_; ++p)
-      if (mag_[p] > 0 && EnergyBin(mag_[p]) >= sel.threshold_bin) kept->push_back(static_cast<uint32_t>(p));
-  } else {
-    uint64_t n = std::min<uint64_t>(sel.terms, positive);
-    if (n == positive) {
-      for (uint64_t p = 0; p < pixels_; ++p)
-        if (mag_[p] > 0) kept->push_back(static_cast<uint32_t>(p));
-    } else if (n > 0) {
-      sel_.clear();
-      for (uint64_t p = 0; p < pixels_; ++p)
-        if (mag_[p] > 0) sel_.push_back(mag_[p]);
-      std::nth_element(sel_.begin(), sel_.begin() + static_cast<std::ptrdiff_t>(n - 1), sel_.end(), std::greater<>());
-      double t = sel_[n - 1];
-      uint64_t above = 0;
-      for (double m : sel_) above += m > t;
-      uint64_t ties = n - above;  // positions equal to t, taken in index order
-      for (uint64_t p = 0; p < pixels_; ++p) {
-        if (mag_[p] > t || (mag_[p] == t && ties > 0 && ties--)) kept->push_back(static_cast<uint32_t>(p));
+void ColumnCompressor::UpdateKeys(size_t lane, int depth) {
+  uint32_t* keys = keys_.data() + lane * pixels_;
+  uint32_t* hist = key_hist_.data() + lane * kKeyBins;
+  const float* rw = !orthonormal_ && depth > 0 ? root_weights_.data() + depth * pixels_ : nullptr;
+  auto key = [&](uint64_t p) {
+    float k = std::fabs(coeffs_[p * kLanes + lane]);
+    if (rw) k *= rw[p];
+    uint32_t bits;
+    std::memcpy(&bits, &k, 4);
+    return bits;
+  };
+  if (depth > 0 && key_depth_[lane] == depth - 1) {
+    // Only the previous low band changed (and, biorthogonal, its weights).
+    const auto& band = bands_[depth - 1];
+    for (uint64_t y = 0; y < band.height; ++y)
+      for (uint64_t x = 0; x < band.width; ++x) {
+        uint64_t p = y * width_ + x;
+        hist[keys[p] >> kKeyShift]--;
+        keys[p] = key(p);
+        hist[keys[p] >> kKeyShift]++;
       }
+  } else {
+    std::fill(hist, hist + kKeyBins, 0u);
+    for (uint64_t p = 0; p < pixels_; ++p) {
+      keys[p] = key(p);
+      hist[keys[p] >> kKeyShift]++;
     }
   }
-  // Rounding residue: kept terms whose total is within the exactness tolerance add
-  // nothing measurable and are dropped.
-  if (!kept->empty()) {
-    double trim = kExactRelativeEnergy * energy / static_cast<double>(kept->size());
-    kept->erase(std::remove_if(kept->begin(), kept->end(), [&](uint32_t p) { return mag_[p] <= trim; }), kept->end());
+  key_depth_[lane] = depth;
+}
+
+void ColumnCompressor::SelectTerms(size_t lane, int depth, uint64_t terms, std::vector<uint32_t>* kept) {
+  UpdateKeys(lane, depth);
+  const uint32_t* keys = keys_.data() + lane * pixels_;
+  const uint32_t* hist = key_hist_.data() + lane * kKeyBins;
+  // Positive keys: all but the zeros, which sit in bin 0.
+  uint64_t zeros = 0;
+  if (hist[0] > 0)
+    for (uint64_t p = 0; p < pixels_; ++p) zeros += keys[p] == 0;
+  const uint64_t positive = pixels_ - zeros;
+  const uint64_t n = std::min<uint64_t>(terms, positive);
+  if (n == 0) return;
+  if (n == positive) {
+    for (uint64_t p = 0; p < pixels_; ++p)
+      if (keys[p] != 0) kept->push_back(static_cast<uint32_t>(p));
+    return;
+  }
+  // The bin holding the n-th largest key, then selection within it.
+  uint64_t above = 0;
+  size_t b = kKeyBins - 1;
+  while (above + hist[b] < n) above += hist[b--];
+  cand_.clear();
+  for (uint64_t p = 0; p < pixels_; ++p)
+    if ((keys[p] >> kKeyShift) == b && keys[p] != 0) cand_.push_back(keys[p]);
+  const uint64_t r = n - above;  // 1 <= r <= cand_.size()
+  std::nth_element(cand_.begin(), cand_.begin() + static_cast<std::ptrdiff_t>(r - 1), cand_.end(), std::greater<>());
+  const uint32_t t = cand_[r - 1];
+  for (uint32_t k : cand_) above += k > t;
+  uint64_t ties = n - above;  // keys equal to t, taken in position order
+  for (uint64_t p = 0; p < pixels_; ++p) {
+    if (keys[p] > t || (keys[p] == t && ties > 0 && ties--)) kept->push_back(static_cast<uint32_t>(p));
+  }
+}
+
+void ColumnCompressor::Select(size_t lane, int depth, const Selection& sel, double energy,
+                              std::vector<uint32_t>* kept, double* dropped) {
+  kept->clear();
+  const bool weighted = !orthonormal_ && depth > 0;
+  const double trim_total = kExactRelativeEnergy * energy;
+  if (sel.kind == Selection::Kind::kTerms) {
+    SelectTerms(lane, depth, sel.terms, kept);
+    // Rounding residue: kept terms whose total is within the exactness tolerance add
+    // nothing measurable and are dropped.
+    if (!kept->empty()) {
+      const double trim = trim_total / static_cast<double>(kept->size());
+      const double* w = weighted ? weights_[depth].data() : nullptr;
+      kept->erase(std::remove_if(kept->begin(), kept->end(),
+                                 [&](uint32_t p) {
+                                   double c = coeffs_[p * kLanes + lane];
+                                   return c * c * (w ? w[p] : 1.0) <= trim;
+                                 }),
+                  kept->end());
+    }
+  } else {
+    const double* w = weighted ? weights_[depth].data() : nullptr;
+    for (uint64_t p = 0; p < pixels_; ++p) {
+      double c = coeffs_[p * kLanes + lane];
+      double m = c * c * (w ? w[p] : 1.0);
+      if (m > 0 && EnergyBin(m) >= sel.threshold_bin) kept->push_back(static_cast<uint32_t>(p));
+    }
+    if (!kept->empty()) {
+      const double trim = trim_total / static_cast<double>(kept->size());
+      kept->erase(std::remove_if(kept->begin(), kept->end(),
+                                 [&](uint32_t p) {
+                                   double c = coeffs_[p * kLanes + lane];
+                                   return c * c * (w ? w[p] : 1.0) <= trim;
+                                 }),
+                  kept->end());
+    }
+  }
+  *dropped = -1;
+  if (!weighted) {  // orthonormal or pixels: the error is the dropped energy (Parseval)
+    double e = 0;
+    auto it = kept->begin();
+    for (uint64_t p = 0; p < pixels_; ++p) {
+      if (it != kept->end() && *it == p) {
+        ++it;
+        continue;
+      }
+      double c = coeffs_[p * kLanes + lane];
+      e += c * c;
+    }
+    *dropped = e;
   }
 }
 
 void ColumnCompressor::Errors(int depth, const std::vector<uint32_t>* kept, const bool* active, double* error) {
-  if (orthonormal_ || depth == 0) {
-    for (size_t k = 0; k < kLanes; ++k) {
-      if (!active[k]) continue;
-      double e = 0;
-      auto it = kept[k].begin();
-      for (uint64_t p = 0; p < pixels_; ++p) {
-        if (it != kept[k].end() && *it == p) {
-          ++it;
-          continue;
-        }
-        double c = coeffs_[p * kLanes + k];
-        e += c * c;
-      }
-      error[k] = e;
-    }
-    return;
-  }
   // Biorthogonal: reconstruct the dropped part and measure it in pixels.
   std::copy(coeffs_.begin(), coeffs_.end(), work_.begin());
   for (size_t k = 0; k < kLanes; ++k)
@@ -245,6 +306,7 @@ Status ColumnCompressor::Choose(const float* const* columns, size_t n, const Sel
   if (first > last) return Status::Ok();  // every column is empty
   std::vector<uint32_t> kept[kLanes];
   bool have[kLanes] = {};
+  std::fill(std::begin(key_depth_), std::end(key_depth_), -1);  // new columns: no keys yet
   for (int d = 0; d < first; ++d) {
     wavelet::AnalysisStep2D(filter_, coeffs_.data(), width_, kLanes, bands_[d].width, bands_[d].height, scratch_.data());
   }
@@ -254,14 +316,16 @@ Status ColumnCompressor::Choose(const float* const* columns, size_t n, const Sel
                               scratch_.data());
     }
     bool active[kLanes] = {};
+    double error[kLanes] = {};
+    bool reconstruct = false;
     for (size_t k = 0; k < n; ++k) {
       if (!live[k]) continue;
       if (depth_override && depth_override[k] >= 0 ? depth_override[k] != d : d < min_depth_) continue;
       active[k] = true;
-      Select(k, d, selection[k], energy[k], &kept[k]);
+      Select(k, d, selection[k], energy[k], &kept[k], &error[k]);
+      reconstruct |= error[k] < 0;
     }
-    double error[kLanes] = {};
-    Errors(d, kept, active, error);
+    if (reconstruct) Errors(d, kept, active, error);
     for (size_t k = 0; k < n; ++k) {
       if (!active[k]) continue;
       ColumnChoice& best = out[k];

@@ -92,9 +92,16 @@ class ColumnCompressor {
 
  private:
   Status Load(const float* const* columns, size_t n, double* energy, bool* live);
-  // Selects at the current depth for lane k; fills kept positions (ascending).
-  void Select(size_t lane, int depth, const Selection& sel, double energy, std::vector<uint32_t>* kept);
-  // Image-domain error of dropping everything but `kept[k]` at `depth`, for every live lane.
+  // Selects at the current depth for lane k; fills kept positions (ascending) and, for
+  // the orthonormal filters and depth 0, the exact dropped energy (else −1).
+  void Select(size_t lane, int depth, const Selection& sel, double energy, std::vector<uint32_t>* kept,
+              double* dropped);
+  // kTerms selection: ranks by the float key |c|·‖ψ̃‖ (monotone in c²‖ψ̃‖²) with a radix
+  // histogram of the key bits, kept up to date across depths: going from depth d−1 to d
+  // changes only the coefficients of the old low band.
+  void SelectTerms(size_t lane, int depth, uint64_t terms, std::vector<uint32_t>* kept);
+  void UpdateKeys(size_t lane, int depth);
+  // Image-domain error of dropping everything but `kept[k]` at `depth` (biorthogonal, depth > 0).
   void Errors(int depth, const std::vector<uint32_t>* kept, const bool* live, double* error);
 
   wavelet::Filter filter_ = wavelet::Filter::kLeGall53;
@@ -106,8 +113,15 @@ class ColumnCompressor {
   std::vector<float> coeffs_;                 // [pixel][lane]
   std::vector<float> work_;                   // reconstruction buffer [pixel][lane]
   std::vector<float> scratch_;
-  std::vector<double> mag_, sel_;             // weighted energies of one lane, selection copy
+  std::vector<double> mag_;                   // weighted energies of one lane (budget paths)
   std::vector<int32_t> bins_;
+  static constexpr int kKeyShift = 20;        // histogram of the key's top 11 bits (sign is 0)
+  static constexpr size_t kKeyBins = size_t{1} << (31 - kKeyShift);
+  std::vector<float> root_weights_;           // per depth ‖ψ̃‖, flattened (biorthogonal only)
+  std::vector<uint32_t> keys_;                // [lane][pixel] float bits of |c|·‖ψ̃‖
+  std::vector<uint32_t> key_hist_;            // [lane][bin]
+  int key_depth_[kLanes] = {};                // depth the lane's keys describe (−1: none)
+  std::vector<uint32_t> cand_;                // keys in the threshold bin
   std::vector<uint64_t> hist_count_;
   std::vector<double> hist_energy_;
 };
