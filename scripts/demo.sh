@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The demo on bundled data: bake the bunny scene (samples/medium.toml at R = 8 so it takes
-# seconds) through the stages that exist so far — sample, row-transform, transpose — then
-# inspect and verify every container and write preview images. Prints where outputs are.
+# seconds) through the stages that exist so far — sample, row-transform, transpose,
+# column-transform, quantize — then inspect and verify every container and write preview
+# images (also of the decoded compressed matrix). Prints where outputs are.
 set -euo pipefail
 BUILD=${1:-build}
 cd "$(dirname "$0")/.."
@@ -18,15 +19,23 @@ echo "== row-transform: Haar wavelets over each row's six cube faces"
 echo "== transpose: column blocks (each light's image contiguous), within 256 MiB"
 "$LTBAKE" transpose "$OUT/rows.ltm" -o "$OUT/cols.ltm" --mem-limit 256MiB --overwrite
 
+echo "== column-transform: each light's image to its optimal depth (LeGall 5/3), 5% of its terms"
+"$LTBAKE" column-transform "$OUT/cols.ltm" -o "$OUT/cols4d.ltm" --keep 0.05 --overwrite
+
+echo "== quantize: 9 bits, level scaling, dithered"
+"$LTBAKE" quantize "$OUT/cols4d.ltm" -o "$OUT/final.ltm" --bits 9 --overwrite
+
 echo "== inspect"
 "$LTBAKE" inspect "$OUT/raw.ltm"
 "$LTBAKE" inspect --json "$OUT/cols.ltm" > "$OUT/cols.inspect.json"
+"$LTBAKE" inspect "$OUT/final.ltm"
 
 echo "== verify"
-"$LTBAKE" verify "$OUT/raw.ltm" "$OUT/rows.ltm" "$OUT/cols.ltm"
+"$LTBAKE" verify "$OUT/raw.ltm" "$OUT/rows.ltm" "$OUT/cols.ltm" "$OUT/cols4d.ltm" "$OUT/final.ltm"
 
 echo "== previews"
 "$LTBAKE" convert "$OUT/raw.ltm" "$OUT/raw.npy" -q
+"$LTBAKE" convert "$OUT/final.ltm" "$OUT/final-pixels.npy" --basis pixels -q
 /usr/bin/python3 - "$OUT" <<'PY'
 import json, sys
 import numpy as np
@@ -41,7 +50,14 @@ sky = T.sum(axis=1).reshape(H, W)                       # uniform white sky
 top = T[:, 4 * R * R + (R // 2) * R + R // 2].reshape(H, W)  # one texel near the zenith
 plt.imsave(f"{d}/preview-sky.png", sky, cmap="gray", vmin=0, vmax=sky.max())
 plt.imsave(f"{d}/preview-zenith-texel.png", top, cmap="gray", vmin=0, vmax=top.max())
-print(f"preview images: {d}/preview-sky.png (uniform sky), {d}/preview-zenith-texel.png (one light overhead)")
+F = np.load(f"{d}/final-pixels.npy")
+sky_c = F.sum(axis=1).reshape(H, W)
+plt.imsave(f"{d}/preview-sky-compressed.png", sky_c, cmap="gray", vmin=0, vmax=sky.max())
+rel = np.sqrt(((F.astype(np.float64) - T) ** 2).sum() / (T.astype(np.float64) ** 2).sum())
+rel_sky = np.sqrt(((sky_c - sky) ** 2).sum() / (sky ** 2).sum())
+print(f"preview images: {d}/preview-sky.png (uniform sky), {d}/preview-zenith-texel.png (one light overhead), "
+      f"{d}/preview-sky-compressed.png (uniform sky from final.ltm)")
+print(f"final.ltm against raw.ltm: relative RMS error {rel:.4f} over the matrix, {rel_sky:.4f} on the uniform-sky image")
 PY
 
 echo
@@ -49,4 +65,6 @@ echo "demo outputs in $(pwd)/$OUT:"
 echo "  raw.ltm    sampled transport matrix: 65536 pixels x 384 lights (+ mask, position, normal tables)"
 echo "  rows.ltm   after row-transform (Haar, per cube face)"
 echo "  cols.ltm   after transpose (one chunk per light: its 256x256 image); cols.inspect.json"
-echo "  preview-sky.png, preview-zenith-texel.png"
+echo "  cols4d.ltm after column-transform (adaptive depth per light image, 5% of terms)"
+echo "  final.ltm  after quantize (9 bits): what relighting reads"
+echo "  preview-sky.png, preview-zenith-texel.png, preview-sky-compressed.png"

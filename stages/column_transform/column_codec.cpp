@@ -1,5 +1,6 @@
 #include "stages/column_transform/column_codec.h"
 
+#include <array>
 #include <cmath>
 #include <cstring>
 
@@ -60,7 +61,11 @@ Result<ColumnCodec> ColumnCodec::FromMetadata(const Metadata& meta, const std::s
   } else if (meta.matrix().dtype != DType::kF32) {
     return bad("matrix is not f32");
   }
-  c.levels_.resize(c.max_depth_ + 1);
+  auto tables = std::make_shared<Tables>();
+  if (c.quant_.bits > 0) {
+    tables->factors = QuantizationFactors(c.filter_, c.width_, c.height_, c.max_depth_, c.quant_.level_scaling);
+  }
+  c.tables_ = std::move(tables);
   return c;
 }
 
@@ -78,14 +83,66 @@ std::vector<uint8_t> ColumnCodec::ComputeLevels(uint64_t width, uint64_t height,
   return lv;
 }
 
-const std::vector<uint8_t>& ColumnCodec::Levels(int depth) {
-  auto& lv = levels_.at(depth);
-  if (lv.empty()) lv = ComputeLevels(width_, height_, depth);
-  return lv;
+std::vector<std::vector<double>> SynthesisEnergies(wavelet::Filter filter, uint64_t width, uint64_t height,
+                                                   int max_depth) {
+  const uint64_t pixels = width * height;
+  std::vector<std::vector<double>> out(max_depth + 1, std::vector<double>(pixels, 1.0));
+  if (wavelet::IsOrthonormal(filter) || max_depth == 0) return out;
+  auto bands = wavelet::BandSizes(width, height, max_depth);
+  std::vector<double> img(pixels), scratch(wavelet::ScratchSize(width, height, 1));
+  auto synth_norm = [&](int step, uint64_t x, uint64_t y) {
+    std::fill(img.begin(), img.end(), 0.0);
+    img[y * width + x] = 1.0;
+    for (int l = step; l-- > 0;) {
+      wavelet::SynthesisStep2D(filter, img.data(), width, 1, bands[l].width, bands[l].height, scratch.data());
+    }
+    double s = 0;
+    for (double v : img) s += v * v;
+    return s;
+  };
+  // detail[s]: the three high bands of step s (HL, LH, HH); unused when a band is empty.
+  std::vector<std::array<double, 3>> detail(max_depth + 1);
+  for (int s = 1; s <= max_depth; ++s) {
+    const auto& in = bands[s - 1];
+    const auto& lo = bands[s];
+    if (in.width > lo.width) detail[s][0] = synth_norm(s, (lo.width + in.width) / 2, lo.height / 2);
+    if (in.height > lo.height) detail[s][1] = synth_norm(s, lo.width / 2, (lo.height + in.height) / 2);
+    if (in.width > lo.width && in.height > lo.height) {
+      detail[s][2] = synth_norm(s, (lo.width + in.width) / 2, (lo.height + in.height) / 2);
+    }
+  }
+  for (int d = 1; d <= max_depth; ++d) {
+    std::vector<double>& w = out[d];
+    for (int s = 1; s <= d; ++s) {
+      const auto& in = bands[s - 1];
+      const auto& lo = bands[s];
+      for (uint64_t y = 0; y < in.height; ++y)
+        for (uint64_t x = 0; x < in.width; ++x) {
+          if (x < lo.width && y < lo.height) continue;
+          w[y * width + x] = detail[s][x >= lo.width ? (y >= lo.height ? 2 : 0) : 1];
+        }
+    }
+    double low = synth_norm(d, bands[d].width / 2, bands[d].height / 2);
+    for (uint64_t y = 0; y < bands[d].height; ++y)
+      for (uint64_t x = 0; x < bands[d].width; ++x) w[y * width + x] = low;
+  }
+  return out;
+}
+
+std::vector<std::vector<double>> QuantizationFactors(wavelet::Filter filter, uint64_t width, uint64_t height,
+                                                     int max_depth, bool level_scaling) {
+  const uint64_t pixels = width * height;
+  if (!level_scaling) return std::vector<std::vector<double>>(max_depth + 1, std::vector<double>(pixels, 1.0));
+  auto f = SynthesisEnergies(filter, width, height, max_depth);
+  for (int d = 0; d <= max_depth; ++d) {
+    auto lv = ColumnCodec::ComputeLevels(width, height, d);
+    for (uint64_t p = 0; p < pixels; ++p) f[d][p] = std::ldexp(std::sqrt(f[d][p]), lv[p]);
+  }
+  return f;
 }
 
 void ColumnCodec::DenseCoefficients(int depth, double scale, const uint32_t* index, const void* values, size_t n,
-                                    float* out) {
+                                    float* out) const {
   std::memset(out, 0, width_ * height_ * sizeof(float));
   if (quant_.bits == 0) {
     const float* v = static_cast<const float*>(values);
@@ -94,12 +151,8 @@ void ColumnCodec::DenseCoefficients(int depth, double scale, const uint32_t* ind
   }
   const int32_t* q = static_cast<const int32_t*>(values);
   const double step = scale / quant_.Levels();
-  const std::vector<uint8_t>* lv = quant_.level_scaling ? &Levels(depth) : nullptr;
-  for (size_t i = 0; i < n; ++i) {
-    double v = static_cast<double>(q[i]) * step;
-    if (lv) v = std::ldexp(v, -static_cast<int>((*lv)[index[i]]));
-    out[index[i]] = static_cast<float>(v);
-  }
+  const std::vector<double>& f = Factors(depth);
+  for (size_t i = 0; i < n; ++i) out[index[i]] = static_cast<float>(static_cast<double>(q[i]) * step / f[index[i]]);
 }
 
 void ColumnCodec::ToImage(int depth, float* column, std::vector<float>* scratch) const {
@@ -109,7 +162,7 @@ void ColumnCodec::ToImage(int depth, float* column, std::vector<float>* scratch)
 }
 
 Status ColumnCodec::DecodeChunk(const io::ContainerReader& reader, uint64_t chunk, std::vector<float>* out,
-                                const io::ReadOptions& options) {
+                                const io::ReadOptions& options) const {
   LTB_ASSIGN_OR_RETURN(SparseChunk sc, reader.ReadSparse(0, chunk, options));
   LTB_ASSIGN_OR_RETURN(io::Chunk dc, reader.ReadChunk(depth_array_, chunk, options));
   std::vector<double> scales;

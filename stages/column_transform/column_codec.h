@@ -5,9 +5,17 @@
 // Levels (for quantize's scaling, §4.3 of Cheslack-Postava et al.): in a column at depth d,
 // the low band and the detail bands of the coarsest step d are level 0; the detail bands
 // of analysis step s are level d − s (step 1, the finest, is level d − 1).
+//
+// Quantization factor of a coefficient (`--scaling level`): ‖ψ̃‖ · 2^level, where ‖ψ̃‖ is the
+// synthesis norm of its band (1 for the orthonormal filters and at depth 0). The first
+// factor expresses the coefficient in the L2-normalised basis — the paper's 2^−l decay
+// holds there; the biorthogonal lifting filters keep DC gain 1 instead, so their coarse
+// coefficients are smaller by up to 2^d and their quantization error is amplified by ‖ψ̃‖
+// in the image. `--scaling none`: factor 1.
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -40,28 +48,41 @@ class ColumnCodec {
   int depth_array() const { return depth_array_; }
   int scale_array() const { return scale_array_; }  // −1 when not quantized
 
-  // Level of every coefficient position of a column at depth d (cached per depth).
-  const std::vector<uint8_t>& Levels(int depth);
   static std::vector<uint8_t> ComputeLevels(uint64_t width, uint64_t height, int depth);
+  // The quantization factor of every position at depth d (see above), for `level_scaling`.
+  const std::vector<double>& Factors(int depth) const { return tables_->factors.at(depth); }
 
   // Coefficients of one column (dense W·H, Mallat layout at `depth`) from its stored
-  // sparse values: f32 as is, or quantized integers q → q / Q · scale / 2^level.
-  void DenseCoefficients(int depth, double scale, const uint32_t* index, const void* values, size_t n, float* out);
+  // sparse values: f32 as is, or quantized integers q → q / Q · scale / factor.
+  void DenseCoefficients(int depth, double scale, const uint32_t* index, const void* values, size_t n,
+                         float* out) const;
   // Inverse column transform of one dense column in place: coefficients → image.
   void ToImage(int depth, float* column, std::vector<float>* scratch) const;
 
   // Decodes column chunk `chunk` of an open reader into dense image columns
-  // (column-major: e.cols × W·H floats).
+  // (column-major: e.cols × W·H floats). Thread-safe.
   Status DecodeChunk(const io::ContainerReader& reader, uint64_t chunk, std::vector<float>* out,
-                     const io::ReadOptions& options = {});
+                     const io::ReadOptions& options = {}) const;
 
  private:
+  struct Tables {
+    std::vector<std::vector<double>> factors;  // per depth, per position
+  };
   wavelet::Filter filter_ = wavelet::Filter::kLeGall53;
   uint64_t width_ = 0, height_ = 0;
   int max_depth_ = 0;
   Quantization quant_;
   int depth_array_ = -1, scale_array_ = -1;
-  std::vector<std::vector<uint8_t>> levels_;
+  std::shared_ptr<const Tables> tables_;
 };
+
+// ‖ψ̃‖² of every coefficient position of a width × height column at depths 0..max_depth:
+// a unit coefficient at the centre of each band synthesized back to pixels (in double).
+// All 1 for the orthonormal filters and at depth 0.
+std::vector<std::vector<double>> SynthesisEnergies(wavelet::Filter filter, uint64_t width, uint64_t height,
+                                                   int max_depth);
+// Factors for quantization (see above): ‖ψ̃‖ · 2^level per position and depth, or all 1.
+std::vector<std::vector<double>> QuantizationFactors(wavelet::Filter filter, uint64_t width, uint64_t height,
+                                                     int max_depth, bool level_scaling);
 
 }  // namespace ltb::stages

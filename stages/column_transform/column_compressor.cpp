@@ -1,5 +1,7 @@
 #include "stages/column_transform/column_compressor.h"
 
+#include "stages/column_transform/column_codec.h"
+
 #include <algorithm>
 #include <array>
 #include <cstring>
@@ -67,47 +69,7 @@ Result<ColumnCompressor> ColumnCompressor::Create(wavelet::Filter filter, uint64
   c.weights_.resize(max_depth + 1);
   if (!c.orthonormal_ && max_depth > 0) {
     c.work_.resize(c.pixels_ * kLanes);
-    // ‖ψ̃‖² of a band: synthesize a unit coefficient at the band's centre back to pixels.
-    std::vector<double> img(c.pixels_), scratch(wavelet::ScratchSize(width, height, 1));
-    auto synth_norm = [&](int step, uint64_t x, uint64_t y) {
-      std::fill(img.begin(), img.end(), 0.0);
-      img[y * width + x] = 1.0;
-      for (int l = step; l-- > 0;) {
-        wavelet::SynthesisStep2D(filter, img.data(), width, 1, c.bands_[l].width, c.bands_[l].height, scratch.data());
-      }
-      double s = 0;
-      for (double v : img) s += v * v;
-      return s;
-    };
-    // detail[s]: weights of the three high bands of step s (HL, LH, HH); 0 when empty.
-    std::vector<std::array<double, 3>> detail(max_depth + 1);
-    for (int s = 1; s <= max_depth; ++s) {
-      const auto& in = c.bands_[s - 1];
-      const auto& lo = c.bands_[s];
-      if (in.width > lo.width) detail[s][0] = synth_norm(s, (lo.width + in.width) / 2, lo.height / 2);
-      if (in.height > lo.height) detail[s][1] = synth_norm(s, lo.width / 2, (lo.height + in.height) / 2);
-      if (in.width > lo.width && in.height > lo.height) {
-        detail[s][2] = synth_norm(s, (lo.width + in.width) / 2, (lo.height + in.height) / 2);
-      }
-    }
-    for (int d = 0; d <= max_depth; ++d) {
-      std::vector<double>& w = c.weights_[d];
-      w.assign(c.pixels_, 1.0);
-      for (int s = 1; s <= d; ++s) {
-        const auto& in = c.bands_[s - 1];
-        const auto& lo = c.bands_[s];
-        for (uint64_t y = 0; y < in.height; ++y)
-          for (uint64_t x = 0; x < in.width; ++x) {
-            if (x < lo.width && y < lo.height) continue;
-            w[y * width + x] = detail[s][x >= lo.width ? (y >= lo.height ? 2 : 0) : 1];
-          }
-      }
-      if (d > 0) {
-        double low = synth_norm(d, c.bands_[d].width / 2, c.bands_[d].height / 2);
-        for (uint64_t y = 0; y < c.bands_[d].height; ++y)
-          for (uint64_t x = 0; x < c.bands_[d].width; ++x) w[y * width + x] = low;
-      }
-    }
+    c.weights_ = SynthesisEnergies(filter, width, height, max_depth);
     c.root_weights_.resize((max_depth + 1) * c.pixels_);
     for (int d = 0; d <= max_depth; ++d)
       for (uint64_t p = 0; p < c.pixels_; ++p) c.root_weights_[d * c.pixels_ + p] = static_cast<float>(std::sqrt(c.weights_[d][p]));

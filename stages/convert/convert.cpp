@@ -311,8 +311,7 @@ Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress
         io::Chunk c;
         std::vector<float> decoded;
         if (codec) {
-          ColumnCodec local = *codec;  // its level cache is per thread
-          LTB_RETURN_IF_ERROR(local.DecodeChunk(reader, i, &decoded, ro));
+          LTB_RETURN_IF_ERROR(codec->DecodeChunk(reader, i, &decoded, ro));
           v = decoded;
         } else {
           LTB_ASSIGN_OR_RETURN(c, reader.ReadChunk(0, i, ro));

@@ -114,7 +114,9 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& pro
   eo.dtype = DType::kI32;
   eo.zstd = o.zstd;
   std::atomic<uint64_t> written{0};
-  std::mutex levels_mu;
+  // The codec of the input knows no quantization; the factors of this run's scaling:
+  const auto factors = QuantizationFactors(codec.filter(), codec.width(), codec.height(), codec.max_depth(),
+                                           o.level_scaling);
   Status s = ParallelFor(items, o.jobs, progress, "chunks", [&](uint64_t c) -> Status {
     LTB_ASSIGN_OR_RETURN(SparseChunk sc, in.ReadSparse(0, c));
     LTB_ASSIGN_OR_RETURN(io::Chunk dc, in.ReadChunk(static_cast<uint32_t>(codec.depth_array()), c));
@@ -133,17 +135,12 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& pro
       if (d > codec.max_depth()) {
         return DataLoss(o.input + ": column " + std::to_string(e.col0 + k) + " has depth " + std::to_string(d));
       }
-      const std::vector<uint8_t>* lv = nullptr;
-      if (o.level_scaling) {
-        std::lock_guard<std::mutex> lock(levels_mu);  // Levels() fills a per-depth cache
-        lv = &codec.Levels(d);
-      }
+      const std::vector<double>& factor = factors[d];
       scaled.resize(pos - begin);
       double mx = 0;
       for (size_t i = begin; i < pos; ++i) {
         uint32_t p = sc.index[i] - static_cast<uint32_t>(k * pixels);
-        double v = values[i];
-        if (lv) v = std::ldexp(v, (*lv)[p]);
+        double v = static_cast<double>(values[i]) * factor[p];
         scaled[i - begin] = v;
         mx = std::max(mx, std::fabs(v));
       }
