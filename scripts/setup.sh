@@ -22,6 +22,7 @@ PACKAGES=(
   libgtest-dev libgmock-dev        # unit tests
   libbenchmark-dev                 # micro-benchmarks
   libstb-dev                       # Radiance .hdr reading
+  blender-data                     # CC0 environment maps (DWAB .exr, studiolights/world; scripts/find_envmaps.sh)
   clang libclang-rt-14-dev         # libFuzzer target (LTB_BUILD_FUZZERS)
   python3 python3-numpy python3-pywt python3-h5py python3-matplotlib python3-xxhash  # oracles, baselines, plots
   nodejs                           # converting the sample meshes (npm is checked below)

@@ -1,0 +1,871 @@
+#include "stages/relight/envmap.h"
+
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <exception>
+#include <limits>
+#include <numbers>
+
+#include <OpenEXR/ImfChannelList.h>
+#include <OpenEXR/ImfFrameBuffer.h>
+#include <OpenEXR/ImfHeader.h>
+#include <OpenEXR/ImfInputFile.h>
+#include <OpenEXR/ImfRgbaFile.h>
+#include <glm/geometric.hpp>
+
+#include "format/io/file.h"
+#include "format/npy.h"
+#include "stages/common/cubemap.h"
+
+namespace ltb::stages {
+
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+// Largest image ltbake loads (pixels): 2^28 ≈ 16384 × 16384, 3 GiB of floats.
+constexpr uint64_t kMaxPixels = 1ull << 28;
+// Largest cubemap the resampler builds (its tables grow as R²: ~50 M intervals at 512).
+constexpr uint64_t kMaxCubeRes = 512;
+constexpr const char* kFaceNames[6] = {"px", "nx", "py", "ny", "pz", "nz"};
+constexpr const char* kPlaceholder = "{face}";
+
+std::string Num(double v) {
+  char buf[48];
+  std::snprintf(buf, sizeof buf, "%.9g", v);
+  return buf;
+}
+std::string Size(uint64_t w, uint64_t h) { return std::to_string(w) + "x" + std::to_string(h); }
+
+bool EndsWithNoCase(const std::string& s, const std::string& suffix) {
+  if (s.size() < suffix.size()) return false;
+  for (size_t i = 0; i < suffix.size(); ++i) {
+    if (std::tolower(static_cast<unsigned char>(s[s.size() - suffix.size() + i])) != suffix[i]) return false;
+  }
+  return true;
+}
+
+// cos a − cos b without cancellation for nearby angles.
+double CosDiff(double a, double b) { return 2.0 * std::sin(0.5 * (a + b)) * std::sin(0.5 * (b - a)); }
+
+// ---- image files --------------------------------------------------------------------
+
+struct Image {
+  uint64_t width = 0, height = 0;
+  std::vector<float> rgb;
+  const char* channel[3] = {"R", "G", "B"};  // for messages ("Y" for luminance files)
+  bool lossy = false;                        // lossy EXR compression (DWAA, DWAB, B44, B44A)
+  std::string compression;
+};
+
+Result<std::vector<uint8_t>> ReadWholeFile(const std::string& path) {
+  LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(path, io::File::Mode::kRead));
+  LTB_ASSIGN_OR_RETURN(uint64_t size, f.Size());
+  if (size > (uint64_t(4) << 30)) {
+    return InvalidArgument(path + ": " + std::to_string(size) + " bytes; environment maps over 4 GiB are not supported");
+  }
+  std::vector<uint8_t> bytes(size);
+  LTB_RETURN_IF_ERROR(f.ReadAt(0, format::MutableByteSpan(reinterpret_cast<std::byte*>(bytes.data()), size)));
+  return bytes;
+}
+
+// Radiance RGBE (.hdr): header lines up to a blank line, a resolution line, then scanlines
+// either run-length encoded per component (the "new" format, widths 8..32767) or flat RGBE
+// with the original (1,1,1,n) repeat records. RGBE -> float as in Greg Ward's rgbe.c and
+// stb_image: mantissa · 2^(e − 136), 0 when e = 0.
+Result<Image> ReadHdr(const std::string& path, const std::vector<uint8_t>& buf) {
+  const uint64_t size = buf.size();
+  uint64_t pos = 0;
+  auto next_line = [&](std::string* line) {
+    if (pos >= size) return false;
+    uint64_t end = pos;
+    while (end < size && buf[end] != '\n') ++end;
+    if (end >= size) return false;  // a header line always ends with '\n'
+    line->assign(reinterpret_cast<const char*>(buf.data()) + pos, end - pos);
+    if (!line->empty() && line->back() == '\r') line->pop_back();
+    pos = end + 1;
+    return true;
+  };
+  std::string line;
+  if (size < 2 || buf[0] != '#' || buf[1] != '?' || !next_line(&line)) {
+    return InvalidArgument(path + ": not a Radiance .hdr file (no \"#?\" signature line)");
+  }
+  bool blank = false;
+  while (pos < (1u << 16) && next_line(&line)) {
+    if (line.empty()) {
+      blank = true;
+      break;
+    }
+    if (line.rfind("FORMAT=", 0) == 0) {
+      std::string fmt = line.substr(7);
+      while (!fmt.empty() && std::isspace(static_cast<unsigned char>(fmt.back()))) fmt.pop_back();
+      if (fmt != "32-bit_rle_rgbe") {
+        return Unimplemented(path + ": Radiance pixel format \"" + fmt +
+                             "\" is not supported; ltbake reads 32-bit_rle_rgbe (convert XYZE maps to RGB first)");
+      }
+    }
+  }
+  if (!blank) {
+    return DataLoss(path + ": Radiance .hdr header does not end with a blank line within " +
+                    std::to_string(std::min<uint64_t>(pos, 1u << 16)) + " bytes (truncated or not an .hdr file)");
+  }
+  if (!next_line(&line)) return DataLoss(path + ": Radiance .hdr: truncated before the resolution line");
+  char ya[3] = {}, xa[3] = {};
+  long long h = 0, w = 0;
+  int consumed = 0;
+  if (std::sscanf(line.c_str(), "%2s %lld %2s %lld%n", ya, &h, xa, &w, &consumed) != 4 ||
+      static_cast<size_t>(consumed) != line.size()) {
+    return DataLoss(path + ": Radiance .hdr: bad resolution line \"" + line + "\" (expected e.g. \"-Y 512 +X 1024\")");
+  }
+  std::string ys = ya, xs = xa;
+  if ((ys != "-Y" && ys != "+Y") || (xs != "+X" && xs != "-X")) {
+    return Unimplemented(path + ": Radiance .hdr orientation \"" + line +
+                         "\" is not supported; ltbake reads -Y H +X W and its flips (+Y, -X), not transposed images");
+  }
+  if (w <= 0 || h <= 0 || uint64_t(w) * uint64_t(h) > kMaxPixels) {
+    return InvalidArgument(path + ": Radiance .hdr size " + std::to_string(w) + "x" + std::to_string(h) +
+                           " is empty or beyond " + std::to_string(kMaxPixels) + " pixels");
+  }
+  const bool flip_y = ys == "+Y", flip_x = xs == "-X";
+  Image img;
+  img.width = w;
+  img.height = h;
+  img.rgb.resize(img.width * img.height * 3);
+  std::vector<uint8_t> scan(img.width * 4);
+  auto truncated = [&](uint64_t y) {
+    return DataLoss(path + ": Radiance .hdr truncated: the pixel data ends in scanline " + std::to_string(y) + " of " +
+                    std::to_string(h) + " (the file has " + std::to_string(size) + " bytes)");
+  };
+  auto bad = [&](uint64_t y, const std::string& what) {
+    return DataLoss(path + ": Radiance .hdr scanline " + std::to_string(y) + " at byte " + std::to_string(pos) + ": " +
+                    what + " (damaged file)");
+  };
+  for (uint64_t y = 0; y < img.height; ++y) {
+    if (pos + 4 > size) return truncated(y);
+    const uint8_t* b = &buf[pos];
+    if (img.width >= 8 && img.width < 32768 && b[0] == 2 && b[1] == 2 && (b[2] & 0x80) == 0) {
+      uint64_t n = (uint64_t(b[2]) << 8) | b[3];
+      if (n != img.width) {
+        return bad(y, "run-length header says " + std::to_string(n) + " pixels, the image is " +
+                          std::to_string(img.width) + " wide");
+      }
+      pos += 4;
+      for (int ch = 0; ch < 4; ++ch) {
+        uint64_t x = 0;
+        while (x < img.width) {
+          if (pos >= size) return truncated(y);
+          uint64_t count = buf[pos++];
+          if (count > 128) {
+            count -= 128;
+            if (x + count > img.width) return bad(y, "a run of " + std::to_string(count) + " overflows the width");
+            if (pos >= size) return truncated(y);
+            uint8_t v = buf[pos++];
+            for (uint64_t k = 0; k < count; ++k) scan[(x + k) * 4 + ch] = v;
+          } else {
+            if (count == 0 || x + count > img.width) {
+              return bad(y, "a literal of " + std::to_string(count) + " bytes overflows the width");
+            }
+            if (pos + count > size) return truncated(y);
+            for (uint64_t k = 0; k < count; ++k) scan[(x + k) * 4 + ch] = buf[pos + k];
+            pos += count;
+          }
+          x += count;
+        }
+      }
+    } else {
+      uint64_t x = 0;
+      int shift = 0;
+      while (x < img.width) {
+        if (pos + 4 > size) return truncated(y);
+        const uint8_t* p = &buf[pos];
+        pos += 4;
+        if (p[0] == 1 && p[1] == 1 && p[2] == 1) {  // repeat the previous pixel
+          if (x == 0 || shift > 24) return bad(y, "a repeat record without a pixel to repeat");
+          uint64_t rep = uint64_t(p[3]) << shift;
+          if (x + rep > img.width) return bad(y, "a repeat of " + std::to_string(rep) + " overflows the width");
+          for (uint64_t k = 0; k < rep; ++k) std::memcpy(&scan[(x + k) * 4], &scan[(x - 1) * 4], 4);
+          x += rep;
+          shift += 8;
+        } else {
+          std::memcpy(&scan[x * 4], p, 4);
+          ++x;
+          shift = 0;
+        }
+      }
+    }
+    const uint64_t row = flip_y ? img.height - 1 - y : y;
+    for (uint64_t x = 0; x < img.width; ++x) {
+      const uint8_t* p = &scan[x * 4];
+      float* o = &img.rgb[(row * img.width + (flip_x ? img.width - 1 - x : x)) * 3];
+      if (p[3] == 0) {
+        o[0] = o[1] = o[2] = 0.0f;
+      } else {
+        float f = std::ldexp(1.0f, int(p[3]) - 136);
+        o[0] = p[0] * f;
+        o[1] = p[1] * f;
+        o[2] = p[2] * f;
+      }
+    }
+  }
+  return img;
+}
+
+// OpenEXR through the library (every compression it knows, scanline or tiled, part 0):
+// R, G, B (A ignored) as float; luminance-chroma (Y, RY, BY) through RgbaInputFile;
+// luminance Y alone replicated to grey.
+Result<Image> ReadExr(const std::string& path) {
+  try {
+    Imf::InputFile file(path.c_str());
+    const Imf::Header& header = file.header();
+    const Imath::Box2i dw = header.dataWindow();
+    const int64_t w = int64_t(dw.max.x) - dw.min.x + 1, h = int64_t(dw.max.y) - dw.min.y + 1;
+    if (w <= 0 || h <= 0 || uint64_t(w) * uint64_t(h) > kMaxPixels) {
+      return InvalidArgument(path + ": OpenEXR data window " + std::to_string(w) + "x" + std::to_string(h) +
+                             " is empty or beyond " + std::to_string(kMaxPixels) + " pixels");
+    }
+    Image img;
+    img.width = w;
+    img.height = h;
+    switch (header.compression()) {
+      case Imf::DWAA_COMPRESSION: img.compression = "DWAA"; break;
+      case Imf::DWAB_COMPRESSION: img.compression = "DWAB"; break;
+      case Imf::B44_COMPRESSION: img.compression = "B44"; break;
+      case Imf::B44A_COMPRESSION: img.compression = "B44A"; break;
+      default: break;
+    }
+    img.lossy = !img.compression.empty();
+    const Imf::ChannelList& channels = header.channels();
+    std::string names;
+    for (auto it = channels.begin(); it != channels.end(); ++it) {
+      names += (names.empty() ? "" : ", ") + std::string(it.name());
+      if (it.channel().xSampling != 1 || it.channel().ySampling != 1) {
+        const std::string n = it.name();
+        if (n == "R" || n == "G" || n == "B" || n == "Y") {
+          // Sub-sampled chroma (RY, BY) is fine: RgbaInputFile reconstructs it.
+          return Unimplemented(path + ": OpenEXR channel " + n + " is sub-sampled; ltbake reads full-resolution R, G, B or Y");
+        }
+      }
+    }
+    const bool rgb = channels.findChannel("R") && channels.findChannel("G") && channels.findChannel("B");
+    const bool chroma = channels.findChannel("Y") && (channels.findChannel("RY") || channels.findChannel("BY"));
+    const bool lum = channels.findChannel("Y") != nullptr;
+    img.rgb.resize(uint64_t(w) * h * 3);
+    if (rgb) {
+      Imf::FrameBuffer fb;
+      const char* name[3] = {"R", "G", "B"};
+      for (int c = 0; c < 3; ++c) {
+        fb.insert(name[c], Imf::Slice::Make(Imf::FLOAT, img.rgb.data() + c, dw, 3 * sizeof(float), 3 * sizeof(float) * w));
+      }
+      file.setFrameBuffer(fb);
+      file.readPixels(dw.min.y, dw.max.y);
+    } else if (chroma) {
+      Imf::RgbaInputFile rf(path.c_str());
+      std::vector<Imf::Rgba> px(uint64_t(w) * h);
+      Imf::Rgba* base = px.data() - (int64_t(dw.min.y) * w + dw.min.x);
+      rf.setFrameBuffer(base, 1, w);
+      rf.readPixels(dw.min.y, dw.max.y);
+      for (uint64_t i = 0; i < px.size(); ++i) {
+        img.rgb[i * 3] = px[i].r;
+        img.rgb[i * 3 + 1] = px[i].g;
+        img.rgb[i * 3 + 2] = px[i].b;
+      }
+    } else if (lum) {
+      std::vector<float> y(uint64_t(w) * h);
+      Imf::FrameBuffer fb;
+      fb.insert("Y", Imf::Slice::Make(Imf::FLOAT, y.data(), dw));
+      file.setFrameBuffer(fb);
+      file.readPixels(dw.min.y, dw.max.y);
+      for (uint64_t i = 0; i < y.size(); ++i) img.rgb[i * 3] = img.rgb[i * 3 + 1] = img.rgb[i * 3 + 2] = y[i];
+      img.channel[0] = img.channel[1] = img.channel[2] = "Y";
+    } else {
+      return InvalidArgument(path + ": OpenEXR file has channels " + (names.empty() ? "(none)" : names) +
+                             "; an environment map needs R, G and B (A is ignored) or luminance Y");
+    }
+    return img;
+  } catch (const std::exception& e) {
+    return DataLoss(path + ": OpenEXR could not read it: " + e.what());
+  }
+}
+
+Result<Image> ReadImage(const std::string& path) {
+  if (!io::PathExists(path)) return NotFound(path + ": no such file");
+  {
+    LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(path, io::File::Mode::kRead));
+    LTB_ASSIGN_OR_RETURN(uint64_t size, f.Size());
+    std::byte magic[4] = {};
+    if (size >= 4) LTB_RETURN_IF_ERROR(f.ReadAt(0, format::MutableByteSpan(magic, 4)));
+    if (size >= 4 && magic[0] == std::byte{0x76} && magic[1] == std::byte{0x2f} && magic[2] == std::byte{0x31} &&
+        magic[3] == std::byte{0x01}) {
+      return ReadExr(path);
+    }
+  }
+  LTB_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, ReadWholeFile(path));
+  if (bytes.size() >= 2 && bytes[0] == '#' && bytes[1] == '?') return ReadHdr(path, bytes);
+  std::string what = bytes.empty() ? "the file is empty" : "it has neither the OpenEXR magic (76 2f 31 01) nor \"#?\"";
+  return InvalidArgument(path + ": not an OpenEXR (.exr) or Radiance (.hdr) image: " + what);
+}
+
+// ---- layouts ------------------------------------------------------------------------
+
+// Face (0..5) shown in cell (col, row) of a cross, -1 for an unused cell.
+int CrossFace(EnvLayout layout, uint64_t col, uint64_t row) {
+  if (layout == EnvLayout::kHCross) {  // 4 × 3: +Y / −X +Z +X −Z / −Y
+    static const int kRow1[4] = {1, 4, 0, 5};
+    if (row == 1) return kRow1[col];
+    if (col == 1) return row == 0 ? 2 : 3;
+    return -1;
+  }
+  if (layout == EnvLayout::kVCross) {  // 3 × 4: +Y / −X +Z +X / −Y / −Z
+    static const int kRow1[3] = {1, 4, 0};
+    if (row == 1) return kRow1[col];
+    if (col == 1) return row == 0 ? 2 : row == 2 ? 3 : 5;
+    return -1;
+  }
+  return 0;
+}
+
+// Face size and the pixel origin of each face in a face layout.
+struct FaceGeometry {
+  uint64_t size = 0;
+  uint64_t x0[6] = {}, y0[6] = {};
+};
+
+FaceGeometry FacesOf(const EnvMap& env) {
+  FaceGeometry g;
+  if (env.layout == EnvLayout::kFaces) {
+    g.size = env.width;
+    for (int f = 0; f < 6; ++f) g.y0[f] = f * g.size;
+    return g;
+  }
+  const uint64_t cols = env.layout == EnvLayout::kHCross ? 4 : 3, rows = env.layout == EnvLayout::kHCross ? 3 : 4;
+  g.size = env.width / cols;
+  for (uint64_t r = 0; r < rows; ++r)
+    for (uint64_t c = 0; c < cols; ++c) {
+      int f = CrossFace(env.layout, c, r);
+      if (f >= 0) {
+        g.x0[f] = c * g.size;
+        g.y0[f] = r * g.size;
+      }
+    }
+  return g;
+}
+
+// Refuses (or, with clamp, fixes and counts) values that are not radiance, in the pixels
+// the layout uses. The message names the first offending value in row-major order and how
+// many there are.
+Status CheckValues(Image* img, const std::string& path, EnvLayout layout, uint64_t face_size, bool clamp,
+                   uint64_t* clamped) {
+  uint64_t bad = 0, first_x = 0, first_y = 0;
+  int first_c = 0;
+  float first_v = 0, most_negative = 0;
+  for (uint64_t y = 0; y < img->height; ++y) {
+    for (uint64_t x = 0; x < img->width; ++x) {
+      if ((layout == EnvLayout::kHCross || layout == EnvLayout::kVCross) &&
+          CrossFace(layout, x / face_size, y / face_size) < 0) {
+        continue;
+      }
+      float* p = &img->rgb[(y * img->width + x) * 3];
+      for (int c = 0; c < 3; ++c) {
+        const float v = p[c];
+        if (v >= 0.0f && v <= std::numeric_limits<float>::max()) continue;
+        if (clamp) {
+          p[c] = std::isnan(v) || v < 0 ? 0.0f : std::numeric_limits<float>::max();
+          ++*clamped;
+          continue;
+        }
+        if (bad++ == 0) first_x = x, first_y = y, first_c = c, first_v = v;
+        if (v < most_negative) most_negative = v;
+      }
+    }
+  }
+  if (bad == 0) return Status::Ok();
+  const float v = first_v;
+  std::string kind = std::isnan(v) ? "NaN" : std::isinf(v) ? (v > 0 ? "infinite" : "negative and infinite") : "negative";
+  std::string msg = path + ": pixel (" + std::to_string(first_x) + ", " + std::to_string(first_y) + ") channel " +
+                    img->channel[first_c] + " is " + Num(v) + " (" + kind + ")";
+  if (bad > 1) msg += "; " + std::to_string(bad) + " values in all";
+  if (most_negative < 0) msg += ", the most negative " + Num(most_negative);
+  msg += "; radiance must be finite and non-negative — fix the map, or pass --clamp to set NaN and negative values "
+         "to 0 and +Inf to the largest finite float";
+  if (img->lossy && most_negative < 0) {
+    msg += " (" + img->compression + " compression is lossy and leaves small negative values; --clamp is the usual fix)";
+  }
+  return InvalidArgument(msg);
+}
+
+std::string AcceptedLayouts() {
+  return "accepted: lat-long width = 2·height (e.g. 2048x1024), horizontal cross 4:3 (4F x 3F), vertical cross "
+         "3:4 (3F x 4F), or six square face files through a {face} path (px nx py ny pz nz); --env-layout latlong "
+         "takes any size";
+}
+
+Result<EnvMap> LoadFaces(const std::string& path, const EnvLoadOptions& o) {
+  EnvMap env;
+  env.layout = EnvLayout::kFaces;
+  env.path = path;
+  for (int f = 0; f < 6; ++f) {
+    std::string p = path;
+    for (size_t at; (at = p.find(kPlaceholder)) != std::string::npos;) p.replace(at, std::strlen(kPlaceholder), kFaceNames[f]);
+    LTB_ASSIGN_OR_RETURN(Image img, ReadImage(p));
+    if (img.width != img.height) {
+      return InvalidArgument(p + ": a cube face must be square, this one is " + Size(img.width, img.height));
+    }
+    if (f == 0) {
+      env.width = img.width;
+      env.height = 6 * img.width;
+      env.rgb.resize(env.width * env.height * 3);
+    } else if (img.width != env.width) {
+      return InvalidArgument(p + ": face is " + Size(img.width, img.height) + ", the +X face is " +
+                             Size(env.width, env.width) + "; all six faces must have the same size");
+    }
+    LTB_RETURN_IF_ERROR(CheckValues(&img, p, EnvLayout::kFaces, env.width, o.clamp, &env.clamped));
+    std::copy(img.rgb.begin(), img.rgb.end(), env.rgb.begin() + f * env.width * env.width * 3);
+  }
+  return env;
+}
+
+}  // namespace
+
+const char* EnvLayoutName(EnvLayout layout) {
+  switch (layout) {
+    case EnvLayout::kAuto: return "auto";
+    case EnvLayout::kLatLong: return "latlong";
+    case EnvLayout::kHCross: return "hcross";
+    case EnvLayout::kVCross: return "vcross";
+    case EnvLayout::kFaces: return "faces";
+  }
+  return "?";
+}
+
+Result<EnvLayout> ParseEnvLayout(const std::string& name) {
+  for (EnvLayout l : {EnvLayout::kAuto, EnvLayout::kLatLong, EnvLayout::kHCross, EnvLayout::kVCross, EnvLayout::kFaces}) {
+    if (name == EnvLayoutName(l)) return l;
+  }
+  return InvalidArgument("environment layout \"" + name + "\" is not one of auto, latlong, hcross, vcross, faces");
+}
+
+bool IsEnvMapPath(const std::string& path) {
+  return path.find(kPlaceholder) != std::string::npos || EndsWithNoCase(path, ".exr") || EndsWithNoCase(path, ".hdr") ||
+         EndsWithNoCase(path, ".pic") || EndsWithNoCase(path, ".rgbe");
+}
+
+Result<EnvMap> LoadEnvMap(const std::string& path, const EnvLoadOptions& o) {
+  const bool faces = path.find(kPlaceholder) != std::string::npos;
+  if (faces) {
+    if (o.layout != EnvLayout::kAuto && o.layout != EnvLayout::kFaces) {
+      return InvalidArgument(path + ": a {face} path names six face files; --env-layout " +
+                             EnvLayoutName(o.layout) + " needs one image");
+    }
+    return LoadFaces(path, o);
+  }
+  LTB_ASSIGN_OR_RETURN(Image img, ReadImage(path));
+  const uint64_t w = img.width, h = img.height;
+  EnvLayout layout = o.layout;
+  if (layout == EnvLayout::kAuto) {
+    if (w == 2 * h) {
+      layout = EnvLayout::kLatLong;
+    } else if (3 * w == 4 * h) {
+      layout = EnvLayout::kHCross;
+    } else if (4 * w == 3 * h) {
+      layout = EnvLayout::kVCross;
+    } else {
+      return InvalidArgument(path + ": " + Size(w, h) + " is not an environment map shape ltbake recognises; " +
+                             AcceptedLayouts());
+    }
+  } else if (layout == EnvLayout::kHCross && 3 * w != 4 * h) {
+    return InvalidArgument(path + ": " + Size(w, h) + " is not a horizontal cross (4F x 3F, width:height = 4:3)");
+  } else if (layout == EnvLayout::kVCross && 4 * w != 3 * h) {
+    return InvalidArgument(path + ": " + Size(w, h) + " is not a vertical cross (3F x 4F, width:height = 3:4)");
+  } else if (layout == EnvLayout::kFaces && h != 6 * w) {
+    return InvalidArgument(path + ": " + Size(w, h) +
+                           " is not a strip of six faces (F x 6F); for six files use a path with {face}");
+  }
+  EnvMap env;
+  env.layout = layout;
+  env.width = w;
+  env.height = h;
+  env.path = path;
+  const uint64_t face = layout == EnvLayout::kHCross ? w / 4 : layout == EnvLayout::kVCross ? w / 3 : w;
+  LTB_RETURN_IF_ERROR(CheckValues(&img, path, layout, face, o.clamp, &env.clamped));
+  env.rgb = std::move(img.rgb);
+  return env;
+}
+
+glm::dvec3 LatLongDirection(double u, double v) {
+  const double phi = kPi - 2.0 * kPi * u, theta = kPi * v;
+  const double st = std::sin(theta);
+  return {st * std::cos(phi), st * std::sin(phi), std::cos(theta)};
+}
+
+void DirectionToLatLong(const glm::dvec3& d, double* u, double* v) {
+  const double len = glm::length(d);
+  double uu = (kPi - std::atan2(d.y, d.x)) / (2.0 * kPi);
+  if (uu >= 1.0) uu -= 1.0;
+  *u = uu;
+  *v = std::acos(std::clamp(d.z / len, -1.0, 1.0)) / kPi;
+}
+
+// ---- resampling ---------------------------------------------------------------------
+
+namespace {
+
+// Exact 1-D overlaps between a source grid of n_src equal cells and a target grid of n_dst
+// equal cells over [0, 1]: for each target cell, (source cell, overlap [a, b]) with a and b
+// as fractions. Integer arithmetic in units of 1/(n_src·n_dst), so aligned grids are exact.
+struct Overlap {
+  uint64_t src;
+  double a, b;
+};
+std::vector<std::vector<Overlap>> Overlaps(uint64_t n_src, uint64_t n_dst) {
+  std::vector<std::vector<Overlap>> out(n_dst);
+  const double unit = 1.0 / (double(n_src) * double(n_dst));
+  uint64_t i = 0;
+  for (uint64_t j = 0; j < n_dst; ++j) {
+    const uint64_t lo = j * n_src, hi = (j + 1) * n_src;
+    while (i < n_src && (i + 1) * n_dst <= lo) ++i;
+    for (uint64_t k = i; k < n_src && k * n_dst < hi; ++k) {
+      const uint64_t a = std::max(lo, k * n_dst), b = std::min(hi, (k + 1) * n_dst);
+      if (b > a) out[j].push_back({k, a * unit, b * unit});
+    }
+  }
+  return out;
+}
+
+// Largest divisor g of n with n / g >= target (1 when n < target).
+uint64_t GroupFor(uint64_t n, uint64_t target) {
+  for (uint64_t g = std::max<uint64_t>(1, n / std::max<uint64_t>(1, target)); g > 1; --g) {
+    if (n % g == 0 && n / g >= target) return g;
+  }
+  return 1;
+}
+
+}  // namespace
+
+Result<CubemapResampler> CubemapResampler::Create(const EnvMap& env, uint64_t cube_res) {
+  if (cube_res < 1 || cube_res > kMaxCubeRes) {
+    return InvalidArgument("cubemap resolution " + std::to_string(cube_res) + " is outside 1.." +
+                           std::to_string(kMaxCubeRes));
+  }
+  if (env.width == 0 || env.height == 0 || env.rgb.size() != env.width * env.height * 3) {
+    return InvalidArgument(env.path + ": environment map holds " + std::to_string(env.rgb.size()) +
+                           " values, its size " + Size(env.width, env.height) + " needs 3 per pixel");
+  }
+  const uint64_t R = cube_res, n = 6 * R * R;
+  CubemapResampler rs;
+  rs.r_ = R;
+  rs.omega_.resize(n);
+  for (uint64_t t = 0; t < n; ++t) rs.omega_[t] = cubemap::TexelSolidAngle(cubemap::ColumnToTexel(t, R), uint32_t(R));
+
+  // Working grid targets: rows a sixteenth of a face (about a quarter of the smallest texel's
+  // height), columns as wide as rows are high at the equator; halved (with sub-bands) while
+  // the prefix tables would pass 2^22 cells (100 MB).
+  uint64_t target_rows = 16 * R, target_cols = 32 * R, sub = 1;
+  while (target_rows * target_cols > (1ull << 22) && target_rows > 1) {
+    target_rows /= 2;
+    target_cols /= 2;
+    sub *= 2;
+  }
+  std::vector<double> work;  // hw × ww × 3 working values
+  if (env.layout == EnvLayout::kLatLong) {
+    const uint64_t W = env.width, H = env.height;
+    // Rows: whole groups of source rows when that lands at or above the target (bands then
+    // never split a source row), sub-bands of each source row when the source is coarser.
+    if (H >= target_rows) {
+      rs.hw_ = H / GroupFor(H, target_rows);
+      if (rs.hw_ > 4 * target_rows) rs.hw_ = target_rows;  // no usable divisor: fractional rows
+    } else {
+      rs.hw_ = H;
+      sub *= (target_rows + H - 1) / H;
+    }
+    if (W >= target_cols) {
+      rs.ww_ = W / GroupFor(W, target_cols);
+      if (rs.ww_ > 4 * target_cols) rs.ww_ = target_cols;
+    } else {
+      rs.ww_ = W;
+    }
+    for (uint64_t j = 0; j < H; ++j) {
+      double omega = CosDiff(kPi * j / H, kPi * (j + 1) / H) * 2.0 * kPi / W;
+      double s[3] = {0, 0, 0};
+      for (uint64_t i = 0; i < W; ++i)
+        for (int c = 0; c < 3; ++c) s[c] += env.rgb[(j * W + i) * 3 + c];
+      for (int c = 0; c < 3; ++c) rs.power_[c] += s[c] * omega;
+    }
+    // Separable exact area average: θ overlaps weigh by Δcos θ, φ overlaps by length.
+    auto rows = Overlaps(H, rs.hw_), cols = Overlaps(W, rs.ww_);
+    work.assign(rs.hw_ * rs.ww_ * 3, 0.0);
+    std::vector<double> row(W * 3);
+    for (uint64_t J = 0; J < rs.hw_; ++J) {
+      std::fill(row.begin(), row.end(), 0.0);
+      double wsum = 0;
+      for (const Overlap& o : rows[J]) {
+        const double wt = CosDiff(kPi * o.a, kPi * o.b);
+        wsum += wt;
+        const float* src = &env.rgb[o.src * W * 3];
+        for (uint64_t k = 0; k < W * 3; ++k) row[k] += wt * src[k];
+      }
+      for (uint64_t I = 0; I < rs.ww_; ++I) {
+        double s[3] = {0, 0, 0}, lsum = 0;
+        for (const Overlap& o : cols[I]) {
+          const double wt = o.b - o.a;
+          lsum += wt;
+          for (int c = 0; c < 3; ++c) s[c] += wt * row[o.src * 3 + c];
+        }
+        for (int c = 0; c < 3; ++c) work[(J * rs.ww_ + I) * 3 + c] = s[c] / (wsum * lsum);
+      }
+    }
+  } else if (env.layout == EnvLayout::kHCross || env.layout == EnvLayout::kVCross ||
+             env.layout == EnvLayout::kFaces) {
+    const FaceGeometry g = FacesOf(env);
+    const uint64_t F = g.size;
+    if (F == 0) return InvalidArgument(env.path + ": " + Size(env.width, env.height) + " holds no cube faces");
+    rs.hw_ = target_rows;
+    rs.ww_ = target_cols;
+    auto source = [&](int f, uint64_t s, uint64_t t) { return &env.rgb[((g.y0[f] + t) * env.width + g.x0[f] + s) * 3]; };
+    for (int f = 0; f < 6; ++f)
+      for (uint64_t t = 0; t < F; ++t)
+        for (uint64_t s = 0; s < F; ++s) {
+          const double omega = cubemap::TexelSolidAngle({f, uint32_t(s), uint32_t(t)}, uint32_t(F));
+          for (int c = 0; c < 3; ++c) rs.power_[c] += source(f, s, t)[c] * omega;
+        }
+    // Splat k×k sub-texels of each source texel (exact solid angles) into the working pixel
+    // holding their centre; sub-texels about half a working row across at the face centre.
+    uint64_t k = std::max<uint64_t>(1, uint64_t(std::ceil(4.0 * rs.hw_ / (kPi * F))));
+    while (k > 1 && 6 * F * F * k * k > (1ull << 25)) --k;
+    const uint64_t m = k * F;
+    std::vector<double> corner((m + 1) * (m + 1));
+    for (uint64_t q = 0; q <= m; ++q)
+      for (uint64_t p = 0; p <= m; ++p) {
+        const double x = -1.0 + 2.0 * p / m, y = -1.0 + 2.0 * q / m;
+        corner[q * (m + 1) + p] = std::atan2(x * y, std::sqrt(x * x + y * y + 1.0));
+      }
+    std::vector<double> ldw(rs.hw_ * rs.ww_ * 3, 0.0), dw(rs.hw_ * rs.ww_, 0.0);
+    for (int f = 0; f < 6; ++f)
+      for (uint64_t q = 0; q < m; ++q) {
+        const double v = -1.0 + 2.0 * (q + 0.5) / m;
+        for (uint64_t p = 0; p < m; ++p) {
+          const double u = -1.0 + 2.0 * (p + 0.5) / m;
+          const double domega = corner[(q + 1) * (m + 1) + p + 1] - corner[(q + 1) * (m + 1) + p] -
+                                corner[q * (m + 1) + p + 1] + corner[q * (m + 1) + p];
+          double lu, lv;
+          DirectionToLatLong(cubemap::FaceDirection(f, u, v), &lu, &lv);
+          const uint64_t I = std::min<uint64_t>(uint64_t(lu * rs.ww_), rs.ww_ - 1);
+          const uint64_t J = std::min<uint64_t>(uint64_t(lv * rs.hw_), rs.hw_ - 1);
+          const float* L = source(f, p / k, q / k);
+          dw[J * rs.ww_ + I] += domega;
+          for (int c = 0; c < 3; ++c) ldw[(J * rs.ww_ + I) * 3 + c] += L[c] * domega;
+        }
+      }
+    // Working pixels no sub-texel centre reached (thin ones near the poles): the source at
+    // their centre direction.
+    work.assign(rs.hw_ * rs.ww_ * 3, 0.0);
+    for (uint64_t J = 0; J < rs.hw_; ++J)
+      for (uint64_t I = 0; I < rs.ww_; ++I) {
+        const uint64_t px = J * rs.ww_ + I;
+        if (dw[px] > 0) {
+          for (int c = 0; c < 3; ++c) work[px * 3 + c] = ldw[px * 3 + c] / dw[px];
+        } else {
+          cubemap::Texel x = cubemap::DirectionToTexel(LatLongDirection((I + 0.5) / rs.ww_, (J + 0.5) / rs.hw_), uint32_t(F));
+          for (int c = 0; c < 3; ++c) work[px * 3 + c] = source(x.face, x.s, x.t)[c];
+        }
+      }
+  } else {
+    return InvalidArgument(env.path + ": environment map layout is unresolved (auto)");
+  }
+
+  // Prefix sums per working row (radiance × working columns).
+  const uint64_t ww = rs.ww_, hw = rs.hw_;
+  rs.prefix_.assign(hw * (ww + 1) * 3 + 1, 0.0);  // + 1: Resample's last 4-lane load reads one past
+  for (uint64_t J = 0; J < hw; ++J) {
+    double* P = &rs.prefix_[J * (ww + 1) * 3];
+    for (uint64_t I = 0; I < ww; ++I)
+      for (int c = 0; c < 3; ++c) P[(I + 1) * 3 + c] = P[I * 3 + c] + work[(J * ww + I) * 3 + c];
+  }
+  work = {};
+
+  // Bands: `sub` per working row. In each, the column intervals where the circle of the
+  // band's mean z (its area centroid) crosses each texel: sampled every 1/64 of a face
+  // width, each change of texel located by bisection to 1e-11 of the circle.
+  const uint64_t samples = 64 * R;
+  const double eps = 1e-11 * ww;
+  std::vector<double> dsum(n, 0.0);
+  std::vector<std::pair<double, uint32_t>> marks;
+  for (uint64_t J = 0; J < hw; ++J)
+    for (uint64_t q = 0; q < sub; ++q) {
+      const double ta = kPi * double(J * sub + q) / double(hw * sub), tb = kPi * double(J * sub + q + 1) / double(hw * sub);
+      Band band;
+      band.row = uint32_t(J);
+      band.weight = CosDiff(ta, tb) * 2.0 * kPi / ww;
+      const double z = 0.5 * (std::cos(ta) + std::cos(tb)), rho = std::sqrt(std::max(0.0, 1.0 - z * z));
+      auto texel_at = [&](double col) {
+        const double phi = kPi - 2.0 * kPi * col / ww;
+        return uint32_t(cubemap::Column(cubemap::DirectionToTexel({rho * std::cos(phi), rho * std::sin(phi), z}, uint32_t(R)), uint32_t(R)));
+      };
+      marks.clear();
+      // Bisects (lo, hi) where the texel changes from tlo to thi; a third texel in between
+      // splits the search.
+      auto bisect = [&](auto&& self, double lo, uint32_t tlo, double hi, uint32_t thi) -> void {
+        while (hi - lo > eps) {
+          const double mid = 0.5 * (lo + hi);
+          const uint32_t tm = texel_at(mid);
+          if (tm == tlo) {
+            lo = mid;
+          } else if (tm == thi) {
+            hi = mid;
+          } else {
+            self(self, lo, tlo, mid, tm);
+            lo = mid;
+            tlo = tm;
+          }
+        }
+        marks.push_back({0.5 * (lo + hi), thi});
+      };
+      const uint32_t t0 = texel_at(0.0);
+      uint32_t prev = t0;
+      for (uint64_t s = 1; s <= samples; ++s) {
+        const double c = s == samples ? double(ww) : double(ww) * s / samples;
+        const uint32_t t = s == samples ? t0 : texel_at(c);
+        if (t != prev) bisect(bisect, double(ww) * (s - 1) / samples, prev, c, t);
+        prev = t;
+      }
+      band.first_run = rs.run_start_.size();
+      if (marks.empty()) marks.push_back({0.0, t0});
+      band.run_count = marks.size();
+      for (size_t i = 0; i < marks.size(); ++i) {
+        rs.run_start_.push_back(marks[i].first);
+        rs.run_texel_.push_back(marks[i].second);
+        const double end = i + 1 < marks.size() ? marks[i + 1].first : marks[0].first + ww;
+        dsum[marks[i].second] += band.weight * (end - marks[i].first);
+      }
+      rs.bands_.push_back(band);
+    }
+  rs.texel_scale_.resize(n);
+  for (uint64_t t = 0; t < n; ++t) {
+    if (dsum[t] > 0) {
+      rs.texel_scale_[t] = 1.0 / dsum[t];
+      continue;
+    }
+    rs.texel_scale_[t] = 1.0;
+    double u, v;
+    DirectionToLatLong(cubemap::TexelCenter(cubemap::ColumnToTexel(t, R), uint32_t(R)), &u, &v);
+    rs.empty_.push_back({t, uint32_t(std::min<uint64_t>(uint64_t(v * hw), hw - 1)), u * ww});
+  }
+  return rs;
+}
+
+namespace {
+// R, G, B and an unused lane: one AVX register, or two SSE2 ones. Passed by pointer only
+// (a by-value 32-byte vector changes the ABI between AVX and non-AVX builds).
+using Vec4 = double __attribute__((vector_size(32)));
+inline void Load(const double* p, Vec4* v) { std::memcpy(v, p, sizeof *v); }
+}  // namespace
+
+void CubemapResampler::Resample(double rotation, float* out) const {
+  const uint64_t n = 6 * r_ * r_, ww = ww_;
+  const double wwd = double(ww);
+  thread_local std::vector<Vec4> acc;
+  acc.assign(n, Vec4{0, 0, 0, 0});
+  // The rotated map at working column c is the source at c + shift (docs/ENVMAPS.md).
+  double turns = rotation / (2.0 * kPi);
+  turns -= std::floor(turns);
+  double shift = turns * wwd;
+  if (!(shift >= 0.0 && shift < wwd)) shift = 0.0;
+  const size_t stride = (ww + 1) * 3;
+  for (const Band& b : bands_) {
+    const double* P = &prefix_[b.row * stride];
+    Vec4 total;
+    Load(P + ww * 3, &total);
+    const double* start = &run_start_[b.first_run];
+    const uint32_t* texel = &run_texel_[b.first_run];
+    const uint64_t count = b.run_count;
+    // ∫_0^x of the row at x = start[k] + shift, extended periodically: the starts that pass
+    // ww wrap (and gain one row total). Lane 3 is the next column's R: ignored.
+    auto eval = [&](double x, const Vec4& wrap, Vec4* q) {
+      const int64_t i = std::min<int64_t>(int64_t(x), int64_t(ww) - 1);
+      const double f = x - double(i);
+      Vec4 p0, p1;
+      Load(P + 3 * i, &p0);
+      Load(P + 3 * i + 3, &p1);
+      *q = p0 + f * (p1 - p0) + wrap;
+    };
+    const Vec4 zero = {0, 0, 0, 0};
+    Vec4 first, prev, next;
+    if (start[0] + shift >= wwd) {
+      eval(start[0] + shift - wwd, total, &first);
+    } else {
+      eval(start[0] + shift, zero, &first);
+    }
+    prev = first;
+    uint64_t k = 0;
+    for (; k + 1 < count && start[k + 1] + shift < wwd; ++k) {
+      eval(start[k + 1] + shift, zero, &next);
+      acc[texel[k]] += b.weight * (next - prev);
+      prev = next;
+    }
+    for (; k + 1 < count; ++k) {
+      eval(start[k + 1] + shift - wwd, total, &next);
+      acc[texel[k]] += b.weight * (next - prev);
+      prev = next;
+    }
+    acc[texel[count - 1]] += b.weight * (first + total - prev);
+  }
+  for (const EmptyTexel& e : empty_) {
+    double x = e.column + shift;
+    if (x >= wwd) x -= wwd;
+    const uint64_t i = std::min<uint64_t>(uint64_t(x), ww - 1);
+    const double* p = &prefix_[e.row * stride + i * 3];
+    Vec4 p0, p1;
+    Load(p, &p0);
+    Load(p + 3, &p1);
+    acc[e.texel] = p1 - p0;
+  }
+  // Texel radiance = Σ L dΩ / Σ dΩ, then one factor per channel so that Σ texel·Ω_texel
+  // equals the source's power.
+  Vec4 sum = {0, 0, 0, 0};
+  for (uint64_t t = 0; t < n; ++t) sum += acc[t] * (texel_scale_[t] * omega_[t]);
+  double g[3];
+  for (int c = 0; c < 3; ++c) g[c] = sum[c] > 0 ? power_[c] / sum[c] : 1.0;
+  for (uint64_t t = 0; t < n; ++t)
+    for (int c = 0; c < 3; ++c) out[t * 3 + c] = float(acc[t][c] * texel_scale_[t] * g[c]);
+}
+
+Status ConvertEnvToNpy(const std::string& in, const std::string& out, uint64_t cube_res,
+                       const EnvLoadOptions& options) {
+  if (cube_res == 0) {
+    return InvalidArgument("convert " + in + ": an environment map needs --cube-res R (the cubemap's face size)");
+  }
+  if ((cube_res & (cube_res - 1)) != 0 || cube_res > kMaxCubeRes) {
+    return InvalidArgument("--cube-res " + std::to_string(cube_res) + " is not a power of two up to " +
+                           std::to_string(kMaxCubeRes));
+  }
+  if (!EndsWithNoCase(out, ".npy")) {
+    return InvalidArgument("convert " + in + " " + out + ": an environment map converts to a .npy cubemap");
+  }
+  LTB_ASSIGN_OR_RETURN(EnvMap env, LoadEnvMap(in, options));
+  LTB_ASSIGN_OR_RETURN(CubemapResampler rs, CubemapResampler::Create(env, cube_res));
+  const uint64_t texels = 6 * cube_res * cube_res;
+  std::vector<float> cube(texels * 3);
+  rs.Resample(0.0, cube.data());
+  std::vector<std::byte> header = format::EncodeNpyHeader("<f4", {texels, 3});
+  // Written beside the output and renamed: OUT never holds a partial cubemap.
+  const std::string tmp = out + ".partial";
+  std::remove(tmp.c_str());
+  Status s;
+  {
+    LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(tmp, io::File::Mode::kCreateExclusive));
+    s = f.WriteAt(0, header);
+    if (s.ok()) {
+      s = f.WriteAt(header.size(),
+                    format::ByteSpan(reinterpret_cast<const std::byte*>(cube.data()), cube.size() * sizeof(float)));
+    }
+    if (s.ok()) s = f.DataSync();
+    if (s.ok()) s = f.Close();
+  }
+  if (s.ok() && std::rename(tmp.c_str(), out.c_str()) != 0) s = IoError(out + ": rename from " + tmp, errno);
+  if (!s.ok()) std::remove(tmp.c_str());
+  return s;
+}
+
+}  // namespace ltb::stages

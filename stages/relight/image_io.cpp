@@ -1,0 +1,110 @@
+#include "stages/relight/image_io.h"
+
+#include <OpenEXR/ImfChannelList.h>
+#include <OpenEXR/ImfFrameBuffer.h>
+#include <OpenEXR/ImfHeader.h>
+#include <OpenEXR/ImfOutputFile.h>
+#include <stb/stb_image_write.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <vector>
+
+#include "format/io/file.h"
+#include "format/npy.h"
+
+namespace ltb::stages {
+
+namespace {
+
+bool EndsWith(const std::string& s, const std::string& suffix) {
+  return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+Status Publish(const std::string& tmp, const std::string& path) {
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    Status s = IoError(path + ": rename from " + tmp, errno);
+    std::remove(tmp.c_str());
+    return s;
+  }
+  return Status::Ok();
+}
+
+Status WriteExr(const std::string& tmp, const float* rgb, uint64_t w, uint64_t h) {
+  try {
+    Imf::Header header(static_cast<int>(w), static_cast<int>(h));
+    header.compression() = Imf::ZIP_COMPRESSION;
+    for (const char* c : {"R", "G", "B"}) header.channels().insert(c, Imf::Channel(Imf::FLOAT));
+    Imf::OutputFile file(tmp.c_str(), header);
+    Imf::FrameBuffer fb;
+    const size_t xs = 3 * sizeof(float), ys = w * xs;
+    char* base = reinterpret_cast<char*>(const_cast<float*>(rgb));
+    fb.insert("R", Imf::Slice(Imf::FLOAT, base, xs, ys));
+    fb.insert("G", Imf::Slice(Imf::FLOAT, base + 4, xs, ys));
+    fb.insert("B", Imf::Slice(Imf::FLOAT, base + 8, xs, ys));
+    file.setFrameBuffer(fb);
+    file.writePixels(static_cast<int>(h));
+  } catch (const std::exception& e) {
+    std::remove(tmp.c_str());
+    return InvalidArgument(tmp + ": OpenEXR: " + e.what());
+  }
+  return Status::Ok();
+}
+
+double SrgbEncode(double v) {
+  v = std::clamp(v, 0.0, 1.0);
+  return v <= 0.0031308 ? 12.92 * v : 1.055 * std::pow(v, 1.0 / 2.4) - 0.055;
+}
+
+Status WritePng(const std::string& tmp, const float* rgb, uint64_t w, uint64_t h, double exposure) {
+  const uint64_t n = w * h;
+  if (exposure <= 0) {
+    std::vector<float> lum(n);
+    for (uint64_t i = 0; i < n; ++i) lum[i] = 0.2126f * rgb[i * 3] + 0.7152f * rgb[i * 3 + 1] + 0.0722f * rgb[i * 3 + 2];
+    auto k = lum.begin() + static_cast<std::ptrdiff_t>(std::min<uint64_t>(n - 1, n * 99 / 100));
+    std::nth_element(lum.begin(), k, lum.end());
+    exposure = *k > 0 ? 0.9 / *k : 1.0;
+  }
+  std::vector<uint8_t> px(n * 3);
+  for (uint64_t i = 0; i < n * 3; ++i) {
+    px[i] = static_cast<uint8_t>(std::lround(255.0 * SrgbEncode(exposure * rgb[i])));
+  }
+  if (stbi_write_png(tmp.c_str(), static_cast<int>(w), static_cast<int>(h), 3, px.data(), static_cast<int>(w * 3)) == 0) {
+    std::remove(tmp.c_str());
+    return IoError(tmp + ": writing the PNG failed", errno);
+  }
+  return Status::Ok();
+}
+
+Status WriteNpy(const std::string& tmp, const float* rgb, uint64_t rows) {
+  std::vector<std::byte> header = format::EncodeNpyHeader("<f4", {rows, 3});
+  LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(tmp, io::File::Mode::kCreateExclusive));
+  LTB_RETURN_IF_ERROR(f.WriteAt(0, header));
+  LTB_RETURN_IF_ERROR(f.WriteAt(header.size(), format::ByteSpan(reinterpret_cast<const std::byte*>(rgb), rows * 12)));
+  LTB_RETURN_IF_ERROR(f.DataSync());
+  return f.Close();
+}
+
+}  // namespace
+
+Status WriteImage(const std::string& path, const float* rgb, uint64_t rows, uint64_t width, uint64_t height,
+                  const ImageWriteOptions& options) {
+  const bool exr = EndsWith(path, ".exr"), png = EndsWith(path, ".png"), npy = EndsWith(path, ".npy");
+  if (!exr && !png && !npy) return InvalidArgument(path + ": the output is chosen by extension: .exr, .png or .npy");
+  if ((exr || png) && (width * height != rows || width == 0)) {
+    return InvalidArgument(path + ": the matrix rows are not an image (" + std::to_string(rows) +
+                           " rows); write .npy instead");
+  }
+  std::string tmp = path + ".partial" + (exr ? ".exr" : png ? ".png" : ".npy");
+  std::remove(tmp.c_str());
+  Status s = exr ? WriteExr(tmp, rgb, width, height)
+                 : png ? WritePng(tmp, rgb, width, height, options.exposure) : WriteNpy(tmp, rgb, rows);
+  if (!s.ok()) {
+    std::remove(tmp.c_str());
+    return s;
+  }
+  return Publish(tmp, path);
+}
+
+}  // namespace ltb::stages

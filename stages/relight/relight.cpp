@@ -1,0 +1,384 @@
+#include "stages/relight/relight.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <mutex>
+#include <numeric>
+#include <optional>
+
+#include "format/io/container_reader.h"
+#include "format/io/file.h"
+#include "format/npy.h"
+#include "stages/column_transform/column_codec.h"
+#include "stages/common/basis.h"
+#include "stages/common/parallel_for.h"
+
+namespace ltb::stages {
+
+using namespace ltb::format;
+
+Result<Weighting> ParseWeighting(const std::string& name) {
+  if (name == "area") return Weighting::kArea;
+  if (name == "transport") return Weighting::kTransport;
+  if (name == "none") return Weighting::kNone;
+  return InvalidArgument("--weighting \"" + name + "\": expected area, transport or none");
+}
+
+namespace {
+
+// Support area, in texels, of the basis function of each column of one face's Mallat
+// layout at full depth: the scaling function covers the face; a level-l detail (l = 0
+// coarsest) covers (R / 2^l)².
+std::vector<float> FaceSupportAreas(uint64_t r, bool wavelet) {
+  std::vector<float> a(r * r, 1.0f);
+  if (!wavelet) return a;
+  for (uint64_t t = 0; t < r; ++t)
+    for (uint64_t s = 0; s < r; ++s) {
+      uint64_t m = std::max(s, t);
+      if (m == 0) {
+        a[t * r + s] = static_cast<float>(r * r);
+        continue;
+      }
+      int l = 63 - __builtin_clzll(m);
+      double side = static_cast<double>(r) / std::ldexp(1.0, l);
+      a[t * r + s] = static_cast<float>(side * side);
+    }
+  return a;
+}
+
+}  // namespace
+
+Result<LightingBasis> LightingBasis::FromMetadata(const Metadata& meta, const std::string& path) {
+  auto cube = ReadCubemapCols(meta);
+  if (!cube.ok()) return cube.status().WithContext(path);
+  if (!cube->has_value()) {
+    return FailedPrecondition(path + ": its columns are not declared a cubemap; relight needs the lights of a bake");
+  }
+  LightingBasis b;
+  b.cube_res_ = (*cube)->cube_res;
+  b.wavelet_ = (*cube)->basis == "wavelet";
+  if (b.wavelet_) {
+    LTB_ASSIGN_OR_RETURN(b.filter_, wavelet::ParseFilter((*cube)->filter));
+  }
+  std::vector<float> face = FaceSupportAreas(b.cube_res_, b.wavelet_);
+  const uint64_t n = 6 * b.cube_res_ * b.cube_res_;
+  b.area_.resize(n);
+  for (uint64_t j = 0; j < n; ++j) b.area_[j] = face[j % (b.cube_res_ * b.cube_res_)];
+  return b;
+}
+
+void LightingBasis::ToBasis(float* cubemap) const {
+  if (!wavelet_) return;
+  const uint64_t r = cube_res_;
+  std::vector<float> scratch(wavelet::ScratchSize(r, r, 3));
+  for (int f = 0; f < 6; ++f) {
+    wavelet::Forward2D(filter_, cubemap + f * r * r * 3, r, r, 3, wavelet::MaxDepth(r, r), scratch.data());
+  }
+}
+
+void LightingBasis::ToPixels(float* cubemap) const {
+  if (!wavelet_) return;
+  const uint64_t r = cube_res_;
+  std::vector<float> scratch(wavelet::ScratchSize(r, r, 3));
+  for (int f = 0; f < 6; ++f) {
+    wavelet::Inverse2D(filter_, cubemap + f * r * r * 3, r, r, 3, wavelet::MaxDepth(r, r), scratch.data());
+  }
+}
+
+Status LightingBasis::SelectTerms(const float* lighting, uint64_t terms, Weighting weighting,
+                                  const std::vector<double>& column_norms, LightTerms* out) const {
+  out->column.clear();
+  out->rgb.clear();
+  const uint64_t cols = area_.size();
+  if (weighting == Weighting::kTransport && column_norms.size() != cols) {
+    return FailedPrecondition("--weighting transport needs the norms of the matrix's columns (relight from a "
+                              "column-block matrix: final.ltm, cols4d.ltm or cols.ltm)");
+  }
+  std::vector<std::pair<double, uint32_t>> cand;
+  cand.reserve(cols);
+  for (uint64_t j = 0; j < cols; ++j) {
+    double r = lighting[j * 3], g = lighting[j * 3 + 1], b = lighting[j * 3 + 2];
+    double m = std::sqrt(r * r + g * g + b * b);
+    if (m == 0) continue;
+    if (weighting == Weighting::kArea) m *= area_[j];
+    if (weighting == Weighting::kTransport) {
+      m *= column_norms[j];
+      if (m == 0) continue;  // a light that reaches nothing
+    }
+    cand.push_back({m, static_cast<uint32_t>(j)});
+  }
+  auto better = [](const std::pair<double, uint32_t>& x, const std::pair<double, uint32_t>& y) {
+    return x.first > y.first || (x.first == y.first && x.second < y.second);
+  };
+  if (cand.size() > terms) {
+    std::nth_element(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(terms), cand.end(), better);
+    cand.resize(terms);
+  }
+  std::sort(cand.begin(), cand.end(), [](const auto& x, const auto& y) { return x.second < y.second; });
+  for (const auto& c : cand) {
+    out->column.push_back(c.second);
+    for (int k = 0; k < 3; ++k) out->rgb.push_back(lighting[c.second * 3 + k]);
+  }
+  return Status::Ok();
+}
+
+Result<Relighter> Relighter::Load(const std::string& path, const Progress& progress) {
+  LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(path));
+  const Metadata& meta = in.metadata();
+  const ArraySpec& a = meta.matrix();
+  if (!in.complete()) {
+    return FailedPrecondition(path + ": is incomplete; finish the stage that writes it first (rerun it to resume)");
+  }
+  if (a.layout != Layout::kCols) {
+    return FailedPrecondition(path + ": is stored in row blocks; the fast relighter reads column blocks (final.ltm, "
+                              "cols4d.ltm or cols.ltm)");
+  }
+  Relighter r;
+  LTB_ASSIGN_OR_RETURN(r.basis_, LightingBasis::FromMetadata(meta, path));
+  r.rows_ = a.rows;
+  r.cols_ = a.cols;
+  std::optional<ColumnCodec> codec;
+  if (ColumnCodec::IsColumnTransformed(meta)) {
+    LTB_ASSIGN_OR_RETURN(ColumnCodec c, ColumnCodec::FromMetadata(meta, path));
+    codec = std::move(c);
+    r.width_ = codec->width();
+    r.height_ = codec->height();
+    r.max_depth_ = codec->max_depth();
+    r.col_filter_ = codec->filter();
+  } else {
+    if (a.dtype != DType::kF32) return FailedPrecondition(path + ": matrix is not f32");
+    auto image = ReadImageRows(meta);
+    r.width_ = image ? image->width : a.rows;
+    r.height_ = image ? image->height : 1;
+  }
+  r.bands_ = wavelet::BandSizes(r.width_, r.height_, r.max_depth_);
+  r.depth_.assign(a.cols, 0);
+  r.column_norm_.assign(a.cols, 0.0);
+  r.col_ptr_.assign(a.cols + 1, 0);
+  const uint64_t pixels = a.rows;
+  int stats_array = -1;
+  if (codec) stats_array = meta.FindArray(meta.json["column_transform"].value("stats_array", std::string("column_stats")));
+
+  for (uint64_t c = 0; c < a.ChunkCount(); ++c) {
+    if (progress.Cancelled()) return Cancelled("interrupted while loading " + path);
+    LTB_ASSIGN_OR_RETURN(SparseChunk sc, in.ReadSparse(0, c));
+    const ChunkExtent& e = sc.extent;
+    std::vector<uint8_t> depths(e.cols, 0);
+    std::vector<double> scales(e.cols, 1.0), energy(e.cols, -1.0);
+    if (codec) {
+      LTB_ASSIGN_OR_RETURN(io::Chunk dc, in.ReadChunk(static_cast<uint32_t>(codec->depth_array()), c));
+      auto dv = dc.as<uint8_t>();
+      std::copy(dv.begin(), dv.end(), depths.begin());
+      if (codec->scale_array() >= 0) {
+        LTB_ASSIGN_OR_RETURN(io::Chunk s, in.ReadChunk(static_cast<uint32_t>(codec->scale_array()), c));
+        auto sv = s.as<double>();
+        std::copy(sv.begin(), sv.end(), scales.begin());
+      }
+      if (stats_array >= 0) {
+        LTB_ASSIGN_OR_RETURN(io::Chunk s, in.ReadChunk(static_cast<uint32_t>(stats_array), c));
+        auto sv = s.as<double>();
+        for (uint64_t k = 0; k < e.cols && 3 * k < sv.size(); ++k) energy[k] = sv[3 * k];
+      }
+    }
+    size_t pos = 0;
+    for (uint64_t k = 0; k < e.cols; ++k) {
+      const uint64_t j = e.col0 + k;
+      if (depths[k] > r.max_depth_) {
+        return DataLoss(path + ": column " + std::to_string(j) + " has depth " + std::to_string(depths[k]));
+      }
+      if (!std::isfinite(scales[k]) || scales[k] < 0) {
+        return DataLoss(path + ": column " + std::to_string(j) + " has scale " + std::to_string(scales[k]));
+      }
+      r.depth_[j] = depths[k];
+      const std::vector<double>* factor =
+          codec && codec->quantization().bits > 0 ? &codec->Factors(depths[k]) : nullptr;
+      const double step = factor ? scales[k] / codec->quantization().Levels() : 1.0;
+      double e2 = 0;
+      while (pos < sc.index.size() && sc.index[pos] < (k + 1) * pixels) {
+        uint32_t p = sc.index[pos] - static_cast<uint32_t>(k * pixels);
+        float v;
+        if (factor) {
+          int32_t q;
+          std::memcpy(&q, sc.values.data() + pos * 4, 4);
+          v = static_cast<float>(static_cast<double>(q) * step / (*factor)[p]);
+        } else {
+          std::memcpy(&v, sc.values.data() + pos * 4, 4);
+        }
+        r.pos_.push_back(p);
+        r.values_.push_back(v);
+        e2 += static_cast<double>(v) * v;
+        ++pos;
+      }
+      r.col_ptr_[j + 1] = r.values_.size();
+      // ‖T_j‖ in the image: the column's recorded energy, else (plain columns, or depth 0
+      // where coefficients are pixels) its values' energy.
+      r.column_norm_[j] = std::sqrt(energy[k] >= 0 ? energy[k] : e2);
+    }
+    progress.Report(c + 1, a.ChunkCount(), "chunks");
+  }
+  r.scratch_.resize(wavelet::ScratchSize(r.width_, r.height_, 3));
+  r.by_depth_.resize(r.max_depth_ + 1);
+  return r;
+}
+
+void Relighter::Relight(const LightTerms& terms, float* out) {
+  for (auto& b : by_depth_) b.clear();
+  int deepest = -1;
+  for (size_t k = 0; k < terms.column.size(); ++k) {
+    int d = depth_[terms.column[k]];
+    by_depth_[d].push_back(static_cast<uint32_t>(k));
+    deepest = std::max(deepest, d);
+  }
+  std::memset(out, 0, rows_ * 3 * sizeof(float));
+  for (int d = deepest; d >= 0; --d) {
+    for (uint32_t k : by_depth_[d]) {
+      const uint32_t j = terms.column[k];
+      const float w0 = terms.rgb[k * 3], w1 = terms.rgb[k * 3 + 1], w2 = terms.rgb[k * 3 + 2];
+      const uint32_t* p = pos_.data() + col_ptr_[j];
+      const float* v = values_.data() + col_ptr_[j];
+      const uint64_t n = col_ptr_[j + 1] - col_ptr_[j];
+      for (uint64_t e = 0; e < n; ++e) {
+        float* o = out + static_cast<uint64_t>(p[e]) * 3;
+        o[0] += w0 * v[e];
+        o[1] += w1 * v[e];
+        o[2] += w2 * v[e];
+      }
+    }
+    if (d > 0) {  // Eq. 8: one single-step inverse column transform, depth d -> d - 1
+      wavelet::SynthesisStep2D(col_filter_, out, width_, 3, bands_[d - 1].width, bands_[d - 1].height,
+                               scratch_.data());
+    }
+  }
+}
+
+Result<std::vector<float>> RelightStreaming(const std::string& path, const float* lighting, int jobs,
+                                            const Progress& progress) {
+  LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(path));
+  LTB_RETURN_IF_ERROR(RequireCompleteF32Matrix(in));
+  const ArraySpec& a = in.metadata().matrix();
+  if (ColumnCodec::IsColumnTransformed(in.metadata())) {
+    return InvalidArgument(path + ": streaming relighting takes uncompressed matrices (raw.ltm, rows.ltm, cols.ltm)");
+  }
+  std::vector<double> acc(a.rows * 3, 0.0);
+  std::vector<uint64_t> chunks(a.ChunkCount());
+  std::iota(chunks.begin(), chunks.end(), 0);
+  if (a.layout == Layout::kRows) {
+    LTB_RETURN_IF_ERROR(ParallelFor(chunks, jobs, progress, "chunks", [&](uint64_t c) -> Status {
+      LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(0, c));
+      const ChunkExtent& e = chunk.extent();
+      auto v = chunk.as<float>();
+      for (uint64_t i = 0; i < e.rows; ++i) {
+        double s0 = 0, s1 = 0, s2 = 0;
+        const float* row = v.data() + i * a.cols;
+        for (uint64_t j = 0; j < a.cols; ++j) {
+          double t = row[j];
+          s0 += t * lighting[j * 3];
+          s1 += t * lighting[j * 3 + 1];
+          s2 += t * lighting[j * 3 + 2];
+        }
+        acc[(e.row0 + i) * 3] = s0;
+        acc[(e.row0 + i) * 3 + 1] = s1;
+        acc[(e.row0 + i) * 3 + 2] = s2;
+      }
+      return Status::Ok();
+    }));
+  } else {
+    // Column blocks: columns are summed in column order (one thread), so the result does
+    // not depend on --jobs.
+    for (uint64_t c : chunks) {
+      if (progress.Cancelled()) return Cancelled("interrupted");
+      LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(0, c));
+      const ChunkExtent& e = chunk.extent();
+      auto v = chunk.as<float>();
+      for (uint64_t k = 0; k < e.cols; ++k) {
+        const uint64_t j = e.col0 + k;
+        const double l0 = lighting[j * 3], l1 = lighting[j * 3 + 1], l2 = lighting[j * 3 + 2];
+        if (l0 == 0 && l1 == 0 && l2 == 0) continue;
+        const float* col = v.data() + k * a.rows;
+        for (uint64_t i = 0; i < a.rows; ++i) {
+          double t = col[i];
+          acc[i * 3] += t * l0;
+          acc[i * 3 + 1] += t * l1;
+          acc[i * 3 + 2] += t * l2;
+        }
+      }
+      progress.Report(c + 1, chunks.size(), "chunks");
+    }
+  }
+  return std::vector<float>(acc.begin(), acc.end());
+}
+
+Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t r) {
+  LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(path, io::File::Mode::kRead));
+  LTB_ASSIGN_OR_RETURN(uint64_t size, f.Size());
+  std::vector<std::byte> head(std::min<uint64_t>(size, kMaxNpyHeaderBytes));
+  LTB_RETURN_IF_ERROR(f.ReadAt(0, head));
+  auto h = ParseNpyHeader(head);
+  if (!h.ok()) return h.status().WithContext(path);
+  const uint64_t n = 6 * r * r;
+  if (h->fortran_order || h->shape.size() != 2 || h->shape[0] != n || h->shape[1] != 3 ||
+      (h->descr != "<f4" && h->descr != "<f8")) {
+    return InvalidArgument(path + ": expected a C-order float32/float64 array of shape (" + std::to_string(n) +
+                           ", 3), a cubemap for R = " + std::to_string(r) + " (`ltbake convert env.exr env.npy --cube-res " +
+                           std::to_string(r) + "` writes one)");
+  }
+  if (h->data_offset + n * 3 * h->itemsize > size) return InvalidArgument(path + ": truncated");
+  std::vector<std::byte> raw(n * 3 * h->itemsize);
+  LTB_RETURN_IF_ERROR(f.ReadAt(h->data_offset, raw));
+  std::vector<float> out(n * 3);
+  for (uint64_t i = 0; i < n * 3; ++i) {
+    double v;
+    if (h->itemsize == 4) {
+      float x;
+      std::memcpy(&x, raw.data() + i * 4, 4);
+      v = x;
+    } else {
+      std::memcpy(&v, raw.data() + i * 8, 8);
+    }
+    if (!std::isfinite(v) || v < 0) {
+      return InvalidArgument(path + ": texel " + std::to_string(i / 3) + " channel " + std::to_string(i % 3) + " is " +
+                             std::to_string(v) + "; radiance must be finite and non-negative");
+    }
+    out[i] = static_cast<float>(v);
+  }
+  return out;
+}
+
+ImageErrors CompareImages(const float* image, const float* ref, uint64_t rows, uint64_t width, uint64_t height) {
+  ImageErrors e;
+  double d2 = 0, r2 = 0, peak = 0;
+  for (uint64_t i = 0; i < rows * 3; ++i) {
+    double d = static_cast<double>(image[i]) - ref[i];
+    d2 += d * d;
+    r2 += static_cast<double>(ref[i]) * ref[i];
+    peak = std::max(peak, static_cast<double>(ref[i]));
+  }
+  e.rel_l2 = r2 > 0 ? std::sqrt(d2 / r2) : std::sqrt(d2);
+  double mse = d2 / static_cast<double>(rows * 3);
+  e.psnr = mse > 0 && peak > 0 ? 20.0 * std::log10(peak / std::sqrt(mse)) : INFINITY;
+  if (width > 1 && height > 1 && width * height == rows) {
+    double g2 = 0, gr2 = 0;
+    for (uint64_t y = 0; y < height; ++y)
+      for (uint64_t x = 0; x < width; ++x)
+        for (int c = 0; c < 3; ++c) {
+          uint64_t i = (y * width + x) * 3 + c;
+          auto diff = [&](uint64_t j) { return (static_cast<double>(image[j]) - ref[j]) - (static_cast<double>(image[i]) - ref[i]); };
+          auto rdiff = [&](uint64_t j) { return static_cast<double>(ref[j]) - ref[i]; };
+          if (x + 1 < width) {
+            double a = diff(i + 3), b = rdiff(i + 3);
+            g2 += a * a;
+            gr2 += b * b;
+          }
+          if (y + 1 < height) {
+            double a = diff(i + width * 3), b = rdiff(i + width * 3);
+            g2 += a * a;
+            gr2 += b * b;
+          }
+        }
+    e.rel_h1 = gr2 > 0 ? std::sqrt(g2 / gr2) : std::sqrt(g2);
+  }
+  return e;
+}
+
+}  // namespace ltb::stages

@@ -1,0 +1,110 @@
+// Relighting: B = T L for a new environment, from a compressed or uncompressed transport
+// matrix (DESIGN.md "The math in one paragraph"; docs/RELIGHT.md).
+//
+// Lighting approximation (Ng et al. 2003, §4): the cubemap radiance is transformed per face
+// in the rows' wavelet filter (the basis T's rows are in), and only the N largest terms
+// are kept, ranked by magnitude × the support area of their basis function (`area`),
+// × the norm of T's matching column (`transport`), or by magnitude alone (`none`).
+//
+// Relighting from a column-transformed matrix (final.ltm, cols4d.ltm) evaluates Eq. 8 of
+// Cheslack-Postava et al. 2007: the chosen lights are grouped by their column's depth,
+// each group is sparse-accumulated into an image buffer at that depth's Mallat layout,
+// and one single-step inverse column transform runs per level from the deepest down. It is
+// exact: the same as inverse-transforming every column first.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "format/array_spec.h"
+#include "format/progress.h"
+#include "format/status.h"
+#include "stages/wavelet/wavelet.h"
+
+namespace ltb::stages {
+
+enum class Weighting { kArea, kTransport, kNone };
+Result<Weighting> ParseWeighting(const std::string& name);
+
+// The kept lighting terms: column index (in the matrix's column basis) and RGB weight.
+struct LightTerms {
+  std::vector<uint32_t> column;
+  std::vector<float> rgb;  // 3 per term
+};
+
+// The column basis of a matrix (pixel or per-face wavelet cubemap) and what the
+// lighting approximation needs to know about it.
+class LightingBasis {
+ public:
+  static Result<LightingBasis> FromMetadata(const format::Metadata& meta, const std::string& path);
+  uint64_t cube_res() const { return cube_res_; }
+  bool wavelet() const { return wavelet_; }
+  wavelet::Filter filter() const { return filter_; }
+  // Cubemap radiance (6R² × 3, texel-major) into this basis, and back, in place.
+  void ToBasis(float* cubemap) const;
+  void ToPixels(float* cubemap) const;
+  // The N-term approximation of lighting already in this basis. `column_norms` (‖T_j‖)
+  // is needed for Weighting::kTransport only.
+  Status SelectTerms(const float* lighting, uint64_t terms, Weighting weighting, const std::vector<double>& column_norms,
+                     LightTerms* out) const;
+
+ private:
+  uint64_t cube_res_ = 0;
+  bool wavelet_ = false;
+  wavelet::Filter filter_ = wavelet::Filter::kHaar;
+  std::vector<float> area_;  // support area (texels) of each column's basis function
+};
+
+// A column-transformed (or plain column-block) matrix held in memory, sparse, for frames.
+class Relighter {
+ public:
+  // final.ltm / cols4d.ltm (any depth mode), or an uncompressed column-block container
+  // (cols.ltm: every column at depth 0). Needs cubemap columns (basis.cols).
+  static Result<Relighter> Load(const std::string& path, const Progress& progress);
+
+  uint64_t rows() const { return rows_; }
+  const LightingBasis& basis() const { return basis_; }
+  uint64_t image_width() const { return width_; }  // the column image (rows × 1 when not an image)
+  uint64_t image_height() const { return height_; }
+  uint64_t nonzeros() const { return values_.size(); }
+  uint64_t bytes() const { return values_.size() * 8 + col_ptr_.size() * 8; }
+  const std::vector<double>& column_norms() const { return column_norm_; }
+
+  // B (rows × 3, row order) for the given terms.
+  void Relight(const LightTerms& terms, float* out_rgb);
+
+ private:
+  uint64_t rows_ = 0, cols_ = 0;
+  uint64_t width_ = 0, height_ = 0;
+  LightingBasis basis_;
+  wavelet::Filter col_filter_ = wavelet::Filter::kLeGall53;
+  int max_depth_ = 0;
+  std::vector<wavelet::BandSize> bands_;
+  std::vector<uint8_t> depth_;
+  std::vector<uint64_t> col_ptr_;  // cols + 1
+  std::vector<uint32_t> pos_;
+  std::vector<float> values_;
+  std::vector<double> column_norm_;  // ‖T_j‖ (image domain), for the transport weighting
+  std::vector<float> scratch_;
+  std::vector<std::vector<uint32_t>> by_depth_;
+};
+
+// B = T L streamed from a row- or column-block container with dense lighting (6R² × 3 in
+// the container's column basis), in double: the exact relighting used as the reference.
+Result<std::vector<float>> RelightStreaming(const std::string& path, const float* lighting, int jobs,
+                                            const Progress& progress);
+
+// A 6R² × 3 cubemap of radiance from .npy (float32 or float64, C order), checked finite
+// and non-negative.
+Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t cube_res);
+
+// Error metrics of an RGB image (rows × 3) against a reference.
+struct ImageErrors {
+  double rel_l2 = 0;   // ‖B − R‖ / ‖R‖
+  double rel_h1 = -1;  // ‖∇(B − R)‖ / ‖∇R‖ (gradient part of the H1 norm; −1 without an image)
+  double psnr = 0;     // 20 log10(max R / RMSE)
+};
+ImageErrors CompareImages(const float* image, const float* reference, uint64_t rows, uint64_t width, uint64_t height);
+
+}  // namespace ltb::stages

@@ -1,0 +1,154 @@
+"""relight through the ltbake binary, against NumPy/PyWavelets on `convert` outputs.
+
+- depth none, every term, no quantization: relighting equals T·L (NumPy, pixel basis).
+- adaptive depths (Eq. 8), with and without quantization: relighting equals the decoded
+  matrix times the same N-term lighting (PyWavelets Haar transform of L per face, area
+  weighting re-implemented here), to float precision: Eq. 8 is exact.
+- rows.ltm (streamed) equals T·L; --reference reports errors that match NumPy's.
+- .exr / .png / .npy outputs; bad cubemaps fail clearly.
+
+usage: relight_test.py PATH_TO_LTBAKE
+"""
+import json
+import os
+import sys
+import tempfile
+
+import numpy as np
+import pywt
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from ltbtest import check, finish, run  # noqa: E402
+
+
+def haar_faces(L, R):
+    """Per-face 2D Haar (periodization, full depth, Mallat layout) of a 6R²×3 cubemap."""
+    out = np.zeros_like(L, dtype=np.float64)
+    for f in range(6):
+        for c in range(3):
+            face = L[f * R * R:(f + 1) * R * R, c].reshape(R, R).astype(np.float64)
+            arr, _ = pywt.coeffs_to_array(pywt.wavedec2(face, "haar", mode="periodization",
+                                                        level=int(np.log2(R))))
+            out[f * R * R:(f + 1) * R * R, c] = arr.reshape(-1)
+    return out
+
+
+def area_weights(R):
+    a = np.ones(R * R)
+    for t in range(R):
+        for s in range(R):
+            m = max(s, t)
+            a[t * R + s] = R * R if m == 0 else (R / 2 ** int(np.floor(np.log2(m)))) ** 2
+    return np.tile(a, 6)
+
+
+def select(Lw, n, weights):
+    mag = np.sqrt((Lw.astype(np.float64) ** 2).sum(axis=1)) * weights
+    idx = np.nonzero(mag > 0)[0]
+    order = idx[np.lexsort((idx, -mag[idx]))][:n]
+    kept = np.zeros_like(Lw)
+    kept[order] = Lw[order]
+    return kept
+
+
+with tempfile.TemporaryDirectory() as d:
+    W, H, R = 16, 8, 4
+    rows, cols = W * H, 6 * R * R
+    g = np.random.default_rng(3)
+    y, x = np.mgrid[0:H, 0:W]
+    T = np.zeros((rows, cols), np.float32)
+    for j in range(cols):
+        img = np.maximum(0, np.sin(0.3 * x + 0.2 * j) + 0.5 * np.cos(0.4 * y - 0.1 * j)) * g.uniform(0.2, 1.0)
+        if j % 5 == 0:
+            img = img * (x > (j % W))  # hard shadow edges
+        T[:, j] = img.reshape(-1)
+    T[:, 7] = 0  # a light that reaches nothing
+    np.save(os.path.join(d, "T.npy"), T)
+    L = (g.uniform(0, 1, (cols, 3)) ** 4 * 5).astype(np.float32)  # a few bright texels
+    env = os.path.join(d, "env.npy")
+    np.save(env, L)
+    p = lambda name: os.path.join(d, name)  # noqa: E731
+    q = ["--progress", "never"]
+    run("convert", p("T.npy"), p("raw.ltm"), "--cube-res", R, "--image", f"{W}x{H}", "--chunk-size", "4KiB", *q)
+    run("row-transform", p("raw.ltm"), "-o", p("rows.ltm"), "--filter", "haar", *q)
+    run("transpose", p("rows.ltm"), "-o", p("cols.ltm"), *q)
+    run("convert", p("rows.ltm"), p("rows.npy"), *q)
+    Tw = np.load(p("rows.npy")).astype(np.float64)
+    exact = T.astype(np.float64) @ L.astype(np.float64)
+
+    def relight(matrix, out, *args):
+        r = run("relight", matrix, "--env", env, "-o", out, "--json", *q, *args)
+        return json.loads(r.stdout) if r.returncode == 0 else {}
+
+    # 1. depth none, every term, no quantization == T·L.
+    run("column-transform", p("cols.ltm"), "-o", p("c0.ltm"), "--depth", "none", "--keep", 1, *q)
+    relight(p("c0.ltm"), p("b0.npy"), "--terms", cols)
+    b0 = np.load(p("b0.npy")).astype(np.float64)
+    err = np.abs(b0 - exact).max() / np.abs(exact).max()
+    check(err < 1e-5, f"depth none, all terms: relative max error {err} against T·L")
+
+    # 2. adaptive (Eq. 8): equals decoded matrix × the same N-term lighting.
+    Lw = haar_faces(L, R)
+    for name, extra in [("ca", []), ("cq", ["quantize"])]:
+        run("column-transform", p("cols.ltm"), "-o", p(f"{name}4d.ltm"), "--keep", 0.3, "--filter", "legall53", *q)
+        mat = p(f"{name}4d.ltm")
+        if extra:
+            run("quantize", mat, "-o", p(f"{name}.ltm"), *q)
+            mat = p(f"{name}.ltm")
+        run("convert", mat, p(f"{name}.npy"), *q)
+        D = np.load(p(f"{name}.npy")).astype(np.float64)
+        for weighting, terms in [("area", 17), ("none", 30), ("area", cols)]:
+            rep = relight(mat, p("b.npy"), "--terms", terms, "--weighting", weighting)
+            b = np.load(p("b.npy")).astype(np.float64)
+            w = area_weights(R) if weighting == "area" else np.ones(cols)
+            want = D @ select(Lw, terms, w)
+            e = np.abs(b - want).max() / np.abs(want).max()
+            check(e < 2e-5, f"{name} {weighting} N={terms}: Eq. 8 relighting differs from decoded × lighting by {e}")
+            check(rep.get("terms_used") == min(terms, int((np.abs(Lw).sum(axis=1) > 0).sum())),
+                  f"{name}: terms_used {rep.get('terms_used')}")
+
+    # 3. transport weighting needs column norms: works on final.ltm.
+    rep = relight(p("cq.ltm"), p("bt.npy"), "--terms", 10, "--weighting", "transport")
+    check(rep.get("terms_used") == 10, f"transport weighting: {rep}")
+
+    # 4. rows.ltm, streamed == T·L with all terms; the reference metrics match NumPy.
+    relight(p("rows.ltm"), p("br.npy"), "--terms", cols)
+    br = np.load(p("br.npy")).astype(np.float64)
+    check(np.abs(br - exact).max() / np.abs(exact).max() < 1e-5, "rows.ltm streamed relighting differs from T·L")
+    rep = relight(p("cq.ltm"), p("bq.npy"), "--terms", 25, "--reference", p("raw.ltm"))
+    bq = np.load(p("bq.npy")).astype(np.float64)
+    l2 = np.sqrt(((bq - exact) ** 2).sum() / (exact ** 2).sum())
+    check(abs(rep["error"]["rel_l2"] - l2) <= 1e-4 * l2 + 1e-7, f"reported rel L2 {rep['error']['rel_l2']}, NumPy {l2}")
+    img_d = (bq - exact).reshape(H, W, 3)
+    img_r = exact.reshape(H, W, 3)
+    grad = lambda a: (np.diff(a, axis=0) ** 2).sum() + (np.diff(a, axis=1) ** 2).sum()  # noqa: E731
+    h1 = np.sqrt(grad(img_d) / grad(img_r))
+    check(abs(rep["error"]["rel_h1"] - h1) <= 1e-4 * h1 + 1e-7, f"reported rel H1 {rep['error']['rel_h1']}, NumPy {h1}")
+    psnr = 20 * np.log10(exact.max() / np.sqrt(((bq - exact) ** 2).mean()))
+    check(abs(rep["error"]["psnr_db"] - psnr) < 1e-3, f"PSNR {rep['error']['psnr_db']} vs {psnr}")
+    for k in ("error_lighting_only", "error_matrix_only"):
+        check(k in rep and rep[k]["rel_l2"] <= rep["error"]["rel_l2"] * 1.5 + 1e-6, f"{k}: {rep.get(k)}")
+    rep_all = relight(p("c0.ltm"), p("b0b.npy"), "--terms", cols, "--reference", p("raw.ltm"))
+    check(rep_all["error"]["rel_l2"] < 1e-6, f"lossless path should have ~0 error: {rep_all['error']}")
+
+    # 5. Output formats.
+    relight(p("cq.ltm"), p("img.exr"), "--terms", 20)
+    relight(p("cq.ltm"), p("img.png"), "--terms", 20)
+    with open(p("img.exr"), "rb") as f:
+        check(f.read(4) == bytes([0x76, 0x2F, 0x31, 0x01]), "img.exr is not an OpenEXR file")
+    with open(p("img.png"), "rb") as f:
+        check(f.read(8) == b"\x89PNG\r\n\x1a\n", "img.png is not a PNG file")
+    check(not any(n.endswith(".partial.exr") or n.endswith(".partial.png") for n in os.listdir(d)), "partial files left")
+
+    # 6. Bad lighting.
+    np.save(p("bad_shape.npy"), L[:10])
+    r = run("relight", p("cq.ltm"), "--env", p("bad_shape.npy"), "-o", p("x.npy"), expect=1)
+    check("96 x 3" in r.stderr or "(96, 3)" in r.stderr, f"wrong-size cubemap: {r.stderr}")
+    Lbad = L.copy()
+    Lbad[5, 1] = np.nan
+    np.save(p("bad_nan.npy"), Lbad)
+    r = run("relight", p("cq.ltm"), "--env", p("bad_nan.npy"), "-o", p("x.npy"), expect=1)
+    check("texel 5 channel 1" in r.stderr, f"NaN texel should be named: {r.stderr}")
+    r = run("relight", p("cq.ltm"), "--env", env, "-o", p("x.png"), "--weighting", "sideways", expect=2)
+
+finish()

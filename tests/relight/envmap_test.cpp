@@ -1,0 +1,777 @@
+// Environment maps: real .exr files written with OpenEXR (float, half, DWAB, luminance-only,
+// offset data window) and .hdr files (stb_image_write's run-length writer, a flat writer
+// here), loaded in every layout and resampled to cubemaps. Checks: constant in, constant
+// out; power preserved; a single pixel lands in the texel holding its centre direction (the
+// lat-long convention computed here, independently); layouts agree; rotation = shift;
+// refusal (or clamping) of NaN, negative and infinite values; clear errors for wrong sizes,
+// truncated, garbage and missing files; the .hdr reader against stb_image; a real
+// blender-data map, with the timings docs/ENVMAPS.md quotes.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <numbers>
+#include <random>
+#include <string>
+#include <vector>
+
+#include <ImfChannelList.h>
+#include <ImfFrameBuffer.h>
+#include <ImfHeader.h>
+#include <ImfOutputFile.h>
+#include <ImfRgbaFile.h>
+#include <glm/geometric.hpp>
+#include <stb_image.h>
+#include <stb_image_write.h>
+
+#include "format/npy.h"
+#include "stages/common/cubemap.h"
+#include "stages/relight/envmap.h"
+
+namespace ltb::stages {
+namespace {
+
+namespace fs = std::filesystem;
+constexpr double kPi = std::numbers::pi;
+using Pixels = std::vector<float>;  // w·h·3, row-major, row 0 = top
+
+class EnvMapTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    std::string tmpl = (fs::temp_directory_path() / "ltb_envmap_XXXXXX").string();
+    ASSERT_NE(mkdtemp(tmpl.data()), nullptr);
+    dir_ = tmpl;
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+  std::string Path(const std::string& name) const { return (fs::path(dir_) / name).string(); }
+
+  std::string dir_;
+};
+
+// ---- writers ---------------------------------------------------------------------------
+
+// Float R, G, B (or Y only) channels through the general OpenEXR interface.
+void WriteExrFloat(const std::string& path, int w, int h, const Pixels& rgb, bool luminance = false,
+                   Imf::Compression comp = Imf::ZIP_COMPRESSION, int x0 = 0, int y0 = 0) {
+  Imf::Header header(Imath::Box2i({x0, y0}, {x0 + w - 1, y0 + h - 1}), Imath::Box2i({x0, y0}, {x0 + w - 1, y0 + h - 1}));
+  header.compression() = comp;
+  Imf::FrameBuffer fb;
+  const Imath::Box2i dw = header.dataWindow();
+  std::vector<float> y;
+  if (luminance) {
+    header.channels().insert("Y", Imf::Channel(Imf::FLOAT));
+    y.resize(size_t(w) * h);
+    for (size_t i = 0; i < y.size(); ++i) y[i] = rgb[i * 3];
+    fb.insert("Y", Imf::Slice::Make(Imf::FLOAT, y.data(), dw));
+  } else {
+    const char* names[3] = {"R", "G", "B"};
+    for (int c = 0; c < 3; ++c) {
+      header.channels().insert(names[c], Imf::Channel(Imf::FLOAT));
+      fb.insert(names[c], Imf::Slice::Make(Imf::FLOAT, rgb.data() + c, dw, 12, 12 * size_t(w)));
+    }
+  }
+  Imf::OutputFile file(path.c_str(), header);
+  file.setFrameBuffer(fb);
+  file.writePixels(h);
+}
+
+// Half RGBA (or Y) through RgbaOutputFile, as most tools write them.
+void WriteExrRgba(const std::string& path, int w, int h, const Pixels& rgb, Imf::Compression comp,
+                  Imf::RgbaChannels channels = Imf::WRITE_RGBA) {
+  std::vector<Imf::Rgba> px(size_t(w) * h);
+  for (size_t i = 0; i < px.size(); ++i) px[i] = Imf::Rgba(rgb[i * 3], rgb[i * 3 + 1], rgb[i * 3 + 2], 1.0f);
+  Imf::RgbaOutputFile file(path.c_str(), w, h, channels, 1, Imath::V2f(0, 0), 1, Imf::INCREASING_Y, comp);
+  file.setFrameBuffer(px.data(), 1, w);
+  file.writePixels(h);
+}
+
+// Flat (not run-length encoded) RGBE, any orientation line.
+void WriteHdrFlat(const std::string& path, int w, int h, const Pixels& rgb, bool bottom_up = false) {
+  std::ofstream f(path, std::ios::binary);
+  f << "#?RADIANCE\n# written by envmap_test\nFORMAT=32-bit_rle_rgbe\nEXPOSURE=1.0\n\n"
+    << (bottom_up ? "+Y " : "-Y ") << h << " +X " << w << "\n";
+  for (int yy = 0; yy < h; ++yy) {
+    const int y = bottom_up ? h - 1 - yy : yy;
+    for (int x = 0; x < w; ++x) {
+      const float* p = &rgb[(size_t(y) * w + x) * 3];
+      float m = std::max({p[0], p[1], p[2]});
+      unsigned char e[4] = {0, 0, 0, 0};
+      if (m > 1e-32f) {
+        int ex;
+        float scale = std::frexp(m, &ex) * 256.0f / m;
+        for (int c = 0; c < 3; ++c) e[c] = static_cast<unsigned char>(p[c] * scale);
+        e[3] = static_cast<unsigned char>(ex + 128);
+      }
+      f.write(reinterpret_cast<const char*>(e), 4);
+    }
+  }
+}
+
+void Truncate(const std::string& path, double fraction) {
+  fs::resize_file(path, static_cast<uintmax_t>(fs::file_size(path) * fraction));
+}
+
+// ---- the documented conventions, computed here ------------------------------------------
+
+// docs/ENVMAPS.md: column fraction u, row fraction v (from the top); φ = π − 2πu, θ = πv.
+glm::dvec3 Direction(double u, double v) {
+  double phi = kPi - 2 * kPi * u, theta = kPi * v;
+  return {std::sin(theta) * std::cos(phi), std::sin(theta) * std::sin(phi), std::cos(theta)};
+}
+
+// A smooth positive test function on the sphere, per channel.
+double Smooth(const glm::dvec3& d, int c) {
+  return 1.0 + 0.5 * d.x + 0.3 * d.y * d.y - 0.2 * d.z + 0.1 * c * d.x * d.y + 0.4 * std::pow(std::max(0.0, d.z), 4);
+}
+
+Pixels LatLongOf(int w, int h, auto fn) {
+  Pixels p(size_t(w) * h * 3);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      glm::dvec3 d = Direction((x + 0.5) / w, (y + 0.5) / h);
+      for (int c = 0; c < 3; ++c) p[(size_t(y) * w + x) * 3 + c] = float(fn(d, c));
+    }
+  return p;
+}
+
+// Face f (F×F, ltbake (s, t) orientation) sampled at texel centres.
+Pixels FaceOf(int f, int F, auto fn) {
+  Pixels p(size_t(F) * F * 3);
+  for (int t = 0; t < F; ++t)
+    for (int s = 0; s < F; ++s) {
+      glm::dvec3 d = glm::normalize(cubemap::FaceDirection(f, 2.0 * (s + 0.5) / F - 1, 2.0 * (t + 0.5) / F - 1));
+      for (int c = 0; c < 3; ++c) p[(size_t(t) * F + s) * 3 + c] = float(fn(d, c));
+    }
+  return p;
+}
+
+// A cross image: horizontal 4F×3F or vertical 3F×4F, cells (col, row) per docs/ENVMAPS.md.
+Pixels CrossOf(bool horizontal, int F, auto fn, int* w, int* h) {
+  *w = horizontal ? 4 * F : 3 * F;
+  *h = horizontal ? 3 * F : 4 * F;
+  // (face, col, row)
+  const int hc[6][3] = {{0, 2, 1}, {1, 0, 1}, {2, 1, 0}, {3, 1, 2}, {4, 1, 1}, {5, 3, 1}};
+  const int vc[6][3] = {{0, 2, 1}, {1, 0, 1}, {2, 1, 0}, {3, 1, 2}, {4, 1, 1}, {5, 1, 3}};
+  Pixels img(size_t(*w) * *h * 3, 0.0f);
+  for (const auto& cell : horizontal ? hc : vc) {
+    Pixels face = FaceOf(cell[0], F, fn);
+    for (int t = 0; t < F; ++t)
+      for (int s = 0; s < F; ++s)
+        for (int c = 0; c < 3; ++c)
+          img[(size_t(cell[2] * F + t) * *w + cell[1] * F + s) * 3 + c] = face[(size_t(t) * F + s) * 3 + c];
+  }
+  return img;
+}
+
+struct Cube {
+  CubemapResampler rs;
+  std::vector<float> texels;
+};
+
+Cube Resampled(const std::string& path, uint64_t r, double rotation = 0.0, EnvLoadOptions o = {}) {
+  auto env = LoadEnvMap(path, o);
+  EXPECT_TRUE(env.ok()) << env.status().ToString();
+  auto rs = CubemapResampler::Create(*env, r);
+  EXPECT_TRUE(rs.ok()) << rs.status().ToString();
+  std::vector<float> out(6 * r * r * 3);
+  rs->Resample(rotation, out.data());
+  return {std::move(*rs), std::move(out)};
+}
+
+double Power(const Cube& cube, int c) {
+  double p = 0;
+  for (uint64_t t = 0; t < cube.texels.size() / 3; ++t) p += double(cube.texels[t * 3 + c]) * cube.rs.TexelSolidAngle(t);
+  return p;
+}
+
+// ---- tests ------------------------------------------------------------------------------
+
+TEST_F(EnvMapTest, ConstantMapGivesConstantCubemapInEveryLayout) {
+  const float value[3] = {0.75f, 1.5f, 3.0f};
+  auto constant = [&](const glm::dvec3&, int c) { return value[c]; };
+  WriteExrFloat(Path("ll.exr"), 64, 32, LatLongOf(64, 32, constant));
+  int w, h;
+  WriteExrFloat(Path("hc.exr"), 4 * 8, 3 * 8, CrossOf(true, 8, constant, &w, &h));
+  WriteExrFloat(Path("vc.exr"), 3 * 8, 4 * 8, CrossOf(false, 8, constant, &w, &h));
+  for (int f = 0; f < 6; ++f) {
+    const char* names[6] = {"px", "nx", "py", "ny", "pz", "nz"};
+    WriteExrFloat(Path(std::string("face_") + names[f] + ".exr"), 8, 8, FaceOf(f, 8, constant));
+  }
+  Pixels ll = LatLongOf(64, 32, constant);
+  ASSERT_NE(stbi_write_hdr(Path("ll.hdr").c_str(), 64, 32, 3, ll.data()), 0);
+  WriteHdrFlat(Path("flat.hdr"), 64, 32, ll);
+  for (const char* name : {"ll.exr", "hc.exr", "vc.exr", "face_{face}.exr", "ll.hdr", "flat.hdr"}) {
+    for (uint64_t r : {1, 5, 8, 16}) {
+      for (double rot : {0.0, 0.3, -2.0}) {
+        Cube cube = Resampled(Path(name), r, rot);
+        EXPECT_EQ(cube.rs.empty_texels(), 0u) << name << " R=" << r;
+        for (uint64_t t = 0; t < 6 * r * r; ++t)
+          for (int c = 0; c < 3; ++c) {
+            ASSERT_NEAR(cube.texels[t * 3 + c], value[c], 1e-6 * value[c])
+                << name << " R=" << r << " rotation " << rot << " texel " << t << " channel " << c;
+          }
+        for (int c = 0; c < 3; ++c) EXPECT_NEAR(cube.rs.SourcePower(c), 4 * kPi * value[c], 1e-9 * value[c]);
+      }
+    }
+  }
+}
+
+TEST_F(EnvMapTest, PowerIsPreservedOnRandomMaps) {
+  std::mt19937 rng(7);
+  std::exponential_distribution<float> dist(1.0f);
+  for (auto [w, h] : {std::pair{64, 32}, {200, 100}, {90, 40}}) {
+    Pixels p(size_t(w) * h * 3);
+    for (float& v : p) v = dist(rng);
+    p[(size_t(h / 3) * w + 5) * 3 + 1] = 5000.0f;  // a "sun"
+    WriteExrFloat(Path("r.exr"), w, h, p);
+    // Independent source power: Δφ·(cos θa − cos θb) per row.
+    double expect[3] = {0, 0, 0};
+    for (int y = 0; y < h; ++y) {
+      double omega = 2 * kPi / w * (std::cos(kPi * y / h) - std::cos(kPi * (y + 1) / h));
+      for (int x = 0; x < w; ++x)
+        for (int c = 0; c < 3; ++c) expect[c] += p[(size_t(y) * w + x) * 3 + c] * omega;
+    }
+    EnvLoadOptions o;
+    o.layout = EnvLayout::kLatLong;  // 90x40 is lat-long only when asked
+    for (uint64_t r : {1, 3, 8, 32}) {
+      for (double rot : {0.0, 1.234, 4.0}) {
+        Cube cube = Resampled(Path("r.exr"), r, rot, o);
+        for (int c = 0; c < 3; ++c) {
+          EXPECT_NEAR(cube.rs.SourcePower(c), expect[c], 1e-9 * expect[c]);
+          EXPECT_NEAR(Power(cube, c), cube.rs.SourcePower(c), 1e-6 * expect[c]) << w << "x" << h << " R=" << r;
+        }
+      }
+    }
+  }
+}
+
+TEST_F(EnvMapTest, SinglePixelLandsInTheTexelHoldingItsCentreDirection) {
+  const int w = 256, h = 128;
+  const uint32_t r = 4;
+  std::mt19937 rng(3);
+  int tested = 0;
+  for (int trial = 0; trial < 400 && tested < 12; ++trial) {
+    int x = rng() % w, y = rng() % h;
+    // Only pixels wholly inside one texel (corners and edge midpoints agree) are unambiguous.
+    cubemap::Texel centre = cubemap::DirectionToTexel(Direction((x + 0.5) / w, (y + 0.5) / h), r);
+    bool inside = true;
+    for (double du : {0.0, 0.5, 1.0})
+      for (double dv : {0.0, 0.5, 1.0}) {
+        cubemap::Texel k = cubemap::DirectionToTexel(Direction((x + du) / w, (y + dv) / h), r);
+        inside &= cubemap::Column(k, r) == cubemap::Column(centre, r);
+      }
+    if (!inside) continue;
+    ++tested;
+    Pixels p(size_t(w) * h * 3, 0.0f);
+    p[(size_t(y) * w + x) * 3 + 0] = 100.0f;
+    p[(size_t(y) * w + x) * 3 + 2] = 7.0f;
+    WriteExrFloat(Path("dot.exr"), w, h, p);
+    Cube cube = Resampled(Path("dot.exr"), r);
+    const uint64_t col = cubemap::Column(centre, r);
+    for (uint64_t t = 0; t < 6 * r * r; ++t) {
+      if (t == col) continue;
+      ASSERT_EQ(cube.texels[t * 3], 0.0f) << "pixel (" << x << ", " << y << ") leaked into texel " << t;
+    }
+    const double pixel_omega = 2 * kPi / w * (std::cos(kPi * y / h) - std::cos(kPi * (y + 1) / h));
+    EXPECT_NEAR(cube.texels[col * 3] * cube.rs.TexelSolidAngle(col), 100.0 * pixel_omega, 1e-6 * 100 * pixel_omega);
+    EXPECT_EQ(cube.texels[col * 3 + 1], 0.0f);
+  }
+  EXPECT_GE(tested, 10);
+}
+
+TEST_F(EnvMapTest, OrientationFollowsTheBlenderConvention) {
+  // The image centre looks along +X, a quarter in from the left along +Y, three quarters
+  // along −Y, the top row up (+Z), the bottom row down (−Z).
+  struct Case {
+    double u, v;
+    int face;
+  } cases[] = {{0.5, 0.5, 0}, {0.25, 0.5, 2}, {0.75, 0.5, 3}, {0.02, 0.5, 1}, {0.5, 0.02, 4}, {0.3, 0.98, 5}};
+  const int w = 128, h = 64;
+  for (const Case& k : cases) {
+    Pixels p(size_t(w) * h * 3, 0.0f);
+    int x = int(k.u * w), y = int(k.v * h);
+    p[(size_t(y) * w + x) * 3 + 1] = 1.0f;
+    WriteExrFloat(Path("o.exr"), w, h, p);
+    Cube cube = Resampled(Path("o.exr"), 8);
+    int best = -1;
+    float bestv = 0;
+    for (uint64_t t = 0; t < 6 * 64; ++t)
+      if (cube.texels[t * 3 + 1] > bestv) bestv = cube.texels[t * 3 + 1], best = int(t);
+    EXPECT_EQ(best / 64, k.face) << "pixel at u=" << k.u << " v=" << k.v;
+  }
+  // A rotation by +90° about +Z takes the +X pixel to +Y.
+  Pixels p(size_t(w) * h * 3, 0.0f);
+  p[(size_t(h / 2) * w + w / 2) * 3] = 1.0f;
+  WriteExrFloat(Path("x.exr"), w, h, p);
+  Cube cube = Resampled(Path("x.exr"), 8, kPi / 2);
+  double on_py = 0, total = 0;
+  for (uint64_t t = 0; t < 6 * 64; ++t) {
+    total += cube.texels[t * 3] * cube.rs.TexelSolidAngle(t);
+    if (t / 64 == 2) on_py += cube.texels[t * 3] * cube.rs.TexelSolidAngle(t);
+  }
+  EXPECT_NEAR(on_py / total, 1.0, 1e-9);
+  // And the library's own helpers match the convention.
+  for (double u : {0.1, 0.5, 0.8})
+    for (double v : {0.05, 0.4, 0.9}) {
+      glm::dvec3 d = LatLongDirection(u, v), e = Direction(u, v);
+      EXPECT_NEAR(glm::length(d - e), 0.0, 1e-12);
+      double uu, vv;
+      DirectionToLatLong(d * 3.0, &uu, &vv);
+      EXPECT_NEAR(uu, u, 1e-12);
+      EXPECT_NEAR(vv, v, 1e-12);
+    }
+}
+
+TEST_F(EnvMapTest, LatLongCrossesAndFacesOfTheSameFunctionAgree) {
+  auto fn = [](const glm::dvec3& d, int c) { return Smooth(d, c); };
+  WriteExrFloat(Path("ll.exr"), 1024, 512, LatLongOf(1024, 512, fn));
+  int w, h;
+  Pixels hc = CrossOf(true, 128, fn, &w, &h);
+  WriteExrFloat(Path("hc.exr"), w, h, hc);
+  Pixels vc = CrossOf(false, 128, fn, &w, &h);
+  WriteExrFloat(Path("vc.exr"), w, h, vc);
+  const char* names[6] = {"px", "nx", "py", "ny", "pz", "nz"};
+  for (int f = 0; f < 6; ++f) WriteExrFloat(Path(std::string("f_") + names[f] + ".exr"), 128, 128, FaceOf(f, 128, fn));
+  const uint64_t r = 8;
+  for (double rot : {0.0, 0.9}) {
+    Cube ll = Resampled(Path("ll.exr"), r, rot);
+    // The exact texel average of the rotated function, by a fine midpoint rule.
+    for (const char* name : {"hc.exr", "vc.exr", "f_{face}.exr"}) {
+      Cube other = Resampled(Path(name), r, rot);
+      double worst = 0;
+      for (size_t i = 0; i < ll.texels.size(); ++i) {
+        worst = std::max(worst, double(std::fabs(ll.texels[i] - other.texels[i]) / ll.texels[i]));
+      }
+      EXPECT_LT(worst, 5e-3) << name << " rotation " << rot;
+    }
+    double worst = 0;
+    for (uint64_t t = 0; t < 6 * r * r; ++t) {
+      cubemap::Texel x = cubemap::ColumnToTexel(t, r);
+      const int n = 24;
+      double s[3] = {0, 0, 0}, om = 0;
+      for (int i = 0; i < n; ++i)
+        for (int j = 0; j < n; ++j) {
+          double u0 = 2.0 * (x.s + double(i) / n) / r - 1, v0 = 2.0 * (x.t + double(j) / n) / r - 1;
+          double dom = cubemap::SolidAngle(u0, v0, u0 + 2.0 / (n * r), v0 + 2.0 / (n * r));
+          glm::dvec3 d = glm::normalize(cubemap::FaceDirection(x.face, u0 + 1.0 / (n * r), v0 + 1.0 / (n * r)));
+          // What the rotated map shows in d is the source in Rz(−rot)·d.
+          glm::dvec3 src(std::cos(rot) * d.x + std::sin(rot) * d.y, -std::sin(rot) * d.x + std::cos(rot) * d.y, d.z);
+          for (int c = 0; c < 3; ++c) s[c] += Smooth(src, c) * dom;
+          om += dom;
+        }
+      for (int c = 0; c < 3; ++c) worst = std::max(worst, std::fabs(ll.texels[t * 3 + c] - s[c] / om) / (s[c] / om));
+    }
+    std::printf("[ envmap ] smooth map, R=%d, rotation %.1f: worst relative error vs exact texel averages %.2g\n",
+                int(r), rot, worst);
+    EXPECT_LT(worst, 5e-3) << "lat-long vs exact texel averages, rotation " << rot;
+  }
+}
+
+TEST_F(EnvMapTest, CrossAtTheCubeResolutionIsNearlyItself) {
+  // A cross with faces of R×R texels resamples (through the working lat-long grid) close to
+  // its own texels: each texel keeps most of its value (docs/ENVMAPS.md quotes the blur).
+  const int F = 16;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> dist(0.5f, 1.5f);
+  auto fn = [](const glm::dvec3& d, int c) { return Smooth(d, c); };
+  int w, h;
+  Pixels img = CrossOf(true, F, fn, &w, &h);
+  for (float& v : img) v = v > 0 ? dist(rng) : 0.0f;  // independent random texels, unused cells 0
+  WriteExrFloat(Path("hc.exr"), w, h, img);
+  Cube cube = Resampled(Path("hc.exr"), F);
+  const int cells[6][2] = {{2, 1}, {0, 1}, {1, 0}, {1, 2}, {1, 1}, {3, 1}};
+  double err2 = 0, var2 = 0;
+  for (int f = 0; f < 6; ++f)
+    for (int t = 0; t < F; ++t)
+      for (int s = 0; s < F; ++s) {
+        double src = img[(size_t(cells[f][1] * F + t) * w + cells[f][0] * F + s) * 3];
+        double got = cube.texels[(size_t(f) * F * F + t * F + s) * 3];
+        err2 += (got - src) * (got - src);
+        var2 += (src - 1.0) * (src - 1.0);
+      }
+  const double relative_rms = std::sqrt(err2 / var2);
+  std::printf("[ envmap ] cross F=R=%d through the working grid: rms change / rms texel variation = %.3f\n", F,
+              relative_rms);
+  EXPECT_LT(relative_rms, 0.5);
+}
+
+TEST_F(EnvMapTest, RotationByWorkingColumnsIsAShift) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> dist(0.0f, 2.0f);
+  for (auto [w, h, r] : {std::tuple{64, 32, 8}, {256, 128, 4}, {1024, 512, 8}}) {
+    Pixels p(size_t(w) * h * 3);
+    for (float& v : p) v = dist(rng);
+    WriteExrFloat(Path("a.exr"), w, h, p);
+    Cube base = Resampled(Path("a.exr"), r);
+    const uint64_t ww = base.rs.working_width();
+    ASSERT_EQ(w % ww, 0u);
+    const int m = w / int(ww);
+    for (int k : {1, 5, int(ww) / 3, int(ww) - 1}) {
+      // Rotating by k working columns = the source with its columns rolled left by k·m.
+      Pixels rolled(p.size());
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x)
+          for (int c = 0; c < 3; ++c)
+            rolled[(size_t(y) * w + x) * 3 + c] = p[(size_t(y) * w + (x + k * m) % w) * 3 + c];
+      WriteExrFloat(Path("b.exr"), w, h, rolled);
+      Cube shifted = Resampled(Path("b.exr"), r);
+      for (double turns : {0.0, 1.0, -3.0}) {
+        std::vector<float> out(base.texels.size());
+        base.rs.Resample(k * 2 * kPi / ww + turns * 2 * kPi, out.data());
+        for (size_t i = 0; i < out.size(); ++i) {
+          ASSERT_NEAR(out[i], shifted.texels[i], 1e-6 * std::max(1.0f, shifted.texels[i]))
+              << w << "x" << h << " k=" << k << " turns=" << turns << " value " << i;
+        }
+      }
+    }
+  }
+}
+
+TEST_F(EnvMapTest, ContinuousRotationIsContinuous) {
+  auto fn = [](const glm::dvec3& d, int c) { return Smooth(d, c); };
+  WriteExrFloat(Path("s.exr"), 128, 64, LatLongOf(128, 64, fn));
+  Cube cube = Resampled(Path("s.exr"), 8);
+  std::vector<float> a(cube.texels.size()), b(cube.texels.size());
+  const double step = 2 * kPi / cube.rs.working_width();
+  for (double frac : {0.25, 0.5, 0.9}) {
+    cube.rs.Resample(3 * step + frac * step, a.data());
+    cube.rs.Resample(3 * step + frac * step + 1e-7, b.data());
+    for (size_t i = 0; i < a.size(); ++i) ASSERT_NEAR(a[i], b[i], 1e-5);
+  }
+}
+
+TEST_F(EnvMapTest, NotRadianceIsRefusedWithItsPixelOrClampedAndCounted) {
+  const int w = 16, h = 8;
+  struct Case {
+    int x, y, c;
+    float value;
+    const char* text;
+    float fixed;
+  } cases[] = {{3, 2, 1, std::nanf(""), "nan", 0.0f},
+               {15, 7, 0, -0.5f, "-0.5", 0.0f},
+               {0, 0, 2, std::numeric_limits<float>::infinity(), "inf", std::numeric_limits<float>::max()},
+               {4, 5, 0, -std::numeric_limits<float>::infinity(), "-inf", 0.0f}};
+  for (const Case& k : cases) {
+    Pixels p(size_t(w) * h * 3, 1.0f);
+    p[(size_t(k.y) * w + k.x) * 3 + k.c] = k.value;
+    const std::string path = Path("bad.exr");
+    WriteExrFloat(path, w, h, p);
+    auto env = LoadEnvMap(path, {});
+    ASSERT_FALSE(env.ok());
+    const std::string msg = env.status().message();
+    EXPECT_EQ(env.status().code(), StatusCode::kInvalidArgument);
+    const char* ch[3] = {"R", "G", "B"};
+    for (std::string part : {path, "pixel (" + std::to_string(k.x) + ", " + std::to_string(k.y) + ")",
+                             std::string("channel ") + ch[k.c], std::string(" ") + k.text + " ", std::string("--clamp")}) {
+      EXPECT_NE(msg.find(part), std::string::npos) << "missing \"" << part << "\" in: " << msg;
+    }
+    EnvLoadOptions o;
+    o.clamp = true;
+    auto fixed = LoadEnvMap(path, o);
+    ASSERT_TRUE(fixed.ok()) << fixed.status().ToString();
+    EXPECT_EQ(fixed->clamped, 1u);
+    EXPECT_EQ(fixed->rgb[(size_t(k.y) * w + k.x) * 3 + k.c], k.fixed);
+  }
+  // Several at once: all counted; luminance files name channel Y.
+  Pixels p(size_t(w) * h * 3, 1.0f);
+  for (int i = 0; i < 5; ++i) p[(size_t(i) * w + i) * 3] = -1.0f;
+  WriteExrFloat(Path("y.exr"), w, h, p, /*luminance=*/true);
+  auto env = LoadEnvMap(Path("y.exr"), {});
+  ASSERT_FALSE(env.ok());
+  EXPECT_NE(env.status().message().find("pixel (0, 0) channel Y is -1"), std::string::npos) << env.status().message();
+  EnvLoadOptions o;
+  o.clamp = true;
+  auto fixed = LoadEnvMap(Path("y.exr"), o);
+  ASSERT_TRUE(fixed.ok());
+  EXPECT_EQ(fixed->clamped, 15u);  // Y replicated to three channels
+  // Unused cells of a cross are not looked at.
+  int cw, chh;
+  Pixels cross = CrossOf(true, 4, [](const glm::dvec3&, int) { return 1.0; }, &cw, &chh);
+  cross[0] = std::nanf("");
+  WriteExrFloat(Path("c.exr"), cw, chh, cross);
+  EXPECT_TRUE(LoadEnvMap(Path("c.exr"), {}).ok());
+}
+
+TEST_F(EnvMapTest, ClearErrorsForBadFiles) {
+  auto expect_error = [](const std::string& path, EnvLoadOptions o, StatusCode code, std::vector<std::string> parts) {
+    auto env = LoadEnvMap(path, o);
+    ASSERT_FALSE(env.ok()) << path;
+    EXPECT_EQ(env.status().code(), code) << env.status().message();
+    for (const std::string& part : parts) {
+      EXPECT_NE(env.status().message().find(part), std::string::npos) << "missing \"" << part << "\" in: "
+                                                                      << env.status().message();
+    }
+  };
+  Pixels p(100 * 60 * 3, 1.0f);
+  WriteExrFloat(Path("odd.exr"), 100, 60, p);
+  expect_error(Path("odd.exr"), {}, StatusCode::kInvalidArgument, {Path("odd.exr"), "100x60", "accepted", "lat-long", "cross"});
+  EnvLoadOptions ll;
+  ll.layout = EnvLayout::kLatLong;
+  EXPECT_TRUE(LoadEnvMap(Path("odd.exr"), ll).ok());  // any size when asked for explicitly
+  EnvLoadOptions hc;
+  hc.layout = EnvLayout::kHCross;
+  expect_error(Path("odd.exr"), hc, StatusCode::kInvalidArgument, {"100x60", "horizontal cross"});
+
+  expect_error(Path("missing.exr"), {}, StatusCode::kNotFound, {Path("missing.exr")});
+  expect_error(Path("missing_{face}.hdr"), {}, StatusCode::kNotFound, {Path("missing_px.hdr")});
+
+  Pixels big(512 * 256 * 3);
+  std::mt19937 rng(1);
+  for (float& v : big) v = float(rng() % 1000) / 100.0f;
+  for (auto comp : {Imf::ZIP_COMPRESSION, Imf::DWAB_COMPRESSION, Imf::NO_COMPRESSION, Imf::PIZ_COMPRESSION}) {
+    WriteExrFloat(Path("t.exr"), 512, 256, big, false, comp);
+    Truncate(Path("t.exr"), 0.6);
+    expect_error(Path("t.exr"), {}, StatusCode::kDataLoss, {Path("t.exr"), "OpenEXR"});
+  }
+  ASSERT_NE(stbi_write_hdr(Path("t.hdr").c_str(), 512, 256, 3, big.data()), 0);
+  Truncate(Path("t.hdr"), 0.6);
+  expect_error(Path("t.hdr"), {}, StatusCode::kDataLoss, {Path("t.hdr"), "truncated", "scanline"});
+  WriteHdrFlat(Path("tf.hdr"), 64, 32, Pixels(64 * 32 * 3, 1.0f));
+  Truncate(Path("tf.hdr"), 0.5);
+  expect_error(Path("tf.hdr"), {}, StatusCode::kDataLoss, {Path("tf.hdr"), "truncated"});
+  WriteHdrFlat(Path("th.hdr"), 64, 32, Pixels(64 * 32 * 3, 1.0f));
+  Truncate(Path("th.hdr"), 0.005);
+  expect_error(Path("th.hdr"), {}, StatusCode::kDataLoss, {Path("th.hdr"), "header"});
+
+  std::ofstream(Path("garbage.exr")) << "this is not an image at all";
+  expect_error(Path("garbage.exr"), {}, StatusCode::kInvalidArgument, {Path("garbage.exr"), "not an OpenEXR"});
+  std::ofstream(Path("empty.hdr")).close();
+  expect_error(Path("empty.hdr"), {}, StatusCode::kInvalidArgument, {Path("empty.hdr"), "empty"});
+  // An EXR magic followed by garbage: OpenEXR's own words.
+  std::ofstream(Path("magic.exr"), std::ios::binary) << std::string("\x76\x2f\x31\x01", 4) << std::string(100, 'x');
+  expect_error(Path("magic.exr"), {}, StatusCode::kDataLoss, {Path("magic.exr"), "OpenEXR"});
+  // A damaged run-length scanline.
+  ASSERT_NE(stbi_write_hdr(Path("d.hdr").c_str(), 64, 32, 3, big.data()), 0);
+  {
+    std::fstream f(Path("d.hdr"), std::ios::in | std::ios::out | std::ios::binary);
+    std::string all((std::istreambuf_iterator<char>(f)), {});
+    size_t at = all.find("+X 64\n") + 6 + 4;  // first scanline's first count byte
+    f.seekp(at);
+    f.put(char(200));  // a run of 72 > 64
+  }
+  expect_error(Path("d.hdr"), {}, StatusCode::kDataLoss, {Path("d.hdr"), "scanline 0", "overflows"});
+  // XYZE and transposed orientations are named.
+  std::ofstream(Path("xyze.hdr")) << "#?RADIANCE\nFORMAT=32-bit_rle_xyze\n\n-Y 1 +X 2\nabcdefgh";
+  expect_error(Path("xyze.hdr"), {}, StatusCode::kUnimplemented, {"32-bit_rle_xyze"});
+  std::ofstream(Path("tr.hdr")) << "#?RADIANCE\n\n+X 2 -Y 1\nabcdefgh";
+  expect_error(Path("tr.hdr"), {}, StatusCode::kUnimplemented, {"+X 2 -Y 1"});
+  // Faces: one of six missing, a face of another size, a non-square face.
+  const char* names[6] = {"px", "nx", "py", "ny", "pz", "nz"};
+  for (int f = 0; f < 5; ++f) WriteExrFloat(Path(std::string("g_") + names[f] + ".exr"), 4, 4, Pixels(48, 1.0f));
+  expect_error(Path("g_{face}.exr"), {}, StatusCode::kNotFound, {Path("g_nz.exr")});
+  WriteExrFloat(Path("g_nz.exr"), 8, 8, Pixels(192, 1.0f));
+  expect_error(Path("g_{face}.exr"), {}, StatusCode::kInvalidArgument, {Path("g_nz.exr"), "8x8", "same size"});
+  WriteExrFloat(Path("g_nz.exr"), 4, 2, Pixels(24, 1.0f));
+  expect_error(Path("g_{face}.exr"), {}, StatusCode::kInvalidArgument, {Path("g_nz.exr"), "square"});
+  // Channels that are not a colour.
+  {
+    Imf::Header header(4, 2);
+    header.channels().insert("Z", Imf::Channel(Imf::FLOAT));
+    std::vector<float> z(8, 1.0f);
+    Imf::FrameBuffer fb;
+    fb.insert("Z", Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(z.data()), 4, 16));
+    Imf::OutputFile file(Path("z.exr").c_str(), header);
+    file.setFrameBuffer(fb);
+    file.writePixels(2);
+  }
+  expect_error(Path("z.exr"), {}, StatusCode::kInvalidArgument, {Path("z.exr"), "channels Z", "R, G and B"});
+}
+
+TEST_F(EnvMapTest, ReadsCompressedHalfLuminanceAndOffsetExrs) {
+  auto fn = [](const glm::dvec3& d, int c) { return Smooth(d, c); };
+  Pixels p = LatLongOf(256, 128, fn);
+  // Half RGBA, lossless (PIZ) and lossy (DWAB); both read through OpenEXR.
+  WriteExrRgba(Path("piz.exr"), 256, 128, p, Imf::PIZ_COMPRESSION);
+  WriteExrRgba(Path("dwab.exr"), 256, 128, p, Imf::DWAB_COMPRESSION);
+  for (const char* name : {"piz.exr", "dwab.exr"}) {
+    auto env = LoadEnvMap(Path(name), {});
+    ASSERT_TRUE(env.ok()) << env.status().ToString();
+    EXPECT_EQ(env->layout, EnvLayout::kLatLong);
+    ASSERT_EQ(env->rgb.size(), p.size());
+    double worst = 0;
+    for (size_t i = 0; i < p.size(); ++i) worst = std::max(worst, double(std::fabs(env->rgb[i] - p[i]) / p[i]));
+    EXPECT_LT(worst, std::string(name) == "piz.exr" ? 1e-3 : 3e-2) << name;
+  }
+  // Luminance only (Y, half): grey.
+  WriteExrRgba(Path("y.exr"), 256, 128, p, Imf::ZIP_COMPRESSION, Imf::WRITE_Y);
+  auto y = LoadEnvMap(Path("y.exr"), {});
+  ASSERT_TRUE(y.ok()) << y.status().ToString();
+  for (size_t i = 0; i < 256 * 128; ++i) {
+    ASSERT_EQ(y->rgb[i * 3], y->rgb[i * 3 + 1]);
+    ASSERT_EQ(y->rgb[i * 3], y->rgb[i * 3 + 2]);
+    ASSERT_GT(y->rgb[i * 3], 0.0f);
+  }
+  // Luminance-chroma (Y, RY, BY; DWAB): converted back to RGB by OpenEXR.
+  WriteExrRgba(Path("yc.exr"), 256, 128, p, Imf::DWAB_COMPRESSION, Imf::WRITE_YC);
+  auto yc = LoadEnvMap(Path("yc.exr"), {});
+  ASSERT_TRUE(yc.ok()) << yc.status().ToString();
+  double mean_err = 0;
+  for (size_t i = 0; i < p.size(); ++i) mean_err += std::fabs(yc->rgb[i] - p[i]) / p[i];
+  EXPECT_LT(mean_err / p.size(), 5e-2);
+  // A data window not at the origin, float, luminance-only float.
+  WriteExrFloat(Path("off.exr"), 256, 128, p, false, Imf::ZIP_COMPRESSION, -7, 13);
+  auto off = LoadEnvMap(Path("off.exr"), {});
+  ASSERT_TRUE(off.ok()) << off.status().ToString();
+  EXPECT_EQ(off->rgb, p);
+  WriteExrFloat(Path("yf.exr"), 256, 128, p, true);
+  auto yf = LoadEnvMap(Path("yf.exr"), {});
+  ASSERT_TRUE(yf.ok());
+  EXPECT_EQ(yf->rgb[3 * 1000 + 2], p[3 * 1000]);
+}
+
+TEST_F(EnvMapTest, HdrReaderMatchesStbImage) {
+  std::mt19937 rng(9);
+  std::lognormal_distribution<float> dist(0.0f, 3.0f);
+  for (auto [w, h] : {std::pair{64, 32}, {6, 3}, {300, 150}}) {
+    Pixels p(size_t(w) * h * 3);
+    for (float& v : p) v = dist(rng);
+    p[0] = 0.0f;
+    ASSERT_NE(stbi_write_hdr(Path("rle.hdr").c_str(), w, h, 3, p.data()), 0);  // RLE when 8 <= w < 32768
+    WriteHdrFlat(Path("flat.hdr"), w, h, p);
+    WriteHdrFlat(Path("up.hdr"), w, h, p, /*bottom_up=*/true);
+    for (const char* name : {"rle.hdr", "flat.hdr", "up.hdr"}) {
+      int sw, sh, sc;
+      float* ref = stbi_loadf(Path(name == std::string("up.hdr") ? "flat.hdr" : name).c_str(), &sw, &sh, &sc, 3);
+      ASSERT_NE(ref, nullptr) << stbi_failure_reason();
+      auto env = LoadEnvMap(Path(name), {});
+      ASSERT_TRUE(env.ok()) << env.status().ToString();
+      ASSERT_EQ(env->width, uint64_t(sw));
+      ASSERT_EQ(env->height, uint64_t(sh));
+      for (size_t i = 0; i < p.size(); ++i) ASSERT_EQ(env->rgb[i], ref[i]) << name << " value " << i;
+      stbi_image_free(ref);
+    }
+  }
+}
+
+TEST_F(EnvMapTest, ConvertWritesTheCubemapAsNpy) {
+  auto fn = [](const glm::dvec3& d, int c) { return Smooth(d, c); };
+  WriteExrFloat(Path("env.exr"), 128, 64, LatLongOf(128, 64, fn));
+  ASSERT_TRUE(ConvertEnvToNpy(Path("env.exr"), Path("env.npy"), 8, {}).ok());
+  std::ifstream f(Path("env.npy"), std::ios::binary);
+  std::string bytes((std::istreambuf_iterator<char>(f)), {});
+  auto header = format::ParseNpyHeader(format::ByteSpan(reinterpret_cast<const std::byte*>(bytes.data()), bytes.size()));
+  ASSERT_TRUE(header.ok()) << header.status().ToString();
+  EXPECT_EQ(header->descr, "<f4");
+  EXPECT_EQ(header->shape, (std::vector<uint64_t>{6 * 64, 3}));
+  ASSERT_EQ(bytes.size(), header->data_offset + 6 * 64 * 3 * 4);
+  Cube cube = Resampled(Path("env.exr"), 8);
+  EXPECT_EQ(std::memcmp(bytes.data() + header->data_offset, cube.texels.data(), cube.texels.size() * 4), 0);
+  EXPECT_FALSE(fs::exists(Path("env.npy.partial")));
+  auto s = ConvertEnvToNpy(Path("env.exr"), Path("x.npy"), 0, {});
+  EXPECT_NE(s.message().find("--cube-res"), std::string::npos) << s.message();
+  s = ConvertEnvToNpy(Path("env.exr"), Path("x.npy"), 12, {});
+  EXPECT_NE(s.message().find("power of two"), std::string::npos) << s.message();
+  s = ConvertEnvToNpy(Path("nope.exr"), Path("x.npy"), 8, {});
+  EXPECT_EQ(s.code(), StatusCode::kNotFound);
+  EXPECT_FALSE(fs::exists(Path("x.npy")));
+  EXPECT_TRUE(IsEnvMapPath("a/B.EXR"));
+  EXPECT_TRUE(IsEnvMapPath("sky_{face}.png"));
+  EXPECT_FALSE(IsEnvMapPath("m.npy"));
+  for (EnvLayout l : {EnvLayout::kAuto, EnvLayout::kLatLong, EnvLayout::kHCross, EnvLayout::kVCross, EnvLayout::kFaces}) {
+    EXPECT_EQ(*ParseEnvLayout(EnvLayoutName(l)), l);
+  }
+  EXPECT_FALSE(ParseEnvLayout("cube").ok());
+}
+
+// The blender-data maps (scripts/find_envmaps.sh lists their directory).
+std::string BlenderMapDir() {
+  std::vector<fs::path> candidates = {"/usr/share/blender/datafiles/studiolights/world"};
+  std::error_code ec;
+  if (fs::is_directory("/usr/share/blender", ec)) {
+    for (const auto& e : fs::directory_iterator("/usr/share/blender", ec)) {
+      candidates.push_back(e.path() / "datafiles/studiolights/world");
+    }
+  }
+  for (const fs::path& p : candidates) {
+    if (fs::exists(p / "forest.exr", ec)) return p.string();
+  }
+  return "";
+}
+
+double Seconds(auto since) { return std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count(); }
+
+void TimeResampler(const EnvMap& env, const char* what) {
+  const uint64_t r = 32;
+  auto t0 = std::chrono::steady_clock::now();
+  auto rs = CubemapResampler::Create(env, r);
+  const double create = Seconds(t0);
+  ASSERT_TRUE(rs.ok()) << rs.status().ToString();
+  std::vector<float> out(6 * r * r * 3);
+  const int frames = 200;
+  t0 = std::chrono::steady_clock::now();
+  for (int i = 0; i < frames; ++i) rs->Resample(2 * kPi * i / frames, out.data());
+  const double per_frame = Seconds(t0) / frames;
+  std::printf("[ envmap ] %s %llux%llu -> R=%llu: Create %.1f ms (working grid %llux%llu, %llu bands, %llu intervals), "
+              "Resample %.3f ms/frame over %d rotations\n",
+              what, (unsigned long long)env.width, (unsigned long long)env.height, (unsigned long long)r, create * 1e3,
+              (unsigned long long)rs->working_width(), (unsigned long long)rs->working_rows(),
+              (unsigned long long)rs->bands(), (unsigned long long)rs->intervals(), per_frame * 1e3, frames);
+  EXPECT_EQ(rs->empty_texels(), 0u);
+  for (int c = 0; c < 3; ++c) {
+    double p = 0;
+    for (uint64_t t = 0; t < 6 * r * r; ++t) p += double(out[t * 3 + c]) * rs->TexelSolidAngle(t);
+    EXPECT_NEAR(p, rs->SourcePower(c), 1e-6 * rs->SourcePower(c));
+  }
+}
+
+TEST(EnvMapReal, BlenderDataMapHasFinitePositivePower) {
+  const std::string dir = BlenderMapDir();
+  if (dir.empty()) GTEST_SKIP() << "blender-data maps not installed (apt-get install blender-data)";
+  for (const auto& e : fs::directory_iterator(dir)) {
+    if (e.path().extension() != ".exr") continue;
+    auto t0 = std::chrono::steady_clock::now();
+    auto env = LoadEnvMap(e.path().string(), {});
+    const double load = Seconds(t0);
+    if (!env.ok()) {
+      // DWAB is lossy: some of these maps hold tiny negative values (ringing) and need --clamp.
+      EXPECT_NE(env.status().message().find("(negative)"), std::string::npos) << env.status().message();
+      std::printf("[ envmap ] %s refused without --clamp: %s\n", e.path().filename().c_str(),
+                  env.status().message().c_str());
+      EnvLoadOptions o;
+      o.clamp = true;
+      env = LoadEnvMap(e.path().string(), o);
+      ASSERT_TRUE(env.ok()) << env.status().ToString();
+      EXPECT_GT(env->clamped, 0u);
+    }
+    EXPECT_EQ(env->layout, EnvLayout::kLatLong);
+    auto rs = CubemapResampler::Create(*env, 32);
+    ASSERT_TRUE(rs.ok());
+    std::vector<float> out(6 * 32 * 32 * 3);
+    rs->Resample(0.0, out.data());
+    for (float v : out) ASSERT_TRUE(std::isfinite(v) && v >= 0.0f) << e.path();
+    for (int c = 0; c < 3; ++c) {
+      EXPECT_TRUE(std::isfinite(rs->SourcePower(c)) && rs->SourcePower(c) > 0) << e.path() << " channel " << c;
+    }
+    std::printf("[ envmap ] %s: %llux%llu, load %.1f ms, %llu values clamped, power (%.4g, %.4g, %.4g)\n",
+                e.path().filename().c_str(), (unsigned long long)env->width, (unsigned long long)env->height,
+                load * 1e3, (unsigned long long)env->clamped, rs->SourcePower(0), rs->SourcePower(1),
+                rs->SourcePower(2));
+  }
+  EnvLoadOptions o;
+  o.clamp = true;
+  auto env = LoadEnvMap(dir + "/forest.exr", o);
+  ASSERT_TRUE(env.ok()) << env.status().ToString();
+  TimeResampler(*env, "forest.exr");
+}
+
+TEST(EnvMapReal, TimingOfA2kLatLongMap) {
+  EnvMap env;
+  env.width = 2048;
+  env.height = 1024;
+  env.path = "synthetic";
+  env.rgb.resize(env.width * env.height * 3);
+  std::mt19937 rng(2);
+  std::uniform_real_distribution<float> dist(0.0f, 4.0f);
+  for (float& v : env.rgb) v = dist(rng);
+  TimeResampler(env, "synthetic");
+}
+
+}  // namespace
+}  // namespace ltb::stages
