@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The demo on bundled data: bake the bunny scene (samples/medium.toml at R = 8 so it takes
 # seconds) through the stages that exist so far — sample, row-transform, transpose,
-# column-transform, quantize — then inspect and verify every container and write preview
-# images (also of the decoded compressed matrix). Prints where outputs are.
+# column-transform, quantize — relights the result under two environment maps with its
+# errors, inspects and verifies every container and writes preview images. Prints where
+# outputs are.
 set -euo pipefail
 BUILD=${1:-build}
 cd "$(dirname "$0")/.."
@@ -24,6 +25,14 @@ echo "== column-transform: each light's image to its optimal depth (LeGall 5/3),
 
 echo "== quantize: 9 bits, level scaling, dithered"
 "$LTBAKE" quantize "$OUT/cols4d.ltm" -o "$OUT/final.ltm" --bits 9 --overwrite
+
+echo "== relight: final.ltm under two of Blender's CC0 environment maps (blender-data), 100 lighting terms"
+ENVS=$(bash scripts/find_envmaps.sh)
+for env in sunset forest; do
+  "$LTBAKE" relight "$OUT/final.ltm" --env "$ENVS/$env.exr" --clamp --terms 100 --reference "$OUT/raw.ltm" \
+    -o "$OUT/relit-$env.png"
+  "$LTBAKE" relight "$OUT/final.ltm" --env "$ENVS/$env.exr" --clamp --terms 100 -o "$OUT/relit-$env.exr" -q
+done
 
 echo "== inspect"
 "$LTBAKE" inspect "$OUT/raw.ltm"
@@ -67,4 +76,5 @@ echo "  rows.ltm   after row-transform (Haar, per cube face)"
 echo "  cols.ltm   after transpose (one chunk per light: its 256x256 image); cols.inspect.json"
 echo "  cols4d.ltm after column-transform (adaptive depth per light image, 5% of terms)"
 echo "  final.ltm  after quantize (9 bits): what relighting reads"
+echo "  relit-sunset.png/.exr, relit-forest.png/.exr   relit images (errors against raw.ltm printed above)"
 echo "  preview-sky.png, preview-zenith-texel.png, preview-sky-compressed.png"

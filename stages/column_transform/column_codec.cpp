@@ -48,7 +48,9 @@ Result<ColumnCodec> ColumnCodec::FromMetadata(const Metadata& meta, const std::s
     if (!q.is_object() || !q.value("bits", nlohmann::json()).is_number_unsigned()) return bad("quantization without bits");
     c.quant_.bits = q["bits"].get<int>();
     if (c.quant_.bits < 2 || c.quant_.bits > 24) return bad("bits " + std::to_string(c.quant_.bits));
-    c.quant_.level_scaling = q.value("scaling", std::string("level")) == "level";
+    auto scaling = ParseScaling(q.value("scaling", std::string("?")));
+    if (!scaling.ok()) return bad(scaling.status().message());
+    c.quant_.scaling = *scaling;
     c.quant_.dither = q.value("dither", true);
     c.quant_.seed = q.value("seed", uint64_t{0});
     c.scale_array_ = meta.FindArray(q.value("scale_array", std::string("scale")));
@@ -63,7 +65,7 @@ Result<ColumnCodec> ColumnCodec::FromMetadata(const Metadata& meta, const std::s
   }
   auto tables = std::make_shared<Tables>();
   if (c.quant_.bits > 0) {
-    tables->factors = QuantizationFactors(c.filter_, c.width_, c.height_, c.max_depth_, c.quant_.level_scaling);
+    tables->factors = QuantizationFactors(c.filter_, c.width_, c.height_, c.max_depth_, c.quant_.scaling);
   }
   c.tables_ = std::move(tables);
   return c;
@@ -130,15 +132,31 @@ std::vector<std::vector<double>> SynthesisEnergies(wavelet::Filter filter, uint6
 }
 
 std::vector<std::vector<double>> QuantizationFactors(wavelet::Filter filter, uint64_t width, uint64_t height,
-                                                     int max_depth, bool level_scaling) {
+                                                     int max_depth, Scaling scaling) {
   const uint64_t pixels = width * height;
-  if (!level_scaling) return std::vector<std::vector<double>>(max_depth + 1, std::vector<double>(pixels, 1.0));
-  auto f = SynthesisEnergies(filter, width, height, max_depth);
+  std::vector<std::vector<double>> f(max_depth + 1, std::vector<double>(pixels, 1.0));
+  if (scaling == Scaling::kNone) return f;
+  if (scaling == Scaling::kNormLevel) f = SynthesisEnergies(filter, width, height, max_depth);
   for (int d = 0; d <= max_depth; ++d) {
     auto lv = ColumnCodec::ComputeLevels(width, height, d);
     for (uint64_t p = 0; p < pixels; ++p) f[d][p] = std::ldexp(std::sqrt(f[d][p]), lv[p]);
   }
   return f;
+}
+
+Result<Scaling> ParseScaling(const std::string& name) {
+  for (Scaling s : {Scaling::kNone, Scaling::kLevel, Scaling::kNormLevel})
+    if (name == ScalingName(s)) return s;
+  return InvalidArgument("scaling \"" + name + "\" is unknown (written by a newer ltbake?)");
+}
+
+const char* ScalingName(Scaling s) {
+  switch (s) {
+    case Scaling::kNone: return "none";
+    case Scaling::kLevel: return "level";
+    case Scaling::kNormLevel: return "norm-level";
+  }
+  return "?";
 }
 
 void ColumnCodec::DenseCoefficients(int depth, double scale, const uint32_t* index, const void* values, size_t n,

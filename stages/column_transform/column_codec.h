@@ -26,9 +26,16 @@
 
 namespace ltb::stages {
 
+// Metadata "quantization.scaling": "norm-level" (‖ψ̃‖ · 2^level, what `--scaling level`
+// writes), "none" (1), and "level" (2^level alone: files from the first quantize build,
+// 2026-11-22, still decode).
+enum class Scaling { kNone, kLevel, kNormLevel };
+Result<Scaling> ParseScaling(const std::string& name);
+const char* ScalingName(Scaling s);
+
 struct Quantization {
   int bits = 0;          // 0: not quantized (column-transform output)
-  bool level_scaling = true;
+  Scaling scaling = Scaling::kNormLevel;
   bool dither = true;
   uint64_t seed = 0;
   double Levels() const { return static_cast<double>((int64_t{1} << (bits - 1)) - 1); }  // Q = 2^(bits−1) − 1
@@ -49,7 +56,7 @@ class ColumnCodec {
   int scale_array() const { return scale_array_; }  // −1 when not quantized
 
   static std::vector<uint8_t> ComputeLevels(uint64_t width, uint64_t height, int depth);
-  // The quantization factor of every position at depth d (see above), for `level_scaling`.
+  // The quantization factor of every position at depth d (see above).
   const std::vector<double>& Factors(int depth) const { return tables_->factors.at(depth); }
 
   // Coefficients of one column (dense W·H, Mallat layout at `depth`) from its stored
@@ -81,8 +88,8 @@ class ColumnCodec {
 // All 1 for the orthonormal filters and at depth 0.
 std::vector<std::vector<double>> SynthesisEnergies(wavelet::Filter filter, uint64_t width, uint64_t height,
                                                    int max_depth);
-// Factors for quantization (see above): ‖ψ̃‖ · 2^level per position and depth, or all 1.
+// Factors for quantization (see above) per position and depth.
 std::vector<std::vector<double>> QuantizationFactors(wavelet::Filter filter, uint64_t width, uint64_t height,
-                                                     int max_depth, bool level_scaling);
+                                                     int max_depth, Scaling scaling);
 
 }  // namespace ltb::stages

@@ -60,6 +60,7 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& pro
   const ArraySpec& a = meta.matrix();
   const uint64_t pixels = a.rows;
 
+  const Scaling scaling = o.level_scaling ? Scaling::kNormLevel : Scaling::kNone;
   nlohmann::json out_meta = meta.json;
   ArraySpec m = a;
   m.dtype = DType::kI32;
@@ -76,14 +77,14 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& pro
   out_meta["arrays"].push_back(scale_spec.ToJson());
   out_meta["basis"]["rows"]["coefficients"] = "column_transform, quantized";
   out_meta["quantization"] = {{"bits", o.bits},
-                              {"scaling", o.level_scaling ? "level" : "none"},
+                              {"scaling", ScalingName(scaling)},
                               {"dither", o.dither},
                               {"seed", o.seed},
                               {"scale_array", kScaleArray},
-                              {"decode", "v = q / (2^(bits-1) - 1) * scale / 2^level"}};
+                              {"decode", "v = q / (2^(bits-1) - 1) * scale / factor (docs/COLUMN-TRANSFORM.md)"}};
   out_meta["provenance"] = Provenance(
       "quantize",
-      {{"bits", o.bits}, {"scaling", o.level_scaling ? "level" : "none"}, {"dither", o.dither}, {"seed", o.seed},
+      {{"bits", o.bits}, {"scaling", ScalingName(scaling)}, {"dither", o.dither}, {"seed", o.seed},
        {"zstd", o.zstd}},
       {&in});
   io::WriterOptions wo;
@@ -116,7 +117,7 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& pro
   std::atomic<uint64_t> written{0};
   // The codec of the input knows no quantization; the factors of this run's scaling:
   const auto factors = QuantizationFactors(codec.filter(), codec.width(), codec.height(), codec.max_depth(),
-                                           o.level_scaling);
+                                           scaling);
   Status s = ParallelFor(items, o.jobs, progress, "chunks", [&](uint64_t c) -> Status {
     LTB_ASSIGN_OR_RETURN(SparseChunk sc, in.ReadSparse(0, c));
     LTB_ASSIGN_OR_RETURN(io::Chunk dc, in.ReadChunk(static_cast<uint32_t>(codec.depth_array()), c));

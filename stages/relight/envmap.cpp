@@ -1,5 +1,11 @@
 #include "stages/relight/envmap.h"
 
+#include <OpenEXR/ImfChannelList.h>
+#include <OpenEXR/ImfFrameBuffer.h>
+#include <OpenEXR/ImfHeader.h>
+#include <OpenEXR/ImfInputFile.h>
+#include <OpenEXR/ImfRgbaFile.h>
+
 #include <algorithm>
 #include <cctype>
 #include <cerrno>
@@ -7,15 +13,9 @@
 #include <cstdio>
 #include <cstring>
 #include <exception>
+#include <glm/geometric.hpp>
 #include <limits>
 #include <numbers>
-
-#include <OpenEXR/ImfChannelList.h>
-#include <OpenEXR/ImfFrameBuffer.h>
-#include <OpenEXR/ImfHeader.h>
-#include <OpenEXR/ImfInputFile.h>
-#include <OpenEXR/ImfRgbaFile.h>
-#include <glm/geometric.hpp>
 
 #include "format/io/file.h"
 #include "format/npy.h"
@@ -65,7 +65,8 @@ Result<std::vector<uint8_t>> ReadWholeFile(const std::string& path) {
   LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(path, io::File::Mode::kRead));
   LTB_ASSIGN_OR_RETURN(uint64_t size, f.Size());
   if (size > (uint64_t(4) << 30)) {
-    return InvalidArgument(path + ": " + std::to_string(size) + " bytes; environment maps over 4 GiB are not supported");
+    return InvalidArgument(path + ": " + std::to_string(size) +
+                           " bytes; environment maps over 4 GiB are not supported");
   }
   std::vector<uint8_t> bytes(size);
   LTB_RETURN_IF_ERROR(f.ReadAt(0, format::MutableByteSpan(reinterpret_cast<std::byte*>(bytes.data()), size)));
@@ -245,7 +246,8 @@ Result<Image> ReadExr(const std::string& path) {
         const std::string n = it.name();
         if (n == "R" || n == "G" || n == "B" || n == "Y") {
           // Sub-sampled chroma (RY, BY) is fine: RgbaInputFile reconstructs it.
-          return Unimplemented(path + ": OpenEXR channel " + n + " is sub-sampled; ltbake reads full-resolution R, G, B or Y");
+          return Unimplemented(path + ": OpenEXR channel " + n +
+                               " is sub-sampled; ltbake reads full-resolution R, G, B or Y");
         }
       }
     }
@@ -257,7 +259,8 @@ Result<Image> ReadExr(const std::string& path) {
       Imf::FrameBuffer fb;
       const char* name[3] = {"R", "G", "B"};
       for (int c = 0; c < 3; ++c) {
-        fb.insert(name[c], Imf::Slice::Make(Imf::FLOAT, img.rgb.data() + c, dw, 3 * sizeof(float), 3 * sizeof(float) * w));
+        fb.insert(name[c],
+                  Imf::Slice::Make(Imf::FLOAT, img.rgb.data() + c, dw, 3 * sizeof(float), 3 * sizeof(float) * w));
       }
       file.setFrameBuffer(fb);
       file.readPixels(dw.min.y, dw.max.y);
@@ -383,15 +386,19 @@ Status CheckValues(Image* img, const std::string& path, EnvLayout layout, uint64
   }
   if (bad == 0) return Status::Ok();
   const float v = first_v;
-  std::string kind = std::isnan(v) ? "NaN" : std::isinf(v) ? (v > 0 ? "infinite" : "negative and infinite") : "negative";
+  std::string kind = std::isnan(v)   ? "NaN"
+                     : std::isinf(v) ? (v > 0 ? "infinite" : "negative and infinite")
+                                     : "negative";
   std::string msg = path + ": pixel (" + std::to_string(first_x) + ", " + std::to_string(first_y) + ") channel " +
                     img->channel[first_c] + " is " + Num(v) + " (" + kind + ")";
   if (bad > 1) msg += "; " + std::to_string(bad) + " values in all";
   if (most_negative < 0) msg += ", the most negative " + Num(most_negative);
-  msg += "; radiance must be finite and non-negative — fix the map, or pass --clamp to set NaN and negative values "
-         "to 0 and +Inf to the largest finite float";
+  msg +=
+      "; radiance must be finite and non-negative — fix the map, or pass --clamp to set NaN and negative values "
+      "to 0 and +Inf to the largest finite float";
   if (img->lossy && most_negative < 0) {
-    msg += " (" + img->compression + " compression is lossy and leaves small negative values; --clamp is the usual fix)";
+    msg +=
+        " (" + img->compression + " compression is lossy and leaves small negative values; --clamp is the usual fix)";
   }
   return InvalidArgument(msg);
 }
@@ -408,7 +415,8 @@ Result<EnvMap> LoadFaces(const std::string& path, const EnvLoadOptions& o) {
   env.path = path;
   for (int f = 0; f < 6; ++f) {
     std::string p = path;
-    for (size_t at; (at = p.find(kPlaceholder)) != std::string::npos;) p.replace(at, std::strlen(kPlaceholder), kFaceNames[f]);
+    for (size_t at; (at = p.find(kPlaceholder)) != std::string::npos;)
+      p.replace(at, std::strlen(kPlaceholder), kFaceNames[f]);
     LTB_ASSIGN_OR_RETURN(Image img, ReadImage(p));
     if (img.width != img.height) {
       return InvalidArgument(p + ": a cube face must be square, this one is " + Size(img.width, img.height));
@@ -441,7 +449,8 @@ const char* EnvLayoutName(EnvLayout layout) {
 }
 
 Result<EnvLayout> ParseEnvLayout(const std::string& name) {
-  for (EnvLayout l : {EnvLayout::kAuto, EnvLayout::kLatLong, EnvLayout::kHCross, EnvLayout::kVCross, EnvLayout::kFaces}) {
+  for (EnvLayout l :
+       {EnvLayout::kAuto, EnvLayout::kLatLong, EnvLayout::kHCross, EnvLayout::kVCross, EnvLayout::kFaces}) {
     if (name == EnvLayoutName(l)) return l;
   }
   return InvalidArgument("environment layout \"" + name + "\" is not one of auto, latlong, hcross, vcross, faces");
@@ -456,8 +465,8 @@ Result<EnvMap> LoadEnvMap(const std::string& path, const EnvLoadOptions& o) {
   const bool faces = path.find(kPlaceholder) != std::string::npos;
   if (faces) {
     if (o.layout != EnvLayout::kAuto && o.layout != EnvLayout::kFaces) {
-      return InvalidArgument(path + ": a {face} path names six face files; --env-layout " +
-                             EnvLayoutName(o.layout) + " needs one image");
+      return InvalidArgument(path + ": a {face} path names six face files; --env-layout " + EnvLayoutName(o.layout) +
+                             " needs one image");
     }
     return LoadFaces(path, o);
   }
@@ -559,9 +568,9 @@ Result<CubemapResampler> CubemapResampler::Create(const EnvMap& env, uint64_t cu
   rs.omega_.resize(n);
   for (uint64_t t = 0; t < n; ++t) rs.omega_[t] = cubemap::TexelSolidAngle(cubemap::ColumnToTexel(t, R), uint32_t(R));
 
-  // Working grid targets: rows a sixteenth of a face (about a quarter of the smallest texel's
-  // height), columns as wide as rows are high at the equator; halved (with sub-bands) while
-  // the prefix tables would pass 2^22 cells (100 MB).
+  // Working grid targets: 16R rows of 180°/16R (about a fifth of the smallest texel's side,
+  // 0.94/R rad at the cube corners), 32R columns (as wide as rows are high at the equator);
+  // both halved (with more bands per row) while the prefix tables would pass 2^22 pixels.
   uint64_t target_rows = 16 * R, target_cols = 32 * R, sub = 1;
   while (target_rows * target_cols > (1ull << 22) && target_rows > 1) {
     target_rows /= 2;
@@ -616,14 +625,15 @@ Result<CubemapResampler> CubemapResampler::Create(const EnvMap& env, uint64_t cu
         for (int c = 0; c < 3; ++c) work[(J * rs.ww_ + I) * 3 + c] = s[c] / (wsum * lsum);
       }
     }
-  } else if (env.layout == EnvLayout::kHCross || env.layout == EnvLayout::kVCross ||
-             env.layout == EnvLayout::kFaces) {
+  } else if (env.layout == EnvLayout::kHCross || env.layout == EnvLayout::kVCross || env.layout == EnvLayout::kFaces) {
     const FaceGeometry g = FacesOf(env);
     const uint64_t F = g.size;
     if (F == 0) return InvalidArgument(env.path + ": " + Size(env.width, env.height) + " holds no cube faces");
     rs.hw_ = target_rows;
     rs.ww_ = target_cols;
-    auto source = [&](int f, uint64_t s, uint64_t t) { return &env.rgb[((g.y0[f] + t) * env.width + g.x0[f] + s) * 3]; };
+    auto source = [&](int f, uint64_t s, uint64_t t) {
+      return &env.rgb[((g.y0[f] + t) * env.width + g.x0[f] + s) * 3];
+    };
     for (int f = 0; f < 6; ++f)
       for (uint64_t t = 0; t < F; ++t)
         for (uint64_t s = 0; s < F; ++s) {
@@ -667,7 +677,8 @@ Result<CubemapResampler> CubemapResampler::Create(const EnvMap& env, uint64_t cu
         if (dw[px] > 0) {
           for (int c = 0; c < 3; ++c) work[px * 3 + c] = ldw[px * 3 + c] / dw[px];
         } else {
-          cubemap::Texel x = cubemap::DirectionToTexel(LatLongDirection((I + 0.5) / rs.ww_, (J + 0.5) / rs.hw_), uint32_t(F));
+          cubemap::Texel x =
+              cubemap::DirectionToTexel(LatLongDirection((I + 0.5) / rs.ww_, (J + 0.5) / rs.hw_), uint32_t(F));
           for (int c = 0; c < 3; ++c) work[px * 3 + c] = source(x.face, x.s, x.t)[c];
         }
       }
@@ -694,14 +705,16 @@ Result<CubemapResampler> CubemapResampler::Create(const EnvMap& env, uint64_t cu
   std::vector<std::pair<double, uint32_t>> marks;
   for (uint64_t J = 0; J < hw; ++J)
     for (uint64_t q = 0; q < sub; ++q) {
-      const double ta = kPi * double(J * sub + q) / double(hw * sub), tb = kPi * double(J * sub + q + 1) / double(hw * sub);
+      const double ta = kPi * double(J * sub + q) / double(hw * sub),
+                   tb = kPi * double(J * sub + q + 1) / double(hw * sub);
       Band band;
       band.row = uint32_t(J);
       band.weight = CosDiff(ta, tb) * 2.0 * kPi / ww;
       const double z = 0.5 * (std::cos(ta) + std::cos(tb)), rho = std::sqrt(std::max(0.0, 1.0 - z * z));
       auto texel_at = [&](double col) {
         const double phi = kPi - 2.0 * kPi * col / ww;
-        return uint32_t(cubemap::Column(cubemap::DirectionToTexel({rho * std::cos(phi), rho * std::sin(phi), z}, uint32_t(R)), uint32_t(R)));
+        return uint32_t(cubemap::Column(
+            cubemap::DirectionToTexel({rho * std::cos(phi), rho * std::sin(phi), z}, uint32_t(R)), uint32_t(R)));
       };
       marks.clear();
       // Bisects (lo, hi) where the texel changes from tlo to thi; a third texel in between
@@ -831,8 +844,8 @@ void CubemapResampler::Resample(double rotation, float* out) const {
     for (int c = 0; c < 3; ++c) out[t * 3 + c] = float(acc[t][c] * texel_scale_[t] * g[c]);
 }
 
-Status ConvertEnvToNpy(const std::string& in, const std::string& out, uint64_t cube_res,
-                       const EnvLoadOptions& options) {
+Status ConvertEnvToNpy(const std::string& in, const std::string& out, uint64_t cube_res, const EnvLoadOptions& options,
+                       uint64_t* clamped) {
   if (cube_res == 0) {
     return InvalidArgument("convert " + in + ": an environment map needs --cube-res R (the cubemap's face size)");
   }
@@ -844,6 +857,7 @@ Status ConvertEnvToNpy(const std::string& in, const std::string& out, uint64_t c
     return InvalidArgument("convert " + in + " " + out + ": an environment map converts to a .npy cubemap");
   }
   LTB_ASSIGN_OR_RETURN(EnvMap env, LoadEnvMap(in, options));
+  if (clamped != nullptr) *clamped = env.clamped;
   LTB_ASSIGN_OR_RETURN(CubemapResampler rs, CubemapResampler::Create(env, cube_res));
   const uint64_t texels = 6 * cube_res * cube_res;
   std::vector<float> cube(texels * 3);

@@ -5,10 +5,9 @@
 #pragma once
 
 #include <cstdint>
+#include <glm/vec3.hpp>
 #include <string>
 #include <vector>
-
-#include <glm/vec3.hpp>
 
 #include "format/status.h"
 
@@ -54,7 +53,8 @@ void DirectionToLatLong(const glm::dvec3& d, double* u, double* v);
 // Area-correct resampling of an environment map to a cubemap with R×R faces: 6R² texels ×
 // 3 floats (texel-major, out[(f·R² + t·R + s)·3 + c]) of radiance, each texel the average of
 // the source over the texel's solid angle (boundaries resolved per latitude band, about a
-// quarter of a texel high); Σ texel·Ω_texel equals SourcePower exactly (one global factor).
+// fifth of the smallest texel high); Σ texel·Ω_texel equals SourcePower exactly (one global
+// factor).
 //
 // Create reduces the source, area-correctly, to a working lat-long grid (working_width()
 // columns × working_rows() rows, every row held as exact prefix sums) and precomputes, per
@@ -86,8 +86,8 @@ class CubemapResampler {
 
  private:
   struct Band {
-    uint32_t row = 0;         // working row
-    double weight = 0;        // solid angle per working column in this band
+    uint32_t row = 0;   // working row
+    double weight = 0;  // solid angle per working column in this band
     uint64_t first_run = 0, run_count = 0;
   };
   struct EmptyTexel {
@@ -97,12 +97,12 @@ class CubemapResampler {
   };
 
   uint64_t r_ = 0, ww_ = 0, hw_ = 0;
-  std::vector<double> prefix_;        // hw × (ww + 1) × 3 (+1 pad): Σ of the row's values before column i
+  std::vector<double> prefix_;  // hw × (ww + 1) × 3 (+1 pad): Σ of the row's values before column i
   std::vector<Band> bands_;
-  std::vector<double> run_start_;     // working column where each interval starts, ascending per band
-  std::vector<uint32_t> run_texel_;   // texel of each interval (until the next start; the last wraps)
-  std::vector<double> texel_scale_;   // 1 / Σ band solid angle over the texel (1 for empty texels)
-  std::vector<double> omega_;         // exact texel solid angles
+  std::vector<double> run_start_;    // working column where each interval starts, ascending per band
+  std::vector<uint32_t> run_texel_;  // texel of each interval (until the next start; the last wraps)
+  std::vector<double> texel_scale_;  // 1 / Σ band solid angle over the texel (1 for empty texels)
+  std::vector<double> omega_;        // exact texel solid angles
   std::vector<EmptyTexel> empty_;
   double power_[3] = {0, 0, 0};
 };
@@ -110,8 +110,9 @@ class CubemapResampler {
 // `ltbake convert ENV OUT.npy --cube-res R`: loads ENV (.exr/.hdr, or six faces with {face})
 // and writes its R-cubemap (rotation 0) as a 6R² × 3 float32 .npy, written beside OUT and
 // renamed into place. R must be a power of two up to 512 (as for a matrix's cube columns).
-Status ConvertEnvToNpy(const std::string& in, const std::string& out, uint64_t cube_res,
-                       const EnvLoadOptions& options);
+// `clamped` (optional) receives EnvMap::clamped.
+Status ConvertEnvToNpy(const std::string& in, const std::string& out, uint64_t cube_res, const EnvLoadOptions& options,
+                       uint64_t* clamped = nullptr);
 // True for paths ConvertEnvToNpy reads: .exr, .hdr, .pic, .rgbe (any case) or "{face}".
 bool IsEnvMapPath(const std::string& path);
 

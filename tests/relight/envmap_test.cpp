@@ -6,7 +6,16 @@
 // refusal (or clamping) of NaN, negative and infinite values; clear errors for wrong sizes,
 // truncated, garbage and missing files; the .hdr reader against stb_image; a real
 // blender-data map, with the timings docs/ENVMAPS.md quotes.
+#include "stages/relight/envmap.h"
+
+#include <ImfChannelList.h>
+#include <ImfFrameBuffer.h>
+#include <ImfHeader.h>
+#include <ImfOutputFile.h>
+#include <ImfRgbaFile.h>
 #include <gtest/gtest.h>
+#include <stb_image.h>
+#include <stb_image_write.h>
 
 #include <algorithm>
 #include <chrono>
@@ -16,24 +25,15 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <glm/geometric.hpp>
 #include <limits>
 #include <numbers>
 #include <random>
 #include <string>
 #include <vector>
 
-#include <ImfChannelList.h>
-#include <ImfFrameBuffer.h>
-#include <ImfHeader.h>
-#include <ImfOutputFile.h>
-#include <ImfRgbaFile.h>
-#include <glm/geometric.hpp>
-#include <stb_image.h>
-#include <stb_image_write.h>
-
 #include "format/npy.h"
 #include "stages/common/cubemap.h"
-#include "stages/relight/envmap.h"
 
 namespace ltb::stages {
 namespace {
@@ -60,7 +60,8 @@ class EnvMapTest : public ::testing::Test {
 // Float R, G, B (or Y only) channels through the general OpenEXR interface.
 void WriteExrFloat(const std::string& path, int w, int h, const Pixels& rgb, bool luminance = false,
                    Imf::Compression comp = Imf::ZIP_COMPRESSION, int x0 = 0, int y0 = 0) {
-  Imf::Header header(Imath::Box2i({x0, y0}, {x0 + w - 1, y0 + h - 1}), Imath::Box2i({x0, y0}, {x0 + w - 1, y0 + h - 1}));
+  Imf::Header header(Imath::Box2i({x0, y0}, {x0 + w - 1, y0 + h - 1}),
+                     Imath::Box2i({x0, y0}, {x0 + w - 1, y0 + h - 1}));
   header.compression() = comp;
   Imf::FrameBuffer fb;
   const Imath::Box2i dw = header.dataWindow();
@@ -187,7 +188,8 @@ Cube Resampled(const std::string& path, uint64_t r, double rotation = 0.0, EnvLo
 
 double Power(const Cube& cube, int c) {
   double p = 0;
-  for (uint64_t t = 0; t < cube.texels.size() / 3; ++t) p += double(cube.texels[t * 3 + c]) * cube.rs.TexelSolidAngle(t);
+  for (uint64_t t = 0; t < cube.texels.size() / 3; ++t)
+    p += double(cube.texels[t * 3 + c]) * cube.rs.TexelSolidAngle(t);
   return p;
 }
 
@@ -468,8 +470,9 @@ TEST_F(EnvMapTest, NotRadianceIsRefusedWithItsPixelOrClampedAndCounted) {
     const std::string msg = env.status().message();
     EXPECT_EQ(env.status().code(), StatusCode::kInvalidArgument);
     const char* ch[3] = {"R", "G", "B"};
-    for (std::string part : {path, "pixel (" + std::to_string(k.x) + ", " + std::to_string(k.y) + ")",
-                             std::string("channel ") + ch[k.c], std::string(" ") + k.text + " ", std::string("--clamp")}) {
+    for (std::string part :
+         {path, "pixel (" + std::to_string(k.x) + ", " + std::to_string(k.y) + ")", std::string("channel ") + ch[k.c],
+          std::string(" ") + k.text + " ", std::string("--clamp")}) {
       EXPECT_NE(msg.find(part), std::string::npos) << "missing \"" << part << "\" in: " << msg;
     }
     EnvLoadOptions o;
@@ -493,7 +496,8 @@ TEST_F(EnvMapTest, NotRadianceIsRefusedWithItsPixelOrClampedAndCounted) {
   EXPECT_EQ(fixed->clamped, 15u);  // Y replicated to three channels
   // Unused cells of a cross are not looked at.
   int cw, chh;
-  Pixels cross = CrossOf(true, 4, [](const glm::dvec3&, int) { return 1.0; }, &cw, &chh);
+  Pixels cross = CrossOf(
+      true, 4, [](const glm::dvec3&, int) { return 1.0; }, &cw, &chh);
   cross[0] = std::nanf("");
   WriteExrFloat(Path("c.exr"), cw, chh, cross);
   EXPECT_TRUE(LoadEnvMap(Path("c.exr"), {}).ok());
@@ -505,13 +509,14 @@ TEST_F(EnvMapTest, ClearErrorsForBadFiles) {
     ASSERT_FALSE(env.ok()) << path;
     EXPECT_EQ(env.status().code(), code) << env.status().message();
     for (const std::string& part : parts) {
-      EXPECT_NE(env.status().message().find(part), std::string::npos) << "missing \"" << part << "\" in: "
-                                                                      << env.status().message();
+      EXPECT_NE(env.status().message().find(part), std::string::npos)
+          << "missing \"" << part << "\" in: " << env.status().message();
     }
   };
   Pixels p(100 * 60 * 3, 1.0f);
   WriteExrFloat(Path("odd.exr"), 100, 60, p);
-  expect_error(Path("odd.exr"), {}, StatusCode::kInvalidArgument, {Path("odd.exr"), "100x60", "accepted", "lat-long", "cross"});
+  expect_error(Path("odd.exr"), {}, StatusCode::kInvalidArgument,
+               {Path("odd.exr"), "100x60", "accepted", "lat-long", "cross"});
   EnvLoadOptions ll;
   ll.layout = EnvLayout::kLatLong;
   EXPECT_TRUE(LoadEnvMap(Path("odd.exr"), ll).ok());  // any size when asked for explicitly
@@ -653,10 +658,13 @@ TEST_F(EnvMapTest, HdrReaderMatchesStbImage) {
 TEST_F(EnvMapTest, ConvertWritesTheCubemapAsNpy) {
   auto fn = [](const glm::dvec3& d, int c) { return Smooth(d, c); };
   WriteExrFloat(Path("env.exr"), 128, 64, LatLongOf(128, 64, fn));
-  ASSERT_TRUE(ConvertEnvToNpy(Path("env.exr"), Path("env.npy"), 8, {}).ok());
+  uint64_t clamped = 99;
+  ASSERT_TRUE(ConvertEnvToNpy(Path("env.exr"), Path("env.npy"), 8, {}, &clamped).ok());
+  EXPECT_EQ(clamped, 0u);
   std::ifstream f(Path("env.npy"), std::ios::binary);
   std::string bytes((std::istreambuf_iterator<char>(f)), {});
-  auto header = format::ParseNpyHeader(format::ByteSpan(reinterpret_cast<const std::byte*>(bytes.data()), bytes.size()));
+  auto header =
+      format::ParseNpyHeader(format::ByteSpan(reinterpret_cast<const std::byte*>(bytes.data()), bytes.size()));
   ASSERT_TRUE(header.ok()) << header.status().ToString();
   EXPECT_EQ(header->descr, "<f4");
   EXPECT_EQ(header->shape, (std::vector<uint64_t>{6 * 64, 3}));
@@ -674,7 +682,8 @@ TEST_F(EnvMapTest, ConvertWritesTheCubemapAsNpy) {
   EXPECT_TRUE(IsEnvMapPath("a/B.EXR"));
   EXPECT_TRUE(IsEnvMapPath("sky_{face}.png"));
   EXPECT_FALSE(IsEnvMapPath("m.npy"));
-  for (EnvLayout l : {EnvLayout::kAuto, EnvLayout::kLatLong, EnvLayout::kHCross, EnvLayout::kVCross, EnvLayout::kFaces}) {
+  for (EnvLayout l :
+       {EnvLayout::kAuto, EnvLayout::kLatLong, EnvLayout::kHCross, EnvLayout::kVCross, EnvLayout::kFaces}) {
     EXPECT_EQ(*ParseEnvLayout(EnvLayoutName(l)), l);
   }
   EXPECT_FALSE(ParseEnvLayout("cube").ok());
@@ -708,11 +717,12 @@ void TimeResampler(const EnvMap& env, const char* what) {
   t0 = std::chrono::steady_clock::now();
   for (int i = 0; i < frames; ++i) rs->Resample(2 * kPi * i / frames, out.data());
   const double per_frame = Seconds(t0) / frames;
-  std::printf("[ envmap ] %s %llux%llu -> R=%llu: Create %.1f ms (working grid %llux%llu, %llu bands, %llu intervals), "
-              "Resample %.3f ms/frame over %d rotations\n",
-              what, (unsigned long long)env.width, (unsigned long long)env.height, (unsigned long long)r, create * 1e3,
-              (unsigned long long)rs->working_width(), (unsigned long long)rs->working_rows(),
-              (unsigned long long)rs->bands(), (unsigned long long)rs->intervals(), per_frame * 1e3, frames);
+  std::printf(
+      "[ envmap ] %s %llux%llu -> R=%llu: Create %.1f ms (working grid %llux%llu, %llu bands, %llu intervals), "
+      "Resample %.3f ms/frame over %d rotations\n",
+      what, (unsigned long long)env.width, (unsigned long long)env.height, (unsigned long long)r, create * 1e3,
+      (unsigned long long)rs->working_width(), (unsigned long long)rs->working_rows(), (unsigned long long)rs->bands(),
+      (unsigned long long)rs->intervals(), per_frame * 1e3, frames);
   EXPECT_EQ(rs->empty_texels(), 0u);
   for (int c = 0; c < 3; ++c) {
     double p = 0;
