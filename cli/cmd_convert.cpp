@@ -5,6 +5,7 @@
 #include "cli/commands.h"
 #include "cli/common.h"
 #include "stages/convert/convert.h"
+#include "stages/relight/envmap.h"
 
 namespace ltb::cli {
 namespace {
@@ -30,6 +31,14 @@ class ConvertCommand : public Command {
                     "basis) or pixels (also invert the row transform)")
         ->default_val("stored")
         ->check(CLI::IsMember({"stored", "pixels"}));
+    app->add_option("--env-layout", env_layout_,
+                    "environment map input (.exr/.hdr, or six faces through {face}) -> .npy cubemap: auto, latlong, "
+                    "hcross, vcross or faces")
+        ->default_val("auto")
+        ->check(CLI::IsMember({"auto", "latlong", "hcross", "vcross", "faces"}));
+    app->add_flag("--clamp", env_clamp_,
+                  "environment map input: set NaN and negative values to 0 and +Inf to the largest float instead of "
+                  "refusing them");
     AddCommonFlags(app, &flags_);
   }
 
@@ -54,6 +63,25 @@ class ConvertCommand : public Command {
       options_.image_width = w;
       options_.image_height = h;
     }
+    if (stages::IsEnvMapPath(options_.input)) {  // environment map -> 6R² × 3 cubemap .npy
+      if (options_.cube_res == 0) {
+        std::cerr << "ltbake: usage error: converting an environment map needs --cube-res R\n";
+        return kExitUsage;
+      }
+      stages::EnvLoadOptions env;
+      env.layout = *stages::ParseEnvLayout(env_layout_);  // checked by IsMember
+      env.clamp = env_clamp_;
+      uint64_t clamped = 0;
+      Status s = stages::ConvertEnvToNpy(options_.input, options_.output, options_.cube_res, env, &clamped);
+      if (!s.ok()) return ReportFailure(s);
+      if (!flags_.quiet) {
+        std::cout << "wrote " << options_.output << ": " << 6 * options_.cube_res * options_.cube_res
+                  << " x 3 cubemap (R = " << options_.cube_res << ")";
+        if (clamped) std::cout << ", " << clamped << " values clamped";
+        std::cout << "\n";
+      }
+      return kExitOk;
+    }
     ProgressBar bar(flags_, "convert");
     auto r = stages::RunConvert(options_, bar.hook());
     bar.Done();
@@ -76,7 +104,8 @@ class ConvertCommand : public Command {
 
  private:
   stages::ConvertOptions options_;
-  std::string chunk_size_ = "8MiB", layout_ = "rows", image_, basis_ = "stored";
+  std::string chunk_size_ = "8MiB", layout_ = "rows", image_, basis_ = "stored", env_layout_ = "auto";
+  bool env_clamp_ = false;
   CommonFlags flags_;
 };
 

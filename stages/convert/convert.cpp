@@ -352,7 +352,8 @@ Result<ConvertResult> RunConvert(const ConvertOptions& o, const Progress& progre
   if (EndsWith(o.input, ".npy") && EndsWith(o.output, ".ltm")) return NpyToLtm(o, progress);
   if (EndsWith(o.input, ".ltm") && EndsWith(o.output, ".npy")) return LtmToNpy(o, progress);
   return InvalidArgument("convert " + o.input + " " + o.output +
-                         ": supported conversions are .npy -> .ltm and .ltm -> .npy (by file extension)");
+                         ": supported conversions are .npy -> .ltm, .ltm -> .npy and an environment map (.exr, .hdr) "
+                         "-> .npy cubemap with --cube-res R (by file extension)");
 }
 
 }  // namespace ltb::stages

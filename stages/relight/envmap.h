@@ -5,9 +5,11 @@
 #pragma once
 
 #include <cstdint>
-#include <glm/vec3.hpp>
+#include <memory>
 #include <string>
 #include <vector>
+
+#include <glm/vec3.hpp>
 
 #include "format/status.h"
 
@@ -61,7 +63,7 @@ void DirectionToLatLong(const glm::dvec3& d, double* u, double* v);
 // latitude band, the column intervals where the band crosses each texel. Resample(α) then
 // integrates the working grid rotated by α about +Z over those intervals: any α, no
 // granularity; a rotation by k·2π/working_width() is exactly a shift of the working grid by
-// k columns. Cost per frame: O(number of intervals) ≈ 40·R², independent of the source size.
+// k columns. Cost per frame: O(number of intervals) ≈ 50·R², independent of the source size.
 class CubemapResampler {
  public:
   // cube_res: 1..512.
@@ -97,7 +99,8 @@ class CubemapResampler {
   };
 
   uint64_t r_ = 0, ww_ = 0, hw_ = 0;
-  std::vector<double> prefix_;  // hw × (ww + 1) × 3 (+1 pad): Σ of the row's values before column i
+  // hw × (ww + 1) × 3 (+1 pad): Σ of the row's values before column i. Immutable, shared by copies.
+  std::shared_ptr<const double[]> prefix_;
   std::vector<Band> bands_;
   std::vector<double> run_start_;    // working column where each interval starts, ascending per band
   std::vector<uint32_t> run_texel_;  // texel of each interval (until the next start; the last wraps)

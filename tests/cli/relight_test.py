@@ -151,4 +151,26 @@ with tempfile.TemporaryDirectory() as d:
     check("texel 5 channel 1" in r.stderr, f"NaN texel should be named: {r.stderr}")
     r = run("relight", p("cq.ltm"), "--env", env, "-o", p("x.png"), "--weighting", "sideways", expect=2)
 
+    # 7. A real environment map (blender-data, CC0) through convert and relight.
+    import subprocess
+    envdir = subprocess.run(["bash", os.path.join(os.path.dirname(os.path.abspath(__file__)), "../../scripts/find_envmaps.sh")],
+                            capture_output=True, text=True).stdout.strip()
+    exr = os.path.join(envdir, "forest.exr")
+    if os.path.exists(exr):
+        r = run("convert", exr, p("forest.npy"), "--cube-res", R, expect=1)
+        check("--clamp" in r.stderr and "negative" in r.stderr, f"DWAB negatives should be refused: {r.stderr}")
+        run("convert", exr, p("forest.npy"), "--cube-res", R, "--clamp", *q)
+        cube = np.load(p("forest.npy"))
+        check(cube.shape == (cols, 3) and np.all(np.isfinite(cube)) and np.all(cube >= 0) and cube.sum() > 0,
+              f"forest cubemap: shape {cube.shape}")
+        a = json.loads(run("relight", p("cq.ltm"), "--env", exr, "--clamp", "-o", p("fa.npy"), "--terms", 30,
+                           "--json", *q).stdout)
+        b = json.loads(run("relight", p("cq.ltm"), "--env", p("forest.npy"), "-o", p("fb.npy"), "--terms", 30,
+                           "--json", *q).stdout)
+        check(np.allclose(np.load(p("fa.npy")), np.load(p("fb.npy")), rtol=1e-5, atol=1e-7),
+              "relighting from the .exr and from its converted cubemap differ")
+        check(a.get("clamped_values", 0) > 0 and b.get("terms_used") == 30, f"env reports: {a} {b}")
+    else:
+        check(False, f"blender-data maps not found under {envdir!r}: scripts/setup.sh installs blender-data")
+
 finish()

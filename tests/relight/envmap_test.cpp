@@ -6,16 +6,7 @@
 // refusal (or clamping) of NaN, negative and infinite values; clear errors for wrong sizes,
 // truncated, garbage and missing files; the .hdr reader against stb_image; a real
 // blender-data map, with the timings docs/ENVMAPS.md quotes.
-#include "stages/relight/envmap.h"
-
-#include <ImfChannelList.h>
-#include <ImfFrameBuffer.h>
-#include <ImfHeader.h>
-#include <ImfOutputFile.h>
-#include <ImfRgbaFile.h>
 #include <gtest/gtest.h>
-#include <stb_image.h>
-#include <stb_image_write.h>
 
 #include <algorithm>
 #include <chrono>
@@ -25,15 +16,24 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
-#include <glm/geometric.hpp>
 #include <limits>
 #include <numbers>
 #include <random>
 #include <string>
 #include <vector>
 
+#include <ImfChannelList.h>
+#include <ImfFrameBuffer.h>
+#include <ImfHeader.h>
+#include <ImfOutputFile.h>
+#include <ImfRgbaFile.h>
+#include <glm/geometric.hpp>
+#include <stb_image.h>
+#include <stb_image_write.h>
+
 #include "format/npy.h"
 #include "stages/common/cubemap.h"
+#include "stages/relight/envmap.h"
 
 namespace ltb::stages {
 namespace {
