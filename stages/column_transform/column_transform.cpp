@@ -301,6 +301,17 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
     return ColumnCompressor::Create(o.filter, plan.width, plan.height, plan.min_depth, plan.max_depth);
   };
   LTB_RETURN_IF_ERROR(make_compressor().status());
+  // One compressor per worker thread, reused across chunks (and across runs in one process
+  // while the plan is the same).
+  auto thread_compressor = [&]() -> Result<ColumnCompressor*> {
+    thread_local std::unique_ptr<ColumnCompressor> comp;
+    if (!comp || comp->filter() != o.filter || comp->width() != plan.width || comp->height() != plan.height ||
+        comp->max_depth() != plan.max_depth || comp->min_depth() != plan.min_depth) {
+      LTB_ASSIGN_OR_RETURN(ColumnCompressor cc, make_compressor());
+      comp = std::make_unique<ColumnCompressor>(std::move(cc));
+    }
+    return comp.get();
+  };
 
   // Budget: first pass over every column (the allocation is global), then a bisection on
   // the threshold bin; each column's depth follows from it.
@@ -313,12 +324,7 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
     for (uint64_t i = 0; i < all_chunks.size(); ++i) all_chunks[i] = i;
     Progress pass1 = progress;
     Status s = ParallelFor(all_chunks, jobs, pass1, "chunks (budget pass)", [&](uint64_t c) -> Status {
-      thread_local std::unique_ptr<ColumnCompressor> comp;
-      if (!comp || comp->filter() != o.filter || comp->width() != plan.width || comp->height() != plan.height || comp->max_depth() != plan.max_depth ||
-          comp->min_depth() != plan.min_depth) {
-        LTB_ASSIGN_OR_RETURN(ColumnCompressor cc, make_compressor());
-        comp = std::make_unique<ColumnCompressor>(std::move(cc));
-      }
+      LTB_ASSIGN_OR_RETURN(ColumnCompressor * comp, thread_compressor());
       LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(0, c));
       const ChunkExtent e = chunk.extent();
       auto values = chunk.as<float>();
@@ -410,12 +416,7 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
   eo.dtype = DType::kF32;
   std::atomic<uint64_t> written{0};
   Status s = ParallelFor(items, jobs, progress, "chunks", [&](uint64_t c) -> Status {
-    thread_local std::unique_ptr<ColumnCompressor> comp;
-    if (!comp || comp->filter() != o.filter || comp->width() != plan.width || comp->height() != plan.height || comp->max_depth() != plan.max_depth ||
-        comp->min_depth() != plan.min_depth) {
-      LTB_ASSIGN_OR_RETURN(ColumnCompressor cc, make_compressor());
-      comp = std::make_unique<ColumnCompressor>(std::move(cc));
-    }
+    LTB_ASSIGN_OR_RETURN(ColumnCompressor * comp, thread_compressor());
     LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(0, c));
     const ChunkExtent e = chunk.extent();
     auto values = chunk.as<float>();
