@@ -107,7 +107,9 @@ class RelightCommand : public Command {
     const uint64_t rows = reader->metadata().matrix().rows;
     std::optional<stages::Relighter> relighter;
     if (!streaming) {
-      auto r = stages::Relighter::Load(matrix_, bar.hook());
+      auto mem = ParseSize(flags_.mem_limit);
+      if (!mem.ok()) return ReportFailure(mem.status().WithContext("--mem-limit"));
+      auto r = stages::Relighter::Load(matrix_, *mem, bar.hook());
       if (!r.ok()) return ReportFailure(r.status());
       relighter = std::move(*r);
       report["nonzeros"] = relighter->nonzeros();

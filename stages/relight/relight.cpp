@@ -123,7 +123,7 @@ Status LightingBasis::SelectTerms(const float* lighting, uint64_t terms, Weighti
   return Status::Ok();
 }
 
-Result<Relighter> Relighter::Load(const std::string& path, const Progress& progress) {
+Result<Relighter> Relighter::Load(const std::string& path, uint64_t mem_limit, const Progress& progress) {
   LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(path));
   const Metadata& meta = in.metadata();
   const ArraySpec& a = meta.matrix();
@@ -211,6 +211,12 @@ Result<Relighter> Relighter::Load(const std::string& path, const Progress& progr
         ++pos;
       }
       r.col_ptr_[j + 1] = r.values_.size();
+      if (r.values_.size() * 8 > mem_limit) {
+        return FailedPrecondition(path + ": its nonzeros need more than --mem-limit (" + std::to_string(mem_limit >> 20) +
+                                  " MiB) in memory (8 bytes each; " + std::to_string(r.values_.size()) +
+                                  " by column " + std::to_string(j) + " of " + std::to_string(a.cols) +
+                                  "); raise --mem-limit, compress it further, or relight the row-block matrix (streamed)");
+      }
       // ‖T_j‖ in the image: the column's recorded energy, else (plain columns, or depth 0
       // where coefficients are pixels) its values' energy.
       r.column_norm_[j] = std::sqrt(energy[k] >= 0 ? energy[k] : e2);

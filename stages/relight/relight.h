@@ -61,7 +61,8 @@ class Relighter {
  public:
   // final.ltm / cols4d.ltm (any depth mode), or an uncompressed column-block container
   // (cols.ltm: every column at depth 0). Needs cubemap columns (basis.cols).
-  static Result<Relighter> Load(const std::string& path, const Progress& progress);
+  // Fails (naming the sizes) when the sparse matrix would take more than `mem_limit` bytes.
+  static Result<Relighter> Load(const std::string& path, uint64_t mem_limit, const Progress& progress);
 
   uint64_t rows() const { return rows_; }
   const LightingBasis& basis() const { return basis_; }

@@ -150,6 +150,8 @@ with tempfile.TemporaryDirectory() as d:
     r = run("relight", p("cq.ltm"), "--env", p("bad_nan.npy"), "-o", p("x.npy"), expect=1)
     check("texel 5 channel 1" in r.stderr, f"NaN texel should be named: {r.stderr}")
     r = run("relight", p("cq.ltm"), "--env", env, "-o", p("x.png"), "--weighting", "sideways", expect=2)
+    r = run("relight", p("cols.ltm"), "--env", env, "-o", p("x.npy"), "--mem-limit", "10KiB", expect=1)
+    check("--mem-limit" in r.stderr, f"a matrix over --mem-limit should be refused naming it: {r.stderr}")
 
     # 7. A real environment map (blender-data, CC0) through convert and relight.
     import subprocess
