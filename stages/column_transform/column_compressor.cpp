@@ -198,10 +198,15 @@ void ColumnCompressor::Select(size_t lane, int depth, const Selection& sel, doub
     }
   } else {
     const double* w = weighted ? weights_[depth].data() : nullptr;
+    uint64_t extra = sel.terms;
     for (uint64_t p = 0; p < pixels_; ++p) {
       double c = coeffs_[p * kLanes + lane];
       double m = c * c * (w ? w[p] : 1.0);
-      if (m > 0 && EnergyBin(m) >= sel.threshold_bin) kept->push_back(static_cast<uint32_t>(p));
+      if (m <= 0) continue;
+      int b = EnergyBin(m);
+      if (b >= sel.threshold_bin || (b == sel.threshold_bin - 1 && extra > 0 && extra--)) {
+        kept->push_back(static_cast<uint32_t>(p));
+      }
     }
     if (!kept->empty()) {
       const double trim = trim_total / static_cast<double>(kept->size());

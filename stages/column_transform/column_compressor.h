@@ -46,7 +46,8 @@ struct ColumnChoice {
 // How the coefficients to keep are chosen at a given depth.
 struct Selection {
   enum class Kind { kTerms, kThreshold } kind = Kind::kTerms;
-  uint64_t terms = 0;     // kTerms: keep the `terms` largest (by weighted energy)
+  uint64_t terms = 0;     // kTerms: keep the `terms` largest (by weighted energy);
+                          // kThreshold: also keep the first `terms` (in position order) of bin threshold_bin − 1
   int threshold_bin = 0;  // kThreshold: keep those with EnergyBin(weighted energy) >= threshold_bin
 };
 

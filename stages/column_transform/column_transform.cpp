@@ -316,6 +316,7 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
   // Budget: first pass over every column (the allocation is global), then a bisection on
   // the threshold bin; each column's depth follows from it.
   std::vector<int8_t> budget_depth;
+  std::vector<uint64_t> budget_extra;  // terms each column takes from the bin below the threshold
   int threshold_bin = 0;
   if (o.terms.kind == TermsMode::Kind::kBudget && !items.empty()) {
     std::vector<ColumnCurves> curves(a.cols);
@@ -401,11 +402,26 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
       threshold_bin = h;
     }
     budget_depth.assign(a.cols, -1);
+    budget_extra.assign(a.cols, 0);
     double lambda = BinLowerEdge(threshold_bin);
+    uint64_t used = 0;
+    std::vector<uint64_t> in_next_bin(a.cols, 0);  // terms of bin threshold_bin − 1 at the chosen depth
     for (uint64_t c = 0; c < a.cols; ++c) {
       if (curves[c].bin.empty()) continue;
       uint64_t n = 0;
-      budget_depth[c] = static_cast<int8_t>(plan.min_depth + PickDepth(curves[c], threshold_bin, lambda, &n));
+      int d = PickDepth(curves[c], threshold_bin, lambda, &n);
+      budget_depth[c] = static_cast<int8_t>(plan.min_depth + d);
+      used += n;
+      Point below = Evaluate(curves[c], d, threshold_bin - 1, BinLowerEdge(threshold_bin - 1));
+      in_next_bin[c] = below.count - n;
+    }
+    // The bins are 1/8 octave wide, and many equal values (a lit floor) can share one: fill
+    // what is left of the budget from the next bin down, at each column's chosen depth,
+    // in column order (each extra term lowers the error by at least λ/2^(1/8)).
+    for (uint64_t c = 0; c < a.cols && used < budget; ++c) {
+      uint64_t take = std::min(in_next_bin[c], budget - used);
+      budget_extra[c] = take;
+      used += take;
     }
     result.lambda = lambda;
   }
@@ -438,6 +454,7 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
         } else {
           sel[k].kind = Selection::Kind::kThreshold;
           sel[k].threshold_bin = threshold_bin;
+          sel[k].terms = budget_extra[e.col0 + k0 + k];
           override_depth[k] = budget_depth[e.col0 + k0 + k];
         }
       }
