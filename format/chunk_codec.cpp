@@ -283,6 +283,20 @@ Status StreamZstd(ByteSpan payload, F&& consume) {
   return Status::Ok();
 }
 
+}  // namespace
+
+Result<uint64_t> ZstdDecodedSize(ByteSpan payload, uint64_t cap) {
+  uint64_t total = 0;
+  LTB_RETURN_IF_ERROR(StreamZstd(payload, [&](ByteSpan piece) -> Status {
+    total += piece.size();
+    if (total > cap) return DataLoss("zstd payload decodes to more than the " + std::to_string(cap) + " bytes expected");
+    return Status::Ok();
+  }));
+  return total;
+}
+
+namespace {
+
 template <typename Sink>
 Status ParseSparse(ByteSpan payload, bool zstd, DType dtype, uint64_t elements, Sink* sink) {
   if (elements > kMaxSparseElements) return DataLoss(ElementsTooMany(elements));

@@ -39,6 +39,11 @@ struct EncodedChunk {
 // sparse were off (ContainerWriter::Put refuses the latter with kInvalidArgument).
 EncodedChunk EncodeChunk(ByteSpan data, const EncodeOptions& options);
 
+// The decoded size of one zstd frame, streamed through a fixed window (no allocation from
+// the payload's claims); more than `cap` bytes, a truncated frame or trailing bytes are
+// kDataLoss.
+Result<uint64_t> ZstdDecodedSize(ByteSpan payload, uint64_t cap);
+
 // Decodes a kZstd payload into `out`, whose size is the expected decoded length.
 Status DecodeZstd(ByteSpan payload, MutableByteSpan out);
 

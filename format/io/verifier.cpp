@@ -1,6 +1,5 @@
 #include "format/io/verifier.h"
 
-#include <zstd.h>
 
 #include <set>
 
@@ -15,33 +14,6 @@ namespace ltb::io {
 using namespace ltb::format;
 
 namespace {
-
-// Decodes a zstd payload through a fixed-size window, returning the decoded byte count.
-Result<uint64_t> StreamZstdSize(ByteSpan payload, uint64_t cap) {
-  struct Ctx {
-    ZSTD_DStream* s = ZSTD_createDStream();
-    ~Ctx() { ZSTD_freeDStream(s); }
-  } ctx;
-  if (ctx.s == nullptr) return Internal("cannot create a zstd stream");
-  std::vector<std::byte> window(ZSTD_DStreamOutSize());
-  ZSTD_inBuffer in{payload.data(), payload.size(), 0};
-  uint64_t total = 0;
-  size_t ret = 1;
-  while (in.pos < in.size || ret != 0) {
-    ZSTD_outBuffer out{window.data(), window.size(), 0};
-    size_t before = in.pos;
-    ret = ZSTD_decompressStream(ctx.s, &out, &in);
-    if (ZSTD_isError(ret)) return DataLoss(std::string("zstd: ") + ZSTD_getErrorName(ret));
-    total += out.pos;
-    if (total > cap) return DataLoss("zstd payload decodes to more than the " + std::to_string(cap) + " bytes expected");
-    if (out.pos == 0 && in.pos == before) {
-      if (ret != 0) return DataLoss("zstd payload is truncated");
-      break;
-    }
-  }
-  if (in.pos != in.size) return DataLoss("zstd payload has trailing bytes");
-  return total;
-}
 
 bool RangeIsZero(const File& f, uint64_t offset, uint64_t length, std::string* error) {
   std::array<std::byte, 4096> buf;
@@ -171,7 +143,7 @@ VerifyReport VerifyContainer(const std::string& path) {
       continue;
     }
     if (h.encoding == static_cast<uint16_t>(Encoding::kZstd)) {
-      auto n = StreamZstdSize(region->bytes(), h.decoded_length);
+      auto n = ZstdDecodedSize(region->bytes(), h.decoded_length);
       if (!n.ok() || *n != h.decoded_length) {
         r.problems.push_back(where + ": " + (n.ok() ? "zstd payload decodes to " + std::to_string(*n) +
                                                           " bytes, expected " + std::to_string(h.decoded_length)
