@@ -1,6 +1,7 @@
 #include "stages/sample/geometry.h"
 
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -103,8 +104,34 @@ Result<TriangleMesh> LoadOpenMesh(const std::string& path) {
 
 }  // namespace
 
+// OpenMesh's OBJ reader turns a coordinate it cannot parse ("nan", "inf", "1e999", "x")
+// into a number silently; check the `v` lines' coordinates first, naming the line.
+Status CheckObjVertices(const std::string& path) {
+  std::ifstream f(path);
+  if (!f) return NotFound(path + ": cannot open mesh file");
+  std::string line;
+  for (uint64_t n = 1; std::getline(f, line); ++n) {
+    if (line.size() < 2 || line[0] != 'v' || (line[1] != ' ' && line[1] != '\t')) continue;
+    const char* p = line.c_str() + 2;
+    for (int k = 0; k < 3; ++k) {
+      while (*p == ' ' || *p == '\t') ++p;
+      const char* start = p;
+      while (*p && *p != ' ' && *p != '\t' && *p != '\r') ++p;
+      std::string token(start, p);
+      char* end = nullptr;
+      double v = std::strtod(token.c_str(), &end);
+      if (token.empty() || end != token.c_str() + token.size() || !std::isfinite(v)) {
+        return InvalidArgument(path + ":" + std::to_string(n) + ": vertex coordinate " + std::to_string(k + 1) + " is \"" +
+                               token + "\", not a finite number; fix or remove the vertex");
+      }
+    }
+  }
+  return Status::Ok();
+}
+
 Result<TriangleMesh> LoadMeshFile(const std::string& path) {
   std::string ext = Lower(std::filesystem::path(path).extension().string());
+  if (ext == ".obj") LTB_RETURN_IF_ERROR(CheckObjVertices(path));
   Result<TriangleMesh> r = ext == ".drc" ? LoadDraco(path) : LoadOpenMesh(path);
   if (!r.ok()) return r;
   TriangleMesh& m = *r;
