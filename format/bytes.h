@@ -6,11 +6,22 @@
 #include <cstring>
 #include <span>
 #include <string>
+#include <vector>
 
 namespace ltb::format {
 
 using ByteSpan = std::span<const std::byte>;
 using MutableByteSpan = std::span<std::byte>;
+
+// The bytes of a contiguous array of trivially copyable values.
+template <typename T>
+ByteSpan BytesOf(std::span<const T> values) {
+  return std::as_bytes(values);
+}
+template <typename T>
+ByteSpan BytesOf(const std::vector<T>& values) {
+  return std::as_bytes(std::span<const T>(values));
+}
 
 inline uint16_t LoadU16(const std::byte* p) {
   uint16_t v;

@@ -337,16 +337,11 @@ Status DecodeSparseToDense(ByteSpan payload, bool zstd, DType dtype, MutableByte
 
 // With options.sparse: the smallest of raw, zstd, sparse and sparse+zstd (those enabled)
 // that saves min_saving over raw; on equal sizes the earlier in that order.
+// (All-zero chunks are handled by EncodeChunk before it calls this.)
 EncodedChunk EncodeWithSparse(ByteSpan data, const EncodeOptions& options) {
   EncodedChunk c;
   c.decoded_length = data.size();
   c.dtype = options.dtype;
-  if (options.detect_zero && IsAllZero(data)) {
-    c.encoding = Encoding::kZero;
-    c.payload = {};
-    c.checksum = Checksum(c.payload);
-    return c;
-  }
   const double limit = (1.0 - options.min_saving) * static_cast<double>(data.size());
   Encoding best = Encoding::kRaw;
   size_t best_size = data.size();
@@ -380,10 +375,6 @@ EncodedChunk EncodeWithSparse(ByteSpan data, const EncodeOptions& options) {
 }  // namespace
 
 EncodedChunk EncodeChunk(ByteSpan data, const EncodeOptions& options) {
-  const uint64_t element = DTypeSize(options.dtype);
-  if (options.sparse && data.size() % element == 0 && data.size() / element <= kMaxSparseElements) {
-    return EncodeWithSparse(data, options);
-  }
   EncodedChunk c;
   c.decoded_length = data.size();
   c.dtype = options.dtype;
@@ -392,6 +383,10 @@ EncodedChunk EncodeChunk(ByteSpan data, const EncodeOptions& options) {
     c.payload = {};
     c.checksum = Checksum(c.payload);
     return c;
+  }
+  const uint64_t element = DTypeSize(options.dtype);
+  if (options.sparse && data.size() % element == 0 && data.size() / element <= kMaxSparseElements) {
+    return EncodeWithSparse(data, options);
   }
   if (options.zstd) {
     size_t bound = ZSTD_compressBound(data.size());

@@ -470,14 +470,14 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
       }
     }
     if (!out.Has(0, c)) {
-      LTB_RETURN_IF_ERROR(out.Put(0, c, ByteSpan(reinterpret_cast<const std::byte*>(dense.data()), dense.size() * 4), eo));
+      LTB_RETURN_IF_ERROR(out.Put(0, c, BytesOf(dense), eo));
     }
     if (!out.Has(depth_array, c)) {
-      LTB_RETURN_IF_ERROR(out.Put(depth_array, c, ByteSpan(reinterpret_cast<const std::byte*>(depths.data()), depths.size())));
+      LTB_RETURN_IF_ERROR(out.Put(depth_array, c, BytesOf(depths)));
     }
     if (!out.Has(stats_array, c)) {
       LTB_RETURN_IF_ERROR(
-          out.Put(stats_array, c, ByteSpan(reinterpret_cast<const std::byte*>(stats.data()), stats.size() * 8)));
+          out.Put(stats_array, c, BytesOf(stats)));
     }
     written++;
     return Status::Ok();

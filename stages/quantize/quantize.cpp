@@ -156,11 +156,11 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& pro
       }
     }
     if (!out.Has(0, c)) {
-      LTB_RETURN_IF_ERROR(out.Put(0, c, ByteSpan(reinterpret_cast<const std::byte*>(dense.data()), dense.size() * 4), eo));
+      LTB_RETURN_IF_ERROR(out.Put(0, c, BytesOf(dense), eo));
     }
     if (!out.Has(scale_array, c)) {
       LTB_RETURN_IF_ERROR(
-          out.Put(scale_array, c, ByteSpan(reinterpret_cast<const std::byte*>(scales.data()), scales.size() * 8)));
+          out.Put(scale_array, c, BytesOf(scales)));
     }
     written++;
     return Status::Ok();
