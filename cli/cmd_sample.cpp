@@ -20,6 +20,11 @@ class SampleCommand : public Command {
     app->add_option("--bounces", bounces_, "diffuse interreflection bounces (default: the scene's, else 0)");
     app->add_option("--seed", seed_, "random seed (default: the scene's, else 1)");
     app->add_option("--chunk-rows", options_.chunk_rows, "rows per chunk (default: ~2 MiB chunks)");
+    app->add_option("--row-transform", row_filter_,
+                    "fused sample + row-transform: wavelet-transform each row block with this filter before it is "
+                    "written (the output equals `ltbake row-transform` of the raw matrix; no raw file)")
+        ->check(CLI::IsMember({"haar", "db1", "db2", "db3", "db4"}));
+    app->add_flag("--row-zstd", options_.row_zstd, "with --row-transform: zstd-compress the matrix chunks");
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     AddCommonFlags(app, &flags_);
   }
@@ -30,6 +35,7 @@ class SampleCommand : public Command {
     if (bounces_ >= 0) options_.bounces = static_cast<uint32_t>(bounces_);
     if (seed_ >= 0) options_.seed = static_cast<uint64_t>(seed_);
     options_.jobs = flags_.jobs;
+    if (!row_filter_.empty()) options_.row_filter = *wavelet::ParseFilter(row_filter_);  // checked by IsMember
     ProgressBar bar(flags_, "sample");
     auto r = stages::RunSample(options_, bar.hook());
     bar.Done();
@@ -39,6 +45,7 @@ class SampleCommand : public Command {
       std::snprintf(rate, sizeof rate, "%.3g", r->seconds > 0 ? r->rays / r->seconds : 0.0);
       std::cout << "wrote " << options_.output << ": " << r->rows << " rows x " << 6ull * r->cube_res * r->cube_res
                 << " texels (R = " << r->cube_res << ", spp " << r->spp << ", bounces " << r->bounces << ")";
+      if (!row_filter_.empty()) std::cout << ", row-transformed (" << row_filter_ << ")";
       if (r->chunks_already_committed) std::cout << ", resumed (" << r->chunks_already_committed << " chunks were committed)";
       std::cout << "\n  rows that see geometry: " << r->valid_rows << " (the rest are all-zero rows, mask 0)"
                 << "\n  rays traced: " << r->rays << " in " << r->seconds << " s (" << rate << " rays/s)"
@@ -51,6 +58,7 @@ class SampleCommand : public Command {
 
  private:
   stages::SampleOptions options_;
+  std::string row_filter_;
   long long cube_res_ = -1, spp_ = -1, bounces_ = -1, seed_ = -1;
   CommonFlags flags_;
 };

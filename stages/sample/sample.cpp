@@ -20,6 +20,7 @@
 #include "stages/common/basis.h"
 #include "stages/common/cubemap.h"
 #include "stages/common/parallel_for.h"
+#include "stages/row_transform/row_transform.h"
 #include "stages/sample/geometry.h"
 #include "stages/sample/ray_scene.h"
 #include "stages/sample/scene.h"
@@ -546,6 +547,20 @@ Result<BareTraceResult> TraceBare(const SampleOptions& o) {
   return out;
 }
 
+Result<std::string> SceneHash(const std::string& scene_path) {
+  LTB_ASSIGN_OR_RETURN(SceneDesc scene, sample::ParseScene(scene_path));
+  XXH3_state_t* st = XXH3_createState();
+  XXH3_64bits_reset(st);
+  Status s = HashFile(scene.path, st);  // the same bytes, in the same order, as BuildGeometry
+  for (const Object& obj : scene.objects) {
+    if (s.ok() && obj.type == Object::Type::kMesh) s = HashFile(obj.file, st);
+  }
+  uint64_t h = XXH3_64bits_digest(st);
+  XXH3_freeState(st);
+  LTB_RETURN_IF_ERROR(s);
+  return Hex64(h).substr(2);
+}
+
 Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress) {
   auto t0 = std::chrono::steady_clock::now();
   LTB_ASSIGN_OR_RETURN(std::unique_ptr<Prepared> prep, Prepare(o));
@@ -578,11 +593,19 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   nlohmann::json params = {{"cube_res", r}, {"spp", spp}, {"bounces", bounces}, {"seed", seed},
                            {"scene", std::filesystem::path(o.scene).filename().string()},
                            {"scene_hash", geo.scene_hash}};
+  nlohmann::json cols_basis = PixelCubemapCols(r);
+  std::string stage = "sample";
+  if (o.row_filter) {
+    cols_basis = WaveletCubemapCols(r, wavelet::FilterName(*o.row_filter));
+    stage = "sample+row-transform";
+    params["row_filter"] = wavelet::FilterName(*o.row_filter);
+    params["row_zstd"] = o.row_zstd;
+  }
   nlohmann::json meta = {
       {"arrays", {spec("matrix", DType::kF32, cols), spec("mask", DType::kU8, 1), spec("position", DType::kF32, 3),
                   spec("normal", DType::kF32, 3)}},
-      {"basis", {{"rows", rows_basis}, {"cols", PixelCubemapCols(r)}}},
-      {"provenance", Provenance("sample", params, {})},
+      {"basis", {{"rows", rows_basis}, {"cols", cols_basis}}},
+      {"provenance", Provenance(stage, params, {})},
   };
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
@@ -633,13 +656,21 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
       progress.Report(rays, done_rows >= rows_todo ? rays : estimate, "rays");
     }
     LTB_RETURN_IF_ERROR(geo.rays->error());
+    EncodeOptions matrix_encoding;
+    if (o.row_filter) {  // fused row-transform: exactly what RunRowTransform does to this block
+      thread_local std::vector<float> scratch;
+      scratch.resize(RowBlockScratchSize(r));
+      uint64_t zero_rows = 0;
+      TransformRowBlock(*o.row_filter, r, mat.data(), n, scratch.data(), &zero_rows);
+      matrix_encoding.zstd = o.row_zstd;
+    }
     auto bytes = [](const auto& v) {
       return ByteSpan(reinterpret_cast<const std::byte*>(v.data()), v.size() * sizeof(v[0]));
     };
     const ByteSpan parts[4] = {bytes(mat), bytes(mask), bytes(pos), bytes(nor)};
     for (uint32_t a = 0; a < 4; ++a) {
       if (out.Has(a, chunk)) continue;
-      LTB_RETURN_IF_ERROR(out.Put(a, chunk, parts[a]));
+      LTB_RETURN_IF_ERROR(out.Put(a, chunk, parts[a], a == 0 ? matrix_encoding : EncodeOptions{}));
       written++;
     }
     return Status::Ok();

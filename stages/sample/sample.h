@@ -9,6 +9,7 @@
 
 #include "format/progress.h"
 #include "format/status.h"
+#include "stages/wavelet/wavelet.h"
 
 namespace ltb::stages {
 
@@ -21,6 +22,11 @@ struct SampleOptions {
   uint64_t chunk_rows = 0;  // rows per chunk; 0 picks ~2 MiB chunks
   int jobs = 2;
   bool overwrite = false;
+  // Fused sample + row-transform (`ltbake run` when the raw matrix is not kept): each row
+  // block is wavelet-transformed before it is written, so no raw file exists. The output
+  // is the row-transform's output: same content_hash, same basis metadata.
+  std::optional<wavelet::Filter> row_filter;
+  bool row_zstd = false;  // zstd for the transformed matrix chunks (row-transform --zstd)
 };
 
 struct SampleResult {
@@ -33,6 +39,9 @@ struct SampleResult {
   uint64_t degenerate_triangles = 0;
   double seconds = 0;
 };
+
+// XXH3 of the scene file and every mesh file it names: the scene part of sample's key.
+Result<std::string> SceneHash(const std::string& scene_path);
 
 Result<SampleResult> RunSample(const SampleOptions& options, const Progress& progress);
 

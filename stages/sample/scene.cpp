@@ -7,53 +7,16 @@
 
 #include <toml++/toml.h>
 
+#include "stages/common/toml_fields.h"
+
 namespace ltb::sample {
 namespace {
 
-std::string Where(const std::string& path, const toml::node& n) {
-  return path + ":" + std::to_string(n.source().begin.line);
-}
-
-// Lists every key of `table` not in `allowed`, each with its line.
-Status CheckKeys(const std::string& path, const toml::table& table, const std::string& what,
-                 const std::set<std::string>& allowed) {
-  std::string bad;
-  for (const auto& [key, node] : table) {
-    if (allowed.count(std::string(key.str())) == 0) {
-      bad += (bad.empty() ? "" : ", ") + std::string("\"") + std::string(key.str()) + "\" (line " +
-             std::to_string(node.source().begin.line) + ")";
-    }
-  }
-  if (bad.empty()) return Status::Ok();
-  std::string known;
-  for (const auto& k : allowed) known += (known.empty() ? "" : ", ") + k;
-  return InvalidArgument(path + ": unknown key(s) in " + what + ": " + bad + "; known keys: " + known);
-}
-
-Result<double> GetNumber(const std::string& path, const toml::table& t, const char* key, double def, double lo,
-                         double hi) {
-  const toml::node* n = t.get(key);
-  if (n == nullptr) return def;
-  std::optional<double> v = n->value<double>();
-  if (!v || !std::isfinite(*v)) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be a number");
-  if (*v < lo || *v > hi) {
-    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + std::to_string(*v) + ", outside [" +
-                           std::to_string(lo) + ", " + std::to_string(hi) + "]");
-  }
-  return *v;
-}
-
-Result<uint64_t> GetUnsigned(const std::string& path, const toml::table& t, const char* key, uint64_t def, uint64_t lo,
-                             uint64_t hi) {
-  const toml::node* n = t.get(key);
-  if (n == nullptr) return def;
-  std::optional<int64_t> v = n->value<int64_t>();
-  if (!v || *v < static_cast<int64_t>(lo) || static_cast<uint64_t>(*v) > hi) {
-    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be an integer in [" + std::to_string(lo) + ", " +
-                           std::to_string(hi) + "]");
-  }
-  return static_cast<uint64_t>(*v);
-}
+using tomlf::CheckKeys;
+using tomlf::GetNumber;
+using tomlf::GetString;
+using tomlf::GetUnsigned;
+using tomlf::Where;
 
 Result<glm::dvec3> GetVec3(const std::string& path, const toml::table& t, const char* key, glm::dvec3 def,
                            bool allow_scalar = false) {
@@ -73,14 +36,6 @@ Result<glm::dvec3> GetVec3(const std::string& path, const toml::table& t, const 
     v[i] = *x;
   }
   return v;
-}
-
-Result<std::string> GetString(const std::string& path, const toml::table& t, const char* key, std::string def) {
-  const toml::node* n = t.get(key);
-  if (n == nullptr) return def;
-  auto v = n->value<std::string>();
-  if (!v) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be a string");
-  return *v;
 }
 
 }  // namespace

@@ -1,0 +1,94 @@
+// ltbake run RECIPE.toml [--workdir DIR] [--from STAGE] [--until STAGE] [--force [STAGE]] [--dry-run]
+#include <unistd.h>
+
+#include <climits>
+#include <cstdio>
+#include <iostream>
+
+#include "cli/commands.h"
+#include "cli/common.h"
+#include "pipeline/bake.h"
+
+namespace ltb::cli {
+namespace {
+
+// The running executable, so stages run with the same build as the run itself.
+std::string SelfExe() {
+  char buf[PATH_MAX];
+  ssize_t n = ::readlink("/proc/self/exe", buf, sizeof buf - 1);
+  if (n <= 0) return "ltbake";
+  return std::string(buf, static_cast<size_t>(n));
+}
+
+class RunCommand : public Command {
+ public:
+  explicit RunCommand(CLI::App* parent) {
+    auto* app = parent->add_subcommand(
+        "run", "run a bake recipe: every stage its targets need, skipping what is up to date (content and "
+               "parameters), resuming what was interrupted (docs/RECIPE.md)");
+    app->add_option("RECIPE", options_.recipe, "recipe file (TOML, see samples/tiny-bake.toml)")->required();
+    app->add_option("--workdir", options_.workdir, "work directory (overrides the recipe's workdir)");
+    app->add_option("--from", options_.from, "start at this stage: earlier stages are not run, their outputs are used");
+    app->add_option("--until", options_.until, "stop after this stage (and what it needs)");
+    app->add_option("--force", options_.force,
+                    "redo this stage even if it is up to date (repeatable); without a stage: redo every stage")
+        ->expected(0, 1)
+        ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll)
+        ->default_str("all");
+    app->add_flag("--dry-run", options_.dry_run, "print the plan (what runs and why) and change nothing");
+    AddCommonFlags(app, &flags_);
+    app_ = app;
+  }
+
+  int Run() override {
+    if (app_->count("--force") > 0 && options_.force.empty()) options_.force = {"all"};
+    for (auto& f : options_.force) {
+      if (f.empty()) f = "all";
+    }
+    options_.jobs = flags_.jobs;
+    options_.mem_limit = flags_.mem_limit;
+    auto mem = ParseSize(flags_.mem_limit);
+    if (!mem.ok()) return ReportFailure(mem.status().WithContext("--mem-limit"));
+    options_.quiet = flags_.quiet;
+    options_.progress = !flags_.quiet && (flags_.progress == "always" || (flags_.progress == "auto" && ::isatty(2)));
+    options_.ltbake = SelfExe();
+    options_.say = [](const std::string& line) { std::cout << line << std::endl; };
+    options_.stage_stdout = [](std::string_view text) {
+      std::cout << text;
+      std::cout.flush();
+    };
+    options_.stage_stderr = [](std::string_view text) {
+      std::cerr << text;
+      std::cerr.flush();
+    };
+    options_.pending_signal = [] { return ReceivedSignal(); };
+    auto outcome = pipeline::RunBake(options_);
+    if (!outcome.ok()) {
+      Status s = outcome.status();
+      std::cerr << "ltbake: error: " << s.message() << "\n";
+      if (ReceivedSignal() != 0) return ReportFailure(s);
+      return s.code() == StatusCode::kInvalidArgument ? kExitUsage : kExitFailed;
+    }
+    if (options_.dry_run) {
+      std::cout << outcome->summary;
+      return kExitOk;
+    }
+    if (!flags_.quiet || outcome->exit_code != 0) {
+      std::cout << "\n" << outcome->summary;
+      std::cout << "run report: " << outcome->report_path << "\n";
+    }
+    if (!outcome->failure.empty()) std::cerr << "ltbake: error: " << outcome->failure << "\n";
+    return outcome->exit_code;
+  }
+
+ private:
+  pipeline::BakeOptions options_;
+  CommonFlags flags_;
+  CLI::App* app_ = nullptr;
+};
+
+}  // namespace
+
+std::unique_ptr<Command> RegisterRun(CLI::App* parent) { return std::make_unique<RunCommand>(parent); }
+
+}  // namespace ltb::cli

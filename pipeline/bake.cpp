@@ -1,0 +1,918 @@
+#include "pipeline/bake.h"
+
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
+#include <xxhash.h>
+
+#include <algorithm>
+#include <charconv>
+#include <cerrno>
+#include <chrono>
+#include <csignal>
+#include <ctime>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
+#include <sstream>
+#include <thread>
+
+#include "format/io/array_summary.h"
+#include "format/io/container_reader.h"
+#include "format/io/file.h"
+#include "format/version.h"
+#include "pipeline/process.h"
+#include "pipeline/recipe.h"
+#include "stages/common/basis.h"
+#include "stages/sample/sample.h"
+
+namespace ltb::pipeline {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+constexpr const char* kReport = "run.json";
+
+// One step of the bake: a stage run on files in the work directory.
+struct Node {
+  std::string name;                 // "sample", "sample+row-transform", "relight:sunset", ...
+  std::vector<std::string> stages;  // the graph stages it does (for --from, --until, --force)
+  std::vector<std::string> inputs;  // work-directory files made by earlier nodes
+  std::string output;               // work-directory file it makes
+  bool image = false;               // output is an image (relight), not a container
+  std::string env;                  // relight: the environment map
+  json params;                      // what the output depends on besides its inputs' content
+  std::vector<std::string> args;    // the stage command after the executable, without -o and common flags
+};
+
+struct Graph {
+  std::vector<Node> nodes;
+  std::set<std::string> targets;  // graph stages whose results are wanted
+  std::set<std::string> wanted;   // work-directory files to leave on disk
+};
+
+const std::map<std::string, std::string>& OutputOf() {
+  static const std::map<std::string, std::string> m = {{"sample", "raw.ltm"},
+                                                       {"row-transform", "rows.ltm"},
+                                                       {"transpose", "cols.ltm"},
+                                                       {"column-transform", "cols4d.ltm"},
+                                                       {"quantize", "final.ltm"},
+                                                       {"cpca", "cpca.ltm"}};
+  return m;
+}
+
+std::vector<std::string> Deps(const Recipe& r, const std::string& stage) {
+  if (stage == "row-transform") return {"sample"};
+  if (stage == "transpose") return {"row-transform"};
+  if (stage == "column-transform") return {"transpose"};
+  if (stage == "quantize") return {"column-transform"};
+  if (stage == "cpca") return {"row-transform"};
+  if (stage == "relight") {
+    std::vector<std::string> d = {r.relight.matrix == "cpca" ? "cpca" : "quantize"};
+    if (r.relight.reference) d.push_back("row-transform");
+    return d;
+  }
+  return {};
+}
+
+int StageIndex(const std::string& s) {
+  const auto& n = StageNames();
+  return static_cast<int>(std::find(n.begin(), n.end(), s) - n.begin());
+}
+
+// The shortest text that reads back as the same double.
+std::string Shortest(double v) {
+  char b[64];
+  auto r = std::to_chars(b, b + sizeof b, v);
+  return std::string(b, r.ptr);
+}
+
+std::string Hex(uint64_t h) {
+  char b[17];
+  std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(h));
+  return b;
+}
+
+Result<std::string> HashFileBytes(const std::string& path) {
+  std::ifstream f(path, std::ios::binary);
+  if (!f) return NotFound(path + ": cannot open");
+  XXH3_state_t* st = XXH3_createState();
+  XXH3_64bits_reset(st);
+  std::vector<char> buf(1 << 16);
+  while (f) {
+    f.read(buf.data(), static_cast<std::streamsize>(buf.size()));
+    XXH3_64bits_update(st, buf.data(), static_cast<size_t>(f.gcount()));
+  }
+  uint64_t h = XXH3_64bits_digest(st);
+  XXH3_freeState(st);
+  return Hex(h);
+}
+
+std::string Now() {
+  std::time_t t = std::time(nullptr);
+  char b[32];
+  std::strftime(b, sizeof b, "%Y-%m-%dT%H:%M:%S%z", std::localtime(&t));
+  return b;
+}
+
+std::string HumanBytes(uint64_t b) {
+  char s[32];
+  if (b >= (1ull << 30)) std::snprintf(s, sizeof s, "%.2f GiB", b / double(1ull << 30));
+  else if (b >= (1ull << 20)) std::snprintf(s, sizeof s, "%.1f MiB", b / double(1ull << 20));
+  else if (b >= 1024) std::snprintf(s, sizeof s, "%.1f KiB", b / 1024.0);
+  else std::snprintf(s, sizeof s, "%llu B", static_cast<unsigned long long>(b));
+  return s;
+}
+
+Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::string& workdir,
+                         const std::string& scene_file) {
+  Graph g;
+  auto valid_stage = [&](const std::string& s, const char* flag) -> Status {
+    if (s.empty() || StageIndex(s) < static_cast<int>(StageNames().size())) return Status::Ok();
+    std::string names;
+    for (const auto& n : StageNames()) names += (names.empty() ? "" : ", ") + n;
+    return InvalidArgument(std::string(flag) + " \"" + s + "\" is not a stage (stages: " + names + ")");
+  };
+  LTB_RETURN_IF_ERROR(valid_stage(o.from, "--from"));
+  LTB_RETURN_IF_ERROR(valid_stage(o.until, "--until"));
+  for (const auto& f : o.force) {
+    if (f != "all") LTB_RETURN_IF_ERROR(valid_stage(f, "--force"));
+  }
+  if (!o.until.empty()) {
+    g.targets = {o.until};
+  } else {
+    g.targets.insert(r.targets.begin(), r.targets.end());
+  }
+  if (g.targets.count("relight") && !r.relight.present) {
+    return InvalidArgument(r.path + ": relight is asked for but the recipe has no [relight] table");
+  }
+  std::set<std::string> needed;
+  std::vector<std::string> todo(g.targets.begin(), g.targets.end());
+  while (!todo.empty()) {
+    std::string s = todo.back();
+    todo.pop_back();
+    if (!needed.insert(s).second) continue;
+    for (const auto& d : Deps(r, s)) todo.push_back(d);
+  }
+  if (!o.from.empty() && !needed.count(o.from)) {
+    return InvalidArgument("--from " + o.from + ": that stage is not part of this bake (its targets need: " + [&] {
+      std::string s;
+      for (const auto& n : StageNames())
+        if (needed.count(n)) s += (s.empty() ? "" : ", ") + n;
+      return s;
+    }() + ")");
+  }
+  const bool fuse = needed.count("sample") && needed.count("row-transform") && !r.Keeps("raw") &&
+                    !g.targets.count("sample") && o.from != "row-transform";
+
+  auto path = [&](const std::string& file) { return (fs::path(workdir) / file).string(); };
+  const auto& col = r.column_transform;
+  for (const std::string& stage : StageNames()) {
+    if (!needed.count(stage)) continue;
+    if (stage == "row-transform" && fuse) continue;  // done by the fused node
+    Node n;
+    n.name = stage;
+    n.stages = {stage};
+    if (stage == "sample") {
+      json p = json::object();
+      auto opt = [&](const char* flag, const char* key, const std::optional<uint64_t>& v) {
+        p[key] = v ? json(*v) : json(nullptr);
+        if (v) {
+          n.args.push_back(flag);
+          n.args.push_back(std::to_string(*v));
+        }
+      };
+      n.args = {"sample", scene_file};
+      opt("--cube-res", "cube_res", r.sample.cube_res);
+      opt("--spp", "spp", r.sample.spp);
+      opt("--bounces", "bounces", r.sample.bounces);
+      opt("--seed", "seed", r.sample.seed);
+      n.params = p;
+      n.output = "raw.ltm";
+      if (fuse) {
+        n.name = "sample+row-transform";
+        n.stages = {"sample", "row-transform"};
+        n.output = "rows.ltm";
+        n.params = {{"sample", p}, {"row-transform", {{"filter", r.row_transform.filter}, {"zstd", r.row_transform.zstd}}}};
+        n.args.insert(n.args.end(), {"--row-transform", r.row_transform.filter});
+        if (r.row_transform.zstd) n.args.push_back("--row-zstd");
+      }
+    } else if (stage == "row-transform") {
+      n.inputs = {"raw.ltm"};
+      n.params = {{"filter", r.row_transform.filter}, {"zstd", r.row_transform.zstd}};
+      n.args = {"row-transform", path("raw.ltm"), "--filter", r.row_transform.filter};
+      if (r.row_transform.zstd) n.args.push_back("--zstd");
+    } else if (stage == "transpose") {
+      n.inputs = {"rows.ltm"};
+      n.params = {{"zstd", r.transpose.zstd}};
+      n.args = {"transpose", path("rows.ltm")};
+      if (r.transpose.zstd) n.args.push_back("--zstd");
+    } else if (stage == "column-transform") {
+      n.inputs = {"cols.ltm"};
+      n.params = {{"filter", col.filter}, {"depth", col.depth}, {"zstd", col.zstd}};
+      n.args = {"column-transform", path("cols.ltm"), "--filter", col.filter, "--depth", col.depth};
+      if (col.terms) {
+        n.params["terms"] = *col.terms;
+        n.args.insert(n.args.end(), {"--terms", std::to_string(*col.terms)});
+      } else if (col.budget) {
+        n.params["budget"] = *col.budget;
+        n.args.insert(n.args.end(), {"--budget", *col.budget});
+      } else {
+        n.params["keep"] = col.keep.value_or(0.05);
+        n.args.insert(n.args.end(), {"--keep", Shortest(col.keep.value_or(0.05))});
+      }
+      if (!col.zstd) n.args.push_back("--no-zstd");
+    } else if (stage == "quantize") {
+      const auto& q = r.quantize;
+      n.inputs = {"cols4d.ltm"};
+      n.params = {{"bits", q.bits}, {"scaling", q.scaling}, {"dither", q.dither}, {"seed", q.seed}};
+      n.args = {"quantize", path("cols4d.ltm"), "--bits", std::to_string(q.bits), "--scaling", q.scaling,
+                "--seed", std::to_string(q.seed)};
+      if (!q.dither) n.args.push_back("--no-dither");
+    } else if (stage == "cpca") {
+      n.inputs = {"rows.ltm"};
+      n.params = {{"clusters", r.cpca.clusters}, {"basis", r.cpca.basis}};
+      n.args = {"cpca", path("rows.ltm"), "--clusters", std::to_string(r.cpca.clusters), "--basis",
+                std::to_string(r.cpca.basis)};
+    }
+    if (stage != "relight") {
+      if (n.output.empty()) n.output = OutputOf().at(stage);
+      g.nodes.push_back(std::move(n));
+      continue;
+    }
+    const auto& rl = r.relight;
+    std::string matrix = rl.matrix == "cpca" ? "cpca.ltm" : "final.ltm";
+    for (const EnvMap& env : rl.envs) {
+      if (env.path.find("{face}") != std::string::npos) {
+        return InvalidArgument(r.path + ": [relight] envs: " + env.path +
+                               ": six-file {face} maps are not supported in recipes; convert it to one cubemap first "
+                               "(ltbake convert MAP.exr MAP.npy --cube-res R) and name that file");
+      }
+      Node m;
+      m.name = "relight:" + env.name;
+      m.stages = {"relight"};
+      m.image = true;
+      m.env = env.path;
+      m.inputs = {matrix};
+      m.output = "relit-" + env.name + "." + rl.format;
+      m.params = {{"env", env.path}, {"terms", rl.terms}, {"weighting", rl.weighting}, {"clamp", rl.clamp},
+                  {"format", rl.format}, {"exposure", rl.exposure}, {"reference", rl.reference}};
+      m.args = {"relight", path(matrix), "--env", env.path, "--terms", std::to_string(rl.terms), "--weighting",
+                rl.weighting, "--exposure", Shortest(rl.exposure), "--json"};
+      if (rl.clamp) m.args.push_back("--clamp");
+      if (rl.reference) {
+        m.inputs.push_back("rows.ltm");
+        m.args.insert(m.args.end(), {"--reference", path("rows.ltm")});
+      }
+      g.nodes.push_back(std::move(m));
+    }
+  }
+  // Files to leave on disk: the targets' outputs and the kept intermediates.
+  for (const Node& n : g.nodes) {
+    bool target = false;
+    for (const auto& s : n.stages) target = target || g.targets.count(s);
+    if (n.name == "sample+row-transform") target = g.targets.count("row-transform") > 0;
+    std::string stem = fs::path(n.output).stem().string();
+    if (target || n.image || r.Keeps(stem) || stem == "final" || stem == "cpca") g.wanted.insert(n.output);
+  }
+  return g;
+}
+
+// What is on disk at a node's output.
+struct OutputState {
+  bool exists = false;
+  bool complete = false;     // sealed container, or an image file
+  std::string fingerprint;   // stages::Fingerprint, or the image file's hash
+  uint64_t committed = 0, total = 0;
+  uint64_t bytes = 0;
+  std::string problem;       // unreadable: why
+};
+
+OutputState Inspect(const Node& n, const std::string& path) {
+  OutputState s;
+  std::error_code ec;
+  if (!fs::exists(path, ec)) return s;
+  s.exists = true;
+  s.bytes = fs::file_size(path, ec);
+  if (n.image) {
+    auto h = HashFileBytes(path);
+    s.complete = h.ok();
+    if (h.ok()) s.fingerprint = *h;
+    return s;
+  }
+  auto reader = io::ContainerReader::Open(path);
+  if (!reader.ok()) {
+    s.problem = reader.status().message();
+    return s;
+  }
+  s.complete = reader->sealed();
+  for (uint32_t a = 0; a < reader->metadata().arrays.size(); ++a) {
+    s.committed += reader->committed(a);
+    s.total += reader->metadata().arrays[a].ChunkCount();
+  }
+  if (s.complete) s.fingerprint = stages::Fingerprint(*reader);
+  return s;
+}
+
+struct Decision {
+  bool run = false;
+  std::string action;  // skip | run | resume | redo
+  std::string reason;
+};
+
+std::string ParamDiff(const json& before, const json& now, const std::string& prefix) {
+  std::string out;
+  if (before.is_object() && now.is_object()) {
+    std::set<std::string> keys;
+    for (auto it = before.begin(); it != before.end(); ++it) keys.insert(it.key());
+    for (auto it = now.begin(); it != now.end(); ++it) keys.insert(it.key());
+    for (const auto& k : keys) {
+      json b = before.contains(k) ? before[k] : json(nullptr), a = now.contains(k) ? now[k] : json(nullptr);
+      if (b == a) continue;
+      std::string d = ParamDiff(b, a, prefix + (prefix.empty() ? "" : ".") + k);
+      out += (out.empty() ? "" : ", ") + d;
+    }
+    return out;
+  }
+  auto show = [](const json& v) { return v.is_null() ? std::string("(default)") : v.dump(); };
+  return prefix + " " + show(before) + " -> " + show(now);
+}
+
+// inputs: file -> content_hash ("" while it is being remade).
+Decision Decide(const Node& n, const json* record, const json& inputs, const OutputState& out, bool forced,
+                const std::string& needed_reason, bool needed) {
+  Decision d;
+  d.run = true;
+  if (forced) {
+    d.action = "redo";
+    d.reason = "forced (--force)";
+    return d;
+  }
+  for (auto it = inputs.begin(); it != inputs.end(); ++it) {
+    if (it.value().get<std::string>().empty()) {
+      d.action = out.exists ? "redo" : "run";
+      d.reason = "its input " + it.key() + " is being remade";
+      return d;
+    }
+  }
+  const bool done = record && record->value("status", "") == "done";
+  const bool same_params = record && record->contains("params") && (*record)["params"] == n.params;
+  const bool same_inputs = record && record->contains("inputs") && (*record)["inputs"] == inputs;
+  if (record && !same_params) {
+    d.action = out.exists ? "redo" : "run";
+    d.reason = "parameters changed: " + ParamDiff((*record)["params"], n.params, "");
+    return d;
+  }
+  if (record && !same_inputs) {
+    d.action = out.exists ? "redo" : "run";
+    std::string what;
+    const json& before = (*record)["inputs"];
+    for (auto it = inputs.begin(); it != inputs.end(); ++it) {
+      std::string old = before.contains(it.key()) ? before[it.key()].get<std::string>() : "(none)";
+      if (old != it.value().get<std::string>()) {
+        what += (what.empty() ? "" : ", ") + it.key() + " " + old + " -> " + it.value().get<std::string>();
+      }
+    }
+    d.reason = "input changed: " + what;
+    return d;
+  }
+  if (!out.exists) {
+    if (done && (*record)["output"].value("deleted", false) && !needed) {
+      d.run = false;
+      d.action = "skip";
+      d.reason = "up to date (" + n.output + " was not kept)";
+      return d;
+    }
+    d.action = "run";
+    d.reason = done ? n.output + " is missing" + (needed_reason.empty() ? "" : " and " + needed_reason)
+                    : "not made yet";
+    return d;
+  }
+  if (!out.problem.empty()) {
+    d.action = "redo";
+    d.reason = n.output + " is unreadable (" + out.problem + ")";
+    return d;
+  }
+  if (!out.complete) {
+    d.action = "resume";
+    d.reason = "interrupted: " + std::to_string(out.committed) + " of " + std::to_string(out.total) +
+               " chunks committed";
+    return d;
+  }
+  if (!done) {
+    d.action = "run";
+    d.reason = n.output + " exists but run.json has no record of it: the stage checks it (a no-op if it was made "
+               "with the same parameters and input)";
+    return d;
+  }
+  if ((*record)["output"].value("fingerprint", "") != out.fingerprint) {
+    d.action = "redo";
+    d.reason = n.output + " changed since it was made (fingerprint " + (*record)["output"].value("fingerprint", "") +
+               " -> " + out.fingerprint + ")";
+    return d;
+  }
+  d.run = false;
+  d.action = "skip";
+  d.reason = "up to date";
+  return d;
+}
+
+Status WriteJsonAtomically(const std::string& path, const json& j) {
+  std::string tmp = path + ".tmp";
+  {
+    auto f = io::File::Open(tmp, io::File::Mode::kCreateExclusive);
+    if (!f.ok()) {
+      std::error_code ec;
+      fs::remove(tmp, ec);
+      f = io::File::Open(tmp, io::File::Mode::kCreateExclusive);
+    }
+    if (!f.ok()) return f.status();
+    std::string text = j.dump(2) + "\n";
+    Status s = f->WriteAt(0, format::ByteSpan(reinterpret_cast<const std::byte*>(text.data()), text.size()));
+    if (s.ok()) s = f->DataSync();
+    if (!s.ok()) {
+      std::error_code ec;
+      fs::remove(tmp, ec);
+      return s;
+    }
+  }
+  if (::rename(tmp.c_str(), path.c_str()) != 0) return IoError("rename " + tmp + " -> " + path, errno);
+  return io::SyncParentDirectory(path);
+}
+
+Status WriteTextIfChanged(const std::string& path, const std::string& text) {
+  std::ifstream in(path, std::ios::binary);
+  if (in) {
+    std::string old((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    if (old == text) return Status::Ok();
+  }
+  std::string tmp = path + ".tmp";
+  {
+    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+    out << text;
+    out.flush();
+    if (!out) return IoError(tmp + ": cannot write", errno);
+  }
+  if (::rename(tmp.c_str(), path.c_str()) != 0) return IoError("rename " + tmp + " -> " + path, errno);
+  return Status::Ok();
+}
+
+// Holds the work directory for one bake at a time. The descriptor is inherited by the
+// stage processes, so a stage orphaned by a killed run still holds it until it dies.
+class WorkdirLock {
+ public:
+  ~WorkdirLock() {
+    if (fd_ >= 0) ::close(fd_);
+  }
+  Status Acquire(const std::string& workdir) {
+    std::string path = (fs::path(workdir) / ".ltbake-run.lock").string();
+    fd_ = ::open(path.c_str(), O_RDWR | O_CREAT, 0644);  // no O_CLOEXEC: stages inherit it
+    if (fd_ < 0) return IoError(path + ": cannot open the work directory's lock file", errno);
+    for (int tries = 0;; ++tries) {
+      if (::flock(fd_, LOCK_EX | LOCK_NB) == 0) return Status::Ok();
+      if (errno != EWOULDBLOCK && errno != EINTR) return IoError(path + ": flock", errno);
+      if (tries >= 50) {
+        return FailedPrecondition("work directory " + workdir + " is in use by another `ltbake run` (or a stage "
+                                  "it started that is still finishing); wait for it, or use another --workdir");
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+  }
+
+ private:
+  int fd_ = -1;
+};
+
+std::string Pad(std::string s, size_t w) {
+  if (s.size() < w) s.resize(w, ' ');
+  return s;
+}
+
+std::string SummaryTable(const json& stages) {
+  std::ostringstream t;
+  t << Pad("stage", 22) << Pad("action", 9) << Pad("wall", 10) << Pad("peak RSS", 11) << Pad("output", 24)
+    << Pad("size", 11) << "content_hash\n";
+  for (const auto& s : stages) {
+    char wall[32] = "-";
+    if (s.contains("wall_seconds")) std::snprintf(wall, sizeof wall, "%.2f s", s["wall_seconds"].get<double>());
+    std::string rss = s.contains("peak_rss_bytes") ? HumanBytes(s["peak_rss_bytes"].get<uint64_t>()) : "-";
+    const json& out = s.value("output", json::object());
+    std::string size = out.contains("bytes") ? HumanBytes(out["bytes"].get<uint64_t>()) : "-";
+    if (out.value("deleted", false)) size = "(deleted)";
+    t << Pad(s.value("node", ""), 22) << Pad(s.value("action", ""), 9) << Pad(wall, 10) << Pad(rss, 11)
+      << Pad(out.value("file", ""), 24) << Pad(size, 11) << out.value("content_hash", "-") << "\n";
+  }
+  return t.str();
+}
+
+class Bake {
+ public:
+  Bake(const BakeOptions& o, Recipe r) : o_(o), r_(std::move(r)) {}
+
+  Result<BakeOutcome> Run();
+
+ private:
+  std::string Path(const std::string& file) const { return (fs::path(workdir_) / file).string(); }
+  Result<std::string> ContentHashOf(const Node& n, const std::string& path);
+  json InputsOf(const Node& n);
+  void DeleteUnneeded(size_t upto);
+  Status SaveReport();
+  std::vector<std::string> Command(const Node& n, bool overwrite) const;
+
+  const BakeOptions& o_;
+  Recipe r_;
+  std::string workdir_, scene_file_, scene_hash_;
+  Graph g_;
+  std::map<std::string, json> previous_;  // node -> its entry in the last run.json
+  std::set<std::string> ours_;            // files earlier runs of this recipe made
+  std::map<std::string, std::string> hash_of_;  // work file -> content_hash, known this run
+  json entries_ = json::array();
+  json report_;
+  std::set<std::string> forced_;
+};
+
+std::vector<std::string> Bake::Command(const Node& n, bool overwrite) const {
+  std::vector<std::string> c = {o_.ltbake};
+  c.insert(c.end(), n.args.begin(), n.args.end());
+  c.insert(c.end(), {"-o", Path(n.output)});
+  if (!n.image) c.insert(c.end(), {"--mem-limit", o_.mem_limit});
+  c.insert(c.end(), {"--jobs", std::to_string(o_.jobs), "--progress", o_.progress ? "always" : "never"});
+  if (overwrite && !n.image) c.push_back("--overwrite");
+  return c;
+}
+
+Result<std::string> Bake::ContentHashOf(const Node& n, const std::string& path) {
+  if (n.image) return HashFileBytes(path);
+  LTB_ASSIGN_OR_RETURN(io::ContainerReader reader, io::ContainerReader::Open(path));
+  LTB_ASSIGN_OR_RETURN(io::ArraySummary s, io::SummarizeArray(reader, 0, o_.jobs));
+  if (s.content_hash.empty()) return FailedPrecondition(path + ": is incomplete");
+  return s.content_hash;
+}
+
+json Bake::InputsOf(const Node& n) {
+  json in = json::object();
+  if (n.name == "sample" || n.name == "sample+row-transform") in["scene"] = scene_hash_;
+  for (const auto& f : n.inputs) {
+    auto it = hash_of_.find(f);
+    in[f] = it == hash_of_.end() ? std::string() : it->second;
+  }
+  if (n.image) {
+    auto h = HashFileBytes(n.env);
+    in["env"] = h.ok() ? *h : std::string("unreadable");
+  }
+  return in;
+}
+
+// This run's entries, then the records of nodes it has not reached (or does not have:
+// --until, a recipe that changed) so that no record is lost when a run stops early.
+Status Bake::SaveReport() {
+  json all = entries_;
+  std::set<std::string> seen;
+  for (const auto& e : entries_) seen.insert(e.value("node", ""));
+  for (const auto& [name, e] : previous_) {
+    if (!seen.count(name)) all.push_back(e);
+  }
+  report_["stages"] = all;
+  report_["updated"] = Now();
+  return WriteJsonAtomically(Path(kReport), report_);
+}
+
+// Removes intermediates that are not kept once nothing left in this run reads them.
+void Bake::DeleteUnneeded(size_t upto) {
+  for (size_t i = 0; i < g_.nodes.size() && i <= upto; ++i) {
+    const Node& n = g_.nodes[i];
+    if (n.image || g_.wanted.count(n.output)) continue;
+    bool still_read = false;
+    for (size_t j = upto + 1; j < g_.nodes.size(); ++j) {
+      for (const auto& f : g_.nodes[j].inputs) still_read = still_read || f == n.output;
+    }
+    std::error_code ec;
+    if (still_read || !fs::exists(Path(n.output), ec)) continue;
+    fs::remove(Path(n.output), ec);
+    for (auto& e : entries_) {
+      if (e.value("node", "") == n.name && e.contains("output")) e["output"]["deleted"] = true;
+    }
+  }
+}
+
+Result<BakeOutcome> Bake::Run() {
+  workdir_ = !o_.workdir.empty() ? fs::absolute(o_.workdir).lexically_normal().string() : r_.workdir;
+  if (workdir_.empty()) {
+    return InvalidArgument(r_.path + ": the recipe names no work directory: add workdir = \"DIR\" or pass --workdir DIR");
+  }
+  for (const auto& f : o_.force) {
+    if (f == "all" || f.empty()) {
+      for (const auto& s : StageNames()) forced_.insert(s);
+    } else {
+      forced_.insert(f);
+    }
+  }
+  // The work directory: another recipe's bake there is refused, not overwritten.
+  std::error_code ec;
+  const bool existed = fs::exists(workdir_, ec);
+  if (existed && !fs::is_directory(workdir_, ec)) return InvalidArgument(workdir_ + ": exists and is not a directory");
+  json prev;
+  if (existed && fs::exists(Path(kReport), ec)) {
+    std::ifstream in(Path(kReport));
+    try {
+      prev = json::parse(in);
+    } catch (const std::exception& e) {
+      return DataLoss(Path(kReport) + ": is not valid JSON (" + e.what() + "); move it away to start this bake afresh");
+    }
+    std::string other = prev.value("recipe", json::object()).value("name", "");
+    if (other != r_.name && forced_.size() < StageNames().size()) {
+      return FailedPrecondition("work directory " + workdir_ + " holds the bake of another recipe (\"" + other +
+                                "\", from " + prev.value("recipe", json::object()).value("path", "?") +
+                                "; see its run.json), not \"" + r_.name +
+                                "\": use another --workdir, or pass --force to redo every stage there for this recipe");
+    }
+    if (other == r_.name) {
+      for (const auto& e : prev.value("stages", json::array())) {
+        previous_[e.value("node", "")] = e;
+        if (e.contains("output")) ours_.insert(e["output"].value("file", ""));
+      }
+    }
+  }
+  BakeOutcome outcome;
+  WorkdirLock lock;
+  if (!o_.dry_run) {
+    fs::create_directories(fs::path(workdir_) / "logs", ec);
+    if (ec) return IoError(workdir_ + "/logs: cannot create", ec.value());
+    LTB_RETURN_IF_ERROR(lock.Acquire(workdir_));
+  }
+  // The scene: a file, or the recipe's inline table saved in the work directory.
+  if (!r_.inline_scene.empty()) {
+    scene_file_ = Path("scene.toml");
+    if (!o_.dry_run) LTB_RETURN_IF_ERROR(WriteTextIfChanged(scene_file_, r_.inline_scene));
+  } else {
+    scene_file_ = r_.scene_path;
+  }
+  LTB_ASSIGN_OR_RETURN(g_, BuildGraph(r_, o_, workdir_, scene_file_));
+  for (const Node& n : g_.nodes) {
+    if (n.name == "sample" || n.name == "sample+row-transform") {
+      if (o_.dry_run && !r_.inline_scene.empty() && !fs::exists(scene_file_, ec)) {
+        scene_hash_ = "(inline scene, not written yet)";
+      } else {
+        auto h = stages::SceneHash(scene_file_);
+        if (!h.ok()) return h.status().WithContext("scene of recipe " + r_.path);
+        scene_hash_ = *h;
+      }
+    }
+  }
+
+  report_ = {{"ltbake", std::string(kToolVersion)},
+             {"recipe", {{"name", r_.name}, {"path", r_.path}}},
+             {"workdir", workdir_},
+             {"started", Now()},
+             {"command", {{"jobs", o_.jobs}, {"mem_limit", o_.mem_limit}, {"from", o_.from}, {"until", o_.until},
+                          {"force", o_.force}, {"dry_run", o_.dry_run}}}};
+  // Stages before --from are not run: their outputs must exist and be complete.
+  const int from = o_.from.empty() ? -1 : StageIndex(o_.from);
+  auto before_from = [&](const Node& n) {
+    if (from < 0) return false;
+    for (const auto& s : n.stages)
+      if (StageIndex(s) >= from) return false;
+    return true;
+  };
+  auto is_forced = [&](const Node& n) {
+    for (const auto& s : n.stages)
+      if (forced_.count(s)) return true;
+    return false;
+  };
+
+  // Plan: decide every node, then make sure the files the running nodes read will exist
+  // (an intermediate that was not kept is remade when a later stage needs it again).
+  std::map<std::string, std::string> needed_by;  // node -> why its output must exist
+  std::vector<Decision> plan(g_.nodes.size());
+  for (int round = 0; round <= static_cast<int>(g_.nodes.size()); ++round) {
+    std::map<std::string, std::string> saved = hash_of_;
+    std::set<std::string> remade;
+    for (size_t i = 0; i < g_.nodes.size(); ++i) {
+      const Node& n = g_.nodes[i];
+      OutputState out = Inspect(n, Path(n.output));
+      if (before_from(n)) {
+        plan[i] = {false, "given", "before --from " + o_.from};
+        auto rec = previous_.find(n.name);
+        if (out.complete && rec != previous_.end() && rec->second["output"].value("fingerprint", "") == out.fingerprint) {
+          hash_of_[n.output] = rec->second["output"].value("content_hash", "");
+        } else {
+          hash_of_[n.output] = out.complete ? "(computed when run)" : "";
+        }
+        continue;
+      }
+      json inputs = InputsOf(n);
+      const json* rec = previous_.count(n.name) ? &previous_[n.name] : nullptr;
+      bool needed = needed_by.count(n.name) > 0 || g_.wanted.count(n.output) > 0;
+      plan[i] = Decide(n, rec, inputs, out, is_forced(n), needed_by.count(n.name) ? needed_by[n.name] : "", needed);
+      if (plan[i].run) {
+        hash_of_[n.output] = "";  // being remade
+        remade.insert(n.output);
+      } else {
+        hash_of_[n.output] = (*rec)["output"].value("content_hash", "");
+      }
+    }
+    bool changed = false;
+    for (size_t i = g_.nodes.size(); i-- > 0;) {
+      if (!plan[i].run) continue;
+      for (const auto& f : g_.nodes[i].inputs) {
+        for (size_t u = 0; u < i; ++u) {
+          const Node& up = g_.nodes[u];
+          if (up.output != f || plan[u].run || before_from(up) || needed_by.count(up.name)) continue;
+          if (Inspect(up, Path(f)).complete) continue;
+          needed_by[up.name] = g_.nodes[i].name + " needs it";
+          changed = true;
+        }
+      }
+    }
+    hash_of_ = saved;
+    if (!changed) break;
+  }
+  // A stage asked for before its input exists.
+  for (size_t i = 0; i < g_.nodes.size(); ++i) {
+    if (!plan[i].run) continue;
+    for (const auto& f : g_.nodes[i].inputs) {
+      for (size_t u = 0; u < g_.nodes.size(); ++u) {
+        if (g_.nodes[u].output == f && before_from(g_.nodes[u]) && !Inspect(g_.nodes[u], Path(f)).complete) {
+          return FailedPrecondition("--from " + o_.from + ": " + g_.nodes[i].name + " reads " + Path(f) +
+                                    ", which does not exist or is incomplete (" + g_.nodes[u].name +
+                                    " makes it); run without --from, or --from " + g_.nodes[u].stages.front());
+        }
+      }
+    }
+  }
+
+  if (o_.dry_run) {
+    std::ostringstream t;
+    t << "plan for " << r_.path << " in " << workdir_ << ":\n";
+    for (size_t i = 0; i < g_.nodes.size(); ++i) {
+      const Node& n = g_.nodes[i];
+      t << "  " << Pad(n.name, 22) << Pad(plan[i].action, 8) << plan[i].reason << "\n";
+      if (plan[i].run) t << "      " << ShellQuote(Command(n, ours_.count(n.output) > 0)) << "\n";
+    }
+    outcome.summary = t.str();
+    return outcome;
+  }
+
+  report_["status"] = "running";
+  auto finish = [&](const std::string& status, int code) -> Result<BakeOutcome> {
+    report_["status"] = status;
+    report_["exit_code"] = code;
+    report_["finished"] = Now();
+    Status s = SaveReport();
+    outcome.exit_code = code;
+    outcome.report_path = Path(kReport);
+    outcome.summary = SummaryTable(entries_);
+    if (!s.ok() && code == 0) return s.WithContext("writing the run report");
+    if (!s.ok()) outcome.failure += "\n(the run report could not be written: " + s.message() + ")";
+    return outcome;
+  };
+
+  for (size_t i = 0; i < g_.nodes.size(); ++i) {
+    const Node& n = g_.nodes[i];
+    const std::string out_path = Path(n.output);
+    json entry = {{"node", n.name}, {"stages", n.stages}, {"params", n.params}};
+    if (int sig = o_.pending_signal ? o_.pending_signal() : 0; sig != 0) {
+      outcome.failure = "interrupted before " + n.name + "; rerun `ltbake run " + r_.path + "` to go on";
+      return finish("interrupted", sig == SIGTERM ? 143 : 130);
+    }
+    if (before_from(n)) {  // given: its output is used as it is
+      OutputState out = Inspect(n, out_path);
+      if (previous_.count(n.name)) entry = previous_[n.name];
+      std::string& h = hash_of_[n.output];
+      if (h.empty() || h[0] == '(') {
+        LTB_ASSIGN_OR_RETURN(h, ContentHashOf(n, out_path));
+      }
+      entry["action"] = "given";
+      entry["reason"] = "before --from " + o_.from;
+      entry.erase("wall_seconds");
+      entry.erase("peak_rss_bytes");
+      entry["output"] = {{"file", n.output}, {"path", out_path}, {"bytes", out.bytes}, {"content_hash", h},
+                         {"fingerprint", out.fingerprint}};
+      if (!entry.contains("status")) entry["status"] = "given";
+      entries_.push_back(entry);
+      continue;
+    }
+    json inputs = InputsOf(n);
+    OutputState out = Inspect(n, out_path);
+    const json* rec = previous_.count(n.name) ? &previous_[n.name] : nullptr;
+    bool needed = needed_by.count(n.name) > 0 || g_.wanted.count(n.output) > 0;
+    Decision d = Decide(n, rec, inputs, out, is_forced(n), needed_by.count(n.name) ? needed_by[n.name] : "", needed);
+    entry["inputs"] = inputs;
+    entry["input_paths"] = json::array();
+    for (const auto& f : n.inputs) entry["input_paths"].push_back(Path(f));
+    if (n.image) entry["input_paths"].push_back(n.env);
+    entry["action"] = d.action;
+    entry["reason"] = d.reason;
+    if (!d.run) {
+      if (o_.say && !o_.quiet) o_.say("== " + n.name + ": skipped, " + d.reason);
+      entry = *rec;
+      entry["action"] = "skip";
+      entry["reason"] = d.reason;
+      entry.erase("wall_seconds");
+      entry.erase("peak_rss_bytes");
+      hash_of_[n.output] = (*rec)["output"].value("content_hash", "");
+      entries_.push_back(entry);
+      continue;
+    }
+    const bool overwrite = ours_.count(n.output) > 0 || is_forced(n);
+    std::vector<std::string> cmd = Command(n, overwrite);
+    std::string log = Path("logs/" + std::string(n.name.begin(), n.name.end()) + ".log");
+    std::replace(log.begin() + static_cast<long>(Path("logs/").size()), log.end(), ':', '-');
+    entry["command"] = ShellQuote(cmd);
+    entry["log"] = log;
+    entry["status"] = "running";
+    entry["started"] = Now();
+    entry["output"] = {{"file", n.output}, {"path", out_path}};
+    entries_.push_back(entry);
+    ours_.insert(n.output);
+    // Record the attempt before it starts: a killed run's next run knows the file is its own.
+    if (Status s = SaveReport(); !s.ok()) return s.WithContext("writing the run report");
+    if (o_.say && !o_.quiet) o_.say("== " + n.name + ": " + d.action + " (" + d.reason + ")");
+    ChildIo cio;
+    cio.log_path = log;
+    if (!o_.quiet) cio.on_stdout = o_.stage_stdout;
+    cio.on_stderr = o_.stage_stderr;
+    cio.pending_signal = o_.pending_signal;
+    auto child = RunChild(cmd, cio);
+    json& e = entries_.back();
+    if (!child.ok()) {
+      e["status"] = "failed";
+      outcome.failure = "stage " + n.name + " could not be started: " + child.status().message();
+      return finish("failed", 1);
+    }
+    e["wall_seconds"] = child->wall_seconds;
+    e["peak_rss_bytes"] = child->peak_rss_bytes;
+    e["exit_code"] = child->exit_code;
+    if (n.image) {
+      try {
+        e["metrics"] = json::parse(child->stdout_text);
+      } catch (const std::exception&) {
+      }
+    }
+    int sig = o_.pending_signal ? o_.pending_signal() : 0;
+    if (child->exit_code == 130 || child->exit_code == 143 || (child->term_signal == SIGINT) ||
+        (child->term_signal == SIGTERM)) {
+      e["status"] = "interrupted";
+      int code = child->exit_code == 143 || child->term_signal == SIGTERM || sig == SIGTERM ? 143 : 130;
+      outcome.failure = "interrupted during " + n.name + "; what it committed is kept: rerun `ltbake run " +
+                        r_.path + "` to resume";
+      return finish("interrupted", code);
+    }
+    if (child->exit_code != 0) {
+      e["status"] = "failed";
+      std::string why;
+      for (const auto& line : child->errors) why += "\n  " + line;
+      if (child->term_signal) {
+        why += "\n  killed by signal " + std::to_string(child->term_signal) +
+               (child->term_signal == SIGKILL ? " (out of memory? try a smaller --mem-limit)" : "");
+      }
+      if (why.empty()) why = "\n  (no error message; see the log)";
+      if (why.find("--overwrite") != std::string::npos) {
+        why += "\n  (" + n.output + " in the work directory was not made by this recipe's runs; `ltbake run --force " +
+               n.stages.front() + "` replaces it)";
+      }
+      e["errors"] = child->errors;
+      outcome.failure = "stage " + n.name + " failed (exit " + std::to_string(child->exit_code) + "):" + why +
+                        "\n  log: " + log + "\n  re-run just this stage: " + ShellQuote(cmd) +
+                        "\n  or resume the whole bake: ltbake run " + r_.path;
+      return finish("failed", 1);
+    }
+    // Done: record what it made.
+    OutputState made = Inspect(n, out_path);
+    auto t0 = std::chrono::steady_clock::now();
+    auto h = ContentHashOf(n, out_path);
+    if (!h.ok()) {
+      e["status"] = "failed";
+      outcome.failure = "stage " + n.name + " finished but its output cannot be read back: " + h.status().message();
+      return finish("failed", 1);
+    }
+    hash_of_[n.output] = *h;
+    e["status"] = "done";
+    e["finished"] = Now();
+    e["output"] = {{"file", n.output},   {"path", out_path},           {"bytes", made.bytes},
+                   {"content_hash", *h}, {"fingerprint", made.fingerprint},
+                   {"hash_seconds", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()}};
+    DeleteUnneeded(i);
+    if (sig != 0) {  // the stage finished just as the signal came: stop here
+      outcome.failure = "interrupted after " + n.name + "; rerun `ltbake run " + r_.path + "` to go on";
+      return finish("interrupted", sig == SIGTERM ? 143 : 130);
+    }
+    Status s = SaveReport();
+    if (!s.ok()) return s.WithContext("writing the run report");
+  }
+  // Intermediates left over by an earlier run that stopped before removing them.
+  DeleteUnneeded(g_.nodes.size());
+  return finish("ok", 0);
+}
+
+}  // namespace
+
+Result<BakeOutcome> RunBake(const BakeOptions& options) {
+  LTB_ASSIGN_OR_RETURN(Recipe recipe, ParseRecipe(options.recipe));
+  Bake bake(options, std::move(recipe));
+  return bake.Run();
+}
+
+}  // namespace ltb::pipeline

@@ -1,0 +1,337 @@
+#include "pipeline/recipe.h"
+
+#include <algorithm>
+#include <bit>
+#include <cstdlib>
+#include <filesystem>
+#include <sstream>
+
+#include <toml++/toml.h>
+
+#include "stages/column_transform/column_transform.h"
+#include "stages/common/toml_fields.h"
+
+namespace ltb::pipeline {
+namespace {
+
+namespace fs = std::filesystem;
+using tomlf::CheckKeys;
+using tomlf::GetBool;
+using tomlf::GetNumber;
+using tomlf::GetString;
+using tomlf::GetUnsigned;
+using tomlf::Where;
+
+std::string Join(const std::vector<std::string>& v) {
+  std::string out;
+  for (const auto& s : v) out += (out.empty() ? "" : ", ") + s;
+  return out;
+}
+
+// "${VAR}" and "$VAR" replaced by the environment's values; an unset variable is an error.
+Result<std::string> ExpandVariables(const std::string& where, const std::string& text) {
+  std::string out;
+  for (size_t i = 0; i < text.size(); ++i) {
+    if (text[i] != '$' || i + 1 >= text.size()) {
+      out += text[i];
+      continue;
+    }
+    size_t start = i + 1, end;
+    bool braced = text[start] == '{';
+    if (braced) {
+      end = text.find('}', start);
+      if (end == std::string::npos) return InvalidArgument(where + ": unterminated \"${\" in \"" + text + "\"");
+      ++start;
+    } else {
+      end = start;
+      while (end < text.size() && (std::isalnum(static_cast<unsigned char>(text[end])) || text[end] == '_')) ++end;
+      if (end == start) {
+        out += '$';
+        continue;
+      }
+    }
+    std::string var = text.substr(start, end - start);
+    const char* value = std::getenv(var.c_str());
+    if (value == nullptr || *value == '\0') {
+      std::string hint = var == "LTBAKE_ENVMAPS" ? " (e.g. export LTBAKE_ENVMAPS=$(scripts/find_envmaps.sh))" : "";
+      return InvalidArgument(where + ": \"" + text + "\" uses the environment variable " + var +
+                             ", which is not set; set it" + hint);
+    }
+    out += value;
+    i = braced ? end : end - 1;
+  }
+  return out;
+}
+
+std::string Absolute(const std::string& dir, const std::string& p) {
+  fs::path path(p);
+  if (path.is_relative()) path = fs::path(dir) / path;
+  return path.lexically_normal().string();
+}
+
+Result<std::vector<std::string>> GetStringList(const std::string& path, const toml::table& t, const char* key,
+                                               const std::vector<std::string>& allowed) {
+  std::vector<std::string> out;
+  const toml::node* n = t.get(key);
+  if (n == nullptr) return out;
+  const toml::array* a = n->as_array();
+  if (a == nullptr) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be a list of strings");
+  for (const auto& item : *a) {
+    auto v = item.value<std::string>();
+    if (!v) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be a list of strings");
+    if (!allowed.empty() && std::find(allowed.begin(), allowed.end(), *v) == allowed.end()) {
+      return InvalidArgument(Where(path, *n) + ": \"" + key + "\" names \"" + *v + "\", which is not one of: " +
+                             Join(allowed));
+    }
+    out.push_back(*v);
+  }
+  return out;
+}
+
+Result<std::string> GetChoice(const std::string& path, const toml::table& t, const char* key, std::string def,
+                              const std::vector<std::string>& allowed) {
+  LTB_ASSIGN_OR_RETURN(std::string v, GetString(path, t, key, def));
+  if (std::find(allowed.begin(), allowed.end(), v) == allowed.end()) {
+    return InvalidArgument(Where(path, *t.get(key)) + ": \"" + key + "\" is \"" + v + "\"; expected one of: " +
+                           Join(allowed));
+  }
+  return v;
+}
+
+// The inline [scene] table as a scene file of its own, with mesh paths made absolute so it
+// reads the same from the work directory.
+Result<std::string> InlineScene(const std::string& path, const std::string& dir, const toml::table& scene) {
+  toml::table copy = scene;
+  if (toml::array* objects = copy["object"].as_array()) {
+    for (auto& node : *objects) {
+      toml::table* obj = node.as_table();
+      if (obj == nullptr) continue;  // the scene parser reports it
+      if (auto file = (*obj)["file"].value<std::string>()) {
+        LTB_ASSIGN_OR_RETURN(std::string expanded, ExpandVariables(Where(path, node), *file));
+        obj->insert_or_assign("file", Absolute(dir, expanded));
+      }
+    }
+  }
+  std::ostringstream out;
+  out << "# Written by `ltbake run` from the [scene] table of " << path << "; edit the recipe, not this file.\n"
+      << toml::toml_formatter(copy) << "\n";
+  return out.str();
+}
+
+Status ParseSample(const std::string& path, const toml::table& t, Recipe::Sample* s) {
+  LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[sample]", {"cube_res", "spp", "bounces", "seed"}));
+  if (t.contains("cube_res")) {
+    LTB_ASSIGN_OR_RETURN(uint64_t r, GetUnsigned(path, t, "cube_res", 0, 1, 4096));
+    if (!std::has_single_bit(r)) {
+      return InvalidArgument(Where(path, *t.get("cube_res")) + ": \"cube_res\" is " + std::to_string(r) +
+                             ", which is not a power of two (the wavelets need 2^k: e.g. 8, 16, 32, 64)");
+    }
+    s->cube_res = r;
+  }
+  if (t.contains("spp")) {
+    LTB_ASSIGN_OR_RETURN(uint64_t v, GetUnsigned(path, t, "spp", 0, 1, 1 << 16));
+    s->spp = v;
+  }
+  if (t.contains("bounces")) {
+    LTB_ASSIGN_OR_RETURN(uint64_t v, GetUnsigned(path, t, "bounces", 0, 0, 16));
+    s->bounces = v;
+  }
+  if (t.contains("seed")) {
+    LTB_ASSIGN_OR_RETURN(uint64_t v, GetUnsigned(path, t, "seed", 0, 0, uint64_t{1} << 62));
+    s->seed = v;
+  }
+  return Status::Ok();
+}
+
+Status ParseColumnTransform(const std::string& path, const toml::table& t, Recipe::ColumnTransform* c) {
+  LTB_RETURN_IF_ERROR(
+      CheckKeys(path, t, "[column-transform]", {"filter", "depth", "keep", "terms", "budget", "zstd"}));
+  LTB_ASSIGN_OR_RETURN(c->filter, GetChoice(path, t, "filter", c->filter,
+                                            {"legall53", "cdf97", "haar", "db1", "db2", "db3", "db4"}));
+  if (const toml::node* d = t.get("depth")) {
+    if (auto k = d->value<int64_t>()) {
+      c->depth = std::to_string(*k);
+    } else if (auto s = d->value<std::string>()) {
+      c->depth = *s;
+    } else {
+      return InvalidArgument(Where(path, *d) + ": \"depth\" must be \"adaptive\", \"none\", \"full\" or an integer");
+    }
+    auto mode = stages::ParseDepthMode(c->depth);
+    if (!mode.ok()) return mode.status().WithContext(Where(path, *d) + ": \"depth\"");
+  }
+  int given = t.contains("keep") + t.contains("terms") + t.contains("budget");
+  if (given > 1) {
+    return InvalidArgument(Where(path, t) + ": [column-transform] gives more than one of \"keep\", \"terms\", "
+                           "\"budget\"; choose one");
+  }
+  if (t.contains("keep")) {
+    LTB_ASSIGN_OR_RETURN(double k, GetNumber(path, t, "keep", 0.05, 1e-9, 1.0));
+    c->keep = k;
+  }
+  if (t.contains("terms")) {
+    LTB_ASSIGN_OR_RETURN(uint64_t n, GetUnsigned(path, t, "terms", 0, 1, uint64_t{1} << 40));
+    c->terms = n;
+  }
+  if (const toml::node* b = t.get("budget")) {
+    if (auto x = b->value<double>(); x && !b->is_string()) {
+      std::ostringstream s;
+      s << *x;
+      c->budget = s.str();
+    } else if (auto s = b->value<std::string>()) {
+      c->budget = *s;
+    } else {
+      return InvalidArgument(Where(path, *b) + ": \"budget\" must be a fraction, a count or a size (\"2%\", \"64MiB\")");
+    }
+    // The matrix size is not known yet: check the syntax against a large stand-in.
+    auto parsed = stages::ParseBudget(*c->budget, uint64_t{1} << 30, uint64_t{1} << 30);
+    if (!parsed.ok()) return parsed.status().WithContext(Where(path, *b) + ": \"budget\"");
+  }
+  if (given == 0) c->keep = 0.05;
+  LTB_ASSIGN_OR_RETURN(c->zstd, GetBool(path, t, "zstd", c->zstd));
+  return Status::Ok();
+}
+
+Status ParseRelight(const std::string& path, const std::string& dir, const toml::table& t, Recipe::Relight* r) {
+  LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[relight]",
+                                {"matrix", "envs", "terms", "weighting", "clamp", "reference", "format", "exposure"}));
+  r->present = true;
+  LTB_ASSIGN_OR_RETURN(r->matrix, GetChoice(path, t, "matrix", r->matrix, {"final", "cpca"}));
+  LTB_ASSIGN_OR_RETURN(r->terms, GetUnsigned(path, t, "terms", r->terms, 1, uint64_t{1} << 32));
+  LTB_ASSIGN_OR_RETURN(r->weighting, GetChoice(path, t, "weighting", r->weighting, {"area", "transport", "none"}));
+  LTB_ASSIGN_OR_RETURN(r->clamp, GetBool(path, t, "clamp", r->clamp));
+  LTB_ASSIGN_OR_RETURN(r->reference, GetBool(path, t, "reference", r->reference));
+  LTB_ASSIGN_OR_RETURN(r->format, GetChoice(path, t, "format", r->format, {"png", "exr"}));
+  LTB_ASSIGN_OR_RETURN(r->exposure, GetNumber(path, t, "exposure", r->exposure, -64, 64));
+  const toml::node* envs = t.get("envs");
+  if (envs == nullptr || envs->as_array() == nullptr || envs->as_array()->empty()) {
+    return InvalidArgument(Where(path, t) + ": [relight] needs \"envs\", a list of environment maps "
+                           "(.exr/.hdr lat-long or cross, or a 6R²×3 .npy cubemap)");
+  }
+  for (const auto& item : *envs->as_array()) {
+    auto text = item.value<std::string>();
+    if (!text) return InvalidArgument(Where(path, *envs) + ": \"envs\" must be a list of file paths");
+    LTB_ASSIGN_OR_RETURN(std::string expanded, ExpandVariables(Where(path, *envs), *text));
+    EnvMap e;
+    e.path = Absolute(dir, expanded);
+    e.name = fs::path(e.path).stem().string();
+    for (char& ch : e.name) {
+      if (!std::isalnum(static_cast<unsigned char>(ch)) && ch != '-' && ch != '_' && ch != '.') ch = '_';
+    }
+    std::error_code ec;
+    if (e.path.find("{face}") == std::string::npos && !fs::is_regular_file(e.path, ec)) {
+      return NotFound(Where(path, *envs) + ": environment map " + e.path + " does not exist");
+    }
+    for (const EnvMap& other : r->envs) {
+      if (other.name == e.name) {
+        return InvalidArgument(Where(path, *envs) + ": two environment maps are named \"" + e.name +
+                               "\" (the relit images would overwrite each other): " + other.path + " and " + e.path);
+      }
+    }
+    r->envs.push_back(e);
+  }
+  return Status::Ok();
+}
+
+}  // namespace
+
+Result<Recipe> ParseRecipe(const std::string& path_in) {
+  std::error_code ec;
+  std::string path = fs::absolute(path_in, ec).lexically_normal().string();
+  if (ec) path = path_in;
+  LTB_ASSIGN_OR_RETURN(toml::table root, tomlf::ParseFile(path));
+  Recipe r;
+  r.path = path;
+  r.dir = fs::path(path).parent_path().string();
+  LTB_RETURN_IF_ERROR(CheckKeys(path, root, "the recipe",
+                                {"name", "scene", "workdir", "targets", "keep", "sample", "row-transform", "transpose",
+                                 "column-transform", "quantize", "cpca", "relight"}));
+  LTB_ASSIGN_OR_RETURN(r.name, GetString(path, root, "name", fs::path(path).stem().string()));
+  if (r.name.empty()) return InvalidArgument(Where(path, *root.get("name")) + ": \"name\" is empty");
+
+  const toml::node* scene = root.get("scene");
+  if (scene == nullptr) {
+    return InvalidArgument(path + ": the recipe names no scene: add scene = \"scene.toml\" (a path relative to the "
+                           "recipe) or an inline [scene] table");
+  }
+  if (auto file = scene->value<std::string>()) {
+    LTB_ASSIGN_OR_RETURN(std::string expanded, ExpandVariables(Where(path, *scene), *file));
+    r.scene_path = Absolute(r.dir, expanded);
+    if (!fs::is_regular_file(r.scene_path, ec)) {
+      return NotFound(Where(path, *scene) + ": scene file " + r.scene_path + " does not exist");
+    }
+  } else if (const toml::table* table = scene->as_table()) {
+    LTB_ASSIGN_OR_RETURN(r.inline_scene, InlineScene(path, r.dir, *table));
+  } else {
+    return InvalidArgument(Where(path, *scene) + ": \"scene\" must be a file path or a [scene] table");
+  }
+
+  if (root.contains("workdir")) {
+    LTB_ASSIGN_OR_RETURN(std::string w, GetString(path, root, "workdir", ""));
+    LTB_ASSIGN_OR_RETURN(std::string expanded, ExpandVariables(Where(path, *root.get("workdir")), w));
+    if (expanded.empty()) return InvalidArgument(Where(path, *root.get("workdir")) + ": \"workdir\" is empty");
+    r.workdir = Absolute(r.dir, expanded);
+  }
+
+  auto table = [&](const char* key) -> Result<const toml::table*> {
+    const toml::node* n = root.get(key);
+    if (n == nullptr) return static_cast<const toml::table*>(nullptr);
+    if (n->as_table() == nullptr) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be a [" + key + "] table");
+    return n->as_table();
+  };
+  static const toml::table kEmpty;
+  LTB_ASSIGN_OR_RETURN(const toml::table* sample, table("sample"));
+  LTB_RETURN_IF_ERROR(ParseSample(path, sample ? *sample : kEmpty, &r.sample));
+  LTB_ASSIGN_OR_RETURN(const toml::table* rows, table("row-transform"));
+  if (rows) {
+    LTB_RETURN_IF_ERROR(CheckKeys(path, *rows, "[row-transform]", {"filter", "zstd"}));
+    LTB_ASSIGN_OR_RETURN(r.row_transform.filter,
+                         GetChoice(path, *rows, "filter", r.row_transform.filter, {"haar", "db1", "db2", "db3", "db4"}));
+    LTB_ASSIGN_OR_RETURN(r.row_transform.zstd, GetBool(path, *rows, "zstd", r.row_transform.zstd));
+  }
+  LTB_ASSIGN_OR_RETURN(const toml::table* tr, table("transpose"));
+  if (tr) {
+    LTB_RETURN_IF_ERROR(CheckKeys(path, *tr, "[transpose]", {"zstd"}));
+    LTB_ASSIGN_OR_RETURN(r.transpose.zstd, GetBool(path, *tr, "zstd", r.transpose.zstd));
+  }
+  LTB_ASSIGN_OR_RETURN(const toml::table* ct, table("column-transform"));
+  LTB_RETURN_IF_ERROR(ParseColumnTransform(path, ct ? *ct : kEmpty, &r.column_transform));
+  LTB_ASSIGN_OR_RETURN(const toml::table* q, table("quantize"));
+  if (q) {
+    LTB_RETURN_IF_ERROR(CheckKeys(path, *q, "[quantize]", {"bits", "scaling", "dither", "seed"}));
+    LTB_ASSIGN_OR_RETURN(r.quantize.bits, GetUnsigned(path, *q, "bits", r.quantize.bits, 2, 24));
+    LTB_ASSIGN_OR_RETURN(r.quantize.scaling, GetChoice(path, *q, "scaling", r.quantize.scaling, {"level", "none"}));
+    LTB_ASSIGN_OR_RETURN(r.quantize.dither, GetBool(path, *q, "dither", r.quantize.dither));
+    LTB_ASSIGN_OR_RETURN(r.quantize.seed, GetUnsigned(path, *q, "seed", r.quantize.seed, 0, uint64_t{1} << 62));
+  }
+  LTB_ASSIGN_OR_RETURN(const toml::table* cpca, table("cpca"));
+  if (cpca) {
+    LTB_RETURN_IF_ERROR(CheckKeys(path, *cpca, "[cpca]", {"clusters", "basis"}));
+    r.cpca.present = true;
+    LTB_ASSIGN_OR_RETURN(r.cpca.clusters, GetUnsigned(path, *cpca, "clusters", r.cpca.clusters, 1, 1 << 20));
+    LTB_ASSIGN_OR_RETURN(r.cpca.basis, GetUnsigned(path, *cpca, "basis", r.cpca.basis, 1, 1 << 16));
+  }
+  LTB_ASSIGN_OR_RETURN(const toml::table* relight, table("relight"));
+  if (relight) LTB_RETURN_IF_ERROR(ParseRelight(path, r.dir, *relight, &r.relight));
+
+  LTB_ASSIGN_OR_RETURN(r.targets, GetStringList(path, root, "targets", StageNames()));
+  if (!root.contains("targets")) {
+    r.targets = {"quantize"};
+    if (r.cpca.present) r.targets.push_back("cpca");
+    if (r.relight.present) r.targets.push_back("relight");
+  }
+  if (r.targets.empty()) return InvalidArgument(Where(path, *root.get("targets")) + ": \"targets\" is empty");
+  if (std::count(r.targets.begin(), r.targets.end(), "relight") && !r.relight.present) {
+    return InvalidArgument(Where(path, *root.get("targets")) +
+                           ": \"targets\" asks for relight but the recipe has no [relight] table (envs, terms, ...)");
+  }
+  if (root.contains("keep")) {
+    LTB_ASSIGN_OR_RETURN(std::vector<std::string> keep, GetStringList(path, root, "keep", IntermediateNames()));
+    r.keep.insert(keep.begin(), keep.end());
+  } else {
+    r.keep = {"rows", "cols", "cols4d"};
+  }
+  if (r.relight.present && r.relight.reference) r.keep.insert("rows");  // the reference relighting reads rows.ltm
+  return r;
+}
+
+}  // namespace ltb::pipeline

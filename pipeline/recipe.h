@@ -1,0 +1,96 @@
+// A bake recipe (docs/RECIPE.md): the scene, each stage's parameters, which stages' results
+// are wanted, which intermediates to keep, and the work directory. Parsed strictly: every
+// unknown key is an error naming its line; every value is checked when the recipe is read,
+// so a bad recipe fails before any stage runs.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "format/status.h"
+
+namespace ltb::pipeline {
+
+// The stages of a bake, in graph order (docs/RECIPE.md "The stage graph").
+inline const std::vector<std::string>& StageNames() {
+  static const std::vector<std::string> names = {"sample",   "row-transform", "transpose", "column-transform",
+                                                 "quantize", "cpca",          "relight"};
+  return names;
+}
+
+// The intermediates a recipe may keep, by file stem (raw.ltm, rows.ltm, ...).
+inline const std::vector<std::string>& IntermediateNames() {
+  static const std::vector<std::string> names = {"raw", "rows", "cols", "cols4d"};
+  return names;
+}
+
+struct EnvMap {
+  std::string name;  // output image stem: relit-<name>.<format>
+  std::string path;  // absolute, ${VAR}s expanded
+};
+
+struct Recipe {
+  std::string path;  // absolute path of the recipe file
+  std::string dir;   // its directory: relative paths in the recipe are relative to it
+  std::string name;  // identifies the bake in its work directory (default: the file's stem)
+
+  // The scene: a file, or the inline [scene] table written out as TOML (mesh paths made
+  // absolute) that the run saves as scene.toml in the work directory.
+  std::string scene_path;
+  std::string inline_scene;
+
+  std::string workdir;               // absolute; empty when the recipe gives none (then --workdir is needed)
+  std::vector<std::string> targets;  // stages whose results are wanted (default: quantize, + relight if configured)
+  std::set<std::string> keep;        // intermediates kept on disk (default: rows, cols, cols4d)
+
+  struct Sample {
+    std::optional<uint64_t> cube_res, spp, bounces, seed;  // unset: the scene's [sampling] values
+  } sample;
+  struct RowTransform {
+    std::string filter = "haar";
+    bool zstd = false;
+  } row_transform;
+  struct Transpose {
+    bool zstd = false;
+  } transpose;
+  struct ColumnTransform {
+    std::string filter = "legall53";
+    std::string depth = "adaptive";
+    // Exactly one of: keep (fraction of each column's terms), terms (per column), budget.
+    std::optional<double> keep;
+    std::optional<uint64_t> terms;
+    std::optional<std::string> budget;
+    bool zstd = true;
+  } column_transform;
+  struct Quantize {
+    uint64_t bits = 9;
+    std::string scaling = "level";
+    bool dither = true;
+    uint64_t seed = 1;
+  } quantize;
+  struct Cpca {
+    bool present = false;  // a [cpca] table was given
+    uint64_t clusters = 16, basis = 8;
+  } cpca;
+  struct Relight {
+    bool present = false;  // a [relight] table was given
+    std::string matrix = "final";  // final | cpca
+    std::vector<EnvMap> envs;
+    uint64_t terms = 100;
+    std::string weighting = "area";
+    bool clamp = false;
+    bool reference = false;  // compare with the uncompressed rows.ltm (which is then kept)
+    std::string format = "png";  // png | exr
+    double exposure = 0;
+  } relight;
+
+  bool Keeps(const std::string& intermediate) const { return keep.count(intermediate) != 0; }
+};
+
+// Reads and checks a recipe. Errors name the file, the line and the key.
+Result<Recipe> ParseRecipe(const std::string& path);
+
+}  // namespace ltb::pipeline

@@ -1,0 +1,34 @@
+// Strict reading of TOML tables (scenes, recipes): every unknown key is an error naming
+// its line, and every value is checked for type and range, naming file, line and key.
+#pragma once
+
+#include <cstdint>
+#include <set>
+#include <string>
+
+#include <toml++/toml.h>
+
+#include "format/status.h"
+
+namespace ltb::tomlf {
+
+// "path:line" of a node.
+std::string Where(const std::string& path, const toml::node& n);
+
+// Lists every key of `table` not in `allowed`, each with its line.
+Status CheckKeys(const std::string& path, const toml::table& table, const std::string& what,
+                 const std::set<std::string>& allowed);
+
+// A finite number in [lo, hi], or `def` when the key is absent.
+Result<double> GetNumber(const std::string& path, const toml::table& t, const char* key, double def, double lo,
+                         double hi);
+// An integer in [lo, hi], or `def` when the key is absent.
+Result<uint64_t> GetUnsigned(const std::string& path, const toml::table& t, const char* key, uint64_t def, uint64_t lo,
+                             uint64_t hi);
+Result<std::string> GetString(const std::string& path, const toml::table& t, const char* key, std::string def);
+Result<bool> GetBool(const std::string& path, const toml::table& t, const char* key, bool def);
+
+// Parses a TOML file; a syntax error names path:line:column.
+Result<toml::table> ParseFile(const std::string& path);
+
+}  // namespace ltb::tomlf
