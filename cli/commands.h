@@ -23,6 +23,7 @@ std::unique_ptr<Command> RegisterSample(CLI::App* parent);
 std::unique_ptr<Command> RegisterColumnTransform(CLI::App* parent);
 std::unique_ptr<Command> RegisterQuantize(CLI::App* parent);
 std::unique_ptr<Command> RegisterRelight(CLI::App* parent);
+std::unique_ptr<Command> RegisterCpca(CLI::App* parent);
 std::unique_ptr<Command> RegisterRun(CLI::App* parent);
 
 // The whole ltbake command line (main and the ltbake-<stage> executables call it).
