@@ -1,5 +1,6 @@
 #include "format/status.h"
 
+#include <cerrno>
 #include <cstring>
 
 namespace ltb {
@@ -35,7 +36,11 @@ Status Internal(std::string message) { return {StatusCode::kInternal, std::move(
 Status Cancelled(std::string message) { return {StatusCode::kCancelled, std::move(message)}; }
 
 Status IoError(const std::string& what, int errnum) {
-  return {StatusCode::kIo, what + ": " + std::strerror(errnum)};
+  std::string advice;
+  if (errnum == ENOSPC || errnum == EDQUOT) {
+    advice = " (free space on that file system, or point the output elsewhere, and rerun: committed chunks are kept)";
+  }
+  return {StatusCode::kIo, what + ": " + std::strerror(errnum) + advice};
 }
 
 }  // namespace ltb

@@ -352,7 +352,7 @@ Decision Decide(const Node& n, const json* record, const json& inputs, const Out
   }
   for (auto it = inputs.begin(); it != inputs.end(); ++it) {
     if (it.value().get<std::string>().empty()) {
-      d.action = out.exists ? "redo" : "run";
+      d.action = out.exists && record ? "redo" : "run";
       d.reason = "its input " + it.key() + " is being remade";
       return d;
     }
@@ -391,7 +391,7 @@ Decision Decide(const Node& n, const json* record, const json& inputs, const Out
     return d;
   }
   if (!out.problem.empty()) {
-    d.action = "redo";
+    d.action = record ? "redo" : "run";
     d.reason = n.output + " is unreadable (" + out.problem + ")";
     return d;
   }
@@ -817,6 +817,13 @@ Result<BakeOutcome> Bake::Run() {
       continue;
     }
     const bool overwrite = ours_.count(n.output) > 0 || is_forced(n);
+    if (d.action == "redo") {
+      // Made otherwise (or forced): start afresh, so that not even a file whose metadata
+      // happens to match is resumed.
+      std::error_code rm;
+      fs::remove(out_path, rm);
+      if (rm) return IoError(out_path + ": cannot remove it to redo " + n.name, rm.value());
+    }
     std::vector<std::string> cmd = Command(n, overwrite);
     std::string log = Path("logs/" + std::string(n.name.begin(), n.name.end()) + ".log");
     std::replace(log.begin() + static_cast<long>(Path("logs/").size()), log.end(), ':', '-');

@@ -241,20 +241,25 @@ Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChun
                               "\" is already committed");
   }
   uint64_t offset = end_;
+  // A failed write names the chunk; what was committed before it stays committed.
+  auto in_chunk = [&](const Status& s) {
+    return Status(s.code(), "writing chunk " + std::to_string(chunk) + " of array \"" + a.name + "\": " + s.message());
+  };
   // Payload and its zero padding first, the header last: the header write is the commit.
   LTB_RETURN_IF_ERROR(CountMutation());
-  LTB_RETURN_IF_ERROR(file_.WriteAt(offset + kFrameHeaderSize, encoded.payload));
+  if (Status s = file_.WriteAt(offset + kFrameHeaderSize, encoded.payload); !s.ok()) return in_chunk(s);
   uint64_t pad = AlignUp(h.payload_length, kAlignment) - h.payload_length;
   if (pad > 0) {
     LTB_RETURN_IF_ERROR(CountMutation());
-    LTB_RETURN_IF_ERROR(file_.WriteAt(offset + kFrameHeaderSize + h.payload_length, ByteSpan(kZeros.data(), pad)));
+    Status s = file_.WriteAt(offset + kFrameHeaderSize + h.payload_length, ByteSpan(kZeros.data(), pad));
+    if (!s.ok()) return in_chunk(s);
   }
   if (options_.sync_each_chunk) {
     LTB_RETURN_IF_ERROR(CountMutation());
-    LTB_RETURN_IF_ERROR(file_.DataSync());
+    if (Status s = file_.DataSync(); !s.ok()) return in_chunk(s);
   }
   LTB_RETURN_IF_ERROR(CountMutation());
-  LTB_RETURN_IF_ERROR(file_.WriteAt(offset, hb));
+  if (Status s = file_.WriteAt(offset, hb); !s.ok()) return in_chunk(s);
   end_ = offset + h.FrameSize();
   frames_.push_back({offset, h});
   committed_.insert(Key(array, chunk));

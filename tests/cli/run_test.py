@@ -1,0 +1,235 @@
+"""`ltbake run`: recipes drive the stage graph like make, keyed on content and parameters.
+
+- A bake of the tiny scene makes final.ltm; rerunning skips every stage; run.json holds each
+  stage's command, log, wall time, peak RSS, output size and content_hash.
+- Fused sample + row-transform (raw not kept) gives the same rows.ltm and final.ltm
+  content_hash as the unfused bake that keeps raw.ltm.
+- Changing one parameter redoes that stage and the stages whose input content changes, and
+  nothing upstream.
+- --dry-run changes nothing; --until stops early; --from needs its inputs; --force redoes.
+- SIGINT/SIGTERM: the run exits 130/143, what was committed stays, a rerun resumes.
+- A failing stage names the stage, the chunk and the command that re-runs just that stage.
+- Bad recipes: each a clear error with exit 1 or 2.
+
+usage: run_test.py PATH_TO_LTBAKE
+"""
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from ltbtest import LTBAKE, check, finish, run  # noqa: E402
+
+REPO = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
+TINY = os.path.join(REPO, "samples", "tiny.toml")
+
+
+def write(path, text):
+    with open(path, "w") as f:
+        f.write(text)
+    return path
+
+
+def report(workdir):
+    with open(os.path.join(workdir, "run.json")) as f:
+        return json.load(f)
+
+
+def actions(workdir, nodes):
+    by = {s["node"]: s for s in report(workdir)["stages"]}
+    return {n: by[n]["action"] for n in nodes if n in by}
+
+
+def content_hash(path):
+    return json.loads(run("inspect", "--json", path).stdout)["content_hash"]
+
+
+BASE = f'''name = "t"
+scene = "{TINY}"
+[quantize]
+bits = 9
+'''
+FRAME_HEADER_BYTES = 64  # docs/FORMAT.md "Chunk frames"
+FUSED = ["sample+row-transform", "transpose", "column-transform", "quantize"]
+
+with tempfile.TemporaryDirectory() as d:
+    rec = write(os.path.join(d, "t.toml"), BASE)
+    w = os.path.join(d, "w")
+
+    # --- a whole bake, then a rerun that skips everything ---------------------------------
+    p = run("run", rec, "--workdir", w)
+    for f in ["rows.ltm", "cols.ltm", "cols4d.ltm", "final.ltm", "run.json"]:
+        check(os.path.exists(os.path.join(w, f)), f"bake: {f} missing")
+    check(not os.path.exists(os.path.join(w, "raw.ltm")), "fused bake wrote raw.ltm")
+    check("content_hash" in p.stdout and "run report: " + os.path.join(w, "run.json") in p.stdout,
+          f"bake: no summary table / report path:\n{p.stdout}")
+    rep = report(w)
+    check(rep["status"] == "ok" and rep["exit_code"] == 0, f"run.json status {rep.get('status')}")
+    check(actions(w, FUSED) == {n: "run" for n in FUSED}, f"first bake actions {actions(w, FUSED)}")
+    for s in rep["stages"]:
+        out = s["output"]
+        check(s["wall_seconds"] > 0 and s["peak_rss_bytes"] > 1 << 20, f"{s['node']}: no wall time / peak RSS: {s}")
+        check(out["bytes"] == os.path.getsize(out["path"]), f"{s['node']}: size in run.json != file size")
+        check(out["content_hash"] == content_hash(out["path"]), f"{s['node']}: content_hash in run.json != inspect's")
+        check(os.path.exists(s["log"]) and s["node"].split("+")[0] in open(s["log"]).read(),
+              f"{s['node']}: log {s.get('log')} missing or empty")
+        check(s["command"].startswith(LTBAKE) or "ltbake" in s["command"], f"{s['node']}: command {s['command']}")
+    final_hash = content_hash(os.path.join(w, "final.ltm"))
+    rows_hash = content_hash(os.path.join(w, "rows.ltm"))
+    mtime = os.path.getmtime(os.path.join(w, "final.ltm"))
+
+    p = run("run", rec, "--workdir", w)
+    check(actions(w, FUSED) == {n: "skip" for n in FUSED}, f"rerun should skip all: {actions(w, FUSED)}")
+    check(p.stdout.count("skipped, up to date") == 4, f"rerun does not say what it skipped:\n{p.stdout}")
+    check(os.path.getmtime(os.path.join(w, "final.ltm")) == mtime, "rerun touched final.ltm")
+
+    # --- fused == unfused -------------------------------------------------------------------
+    rec_raw = write(os.path.join(d, "raw.toml"),
+                    BASE.replace('name = "t"', 'name = "raw"\nkeep = ["raw", "rows", "cols", "cols4d"]'))
+    w_raw = os.path.join(d, "w_raw")
+    run("run", rec_raw, "--workdir", w_raw)
+    unfused = ["sample", "row-transform", "transpose", "column-transform", "quantize"]
+    check(actions(w_raw, unfused) == {n: "run" for n in unfused}, f"unfused actions {actions(w_raw, unfused)}")
+    check(os.path.exists(os.path.join(w_raw, "raw.ltm")), "keep raw: raw.ltm missing")
+    check(content_hash(os.path.join(w_raw, "rows.ltm")) == rows_hash, "fused rows.ltm differs from unfused")
+    check(content_hash(os.path.join(w_raw, "final.ltm")) == final_hash, "fused final.ltm differs from unfused")
+
+    # --- one parameter changed: exactly what depends on it is redone ---------------------------
+    def variant(name, text):
+        return write(os.path.join(d, name + ".toml"), text)
+
+    cases = [
+        ("bits", BASE.replace("bits = 9", "bits = 8"), {"quantize"}),
+        ("keep", BASE + '[column-transform]\nkeep = 0.1\n', {"column-transform", "quantize"}),
+        # zstd changes how cols.ltm is stored, not its content: downstream stays up to date
+        ("zstd", BASE + '[transpose]\nzstd = true\n', {"transpose"}),
+        ("spp", BASE + '[sample]\nspp = 2\n', set(FUSED)),
+    ]
+    for label, text, expect in cases:
+        run("run", variant(label, text), "--workdir", w)
+        got = {n for n, a in actions(w, FUSED).items() if a != "skip"}
+        check(got == expect, f"change {label}: redone {sorted(got)}, expected {sorted(expect)}")
+        why = {s["node"]: s["reason"] for s in report(w)["stages"]}
+        first = min(expect, key=FUSED.index)
+        check("parameters changed" in why[first], f"change {label}: {first} gives no reason: {why[first]}")
+        run("run", rec, "--workdir", w, "-q")  # back to the base recipe
+    check(content_hash(os.path.join(w, "final.ltm")) == final_hash, "back to the base recipe: final.ltm differs")
+
+    # --- --dry-run changes nothing ------------------------------------------------------------
+    before = open(os.path.join(w, "run.json")).read()
+    p = run("run", variant("bits7", BASE.replace("bits = 9", "bits = 7")), "--workdir", w, "--dry-run")
+    check(re.search(r"quantize\s+redo\s+parameters changed: bits 9 -> 7", p.stdout) is not None,
+          f"--dry-run plan does not say why quantize runs:\n{p.stdout}")
+    check(re.search(r"transpose\s+skip\s+up to date", p.stdout) is not None, f"--dry-run plan:\n{p.stdout}")
+    check(open(os.path.join(w, "run.json")).read() == before, "--dry-run changed run.json")
+
+    # --- --force STAGE ----------------------------------------------------------------------
+    run("run", rec, "--workdir", w, "--force", "quantize")
+    check({n for n, a in actions(w, FUSED).items() if a != "skip"} == {"quantize"},
+          f"--force quantize: {actions(w, FUSED)}")
+    check(content_hash(os.path.join(w, "final.ltm")) == final_hash, "--force quantize changed final.ltm")
+
+    # --- --until, then the rest -----------------------------------------------------------------
+    w2 = os.path.join(d, "w2")
+    run("run", rec, "--workdir", w2, "--until", "transpose")
+    check(os.path.exists(os.path.join(w2, "cols.ltm")) and not os.path.exists(os.path.join(w2, "cols4d.ltm")),
+          "--until transpose ran too much or too little")
+    run("run", rec, "--workdir", w2)
+    check(actions(w2, FUSED) == {"sample+row-transform": "skip", "transpose": "skip", "column-transform": "run",
+                                 "quantize": "run"}, f"after --until: {actions(w2, FUSED)}")
+    check(content_hash(os.path.join(w2, "final.ltm")) == final_hash, "--until then rest: final.ltm differs")
+
+    # --- intermediates not kept are removed, and remade when needed again ------------------------
+    w3 = os.path.join(d, "w3")
+    rec_lean = variant("lean", BASE.replace('name = "t"', 'name = "lean"\nkeep = []'))
+    run("run", rec_lean, "--workdir", w3)
+    left = sorted(f for f in os.listdir(w3) if f.endswith(".ltm"))
+    check(left == ["final.ltm"], f"keep = []: left {left}")
+    p = run("run", rec_lean, "--workdir", w3)
+    check("skipped, up to date (cols4d.ltm was not kept)" in p.stdout, f"keep = []: rerun:\n{p.stdout}")
+    run("run", variant("lean8", BASE.replace('name = "t"', 'name = "lean"\nkeep = []').replace("bits = 9", "bits = 8")),
+        "--workdir", w3)
+    # quantize needs cols4d.ltm again, which needs cols.ltm, which needs rows.ltm: all remade
+    check(all(a != "skip" for a in actions(w3, FUSED).values()) and len(actions(w3, FUSED)) == 4,
+          f"keep = [], bits changed: the removed intermediates must be remade: {actions(w3, FUSED)}")
+    check(sorted(f for f in os.listdir(w3) if f.endswith(".ltm")) == ["final.ltm"], "keep = []: leftovers")
+
+    # --- SIGTERM and SIGINT: exit 143/130, committed work kept, rerun resumes --------------------
+    slow = write(os.path.join(d, "slow.toml"), BASE.replace('name = "t"', 'name = "slow"') +
+                 "[sample]\ncube_res = 32\nspp = 32\n")
+    for sig, code in [(signal.SIGTERM, 143), (signal.SIGINT, 130)]:
+        ws = os.path.join(d, f"slow{code}")
+        proc = subprocess.Popen([LTBAKE, "run", slow, "--workdir", ws, "--jobs", "1"], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        line = proc.stdout.readline()
+        check("sample+row-transform" in line, f"slow bake started with: {line!r}")
+        time.sleep(1.0)
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=120)
+        check(proc.returncode == code, f"{sig.name}: exit {proc.returncode}, expected {code}\n{out}{err}")
+        check("rerun" in err, f"{sig.name}: no resume hint:\n{err}")
+        rows = os.path.join(ws, "rows.ltm")
+        v = json.loads(run("verify", "--allow-incomplete", "--json", rows).stdout)[0]
+        check(v["ok"], f"{sig.name}: rows.ltm does not verify after the interrupt: {v}")
+        check(report(ws)["status"] == "interrupted", f"{sig.name}: run.json status {report(ws)['status']}")
+        p = run("run", slow, "--workdir", ws)
+        check(re.search(r"sample\+row-transform: resume \(interrupted: \d+ of \d+ chunks committed\)", p.stdout)
+              is not None, f"{sig.name}: rerun does not resume:\n{p.stdout}")
+    slow_hash = content_hash(os.path.join(d, "slow143", "final.ltm"))
+    check(slow_hash == content_hash(os.path.join(d, "slow130", "final.ltm")), "interrupted bakes differ")
+
+    # --- a failing stage names the stage, the chunk and the command to re-run it -----------------
+    w4 = os.path.join(d, "w4")
+    shutil.copytree(w, w4, ignore=shutil.ignore_patterns("run.json", "logs"))
+    run("run", rec, "--workdir", w4, "-q")  # adopts the copied files (the stages find them made alike)
+    rows = os.path.join(w4, "rows.ltm")
+    frames = json.loads(run("inspect", "--json", "--chunks", rows).stdout)
+    chunk = next(c for c in frames["chunk_list"] if c["array"] == "matrix" and c["encoding"] == "raw")
+    with open(rows, "r+b") as f:
+        f.seek(chunk["offset"] + FRAME_HEADER_BYTES + 100)
+        b = f.read(1)
+        f.seek(-1, 1)
+        f.write(bytes([b[0] ^ 0x40]))
+    p = run("run", rec, "--workdir", w4, "--force", "transpose", expect=1)
+    check("stage transpose failed" in p.stderr and f"chunk {chunk['index']}" in p.stderr,
+          f"failure does not name stage and chunk:\n{p.stderr}")
+    m = re.search(r"re-run just this stage: (.*)", p.stderr)
+    check(m is not None and " transpose " in m.group(1) and rows in m.group(1), f"no re-run command:\n{p.stderr}")
+    check(report(w4)["status"] == "failed", "run.json does not record the failure")
+
+    # --- bad recipes ------------------------------------------------------------------------------
+    def bad(label, text, code, *needles, args=("--workdir", os.path.join(d, "wbad"))):
+        r = write(os.path.join(d, "bad.toml"), text)
+        p = run("run", r, *args, expect=code)
+        for n in needles:
+            check(n in p.stderr, f"bad recipe ({label}): message lacks {n!r}:\n{p.stderr}")
+
+    bad("missing scene", 'scene = "nowhere.toml"\n', 1, os.path.join(d, "nowhere.toml"), "does not exist")
+    bad("unknown top-level key", "colour = 3\n" + BASE, 2, '"colour" (line 1)', "the recipe")
+    bad("unknown key in [quantize]", BASE + "colour = 3\n", 2, '"colour" (line 5)', "[quantize]")
+    bad("unknown key in table", BASE + "[sample]\nspp = 4\nsp = 3\n", 2, '"sp" (line 7)', "[sample]")
+    bad("cube_res", BASE + "[sample]\ncube_res = 12\n", 2, "bad.toml:6", "12", "not a power of two")
+    bad("two budgets", BASE + "[column-transform]\nkeep = 0.1\nterms = 4\n", 2, "more than one of")
+    bad("bad filter", BASE + '[row-transform]\nfilter = "db9"\n', 2, '"db9"', "haar")
+    bad("relight without envs", BASE + "[relight]\nterms = 10\n", 2, "needs \"envs\"")
+    os.environ.pop("LTBAKE_NO_SUCH_VAR", None)
+    bad("unset variable", BASE + '[relight]\nenvs = ["${LTBAKE_NO_SUCH_VAR}/a.exr"]\n', 2, "LTBAKE_NO_SUCH_VAR",
+        "not set")
+    bad("syntax", BASE + "[sample\n", 2, "bad.toml:5")
+    bad("no workdir", BASE, 2, "no work directory", args=())
+    wbad = os.path.join(d, "wbad")
+    bad("unknown stage", BASE, 2, '"colour-transform" is not a stage', args=("--workdir", wbad, "--until", "colour-transform"))
+    bad("input missing", BASE, 1, "rows.ltm", "does not exist", args=("--workdir", wbad, "--from", "transpose"))
+    # a work directory holding another recipe's bake
+    other = write(os.path.join(d, "other.toml"), BASE.replace('name = "t"', 'name = "other"'))
+    p = run("run", other, "--workdir", w, expect=1)
+    check("holds the bake of another recipe" in p.stderr and '"t"' in p.stderr, f"other recipe:\n{p.stderr}")
+    check(content_hash(os.path.join(w, "final.ltm")) == final_hash, "refused run changed the other bake")
+
+finish()
