@@ -27,7 +27,7 @@ class CpcaCommand : public Command {
     app->add_option("--max-iterations", options_.max_iterations, "cap on assignment/refit passes over the data")
         ->default_val(30)->check(CLI::Range(1, 100000));
     app->add_option("--tolerance", options_.tolerance,
-                    "a level ends when a pass improves the error by less than this fraction")->default_val(1e-4);
+                    "a level ends when a pass improves the error by less than this fraction")->default_val(1e-3);
     app->add_option("--oversample", options_.oversample, "extra directions tracked per cluster (subspace iteration)")
         ->default_val(8)->check(CLI::Range(0, 1024));
     app->add_option("--sample-rows", options_.sample_rows, "rows held in memory for the seeded k-means++ start")

@@ -126,6 +126,8 @@ class InspectCommand : public Command {
         }
       }
     }
+    // cpca outputs: clusters, basis dimension, passes, error (docs/CPCA.md).
+    if (meta.json.contains("cpca") && meta.json["cpca"].is_object()) out["cpca"] = meta.json["cpca"];
     if (chunks_) {
       out["chunk_list"] = json::array();
       for (const auto& e : reader.chunk_frames()) {
@@ -193,6 +195,14 @@ class InspectCommand : public Command {
       std::cout << "  quantization: " << q["bits"] << " bits, scaling " << q.value("scaling", "?") << ", "
                 << q["nonzeros"] << " nonzeros in " << HumanBytes(q["matrix_bytes"]) << " ("
                 << q["bytes_per_nonzero"].get<double>() << " bytes per nonzero)\n";
+    }
+    if (out.contains("cpca")) {
+      const json& c = out["cpca"];
+      std::cout << "  cpca: " << c.value("clusters", json()).dump() << " clusters x " << c.value("basis_dim", json()).dump()
+                << " directions, " << c.value("rows", json()).dump() << " rows of " << c.value("dims", json()).dump()
+                << ", " << c.value("iterations", json()).dump() << " passes, relative RMS error "
+                << c.value("relative_rms_error", json()).dump() << ", empty clusters "
+                << c.value("empty_clusters", json()).dump() << "\n";
     }
     if (out["uncommitted_tail_bytes"].get<uint64_t>() > 0) {
       std::cout << "  uncommitted tail: " << out["uncommitted_tail_bytes"]

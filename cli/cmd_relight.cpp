@@ -13,6 +13,7 @@
 #include "cli/common.h"
 #include "format/io/container_reader.h"
 #include "stages/common/basis.h"
+#include "stages/cpca/cpca_model.h"
 #include "stages/relight/envmap.h"
 #include "stages/relight/image_io.h"
 #include "stages/relight/relight.h"
@@ -67,8 +68,8 @@ class RelightCommand : public Command {
  public:
   explicit RelightCommand(CLI::App* parent) {
     auto* app = parent->add_subcommand("relight", "relight a baked matrix under an environment map (Eq. 8 for final.ltm)");
-    app->add_option("MATRIX", matrix_, "final.ltm or cols4d.ltm (fast, in memory); cols.ltm; rows.ltm / raw.ltm "
-                                       "(streamed)")->required();
+    app->add_option("MATRIX", matrix_, "final.ltm or cols4d.ltm (fast, in memory); cpca.ltm (in memory); cols.ltm; "
+                                       "rows.ltm / raw.ltm (streamed)")->required();
     app->add_option("--env", env_, "environment map: .exr or .hdr (lat-long, cross, or six files with {face}), or a "
                                    "6R²×3 cubemap .npy")->required();
     app->add_option("-o,--output", output_, "relit image: .exr (linear), .png (sRGB), .npy (rows × 3)")->required();
@@ -103,10 +104,21 @@ class RelightCommand : public Command {
     if (!reader.ok()) return ReportFailure(reader.status());
     auto basis = stages::LightingBasis::FromMetadata(reader->metadata(), matrix_);
     if (!basis.ok()) return ReportFailure(basis.status());
-    const bool streaming = reader->metadata().matrix().layout == format::Layout::kRows;
-    const uint64_t rows = reader->metadata().matrix().rows;
+    const bool is_cpca = stages::CpcaModel::IsCpca(reader->metadata());
+    const bool streaming = !is_cpca && reader->metadata().matrix().layout == format::Layout::kRows;
+    uint64_t rows = reader->metadata().matrix().rows;
     std::optional<stages::Relighter> relighter;
-    if (!streaming) {
+    std::optional<stages::CpcaRelighter> cpca;
+    if (is_cpca) {  // clustered PCA: project the lighting per cluster, blend per row
+      auto mem = ParseSize(flags_.mem_limit);
+      if (!mem.ok()) return ReportFailure(mem.status().WithContext("--mem-limit"));
+      auto r = stages::CpcaRelighter::Load(matrix_, *mem);
+      if (!r.ok()) return ReportFailure(r.status());
+      cpca = std::move(*r);
+      rows = cpca->rows();
+      report["cpca"] = {{"clusters", cpca->model().clusters()}, {"basis", cpca->model().basis()}};
+      report["matrix_bytes_in_memory"] = cpca->bytes();
+    } else if (!streaming) {
       auto mem = ParseSize(flags_.mem_limit);
       if (!mem.ok()) return ReportFailure(mem.status().WithContext("--mem-limit"));
       auto r = stages::Relighter::Load(matrix_, *mem, bar.hook());
@@ -127,6 +139,11 @@ class RelightCommand : public Command {
     if (relighter) {
       width = relighter->image_width();
       height = relighter->image_height();
+    } else if (cpca) {
+      if (auto img = cpca->model().image()) {
+        width = img->first;
+        height = img->second;
+      }
     } else if (auto img = stages::ReadImageRows(reader->metadata())) {
       width = img->width;
       height = img->height;
@@ -146,6 +163,8 @@ class RelightCommand : public Command {
       auto b = Clock::now();
       if (relighter) {
         relighter->Relight(terms, image.data());
+      } else if (cpca) {
+        cpca->RelightTerms(terms.column, terms.rgb, image.data());
       } else {
         std::vector<float> dense(cube.size(), 0.0f);
         for (size_t k = 0; k < terms.column.size(); ++k)
@@ -226,6 +245,8 @@ class RelightCommand : public Command {
       std::vector<float> matrix_only(rows * 3);
       if (relighter) {
         relighter->Relight(every, matrix_only.data());
+      } else if (cpca) {
+        cpca->Relight(all.data(), matrix_only.data());
       } else {
         auto m = stages::RelightStreaming(matrix_, all.data(), flags_.jobs, Progress{});
         if (!m.ok()) return ReportFailure(m.status());

@@ -21,6 +21,7 @@
 #include "stages/column_transform/column_codec.h"
 #include "stages/common/basis.h"
 #include "stages/common/parallel_for.h"
+#include "stages/cpca/cpca_model.h"
 
 namespace ltb::stages {
 
@@ -221,8 +222,71 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
   return result;
 }
 
+// A cpca output decodes to its approximation, N × D, in the stored row basis (or, with
+// --basis pixels, with the row transform inverted).
+Result<ConvertResult> CpcaToNpy(const ConvertOptions& o, const io::ContainerReader& reader, const Progress& progress) {
+  LTB_ASSIGN_OR_RETURN(CpcaModel model, CpcaModel::Load(reader, o.mem_limit));
+  std::optional<wavelet::Filter> row_filter;
+  uint64_t cube_res = 0;
+  if (o.pixel_basis) {
+    auto cube = ReadCubemapCols(reader.metadata());
+    if (!cube.ok()) return cube.status().WithContext(o.input);
+    if (!cube->has_value() || (*cube)->basis != "wavelet") {
+      return FailedPrecondition(o.input + ": --basis pixels needs row-transformed (wavelet-basis cubemap) columns");
+    }
+    LTB_ASSIGN_OR_RETURN(wavelet::Filter f, wavelet::ParseFilter((*cube)->filter));
+    row_filter = f;
+    cube_res = (*cube)->cube_res;
+  }
+  const uint64_t rows = model.rows(), cols = model.dims();
+  ConvertResult result;
+  result.rows = rows;
+  result.cols = cols;
+  result.chunks_total = model.row_chunks();
+  std::vector<std::byte> header = EncodeNpyHeader("<f4", {rows, cols});
+  const uint64_t data_offset = header.size(), total = data_offset + rows * cols * 4;
+  std::string tmp = o.output + ".partial";
+  std::remove(tmp.c_str());
+  LTB_ASSIGN_OR_RETURN(File out, File::Open(tmp, File::Mode::kCreateExclusive));
+  Status s = out.WriteAt(0, header);
+  if (s.ok()) s = out.Truncate(total);
+  std::vector<uint64_t> chunks(model.row_chunks());
+  for (uint64_t i = 0; i < chunks.size(); ++i) chunks[i] = i;
+  if (s.ok()) {
+    s = ParallelFor(chunks, o.jobs, progress, "chunks", [&](uint64_t c) -> Status {
+      std::vector<float> v;
+      LTB_RETURN_IF_ERROR(model.DecodeChunk(reader, c, &v));
+      const ChunkExtent e = model.row_extent(c);
+      if (row_filter) {
+        std::vector<float> scratch(wavelet::ScratchSize(cube_res, cube_res, 1));
+        const int depth = wavelet::MaxDepth(cube_res, cube_res);
+        for (uint64_t r = 0; r < e.rows; ++r)
+          for (uint64_t face = 0; face < 6; ++face)
+            wavelet::Inverse2D(*row_filter, v.data() + r * cols + face * cube_res * cube_res, cube_res, cube_res, 1,
+                               depth, scratch.data());
+      }
+      return out.WriteAt(data_offset + e.row0 * cols * 4, BytesOf(v));
+    });
+  }
+  if (s.ok()) s = out.DataSync();
+  if (s.ok()) s = out.Close();
+  if (!s.ok()) {
+    std::remove(tmp.c_str());
+    return s;
+  }
+  if (std::rename(tmp.c_str(), o.output.c_str()) != 0) {
+    Status e = IoError(o.output + ": rename from " + tmp, errno);
+    std::remove(tmp.c_str());
+    return e;
+  }
+  result.chunks_written = chunks.size();
+  result.bytes_out = total;
+  return result;
+}
+
 Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress) {
   LTB_ASSIGN_OR_RETURN(io::ContainerReader reader, io::ContainerReader::Open(o.input));
+  if (CpcaModel::IsCpca(reader.metadata())) return CpcaToNpy(o, reader, progress);
   const ArraySpec& a = reader.metadata().matrix();
   std::optional<ColumnCodec> codec;
   if (ColumnCodec::IsColumnTransformed(reader.metadata())) {

@@ -1,7 +1,8 @@
 // `ltbake convert IN OUT`: .npy (2-D float32/float64, C order) to .ltm, and any .ltm
 // matrix back to a dense float32 .npy in its logical (rows × columns) order. Outputs of
 // column-transform and quantize are decoded (dequantized, inverse column transform) to the
-// row-transformed basis they came from.
+// row-transformed basis they came from; cpca outputs decode to their approximation (mean +
+// weighted directions per row) in the row basis of the matrix they were made from.
 #pragma once
 
 #include <cstdint>

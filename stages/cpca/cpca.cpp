@@ -118,10 +118,14 @@ struct Model {
   std::vector<Mat> dir;  // K × (D × p)
 };
 
-// Least-error assignment at basis dimension n for a fixed model.
+// Least-error assignment at basis dimension n for a fixed model:
+//   err_c(x) = ‖x − mean_c‖² − Σ_i (b_ci·x − b_ci·mean_c)²,
+// all dot products from one GEMM of a row block with the stacked means and directions.
+// `single`: the GEMM in f32 (twice as fast; used while iterating, where a rounding-level
+// error only matters between near-equal clusters); the final passes use f64 throughout.
 class Assigner {
  public:
-  Assigner(const Model& m, uint64_t n) : k_(m.k), n_(n) {
+  Assigner(const Model& m, uint64_t n, bool single = false) : k_(m.k), n_(n), single_(single) {
     stack_.resize(m.k * (n + 1), m.d);
     mm_.resize(m.k);
     bm_.resize(m.k * n);
@@ -133,11 +137,21 @@ class Assigner {
         bm_[c * n + i] = m.dir[c].col(i).dot(m.mean.row(c).transpose());
       }
     }
+    if (single_) {
+      stack_f_ = stack_.cast<float>();
+      stack_.resize(0, 0);
+    }
   }
   // x: rows × D (row-major). ids/err per row; weights (rows × n) when asked.
   void Assign(const double* x, uint64_t rows, uint64_t d, uint32_t* ids, double* err, double* weights) const {
     Eigen::Map<const RowMat> xm(x, rows, d);
-    RowMat g = xm * stack_.transpose();
+    RowMat g;
+    if (single_) {
+      Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> xf = xm.cast<float>();
+      g = (xf * stack_f_.transpose()).cast<double>();
+    } else {
+      g = xm * stack_.transpose();
+    }
     for (uint64_t r = 0; r < rows; ++r) {
       const double xx = xm.row(r).squaredNorm();
       double best = INFINITY;
@@ -165,7 +179,9 @@ class Assigner {
 
  private:
   uint64_t k_, n_;
+  bool single_;
   RowMat stack_;  // K(n+1) × D: mean, then n directions, per cluster
+  Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> stack_f_;
   std::vector<double> mm_, bm_;
 };
 
@@ -357,7 +373,7 @@ Status Cpca::Initialise(Model* m) {
 Result<double> Cpca::Pass(Model* m, uint64_t n, uint64_t pass_index) {
   const uint64_t d = pr_.d, k = pr_.k, p = pr_.p, nr = pr_.n_rows;
   const uint64_t block = PassBlockRows(d);
-  Assigner assigner(*m, n);
+  Assigner assigner(*m, n, /*single=*/true);
   std::vector<Accum> acc(k);
   for (auto& a : acc) {
     a.sum = Eigen::VectorXd::Zero(d);

@@ -29,7 +29,7 @@ struct CpcaOptions {
   uint64_t growth_step = 1;  // bases added per growth level (Sloan et al.: 1)
   uint64_t level_iterations = 2;  // passes per intermediate growth level
   uint64_t max_iterations = 30;   // cap on assignment/refit passes in total
-  double tolerance = 1e-4;        // stop a level when the error improves by less (relative)
+  double tolerance = 1e-3;        // stop a level when the error improves by less (relative)
   uint64_t oversample = 8;        // extra directions tracked by the subspace iteration
   uint64_t sample_rows = 32768;   // rows held in memory for the seeded k-means++ start
   uint64_t seed = 1;
