@@ -38,7 +38,7 @@ Status Cancelled(std::string message) { return {StatusCode::kCancelled, std::mov
 Status IoError(const std::string& what, int errnum) {
   std::string advice;
   if (errnum == ENOSPC || errnum == EDQUOT) {
-    advice = " (free space on that file system, or point the output elsewhere, and rerun: committed chunks are kept)";
+    advice = " (the file system is full: free space there, or write elsewhere, and rerun)";
   }
   return {StatusCode::kIo, what + ": " + std::strerror(errnum) + advice};
 }
