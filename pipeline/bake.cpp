@@ -839,7 +839,7 @@ Result<BakeOutcome> Bake::Run() {
     if (o_.say && !o_.quiet) o_.say("== " + n.name + ": " + d.action + " (" + d.reason + ")");
     ChildIo cio;
     cio.log_path = log;
-    if (!o_.quiet) cio.on_stdout = o_.stage_stdout;
+    if (!o_.quiet && !n.image) cio.on_stdout = o_.stage_stdout;  // relight's JSON goes to run.json
     cio.on_stderr = o_.stage_stderr;
     cio.pending_signal = o_.pending_signal;
     auto child = RunChild(cmd, cio);
@@ -901,6 +901,19 @@ Result<BakeOutcome> Bake::Run() {
     e["output"] = {{"file", n.output},   {"path", out_path},           {"bytes", made.bytes},
                    {"content_hash", *h}, {"fingerprint", made.fingerprint},
                    {"hash_seconds", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()}};
+    if (n.image && o_.say && !o_.quiet) {
+      std::string line = "wrote " + out_path;
+      const json& m = e.value("metrics", json::object());
+      if (m.contains("error")) {
+        char b[160];
+        std::snprintf(b, sizeof b, ": error against rows.ltm rel. L2 %.4g, PSNR %.1f dB (lighting alone %.4g, matrix alone %.4g)",
+                      m["error"].value("rel_l2", 0.0), m["error"].value("psnr_db", 0.0),
+                      m.value("error_lighting_only", json::object()).value("rel_l2", 0.0),
+                      m.value("error_matrix_only", json::object()).value("rel_l2", 0.0));
+        line += b;
+      }
+      o_.say(line);
+    }
     DeleteUnneeded(i);
     if (sig != 0) {  // the stage finished just as the signal came: stop here
       outcome.failure = "interrupted after " + n.name + "; rerun `ltbake run " + r_.path + "` to go on";

@@ -1,49 +1,31 @@
 #!/usr/bin/env bash
-# The demo on bundled data: bake the bunny scene (samples/medium.toml at R = 8 so it takes
-# seconds) through the stages that exist so far — sample, row-transform, transpose,
-# column-transform, quantize — relights the result under two environment maps with its
-# errors, inspects and verifies every container and writes preview images. Prints where
-# outputs are.
+# The demo on bundled data: `ltbake run samples/medium-bake.toml` bakes the bunny scene
+# (sample + row-transform fused, transpose, column-transform, quantize) and relights the
+# result under two of Blender's CC0 environment maps with its error against the
+# uncompressed matrix; then inspects and verifies the containers and writes preview images.
+# Prints the run's summary table and where the outputs and run.json are.
 set -euo pipefail
 BUILD=${1:-build}
 cd "$(dirname "$0")/.."
-OUT=out/demo
 LTBAKE=$BUILD/ltbake
+OUT=out/medium-bake
+export LTBAKE_ENVMAPS=${LTBAKE_ENVMAPS:-$(bash scripts/find_envmaps.sh)}
+
+echo "== ltbake run samples/medium-bake.toml (a rerun skips what is up to date; Ctrl-C, then rerun, resumes)"
 mkdir -p "$OUT"
+"$LTBAKE" run samples/medium-bake.toml | tee "$OUT/run.out"
 
-echo "== sample: ray-cast the transport matrix of samples/medium.toml (bunny on a plane)"
-"$LTBAKE" sample samples/medium.toml -o "$OUT/raw.ltm" --cube-res 8 --spp 4 --overwrite
-
-echo "== row-transform: Haar wavelets over each row's six cube faces"
-"$LTBAKE" row-transform "$OUT/raw.ltm" -o "$OUT/rows.ltm" --filter haar --overwrite
-
-echo "== transpose: column blocks (each light's image contiguous), within 256 MiB"
-"$LTBAKE" transpose "$OUT/rows.ltm" -o "$OUT/cols.ltm" --mem-limit 256MiB --overwrite
-
-echo "== column-transform: each light's image to its optimal depth (LeGall 5/3), 5% of its terms"
-"$LTBAKE" column-transform "$OUT/cols.ltm" -o "$OUT/cols4d.ltm" --keep 0.05 --overwrite
-
-echo "== quantize: 9 bits, level scaling, dithered"
-"$LTBAKE" quantize "$OUT/cols4d.ltm" -o "$OUT/final.ltm" --bits 9 --overwrite
-
-echo "== relight: final.ltm under two of Blender's CC0 environment maps (blender-data), 100 lighting terms"
-ENVS=$(bash scripts/find_envmaps.sh)
-for env in sunset forest; do
-  "$LTBAKE" relight "$OUT/final.ltm" --env "$ENVS/$env.exr" --clamp --terms 100 --reference "$OUT/raw.ltm" \
-    -o "$OUT/relit-$env.png"
-  "$LTBAKE" relight "$OUT/final.ltm" --env "$ENVS/$env.exr" --clamp --terms 100 -o "$OUT/relit-$env.exr" -q
-done
-
+echo
 echo "== inspect"
-"$LTBAKE" inspect "$OUT/raw.ltm"
+"$LTBAKE" inspect "$OUT/rows.ltm"
 "$LTBAKE" inspect --json "$OUT/cols.ltm" > "$OUT/cols.inspect.json"
 "$LTBAKE" inspect "$OUT/final.ltm"
 
 echo "== verify"
-"$LTBAKE" verify "$OUT/raw.ltm" "$OUT/rows.ltm" "$OUT/cols.ltm" "$OUT/cols4d.ltm" "$OUT/final.ltm"
+"$LTBAKE" verify "$OUT/rows.ltm" "$OUT/cols.ltm" "$OUT/cols4d.ltm" "$OUT/final.ltm"
 
 echo "== previews"
-"$LTBAKE" convert "$OUT/raw.ltm" "$OUT/raw.npy" -q
+"$LTBAKE" convert "$OUT/rows.ltm" "$OUT/rows-pixels.npy" --basis pixels -q
 "$LTBAKE" convert "$OUT/final.ltm" "$OUT/final-pixels.npy" --basis pixels -q
 /usr/bin/python3 - "$OUT" <<'PY'
 import json, sys
@@ -52,7 +34,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 d = sys.argv[1]
-T = np.load(f"{d}/raw.npy")
+T = np.load(f"{d}/rows-pixels.npy")
 R = 8
 W = H = 256
 sky = T.sum(axis=1).reshape(H, W)                       # uniform white sky
@@ -66,15 +48,21 @@ rel = np.sqrt(((F.astype(np.float64) - T) ** 2).sum() / (T.astype(np.float64) **
 rel_sky = np.sqrt(((sky_c - sky) ** 2).sum() / (sky ** 2).sum())
 print(f"preview images: {d}/preview-sky.png (uniform sky), {d}/preview-zenith-texel.png (one light overhead), "
       f"{d}/preview-sky-compressed.png (uniform sky from final.ltm)")
-print(f"final.ltm against raw.ltm: relative RMS error {rel:.4f} over the matrix, {rel_sky:.4f} on the uniform-sky image")
+print(f"final.ltm against the uncompressed matrix: relative RMS error {rel:.4f} over the matrix, "
+      f"{rel_sky:.4f} on the uniform-sky image")
 PY
+rm -f "$OUT/rows-pixels.npy" "$OUT/final-pixels.npy"
 
 echo
+echo "== the bake's summary (from ltbake run)"
+sed -n '/^stage  /,/^run report/p' "$OUT/run.out"
+echo
 echo "demo outputs in $(pwd)/$OUT:"
-echo "  raw.ltm    sampled transport matrix: 65536 pixels x 384 lights (+ mask, position, normal tables)"
-echo "  rows.ltm   after row-transform (Haar, per cube face)"
+echo "  run.json   the run report: every stage's command, log, wall time, peak RSS, sizes, content_hash"
+echo "  logs/      each stage's log"
+echo "  rows.ltm   sampled and row-transformed in one pass (Haar per cube face): 65536 pixels x 384 lights"
 echo "  cols.ltm   after transpose (one chunk per light: its 256x256 image); cols.inspect.json"
 echo "  cols4d.ltm after column-transform (adaptive depth per light image, 5% of terms)"
 echo "  final.ltm  after quantize (9 bits): what relighting reads"
-echo "  relit-sunset.png/.exr, relit-forest.png/.exr   relit images (errors against raw.ltm printed above)"
+echo "  relit-sunset.png, relit-forest.png   relit images (errors against rows.ltm printed above, and in run.json)"
 echo "  preview-sky.png, preview-zenith-texel.png, preview-sky-compressed.png"
