@@ -233,9 +233,10 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
       if (!q.dither) n.args.push_back("--no-dither");
     } else if (stage == "cpca") {
       n.inputs = {"rows.ltm"};
-      n.params = {{"clusters", r.cpca.clusters}, {"basis", r.cpca.basis}};
-      n.args = {"cpca", path("rows.ltm"), "--clusters", std::to_string(r.cpca.clusters), "--basis",
-                std::to_string(r.cpca.basis)};
+      const auto& c = r.cpca;
+      n.params = {{"clusters", c.clusters}, {"basis", c.basis}, {"max_iterations", c.max_iterations}, {"seed", c.seed}};
+      n.args = {"cpca", path("rows.ltm"), "--clusters", std::to_string(c.clusters), "--basis", std::to_string(c.basis),
+                "--max-iterations", std::to_string(c.max_iterations), "--seed", std::to_string(c.seed)};
     }
     if (stage != "relight") {
       if (n.output.empty()) n.output = OutputOf().at(stage);

@@ -305,10 +305,13 @@ Result<Recipe> ParseRecipe(const std::string& path_in) {
   }
   LTB_ASSIGN_OR_RETURN(const toml::table* cpca, table("cpca"));
   if (cpca) {
-    LTB_RETURN_IF_ERROR(CheckKeys(path, *cpca, "[cpca]", {"clusters", "basis"}));
+    LTB_RETURN_IF_ERROR(CheckKeys(path, *cpca, "[cpca]", {"clusters", "basis", "max_iterations", "seed"}));
     r.cpca.present = true;
     LTB_ASSIGN_OR_RETURN(r.cpca.clusters, GetUnsigned(path, *cpca, "clusters", r.cpca.clusters, 1, 1 << 20));
-    LTB_ASSIGN_OR_RETURN(r.cpca.basis, GetUnsigned(path, *cpca, "basis", r.cpca.basis, 1, 1 << 16));
+    LTB_ASSIGN_OR_RETURN(r.cpca.basis, GetUnsigned(path, *cpca, "basis", r.cpca.basis, 0, 1 << 16));
+    LTB_ASSIGN_OR_RETURN(r.cpca.max_iterations,
+                         GetUnsigned(path, *cpca, "max_iterations", r.cpca.max_iterations, 1, 100000));
+    LTB_ASSIGN_OR_RETURN(r.cpca.seed, GetUnsigned(path, *cpca, "seed", r.cpca.seed, 0, uint64_t{1} << 62));
   }
   LTB_ASSIGN_OR_RETURN(const toml::table* relight, table("relight"));
   if (relight) LTB_RETURN_IF_ERROR(ParseRelight(path, r.dir, *relight, &r.relight));

@@ -73,7 +73,8 @@ struct Recipe {
   } quantize;
   struct Cpca {
     bool present = false;  // a [cpca] table was given
-    uint64_t clusters = 16, basis = 8;
+    uint64_t clusters = 16, basis = 8;  // K clusters, S principal directions each
+    uint64_t max_iterations = 30, seed = 1;
   } cpca;
   struct Relight {
     bool present = false;  // a [relight] table was given

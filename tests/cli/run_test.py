@@ -160,6 +160,16 @@ with tempfile.TemporaryDirectory() as d:
           f"keep = [], bits changed: the removed intermediates must be remade: {actions(w3, FUSED)}")
     check(sorted(f for f in os.listdir(w3) if f.endswith(".ltm")) == ["final.ltm"], "keep = []: leftovers")
 
+    # --- cpca as a target: it reads rows.ltm beside the wavelet branch ------------------------
+    rec_cpca = variant("cpca", BASE + '[cpca]\nclusters = 4\nbasis = 3\n')
+    run("run", rec_cpca, "--workdir", w)
+    check(actions(w, FUSED + ["cpca"]) == {**{n: "skip" for n in FUSED}, "cpca": "run"},
+          f"cpca added: {actions(w, FUSED + ['cpca'])}")
+    info = json.loads(run("inspect", "--json", os.path.join(w, "cpca.ltm")).stdout)
+    check(info.get("cpca", {}).get("clusters") == 4, f"cpca.ltm metadata: {info.get('cpca')}")
+    run("run", rec_cpca, "--workdir", w)
+    check(actions(w, ["cpca"]) == {"cpca": "skip"}, "cpca rerun not skipped")
+
     # --- SIGTERM and SIGINT: exit 143/130, committed work kept, rerun resumes --------------------
     slow = write(os.path.join(d, "slow.toml"), BASE.replace('name = "t"', 'name = "slow"') +
                  "[sample]\ncube_res = 32\nspp = 32\n")
