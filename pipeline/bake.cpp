@@ -493,7 +493,7 @@ std::string Pad(std::string s, size_t w) {
 
 std::string SummaryTable(const json& stages) {
   std::ostringstream t;
-  t << Pad("stage", 22) << Pad("action", 9) << Pad("wall", 10) << Pad("peak RSS", 11) << Pad("output", 24)
+  t << Pad("stage", 22) << Pad("action", 12) << Pad("wall", 10) << Pad("peak RSS", 11) << Pad("output", 24)
     << Pad("size", 11) << "content_hash\n";
   for (const auto& s : stages) {
     char wall[32] = "-";
@@ -502,7 +502,9 @@ std::string SummaryTable(const json& stages) {
     const json& out = s.value("output", json::object());
     std::string size = out.contains("bytes") ? HumanBytes(out["bytes"].get<uint64_t>()) : "-";
     if (out.value("deleted", false)) size = "(deleted)";
-    t << Pad(s.value("node", ""), 22) << Pad(s.value("action", ""), 9) << Pad(wall, 10) << Pad(rss, 11)
+    std::string action = s.value("action", ""), status = s.value("status", "");
+    if (status == "interrupted" || status == "failed" || status == "running") action = status;
+    t << Pad(s.value("node", ""), 22) << Pad(action, 12) << Pad(wall, 10) << Pad(rss, 11)
       << Pad(out.value("file", ""), 24) << Pad(size, 11) << out.value("content_hash", "-") << "\n";
   }
   return t.str();
