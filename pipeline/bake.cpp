@@ -804,8 +804,15 @@ Result<BakeOutcome> Bake::Run() {
     Decision d = Decide(n, rec, inputs, out, is_forced(n), needed_by.count(n.name) ? needed_by[n.name] : "", needed);
     entry["inputs"] = inputs;
     entry["input_paths"] = json::array();
-    for (const auto& f : n.inputs) entry["input_paths"].push_back(Path(f));
-    if (n.image) entry["input_paths"].push_back(n.env);
+    std::vector<std::string> in_paths;
+    for (const auto& f : n.inputs) in_paths.push_back(Path(f));
+    if (n.image) in_paths.push_back(n.env);
+    if (n.name == "sample" || n.name == "sample+row-transform") in_paths.push_back(scene_file_);
+    for (const auto& p : in_paths) {
+      std::error_code size_ec;
+      uint64_t bytes = fs::file_size(p, size_ec);
+      entry["input_paths"].push_back({{"path", p}, {"bytes", size_ec ? json(nullptr) : json(bytes)}});
+    }
     entry["action"] = d.action;
     entry["reason"] = d.reason;
     if (!d.run) {
