@@ -38,7 +38,7 @@ test-fast: build
 
 asan: setup
 	cmake -S . -B $(BUILD_ASAN) -DCMAKE_BUILD_TYPE=RelWithDebInfo -DLTB_SANITIZE=ON -DLTB_BUILD_BENCH=OFF -DLTB_ARCH=
-	cmake --build $(BUILD_ASAN) -j $(JOBS) --target ltb_format_tests ltb_damage_tests ltb_column_tests ltb_envmap_tests ltbake
+	cmake --build $(BUILD_ASAN) -j $(JOBS) --target ltb_format_tests ltb_damage_tests ltb_column_tests ltb_envmap_tests ltb_cpca_tests ltbake
 
 # Benchmarks (bench/README.md). Not timed tests: they print and record figures.
 bench: build

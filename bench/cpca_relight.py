@@ -2,8 +2,9 @@
 against relit error (rel. L2 vs the exact relighting from raw.ltm) and relight time.
 
 usage: cpca_relight.py LTBAKE DIR [--env sunset] [--terms 100]
-  DIR holds raw.ltm, rows.ltm and cols.ltm of samples/medium.toml (scripts/demo.sh makes
-  them, --cube-res 8). Writes DIR/cpca_relight.csv and DIR/cpca_relight.png.
+  DIR holds raw.ltm, rows.ltm and cols.ltm of samples/medium.toml at R = 8: the demo bake
+  with raw kept makes them, e.g. `ltbake run samples/medium-bake.toml --workdir DIR --until
+  transpose` after adding "raw" to its keep list. Writes DIR/cpca_relight.csv and .png.
 """
 import csv
 import json

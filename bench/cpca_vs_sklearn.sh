@@ -4,7 +4,7 @@
 # ltbake's peak RSS at twice the rows (memory bounded independent of N).
 #
 # usage: bench/cpca_vs_sklearn.sh ROWS.ltm K S [REPEATS] [OUTDIR]
-#   e.g. bench/cpca_vs_sklearn.sh out/demo/rows.ltm 64 8 3   (samples/medium.toml, --cube-res 8)
+#   e.g. bench/cpca_vs_sklearn.sh out/medium-bake/rows.ltm 64 8 3   (make demo: samples/medium-bake.toml, R = 8)
 # writes OUTDIR/cpca_vs_sklearn.csv (one row per run); summarise with bench/cpca_summary.py
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
