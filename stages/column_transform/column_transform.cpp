@@ -138,6 +138,7 @@ struct Plan {
 
 Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o, const Progress& progress) {
   LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(o.input));
+  LTB_RETURN_IF_ERROR(RefuseCpcaOutput(in, "column-transform"));
   const Metadata& meta = in.metadata();
   const ArraySpec& a = meta.matrix();
   if (meta.json.contains("column_transform")) {

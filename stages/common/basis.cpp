@@ -62,6 +62,13 @@ std::optional<ImageSize> ReadImageRows(const format::Metadata& meta) {
   return s;
 }
 
+Status RefuseCpcaOutput(const io::ContainerReader& in, const std::string& stage) {
+  if (!in.metadata().json.contains("cpca")) return Status::Ok();
+  return FailedPrecondition(in.path() + ": is a cpca output (cluster means, bases and per-row weights), not a "
+                            "transport matrix; " + stage + " takes the matrix itself (rows.ltm and what follows it). "
+                            "Use cpca.ltm with `ltbake relight` or `ltbake convert`");
+}
+
 Status RequireCompleteF32Matrix(const io::ContainerReader& in) {
   const format::ArraySpec& a = in.metadata().matrix();
   if (a.dtype != format::DType::kF32) {

@@ -41,6 +41,8 @@ bool IsPowerOfTwo(uint64_t v);
 
 // A stage's input: its matrix must be f32 and every chunk of every array committed.
 Status RequireCompleteF32Matrix(const io::ContainerReader& in);
+// Refuses a cpca.ltm (cluster means, bases and weights are not a transport matrix).
+Status RefuseCpcaOutput(const io::ContainerReader& in, const std::string& stage);
 
 // {"tool", "stage", "parameters", "inputs": [{"file", "fingerprint"}]}
 nlohmann::json Provenance(const std::string& stage, const nlohmann::json& parameters,

@@ -139,6 +139,7 @@ void TransformRowBlock(wavelet::Filter filter, uint64_t r, float* data, uint64_t
 
 Result<RowTransformResult> RunRowTransform(const RowTransformOptions& o, const Progress& progress) {
   LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(o.input));
+  LTB_RETURN_IF_ERROR(RefuseCpcaOutput(in, "row-transform"));
   const Metadata& meta = in.metadata();
   const ArraySpec& a = meta.matrix();
   auto cube = ReadCubemapCols(meta);

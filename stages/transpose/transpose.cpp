@@ -87,6 +87,7 @@ class PanelQueue {
 
 Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& progress) {
   LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(o.input));
+  LTB_RETURN_IF_ERROR(RefuseCpcaOutput(in, "transpose"));
   const Metadata& meta = in.metadata();
   const ArraySpec& a = meta.matrix();
   if (a.layout != Layout::kRows) {

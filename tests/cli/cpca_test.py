@@ -186,6 +186,10 @@ with tempfile.TemporaryDirectory() as d:
     p = cpca(sub, os.path.join(d, "bad.ltm"), "-k", 5, "-s", 3, "--mem-limit", "1MiB", expect=1)
     t.check("--mem-limit" in p.stderr and "MiB" in p.stderr, f"mem-limit: {p.stderr}")
     t.check(not os.path.exists(os.path.join(d, "bad.ltm")), "a refused run left an output")
+    # a cpca.ltm is not a transport matrix: the wavelet stages refuse it
+    for stage in ["row-transform", "transpose", "column-transform"]:
+        p = t.run(stage, os.path.join(d, "sub_cpca.ltm"), "-o", os.path.join(d, "bad.ltm"), expect=1)
+        t.check("sub_cpca.ltm" in p.stderr and "is a cpca output" in p.stderr, f"{stage} of cpca.ltm: {p.stderr}")
 
     # 7. Resume after SIGKILL: kills at random moments (iterating, checkpointing or writing);
     #    every partial output verifies, and the finished file equals an uninterrupted run.
