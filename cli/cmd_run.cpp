@@ -31,7 +31,8 @@ class RunCommand : public Command {
     app->add_option("--from", options_.from, "start at this stage: earlier stages are not run, their outputs are used");
     app->add_option("--until", options_.until, "stop after this stage (and what it needs)");
     app->add_option("--force", options_.force,
-                    "redo this stage even if it is up to date (repeatable); without a stage: redo every stage")
+                    "redo this stage even if it is up to date (repeatable); without a stage: redo every stage "
+                    "(give it after RECIPE)")
         ->expected(0, 1)
         ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll)
         ->default_str("all");

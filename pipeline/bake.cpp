@@ -354,7 +354,7 @@ Decision Decide(const Node& n, const json* record, const json& inputs, const Out
   for (auto it = inputs.begin(); it != inputs.end(); ++it) {
     if (it.value().get<std::string>().empty()) {
       d.action = out.exists && record ? "redo" : "run";
-      d.reason = "its input " + it.key() + " is being remade";
+      d.reason = "its input " + it.key() + " is being remade (skipped if its content comes out the same)";
       return d;
     }
   }
