@@ -30,6 +30,16 @@ using io::File;
 
 namespace {
 
+// Ends writing `tmp` (already failed when `s` is not ok): sync, close and rename it to
+// `path`, or remove it, so `path` is never a half-written file.
+Status PublishTemp(io::File* out, const std::string& tmp, const std::string& path, Status s) {
+  if (s.ok()) s = out->DataSync();
+  if (s.ok()) s = out->Close();
+  if (s.ok() && std::rename(tmp.c_str(), path.c_str()) != 0) s = IoError(path + ": rename from " + tmp, errno);
+  if (!s.ok()) std::remove(tmp.c_str());
+  return s;
+}
+
 bool EndsWith(const std::string& s, const std::string& suffix) {
   return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
 }
@@ -268,17 +278,7 @@ Result<ConvertResult> CpcaToNpy(const ConvertOptions& o, const io::ContainerRead
       return out.WriteAt(data_offset + e.row0 * cols * 4, BytesOf(v));
     });
   }
-  if (s.ok()) s = out.DataSync();
-  if (s.ok()) s = out.Close();
-  if (!s.ok()) {
-    std::remove(tmp.c_str());
-    return s;
-  }
-  if (std::rename(tmp.c_str(), o.output.c_str()) != 0) {
-    Status e = IoError(o.output + ": rename from " + tmp, errno);
-    std::remove(tmp.c_str());
-    return e;
-  }
+  LTB_RETURN_IF_ERROR(PublishTemp(&out, tmp, o.output, s));
   result.chunks_written = chunks.size();
   result.bytes_out = total;
   return result;
@@ -394,17 +394,7 @@ Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress
       if (s.ok() && progress.Cancelled()) s = Cancelled("interrupted; no output written");
     }
   }
-  if (s.ok()) s = out.DataSync();
-  if (s.ok()) s = out.Close();
-  if (!s.ok()) {
-    std::remove(tmp.c_str());
-    return s;
-  }
-  if (std::rename(tmp.c_str(), o.output.c_str()) != 0) {
-    Status e = IoError(o.output + ": rename from " + tmp, errno);
-    std::remove(tmp.c_str());
-    return e;
-  }
+  LTB_RETURN_IF_ERROR(PublishTemp(&out, tmp, o.output, s));
   result.chunks_written = a.ChunkCount();
   result.bytes_out = total;
   return result;
