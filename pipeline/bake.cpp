@@ -26,6 +26,7 @@
 #include "pipeline/recipe.h"
 #include "stages/common/basis.h"
 #include "stages/sample/sample.h"
+#include "stages/sample/scene.h"
 
 namespace ltb::pipeline {
 namespace {
@@ -653,6 +654,19 @@ Result<BakeOutcome> Bake::Run() {
     scene_file_ = r_.scene_path;
   }
   LTB_ASSIGN_OR_RETURN(g_, BuildGraph(r_, o_, workdir_, scene_file_));
+  // Vertex rows have no image for the column transform: say so now, not three stages in.
+  if (g_.targets.size() && fs::exists(scene_file_, ec)) {
+    auto scene = sample::ParseScene(scene_file_);
+    if (!scene.ok()) return scene.status().WithContext("scene of recipe " + r_.path);
+    bool column_stages = false;
+    for (const Node& n : g_.nodes) column_stages = column_stages || n.name == "column-transform";
+    if (scene->mode == sample::SceneDesc::Mode::kVertex && column_stages) {
+      return InvalidArgument(r_.path + ": the scene " + scene_file_ +
+                             " has vertex rows (mode = \"vertex\"), which have no image for column-transform and "
+                             "quantize to work on; compress vertex bakes with cpca: targets = [\"cpca\"] and a [cpca] "
+                             "table");
+    }
+  }
   for (const Node& n : g_.nodes) {
     if (n.name == "sample" || n.name == "sample+row-transform") {
       if (o_.dry_run && !r_.inline_scene.empty() && !fs::exists(scene_file_, ec)) {

@@ -170,6 +170,18 @@ with tempfile.TemporaryDirectory() as d:
     run("run", rec_cpca, "--workdir", w)
     check(actions(w, ["cpca"]) == {"cpca": "skip"}, "cpca rerun not skipped")
 
+    # --- an inline [scene] table bakes the same matrix as the scene file ----------------------
+    scene_text = open(TINY).read()
+    inline = "\n".join(("[scene." + l[1:] if l.startswith("[") and not l.startswith("[[") else
+                        "[[scene." + l[2:] if l.startswith("[[") else l) for l in scene_text.splitlines())
+    rec_inline = variant("inline", 'name = "inline"\n' + inline + "\n")
+    w5 = os.path.join(d, "w5")
+    run("run", rec_inline, "--workdir", w5, "-q")
+    check(os.path.exists(os.path.join(w5, "scene.toml")), "inline scene: scene.toml not written")
+    check(content_hash(os.path.join(w5, "final.ltm")) == final_hash, "inline scene: final.ltm differs")
+    p = run("run", rec_inline, "--workdir", w5)
+    check(p.stdout.count("skipped, up to date") == 4, f"inline scene: rerun not skipped:\n{p.stdout}")
+
     # --- SIGTERM and SIGINT: exit 143/130, committed work kept, rerun resumes --------------------
     slow = write(os.path.join(d, "slow.toml"), BASE.replace('name = "t"', 'name = "slow"') +
                  "[sample]\ncube_res = 32\nspp = 32\n")
@@ -233,6 +245,8 @@ with tempfile.TemporaryDirectory() as d:
         "not set")
     bad("syntax", BASE + "[sample\n", 2, "bad.toml:5")
     bad("no workdir", BASE, 2, "no work directory", args=())
+    bad("vertex scene", f'scene = "{os.path.join(REPO, "samples", "bunny-vertices.toml")}"\n', 2, "vertex rows",
+        'targets = ["cpca"]')
     wbad = os.path.join(d, "wbad")
     bad("unknown stage", BASE, 2, '"colour-transform" is not a stage', args=("--workdir", wbad, "--until", "colour-transform"))
     bad("input missing", BASE, 1, "rows.ltm", "does not exist", args=("--workdir", wbad, "--from", "transpose"))
