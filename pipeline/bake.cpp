@@ -705,7 +705,6 @@ Result<BakeOutcome> Bake::Run() {
   std::vector<Decision> plan(g_.nodes.size());
   for (int round = 0; round <= static_cast<int>(g_.nodes.size()); ++round) {
     std::map<std::string, std::string> saved = hash_of_;
-    std::set<std::string> remade;
     for (size_t i = 0; i < g_.nodes.size(); ++i) {
       const Node& n = g_.nodes[i];
       OutputState out = Inspect(n, Path(n.output));
@@ -725,7 +724,6 @@ Result<BakeOutcome> Bake::Run() {
       plan[i] = Decide(n, rec, inputs, out, is_forced(n), needed_by.count(n.name) ? needed_by[n.name] : "", needed);
       if (plan[i].run) {
         hash_of_[n.output] = "";  // being remade
-        remade.insert(n.output);
       } else {
         hash_of_[n.output] = (*rec)["output"].value("content_hash", "");
       }
