@@ -40,6 +40,37 @@ Status PublishTemp(io::File* out, const std::string& tmp, const std::string& pat
   return s;
 }
 
+// --basis pixels: inverts the row transform of decoded rows (a no-op without the flag).
+struct RowInverse {
+  std::optional<wavelet::Filter> filter;
+  uint64_t cube_res = 0;
+
+  static Result<RowInverse> For(const ConvertOptions& o, const io::ContainerReader& reader) {
+    RowInverse inv;
+    if (!o.pixel_basis) return inv;
+    auto cube = ReadCubemapCols(reader.metadata());
+    if (!cube.ok()) return cube.status().WithContext(o.input);
+    if (!cube->has_value() || (*cube)->basis != "wavelet") {
+      return FailedPrecondition(o.input + ": --basis pixels needs row-transformed (wavelet-basis cubemap) columns");
+    }
+    LTB_ASSIGN_OR_RETURN(wavelet::Filter f, wavelet::ParseFilter((*cube)->filter));
+    inv.filter = f;
+    inv.cube_res = (*cube)->cube_res;
+    return inv;
+  }
+
+  // `n` rows of `cols` values each, in place.
+  void operator()(float* rows_data, uint64_t n, uint64_t cols) const {
+    if (!filter) return;
+    std::vector<float> scratch(wavelet::ScratchSize(cube_res, cube_res, 1));
+    const int depth = wavelet::MaxDepth(cube_res, cube_res);
+    for (uint64_t r = 0; r < n; ++r)
+      for (uint64_t face = 0; face < 6; ++face)
+        wavelet::Inverse2D(*filter, rows_data + r * cols + face * cube_res * cube_res, cube_res, cube_res, 1, depth,
+                           scratch.data());
+  }
+};
+
 bool EndsWith(const std::string& s, const std::string& suffix) {
   return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
 }
@@ -236,18 +267,7 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
 // --basis pixels, with the row transform inverted).
 Result<ConvertResult> CpcaToNpy(const ConvertOptions& o, const io::ContainerReader& reader, const Progress& progress) {
   LTB_ASSIGN_OR_RETURN(CpcaModel model, CpcaModel::Load(reader, o.mem_limit));
-  std::optional<wavelet::Filter> row_filter;
-  uint64_t cube_res = 0;
-  if (o.pixel_basis) {
-    auto cube = ReadCubemapCols(reader.metadata());
-    if (!cube.ok()) return cube.status().WithContext(o.input);
-    if (!cube->has_value() || (*cube)->basis != "wavelet") {
-      return FailedPrecondition(o.input + ": --basis pixels needs row-transformed (wavelet-basis cubemap) columns");
-    }
-    LTB_ASSIGN_OR_RETURN(wavelet::Filter f, wavelet::ParseFilter((*cube)->filter));
-    row_filter = f;
-    cube_res = (*cube)->cube_res;
-  }
+  LTB_ASSIGN_OR_RETURN(RowInverse to_pixels, RowInverse::For(o, reader));
   const uint64_t rows = model.rows(), cols = model.dims();
   ConvertResult result;
   result.rows = rows;
@@ -267,14 +287,7 @@ Result<ConvertResult> CpcaToNpy(const ConvertOptions& o, const io::ContainerRead
       std::vector<float> v;
       LTB_RETURN_IF_ERROR(model.DecodeChunk(reader, c, &v));
       const ChunkExtent e = model.row_extent(c);
-      if (row_filter) {
-        std::vector<float> scratch(wavelet::ScratchSize(cube_res, cube_res, 1));
-        const int depth = wavelet::MaxDepth(cube_res, cube_res);
-        for (uint64_t r = 0; r < e.rows; ++r)
-          for (uint64_t face = 0; face < 6; ++face)
-            wavelet::Inverse2D(*row_filter, v.data() + r * cols + face * cube_res * cube_res, cube_res, cube_res, 1,
-                               depth, scratch.data());
-      }
+      to_pixels(v.data(), e.rows, cols);
       return out.WriteAt(data_offset + e.row0 * cols * 4, BytesOf(v));
     });
   }
@@ -295,29 +308,7 @@ Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress
   } else if (a.dtype != DType::kF32) {
     return InvalidArgument(o.input + ": matrix dtype is " + DTypeName(a.dtype) + "; convert to .npy handles f32");
   }
-  // --basis pixels: the row filter to invert.
-  std::optional<wavelet::Filter> row_filter;
-  uint64_t cube_res = 0;
-  if (o.pixel_basis) {
-    auto cube = ReadCubemapCols(reader.metadata());
-    if (!cube.ok()) return cube.status().WithContext(o.input);
-    if (!cube->has_value() || (*cube)->basis != "wavelet") {
-      return FailedPrecondition(o.input + ": --basis pixels needs row-transformed (wavelet-basis cubemap) columns");
-    }
-    LTB_ASSIGN_OR_RETURN(wavelet::Filter f, wavelet::ParseFilter((*cube)->filter));
-    row_filter = f;
-    cube_res = (*cube)->cube_res;
-  }
-  auto to_pixels = [&](float* rows_data, uint64_t n) {
-    if (!row_filter) return;
-    std::vector<float> scratch(wavelet::ScratchSize(cube_res, cube_res, 1));
-    const int depth = wavelet::MaxDepth(cube_res, cube_res);
-    for (uint64_t r = 0; r < n; ++r)
-      for (uint64_t face = 0; face < 6; ++face) {
-        wavelet::Inverse2D(*row_filter, rows_data + r * a.cols + face * cube_res * cube_res, cube_res, cube_res, 1,
-                           depth, scratch.data());
-      }
-  };
+  LTB_ASSIGN_OR_RETURN(RowInverse to_pixels, RowInverse::For(o, reader));
   uint64_t missing = a.ChunkCount() - reader.committed(0);
   if (missing > 0) {
     uint64_t first = 0;
@@ -353,10 +344,10 @@ Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress
   if (a.layout == Layout::kRows) {
     s = ParallelFor(chunks, o.jobs, progress, "chunks", [&](uint64_t i) -> Status {
       LTB_ASSIGN_OR_RETURN(io::Chunk c, reader.ReadChunk(0, i));
-      if (!row_filter) return out.WriteAt(data_offset + c.extent().row0 * a.cols * 4, c.bytes());
+      if (!to_pixels.filter) return out.WriteAt(data_offset + c.extent().row0 * a.cols * 4, c.bytes());
       auto v = c.as<float>();
       std::vector<float> rows_data(v.begin(), v.end());
-      to_pixels(rows_data.data(), c.extent().rows);
+      to_pixels(rows_data.data(), c.extent().rows, a.cols);
       return out.WriteAt(data_offset + c.extent().row0 * a.cols * 4,
                          ByteSpan(reinterpret_cast<const std::byte*>(rows_data.data()), rows_data.size() * 4));
     });
@@ -385,7 +376,7 @@ Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress
           for (uint64_t r = 0; r < nr; ++r) buf[r * a.cols + e.col0 + col] = v[col * a.rows + r0 + r];
         return Status::Ok();
       });
-      if (s.ok()) to_pixels(buf.data(), nr);
+      if (s.ok()) to_pixels(buf.data(), nr, a.cols);
       if (s.ok()) {
         s = out.WriteAt(data_offset + r0 * a.cols * 4,
                         ByteSpan(reinterpret_cast<const std::byte*>(buf.data()), buf.size() * 4));
