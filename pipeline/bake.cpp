@@ -557,7 +557,7 @@ Result<std::string> Bake::ContentHashOf(const Node& n, const std::string& path) 
 
 json Bake::InputsOf(const Node& n) {
   json in = json::object();
-  if (n.name == "sample" || n.name == "sample+row-transform") in["scene"] = scene_hash_;
+  if (n.stages.front() == "sample") in["scene"] = scene_hash_;
   for (const auto& f : n.inputs) {
     auto it = hash_of_.find(f);
     in[f] = it == hash_of_.end() ? std::string() : it->second;
@@ -668,7 +668,7 @@ Result<BakeOutcome> Bake::Run() {
     }
   }
   for (const Node& n : g_.nodes) {
-    if (n.name == "sample" || n.name == "sample+row-transform") {
+    if (n.stages.front() == "sample") {
       if (o_.dry_run && !r_.inline_scene.empty() && !fs::exists(scene_file_, ec)) {
         scene_hash_ = "(inline scene, not written yet)";
       } else {
@@ -819,7 +819,7 @@ Result<BakeOutcome> Bake::Run() {
     std::vector<std::string> in_paths;
     for (const auto& f : n.inputs) in_paths.push_back(Path(f));
     if (n.image) in_paths.push_back(n.env);
-    if (n.name == "sample" || n.name == "sample+row-transform") in_paths.push_back(scene_file_);
+    if (n.stages.front() == "sample") in_paths.push_back(scene_file_);
     for (const auto& p : in_paths) {
       std::error_code size_ec;
       uint64_t bytes = fs::file_size(p, size_ec);
