@@ -38,9 +38,16 @@ class ColumnTransformCommand : public Command {
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     app->add_flag("--json", json_, "print the summary as JSON");
     AddCommonFlags(app, &flags_);
+    AddShardFlags(app, &shard_flags_);
   }
 
   int Run() override {
+    auto shard = ResolveShard(shard_flags_);
+    if (!shard.ok()) {
+      std::cerr << "ltbake: " << shard.status().message() << "\n";
+      return kExitUsage;
+    }
+    options_.shard = *shard;
     options_.filter = *wavelet::ParseFilter(filter_);
     auto depth = stages::ParseDepthMode(depth_);
     if (!depth.ok()) return ReportUsage(depth.status());
@@ -66,6 +73,7 @@ class ColumnTransformCommand : public Command {
     double fraction = static_cast<double>(r->nonzeros) / (static_cast<double>(r->rows) * static_cast<double>(r->cols));
     if (json_) {
       nlohmann::json j = {{"output", options_.output},
+                          {"file", options_.shard.sharded() ? io::ShardPath(options_.output, options_.shard.index, options_.shard.count) : options_.output},
                           {"rows", r->rows},
                           {"cols", r->cols},
                           {"image", {{"width", r->width}, {"height", r->height}}},
@@ -87,7 +95,7 @@ class ColumnTransformCommand : public Command {
       }
       std::cout << j.dump(2) << "\n";
     } else if (!flags_.quiet) {
-      std::cout << "wrote " << options_.output << ": " << r->cols << " columns of " << r->width << "x" << r->height
+      std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << r->cols << " columns of " << r->width << "x" << r->height
                 << ", depths " << r->min_depth << ".." << r->max_depth;
       if (r->chunks_already_committed) std::cout << " (resumed: " << r->chunks_already_committed << " already committed)";
       std::cout << "\n  kept " << r->nonzeros << " nonzeros (" << std::setprecision(4) << 100 * fraction
@@ -113,6 +121,7 @@ class ColumnTransformCommand : public Command {
   double keep_ = 0;
   bool json_ = false;
   CommonFlags flags_;
+  ShardFlags shard_flags_;
 };
 
 }  // namespace

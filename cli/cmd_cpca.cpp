@@ -36,9 +36,20 @@ class CpcaCommand : public Command {
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     app->add_flag("--json", json_, "print the summary as JSON");
     AddCommonFlags(app, &flags_);
+    AddShardFlags(app, &shard_flags_);
   }
 
   int Run() override {
+    auto shard = ResolveShard(shard_flags_);
+    if (!shard.ok() || shard->sharded()) {
+      std::cerr << "ltbake: cpca: "
+                << (shard.ok() ? "does not split into shards yet: its clustering passes are global (every pass "
+                                 "reassigns every row); run it once, with --nshards 1 (it reads a sharded input's "
+                                 "manifest like any container)"
+                               : shard.status().message())
+                << "\n";
+      return kExitUsage;
+    }
     auto mem = ParseSize(flags_.mem_limit);
     if (!mem.ok()) return ReportFailure(mem.status().WithContext("--mem-limit"));
     options_.mem_limit = *mem;
@@ -81,6 +92,7 @@ class CpcaCommand : public Command {
   stages::CpcaOptions options_;
   bool json_ = false;
   CommonFlags flags_;
+  ShardFlags shard_flags_;
 };
 
 }  // namespace

@@ -1,4 +1,5 @@
 // ltbake inspect FILE [--json] [--chunks] [--no-content]
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <iostream>
@@ -58,14 +59,25 @@ class InspectCommand : public Command {
     out["complete"] = reader.complete();
     out["uncommitted_tail_bytes"] = reader.uncommitted_tail_bytes();
     out["problems"] = reader.problems();
+    if (reader.is_manifest()) {  // a stage manifest: one matrix in shard files
+      json shards = json::array();
+      for (const auto& s : reader.shards()) shards.push_back({{"file", s->path()}, {"bytes", s->file_size()}});
+      out["manifest"] = {{"nshards", reader.shards().size()}, {"shards", shards}};
+    }
+    if (meta.shard) {  // one shard file of a stage's output
+      json ranges = json::array();
+      for (const auto& [b, e] : meta.shard->chunks) ranges.push_back({b, e});
+      out["shard"] = {{"index", meta.shard->index}, {"count", meta.shard->count}, {"chunks", ranges}};
+    }
     out["basis"] = meta.json.value("basis", json(nullptr));
     out["provenance"] = meta.json.value("provenance", json(nullptr));
     out["arrays"] = json::array();
     for (uint32_t i = 0; i < meta.arrays.size(); ++i) {
       const ArraySpec& a = meta.arrays[i];
       json j = a.ToJson();
-      json chunks = {{"expected", a.ChunkCount()}, {"committed", reader.committed(i)},
-                     {"missing", a.ChunkCount() - reader.committed(i)}};
+      const uint64_t expected = meta.OwnedChunks(i);  // a shard file: the chunks it owns
+      json chunks = {{"expected", expected}, {"committed", reader.committed(i)},
+                     {"missing", expected - std::min(expected, reader.committed(i))}};
       uint64_t by_enc[5] = {0, 0, 0, 0, 0}, stored = 0;
       for (const auto& e : reader.chunk_frames()) {
         if (e.header.array != i) continue;
@@ -134,6 +146,7 @@ class InspectCommand : public Command {
         out["chunk_list"].push_back({{"array", meta.arrays[e.header.array].name},
                                      {"index", e.header.chunk_index},
                                      {"offset", e.frame_offset},
+                                     {"file", reader.Holder(e.header.array, e.header.chunk_index).path()},
                                      {"encoding", EncodingName(static_cast<Encoding>(e.header.encoding))},
                                      {"stored_bytes", e.header.payload_length},
                                      {"decoded_bytes", e.header.decoded_length},
@@ -154,6 +167,15 @@ class InspectCommand : public Command {
               << HumanBytes(out["file_bytes"]) << ", "
               << (out["complete"].get<bool>() ? "complete" : "INCOMPLETE")
               << (out["sealed"].get<bool>() ? " (sealed)" : " (not sealed)") << "\n";
+    if (out.contains("manifest")) {
+      std::cout << "  stage manifest of " << out["manifest"]["nshards"] << " shards:";
+      for (const json& s : out["manifest"]["shards"]) std::cout << " " << s["file"].get<std::string>();
+      std::cout << "\n";
+    }
+    if (out.contains("shard")) {
+      std::cout << "  shard " << out["shard"]["index"] << " of " << out["shard"]["count"]
+                << " (holds only its own chunks; `ltbake commit` joins the shards)\n";
+    }
     for (const json& a : out["arrays"]) {
       const json& c = a["chunks"];
       std::cout << "  " << a["name"].get<std::string>() << ": " << a["shape"][0] << " x " << a["shape"][1] << " "

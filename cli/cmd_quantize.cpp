@@ -28,9 +28,16 @@ class QuantizeCommand : public Command {
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     app->add_flag("--json", json_, "print the summary as JSON");
     AddCommonFlags(app, &flags_);
+    AddShardFlags(app, &shard_flags_);
   }
 
   int Run() override {
+    auto shard = ResolveShard(shard_flags_);
+    if (!shard.ok()) {
+      std::cerr << "ltbake: " << shard.status().message() << "\n";
+      return kExitUsage;
+    }
+    options_.shard = *shard;
     options_.level_scaling = scaling_ == "level";
     options_.jobs = flags_.jobs;
     ProgressBar bar(flags_, "quantize");
@@ -38,7 +45,8 @@ class QuantizeCommand : public Command {
     bar.Done();
     if (!r.ok()) return ReportFailure(r.status());
     if (json_) {
-      nlohmann::json j = {{"output", options_.output},        {"bits", options_.bits},
+      nlohmann::json j = {{"output", options_.output},
+                          {"file", options_.shard.sharded() ? io::ShardPath(options_.output, options_.shard.index, options_.shard.count) : options_.output},        {"bits", options_.bits},
                           {"scaling", scaling_},              {"dither", options_.dither},
                           {"nonzeros_in", r->nonzeros_in},    {"nonzeros_out", r->nonzeros_out},
                           {"matrix_bytes", r->matrix_bytes},  {"bytes_per_nonzero", r->BytesPerNonzero()},
@@ -46,7 +54,7 @@ class QuantizeCommand : public Command {
                           {"chunks_already_committed", r->chunks_already_committed}};
       std::cout << j.dump(2) << "\n";
     } else if (!flags_.quiet) {
-      std::cout << "wrote " << options_.output << ": " << options_.bits << " bits, " << r->nonzeros_out << " of "
+      std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << options_.bits << " bits, " << r->nonzeros_out << " of "
                 << r->nonzeros_in << " coefficients nonzero after quantization, " << r->matrix_bytes << " bytes ("
                 << std::setprecision(3) << r->BytesPerNonzero() << " bytes per nonzero)";
       if (r->chunks_already_committed) std::cout << " (resumed: " << r->chunks_already_committed << " already committed)";
@@ -60,6 +68,7 @@ class QuantizeCommand : public Command {
   std::string scaling_ = "level";
   bool json_ = false;
   CommonFlags flags_;
+  ShardFlags shard_flags_;
 };
 
 }  // namespace

@@ -21,9 +21,16 @@ class RowTransformCommand : public Command {
     app->add_flag("--zstd", options_.zstd, "zstd-compress chunks where it saves at least 10%");
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     AddCommonFlags(app, &flags_);
+    AddShardFlags(app, &shard_flags_);
   }
 
   int Run() override {
+    auto shard = ResolveShard(shard_flags_);
+    if (!shard.ok()) {
+      std::cerr << "ltbake: " << shard.status().message() << "\n";
+      return kExitUsage;
+    }
+    options_.shard = *shard;
     options_.filter = *wavelet::ParseFilter(filter_);  // checked by IsMember
     options_.jobs = flags_.jobs;
     ProgressBar bar(flags_, "row-transform");
@@ -31,7 +38,7 @@ class RowTransformCommand : public Command {
     bar.Done();
     if (!r.ok()) return ReportFailure(r.status());
     if (!flags_.quiet) {
-      std::cout << "wrote " << options_.output << ": " << r->rows << " rows, R = " << r->cube_res << ", filter "
+      std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << r->rows << " rows, R = " << r->cube_res << ", filter "
                 << filter_ << ", " << r->chunks_total << " chunks";
       if (r->chunks_already_committed) std::cout << " (resumed: " << r->chunks_already_committed << " already committed)";
       std::cout << "; skipped " << r->zero_chunks << " all-zero chunks and " << r->zero_rows << " all-zero rows\n";
@@ -43,6 +50,7 @@ class RowTransformCommand : public Command {
   stages::RowTransformOptions options_;
   std::string filter_ = "haar";
   CommonFlags flags_;
+  ShardFlags shard_flags_;
 };
 
 }  // namespace

@@ -27,9 +27,16 @@ class SampleCommand : public Command {
     app->add_flag("--row-zstd", options_.row_zstd, "with --row-transform: zstd-compress the matrix chunks");
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     AddCommonFlags(app, &flags_);
+    AddShardFlags(app, &shard_flags_);
   }
 
   int Run() override {
+    auto shard = ResolveShard(shard_flags_);
+    if (!shard.ok()) {
+      std::cerr << "ltbake: " << shard.status().message() << "\n";
+      return kExitUsage;
+    }
+    options_.shard = *shard;
     if (cube_res_ >= 0) options_.cube_res = static_cast<uint32_t>(cube_res_);
     if (spp_ >= 0) options_.spp = static_cast<uint32_t>(spp_);
     if (bounces_ >= 0) options_.bounces = static_cast<uint32_t>(bounces_);
@@ -43,7 +50,7 @@ class SampleCommand : public Command {
     if (!flags_.quiet) {
       char rate[64];
       std::snprintf(rate, sizeof rate, "%.3g", r->seconds > 0 ? r->rays / r->seconds : 0.0);
-      std::cout << "wrote " << options_.output << ": " << r->rows << " rows x " << 6ull * r->cube_res * r->cube_res
+      std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << r->rows << " rows x " << 6ull * r->cube_res * r->cube_res
                 << " texels (R = " << r->cube_res << ", spp " << r->spp << ", bounces " << r->bounces << ")";
       if (!row_filter_.empty()) std::cout << ", row-transformed (" << row_filter_ << ")";
       if (r->chunks_already_committed) std::cout << ", resumed (" << r->chunks_already_committed << " chunks were committed)";
@@ -61,6 +68,7 @@ class SampleCommand : public Command {
   std::string row_filter_;
   long long cube_res_ = -1, spp_ = -1, bounces_ = -1, seed_ = -1;
   CommonFlags flags_;
+  ShardFlags shard_flags_;
 };
 
 }  // namespace

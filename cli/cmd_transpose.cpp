@@ -20,9 +20,16 @@ class TransposeCommand : public Command {
     app->add_flag("!--no-verify-input", options_.verify_input,
                   "skip the checksum pass over the input (saves one sequential read of it)");
     AddCommonFlags(app, &flags_);
+    AddShardFlags(app, &shard_flags_);
   }
 
   int Run() override {
+    auto shard = ResolveShard(shard_flags_);
+    if (!shard.ok()) {
+      std::cerr << "ltbake: " << shard.status().message() << "\n";
+      return kExitUsage;
+    }
+    options_.shard = *shard;
     auto mem = ParseSize(flags_.mem_limit);
     if (!mem.ok()) return ReportFailure(mem.status().WithContext("--mem-limit"));
     options_.mem_limit = *mem;
@@ -32,7 +39,7 @@ class TransposeCommand : public Command {
     bar.Done();
     if (!r.ok()) return ReportFailure(r.status());
     if (!flags_.quiet) {
-      std::cout << "wrote " << options_.output << ": " << r->rows << " x " << r->cols << " in chunks of "
+      std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << r->rows << " x " << r->cols << " in chunks of "
                 << r->block_cols << " column(s); " << r->panels << " panel(s) of up to " << r->panel_cols
                 << " columns";
       if (r->chunks_already_committed) std::cout << " (resumed: " << r->chunks_already_committed << " already committed)";
@@ -45,6 +52,7 @@ class TransposeCommand : public Command {
  private:
   stages::TransposeOptions options_;
   CommonFlags flags_;
+  ShardFlags shard_flags_;
 };
 
 }  // namespace

@@ -26,6 +26,51 @@ void AddCommonFlags(CLI::App* app, CommonFlags* f) {
   app->add_flag("-v,--verbose", f->verbose, "print more detail");
 }
 
+void AddShardFlags(CLI::App* app, ShardFlags* f) {
+  app->add_option("--shard", f->shard,
+                  "write shard I of --nshards (default: $SLURM_ARRAY_TASK_ID); `ltbake commit` joins the shards")
+      ->check(CLI::Range(int64_t{0}, static_cast<int64_t>(format::kMaxShards) - 1));
+  app->add_option("--nshards", f->nshards, "split the output into N shards (default: $SLURM_ARRAY_TASK_COUNT, else 1)")
+      ->check(CLI::Range(int64_t{1}, static_cast<int64_t>(format::kMaxShards)));
+}
+
+Result<io::ShardSpec> ResolveShard(const ShardFlags& f) {
+  auto from_env = [](const char* name, int64_t* out) -> Status {
+    const char* v = std::getenv(name);
+    if (v == nullptr || *v == '\0') return Status::Ok();
+    char* end = nullptr;
+    long long n = std::strtoll(v, &end, 10);
+    if (*end != '\0' || n < 0) return InvalidArgument(std::string("$") + name + " is \"" + v + "\", not a number");
+    *out = n;
+    return Status::Ok();
+  };
+  int64_t index = f.shard, count = f.nshards;
+  const bool index_from_env = index < 0, count_from_env = count < 0;
+  if (index < 0) LTB_RETURN_IF_ERROR(from_env("SLURM_ARRAY_TASK_ID", &index));
+  if (count < 0) LTB_RETURN_IF_ERROR(from_env("SLURM_ARRAY_TASK_COUNT", &count));
+  if (count < 0) count = 1;
+  if (index < 0) index = 0;
+  if (count < 1 || count > static_cast<int64_t>(format::kMaxShards)) {
+    return InvalidArgument("--nshards " + std::to_string(count) + " (from $SLURM_ARRAY_TASK_COUNT): expected 1.." +
+                           std::to_string(format::kMaxShards));
+  }
+  if (index >= count) {
+    std::string src = std::string(index_from_env ? "$SLURM_ARRAY_TASK_ID" : "--shard") + " " + std::to_string(index) +
+                      " is not below " + (count_from_env ? "$SLURM_ARRAY_TASK_COUNT" : "--nshards") + " " +
+                      std::to_string(count);
+    return InvalidArgument(src + (count_from_env ? "; a job array that runs only some of the shards (e.g. "
+                                                   "--array=2) must pass --nshards N"
+                                                 : ""));
+  }
+  return io::ShardSpec{static_cast<uint64_t>(index), static_cast<uint64_t>(count)};
+}
+
+std::string OutputName(const std::string& output, const io::ShardSpec& shard) {
+  if (!shard.sharded()) return output;
+  return "shard " + std::to_string(shard.index) + " of " + std::to_string(shard.count) + " of " + output + " (" +
+         io::ShardPath(output, shard.index, shard.count) + ")";
+}
+
 Result<uint64_t> ParseSize(const std::string& text) {
   const char* begin = text.c_str();
   char* end = nullptr;

@@ -9,6 +9,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "format/io/manifest.h"
 #include "format/progress.h"
 #include "format/status.h"
 
@@ -28,6 +29,18 @@ struct CommonFlags {
 
 // Adds --jobs, --mem-limit, --progress, -q, -v to a subcommand.
 void AddCommonFlags(CLI::App* app, CommonFlags* flags);
+
+// --shard I --nshards N: which slice of its output a stage writes (format/io/manifest.h).
+struct ShardFlags {
+  int64_t shard = -1;    // -1: not given
+  int64_t nshards = -1;  // -1: not given
+};
+void AddShardFlags(CLI::App* app, ShardFlags* flags);
+// The flags, each defaulting from the Slurm job array's SLURM_ARRAY_TASK_ID /
+// SLURM_ARRAY_TASK_COUNT when set; neither given nor set: the whole output.
+Result<io::ShardSpec> ResolveShard(const ShardFlags& flags);
+// "OUT", or "shard I of N of OUT (its file)" for the messages of a stage.
+std::string OutputName(const std::string& output, const io::ShardSpec& shard);
 
 // "1GiB", "512MiB", "64M", "4096": bytes. Errors name the text.
 Result<uint64_t> ParseSize(const std::string& text);

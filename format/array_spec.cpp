@@ -138,8 +138,78 @@ Result<Metadata> MetadataFromJson(nlohmann::json json) {
     if (!names.insert(a.name).second) return InvalidArgument("metadata names array \"" + a.name + "\" twice");
     m.arrays.push_back(std::move(a));
   }
+  if (json.contains("shard")) {
+    const auto& sj = json["shard"];
+    const std::string where = "metadata shard";
+    if (!sj.is_object() || !sj.contains("index") || !sj.contains("count") || !sj.contains("chunks") ||
+        !sj["chunks"].is_array()) {
+      return InvalidArgument(where + " is not {\"index\", \"count\", \"chunks\"}");
+    }
+    ShardInfo info;
+    LTB_ASSIGN_OR_RETURN(info.index, GetUnsigned(sj["index"], where + ".index"));
+    LTB_ASSIGN_OR_RETURN(info.count, GetUnsigned(sj["count"], where + ".count"));
+    if (info.count == 0 || info.count > kMaxShards || info.index >= info.count) {
+      return InvalidArgument(where + " is shard " + std::to_string(info.index) + " of " + std::to_string(info.count) +
+                             " (expected index < count <= " + std::to_string(kMaxShards) + ")");
+    }
+    if (sj["chunks"].size() != m.arrays.size()) {
+      return InvalidArgument(where + ".chunks lists " + std::to_string(sj["chunks"].size()) + " ranges for " +
+                             std::to_string(m.arrays.size()) + " arrays");
+    }
+    for (size_t i = 0; i < m.arrays.size(); ++i) {
+      const auto& r = sj["chunks"][i];
+      const std::string rw = where + ".chunks[" + std::to_string(i) + "]";
+      if (!r.is_array() || r.size() != 2) return InvalidArgument(rw + " is not [begin, end]");
+      LTB_ASSIGN_OR_RETURN(uint64_t b, GetUnsigned(r[0], rw + "[0]"));
+      LTB_ASSIGN_OR_RETURN(uint64_t e, GetUnsigned(r[1], rw + "[1]"));
+      if (b > e || e > m.arrays[i].ChunkCount()) {
+        return InvalidArgument(rw + " is [" + std::to_string(b) + ", " + std::to_string(e) + "), outside the " +
+                               std::to_string(m.arrays[i].ChunkCount()) + " chunks of array \"" + m.arrays[i].name +
+                               "\"");
+      }
+      info.chunks.emplace_back(b, e);
+    }
+    m.shard = std::move(info);
+  }
   m.json = std::move(json);
   return m;
+}
+
+std::pair<uint64_t, uint64_t> ShardChunkRange(uint64_t chunk_count, uint64_t index, uint64_t count) {
+  // 128-bit products: chunk counts and shard counts are capped, but stay exact anyway.
+  auto at = [&](uint64_t i) {
+    return static_cast<uint64_t>(static_cast<unsigned __int128>(chunk_count) * i / count);
+  };
+  return {at(index), at(index + 1)};
+}
+
+bool Metadata::Owns(uint32_t array, uint64_t chunk) const {
+  if (!shard) return chunk < arrays.at(array).ChunkCount();
+  const auto& [b, e] = shard->chunks.at(array);
+  return chunk >= b && chunk < e;
+}
+
+uint64_t Metadata::OwnedChunks(uint32_t array) const {
+  if (!shard) return arrays.at(array).ChunkCount();
+  const auto& [b, e] = shard->chunks.at(array);
+  return e - b;
+}
+
+Result<nlohmann::json> ShardMetadataJson(const nlohmann::json& whole, uint64_t index, uint64_t count) {
+  if (count == 0 || count > kMaxShards || index >= count) {
+    return InvalidArgument("shard " + std::to_string(index) + " of " + std::to_string(count) +
+                           ": expected 0 <= shard < nshards <= " + std::to_string(kMaxShards));
+  }
+  nlohmann::json j = whole;
+  j.erase("shard");
+  LTB_ASSIGN_OR_RETURN(Metadata m, MetadataFromJson(j));
+  nlohmann::json ranges = nlohmann::json::array();
+  for (const ArraySpec& a : m.arrays) {
+    auto [b, e] = ShardChunkRange(a.ChunkCount(), index, count);
+    ranges.push_back({b, e});
+  }
+  j["shard"] = {{"index", index}, {"count", count}, {"chunks", ranges}};
+  return j;
 }
 
 Result<Metadata> ParseMetadata(ByteSpan bytes) {

@@ -3,6 +3,8 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
+#include <utility>
 #include <string>
 #include <vector>
 
@@ -28,6 +30,7 @@ const char* LayoutName(Layout l);
 inline constexpr uint64_t kMaxDim = 1ull << 40;
 inline constexpr uint64_t kMaxChunkBytes = 16ull << 30;
 inline constexpr uint64_t kMaxArrays = 255;
+inline constexpr uint64_t kMaxShards = 1u << 16;
 
 struct ChunkExtent {
   uint64_t row0 = 0, rows = 0;  // rows covered
@@ -51,13 +54,35 @@ struct ArraySpec {
   nlohmann::json ToJson() const;
 };
 
+// A shard file holds a slice of a stage's output: the same arrays (full shapes), but only
+// the chunks it owns, chunks [begin, end) of each array (docs/FORMAT.md "Shard files").
+// The slices of shards 0..count-1 partition every array; a stage manifest joins them.
+struct ShardInfo {
+  uint64_t index = 0;
+  uint64_t count = 1;
+  std::vector<std::pair<uint64_t, uint64_t>> chunks;  // per array: [begin, end)
+};
+
+// The chunks of an array of `chunk_count` chunks that shard `index` of `count` owns:
+// [floor(index·C/count), floor((index+1)·C/count)). Contiguous and a partition.
+std::pair<uint64_t, uint64_t> ShardChunkRange(uint64_t chunk_count, uint64_t index, uint64_t count);
+
 struct Metadata {
   nlohmann::json json;             // the whole metadata object, unknown keys kept
   std::vector<ArraySpec> arrays;   // parsed from json["arrays"]
+  std::optional<ShardInfo> shard;  // parsed from json["shard"] when this is a shard file
   const ArraySpec& matrix() const { return arrays.front(); }
   // Index of the array with this name, or -1.
   int FindArray(const std::string& name) const;
+  // Whether this file is meant to hold the chunk (always, for a whole file).
+  bool Owns(uint32_t array, uint64_t chunk) const;
+  // The chunks this file is meant to hold: ChunkCount() for a whole file.
+  uint64_t OwnedChunks(uint32_t array) const;
 };
+
+// The metadata of shard `index` of `count` of the output whose metadata is `whole`:
+// `whole` plus a "shard" key with the chunk ranges of each array.
+Result<nlohmann::json> ShardMetadataJson(const nlohmann::json& whole, uint64_t index, uint64_t count);
 
 // Parses and validates metadata bytes. Unknown keys are kept (forward compatibility).
 Result<Metadata> ParseMetadata(ByteSpan bytes);

@@ -107,7 +107,7 @@ Result<ArraySummary> SummarizeArray(const ContainerReader& reader, uint32_t arra
   // Reduce in chunk order so floating-point sums do not depend on the thread count.
   ArraySummary out;
   out.chunks_read = n;
-  out.chunks_missing = a.ChunkCount() - n;
+  out.chunks_missing = reader.metadata().OwnedChunks(array) - n;
   uint64_t hash_sum = 0;
   for (const PerChunk& pc : results) {
     hash_sum += pc.hash_sum;
@@ -120,6 +120,7 @@ Result<ArraySummary> SummarizeArray(const ContainerReader& reader, uint32_t arra
     s.max = std::max(s.max, pc.stats.max);
     s.sum += pc.stats.sum;
   }
+  out.hash_sum = hash_sum;
   if (out.chunks_missing == 0) {
     ContentHasher total;
     total.AddSum(hash_sum);

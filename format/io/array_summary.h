@@ -21,7 +21,8 @@ struct ArrayStats {
 };
 
 struct ArraySummary {
-  std::string content_hash;  // empty when the array is incomplete
+  std::string content_hash;  // empty when the array is incomplete (a shard: its slice)
+  uint64_t hash_sum = 0;     // the content_hash sum (ContentHasher::sum) of the chunks read
   uint64_t chunks_read = 0;
   uint64_t chunks_missing = 0;
   ArrayStats stats;

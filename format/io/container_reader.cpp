@@ -4,9 +4,11 @@
 #include <xxhash.h>
 
 #include <algorithm>
+#include <tuple>
 
 #include "format/chunk_codec.h"
 #include "format/io/frame_scan.h"
+#include "format/io/manifest.h"
 
 namespace ltb::io {
 
@@ -43,6 +45,10 @@ Result<ContainerReader> ContainerReader::Open(const std::string& path) {
   ContainerReader r;
   LTB_ASSIGN_OR_RETURN(r.file_, File::Open(path, File::Mode::kRead));
   LTB_ASSIGN_OR_RETURN(r.file_size_, r.file_.Size());
+  if (LooksLikeManifest(path)) {
+    LTB_RETURN_IF_ERROR(r.LoadManifest());
+    return r;
+  }
   auto prelude = ReadPrelude(r.file_, r.file_size_);
   if (!prelude.ok()) return prelude.status().WithContext(path);
   r.header_ = prelude->header;
@@ -132,6 +138,11 @@ void ContainerReader::AddFrame(const IndexEntry& e) {
                         "\" is out of range (it has " + std::to_string(a.ChunkCount()) + " chunks)");
     return;
   }
+  if (!metadata_.Owns(h.array, h.chunk_index)) {
+    problems_.push_back(where + ": " + ChunkName(h.array, h.chunk_index) + " belongs to another shard (this is shard " +
+                        std::to_string(metadata_.shard->index) + " of " + std::to_string(metadata_.shard->count) + ")");
+    return;
+  }
   Status len = CheckChunkLengths(h, a.ChunkBytes(h.chunk_index));
   if (!len.ok()) {
     problems_.push_back(where + ": " + ChunkName(h.array, h.chunk_index) + ": " + len.message());
@@ -158,7 +169,7 @@ std::string ContainerReader::ChunkName(uint32_t array, uint64_t chunk) const {
 
 bool ContainerReader::complete() const {
   for (size_t i = 0; i < metadata_.arrays.size(); ++i)
-    if (committed_[i] != metadata_.arrays[i].ChunkCount()) return false;
+    if (committed_[i] != metadata_.OwnedChunks(static_cast<uint32_t>(i))) return false;
   return true;
 }
 
@@ -210,7 +221,14 @@ Result<MappedRegion> ContainerReader::MapPayload(const IndexEntry& e, const std:
   return region;
 }
 
+const ContainerReader* ContainerReader::PartOf(uint32_t array, uint64_t chunk) const {
+  if (parts_.empty()) return nullptr;
+  auto it = by_key_.find(Key(array, chunk));
+  return it == by_key_.end() ? nullptr : parts_[frame_part_[it->second]].get();
+}
+
 Result<Chunk> ContainerReader::ReadChunk(uint32_t array, uint64_t chunk, const ReadOptions& options) const {
+  if (const ContainerReader* part = PartOf(array, chunk)) return part->ReadChunk(array, chunk, options);
   std::string where;
   LTB_ASSIGN_OR_RETURN(const IndexEntry* e, Locate(array, chunk, &where));
   const ArraySpec& a = metadata_.arrays[array];
@@ -249,6 +267,7 @@ Result<Chunk> ContainerReader::ReadChunk(uint32_t array, uint64_t chunk, const R
 }
 
 Result<SparseChunk> ContainerReader::ReadSparse(uint32_t array, uint64_t chunk, const ReadOptions& options) const {
+  if (const ContainerReader* part = PartOf(array, chunk)) return part->ReadSparse(array, chunk, options);
   std::string where;
   LTB_ASSIGN_OR_RETURN(const IndexEntry* e, Locate(array, chunk, &where));
   const ArraySpec& a = metadata_.arrays[array];
@@ -277,6 +296,7 @@ Result<SparseChunk> ContainerReader::ReadSparse(uint32_t array, uint64_t chunk, 
 }
 
 Status ContainerReader::VerifyChunk(uint32_t array, uint64_t chunk, MutableByteSpan buffer) const {
+  if (const ContainerReader* part = PartOf(array, chunk)) return part->VerifyChunk(array, chunk, buffer);
   const IndexEntry* e = Find(array, chunk);
   if (e == nullptr) return NotFound(path() + ": " + ChunkName(array, chunk) + " is missing");
   if (buffer.empty()) return InvalidArgument("VerifyChunk needs a non-empty buffer");
@@ -300,6 +320,51 @@ Status ContainerReader::VerifyChunk(uint32_t array, uint64_t chunk, MutableByteS
                     Hex64(e->header.payload_checksum) + ", actual=" + Hex64(actual));
   }
   return Status::Ok();
+}
+
+Result<EncodedChunk> ContainerReader::ReadEncoded(uint32_t array, uint64_t chunk) const {
+  if (const ContainerReader* part = PartOf(array, chunk)) return part->ReadEncoded(array, chunk);
+  std::string where;
+  LTB_ASSIGN_OR_RETURN(const IndexEntry* e, Locate(array, chunk, &where));
+  EncodedChunk out;
+  out.encoding = static_cast<Encoding>(e->header.encoding);
+  out.decoded_length = e->header.decoded_length;
+  out.dtype = metadata_.arrays[array].dtype;
+  out.checksum = e->header.payload_checksum;
+  if (e->header.payload_length > 0) {
+    LTB_ASSIGN_OR_RETURN(MappedRegion region, MapPayload(*e, where, true, true));
+    out.owned.assign(region.bytes().begin(), region.bytes().end());
+  }
+  out.payload = out.owned;
+  return out;
+}
+
+std::string IndexFingerprint(const ContainerReader& reader) {
+  struct Entry {
+    uint32_t array;
+    uint64_t chunk;
+    uint16_t encoding;
+    uint64_t checksum;
+  };
+  std::vector<Entry> entries;
+  for (const auto& e : reader.chunk_frames()) {
+    entries.push_back({e.header.array, e.header.chunk_index, e.header.encoding, e.header.payload_checksum});
+  }
+  std::sort(entries.begin(), entries.end(),
+            [](const Entry& a, const Entry& b) { return std::tie(a.array, a.chunk) < std::tie(b.array, b.chunk); });
+  XXH3_state_t* st = XXH3_createState();
+  XXH3_64bits_reset(st);
+  std::string meta = SerializeMetadata(reader.metadata().json);
+  XXH3_64bits_update(st, meta.data(), meta.size());
+  for (const Entry& e : entries) {
+    XXH3_64bits_update(st, &e.array, sizeof e.array);
+    XXH3_64bits_update(st, &e.chunk, sizeof e.chunk);
+    XXH3_64bits_update(st, &e.encoding, sizeof e.encoding);
+    XXH3_64bits_update(st, &e.checksum, sizeof e.checksum);
+  }
+  uint64_t h = XXH3_64bits_digest(st);
+  XXH3_freeState(st);
+  return Hex64(h).substr(2);
 }
 
 Status ContainerReader::Refresh() {

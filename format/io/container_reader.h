@@ -1,10 +1,12 @@
-// Opens an .ltm container and reads its committed chunks. A sealed file is opened
+// Opens an .ltm container, or a stage manifest of shard files (format/io/manifest.h) as the
+// one matrix it describes, and reads its committed chunks. A sealed file is opened
 // through its index; an unsealed one (being written, or left by a killed writer) by
 // scanning its frames. Only committed chunks are visible; a chunk that was never
 // committed is reported missing, never read as zeros.
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -47,12 +49,25 @@ struct ReadOptions {
 
 class ContainerReader {
  public:
+  // A manifest is checked as it opens: every shard present, sealed and complete, of the
+  // manifest's size and fingerprint, with the manifest's metadata, the shards' chunks
+  // partitioning every array. A failure names the shard and what to do.
   static Result<ContainerReader> Open(const std::string& path);
+
+  // A manifest: its shards, in order (empty for a container).
+  bool is_manifest() const { return !parts_.empty(); }
+  // The container file holding a chunk: its shard for a manifest, else this reader.
+  const ContainerReader& Holder(uint32_t array, uint64_t chunk) const {
+    const ContainerReader* p = PartOf(array, chunk);
+    return p != nullptr ? *p : *this;
+  }
+  const File& file() const { return file_; }
+  const std::vector<std::shared_ptr<const ContainerReader>>& shards() const { return parts_; }
 
   const std::string& path() const { return file_.path(); }
   const format::FileHeader& header() const { return header_; }
   const format::Metadata& metadata() const { return metadata_; }
-  uint64_t file_size() const { return file_size_; }
+  uint64_t file_size() const { return file_size_; }  // a manifest: its own size plus its shards'
   bool sealed() const { return sealed_; }
   // Every chunk of every array is committed.
   bool complete() const;
@@ -60,7 +75,8 @@ class ContainerReader {
 
   // The frame of a committed chunk, or nullptr when it is missing.
   const format::IndexEntry* Find(uint32_t array, uint64_t chunk) const;
-  // Chunk frames in file order.
+  // Chunk frames in file order (a manifest: each shard's, shard after shard; offsets are
+  // within the shard file).
   const std::vector<format::IndexEntry>& chunk_frames() const { return chunk_frames_; }
   // Structural problems found while opening (damaged regions, duplicate or stray frames).
   const std::vector<std::string>& problems() const { return problems_; }
@@ -80,12 +96,19 @@ class ContainerReader {
   // positional reads (no mapping: memory use is the buffer's size).
   Status VerifyChunk(uint32_t array, uint64_t chunk, format::MutableByteSpan buffer) const;
 
+  // The chunk as stored (payload copied, checksum verified): for copying chunks between
+  // containers without decoding them.
+  Result<format::EncodedChunk> ReadEncoded(uint32_t array, uint64_t chunk) const;
+
   // Picks up chunks committed since the file was opened (unsealed files only).
   Status Refresh();
 
  private:
   Status LoadFromIndex(uint64_t index_offset);
   Status LoadByScan();
+  Status LoadManifest();  // in manifest.cpp
+  // A manifest's shard holding the chunk, or nullptr (a container, or a missing chunk).
+  const ContainerReader* PartOf(uint32_t array, uint64_t chunk) const;
   void AddFrame(const format::IndexEntry& e);
   std::string ChunkName(uint32_t array, uint64_t chunk) const;
   // The committed frame of a chunk (range-checked; kNotFound when missing), and its name.
@@ -106,7 +129,13 @@ class ContainerReader {
   std::unordered_map<uint64_t, size_t> by_key_;  // (array << 40 | chunk) -> chunk_frames_ slot
   std::vector<uint64_t> committed_;
   std::vector<std::string> problems_;
+  std::vector<std::shared_ptr<const ContainerReader>> parts_;  // a manifest's shards
+  std::vector<uint32_t> frame_part_;                          // per chunk_frames_ slot
 };
+
+// A fingerprint of what the file holds: its metadata and every committed chunk's
+// (array, chunk, encoding, checksum). Cheap (the index only); changes with any chunk.
+std::string IndexFingerprint(const ContainerReader& reader);
 
 // Reads and validates header and metadata of an open file (shared by reader, writer, verify).
 struct ContainerPrelude {

@@ -3,6 +3,7 @@
 #include <unistd.h>
 
 #include <cstdio>
+#include <tuple>
 
 #include "format/io/container_reader.h"
 #include "format/io/frame_scan.h"
@@ -192,8 +193,9 @@ bool ContainerWriter::Has(uint32_t array, uint64_t chunk) const {
 std::vector<uint64_t> ContainerWriter::Missing(uint32_t array) const {
   std::lock_guard<std::mutex> lock(mu_);
   std::vector<uint64_t> out;
-  uint64_t n = metadata_.arrays.at(array).ChunkCount();
-  for (uint64_t i = 0; i < n; ++i)
+  uint64_t b = 0, n = metadata_.arrays.at(array).ChunkCount();
+  if (metadata_.shard) std::tie(b, n) = metadata_.shard->chunks.at(array);
+  for (uint64_t i = b; i < n; ++i)
     if (committed_.count(Key(array, i)) == 0) out.push_back(i);
   return out;
 }
@@ -204,6 +206,13 @@ Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChun
   if (chunk >= a.ChunkCount()) {
     return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name +
                            "\" out of range (" + std::to_string(a.ChunkCount()) + " chunks)");
+  }
+  if (!metadata_.Owns(array, chunk)) {
+    const auto& [b, e] = metadata_.shard->chunks[array];
+    return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name +
+                           "\" does not belong to shard " + std::to_string(metadata_.shard->index) + " of " +
+                           std::to_string(metadata_.shard->count) + " (it owns chunks " + std::to_string(b) + "-" +
+                           std::to_string(e) + ")");
   }
   if (encoded.decoded_length != a.ChunkBytes(chunk)) {
     return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name + "\" has " +
@@ -290,7 +299,7 @@ Status ContainerWriter::Finish() {
   std::string first;
   for (uint32_t a = 0; a < metadata_.arrays.size(); ++a) {
     for (uint64_t i = 0; i < metadata_.arrays[a].ChunkCount(); ++i) {
-      if (committed_.count(Key(a, i)) != 0) continue;
+      if (committed_.count(Key(a, i)) != 0 || !metadata_.Owns(a, i)) continue;
       if (missing++ == 0) first = "array \"" + metadata_.arrays[a].name + "\" chunk " + std::to_string(i);
     }
   }

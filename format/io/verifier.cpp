@@ -1,12 +1,12 @@
 #include "format/io/verifier.h"
 
-
 #include <set>
 
 #include "format/array_spec.h"
 #include "format/chunk_codec.h"
 #include "format/io/container_reader.h"
 #include "format/io/frame_scan.h"
+#include "format/io/manifest.h"
 #include "format/io/mapped_region.h"
 
 namespace ltb::io {
@@ -38,6 +38,7 @@ bool RangeIsZero(const File& f, uint64_t offset, uint64_t length, std::string* e
 }  // namespace
 
 VerifyReport VerifyContainer(const std::string& path) {
+  if (LooksLikeManifest(path)) return VerifyManifest(path);
   VerifyReport r;
   r.path = path;
   auto file = File::Open(path, File::Mode::kRead);
@@ -58,7 +59,7 @@ VerifyReport VerifyContainer(const std::string& path) {
   }
   r.readable = true;
   const Metadata& meta = prelude->metadata;
-  for (const ArraySpec& a : meta.arrays) r.chunks_expected += a.ChunkCount();
+  for (uint32_t a = 0; a < meta.arrays.size(); ++a) r.chunks_expected += meta.OwnedChunks(a);
   uint64_t first = prelude->header.FirstFrameOffset();
   std::string err;
   if (first > size) {
@@ -135,6 +136,12 @@ VerifyReport VerifyContainer(const std::string& path) {
     const ArraySpec& a = meta.arrays[h.array];
     if (h.chunk_index >= a.ChunkCount()) {
       r.problems.push_back(where + ": out of range (" + std::to_string(a.ChunkCount()) + " chunks)");
+      continue;
+    }
+    if (!meta.Owns(h.array, h.chunk_index)) {
+      r.problems.push_back(where + ": chunk " + std::to_string(h.chunk_index) + " of array \"" + a.name +
+                           "\" belongs to another shard (this is shard " + std::to_string(meta.shard->index) +
+                           " of " + std::to_string(meta.shard->count) + ")");
       continue;
     }
     Status len = CheckChunkLengths(h, a.ChunkBytes(h.chunk_index));

@@ -265,7 +265,7 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
                                       {&in});
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
-  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::ContainerWriter::Open(o.output, out_meta, wo));
+  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, out_meta, wo, o.shard));
 
   ColumnTransformResult result;
   result.rows = a.rows;
@@ -487,7 +487,7 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
   LTB_RETURN_IF_ERROR(s);
   LTB_RETURN_IF_ERROR(out.Finish());
 
-  LTB_ASSIGN_OR_RETURN(ColumnTransformResult totals, SummarizeColumnTransform(o.output));
+  LTB_ASSIGN_OR_RETURN(ColumnTransformResult totals, SummarizeColumnTransform(out.path()));
   result.empty_columns = totals.empty_columns;
   result.nonzeros = totals.nonzeros;
   result.energy = totals.energy;
@@ -520,6 +520,7 @@ Result<ColumnTransformResult> SummarizeColumnTransform(const std::string& path) 
   if (t.max_depth < 0 || t.max_depth > 64) return DataLoss(path + ": max_depth " + std::to_string(t.max_depth));
   t.depth_histogram.assign(t.max_depth + 1, 0);
   for (uint64_t c = 0; c < ds.ChunkCount(); ++c) {
+    if (!meta.Owns(depth_array, c)) continue;  // a shard file: its own columns
     LTB_ASSIGN_OR_RETURN(io::Chunk dc, r.ReadChunk(depth_array, c));
     LTB_ASSIGN_OR_RETURN(io::Chunk sc, r.ReadChunk(stats_array, c));
     auto d = dc.as<uint8_t>();

@@ -12,6 +12,8 @@
 
 #include <cstdint>
 #include <string>
+
+#include "format/io/manifest.h"
 #include <vector>
 
 #include "format/progress.h"
@@ -50,6 +52,8 @@ struct ColumnTransformOptions {
   uint64_t mem_limit = 1ull << 30;
   bool zstd = true;  // zstd over the sparse chunks where it saves 10%
   bool overwrite = false;
+  // Write shard `index` of `count` (io::ShardPath(output, ...)) instead of the whole output.
+  io::ShardSpec shard;
 };
 
 struct ColumnTransformResult {

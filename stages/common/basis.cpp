@@ -88,33 +88,7 @@ Status RequireCompleteF32Matrix(const io::ContainerReader& in) {
   return Status::Ok();
 }
 
-std::string Fingerprint(const io::ContainerReader& reader) {
-  struct Entry {
-    uint32_t array;
-    uint64_t chunk;
-    uint16_t encoding;
-    uint64_t checksum;
-  };
-  std::vector<Entry> entries;
-  for (const auto& e : reader.chunk_frames()) {
-    entries.push_back({e.header.array, e.header.chunk_index, e.header.encoding, e.header.payload_checksum});
-  }
-  std::sort(entries.begin(), entries.end(),
-            [](const Entry& a, const Entry& b) { return std::tie(a.array, a.chunk) < std::tie(b.array, b.chunk); });
-  XXH3_state_t* st = XXH3_createState();
-  XXH3_64bits_reset(st);
-  std::string meta = format::SerializeMetadata(reader.metadata().json);
-  XXH3_64bits_update(st, meta.data(), meta.size());
-  for (const Entry& e : entries) {
-    XXH3_64bits_update(st, &e.array, sizeof e.array);
-    XXH3_64bits_update(st, &e.chunk, sizeof e.chunk);
-    XXH3_64bits_update(st, &e.encoding, sizeof e.encoding);
-    XXH3_64bits_update(st, &e.checksum, sizeof e.checksum);
-  }
-  uint64_t h = XXH3_64bits_digest(st);
-  XXH3_freeState(st);
-  return format::Hex64(h).substr(2);
-}
+std::string Fingerprint(const io::ContainerReader& reader) { return io::IndexFingerprint(reader); }
 
 nlohmann::json Provenance(const std::string& stage, const nlohmann::json& parameters,
                           const std::vector<const io::ContainerReader*>& inputs) {

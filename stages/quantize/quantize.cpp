@@ -89,7 +89,7 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& pro
       {&in});
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
-  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::ContainerWriter::Open(o.output, out_meta, wo));
+  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, out_meta, wo, o.shard));
 
   QuantizeResult result;
   result.rows = a.rows;
@@ -169,13 +169,15 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& pro
   LTB_RETURN_IF_ERROR(s);
   LTB_RETURN_IF_ERROR(out.Finish());
 
-  LTB_ASSIGN_OR_RETURN(QuantizeResult totals, SummarizeQuantized(o.output));
+  const Metadata out_meta_parsed = out.metadata();
+  LTB_ASSIGN_OR_RETURN(QuantizeResult totals, SummarizeQuantized(out.path()));
   result.nonzeros_out = totals.nonzeros_out;
   result.matrix_bytes = totals.matrix_bytes;
   // Coefficients the input kept, from its side table.
   int stats = meta.FindArray(meta.json["column_transform"].value("stats_array", std::string("column_stats")));
   if (stats >= 0) {
     for (uint64_t c = 0; c < meta.arrays[stats].ChunkCount(); ++c) {
+      if (!out_meta_parsed.Owns(0, c)) continue;  // a shard: its own columns (the stats share the matrix's blocks)
       LTB_ASSIGN_OR_RETURN(io::Chunk sc, in.ReadChunk(static_cast<uint32_t>(stats), c));
       auto v = sc.as<double>();
       for (size_t i = 2; i < v.size(); i += 3) result.nonzeros_in += static_cast<uint64_t>(v[i]);
@@ -190,6 +192,7 @@ Result<QuantizeResult> SummarizeQuantized(const std::string& path) {
   t.rows = r.metadata().matrix().rows;
   t.cols = r.metadata().matrix().cols;
   for (uint64_t c = 0; c < r.metadata().matrix().ChunkCount(); ++c) {
+    if (!r.metadata().Owns(0, c)) continue;  // a shard file: its own columns
     const IndexEntry* e = r.Find(0, c);
     if (e == nullptr) return FailedPrecondition(path + ": chunk " + std::to_string(c) + " is missing");
     t.matrix_bytes += e->header.payload_length;

@@ -13,6 +13,8 @@
 #include <cstdint>
 #include <string>
 
+#include "format/io/manifest.h"
+
 #include "format/progress.h"
 #include "format/status.h"
 
@@ -28,6 +30,8 @@ struct QuantizeOptions {
   int jobs = 2;
   bool zstd = true;
   bool overwrite = false;
+  // Write shard `index` of `count` (io::ShardPath(output, ...)) instead of the whole output.
+  io::ShardSpec shard;
 };
 
 struct QuantizeResult {

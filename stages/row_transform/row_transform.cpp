@@ -170,7 +170,7 @@ Result<RowTransformResult> RunRowTransform(const RowTransformOptions& o, const P
       Provenance("row-transform", {{"filter", wavelet::FilterName(o.filter)}, {"zstd", o.zstd}}, {&in});
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
-  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::ContainerWriter::Open(o.output, out_meta, wo));
+  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, out_meta, wo, o.shard));
 
   RowTransformResult result;
   result.rows = a.rows;

@@ -6,6 +6,8 @@
 #include <cstdint>
 #include <string>
 
+#include "format/io/manifest.h"
+
 #include "format/progress.h"
 #include "format/status.h"
 #include "stages/wavelet/wavelet.h"
@@ -19,6 +21,8 @@ struct RowTransformOptions {
   int jobs = 2;
   bool zstd = false;
   bool overwrite = false;
+  // Write shard `index` of `count` (io::ShardPath(output, ...)) instead of the whole output.
+  io::ShardSpec shard;
 };
 
 struct RowTransformResult {

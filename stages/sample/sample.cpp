@@ -609,7 +609,7 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   };
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
-  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::ContainerWriter::Open(o.output, meta, wo));
+  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, meta, wo, o.shard));
 
   SampleResult result;
   result.rows = rows;
@@ -621,12 +621,15 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   result.chunks_total = nchunks * 4;
   result.chunks_already_committed = out.resume_info().committed_chunks;
 
+  // Row blocks with any array missing (a shard: among the blocks it owns; the four arrays
+  // share the row blocking, so they share the shard's chunk range).
   std::vector<uint64_t> todo;
-  for (uint64_t c = 0; c < nchunks; ++c) {
-    bool all = true;
-    for (uint32_t a = 0; a < 4; ++a) all = all && out.Has(a, c);
-    if (!all) todo.push_back(c);
+  for (uint32_t a = 0; a < 4; ++a) {
+    std::vector<uint64_t> m = out.Missing(a);
+    todo.insert(todo.end(), m.begin(), m.end());
   }
+  std::sort(todo.begin(), todo.end());
+  todo.erase(std::unique(todo.begin(), todo.end()), todo.end());
   Sampler sampler(scene, geo, r, spp, bounces, seed);
   Counters cnt;
   std::atomic<uint64_t> valid{0}, written{0};

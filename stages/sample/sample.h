@@ -7,6 +7,8 @@
 #include <optional>
 #include <string>
 
+#include "format/io/manifest.h"
+
 #include "format/progress.h"
 #include "format/status.h"
 #include "stages/wavelet/wavelet.h"
@@ -27,6 +29,8 @@ struct SampleOptions {
   // is the row-transform's output: same content_hash, same basis metadata.
   std::optional<wavelet::Filter> row_filter;
   bool row_zstd = false;  // zstd for the transformed matrix chunks (row-transform --zstd)
+  // Write shard `index` of `count` (io::ShardPath(output, ...)) instead of the whole output.
+  io::ShardSpec shard;
 };
 
 struct SampleResult {

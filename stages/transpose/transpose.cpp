@@ -125,7 +125,7 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
   out_meta["provenance"] = Provenance("transpose", {{"block_cols", block}, {"zstd", o.zstd}}, {&in});
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
-  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::ContainerWriter::Open(o.output, out_meta, wo));
+  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, out_meta, wo, o.shard));
 
   TransposeResult result;
   result.rows = rows;
@@ -167,7 +167,6 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
   for (uint64_t i = 0; i < a.ChunkCount(); ++i) {
     if (in.Find(0, i)->header.encoding != static_cast<uint16_t>(Encoding::kZero)) in_chunks.push_back(i);
   }
-  LTB_ASSIGN_OR_RETURN(io::File in_file, io::File::Open(o.input, io::File::Mode::kRead));
 
   // The checksum pass runs beside the panels (it reads the input sequentially while they
   // read column ranges; both share the page cache). Panel filling stops if it fails, and
@@ -238,6 +237,7 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
     status = ParallelFor(in_chunks, jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
                          [&](uint64_t ci) -> Status {
       const IndexEntry* entry = in.Find(0, ci);
+      const io::File& in_file = in.Holder(0, ci).file();  // a manifest's chunks live in its shards
       ChunkExtent e = a.Extent(ci);
       thread_local std::vector<float> tile;
       tile.resize(kTileRows * p.cols);
@@ -291,9 +291,10 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
   result.bytes_written = bytes_written;
   result.bytes_verified = verified;
   if (!verify_status.ok() && verify_status.code() != StatusCode::kCancelled) {
+    const std::string written_path = out.path();
     out = io::ContainerWriter();
-    std::remove(o.output.c_str());
-    return verify_status.WithContext("input checksum pass (" + o.output + " removed: it may hold columns built from the "
+    std::remove(written_path.c_str());
+    return verify_status.WithContext("input checksum pass (" + written_path + " removed: it may hold columns built from the "
                                      "damaged input); repair or regenerate the input and rerun");
   }
   LTB_RETURN_IF_ERROR(verify_status);

@@ -10,6 +10,8 @@
 #include <cstdint>
 #include <string>
 
+#include "format/io/manifest.h"
+
 #include "format/progress.h"
 #include "format/status.h"
 
@@ -25,6 +27,8 @@ struct TransposeOptions {
   // Check every input chunk's checksum first (one sequential read of the input): the panel
   // passes read partial rows, which cannot be checked against a whole-chunk checksum.
   bool verify_input = true;
+  // Write shard `index` of `count` (io::ShardPath(output, ...)) instead of the whole output.
+  io::ShardSpec shard;
 };
 
 struct TransposeResult {
