@@ -22,7 +22,9 @@
 #include "format/io/container_reader.h"
 #include "format/io/file.h"
 #include "format/version.h"
+#include "format/io/manifest.h"
 #include "pipeline/process.h"
+#include "pipeline/shards.h"
 #include "pipeline/recipe.h"
 #include "stages/common/basis.h"
 #include "stages/sample/sample.h"
@@ -310,6 +312,7 @@ OutputState Inspect(const Node& n, const std::string& path) {
     return s;
   }
   s.complete = reader->sealed();
+  if (reader->is_manifest()) s.bytes = reader->file_size();  // the manifest and its shards
   for (uint32_t a = 0; a < reader->metadata().arrays.size(); ++a) {
     s.committed += reader->committed(a);
     s.total += reader->metadata().arrays[a].ChunkCount();
@@ -511,6 +514,18 @@ std::string SummaryTable(const json& stages) {
   return t.str();
 }
 
+// Steps that run as shards when --shards N > 1: the matrix stages (cpca's clustering is
+// global; relight makes an image).
+bool Shardable(const Node& n) { return !n.image && n.stages.front() != "cpca"; }
+
+// Removes a step's output: the file, and for a stage manifest its shard directory.
+void RemoveOutput(const std::string& path, std::error_code& ec) {
+  fs::remove(path, ec);
+  if (ec) return;
+  const std::string dir = io::ShardDirectory(path);
+  if (fs::exists(dir, ec)) fs::remove_all(dir, ec);
+}
+
 class Bake {
  public:
   Bake(const BakeOptions& o, Recipe r) : o_(o), r_(std::move(r)) {}
@@ -524,6 +539,10 @@ class Bake {
   void DeleteUnneeded(size_t upto);
   Status SaveReport();
   std::vector<std::string> Command(const Node& n, bool overwrite) const;
+  // Runs a sharded step's shards that are not done and commits them. Returns 0, or the
+  // exit code for finish() with outcome->failure set.
+  int RunSharded(const Node& n, const json* record, const json& inputs, bool trust_record, bool overwrite,
+                 json& entry, std::string* content_hash, std::string* failure);
 
   const BakeOptions& o_;
   Recipe r_;
@@ -545,6 +564,133 @@ std::vector<std::string> Bake::Command(const Node& n, bool overwrite) const {
   c.insert(c.end(), {"--jobs", std::to_string(o_.jobs), "--progress", o_.progress ? "always" : "never"});
   if (overwrite && !n.image) c.push_back("--overwrite");
   return c;
+}
+
+int Bake::RunSharded(const Node& n, const json* record, const json& inputs, bool trust_record, bool overwrite,
+                     json& e, std::string* content_hash, std::string* failure) {
+  (void)inputs;
+  const std::string out_path = Path(n.output);
+  const uint64_t count = o_.shards;
+  // The stage command of every shard: Command() without --jobs (each engine sets it).
+  std::vector<std::string> stage = {o_.ltbake};
+  stage.insert(stage.end(), n.args.begin(), n.args.end());
+  stage.insert(stage.end(), {"-o", out_path, "--mem-limit", o_.mem_limit, "--progress", "never"});
+  if (overwrite) stage.push_back("--overwrite");
+  e["engine"] = o_.engine;
+  e["nshards"] = count;
+  e["command"] = ShellQuote(stage) + " --shard I --nshards " + std::to_string(count) + " --jobs J";
+
+  // Shards this run need not run: done in the recorded attempt (same parameters, inputs
+  // and shard count), their file still complete with the fingerprint recorded then.
+  std::map<uint64_t, json> done_before;
+  if (trust_record && record->contains("shards") && (*record)["shards"].is_array()) {
+    for (const json& s : (*record)["shards"]) {
+      const std::string st = s.value("status", "");
+      if (st != "done" && st != "skipped") continue;
+      std::string fp;
+      const uint64_t i = s.value("index", count);
+      if (i < count && ShardFileComplete(out_path, i, count, &fp) && fp == s.value("fingerprint", "")) {
+        done_before[i] = s;
+      }
+    }
+  }
+  std::vector<uint64_t> todo;
+  for (uint64_t i = 0; i < count; ++i)
+    if (!done_before.count(i)) todo.push_back(i);
+  if (o_.say && !o_.quiet) {
+    o_.say("   " + std::to_string(todo.size()) + " of " + std::to_string(count) + " shards to run (" + o_.engine +
+           " engine)" + (done_before.empty() ? "" : ", " + std::to_string(done_before.size()) + " done before"));
+  }
+  EngineOptions eo;
+  eo.engine = o_.engine;
+  eo.shards = count;
+  eo.jobs = o_.jobs;
+  eo.partition = o_.partition;
+  eo.cpus_per_task = o_.cpus_per_task;
+  eo.mem = o_.mem;
+  eo.sbatch_args = o_.sbatch_args;
+  eo.retries = o_.retries;
+  if (!o_.quiet) eo.say = o_.say;
+  eo.pending_signal = o_.pending_signal;
+  std::error_code ec;
+  fs::create_directories(Path("logs"), ec);
+  std::string step = n.name;
+  std::replace(step.begin(), step.end(), ':', '-');
+  auto t0 = std::chrono::steady_clock::now();
+  auto ran = RunShards(eo, stage, out_path, todo, step, Path("logs"));
+  e["wall_seconds"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (!ran.ok()) {
+    e["status"] = "failed";
+    *failure = "stage " + n.name + ": " + ran.status().message();
+    return 1;
+  }
+  // The shard records: those done before, then this run's.
+  json shards = json::array();
+  uint64_t peak = 0;
+  std::vector<const ShardRun*> failed;
+  std::map<uint64_t, json> by_index;
+  for (auto& [i, s] : done_before) {
+    json r = s;
+    r["status"] = "skipped";
+    r["attempts"] = 0;
+    by_index[i] = r;
+  }
+  for (const ShardRun& r : ran->shards) {
+    json j = {{"index", r.index}, {"status", r.status}, {"attempts", r.attempts}, {"log", r.log},
+              {"exit_code", r.exit_code}};
+    if (o_.engine == "local") {
+      j["wall_seconds"] = r.wall_seconds;
+      j["peak_rss_bytes"] = r.peak_rss_bytes;
+    }
+    if (!r.errors.empty()) j["errors"] = r.errors;
+    std::string fp;
+    if (r.status == "done" && ShardFileComplete(out_path, r.index, count, &fp)) j["fingerprint"] = fp;
+    if (r.status == "failed") failed.push_back(&r);
+    peak = std::max(peak, r.peak_rss_bytes);
+    by_index[r.index] = j;
+  }
+  for (auto& [i, j] : by_index) shards.push_back(j);
+  e["shards"] = shards;
+  if (o_.engine == "local") e["peak_rss_bytes"] = peak;
+  if (!ran->submit_commands.empty()) e["submissions"] = ran->submit_commands;
+  if (ran->interrupted) {
+    e["status"] = "interrupted";
+    *failure = "interrupted during " + n.name + "; the shards it finished are kept: rerun `ltbake run " + r_.path +
+               "` to run only the others";
+    return ran->signal == SIGINT ? 130 : 143;
+  }
+  if (!failed.empty()) {
+    e["status"] = "failed";
+    std::string why;
+    for (const ShardRun* r : failed) {
+      why += "\n  shard " + std::to_string(r->index) + " (" + std::to_string(r->attempts) + " attempt" +
+             (r->attempts == 1 ? "" : "s") + ", log " + r->log + ")";
+      for (const auto& line : r->errors) why += "\n    " + line;
+    }
+    std::vector<std::string> one = stage;
+    one.insert(one.end(), {"--shard", std::to_string(failed.front()->index), "--nshards", std::to_string(count)});
+    *failure = "stage " + n.name + ": " + std::to_string(failed.size()) + " of " + std::to_string(count) +
+               " shards failed:" + why + "\n  re-run one shard: " + ShellQuote(one) +
+               "\n  or resume the whole bake (runs only the shards not done): ltbake run " + r_.path;
+    return 1;
+  }
+  // Every shard is done: validate them and write the manifest.
+  io::CommitOptions co;
+  co.overwrite = overwrite;
+  co.threads = o_.jobs;
+  auto t1 = std::chrono::steady_clock::now();
+  auto committed = io::CommitShards(out_path, count, co);
+  e["commit_seconds"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+  if (!committed.ok()) {
+    e["status"] = "failed";
+    *failure = "stage " + n.name + ": its shards ran but cannot be committed: " + committed.status().message();
+    return 1;
+  }
+  if (o_.say && !o_.quiet) {
+    o_.say("   committed " + out_path + ": " + std::to_string(count) + " shards, content_hash " + committed->content_hash);
+  }
+  *content_hash = committed->content_hash;
+  return 0;
 }
 
 Result<std::string> Bake::ContentHashOf(const Node& n, const std::string& path) {
@@ -594,7 +740,7 @@ void Bake::DeleteUnneeded(size_t upto) {
     }
     std::error_code ec;
     if (still_read || !fs::exists(Path(n.output), ec)) continue;
-    fs::remove(Path(n.output), ec);
+    RemoveOutput(Path(n.output), ec);
     for (auto& e : entries_) {
       if (e.value("node", "") == n.name && e.contains("output")) e["output"]["deleted"] = true;
     }
@@ -843,7 +989,7 @@ Result<BakeOutcome> Bake::Run() {
       // Made otherwise (or forced): start afresh, so that not even a file whose metadata
       // happens to match is resumed.
       std::error_code rm;
-      fs::remove(out_path, rm);
+      RemoveOutput(out_path, rm);
       if (rm) return IoError(out_path + ": cannot remove it to redo " + n.name, rm.value());
     }
     std::vector<std::string> cmd = Command(n, overwrite);
@@ -859,59 +1005,69 @@ Result<BakeOutcome> Bake::Run() {
     // Record the attempt before it starts: a killed run's next run knows the file is its own.
     if (Status s = SaveReport(); !s.ok()) return s.WithContext("writing the run report");
     if (o_.say && !o_.quiet) o_.say("== " + n.name + ": " + d.action + " (" + d.reason + ")");
-    ChildIo cio;
-    cio.log_path = log;
-    if (!o_.quiet && !n.image) cio.on_stdout = o_.stage_stdout;  // relight's JSON goes to run.json
-    cio.on_stderr = o_.stage_stderr;
-    cio.pending_signal = o_.pending_signal;
-    auto child = RunChild(cmd, cio);
     json& e = entries_.back();
-    if (!child.ok()) {
-      e["status"] = "failed";
-      outcome.failure = "stage " + n.name + " could not be started: " + child.status().message();
-      return finish("failed", 1);
-    }
-    e["wall_seconds"] = child->wall_seconds;
-    e["peak_rss_bytes"] = child->peak_rss_bytes;
-    e["exit_code"] = child->exit_code;
-    if (n.image) {
-      try {
-        e["metrics"] = json::parse(child->stdout_text);
-      } catch (const std::exception&) {
+    int sig = 0;
+    std::string known_hash;  // a sharded step's, from its commit
+    if (o_.shards > 1 && Shardable(n)) {
+      const bool trust = rec != nullptr && d.action != "redo" && (*rec).value("params", json()) == n.params &&
+                         (*rec).value("inputs", json()) == inputs && (*rec).value("nshards", uint64_t{0}) == o_.shards;
+      int code = RunSharded(n, rec, inputs, trust, overwrite, e, &known_hash, &outcome.failure);
+      if (code != 0) return finish(code == 1 ? "failed" : "interrupted", code);
+      sig = o_.pending_signal ? o_.pending_signal() : 0;
+    } else {
+      ChildIo cio;
+      cio.log_path = log;
+      if (!o_.quiet && !n.image) cio.on_stdout = o_.stage_stdout;  // relight's JSON goes to run.json
+      cio.on_stderr = o_.stage_stderr;
+      cio.pending_signal = o_.pending_signal;
+      auto child = RunChild(cmd, cio);
+      if (!child.ok()) {
+        e["status"] = "failed";
+        outcome.failure = "stage " + n.name + " could not be started: " + child.status().message();
+        return finish("failed", 1);
       }
-    }
-    int sig = o_.pending_signal ? o_.pending_signal() : 0;
-    if (child->exit_code == 130 || child->exit_code == 143 || (child->term_signal == SIGINT) ||
-        (child->term_signal == SIGTERM)) {
-      e["status"] = "interrupted";
-      int code = child->exit_code == 143 || child->term_signal == SIGTERM || sig == SIGTERM ? 143 : 130;
-      outcome.failure = "interrupted during " + n.name + "; what it committed is kept: rerun `ltbake run " +
-                        r_.path + "` to resume";
-      return finish("interrupted", code);
-    }
-    if (child->exit_code != 0) {
-      e["status"] = "failed";
-      std::string why;
-      for (const auto& line : child->errors) why += "\n  " + line;
-      if (child->term_signal) {
-        why += "\n  killed by signal " + std::to_string(child->term_signal) +
-               (child->term_signal == SIGKILL ? " (out of memory? try a smaller --mem-limit)" : "");
+      e["wall_seconds"] = child->wall_seconds;
+      e["peak_rss_bytes"] = child->peak_rss_bytes;
+      e["exit_code"] = child->exit_code;
+      if (n.image) {
+        try {
+          e["metrics"] = json::parse(child->stdout_text);
+        } catch (const std::exception&) {
+        }
       }
-      if (why.empty()) why = "\n  (no error message; see the log)";
-      if (why.find("--overwrite") != std::string::npos) {
-        why += "\n  (" + n.output + " in the work directory was not made by this recipe's runs; `ltbake run --force " +
-               n.stages.front() + "` replaces it)";
+      sig = o_.pending_signal ? o_.pending_signal() : 0;
+      if (child->exit_code == 130 || child->exit_code == 143 || (child->term_signal == SIGINT) ||
+          (child->term_signal == SIGTERM)) {
+        e["status"] = "interrupted";
+        int code = child->exit_code == 143 || child->term_signal == SIGTERM || sig == SIGTERM ? 143 : 130;
+        outcome.failure = "interrupted during " + n.name + "; what it committed is kept: rerun `ltbake run " +
+                          r_.path + "` to resume";
+        return finish("interrupted", code);
       }
-      e["errors"] = child->errors;
-      outcome.failure = "stage " + n.name + " failed (exit " + std::to_string(child->exit_code) + "):" + why +
-                        "\n  log: " + log + "\n  re-run just this stage: " + ShellQuote(cmd) +
-                        "\n  or resume the whole bake: ltbake run " + r_.path;
-      return finish("failed", 1);
+      if (child->exit_code != 0) {
+        e["status"] = "failed";
+        std::string why;
+        for (const auto& line : child->errors) why += "\n  " + line;
+        if (child->term_signal) {
+          why += "\n  killed by signal " + std::to_string(child->term_signal) +
+                 (child->term_signal == SIGKILL ? " (out of memory? try a smaller --mem-limit)" : "");
+        }
+        if (why.empty()) why = "\n  (no error message; see the log)";
+        if (why.find("--overwrite") != std::string::npos) {
+          why += "\n  (" + n.output + " in the work directory was not made by this recipe's runs; `ltbake run --force " +
+                 n.stages.front() + "` replaces it)";
+        }
+        e["errors"] = child->errors;
+        outcome.failure = "stage " + n.name + " failed (exit " + std::to_string(child->exit_code) + "):" + why +
+                          "\n  log: " + log + "\n  re-run just this stage: " + ShellQuote(cmd) +
+                          "\n  or resume the whole bake: ltbake run " + r_.path;
+        return finish("failed", 1);
+      }
     }
     // Done: record what it made.
     OutputState made = Inspect(n, out_path);
     auto t0 = std::chrono::steady_clock::now();
-    auto h = ContentHashOf(n, out_path);
+    auto h = known_hash.empty() ? ContentHashOf(n, out_path) : Result<std::string>(known_hash);
     if (!h.ok()) {
       e["status"] = "failed";
       outcome.failure = "stage " + n.name + " finished but its output cannot be read back: " + h.status().message();

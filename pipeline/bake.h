@@ -28,6 +28,15 @@ struct BakeOptions {
   bool progress = false;            // ask stages to draw progress bars (forwarded to stderr)
   bool quiet = false;
   std::string ltbake;               // the ltbake executable stages are run with
+  // Sharding (docs/cluster.md): stages other than cpca and relight run as `shards` shards
+  // through `engine` ("local": a process pool; "slurm": job arrays), then are committed.
+  std::string engine = "local";
+  uint64_t shards = 1;
+  std::string partition;            // slurm: --partition
+  int cpus_per_task = 0;            // slurm: --cpus-per-task (0: --jobs)
+  std::string mem;                  // slurm: --mem per task
+  std::vector<std::string> sbatch_args;  // slurm: more sbatch arguments
+  int retries = 2;                  // slurm: resubmissions of failed shards
   // Where messages go (the library does not print): say() for stdout, stage output is
   // passed on through stage_stdout()/stage_stderr().
   std::function<void(const std::string&)> say;
