@@ -6,6 +6,7 @@
 #include <atomic>
 #include <chrono>
 #include <csignal>
+#include <cstdlib>
 #include <fstream>
 #include <map>
 #include <mutex>
@@ -136,6 +137,20 @@ Result<ShardedStep> RunLocal(const EngineOptions& o, const std::vector<std::stri
   return result;
 }
 
+// The program's path: as given when it has a '/', else the first match on $PATH.
+Result<std::string> FindProgram(const std::string& name) {
+  if (name.find('/') != std::string::npos) return name;
+  const char* path = std::getenv("PATH");
+  std::stringstream dirs(path != nullptr ? path : "/usr/bin:/bin");
+  std::string dir;
+  while (std::getline(dirs, dir, ':')) {
+    std::string full = (dir.empty() ? "." : dir) + "/" + name;
+    if (::access(full.c_str(), X_OK) == 0) return full;
+  }
+  return FailedPrecondition(name + " is not on $PATH: install slurm-client (Debian) on the submitting machine, or run "
+                            "with --engine local");
+}
+
 Status WriteScript(const std::string& path, const std::string& text) {
   std::ofstream out(path, std::ios::trunc);
   out << text;
@@ -147,6 +162,8 @@ Status WriteScript(const std::string& path, const std::string& text) {
 Result<ShardedStep> RunSlurm(const EngineOptions& o, const std::vector<std::string>& stage, const std::string& output,
                              const std::vector<uint64_t>& todo, const std::string& step, const std::string& log_dir) {
   ShardedStep result;
+  LTB_ASSIGN_OR_RETURN(const std::string sbatch, FindProgram(o.sbatch));
+  LTB_ASSIGN_OR_RETURN(const std::string scancel, FindProgram(o.scancel));
   const int cpus = o.cpus_per_task > 0 ? o.cpus_per_task : std::max(1, o.jobs);
   // One script per step; the shard index comes from the array task, the count is explicit
   // (an array that reruns only some shards has another SLURM_ARRAY_TASK_COUNT).
@@ -164,7 +181,7 @@ Result<ShardedStep> RunSlurm(const EngineOptions& o, const std::vector<std::stri
   for (uint64_t i : todo) runs[i] = ShardRun{.index = i, .status = "failed", .log = ShardLog(log_dir, step, i)};
   std::vector<uint64_t> left = todo;
   for (int round = 0; round <= o.retries && !left.empty(); ++round) {
-    std::vector<std::string> cmd = {o.sbatch, "--wait", "--parsable", "--job-name=" + job_name,
+    std::vector<std::string> cmd = {sbatch, "--wait", "--parsable", "--job-name=" + job_name,
                                     "--array=" + ArrayList(left), "--output=" + log_dir + "/" + step + ".shard-%a.log",
                                     "--open-mode=append", "--cpus-per-task=" + std::to_string(cpus)};
     if (!o.partition.empty()) cmd.push_back("--partition=" + o.partition);
@@ -192,7 +209,7 @@ Result<ShardedStep> RunSlurm(const EngineOptions& o, const std::vector<std::stri
       // sbatch --wait does not take its job with it: cancel what this run submitted.
       ChildIo quiet;
       quiet.log_path = io.log_path;
-      (void)RunChild({o.scancel, "--name=" + job_name}, quiet);
+      (void)RunChild({scancel, "--name=" + job_name}, quiet);
       for (uint64_t i : left) runs[i].status = ShardFileComplete(output, i, o.shards) ? "done" : "interrupted";
       result.interrupted = true;
       result.signal = sig != 0 ? sig : SIGTERM;
