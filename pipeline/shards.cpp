@@ -68,10 +68,14 @@ std::vector<std::string> ShardArgs(const std::vector<std::string>& stage, uint64
   return argv;
 }
 
-Result<ShardedStep> RunLocal(const EngineOptions& o, const std::vector<std::string>& stage,
+Result<ShardedStep> RunLocal(const EngineOptions& o, const std::vector<std::string>& stage, const std::string& output,
                              const std::vector<uint64_t>& todo, const std::string& step, const std::string& log_dir) {
   ShardedStep result;
   result.shards.resize(todo.size());
+  for (size_t k = 0; k < todo.size(); ++k) {
+    result.shards[k].index = todo[k];
+    result.shards[k].log = ShardLog(log_dir, step, todo[k]);
+  }
   const size_t procs = std::min<size_t>(todo.size(), static_cast<size_t>(std::max(1, o.jobs)));
   const int per = std::max(1, o.jobs / static_cast<int>(std::max<size_t>(1, procs)));
   std::atomic<size_t> next{0};
@@ -83,8 +87,6 @@ Result<ShardedStep> RunLocal(const EngineOptions& o, const std::vector<std::stri
       size_t k = next.fetch_add(1);
       if (k >= todo.size() || stop) return;
       ShardRun& run = result.shards[k];
-      run.index = todo[k];
-      run.log = ShardLog(log_dir, step, run.index);
       if (o.pending_signal && o.pending_signal() != 0) {
         run.status = "interrupted";
         stop = true;
@@ -108,7 +110,8 @@ Result<ShardedStep> RunLocal(const EngineOptions& o, const std::vector<std::stri
       run.peak_rss_bytes = child->peak_rss_bytes;
       run.errors = child->errors;
       if (IsInterruption(*child)) {
-        run.status = "interrupted";
+        // A shard that had just committed its last chunk when the signal came is done.
+        run.status = ShardFileComplete(output, run.index, o.shards) ? "done" : "interrupted";
         stop = true;
       } else if (child->exit_code != 0) {
         run.status = "failed";
@@ -253,7 +256,7 @@ Result<ShardedStep> RunShards(const EngineOptions& o, const std::vector<std::str
                               const std::vector<uint64_t>& todo, const std::string& step, const std::string& log_dir) {
   if (todo.empty()) return ShardedStep{};
   if (o.engine == "slurm") return RunSlurm(o, stage, output, todo, step, log_dir);
-  if (o.engine == "local") return RunLocal(o, stage, todo, step, log_dir);
+  if (o.engine == "local") return RunLocal(o, stage, output, todo, step, log_dir);
   return InvalidArgument("--engine " + o.engine + ": expected local or slurm");
 }
 

@@ -572,7 +572,10 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   uint64_t block = o.chunk_rows;
   if (block == 0) {
     block = std::max<uint64_t>(1, (2u << 20) / (cols * 4));
-    block = std::min(block, std::max<uint64_t>(1, (rows + 4 * o.jobs - 1) / (4 * o.jobs)));
+    // At least 4 blocks per worker thread; for shards, 4 per shard instead: every shard
+    // must pick the same blocking whatever --jobs its task runs with.
+    const uint64_t parts = 4 * (o.shard.sharded() ? o.shard.count : static_cast<uint64_t>(std::max(1, o.jobs)));
+    block = std::min(block, std::max<uint64_t>(1, (rows + parts - 1) / parts));
   }
   block = std::min(block, rows);
 
