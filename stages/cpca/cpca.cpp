@@ -679,6 +679,8 @@ Result<CpcaResult> RunCpca(const CpcaOptions& o, const Progress& progress) {
     const bool same = prev.ok() && prev->metadata().json.value("provenance", nlohmann::json()) == provenance &&
                       CpcaModel::IsCpca(prev->metadata());
     if (same && prev->complete()) {
+      // A run killed between sealing the output and removing its checkpoint left one.
+      std::remove(cp_path.c_str());
       result.already_complete = true;
       return Summarize(o.output, result);
     }
