@@ -508,6 +508,7 @@ std::string SummaryTable(const json& stages) {
     if (out.value("deleted", false)) size = "(deleted)";
     std::string action = s.value("action", ""), status = s.value("status", "");
     if (status == "interrupted" || status == "failed" || status == "running") action = status;
+    if (s.contains("nshards") && action != "skip") action += " " + std::to_string(s["nshards"].get<uint64_t>()) + "sh";
     t << Pad(s.value("node", ""), 22) << Pad(action, 12) << Pad(wall, 10) << Pad(rss, 11)
       << Pad(out.value("file", ""), 24) << Pad(size, 11) << out.value("content_hash", "-") << "\n";
   }
@@ -541,8 +542,8 @@ class Bake {
   std::vector<std::string> Command(const Node& n, bool overwrite) const;
   // Runs a sharded step's shards that are not done and commits them. Returns 0, or the
   // exit code for finish() with outcome->failure set.
-  int RunSharded(const Node& n, const json* record, const json& inputs, bool trust_record, bool overwrite,
-                 json& entry, std::string* content_hash, std::string* failure);
+  int RunSharded(const Node& n, const json* record, bool trust_record, bool overwrite, json& entry,
+                 std::string* content_hash, std::string* failure);
 
   const BakeOptions& o_;
   Recipe r_;
@@ -566,9 +567,8 @@ std::vector<std::string> Bake::Command(const Node& n, bool overwrite) const {
   return c;
 }
 
-int Bake::RunSharded(const Node& n, const json* record, const json& inputs, bool trust_record, bool overwrite,
-                     json& e, std::string* content_hash, std::string* failure) {
-  (void)inputs;
+int Bake::RunSharded(const Node& n, const json* record, bool trust_record, bool overwrite, json& e,
+                     std::string* content_hash, std::string* failure) {
   const std::string out_path = Path(n.output);
   const uint64_t count = o_.shards;
   // The stage command of every shard: Command() without --jobs (each engine sets it).
@@ -1011,7 +1011,7 @@ Result<BakeOutcome> Bake::Run() {
     if (o_.shards > 1 && Shardable(n)) {
       const bool trust = rec != nullptr && d.action != "redo" && (*rec).value("params", json()) == n.params &&
                          (*rec).value("inputs", json()) == inputs && (*rec).value("nshards", uint64_t{0}) == o_.shards;
-      int code = RunSharded(n, rec, inputs, trust, overwrite, e, &known_hash, &outcome.failure);
+      int code = RunSharded(n, rec, trust, overwrite, e, &known_hash, &outcome.failure);
       if (code != 0) return finish(code == 1 ? "failed" : "interrupted", code);
       sig = o_.pending_signal ? o_.pending_signal() : 0;
     } else {
