@@ -79,6 +79,9 @@ Result<uint64_t> ParseHexSum(const nlohmann::json& j, const std::string& where) 
 Result<ContainerReader> OpenShard(const std::string& owner, uint64_t index, uint64_t count, const std::string& full) {
   const std::string name = ShardName(index, count, full);
   const std::string rerun = "; rerun shard " + std::to_string(index) + " of the stage (`ltbake run` reruns only the shards it needs)";
+  // Checked before opening: a manifest naming itself (or another manifest naming it back)
+  // as a shard would otherwise recurse without end.
+  if (LooksLikeManifest(full)) return DataLoss(owner + ": " + name + " is itself a manifest; a shard is a container");
   auto r = ContainerReader::Open(full);
   if (!r.ok()) return Status(r.status().code(), owner + ": " + name + ": " + r.status().message() + rerun);
   if (r->is_manifest()) return DataLoss(owner + ": " + name + " is itself a manifest; a shard is a container");
@@ -392,8 +395,8 @@ VerifyReport VerifyManifest(const std::string& path) {
   for (const ShardRecord& rec : info->shards) {
     const std::string full = dir + "/" + rec.path;
     const std::string name = ShardName(rec.index, info->count, full);
-    if (!PathExists(full)) {
-      sealed = false;  // already reported by Open
+    if (!PathExists(full) || LooksLikeManifest(full)) {
+      sealed = false;  // already reported by Open (verifying a manifest here could recurse without end)
       continue;
     }
     VerifyReport s = VerifyContainer(full);
