@@ -176,6 +176,7 @@ Result<Metadata> MetadataFromJson(nlohmann::json json) {
 }
 
 std::pair<uint64_t, uint64_t> ShardChunkRange(uint64_t chunk_count, uint64_t index, uint64_t count) {
+  if (count == 0 || index >= count) return {chunk_count, chunk_count};  // owns nothing (callers check first)
   // 128-bit products: chunk counts and shard counts are capped, but stay exact anyway.
   auto at = [&](uint64_t i) {
     return static_cast<uint64_t>(static_cast<unsigned __int128>(chunk_count) * i / count);

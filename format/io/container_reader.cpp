@@ -227,8 +227,19 @@ const ContainerReader* ContainerReader::PartOf(uint32_t array, uint64_t chunk) c
   return it == by_key_.end() ? nullptr : parts_[frame_part_[it->second]].get();
 }
 
+Status ContainerReader::InShard(const ContainerReader* part, const Status& s) const {
+  if (s.ok()) return s;
+  const auto& info = part->metadata().shard;
+  return s.WithContext(path() + ": shard " + std::to_string(info ? info->index : 0) + " of " +
+                       std::to_string(parts_.size()));
+}
+
 Result<Chunk> ContainerReader::ReadChunk(uint32_t array, uint64_t chunk, const ReadOptions& options) const {
-  if (const ContainerReader* part = PartOf(array, chunk)) return part->ReadChunk(array, chunk, options);
+  if (const ContainerReader* part = PartOf(array, chunk)) {
+    auto r = part->ReadChunk(array, chunk, options);
+    if (!r.ok()) return InShard(part, r.status());
+    return r;
+  }
   std::string where;
   LTB_ASSIGN_OR_RETURN(const IndexEntry* e, Locate(array, chunk, &where));
   const ArraySpec& a = metadata_.arrays[array];
@@ -267,7 +278,11 @@ Result<Chunk> ContainerReader::ReadChunk(uint32_t array, uint64_t chunk, const R
 }
 
 Result<SparseChunk> ContainerReader::ReadSparse(uint32_t array, uint64_t chunk, const ReadOptions& options) const {
-  if (const ContainerReader* part = PartOf(array, chunk)) return part->ReadSparse(array, chunk, options);
+  if (const ContainerReader* part = PartOf(array, chunk)) {
+    auto r = part->ReadSparse(array, chunk, options);
+    if (!r.ok()) return InShard(part, r.status());
+    return r;
+  }
   std::string where;
   LTB_ASSIGN_OR_RETURN(const IndexEntry* e, Locate(array, chunk, &where));
   const ArraySpec& a = metadata_.arrays[array];
@@ -296,7 +311,7 @@ Result<SparseChunk> ContainerReader::ReadSparse(uint32_t array, uint64_t chunk, 
 }
 
 Status ContainerReader::VerifyChunk(uint32_t array, uint64_t chunk, MutableByteSpan buffer) const {
-  if (const ContainerReader* part = PartOf(array, chunk)) return part->VerifyChunk(array, chunk, buffer);
+  if (const ContainerReader* part = PartOf(array, chunk)) return InShard(part, part->VerifyChunk(array, chunk, buffer));
   const IndexEntry* e = Find(array, chunk);
   if (e == nullptr) return NotFound(path() + ": " + ChunkName(array, chunk) + " is missing");
   if (buffer.empty()) return InvalidArgument("VerifyChunk needs a non-empty buffer");
@@ -323,7 +338,11 @@ Status ContainerReader::VerifyChunk(uint32_t array, uint64_t chunk, MutableByteS
 }
 
 Result<EncodedChunk> ContainerReader::ReadEncoded(uint32_t array, uint64_t chunk) const {
-  if (const ContainerReader* part = PartOf(array, chunk)) return part->ReadEncoded(array, chunk);
+  if (const ContainerReader* part = PartOf(array, chunk)) {
+    auto r = part->ReadEncoded(array, chunk);
+    if (!r.ok()) return InShard(part, r.status());
+    return r;
+  }
   std::string where;
   LTB_ASSIGN_OR_RETURN(const IndexEntry* e, Locate(array, chunk, &where));
   EncodedChunk out;

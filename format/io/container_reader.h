@@ -109,6 +109,8 @@ class ContainerReader {
   Status LoadManifest();  // in manifest.cpp
   // A manifest's shard holding the chunk, or nullptr (a container, or a missing chunk).
   const ContainerReader* PartOf(uint32_t array, uint64_t chunk) const;
+  // A shard's error, prefixed with "MANIFEST: shard I of N".
+  Status InShard(const ContainerReader* part, const Status& s) const;
   void AddFrame(const format::IndexEntry& e);
   std::string ChunkName(uint32_t array, uint64_t chunk) const;
   // The committed frame of a chunk (range-checked; kNotFound when missing), and its name.

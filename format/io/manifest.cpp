@@ -78,7 +78,8 @@ Result<uint64_t> ParseHexSum(const nlohmann::json& j, const std::string& where) 
 // readable, undamaged, sealed, complete, and the shard it is named as.
 Result<ContainerReader> OpenShard(const std::string& owner, uint64_t index, uint64_t count, const std::string& full) {
   const std::string name = ShardName(index, count, full);
-  const std::string rerun = "; rerun shard " + std::to_string(index) + " of the stage (`ltbake run` reruns only the shards it needs)";
+  const std::string rerun = "; rerun shard " + std::to_string(index) +
+                            " of the stage and commit again (`ltbake run` does both, only for the shards it needs)";
   // Checked before opening: a manifest naming itself (or another manifest naming it back)
   // as a shard would otherwise recurse without end.
   if (LooksLikeManifest(full)) return DataLoss(owner + ": " + name + " is itself a manifest; a shard is a container");
@@ -241,14 +242,14 @@ Status ContainerReader::LoadManifest() {
                               " of the stage and commit again (`ltbake run` does both, only for shards it needs)";
     if (!PathExists(full)) return NotFound(mpath + ": " + name + " is missing" + rerun);
     LTB_ASSIGN_OR_RETURN(ContainerReader r, OpenShard(mpath, rec.index, info.count, full));
-    if (r.file_size() != rec.bytes) {
-      return DataLoss(mpath + ": " + name + " is " + std::to_string(r.file_size()) + " bytes; the manifest recorded " +
-                      std::to_string(rec.bytes) + ": it changed after the commit" + rerun);
-    }
     const std::string diff = FirstDifference(WithoutShard(r.metadata().json), metadata_.json);
     if (!diff.empty()) {
       return FailedPrecondition(mpath + ": " + name + " was written with other parameters than the manifest (" +
                                 diff + ")" + rerun);
+    }
+    if (r.file_size() != rec.bytes) {
+      return DataLoss(mpath + ": " + name + " is " + std::to_string(r.file_size()) + " bytes; the manifest recorded " +
+                      std::to_string(rec.bytes) + ": it changed after the commit" + rerun);
     }
     const std::string fp = IndexFingerprint(r);
     if (fp != rec.fingerprint) {
@@ -287,6 +288,10 @@ Status ContainerReader::LoadManifest() {
 Result<CommitResult> CommitShards(const std::string& output, uint64_t count, const CommitOptions& options) {
   if (count == 0 || count > kMaxShards) {
     return InvalidArgument("--nshards " + std::to_string(count) + ": expected 1.." + std::to_string(kMaxShards));
+  }
+  if (count == 1) {
+    return InvalidArgument("--nshards 1: a stage run as one shard writes " + output +
+                           " itself, as a whole container; there is nothing to commit");
   }
   std::vector<std::string> missing;
   for (uint64_t i = 0; i < count; ++i)
