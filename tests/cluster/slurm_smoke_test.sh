@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Smoke test of the local single-node Slurm cluster (scripts/slurm_local.sh),
-# groundwork for sharded bakes (issue 9; not implemented yet).
+# the Slurm behaviour sharded bakes rely on (tests/cluster/slurm_bake_test.sh runs the bakes; not in make test).
 #
 # Starts a cluster in its own directory and port (LTBAKE_SLURM_DIR, default
 # /tmp/ltbake-slurm-test; LTBAKE_SLURM_PORT, default 6837) and always stops it on exit:
