@@ -3,6 +3,8 @@
 - A 3-shard bake gives the same content_hash for every output as the unsharded bake, each
   output a stage manifest; run.json records the engine, the shard count and every shard.
 - A rerun skips every stage; a rerun with another shard count also skips (same content).
+- A shard deleted after the commit: the rerun reruns that shard alone, commits again, and
+  the stages after it are skipped (same content).
 - A shard that fails (its file's path is taken by a directory) fails the run, naming the
   shard, its log and the command that reruns it; once fixed, the rerun runs only that
   shard (the others are "skipped": done in the recorded attempt, fingerprints unchanged).
@@ -90,6 +92,16 @@ spp = 8
     p = run("run", recipe, "--workdir", sh, "--shards", "2")
     check(all(e["action"] == "skip" for e in report(sh).values()),
           f"rerun with another shard count did not skip (same content):\n{p.stdout}")
+
+    # A shard deleted after the commit: the rerun reruns that shard alone and commits again.
+    os.remove(os.path.join(sh, "cols.shards", "00001-of-00003.ltm"))
+    p = run("run", recipe, "--workdir", sh, "--shards", "3")
+    rep = report(sh)
+    st = {s["index"]: s["status"] for s in rep["transpose"].get("shards", [])}
+    check(rep["transpose"]["action"] == "resume" and st == {0: "skipped", 1: "done", 2: "skipped"},
+          f"a deleted shard: transpose {rep['transpose']['action']}, shards {st}\n{p.stdout}")
+    check(rep["column-transform"]["action"] == "skip", "column-transform was redone after transpose's shard came back")
+    check(content_hash(os.path.join(sh, "cols.ltm")) == ref["cols"], "cols.ltm after the shard came back differs")
 
     # --- a failing shard, then a rerun of only that shard ----------------------------------
     fl = os.path.join(tmp, "fail")
