@@ -965,7 +965,7 @@ Result<BakeOutcome> Bake::Run() {
     Decision d = Decide(n, rec, inputs, out, is_forced(n), needed_by.count(n.name) ? needed_by[n.name] : "", needed);
     if (o_.shards > 1 && Shardable(n) && d.action == "redo" && !out.problem.empty() && !is_forced(n) &&
         rec->value("params", json()) == n.params && rec->value("inputs", json()) == inputs) {
-      // A manifest that no longer reads (a shard deleted or damaged): rerun only the shards
+      // A manifest that no longer opens (a shard deleted, truncated, rewritten): rerun only the shards
       // that are not intact, then commit again.
       d.action = "resume";
       d.reason = n.output + " is unreadable (" + out.problem + "); rerunning the shards that are not intact";
