@@ -491,7 +491,7 @@ class WorkdirLock {
 };
 
 std::string Pad(std::string s, size_t w) {
-  if (s.size() < w) s.resize(w, ' ');
+  s.resize(std::max(w, s.size() + 1), ' ');  // a column wider than its field still ends in a space
   return s;
 }
 

@@ -208,7 +208,9 @@ Result<ShardedStep> RunSlurm(const EngineOptions& o, const std::vector<std::stri
     }
     for (uint64_t i : left) runs[i].attempts++;
     const int sig = o.pending_signal ? o.pending_signal() : 0;
-    if (sig != 0 || IsInterruption(*child)) {
+    // Only a signal to this run, or to sbatch itself, interrupts: sbatch --wait exits with
+    // the largest exit code of the tasks, 143 when a task was cancelled (scancel, time limit).
+    if (sig != 0 || child->term_signal == SIGINT || child->term_signal == SIGTERM) {
       // sbatch --wait does not take its job with it: cancel what this run submitted.
       ChildIo quiet;
       quiet.log_path = io.log_path;
