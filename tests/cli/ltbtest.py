@@ -24,6 +24,21 @@ def run(*args, expect=0, timeout=900):
     return p
 
 
+def write(path, text):
+    """Writes a small text file (a recipe, a scene) and returns its path."""
+    with open(path, "w") as f:
+        f.write(text)
+    return path
+
+
+def run_report(workdir):
+    """The run.json of an `ltbake run` work directory."""
+    import json
+    import os
+    with open(os.path.join(workdir, "run.json")) as f:
+        return json.load(f)
+
+
 def finish():
     for f in failures:
         print(f)

@@ -25,7 +25,7 @@ import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ltbtest import LTBAKE, check, finish, run  # noqa: E402
+from ltbtest import LTBAKE, check, finish, run, run_report, write  # noqa: E402
 
 REPO = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 TINY = os.path.join(REPO, "samples", "tiny.toml")
@@ -33,15 +33,8 @@ OUTPUTS = ["rows", "cols", "cols4d", "final"]
 NODES = ["sample+row-transform", "transpose", "column-transform", "quantize"]
 
 
-def write(path, text):
-    with open(path, "w") as f:
-        f.write(text)
-    return path
-
-
 def report(workdir):
-    with open(os.path.join(workdir, "run.json")) as f:
-        return {s["node"]: s for s in json.load(f)["stages"]}
+    return {s["node"]: s for s in run_report(workdir)["stages"]}
 
 
 def content_hash(path):

@@ -24,21 +24,13 @@ import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ltbtest import LTBAKE, check, finish, run  # noqa: E402
+from ltbtest import LTBAKE, check, finish, run, run_report, write  # noqa: E402
 
 REPO = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 TINY = os.path.join(REPO, "samples", "tiny.toml")
 
 
-def write(path, text):
-    with open(path, "w") as f:
-        f.write(text)
-    return path
-
-
-def report(workdir):
-    with open(os.path.join(workdir, "run.json")) as f:
-        return json.load(f)
+report = run_report
 
 
 def actions(workdir, nodes):
