@@ -38,23 +38,23 @@ class RunCommand : public Command {
         ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll)
         ->default_str("all");
     app->add_flag("--dry-run", options_.dry_run, "print the plan (what runs and why) and change nothing");
-    app->add_option("--engine", options_.engine,
+    app->add_option("--engine", options_.cluster.engine,
                     "where shards run: local (a process pool) or slurm (one job array per stage, sbatch --wait)")
         ->default_val("local")
         ->check(CLI::IsMember({"local", "slurm"}));
-    app->add_option("--shards", options_.shards,
+    app->add_option("--shards", options_.cluster.shards,
                     "split every matrix stage (not cpca, relight) into N shards, committed as a manifest "
                     "(docs/cluster.md)")
         ->default_val(1)
         ->check(CLI::Range(uint64_t{1}, format::kMaxShards));
-    app->add_option("--partition", options_.partition, "slurm: partition to submit to");
-    app->add_option("--cpus-per-task", options_.cpus_per_task, "slurm: CPUs per shard (default: --jobs)")
+    app->add_option("--partition", options_.cluster.partition, "slurm: partition to submit to");
+    app->add_option("--cpus-per-task", options_.cluster.cpus_per_task, "slurm: CPUs per shard (default: --jobs)")
         ->check(CLI::Range(1, 4096));
-    app->add_option("--mem", options_.mem, "slurm: memory per shard, as sbatch --mem takes it (e.g. 4G)");
-    app->add_option("--sbatch-arg", options_.sbatch_args,
+    app->add_option("--mem", options_.cluster.mem, "slurm: memory per shard, as sbatch --mem takes it (e.g. 4G)");
+    app->add_option("--sbatch-arg", options_.cluster.sbatch_args,
                     "slurm: one more sbatch argument, e.g. --sbatch-arg=--time=2:00:00 (repeatable)")
         ->allow_extra_args(false);
-    app->add_option("--retries", options_.retries, "slurm: resubmit failed shards up to this many times")
+    app->add_option("--retries", options_.cluster.retries, "slurm: resubmit failed shards up to this many times")
         ->default_val(2)
         ->check(CLI::Range(0, 100));
     AddCommonFlags(app, &flags_);

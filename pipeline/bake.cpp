@@ -570,7 +570,7 @@ std::vector<std::string> Bake::Command(const Node& n, bool overwrite) const {
 int Bake::RunSharded(const Node& n, const json* record, bool trust_record, bool overwrite, json& e,
                      std::string* content_hash, std::string* failure) {
   const std::string out_path = Path(n.output);
-  const uint64_t count = o_.shards;
+  const uint64_t count = o_.cluster.shards;
   // The stage command of every shard: Command() without --jobs (each engine sets it).
   std::vector<std::string> stage = {o_.ltbake};
   stage.insert(stage.end(), n.args.begin(), n.args.end());
@@ -579,7 +579,7 @@ int Bake::RunSharded(const Node& n, const json* record, bool trust_record, bool 
   // A transpose shard reads a slice of every row block; its checksum pass would read all
   // of them, in every shard. The commit of its input has just checked every checksum.
   if (n.stages.front() == "transpose") stage.push_back("--no-verify-input");
-  e["engine"] = o_.engine;
+  e["engine"] = o_.cluster.engine;
   e["nshards"] = count;
   e["command"] = ShellQuote(stage) + " --shard I --nshards " + std::to_string(count) + " --jobs J";
 
@@ -601,19 +601,13 @@ int Bake::RunSharded(const Node& n, const json* record, bool trust_record, bool 
   for (uint64_t i = 0; i < count; ++i)
     if (!done_before.count(i)) todo.push_back(i);
   if (o_.say && !o_.quiet) {
-    o_.say("   " + std::to_string(todo.size()) + " of " + std::to_string(count) + " shards to run (" + o_.engine +
-           " engine)" + (done_before.empty() ? "" : ", " + std::to_string(done_before.size()) + " done before"));
+    o_.say("   " + std::to_string(todo.size()) + " of " + std::to_string(count) + " shards to run (" +
+           o_.cluster.engine + " engine)" +
+           (done_before.empty() ? "" : ", " + std::to_string(done_before.size()) + " done before"));
   }
-  EngineOptions eo;
-  eo.engine = o_.engine;
-  eo.shards = count;
+  EngineOptions eo = o_.cluster;
   eo.jobs = o_.jobs;
-  eo.partition = o_.partition;
-  eo.cpus_per_task = o_.cpus_per_task;
-  eo.mem = o_.mem;
-  eo.sbatch_args = o_.sbatch_args;
-  eo.retries = o_.retries;
-  if (!o_.quiet) eo.say = o_.say;
+  eo.say = o_.quiet ? nullptr : o_.say;
   eo.pending_signal = o_.pending_signal;
   std::error_code ec;
   fs::create_directories(Path("logs"), ec);
@@ -641,7 +635,7 @@ int Bake::RunSharded(const Node& n, const json* record, bool trust_record, bool 
   for (const ShardRun& r : ran->shards) {
     json j = {{"index", r.index}, {"status", r.status}, {"attempts", r.attempts}, {"log", r.log},
               {"exit_code", r.exit_code}};
-    if (o_.engine == "local") {
+    if (o_.cluster.engine == "local") {
       j["wall_seconds"] = r.wall_seconds;
       j["peak_rss_bytes"] = r.peak_rss_bytes;
     }
@@ -654,7 +648,7 @@ int Bake::RunSharded(const Node& n, const json* record, bool trust_record, bool 
   }
   for (auto& [i, j] : by_index) shards.push_back(j);
   e["shards"] = shards;
-  if (o_.engine == "local") e["peak_rss_bytes"] = peak;
+  if (o_.cluster.engine == "local") e["peak_rss_bytes"] = peak;
   if (!ran->submit_commands.empty()) e["submissions"] = ran->submit_commands;
   if (ran->interrupted) {
     e["status"] = "interrupted";
@@ -690,7 +684,8 @@ int Bake::RunSharded(const Node& n, const json* record, bool trust_record, bool 
     return 1;
   }
   if (o_.say && !o_.quiet) {
-    o_.say("   committed " + out_path + ": " + std::to_string(count) + " shards, content_hash " + committed->content_hash);
+    o_.say("   committed " + out_path + ": " + std::to_string(count) + " shards, content_hash " +
+           committed->content_hash);
   }
   *content_hash = committed->content_hash;
   return 0;
@@ -963,7 +958,7 @@ Result<BakeOutcome> Bake::Run() {
     const json* rec = previous_.count(n.name) ? &previous_[n.name] : nullptr;
     bool needed = needed_by.count(n.name) > 0 || g_.wanted.count(n.output) > 0;
     Decision d = Decide(n, rec, inputs, out, is_forced(n), needed_by.count(n.name) ? needed_by[n.name] : "", needed);
-    if (o_.shards > 1 && Shardable(n) && d.action == "redo" && !out.problem.empty() && !is_forced(n) &&
+    if (o_.cluster.shards > 1 && Shardable(n) && d.action == "redo" && !out.problem.empty() && !is_forced(n) &&
         rec->value("params", json()) == n.params && rec->value("inputs", json()) == inputs) {
       // A manifest that no longer opens (a shard deleted, truncated, rewritten): rerun only the shards
       // that are not intact, then commit again.
@@ -1018,9 +1013,10 @@ Result<BakeOutcome> Bake::Run() {
     json& e = entries_.back();
     int sig = 0;
     std::string known_hash;  // a sharded step's, from its commit
-    if (o_.shards > 1 && Shardable(n)) {
+    if (o_.cluster.shards > 1 && Shardable(n)) {
       const bool trust = rec != nullptr && d.action != "redo" && (*rec).value("params", json()) == n.params &&
-                         (*rec).value("inputs", json()) == inputs && (*rec).value("nshards", uint64_t{0}) == o_.shards;
+                         (*rec).value("inputs", json()) == inputs &&
+                         (*rec).value("nshards", uint64_t{0}) == o_.cluster.shards;
       int code = RunSharded(n, rec, trust, overwrite, e, &known_hash, &outcome.failure);
       if (code != 0) return finish(code == 1 ? "failed" : "interrupted", code);
       sig = o_.pending_signal ? o_.pending_signal() : 0;

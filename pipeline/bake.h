@@ -14,6 +14,7 @@
 #include <nlohmann/json.hpp>
 
 #include "format/status.h"
+#include "pipeline/shards.h"
 
 namespace ltb::pipeline {
 
@@ -28,15 +29,10 @@ struct BakeOptions {
   bool progress = false;            // ask stages to draw progress bars (forwarded to stderr)
   bool quiet = false;
   std::string ltbake;               // the ltbake executable stages are run with
-  // Sharding (docs/cluster.md): stages other than cpca and relight run as `shards` shards
-  // through `engine` ("local": a process pool; "slurm": job arrays), then are committed.
-  std::string engine = "local";
-  uint64_t shards = 1;
-  std::string partition;            // slurm: --partition
-  int cpus_per_task = 0;            // slurm: --cpus-per-task (0: --jobs)
-  std::string mem;                  // slurm: --mem per task
-  std::vector<std::string> sbatch_args;  // slurm: more sbatch arguments
-  int retries = 2;                  // slurm: resubmissions of failed shards
+  // Sharding (docs/cluster.md): with shards > 1, stages other than cpca and relight run as
+  // shards through the engine ("local": a process pool; "slurm": job arrays), then are
+  // committed. jobs, say and pending_signal are taken from these options.
+  EngineOptions cluster;
   // Where messages go (the library does not print): say() for stdout, stage output is
   // passed on through stage_stdout()/stage_stderr().
   std::function<void(const std::string&)> say;

@@ -231,7 +231,8 @@ Result<ShardedStep> RunSlurm(const EngineOptions& o, const std::vector<std::stri
         failed.push_back(i);
       }
     }
-    if (failed.size() == left.size() && child->exit_code != 0 && sbatch_err.find("sbatch: error") != std::string::npos) {
+    const bool refused = sbatch_err.find("sbatch: error") != std::string::npos;
+    if (failed.size() == left.size() && child->exit_code != 0 && refused) {
       // Nothing ran: the submission itself was refused (a bad partition, --mem, ...).
       for (uint64_t i : failed) runs[i].errors = {sbatch_err.substr(0, sbatch_err.find_last_not_of('\n') + 1)};
       break;

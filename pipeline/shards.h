@@ -12,7 +12,6 @@
 #include <cstdint>
 #include <functional>
 #include <string>
-#include <string_view>
 #include <vector>
 
 #include "format/status.h"
@@ -23,6 +22,7 @@ struct EngineOptions {
   std::string engine = "local";  // local | slurm
   uint64_t shards = 1;
   int jobs = 2;                  // local: threads in all, split among the processes running at once
+                                 // (set from BakeOptions::jobs)
   // slurm
   std::string partition;
   int cpus_per_task = 0;         // 0: jobs
@@ -30,8 +30,8 @@ struct EngineOptions {
   std::vector<std::string> sbatch_args;
   int retries = 2;               // resubmissions of failed shards
   std::string sbatch = "sbatch", scancel = "scancel";
+  // Set from BakeOptions by `ltbake run`:
   std::function<void(const std::string&)> say;
-  std::function<void(std::string_view)> stage_stdout, stage_stderr;
   std::function<int()> pending_signal;
 };
 
