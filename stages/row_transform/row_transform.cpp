@@ -14,6 +14,7 @@
 #include "format/io/container_writer.h"
 #include "stages/common/basis.h"
 #include "stages/common/parallel_for.h"
+#include "stages/wavelet/face_kernel.h"
 
 namespace ltb::stages {
 
@@ -103,10 +104,16 @@ bool RowIsZero(const float* row, uint64_t n) {
 
 }  // namespace
 
-size_t RowBlockScratchSize(uint64_t r) { return 6 * r * r * kLanes + wavelet::ScratchSize(r, r, kLanes); }
+size_t RowBlockScratchSize(uint64_t r) {
+  return std::max<size_t>(6 * r * r * kLanes + wavelet::ScratchSize(r, r, kLanes), wavelet::FaceScratchSize(r));
+}
 
-void TransformRowBlock(wavelet::Filter filter, uint64_t r, float* data, uint64_t rows, float* scratch,
-                       uint64_t* zero_rows) {
+namespace {
+
+// The generic path (any filter and R): kLanes rows at a time as the lanes of
+// wavelet::Forward2D, through a transpose in and out. In place.
+void TransformRowBlockLanes(wavelet::Filter filter, uint64_t r, float* data, uint64_t rows, float* scratch,
+                            uint64_t* zero_rows) {
   const uint64_t cols = 6 * r * r;
   const int depth = wavelet::MaxDepth(r, r);
   float* lanes = scratch;                       // [column][lane]
@@ -135,6 +142,37 @@ void TransformRowBlock(wavelet::Filter filter, uint64_t r, float* data, uint64_t
     }
     Scatter(lanes, n, cols, ptrs);
   }
+}
+
+}  // namespace
+
+void TransformRows(wavelet::Filter filter, uint64_t r, const float* src, float* dst, uint64_t rows, float* scratch,
+                   uint64_t* zero_rows) {
+  const uint64_t cols = 6 * r * r;
+  if (!wavelet::HasFaceKernel(filter, r)) {  // decided by (filter, R) alone: every row takes the same path
+    if (src != dst) std::memcpy(dst, src, rows * cols * sizeof(float));
+    TransformRowBlockLanes(filter, r, dst, rows, scratch, zero_rows);
+    return;
+  }
+  // One row, one face at a time, straight from src to dst: bit-identical to the lanes path
+  // (face_kernel.h), without the transposes and copies.
+  for (uint64_t i = 0; i < rows; ++i) {
+    const float* in = src + i * cols;
+    float* out = dst + i * cols;
+    if (RowIsZero(in, cols)) {
+      ++*zero_rows;  // the transform of zero is zero
+      if (out != in) std::memset(out, 0, cols * sizeof(float));
+      continue;
+    }
+    for (uint64_t face = 0; face < 6; ++face) {
+      wavelet::ForwardFace(filter, r, in + face * r * r, out + face * r * r, scratch);
+    }
+  }
+}
+
+void TransformRowBlock(wavelet::Filter filter, uint64_t r, float* data, uint64_t rows, float* scratch,
+                       uint64_t* zero_rows) {
+  TransformRows(filter, r, data, data, rows, scratch, zero_rows);
 }
 
 Result<RowTransformResult> RunRowTransform(const RowTransformOptions& o, const Progress& progress) {
@@ -209,10 +247,11 @@ Result<RowTransformResult> RunRowTransform(const RowTransformOptions& o, const P
     }
     thread_local std::vector<float> buf, scratch;
     auto values = chunk.as<float>();
-    buf.assign(values.begin(), values.end());
+    buf.resize(values.size());
     scratch.resize(RowBlockScratchSize(cc.cube_res));
     uint64_t zr = 0;
-    TransformRowBlock(o.filter, cc.cube_res, buf.data(), chunk.extent().rows, scratch.data(), &zr);
+    // Straight from the mapped chunk into the output buffer: no copy first.
+    TransformRows(o.filter, cc.cube_res, values.data(), buf.data(), chunk.extent().rows, scratch.data(), &zr);
     zero_rows += zr;
     LTB_RETURN_IF_ERROR(out.Put(0, it.chunk, ByteSpan(reinterpret_cast<const std::byte*>(buf.data()), buf.size() * 4), eo));
     written++;

@@ -34,9 +34,14 @@ struct RowTransformResult {
 
 Result<RowTransformResult> RunRowTransform(const RowTransformOptions& options, const Progress& progress);
 
-// The transform of one row block in place: `rows` rows of 6·R² values (row-major).
-// Exposed for benchmarks and tests. Scratch: see RowBlockScratchSize.
+// The transform of one row block: `rows` rows of 6·R² values (row-major), from src to
+// dst (TransformRows; src == dst allowed, no other overlap) or in place
+// (TransformRowBlock). All-zero rows are counted in *zero_rows and written as zeros. A
+// row's result depends only on its own values, the filter and R (not on the other rows of
+// the block). Exposed for benchmarks and tests. Scratch: see RowBlockScratchSize.
 size_t RowBlockScratchSize(uint64_t cube_res);
+void TransformRows(wavelet::Filter filter, uint64_t cube_res, const float* src, float* dst, uint64_t rows,
+                   float* scratch, uint64_t* zero_rows);
 void TransformRowBlock(wavelet::Filter filter, uint64_t cube_res, float* rows_data, uint64_t rows, float* scratch,
                        uint64_t* zero_rows);
 

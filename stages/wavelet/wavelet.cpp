@@ -240,6 +240,11 @@ const char* FilterName(Filter f) {
 
 bool IsOrthonormal(Filter f) { return f != Filter::kLeGall53 && f != Filter::kCdf97; }
 
+std::span<const double> OrthoLowPass(Filter f) {
+  Taps t = OrthoTaps(f);
+  return {t.lo, static_cast<size_t>(t.size)};
+}
+
 int MaxDepth(size_t width, size_t height) {
   int d = 0;
   while (width > 1 || height > 1) {

@@ -17,6 +17,7 @@
 #pragma once
 
 #include <cstddef>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -30,6 +31,9 @@ enum class Filter { kHaar, kDb2, kDb3, kDb4, kLeGall53, kCdf97 };
 Result<Filter> ParseFilter(const std::string& name);
 const char* FilterName(Filter f);
 bool IsOrthonormal(Filter f);
+// Analysis low-pass taps of an orthonormal filter as PyWavelets defines them (dec_lo;
+// dec_hi[j] = (-1)^(j+1) dec_lo[F-1-j]); empty for the biorthogonal ones.
+std::span<const double> OrthoLowPass(Filter f);
 
 inline size_t LowCount(size_t n) { return (n + 1) / 2; }
 
