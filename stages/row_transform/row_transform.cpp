@@ -144,6 +144,22 @@ void TransformRowBlockLanes(wavelet::Filter filter, uint64_t r, float* data, uin
   }
 }
 
+// Faces ahead whose source and destination lines are requested while one is transformed:
+// the kernel reads a face once and writes it once, so the hardware prefetcher alone leaves
+// it waiting on memory (the destination's write-allocate reads above all).
+constexpr uint64_t kPrefetchFaces = 2;
+
+// Requests the cache lines of src[at, at + n) (to read) and dst[at, at + n) (to write),
+// clipped to [0, total).
+inline void Prefetch(const float* src, float* dst, uint64_t at, uint64_t n, uint64_t total) {
+  if (at >= total) return;
+  const uint64_t end = std::min(total, at + n);
+  for (uint64_t k = at; k < end; k += 16) {
+    __builtin_prefetch(src + k, 0, 3);
+    __builtin_prefetch(dst + k, 1, 3);
+  }
+}
+
 }  // namespace
 
 void TransformRows(wavelet::Filter filter, uint64_t r, const float* src, float* dst, uint64_t rows, float* scratch,
@@ -165,6 +181,7 @@ void TransformRows(wavelet::Filter filter, uint64_t r, const float* src, float* 
       continue;
     }
     for (uint64_t face = 0; face < 6; ++face) {
+      Prefetch(src, dst, (i * 6 + face + kPrefetchFaces) * r * r, r * r, rows * cols);
       wavelet::ForwardFace(filter, r, in + face * r * r, out + face * r * r, scratch);
     }
   }
