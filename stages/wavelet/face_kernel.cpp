@@ -31,13 +31,15 @@ Coefs<F> MakeCoefs(std::span<const double> taps) {
   return c;
 }
 
-// One level in portable code, for any band side w >= 2 (a power of two).
+// Every level function takes its band side as a template argument W (a power of two, fully
+// unrolled loops) or, with W = 0, as the run-time argument w.
+//
 // Row step: the w rows of `in` (row y at in + y * in_stride) into h (w × w, packed): each
 // row's low half then its high half. Column step: from h, the low-low quadrant to `ll`
 // (stride ll_stride), the other three to dst (stride dst_stride) at their Mallat places.
-template <int F>
-void RowStepScalar(const Coefs<F>& c, const float* in, size_t in_stride, size_t w, float* h) {
-  const size_t half = w / 2, mask = w - 1;
+template <int F, size_t W>
+void RowStepScalar(const Coefs<F>& c, const float* in, size_t in_stride, size_t w_rt, float* h) {
+  const size_t w = W ? W : w_rt, half = w / 2, mask = w - 1;
   for (size_t y = 0; y < w; ++y) {
     const float* row = in + y * in_stride;
     float* out = h + y * w;
@@ -54,10 +56,10 @@ void RowStepScalar(const Coefs<F>& c, const float* in, size_t in_stride, size_t 
   }
 }
 
-template <int F>
-void ColumnStepScalar(const Coefs<F>& c, const float* h, size_t w, float* ll, size_t ll_stride, float* dst,
+template <int F, size_t W>
+void ColumnStepScalar(const Coefs<F>& c, const float* h, size_t w_rt, float* ll, size_t ll_stride, float* dst,
                       size_t dst_stride) {
-  const size_t half = w / 2, mask = w - 1;
+  const size_t w = W ? W : w_rt, half = w / 2, mask = w - 1;
   for (size_t o = 0; o < half; ++o) {
     const float* rows[F];
     for (int j = 0; j < F; ++j) rows[j] = h + ((2 * o + w * 4 + TapOffset(F, j)) & mask) * w;
@@ -113,7 +115,9 @@ template <int F, int J = 0>
 inline void AccumulateRow(const VecCoefs<F>& c, const __m256* e, const __m256* od, size_t m, size_t nv, __m256& a,
                           __m256& d) {
   if constexpr (J < F) {
-    const __m256 x = TapIsOdd(F, J) ? Shifted<TapShift(F, J)>(od, m, nv) : Shifted<TapShift(F, J)>(e, m, nv);
+    __m256 x;
+    if constexpr (TapIsOdd(F, J)) x = Shifted<TapShift(F, J)>(od, m, nv);
+    else x = Shifted<TapShift(F, J)>(e, m, nv);
     a = _mm256_add_ps(a, _mm256_mul_ps(c.lo[J], x));
     d = _mm256_add_ps(d, _mm256_mul_ps(c.hi[J], x));
     AccumulateRow<F, J + 1>(c, e, od, m, nv, a, d);
@@ -122,12 +126,13 @@ inline void AccumulateRow(const VecCoefs<F>& c, const __m256* e, const __m256* o
 
 // Row step for w >= 16: per row, deinterleave into even and odd vectors, then each tap is
 // a (shifted) whole vector.
-template <int F>
-void RowStepWide(const VecCoefs<F>& c, const float* in, size_t in_stride, size_t w, float* h) {
-  const size_t nv = w / 16, half = w / 2;
-  __m256 e[kMaxFaceRes / 16], od[kMaxFaceRes / 16];
+template <int F, size_t W>
+void RowStepWide(const VecCoefs<F>& c, const float* in, size_t in_stride, size_t w_rt, float* h) {
+  const size_t w = W ? W : w_rt, nv = w / 16, half = w / 2;
+  __m256 e[W ? W / 16 : kMaxFaceRes / 16], od[W ? W / 16 : kMaxFaceRes / 16];
   for (size_t y = 0; y < w; ++y) {
     const float* row = in + y * in_stride;
+#pragma GCC unroll 8
     for (size_t m = 0; m < nv; ++m) {
       const __m256 p = _mm256_loadu_ps(row + 16 * m), q = _mm256_loadu_ps(row + 16 * m + 8);
       // [x0 x2 x8 x10 | x4 x6 x12 x14] -> [x0 x2 x4 x6 | x8 x10 x12 x14], same for odd.
@@ -137,6 +142,7 @@ void RowStepWide(const VecCoefs<F>& c, const float* in, size_t in_stride, size_t
       od[m] = _mm256_castpd_ps(_mm256_permute4x64_pd(_mm256_castps_pd(to), _MM_SHUFFLE(3, 1, 2, 0)));
     }
     float* out = h + y * w;
+#pragma GCC unroll 8
     for (size_t m = 0; m < nv; ++m) {
       __m256 a = _mm256_setzero_ps(), d = _mm256_setzero_ps();
       AccumulateRow<F>(c, e, od, m, nv, a, d);
@@ -167,6 +173,7 @@ inline void AccumulateRow8(const VecCoefs<F>& c, __m256 e, __m256 od, __m256& a,
 // samples each, so the periodic shifts stay inside a half.
 template <int F>
 void RowStep8(const VecCoefs<F>& c, const float* in, size_t in_stride, float* h) {
+#pragma GCC unroll 4
   for (size_t y = 0; y < 8; y += 2) {
     const __m256 r0 = _mm256_loadu_ps(in + y * in_stride), r1 = _mm256_loadu_ps(in + (y + 1) * in_stride);
     const __m256 p = _mm256_permute2f128_ps(r0, r1, 0x20), q = _mm256_permute2f128_ps(r0, r1, 0x31);
@@ -179,16 +186,63 @@ void RowStep8(const VecCoefs<F>& c, const float* in, size_t in_stride, float* h)
   }
 }
 
-// Column step for w >= 8: each output row pair is F whole rows of h, 8 columns at a time.
+template <int F, int J = 0>
+inline void AccumulateRow4(const VecCoefs<F>& c, __m256 e, __m256 e1, __m256 od, __m256 od1, __m256& a,
+                           __m256& d) {
+  if constexpr (J < F) {
+    constexpr bool kOdd = TapIsOdd(F, J), kShifted = (TapShift(F, J) & 1) != 0;
+    const __m256 x = kOdd ? (kShifted ? od1 : od) : (kShifted ? e1 : e);
+    a = _mm256_add_ps(a, _mm256_mul_ps(c.lo[J], x));
+    d = _mm256_add_ps(d, _mm256_mul_ps(c.hi[J], x));
+    AccumulateRow4<F, J + 1>(c, e, e1, od, od1, a, d);
+  }
+}
+
+// Row step for w = 4 on a packed band (in_stride 4): two rows per vector, two even and two
+// odd samples each (duplicated), so a periodic shift by one swaps them.
 template <int F>
-void ColumnStepVec(const VecCoefs<F>& c, const float* h, size_t w, float* ll, size_t ll_stride, float* dst,
+void RowStep4(const VecCoefs<F>& c, const float* in, float* h) {
+#pragma GCC unroll 2
+  for (size_t y = 0; y < 4; y += 2) {
+    const __m256 v = _mm256_loadu_ps(in + y * 4);
+    const __m256 e = _mm256_shuffle_ps(v, v, _MM_SHUFFLE(2, 0, 2, 0));
+    const __m256 e1 = _mm256_shuffle_ps(v, v, _MM_SHUFFLE(0, 2, 0, 2));
+    const __m256 od = _mm256_shuffle_ps(v, v, _MM_SHUFFLE(3, 1, 3, 1));
+    const __m256 od1 = _mm256_shuffle_ps(v, v, _MM_SHUFFLE(1, 3, 1, 3));
+    __m256 a = _mm256_setzero_ps(), d = _mm256_setzero_ps();
+    AccumulateRow4<F>(c, e, e1, od, od1, a, d);
+    _mm256_storeu_ps(h + y * 4, _mm256_shuffle_ps(a, d, _MM_SHUFFLE(1, 0, 1, 0)));
+  }
+}
+
+// Column step for w = 4: a band row is one 128-bit vector.
+template <int F>
+void ColumnStep4(const VecCoefs<F>& c, const float* h, float* ll, size_t ll_stride, float* dst, size_t dst_stride) {
+#pragma GCC unroll 2
+  for (size_t o = 0; o < 2; ++o) {
+    __m128 a = _mm_setzero_ps(), d = _mm_setzero_ps();
+    for (int j = 0; j < F; ++j) {
+      const __m128 v = _mm_loadu_ps(h + ((2 * o + 16 + TapOffset(F, j)) & 3) * 4);
+      a = _mm_add_ps(a, _mm_mul_ps(_mm256_castps256_ps128(c.lo[j]), v));
+      d = _mm_add_ps(d, _mm_mul_ps(_mm256_castps256_ps128(c.hi[j]), v));
+    }
+    _mm_storel_pi(reinterpret_cast<__m64*>(ll + o * ll_stride), a);
+    _mm_storeh_pi(reinterpret_cast<__m64*>(dst + o * dst_stride + 2), a);
+    _mm_storeu_ps(dst + (2 + o) * dst_stride, d);
+  }
+}
+
+// Column step for w >= 8: each output row pair is F whole rows of h, 8 columns at a time.
+template <int F, size_t W>
+void ColumnStepVec(const VecCoefs<F>& c, const float* h, size_t w_rt, float* ll, size_t ll_stride, float* dst,
                    size_t dst_stride) {
-  const size_t half = w / 2, mask = w - 1;
+  const size_t w = W ? W : w_rt, half = w / 2, mask = w - 1;
   for (size_t o = 0; o < half; ++o) {
     const float* rows[F];
     for (int j = 0; j < F; ++j) rows[j] = h + ((2 * o + w * 4 + TapOffset(F, j)) & mask) * w;
     float* lo_row = dst + o * dst_stride;
     float* hi_row = dst + (half + o) * dst_stride;
+#pragma GCC unroll 16
     for (size_t x = 0; x < w; x += 8) {
       __m256 a = _mm256_setzero_ps(), d = _mm256_setzero_ps();
       for (int j = 0; j < F; ++j) {
@@ -211,47 +265,112 @@ void ColumnStepVec(const VecCoefs<F>& c, const float* h, size_t w, float* ll, si
 #endif
 
 template <int F>
-void ForwardFaceT(const Coefs<F>& c, size_t r, const float* src, float* dst, float* scratch) {
-  if (r == 1) {
-    dst[0] = src[0];
-    return;
-  }
+struct Kernel {
+  Coefs<F> c;
 #if defined(__AVX2__)
-  const VecCoefs<F> vc(c);
+  VecCoefs<F> v;
+  explicit Kernel(const Coefs<F>& coefs) : c(coefs), v(coefs) {}
+#else
+  explicit Kernel(const Coefs<F>& coefs) : c(coefs) {}
 #endif
-  float* h = scratch;
-  float* low[2] = {scratch + r * r, scratch + r * r + (r / 2) * (r / 2)};
-  const float* in = src;
-  size_t in_stride = r;
-  int p = 0;
-  // Level 0 reads all of src into h before anything is written to dst, and later levels
-  // read only scratch: src == dst is safe.
-  for (size_t w = r; w >= 2; w /= 2, p ^= 1) {
-    float* ll = w == 2 ? dst : low[p];  // the last low band is the single value dst[0]
-    const size_t ll_stride = w == 2 ? r : w / 2;
+};
+
+// One level on a w × w band (W compile-time, or 0 and w at run time).
+template <int F, size_t W>
+inline void Level(const Kernel<F>& k, const float* in, size_t in_stride, size_t w, float* h, float* ll,
+                  size_t ll_stride, float* dst, size_t dst_stride) {
 #if defined(__AVX2__)
+  if constexpr (W == 0 || W >= 16) {
     if (w >= 16) {
-      RowStepWide<F>(vc, in, in_stride, w, h);
-      ColumnStepVec<F>(vc, h, w, ll, ll_stride, dst, r);
-    } else if (w == 8) {
-      RowStep8<F>(vc, in, in_stride, h);
-      ColumnStepVec<F>(vc, h, w, ll, ll_stride, dst, r);
-    } else
-#endif
-    {
-      RowStepScalar<F>(c, in, in_stride, w, h);
-      ColumnStepScalar<F>(c, h, w, ll, ll_stride, dst, r);
+      RowStepWide<F, W>(k.v, in, in_stride, w, h);
+      ColumnStepVec<F, W>(k.v, h, w, ll, ll_stride, dst, dst_stride);
+      return;
     }
-    in = ll;
-    in_stride = ll_stride;
+  }
+  if constexpr (W == 0 || W == 8) {
+    if (w == 8) {
+      RowStep8<F>(k.v, in, in_stride, h);
+      ColumnStepVec<F, 8>(k.v, h, w, ll, ll_stride, dst, dst_stride);
+      return;
+    }
+  }
+  if constexpr (W == 0 || W == 4) {
+    if (w == 4 && in_stride == 4) {
+      RowStep4<F>(k.v, in, h);
+      ColumnStep4<F>(k.v, h, ll, ll_stride, dst, dst_stride);
+      return;
+    }
+  }
+#endif
+  RowStepScalar<F, W>(k.c, in, in_stride, w, h);
+  ColumnStepScalar<F, W>(k.c, h, w, ll, ll_stride, dst, dst_stride);
+}
+
+// Levels from band side W (compile-time) down to 1; the input band is `in`.
+template <int F, size_t R, size_t W>
+inline void LevelsFrom(const Kernel<F>& k, const float* in, size_t in_stride, float* dst, float* h, float* low0,
+                       float* low1) {
+  if constexpr (W >= 2) {
+    float* ll = W == 2 ? dst : low0;  // the last low band is the single value dst[0]
+    constexpr size_t ll_stride = W == 2 ? R : W / 2;
+    Level<F, W>(k, in, in_stride, W, h, ll, ll_stride, dst, R);
+    LevelsFrom<F, R, W / 2>(k, ll, ll_stride, dst, h, low1, low0);
+  }
+}
+
+// `count` consecutive r × r faces. Level 0 reads all of a source face into h before anything
+// is written to its destination, and later levels read only scratch: src == dst is safe.
+template <int F, size_t R>
+void FacesT(const Kernel<F>& k, size_t r_rt, size_t count, const float* src, float* dst, float* scratch) {
+  const size_t r = R ? R : r_rt, area = r * r;
+  float* h = scratch;
+  float* low0 = scratch + area;
+  float* low1 = low0 + (r / 2) * (r / 2);
+  for (size_t i = 0; i < count; ++i) {
+    // Request the face two ahead (lines to read and lines to write): the hardware
+    // prefetcher alone leaves the kernel waiting on memory, the destination's
+    // write-allocate reads above all.
+    if (i + 2 < count) {
+      for (size_t q = (i + 2) * area; q < (i + 3) * area; q += 16) {
+        __builtin_prefetch(src + q, 0, 3);
+        __builtin_prefetch(dst + q, 1, 3);
+      }
+    }
+    const float* in = src + i * area;
+    float* out = dst + i * area;
+    if constexpr (R != 0) {
+      LevelsFrom<F, R, R>(k, in, R, out, h, low0, low1);
+    } else {
+      if (r == 1) {
+        out[0] = in[0];
+        continue;
+      }
+      size_t in_stride = r;
+      float* low[2] = {low0, low1};
+      int p = 0;
+      for (size_t w = r; w >= 2; w /= 2, p ^= 1) {
+        float* ll = w == 2 ? out : low[p];
+        const size_t ll_stride = w == 2 ? r : w / 2;
+        Level<F, 0>(k, in, in_stride, w, h, ll, ll_stride, out, r);
+        in = ll;
+        in_stride = ll_stride;
+      }
+    }
   }
 }
 
 template <int F>
-const Coefs<F>& CoefsFor(Filter f) {
-  // One table per tap count; the filters of a tap count are a single one.
-  static const Coefs<F> c = MakeCoefs<F>(OrthoLowPass(f));
-  return c;
+void FacesFor(std::span<const double> taps, size_t r, size_t count, const float* src, float* dst, float* scratch) {
+  // One filter per tap count: the table is built once.
+  static const Kernel<F> k(MakeCoefs<F>(taps));
+  switch (r) {
+    case 8: return FacesT<F, 8>(k, r, count, src, dst, scratch);
+    case 16: return FacesT<F, 16>(k, r, count, src, dst, scratch);
+    case 32: return FacesT<F, 32>(k, r, count, src, dst, scratch);
+    case 64: return FacesT<F, 64>(k, r, count, src, dst, scratch);
+    case 128: return FacesT<F, 128>(k, r, count, src, dst, scratch);
+    default: return FacesT<F, 0>(k, r, count, src, dst, scratch);
+  }
 }
 
 bool IsPowerOfTwo(size_t v) { return v != 0 && (v & (v - 1)) == 0; }
@@ -260,14 +379,18 @@ bool IsPowerOfTwo(size_t v) { return v != 0 && (v & (v - 1)) == 0; }
 
 bool HasFaceKernel(Filter f, size_t r) { return IsOrthonormal(f) && IsPowerOfTwo(r) && r <= kMaxFaceRes; }
 
-void ForwardFace(Filter f, size_t r, const float* src, float* dst, float* scratch) {
-  switch (f) {
-    case Filter::kHaar: return ForwardFaceT<2>(CoefsFor<2>(f), r, src, dst, scratch);
-    case Filter::kDb2: return ForwardFaceT<4>(CoefsFor<4>(f), r, src, dst, scratch);
-    case Filter::kDb3: return ForwardFaceT<6>(CoefsFor<6>(f), r, src, dst, scratch);
-    case Filter::kDb4: return ForwardFaceT<8>(CoefsFor<8>(f), r, src, dst, scratch);
-    default: return;
+void ForwardFaces(Filter f, size_t r, size_t count, const float* src, float* dst, float* scratch) {
+  const auto taps = OrthoLowPass(f);
+  switch (taps.size()) {
+    case 2: return FacesFor<2>(taps, r, count, src, dst, scratch);
+    case 4: return FacesFor<4>(taps, r, count, src, dst, scratch);
+    case 6: return FacesFor<6>(taps, r, count, src, dst, scratch);
+    case 8: return FacesFor<8>(taps, r, count, src, dst, scratch);
   }
+}
+
+void ForwardFace(Filter f, size_t r, const float* src, float* dst, float* scratch) {
+  ForwardFaces(f, r, 1, src, dst, scratch);
 }
 
 }  // namespace ltb::wavelet

@@ -33,5 +33,8 @@ inline size_t FaceScratchSize(size_t r) { return r * r + 2 * (r / 2) * (r / 2) +
 // row-major. src == dst is allowed (in place); any other overlap is not.
 // Precondition: HasFaceKernel(f, r).
 void ForwardFace(Filter f, size_t r, const float* src, float* dst, float* scratch);
+// The same on `count` consecutive faces (src + i·r², dst + i·r²), requesting the next
+// faces' cache lines ahead: what the row-transform stage runs on a run of matrix rows.
+void ForwardFaces(Filter f, size_t r, size_t count, const float* src, float* dst, float* scratch);
 
 }  // namespace ltb::wavelet
