@@ -1,5 +1,6 @@
 #include "stages/wavelet/face_kernel.h"
 
+#include <cstdint>
 #include <cstring>
 
 #if defined(__AVX2__)
@@ -320,43 +321,91 @@ inline void LevelsFrom(const Kernel<F>& k, const float* in, size_t in_stride, fl
 
 // `count` consecutive r × r faces. Level 0 reads all of a source face into h before anything
 // is written to its destination, and later levels read only scratch: src == dst is safe.
+#if defined(__AVX2__)
+// to[0 .. n) = from[0 .. n) with non-temporal stores; `to` 16-byte aligned, n % 16 == 0.
+template <size_t N>
+inline void StreamOut(const float* from, float* to, size_t n_rt) {
+  const size_t n = N ? N : n_rt;
+  if (reinterpret_cast<uintptr_t>(to) % 32 == 0) {
+#pragma GCC unroll 32
+    for (size_t q = 0; q < n; q += 16) {
+      _mm256_stream_ps(to + q, _mm256_loadu_ps(from + q));
+      _mm256_stream_ps(to + q + 8, _mm256_loadu_ps(from + q + 8));
+    }
+    return;
+  }
+  _mm_stream_ps(to, _mm_loadu_ps(from));  // 16 bytes to the next 32-byte boundary
+#pragma GCC unroll 32
+  for (size_t q = 4; q + 8 <= n - 4; q += 8) _mm256_stream_ps(to + q, _mm256_loadu_ps(from + q));
+  _mm_stream_ps(to + n - 4, _mm_loadu_ps(from + n - 4));
+}
+#endif
+
+#ifndef LTB_FACE_STREAM
+#define LTB_FACE_STREAM 1
+#endif
+
 template <int F, size_t R>
 void FacesT(const Kernel<F>& k, size_t r_rt, size_t count, const float* src, float* dst, float* scratch) {
   const size_t r = R ? R : r_rt, area = r * r;
   float* h = scratch;
   float* low0 = scratch + area;
   float* low1 = low0 + (r / 2) * (r / 2);
+#if defined(__AVX2__) && LTB_FACE_STREAM
+  // A face is written in pieces over its levels. With a 16-byte aligned destination (any
+  // malloc'd buffer) it is assembled in an L1 buffer instead and streamed out whole with
+  // non-temporal stores: the destination lines are never read from memory first (no
+  // write-allocate), and the run is written in order.
+  float* stage = reinterpret_cast<float*>((reinterpret_cast<uintptr_t>(low1 + (r / 4) * (r / 4)) + 31) & ~uintptr_t(31));
+  const bool stream = area % 16 == 0 && reinterpret_cast<uintptr_t>(dst) % 16 == 0;
+#else
+  constexpr bool stream = false;
+  float* stage = nullptr;
+#endif
   for (size_t i = 0; i < count; ++i) {
-    // Request the face two ahead (lines to read and lines to write): the hardware
-    // prefetcher alone leaves the kernel waiting on memory, the destination's
-    // write-allocate reads above all.
+    // Request the face two ahead: the hardware prefetcher alone leaves the kernel waiting
+    // on memory (and, without streaming, on the destination's write-allocate reads).
     if (i + 2 < count) {
-      for (size_t q = (i + 2) * area; q < (i + 3) * area; q += 16) {
-        __builtin_prefetch(src + q, 0, 3);
-        __builtin_prefetch(dst + q, 1, 3);
+      const float* next_in = src + (i + 2) * area;
+      float* next_out = dst + (i + 2) * area;
+      if (stream) {
+#pragma GCC unroll 64
+        for (size_t q = 0; q < area; q += 16) __builtin_prefetch(next_in + q, 0, 3);
+      } else {
+#pragma GCC unroll 64
+        for (size_t q = 0; q < area; q += 16) {
+          __builtin_prefetch(next_in + q, 0, 3);
+          __builtin_prefetch(next_out + q, 1, 3);
+        }
       }
     }
     const float* in = src + i * area;
-    float* out = dst + i * area;
+    float* out = stream ? stage : dst + i * area;
     if constexpr (R != 0) {
       LevelsFrom<F, R, R>(k, in, R, out, h, low0, low1);
     } else {
       if (r == 1) {
         out[0] = in[0];
-        continue;
-      }
-      size_t in_stride = r;
-      float* low[2] = {low0, low1};
-      int p = 0;
-      for (size_t w = r; w >= 2; w /= 2, p ^= 1) {
-        float* ll = w == 2 ? out : low[p];
-        const size_t ll_stride = w == 2 ? r : w / 2;
-        Level<F, 0>(k, in, in_stride, w, h, ll, ll_stride, out, r);
-        in = ll;
-        in_stride = ll_stride;
+      } else {
+        size_t in_stride = r;
+        float* low[2] = {low0, low1};
+        int p = 0;
+        for (size_t w = r; w >= 2; w /= 2, p ^= 1) {
+          float* ll = w == 2 ? out : low[p];
+          const size_t ll_stride = w == 2 ? r : w / 2;
+          Level<F, 0>(k, in, in_stride, w, h, ll, ll_stride, out, r);
+          in = ll;
+          in_stride = ll_stride;
+        }
       }
     }
+#if defined(__AVX2__) && LTB_FACE_STREAM
+    if (stream) StreamOut<R * R>(stage, dst + i * area, area);
+#endif
   }
+#if defined(__AVX2__) && LTB_FACE_STREAM
+  if (stream) _mm_sfence();  // the streamed stores are ordered before whatever follows
+#endif
 }
 
 template <int F>

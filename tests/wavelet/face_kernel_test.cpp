@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdint>
 #include <cstring>
 #include <limits>
 #include <random>
@@ -103,8 +104,17 @@ TEST(FaceKernel, MatchesForward2DPerFace) {
         std::vector<double> exact(c.face.begin(), c.face.end()), dscratch(r * r);
         Forward2D(f, exact.data(), r, r, 1, depth, dscratch.data());
 
-        std::vector<float> got(r * r, 12345.0f);  // out of place, over garbage
-        ForwardFace(f, r, c.face.data(), got.data(), scratch.data());
+        // Out of place, over garbage, to a 32-byte aligned face (streamed out), a 16-byte
+        // aligned one (streamed after a 16-byte head) and a 4-byte aligned one (written
+        // directly).
+        std::vector<float> buffer(r * r + 16, 12345.0f);
+        float* aligned = buffer.data() + (8 - (reinterpret_cast<uintptr_t>(buffer.data()) / 4) % 8) % 8;
+        ForwardFace(f, r, c.face.data(), aligned, scratch.data());
+        std::vector<float> got(aligned, aligned + r * r);
+        for (size_t offset : {4, 1}) {  // 16-byte aligned only (streamed), 4-byte aligned (direct)
+          ForwardFace(f, r, c.face.data(), aligned + offset, scratch.data());
+          EXPECT_EQ(0, std::memcmp(aligned + offset, got.data(), r * r * sizeof(float))) << "offset " << offset;
+        }
         std::vector<float> in_place = c.face;
         ForwardFace(f, r, in_place.data(), in_place.data(), scratch.data());
 
