@@ -32,6 +32,13 @@ Coefs<F> MakeCoefs(std::span<const double> taps) {
   return c;
 }
 
+// Bit-identity with Forward2D, whose sums all start from 0 (0 + p0 + p1 + ...): a sum that
+// starts at p0 instead differs from it only when both are zero, in the zero's sign (0 + x
+// is x except 0 + -0 = +0). The row steps here skip that first addition; every value the
+// kernel outputs comes from a column step, which keeps it, and a zero's sign in its inputs
+// changes only the sign of zero products, so the outputs are bit-identical all the same
+// (a sum started from +0 is never -0 in round-to-nearest).
+//
 // Every level function takes its band side as a template argument W (a power of two, fully
 // unrolled loops) or, with W = 0, as the run-time argument w.
 //
@@ -45,8 +52,9 @@ void RowStepScalar(const Coefs<F>& c, const float* in, size_t in_stride, size_t 
     const float* row = in + y * in_stride;
     float* out = h + y * w;
     for (size_t o = 0; o < half; ++o) {
-      float a = 0, d = 0;
-      for (int j = 0; j < F; ++j) {
+      const float x0 = row[(2 * o + w * 4 + TapOffset(F, 0)) & mask];
+      float a = c.lo[0] * x0, d = c.hi[0] * x0;
+      for (int j = 1; j < F; ++j) {
         const float x = row[(2 * o + w * 4 + TapOffset(F, j)) & mask];
         a += c.lo[j] * x;
         d += c.hi[j] * x;
@@ -111,7 +119,8 @@ inline __m256 Shifted(const __m256* v, size_t m, size_t nv) {
   }
 }
 
-// a += lo[j] * x_j, d += hi[j] * x_j for j = J .. F-1, in that order.
+// a = Σ lo[j] x_j, d = Σ hi[j] x_j, in ascending j, the first product not added to 0 (see
+// RowStepScalar: the result differs from 0 + ... only in the sign of a zero).
 template <int F, int J = 0>
 inline void AccumulateRow(const VecCoefs<F>& c, const __m256* e, const __m256* od, size_t m, size_t nv, __m256& a,
                           __m256& d) {
@@ -119,8 +128,13 @@ inline void AccumulateRow(const VecCoefs<F>& c, const __m256* e, const __m256* o
     __m256 x;
     if constexpr (TapIsOdd(F, J)) x = Shifted<TapShift(F, J)>(od, m, nv);
     else x = Shifted<TapShift(F, J)>(e, m, nv);
-    a = _mm256_add_ps(a, _mm256_mul_ps(c.lo[J], x));
-    d = _mm256_add_ps(d, _mm256_mul_ps(c.hi[J], x));
+    if constexpr (J == 0) {
+      a = _mm256_mul_ps(c.lo[J], x);
+      d = _mm256_mul_ps(c.hi[J], x);
+    } else {
+      a = _mm256_add_ps(a, _mm256_mul_ps(c.lo[J], x));
+      d = _mm256_add_ps(d, _mm256_mul_ps(c.hi[J], x));
+    }
     AccumulateRow<F, J + 1>(c, e, od, m, nv, a, d);
   }
 }
@@ -145,7 +159,7 @@ void RowStepWide(const VecCoefs<F>& c, const float* in, size_t in_stride, size_t
     float* out = h + y * w;
 #pragma GCC unroll 8
     for (size_t m = 0; m < nv; ++m) {
-      __m256 a = _mm256_setzero_ps(), d = _mm256_setzero_ps();
+      __m256 a, d;
       AccumulateRow<F>(c, e, od, m, nv, a, d);
       _mm256_storeu_ps(out + 8 * m, a);
       _mm256_storeu_ps(out + half + 8 * m, d);
@@ -164,8 +178,13 @@ template <int F, int J = 0>
 inline void AccumulateRow8(const VecCoefs<F>& c, __m256 e, __m256 od, __m256& a, __m256& d) {
   if constexpr (J < F) {
     const __m256 x = TapIsOdd(F, J) ? RotateHalves<TapShift(F, J)>(od) : RotateHalves<TapShift(F, J)>(e);
-    a = _mm256_add_ps(a, _mm256_mul_ps(c.lo[J], x));
-    d = _mm256_add_ps(d, _mm256_mul_ps(c.hi[J], x));
+    if constexpr (J == 0) {
+      a = _mm256_mul_ps(c.lo[J], x);
+      d = _mm256_mul_ps(c.hi[J], x);
+    } else {
+      a = _mm256_add_ps(a, _mm256_mul_ps(c.lo[J], x));
+      d = _mm256_add_ps(d, _mm256_mul_ps(c.hi[J], x));
+    }
     AccumulateRow8<F, J + 1>(c, e, od, a, d);
   }
 }
@@ -180,7 +199,7 @@ void RowStep8(const VecCoefs<F>& c, const float* in, size_t in_stride, float* h)
     const __m256 p = _mm256_permute2f128_ps(r0, r1, 0x20), q = _mm256_permute2f128_ps(r0, r1, 0x31);
     const __m256 e = _mm256_shuffle_ps(p, q, _MM_SHUFFLE(2, 0, 2, 0));
     const __m256 od = _mm256_shuffle_ps(p, q, _MM_SHUFFLE(3, 1, 3, 1));
-    __m256 a = _mm256_setzero_ps(), d = _mm256_setzero_ps();
+    __m256 a, d;
     AccumulateRow8<F>(c, e, od, a, d);
     _mm256_storeu_ps(h + y * 8, _mm256_permute2f128_ps(a, d, 0x20));
     _mm256_storeu_ps(h + (y + 1) * 8, _mm256_permute2f128_ps(a, d, 0x31));
@@ -193,8 +212,13 @@ inline void AccumulateRow4(const VecCoefs<F>& c, __m256 e, __m256 e1, __m256 od,
   if constexpr (J < F) {
     constexpr bool kOdd = TapIsOdd(F, J), kShifted = (TapShift(F, J) & 1) != 0;
     const __m256 x = kOdd ? (kShifted ? od1 : od) : (kShifted ? e1 : e);
-    a = _mm256_add_ps(a, _mm256_mul_ps(c.lo[J], x));
-    d = _mm256_add_ps(d, _mm256_mul_ps(c.hi[J], x));
+    if constexpr (J == 0) {
+      a = _mm256_mul_ps(c.lo[J], x);
+      d = _mm256_mul_ps(c.hi[J], x);
+    } else {
+      a = _mm256_add_ps(a, _mm256_mul_ps(c.lo[J], x));
+      d = _mm256_add_ps(d, _mm256_mul_ps(c.hi[J], x));
+    }
     AccumulateRow4<F, J + 1>(c, e, e1, od, od1, a, d);
   }
 }
@@ -210,7 +234,7 @@ void RowStep4(const VecCoefs<F>& c, const float* in, float* h) {
     const __m256 e1 = _mm256_shuffle_ps(v, v, _MM_SHUFFLE(0, 2, 0, 2));
     const __m256 od = _mm256_shuffle_ps(v, v, _MM_SHUFFLE(3, 1, 3, 1));
     const __m256 od1 = _mm256_shuffle_ps(v, v, _MM_SHUFFLE(1, 3, 1, 3));
-    __m256 a = _mm256_setzero_ps(), d = _mm256_setzero_ps();
+    __m256 a, d;
     AccumulateRow4<F>(c, e, e1, od, od1, a, d);
     _mm256_storeu_ps(h + y * 4, _mm256_shuffle_ps(a, d, _MM_SHUFFLE(1, 0, 1, 0)));
   }
