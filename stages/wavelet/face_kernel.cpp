@@ -1,6 +1,5 @@
 #include "stages/wavelet/face_kernel.h"
 
-#include <cstdint>
 #include <cstring>
 
 #if defined(__AVX2__)
@@ -345,29 +344,9 @@ inline void LevelsFrom(const Kernel<F>& k, const float* in, size_t in_stride, fl
 
 // `count` consecutive r × r faces. Level 0 reads all of a source face into h before anything
 // is written to its destination, and later levels read only scratch: src == dst is safe.
-#if defined(__AVX2__)
-// to[0 .. n) = from[0 .. n) with non-temporal stores; `to` 16-byte aligned, n % 16 == 0.
-template <size_t N>
-inline void StreamOut(const float* from, float* to, size_t n_rt) {
-  const size_t n = N ? N : n_rt;
-  if (reinterpret_cast<uintptr_t>(to) % 32 == 0) {
-#pragma GCC unroll 32
-    for (size_t q = 0; q < n; q += 16) {
-      _mm256_stream_ps(to + q, _mm256_loadu_ps(from + q));
-      _mm256_stream_ps(to + q + 8, _mm256_loadu_ps(from + q + 8));
-    }
-    return;
-  }
-  _mm_stream_ps(to, _mm_loadu_ps(from));  // 16 bytes to the next 32-byte boundary
-#pragma GCC unroll 32
-  for (size_t q = 4; q + 8 <= n - 4; q += 8) _mm256_stream_ps(to + q, _mm256_loadu_ps(from + q));
-  _mm_stream_ps(to + n - 4, _mm_loadu_ps(from + n - 4));
-}
-#endif
-
-#ifndef LTB_FACE_STREAM
-#define LTB_FACE_STREAM 1
-#endif
+// Measured at R = 32 (bench/results/row_transform.md): 1, 2 and 4 faces ahead are alike, 8
+// is slower; without the destination's lines a little slower.
+constexpr size_t kPrefetchFaces = 2;
 
 template <int F, size_t R>
 void FacesT(const Kernel<F>& k, size_t r_rt, size_t count, const float* src, float* dst, float* scratch) {
@@ -375,36 +354,21 @@ void FacesT(const Kernel<F>& k, size_t r_rt, size_t count, const float* src, flo
   float* h = scratch;
   float* low0 = scratch + area;
   float* low1 = low0 + (r / 2) * (r / 2);
-#if defined(__AVX2__) && LTB_FACE_STREAM
-  // A face is written in pieces over its levels. With a 16-byte aligned destination (any
-  // malloc'd buffer) it is assembled in an L1 buffer instead and streamed out whole with
-  // non-temporal stores: the destination lines are never read from memory first (no
-  // write-allocate), and the run is written in order.
-  float* stage = reinterpret_cast<float*>((reinterpret_cast<uintptr_t>(low1 + (r / 4) * (r / 4)) + 31) & ~uintptr_t(31));
-  const bool stream = area % 16 == 0 && reinterpret_cast<uintptr_t>(dst) % 16 == 0;
-#else
-  constexpr bool stream = false;
-  float* stage = nullptr;
-#endif
   for (size_t i = 0; i < count; ++i) {
-    // Request the face two ahead: the hardware prefetcher alone leaves the kernel waiting
-    // on memory (and, without streaming, on the destination's write-allocate reads).
-    if (i + 2 < count) {
-      const float* next_in = src + (i + 2) * area;
-      float* next_out = dst + (i + 2) * area;
-      if (stream) {
+    // Request the lines of the face kPrefetchFaces ahead, to read and to write: the
+    // hardware prefetcher alone leaves the kernel waiting on memory, the destination's
+    // write-allocate reads above all.
+    if (i + kPrefetchFaces < count) {
+      const float* next_in = src + (i + kPrefetchFaces) * area;
+      float* next_out = dst + (i + kPrefetchFaces) * area;
 #pragma GCC unroll 64
-        for (size_t q = 0; q < area; q += 16) __builtin_prefetch(next_in + q, 0, 3);
-      } else {
-#pragma GCC unroll 64
-        for (size_t q = 0; q < area; q += 16) {
-          __builtin_prefetch(next_in + q, 0, 3);
-          __builtin_prefetch(next_out + q, 1, 3);
-        }
+      for (size_t q = 0; q < area; q += 16) {
+        __builtin_prefetch(next_in + q, 0, 3);
+        __builtin_prefetch(next_out + q, 1, 3);
       }
     }
     const float* in = src + i * area;
-    float* out = stream ? stage : dst + i * area;
+    float* out = dst + i * area;
     if constexpr (R != 0) {
       LevelsFrom<F, R, R>(k, in, R, out, h, low0, low1);
     } else {
@@ -423,13 +387,7 @@ void FacesT(const Kernel<F>& k, size_t r_rt, size_t count, const float* src, flo
         }
       }
     }
-#if defined(__AVX2__) && LTB_FACE_STREAM
-    if (stream) StreamOut<R * R>(stage, dst + i * area, area);
-#endif
   }
-#if defined(__AVX2__) && LTB_FACE_STREAM
-  if (stream) _mm_sfence();  // the streamed stores are ordered before whatever follows
-#endif
 }
 
 template <int F>

@@ -27,7 +27,7 @@ inline constexpr size_t kMaxFaceRes = 1024;
 bool HasFaceKernel(Filter f, size_t r);
 
 // Scratch floats ForwardFace needs for side r.
-inline size_t FaceScratchSize(size_t r) { return 2 * r * r + 2 * (r / 2) * (r / 2) + 16; }
+inline size_t FaceScratchSize(size_t r) { return r * r + 2 * (r / 2) * (r / 2); }
 
 // dst = the Mallat-layout 2D transform of src to full depth (log2 r steps); both r × r,
 // row-major. src == dst is allowed (in place); any other overlap is not.

@@ -104,14 +104,12 @@ TEST(FaceKernel, MatchesForward2DPerFace) {
         std::vector<double> exact(c.face.begin(), c.face.end()), dscratch(r * r);
         Forward2D(f, exact.data(), r, r, 1, depth, dscratch.data());
 
-        // Out of place, over garbage, to a 32-byte aligned face (streamed out), a 16-byte
-        // aligned one (streamed after a 16-byte head) and a 4-byte aligned one (written
-        // directly).
+        // Out of place, over garbage, to 32-, 16- and 4-byte aligned destination faces.
         std::vector<float> buffer(r * r + 16, 12345.0f);
         float* aligned = buffer.data() + (8 - (reinterpret_cast<uintptr_t>(buffer.data()) / 4) % 8) % 8;
         ForwardFace(f, r, c.face.data(), aligned, scratch.data());
         std::vector<float> got(aligned, aligned + r * r);
-        for (size_t offset : {4, 1}) {  // 16-byte aligned only (streamed), 4-byte aligned (direct)
+        for (size_t offset : {4, 1}) {
           ForwardFace(f, r, c.face.data(), aligned + offset, scratch.data());
           EXPECT_EQ(0, std::memcmp(aligned + offset, got.data(), r * r * sizeof(float))) << "offset " << offset;
         }
