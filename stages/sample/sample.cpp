@@ -224,12 +224,17 @@ struct Brdf {
 };
 
 struct RowScratch {
-  // Per-texel sample arrays (spp long): cosine sign, direction, value.
-  std::vector<double> cn, dx, dy, dz, wc, gl, pw;
-  size_t n = 0;  // rays in use (the arrays keep their size between rows)
-  std::vector<RTCRay> rays;
-  std::vector<uint32_t> ray_column;
+  // Per-slot arrays of one batch: the texel's lower corner and random stream origin,
+  // then the cosine sign, w·cos and the glossy lobe of each sample.
+  std::vector<double> u0, v0, cn, wc, gl, pw;
+  std::vector<uint64_t> s0;
+  // One batch: texel[m] owns ray slots [m·spp, (m+1)·spp), a slot per sample in stratum
+  // order; a sample below the horizon keeps its slot as an inactive ray of value 0.
+  sample::RayBatch batch;
+  std::vector<uint32_t> texel;
   std::vector<double> ray_value;
+  size_t n = 0;       // slots in use
+  size_t active = 0;  // rays traced (slots above the horizon)
   std::vector<double> sum_value;
 };
 
@@ -246,26 +251,21 @@ inline uint64_t Mix(uint64_t z) {
   return z ^ (z >> 31);
 }
 
-// The glossy lobe max(0, r·d)^e for spp sample directions into gl, by squaring over the
-// exponent's bits in the outer loop so the lane loops vectorise.
-void GlossyLobe(const Brdf& brdf, RowScratch& sc, uint32_t spp) {
+// The glossy lobe max(0, r·d)^e of slots [0, n) into gl, from x = max(0, r·d) in pw
+// (overwritten), by squaring over the exponent's bits in the outer loop so the lane loops
+// vectorise.
+void GlossyLobe(const Brdf& brdf, RowScratch& sc, size_t n) {
   double* __restrict gl = sc.gl.data();
   double* __restrict x = sc.pw.data();
-  const double* dx = sc.dx.data();
-  const double* dy = sc.dy.data();
-  const double* dz = sc.dz.data();
-  for (uint32_t i = 0; i < spp; ++i) {
-    x[i] = std::max(0.0, brdf.reflect.x * dx[i] + brdf.reflect.y * dy[i] + brdf.reflect.z * dz[i]);
-  }
   if (brdf.int_exponent >= 0) {
-    for (uint32_t i = 0; i < spp; ++i) gl[i] = 1.0;
+    for (size_t i = 0; i < n; ++i) gl[i] = 1.0;
     for (int k = brdf.int_exponent; k > 0; k >>= 1) {
       if (k & 1)
-        for (uint32_t i = 0; i < spp; ++i) gl[i] *= x[i];
-      for (uint32_t i = 0; i < spp; ++i) x[i] *= x[i];
+        for (size_t i = 0; i < n; ++i) gl[i] *= x[i];
+      for (size_t i = 0; i < n; ++i) x[i] *= x[i];
     }
   } else {
-    for (uint32_t i = 0; i < spp; ++i) gl[i] = x[i] > 0 ? std::pow(x[i], brdf.exponent) : 0.0;
+    for (size_t i = 0; i < n; ++i) gl[i] = x[i] > 0 ? std::pow(x[i], brdf.exponent) : 0.0;
   }
 }
 
@@ -277,9 +277,10 @@ class Sampler {
     kx_ = static_cast<uint32_t>(std::sqrt(static_cast<double>(spp)));
     while (spp % kx_ != 0) --kx_;
     ky_ = spp / kx_;
-    for (uint32_t i = 0; i < spp; ++i) {
-      stratum_x_.push_back(static_cast<double>(i % kx_));
-      stratum_y_.push_back(static_cast<double>(i / kx_));
+    // Per slot of a batch (slot k is sample k mod spp of its texel).
+    for (uint64_t k = 0; k < TexelsPerBatch() * spp; ++k) {
+      stratum_x_.push_back(static_cast<double>((k % spp) % kx_));
+      stratum_y_.push_back(static_cast<double>((k % spp) / kx_));
     }
   }
 
@@ -322,88 +323,160 @@ class Sampler {
   }
 
   // The occlusion rays of texels [c0, c1) of one row (a valid point) into sc, with each
-  // ray's texel and value w·f·cos; texels wholly below the horizon get none.
+  // ray's value w·f·cos; texels wholly below the horizon get none.
   void GenerateRays(uint64_t row, const RowPoint& rp, const Brdf& brdf, uint64_t c0, uint64_t c1, RowScratch& sc,
                     uint64_t* below, uint64_t* samples_below) const {
-    const uint64_t cols = c1 - c0;
-    const glm::dvec3 origin = Origin(rp);
-    const float ox = static_cast<float>(origin.x), oy = static_cast<float>(origin.y), oz = static_cast<float>(origin.z);
-    // At most spp rays per texel: size the arrays for the batch, fill by index.
-    if (sc.cn.size() < spp_) {
-      for (auto* v : {&sc.cn, &sc.dx, &sc.dy, &sc.dz, &sc.wc, &sc.gl, &sc.pw}) v->resize(spp_);
+    if (spp_ == 4) {
+      GenerateRaysT<4>(row, rp, brdf, c0, c1, sc, below, samples_below);
+    } else {
+      GenerateRaysT<0>(row, rp, brdf, c0, c1, sc, below, samples_below);
     }
-    if (sc.rays.size() < cols * spp_) {
-      sc.rays.resize(cols * spp_);
-      sc.ray_column.resize(cols * spp_);
-      sc.ray_value.resize(cols * spp_);
+  }
+
+  // kSpp: spp_ when known at compile time (the common 4), else 0.
+  template <uint32_t kSpp>
+  void GenerateRaysT(uint64_t row, const RowPoint& rp, const Brdf& brdf, uint64_t c0, uint64_t c1, RowScratch& sc,
+                     uint64_t* below, uint64_t* samples_below) const {
+    const uint64_t spp = kSpp ? kSpp : spp_;
+    const uint64_t slots = (c1 - c0) * spp;
+    if (sc.cn.size() < slots) {
+      for (auto* v : {&sc.u0, &sc.v0, &sc.cn, &sc.wc, &sc.gl, &sc.pw}) v->resize(slots);
+      sc.s0.resize(slots);
+      sc.ray_value.resize(slots);
     }
-    size_t n = 0;
+    sc.batch.Reserve(slots);
+    if (sc.texel.size() < c1 - c0) sc.texel.resize(c1 - c0);
+    size_t n = 0, m = 0;
     const double h = 2.0 / r_, hx = h / kx_, hy = h / ky_;
-    for (uint64_t c = c0; c < c1; ++c) {
-      const TexelInfo& t = texels_[c];
-      if (glm::dot(rp.n, t.centre) <= t.cos_limit) {
-        ++*below;
+    const bool glossy = brdf.ks_norm > 0;
+    const double rfx = brdf.reflect.x, rfy = brdf.reflect.y, rfz = brdf.reflect.z;
+    // Texels in runs of one face: the face's affine map (a, b, c) is shared by the run.
+    for (uint64_t f0 = c0; f0 < c1;) {
+      const uint64_t face_end = (f0 / (uint64_t{r_} * r_) + 1) * r_ * r_, f1 = std::min(c1, face_end);
+      const size_t n0 = n;
+      // Pass 1, per texel: the horizon test; each texel above it gets spp slots holding its
+      // corner and random stream origin.
+      for (uint64_t c = f0; c < f1; ++c) {
+        const TexelInfo& t = texels_[c];
+        if (glm::dot(rp.n, t.centre) <= t.cos_limit) {
+          ++*below;
+          continue;
+        }
+        const uint64_t s0 = StreamStart(row, c);
+        const double u0 = t.u0, v0 = t.v0;
+        double* __restrict lu = sc.u0.data() + n;
+        double* __restrict lv = sc.v0.data() + n;
+        uint64_t* __restrict ls = sc.s0.data() + n;
+        for (uint64_t i = 0; i < spp; ++i) {
+          lu[i] = u0;
+          lv[i] = v0;
+          ls[i] = s0;
+        }
+        sc.texel[m++] = static_cast<uint32_t>(c);
+        n += spp;
+      }
+      if (n == n0) {
+        f0 = f1;
         continue;
       }
-      // Pass 1, vectorisable across the texel's strata: jittered point, direction, weight.
+      // Pass 2, vectorised across all slots of the run: jittered point, direction, weight.
       // SplitMix64 is counter-based: draw k of the (row, texel) stream is Mix(s0 + (k+2)·G).
-      const uint64_t s0 = StreamStart(row, c);
+      const TexelInfo& t = texels_[f0];
       const double na = glm::dot(rp.n, t.a), nb = glm::dot(rp.n, t.b), nc = glm::dot(rp.n, t.c);
-      double* __restrict cn = sc.cn.data();
-      double* __restrict dx = sc.dx.data();
-      double* __restrict dy = sc.dy.data();
-      double* __restrict dz = sc.dz.data();
-      double* __restrict wc = sc.wc.data();
-      const double u0 = t.u0, v0 = t.v0;
       const double ax = t.a.x, ay = t.a.y, az = t.a.z, bx = t.b.x, by = t.b.y, bz = t.b.z;
       const double cx = t.c.x, cy = t.c.y, cz = t.c.z;
+      const double* __restrict lu = sc.u0.data();
+      const double* __restrict lv = sc.v0.data();
+      const uint64_t* __restrict ls = sc.s0.data();
       const double* __restrict stx = stratum_x_.data();
       const double* __restrict sty = stratum_y_.data();
-      const uint64_t spp = spp_;
+      double* __restrict cn = sc.cn.data();
+      double* __restrict wc = sc.wc.data();
+      double* __restrict pw = sc.pw.data();
+      float* __restrict rx = sc.batch.dir_x.data();
+      float* __restrict ry = sc.batch.dir_y.data();
+      float* __restrict rz = sc.batch.dir_z.data();
 #pragma omp simd
-      for (uint64_t i = 0; i < spp; ++i) {
-        const uint64_t z = Mix(s0 + (i + 2) * kGolden);
+      for (size_t k = n0; k < n; ++k) {
+        const uint64_t z = Mix(ls[k] + ((k % spp) + 2) * kGolden);
         // (z >> 40)·2^-24 and ((z >> 16) & 0xFFFFFF)·2^-24, exactly, built from bits (AVX2
         // has no vector uint64 -> double conversion): 1 + m·2^-24 has m in the mantissa.
         const double ju = std::bit_cast<double>(0x3FF0000000000000ull | ((z >> 40) << 28)) - 1.0;
         const double jv = std::bit_cast<double>(0x3FF0000000000000ull | (((z >> 16) & 0xFFFFFFull) << 28)) - 1.0;
-        const double u = u0 + (stx[i] + ju) * hx;
-        const double v = v0 + (sty[i] + jv) * hy;
+        const double u = lu[k] + (stx[k] + ju) * hx;
+        const double v = lv[k] + (sty[k] + jv) * hy;
         // |a + u b + v c| = sqrt(1 + u² + v²); dω / du dv = |.|^-3.
         const double inv = 1.0 / std::sqrt(1.0 + u * u + v * v);
-        cn[i] = na + u * nb + v * nc;  // n·(a + u b + v c): the sign of the cosine
-        dx[i] = (ax + u * bx + v * cx) * inv;
-        dy[i] = (ay + u * by + v * cy) * inv;
-        dz[i] = (az + u * bz + v * cz) * inv;
-        wc[i] = inv * inv * inv * (cn[i] * inv);  // w · cos
+        const double cosn = na + u * nb + v * nc;  // n·(a + u b + v c): the sign of the cosine
+        const double dx = (ax + u * bx + v * cx) * inv;
+        const double dy = (ay + u * by + v * cy) * inv;
+        const double dz = (az + u * bz + v * cz) * inv;
+        cn[k] = cosn;
+        wc[k] = inv * inv * inv * (cosn * inv);  // w · cos
+        pw[k] = std::max(0.0, rfx * dx + rfy * dy + rfz * dz);
+        rx[k] = static_cast<float>(dx);
+        ry[k] = static_cast<float>(dy);
+        rz[k] = static_cast<float>(dz);
       }
-      const bool glossy = brdf.ks_norm > 0;
-      if (glossy) GlossyLobe(brdf, sc, spp_);
-      // Pass 2: rays for the samples above the horizon.
-      for (uint32_t i = 0; i < spp_; ++i) {
-        if (cn[i] <= 0) {
-          ++*samples_below;
-          continue;
-        }
-        RTCRay& ray = sc.rays[n];
-        ray.org_x = ox;
-        ray.org_y = oy;
-        ray.org_z = oz;
-        ray.tnear = 0.0f;
-        ray.dir_x = static_cast<float>(dx[i]);
-        ray.dir_y = static_cast<float>(dy[i]);
-        ray.dir_z = static_cast<float>(dz[i]);
-        ray.time = 0.0f;
-        ray.tfar = std::numeric_limits<float>::infinity();
-        ray.mask = 0xFFFFFFFFu;
-        ray.id = 0;
-        ray.flags = 0;
-        sc.ray_column[n] = static_cast<uint32_t>(c);
-        sc.ray_value[n] = wc[i] * (glossy ? brdf.diffuse + brdf.ks_norm * sc.gl[i] : brdf.diffuse);
-        ++n;
+      f0 = f1;
+    }
+    if (glossy) GlossyLobe(brdf, sc, n);
+    // Pass 3: trace or not, and each slot's value. A sample below the horizon needs no ray:
+    // its slot is inactive (tfar = -inf < tnear) with value 0.
+    const double* __restrict cn = sc.cn.data();
+    const double* __restrict wc = sc.wc.data();
+    const double* __restrict gl = sc.gl.data();
+    float* __restrict tf = sc.batch.tfar.data();
+    double* __restrict val = sc.ray_value.data();
+    const double diffuse = brdf.diffuse, ks = brdf.ks_norm;
+    constexpr float kInf = std::numeric_limits<float>::infinity();
+    uint64_t inactive = 0;
+    if (glossy) {
+#pragma omp simd reduction(+ : inactive)
+      for (size_t k = 0; k < n; ++k) {
+        const bool up = cn[k] > 0;
+        tf[k] = up ? kInf : -kInf;
+        val[k] = up ? wc[k] * (diffuse + ks * gl[k]) : 0.0;
+        inactive += up ? 0 : 1;
+      }
+    } else {
+#pragma omp simd reduction(+ : inactive)
+      for (size_t k = 0; k < n; ++k) {
+        const bool up = cn[k] > 0;
+        tf[k] = up ? kInf : -kInf;
+        val[k] = up ? wc[k] * diffuse : 0.0;
+        inactive += up ? 0 : 1;
       }
     }
+    const glm::dvec3 origin = Origin(rp);
+    sc.batch.SetOrigin(static_cast<float>(origin.x), static_cast<float>(origin.y), static_cast<float>(origin.z), n);
+    *samples_below += inactive;
     sc.n = n;
+    sc.active = n - inactive;
+  }
+
+  // Sums of the unoccluded rays' values into acc, per texel in stratum order (the order
+  // the values were generated in, so the sums do not depend on the batching).
+  void Accumulate(const RowScratch& sc, std::vector<double>& acc) const {
+    if (spp_ == 4) {
+      AccumulateT<4>(sc, acc);
+    } else {
+      AccumulateT<0>(sc, acc);
+    }
+  }
+  template <uint32_t kSpp>
+  void AccumulateT(const RowScratch& sc, std::vector<double>& acc) const {
+    const uint64_t spp = kSpp ? kSpp : spp_;
+    const float* tf = sc.batch.tfar.data();
+    const double* val = sc.ray_value.data();
+    const size_t texels = sc.n / spp;
+    for (size_t m = 0; m < texels; ++m) {
+      double s = acc[sc.texel[m]];
+      for (uint64_t i = 0; i < spp; ++i) {
+        if (tf[m * spp + i] >= 0) s += val[m * spp + i];  // not occluded (inactive slots are -inf)
+      }
+      acc[sc.texel[m]] = s;
+    }
   }
 
   // One row of T (6R² values) for a valid point.
@@ -415,11 +488,9 @@ class Sampler {
     acc.assign(cols, 0.0);
     for (uint64_t c0 = 0; c0 < cols; c0 += step) {
       GenerateRays(row, rp, brdf, c0, std::min(cols, c0 + step), sc, &below, &samples_below);
-      g_.rays->Occluded(sc.rays.data(), sc.n);
-      for (size_t k = 0; k < sc.n; ++k) {
-        if (sc.rays[k].tfar >= 0) acc[sc.ray_column[k]] += sc.ray_value[k];  // not occluded
-      }
-      rays += sc.n;
+      g_.rays->Occluded(sc.batch, sc.n);
+      Accumulate(sc, acc);
+      rays += sc.active;
     }
     // Stratified estimate of ∫_texel f cos V dω = ∫∫ f cos V w du dv: each of the spp
     // strata has area h²/spp in face coordinates (unbiased; docs/SAMPLE.md).
@@ -474,7 +545,7 @@ class Sampler {
   uint64_t seed_;
   std::vector<TexelInfo> texels_;
   uint32_t kx_ = 1, ky_ = 1;
-  std::vector<double> stratum_x_, stratum_y_;  // stratum column and row of sample i
+  std::vector<double> stratum_x_, stratum_y_;  // stratum column and row of the sample in batch slot k
 
   // The (row, texel) stream's counter origin, as Rng(seed, row, texel) sets it.
   uint64_t StreamStart(uint64_t row, uint64_t c) const {
@@ -532,10 +603,10 @@ Result<BareTraceResult> TraceBare(const SampleOptions& o) {
       for (uint64_t c0 = 0; c0 < cols; c0 += step) {  // the same batches RunSample traces
         sampler.GenerateRays(row, rp, brdf, c0, std::min(cols, c0 + step), sc, &below, &samples_below);
         auto a = std::chrono::steady_clock::now();
-        sampler.rays().Occluded(sc.rays.data(), sc.n);
+        sampler.rays().Occluded(sc.batch, sc.n);
         nanos += static_cast<uint64_t>(
             std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - a).count());
-        rays += sc.n;
+        rays += sc.active;
       }
     }
     return Status::Ok();
