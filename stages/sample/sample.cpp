@@ -8,6 +8,7 @@
 #include <bit>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -271,6 +272,18 @@ void GlossyLobe(const Brdf& brdf, RowScratch& sc, size_t n) {
   }
 }
 
+// p[0, spp) = x; one vector store when spp is the compile-time 4.
+template <uint32_t kSpp, typename T>
+inline void Splat(T* __restrict p, T x, uint64_t spp) {
+  if constexpr (kSpp == 4) {
+    typedef T V __attribute__((vector_size(4 * sizeof(T))));
+    const V v = {x, x, x, x};
+    std::memcpy(p, &v, sizeof v);
+  } else {
+    for (uint64_t i = 0; i < spp; ++i) p[i] = x;
+  }
+}
+
 class Sampler {
  public:
   Sampler(const SceneDesc& s, const Geometry& g, uint32_t r, uint32_t spp, uint32_t bounces, uint64_t seed)
@@ -363,9 +376,7 @@ class Sampler {
     if (sc.texel.size() < c1 - c0 + 1) sc.texel.resize(c1 - c0 + 1);
     if (sc.above.size() < c1 - c0) sc.above.resize(c1 - c0);
     size_t n = 0, m = 0;
-    const double h = 2.0 / r_, hx = h / kx_, hy = h / ky_;
     const bool glossy = brdf.ks_norm > 0;
-    const double rfx = brdf.reflect.x, rfy = brdf.reflect.y, rfz = brdf.reflect.z;
     // Texels in runs of one face: the face's affine map (a, b, c) is shared by the run.
     for (uint64_t f0 = c0; f0 < c1;) {
       const uint64_t face_end = (f0 / (uint64_t{r_} * r_) + 1) * r_ * r_, f1 = std::min(c1, face_end);
@@ -387,14 +398,9 @@ class Sampler {
       for (uint64_t c = f0; c < f1; ++c) {
         const uint64_t s0 = stream_row ^ (c * 0xC2B2AE3D27D4EB4Full);  // StreamStart(row, c)
         const double u0 = u0_[c], v0 = v0_[c];
-        double* __restrict lu = sc.u0.data() + n;
-        double* __restrict lv = sc.v0.data() + n;
-        uint64_t* __restrict ls = sc.s0.data() + n;
-        for (uint64_t i = 0; i < spp; ++i) {
-          lu[i] = u0;
-          lv[i] = v0;
-          ls[i] = s0;
-        }
+        Splat<kSpp>(sc.u0.data() + n, u0, spp);
+        Splat<kSpp>(sc.v0.data() + n, v0, spp);
+        Splat<kSpp>(sc.s0.data() + n, s0, spp);
         sc.texel[m] = static_cast<uint32_t>(c);
         const uint64_t a = up[c - f0];
         m += a;
@@ -405,80 +411,92 @@ class Sampler {
         f0 = f1;
         continue;
       }
-      // Pass 2, vectorised across all slots of the run: jittered point, direction, weight.
-      // SplitMix64 is counter-based: draw k of the (row, texel) stream is Mix(s0 + (k+2)·G).
+      // Pass 2, vectorised across all slots of the run (DirectionsT).
       const TexelInfo& t = texels_[f0];
       const double na = glm::dot(rp.n, t.a), nb = glm::dot(rp.n, t.b), nc = glm::dot(rp.n, t.c);
-      const double ax = t.a.x, ay = t.a.y, az = t.a.z, bx = t.b.x, by = t.b.y, bz = t.b.z;
-      const double cx = t.c.x, cy = t.c.y, cz = t.c.z;
-      const double* __restrict lu = sc.u0.data();
-      const double* __restrict lv = sc.v0.data();
-      const uint64_t* __restrict ls = sc.s0.data();
-      const double* __restrict stx = stratum_x_.data();
-      const double* __restrict sty = stratum_y_.data();
-      double* __restrict cn = sc.cn.data();
-      double* __restrict wc = sc.wc.data();
-      double* __restrict pw = sc.pw.data();
-      float* __restrict rx = sc.batch.dir_x.data();
-      float* __restrict ry = sc.batch.dir_y.data();
-      float* __restrict rz = sc.batch.dir_z.data();
-#pragma omp simd
-      for (size_t k = n0; k < n; ++k) {
-        const uint64_t z = Mix(ls[k] + ((k % spp) + 2) * kGolden);
-        // (z >> 40)·2^-24 and ((z >> 16) & 0xFFFFFF)·2^-24, exactly, built from bits (AVX2
-        // has no vector uint64 -> double conversion): 1 + m·2^-24 has m in the mantissa.
-        const double ju = std::bit_cast<double>(0x3FF0000000000000ull | ((z >> 40) << 28)) - 1.0;
-        const double jv = std::bit_cast<double>(0x3FF0000000000000ull | (((z >> 16) & 0xFFFFFFull) << 28)) - 1.0;
-        const double u = lu[k] + (stx[k] + ju) * hx;
-        const double v = lv[k] + (sty[k] + jv) * hy;
-        // |a + u b + v c| = sqrt(1 + u² + v²); dω / du dv = |.|^-3.
-        const double inv = 1.0 / std::sqrt(1.0 + u * u + v * v);
-        const double cosn = na + u * nb + v * nc;  // n·(a + u b + v c): the sign of the cosine
-        const double dx = (ax + u * bx + v * cx) * inv;
-        const double dy = (ay + u * by + v * cy) * inv;
-        const double dz = (az + u * bz + v * cz) * inv;
-        cn[k] = cosn;
-        wc[k] = inv * inv * inv * (cosn * inv);  // w · cos
-        pw[k] = std::max(0.0, rfx * dx + rfy * dy + rfz * dz);
-        rx[k] = static_cast<float>(dx);
-        ry[k] = static_cast<float>(dy);
-        rz[k] = static_cast<float>(dz);
+      if (glossy) {
+        DirectionsT<kSpp, true>(n0, n, na, nb, nc, t, brdf, sc);
+      } else {
+        DirectionsT<kSpp, false>(n0, n, na, nb, nc, t, brdf, sc);
       }
       f0 = f1;
     }
-    if (glossy) GlossyLobe(brdf, sc, n);
-    // Pass 3: trace or not, and each slot's value. A sample below the horizon needs no ray:
-    // its slot is inactive (tfar = -inf < tnear) with value 0.
-    const double* __restrict cn = sc.cn.data();
-    const double* __restrict wc = sc.wc.data();
-    const double* __restrict gl = sc.gl.data();
-    float* __restrict tf = sc.batch.tfar.data();
-    double* __restrict val = sc.ray_value.data();
-    const double diffuse = brdf.diffuse, ks = brdf.ks_norm;
-    constexpr float kInf = std::numeric_limits<float>::infinity();
-    uint64_t inactive = 0;
     if (glossy) {
-#pragma omp simd reduction(+ : inactive)
-      for (size_t k = 0; k < n; ++k) {
-        const bool up = cn[k] > 0;
-        tf[k] = up ? kInf : -kInf;
-        val[k] = up ? wc[k] * (diffuse + ks * gl[k]) : 0.0;
-        inactive += up ? 0 : 1;
-      }
-    } else {
-#pragma omp simd reduction(+ : inactive)
-      for (size_t k = 0; k < n; ++k) {
-        const bool up = cn[k] > 0;
-        tf[k] = up ? kInf : -kInf;
-        val[k] = up ? wc[k] * diffuse : 0.0;
-        inactive += up ? 0 : 1;
-      }
+      GlossyLobe(brdf, sc, n);
+      const double* __restrict cn = sc.cn.data();
+      const double* __restrict wc = sc.wc.data();
+      const double* __restrict gl = sc.gl.data();
+      double* __restrict val = sc.ray_value.data();
+      const double diffuse = brdf.diffuse, ks = brdf.ks_norm;
+#pragma omp simd
+      for (size_t k = 0; k < n; ++k) val[k] = cn[k] > 0 ? wc[k] * (diffuse + ks * gl[k]) : 0.0;
     }
+    const float* __restrict tf = sc.batch.tfar.data();
+    uint64_t inactive = 0;
+#pragma omp simd reduction(+ : inactive)
+    for (size_t k = 0; k < n; ++k) inactive += tf[k] < 0 ? 1 : 0;
     const glm::dvec3 origin = Origin(rp);
     sc.batch.SetOrigin(static_cast<float>(origin.x), static_cast<float>(origin.y), static_cast<float>(origin.z), n);
     *samples_below += inactive;
     sc.n = n;
     sc.active = n - inactive;
+  }
+
+  // Pass 2 of GenerateRaysT over slots [n0, n1) of one face's run, vectorised across the
+  // slots: jittered point, direction, trace or not (a sample below the horizon needs no
+  // ray: its slot is inactive, tfar = -inf < tnear, with value 0), weight; for a glossy
+  // BRDF the value waits for the lobe (cn, wc and x = max(0, r·d) are kept).
+  // SplitMix64 is counter-based: draw k of the (row, texel) stream is Mix(s0 + (k+2)·G).
+  template <uint32_t kSpp, bool kGlossy>
+  void DirectionsT(size_t n0, size_t n1, double na, double nb, double nc, const TexelInfo& t, const Brdf& brdf,
+                   RowScratch& sc) const {
+    const uint64_t spp = kSpp ? kSpp : spp_;
+    const double h = 2.0 / r_, hx = h / kx_, hy = h / ky_;
+    const double ax = t.a.x, ay = t.a.y, az = t.a.z, bx = t.b.x, by = t.b.y, bz = t.b.z;
+    const double cx = t.c.x, cy = t.c.y, cz = t.c.z;
+    const double rfx = brdf.reflect.x, rfy = brdf.reflect.y, rfz = brdf.reflect.z, diffuse = brdf.diffuse;
+    const double* __restrict lu = sc.u0.data();
+    const double* __restrict lv = sc.v0.data();
+    const uint64_t* __restrict ls = sc.s0.data();
+    const double* __restrict stx = stratum_x_.data();
+    const double* __restrict sty = stratum_y_.data();
+    double* __restrict cn = sc.cn.data();
+    double* __restrict wc = sc.wc.data();
+    double* __restrict pw = sc.pw.data();
+    double* __restrict val = sc.ray_value.data();
+    float* __restrict rx = sc.batch.dir_x.data();
+    float* __restrict ry = sc.batch.dir_y.data();
+    float* __restrict rz = sc.batch.dir_z.data();
+    float* __restrict tf = sc.batch.tfar.data();
+    constexpr float kInf = std::numeric_limits<float>::infinity();
+#pragma omp simd
+    for (size_t k = n0; k < n1; ++k) {
+      const uint64_t z = Mix(ls[k] + ((k % spp) + 2) * kGolden);
+      // (z >> 40)·2^-24 and ((z >> 16) & 0xFFFFFF)·2^-24, exactly, built from bits (AVX2
+      // has no vector uint64 -> double conversion): 1 + m·2^-24 has m in the mantissa.
+      const double ju = std::bit_cast<double>(0x3FF0000000000000ull | ((z >> 40) << 28)) - 1.0;
+      const double jv = std::bit_cast<double>(0x3FF0000000000000ull | (((z >> 16) & 0xFFFFFFull) << 28)) - 1.0;
+      const double u = lu[k] + (stx[k] + ju) * hx;
+      const double v = lv[k] + (sty[k] + jv) * hy;
+      // |a + u b + v c| = sqrt(1 + u² + v²); dω / du dv = |.|^-3.
+      const double inv = 1.0 / std::sqrt(1.0 + u * u + v * v);
+      const double cosn = na + u * nb + v * nc;  // n·(a + u b + v c): the sign of the cosine
+      const double dx = (ax + u * bx + v * cx) * inv;
+      const double dy = (ay + u * by + v * cy) * inv;
+      const double dz = (az + u * bz + v * cz) * inv;
+      const double w = inv * inv * inv * (cosn * inv);  // w · cos
+      rx[k] = static_cast<float>(dx);
+      ry[k] = static_cast<float>(dy);
+      rz[k] = static_cast<float>(dz);
+      tf[k] = cosn > 0 ? kInf : -kInf;
+      if constexpr (kGlossy) {
+        cn[k] = cosn;
+        wc[k] = w;
+        pw[k] = std::max(0.0, rfx * dx + rfy * dy + rfz * dz);
+      } else {
+        val[k] = cosn > 0 ? w * diffuse : 0.0;
+      }
+    }
   }
 
   // Sums of the unoccluded rays' values into acc, per texel in stratum order (the order
