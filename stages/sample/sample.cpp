@@ -227,8 +227,8 @@ struct Brdf {
 
 struct RowScratch {
   // Per-slot arrays of one batch: the texel's lower corner and random stream origin,
-  // then the cosine sign, w·cos and the glossy lobe of each sample.
-  std::vector<double> u0, v0, cn, wc, gl, pw;
+  // then w·cos and the glossy lobe of each sample.
+  std::vector<double> u0, v0, wc, gl, pw;
   std::vector<uint64_t> s0;
   std::vector<uint8_t> above;  // per texel of a run: 1 when not wholly below the horizon
   // One batch: texel[m] owns ray slots [m·spp, (m+1)·spp), a slot per sample in stratum
@@ -362,8 +362,8 @@ class Sampler {
                      uint64_t* below, uint64_t* samples_below) const {
     const uint64_t spp = kSpp ? kSpp : spp_;
     const uint64_t slots = (c1 - c0) * spp;
-    if (sc.cn.size() < slots) {
-      for (auto* v : {&sc.cn, &sc.wc, &sc.gl, &sc.pw}) v->resize(slots);
+    if (sc.wc.size() < slots) {
+      for (auto* v : {&sc.wc, &sc.gl, &sc.pw}) v->resize(slots);
       sc.ray_value.resize(slots);
     }
     // One texel's slots more than the batch needs: pass 1 writes a texel's slots before
@@ -423,13 +423,12 @@ class Sampler {
     }
     if (glossy) {
       GlossyLobe(brdf, sc, n);
-      const double* __restrict cn = sc.cn.data();
       const double* __restrict wc = sc.wc.data();
       const double* __restrict gl = sc.gl.data();
       double* __restrict val = sc.ray_value.data();
       const double diffuse = brdf.diffuse, ks = brdf.ks_norm;
 #pragma omp simd
-      for (size_t k = 0; k < n; ++k) val[k] = cn[k] > 0 ? wc[k] * (diffuse + ks * gl[k]) : 0.0;
+      for (size_t k = 0; k < n; ++k) val[k] = wc[k] * (diffuse + ks * gl[k]);  // inactive slots: never read
     }
     const float* __restrict tf = sc.batch.tfar.data();
     uint64_t inactive = 0;
@@ -444,8 +443,8 @@ class Sampler {
 
   // Pass 2 of GenerateRaysT over slots [n0, n1) of one face's run, vectorised across the
   // slots: jittered point, direction, trace or not (a sample below the horizon needs no
-  // ray: its slot is inactive, tfar = -inf < tnear, with value 0), weight; for a glossy
-  // BRDF the value waits for the lobe (cn, wc and x = max(0, r·d) are kept).
+  // ray: its slot is inactive, tfar = -inf < tnear, and its value is never read), weight; for a glossy
+  // BRDF the value waits for the lobe (wc and x = max(0, r·d) are kept).
   // SplitMix64 is counter-based: draw k of the (row, texel) stream is Mix(s0 + (k+2)·G).
   template <uint32_t kSpp, bool kGlossy>
   void DirectionsT(size_t n0, size_t n1, double na, double nb, double nc, const TexelInfo& t, const Brdf& brdf,
@@ -460,7 +459,6 @@ class Sampler {
     const uint64_t* __restrict ls = sc.s0.data();
     const double* __restrict stx = stratum_x_.data();
     const double* __restrict sty = stratum_y_.data();
-    double* __restrict cn = sc.cn.data();
     double* __restrict wc = sc.wc.data();
     double* __restrict pw = sc.pw.data();
     double* __restrict val = sc.ray_value.data();
@@ -490,11 +488,11 @@ class Sampler {
       rz[k] = static_cast<float>(dz);
       tf[k] = cosn > 0 ? kInf : -kInf;
       if constexpr (kGlossy) {
-        cn[k] = cosn;
         wc[k] = w;
         pw[k] = std::max(0.0, rfx * dx + rfy * dy + rfz * dz);
       } else {
-        val[k] = cosn > 0 ? w * diffuse : 0.0;
+        // Unconditional (the value of an inactive slot is never read), so it if-converts.
+        val[k] = w * diffuse;
       }
     }
   }
