@@ -1,7 +1,6 @@
 #include "stages/sample/sample.h"
 
 #include <time.h>
-#include <xxhash.h>
 
 #include <algorithm>
 #include <atomic>
@@ -10,7 +9,6 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <limits>
 #include <vector>
 
@@ -26,6 +24,7 @@
 #include "stages/sample/geometry.h"
 #include "stages/sample/ray_scene.h"
 #include "stages/sample/scene.h"
+#include "stages/sample/scene_geometry.h"
 
 namespace ltb::stages {
 
@@ -33,6 +32,9 @@ using namespace ltb::format;
 using sample::Material;
 using sample::Object;
 using sample::SceneDesc;
+using sample::Geometry;
+using sample::RowPoint;
+using sample::BuildGeometry;
 
 namespace {
 
@@ -65,106 +67,6 @@ struct TexelInfo {
   glm::dvec3 centre;
   double cos_limit;  // skip the texel when n·centre < cos_limit (wholly below the horizon)
 };
-
-struct RowPoint {
-  bool valid = false;
-  glm::dvec3 p{0}, n{0, 0, 1}, wo{0, 0, 1};
-  int material = 0;
-};
-
-struct Geometry {
-  std::unique_ptr<sample::RayScene> rays;
-  std::vector<int> geom_material;  // Embree geometry id -> material
-  std::vector<RowPoint> vertex_rows;
-  double epsilon = 1e-4;
-  uint64_t degenerate = 0;
-  std::string scene_hash;
-};
-
-Status HashFile(const std::string& path, XXH3_state_t* st) {
-  std::ifstream f(path, std::ios::binary);
-  if (!f) return NotFound(path + ": cannot open");
-  std::vector<char> buf(1 << 16);
-  while (f) {
-    f.read(buf.data(), static_cast<std::streamsize>(buf.size()));
-    XXH3_64bits_update(st, buf.data(), static_cast<size_t>(f.gcount()));
-  }
-  return Status::Ok();
-}
-
-Result<Geometry> BuildGeometry(const SceneDesc& s) {
-  Geometry g;
-  LTB_ASSIGN_OR_RETURN(g.rays, sample::RayScene::Create());
-  XXH3_state_t* st = XXH3_createState();
-  XXH3_64bits_reset(st);
-  Status hs = HashFile(s.path, st);
-  glm::dvec3 lo(std::numeric_limits<double>::infinity()), hi(-std::numeric_limits<double>::infinity());
-  for (const Object& o : s.objects) {
-    std::string where = s.path + ":" + std::to_string(o.line) + ": object \"" + o.name + "\"";
-    if (o.type == Object::Type::kSphere) {
-      glm::dvec3 sc = glm::abs(o.scale);
-      if (std::fabs(sc.x - sc.y) > 1e-12 * sc.x || std::fabs(sc.x - sc.z) > 1e-12 * sc.x) {
-        XXH3_freeState(st);
-        return InvalidArgument(where + ": a sphere needs a uniform scale");
-      }
-      glm::dvec3 c = glm::dvec3(sample::ObjectTransform(o) * glm::dvec4(o.center, 1.0));
-      double r = o.radius * sc.x;
-      LTB_RETURN_IF_ERROR(g.rays->AddSphere(c, r));
-      lo = glm::min(lo, c - r);
-      hi = glm::max(hi, c + r);
-    } else {
-      sample::TriangleMesh mesh;
-      if (o.type == Object::Type::kMesh) {
-        auto loaded = sample::LoadMeshFile(o.file);
-        if (!loaded.ok()) {
-          XXH3_freeState(st);
-          return loaded.status().WithContext(where);
-        }
-        mesh = std::move(loaded).value();
-        if (hs.ok()) hs = HashFile(o.file, st);
-      } else if (o.type == Object::Type::kPlane) {
-        mesh = sample::MakePlane(o.size);
-      } else {
-        mesh = sample::MakeBox(o.size, o.center);
-      }
-      g.degenerate += mesh.degenerate_dropped;
-      sample::ApplyTransform(sample::ObjectTransform(o), &mesh);
-      if (mesh.triangles.empty()) {
-        XXH3_freeState(st);
-        return InvalidArgument(where + ": has no triangles left after its transform (zero scale?)");
-      }
-      LTB_RETURN_IF_ERROR(g.rays->AddMesh(mesh));
-      for (const auto& p : mesh.positions) {
-        lo = glm::min(lo, p);
-        hi = glm::max(hi, p);
-      }
-      if (s.mode == SceneDesc::Mode::kVertex &&
-          std::find(s.vertex_objects.begin(), s.vertex_objects.end(), o.name) != s.vertex_objects.end()) {
-        for (size_t i = 0; i < mesh.positions.size(); ++i) {
-          g.vertex_rows.push_back({true, mesh.positions[i], mesh.normals[i], mesh.normals[i], o.material});
-        }
-      }
-    }
-    g.geom_material.push_back(o.material);
-  }
-  if (s.mode == SceneDesc::Mode::kVertex) {
-    for (const Object& o : s.objects) {
-      if (o.type == Object::Type::kSphere &&
-          std::find(s.vertex_objects.begin(), s.vertex_objects.end(), o.name) != s.vertex_objects.end()) {
-        XXH3_freeState(st);
-        return InvalidArgument(s.path + ":" + std::to_string(o.line) + ": object \"" + o.name +
-                               "\" is a sphere, which has no vertices to be rows");
-      }
-    }
-  }
-  uint64_t h = XXH3_64bits_digest(st);
-  XXH3_freeState(st);
-  LTB_RETURN_IF_ERROR(hs);
-  g.scene_hash = Hex64(h).substr(2);
-  LTB_RETURN_IF_ERROR(g.rays->Commit());
-  g.epsilon = std::max(1e-6, 1e-5 * glm::length(hi - lo));
-  return g;
-}
 
 std::vector<TexelInfo> TexelTable(uint32_t r) {
   std::vector<TexelInfo> t(6ull * r * r);
@@ -245,7 +147,9 @@ struct Counters {
   std::atomic<uint64_t> rays{0}, below{0}, samples_below{0};
 };
 
-constexpr uint64_t kBatchRays = 4096;
+// Slots per batch: small enough that a batch (about 100 bytes a slot) stays in L2 between
+// being generated and traced (measured: 1024 beats 4096 by ~5% CPU; 512 is no better).
+constexpr uint64_t kBatchRays = 1024;
 constexpr uint64_t kGolden = 0x9E3779B97F4A7C15ull;
 
 inline uint64_t Mix(uint64_t z) {
@@ -395,13 +299,18 @@ class Sampler {
         up[c - f0] = (pnx * tcx[c] + pny * tcy[c]) + pnz * tcz[c] <= tcl[c] ? 0 : 1;
       }
       const uint64_t stream_row = seed_ ^ (row * 0x9E3779B97F4A7C15ull);
+      double* __restrict lu = sc.u0.data();
+      double* __restrict lv = sc.v0.data();
+      uint64_t* __restrict ls = sc.s0.data();
+      uint32_t* __restrict texel = sc.texel.data();
+      const double* __restrict tu0 = u0_.data();
+      const double* __restrict tv0 = v0_.data();
       for (uint64_t c = f0; c < f1; ++c) {
         const uint64_t s0 = stream_row ^ (c * 0xC2B2AE3D27D4EB4Full);  // StreamStart(row, c)
-        const double u0 = u0_[c], v0 = v0_[c];
-        Splat<kSpp>(sc.u0.data() + n, u0, spp);
-        Splat<kSpp>(sc.v0.data() + n, v0, spp);
-        Splat<kSpp>(sc.s0.data() + n, s0, spp);
-        sc.texel[m] = static_cast<uint32_t>(c);
+        Splat<kSpp>(lu + n, tu0[c], spp);
+        Splat<kSpp>(lv + n, tv0[c], spp);
+        Splat<kSpp>(ls + n, s0, spp);
+        texel[m] = static_cast<uint32_t>(c);
         const uint64_t a = up[c - f0];
         m += a;
         n += a * spp;
@@ -668,20 +577,6 @@ Result<BareTraceResult> TraceBare(const SampleOptions& o) {
   out.trace_thread_cpu_seconds = static_cast<double>(cpu_nanos.load()) * 1e-9;
   out.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return out;
-}
-
-Result<std::string> SceneHash(const std::string& scene_path) {
-  LTB_ASSIGN_OR_RETURN(SceneDesc scene, sample::ParseScene(scene_path));
-  XXH3_state_t* st = XXH3_createState();
-  XXH3_64bits_reset(st);
-  Status s = HashFile(scene.path, st);  // the same bytes, in the same order, as BuildGeometry
-  for (const Object& obj : scene.objects) {
-    if (s.ok() && obj.type == Object::Type::kMesh) s = HashFile(obj.file, st);
-  }
-  uint64_t h = XXH3_64bits_digest(st);
-  XXH3_freeState(st);
-  LTB_RETURN_IF_ERROR(s);
-  return Hex64(h).substr(2);
 }
 
 Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress) {
