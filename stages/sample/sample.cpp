@@ -1,6 +1,5 @@
 #include "stages/sample/sample.h"
 
-#include <time.h>
 
 #include <algorithm>
 #include <atomic>
@@ -543,12 +542,7 @@ Result<BareTraceResult> TraceBare(const SampleOptions& o) {
   std::vector<uint64_t> blocks;
   const uint64_t block = 64;
   for (uint64_t r0 = 0; r0 < p->rows; r0 += block) blocks.push_back(r0);
-  std::atomic<uint64_t> rays{0}, nanos{0}, cpu_nanos{0};
-  auto thread_cpu_ns = [] {
-    timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return static_cast<uint64_t>(ts.tv_sec) * 1000000000ull + static_cast<uint64_t>(ts.tv_nsec);
-  };
+  std::atomic<uint64_t> rays{0}, nanos{0};
   auto t0 = std::chrono::steady_clock::now();
   LTB_RETURN_IF_ERROR(ParallelFor(blocks, o.jobs, Progress{}, "rows", [&](uint64_t r0) -> Status {
     thread_local RowScratch sc;
@@ -560,12 +554,10 @@ Result<BareTraceResult> TraceBare(const SampleOptions& o) {
       const uint64_t cols = 6ull * p->r * p->r, step = sampler.TexelsPerBatch();
       for (uint64_t c0 = 0; c0 < cols; c0 += step) {  // the same batches RunSample traces
         sampler.GenerateRays(row, rp, brdf, c0, std::min(cols, c0 + step), sc, &below, &samples_below);
-        const uint64_t cpu_a = thread_cpu_ns();
         auto a = std::chrono::steady_clock::now();
         sampler.rays().Occluded(sc.batch, sc.n);
         nanos += static_cast<uint64_t>(
             std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - a).count());
-        cpu_nanos += thread_cpu_ns() - cpu_a;
         rays += sc.active;
       }
     }
@@ -574,7 +566,6 @@ Result<BareTraceResult> TraceBare(const SampleOptions& o) {
   BareTraceResult out;
   out.rays = rays;
   out.trace_thread_seconds = static_cast<double>(nanos.load()) * 1e-9;
-  out.trace_thread_cpu_seconds = static_cast<double>(cpu_nanos.load()) * 1e-9;
   out.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return out;
 }

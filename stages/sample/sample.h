@@ -50,14 +50,12 @@ Result<std::string> SceneHash(const std::string& scene_path);
 Result<SampleResult> RunSample(const SampleOptions& options, const Progress& progress);
 
 // Benchmark baseline: builds the same scene and generates exactly the occlusion rays
-// RunSample traces (direct term), but only traces them: no transport bookkeeping, no
-// output. trace_thread_seconds sums the time threads spent inside Embree (steady clock);
-// trace_thread_cpu_seconds the CPU time they spent there (thread CPU clock), which a
-// thread losing its core to another process does not inflate.
+// RunSample traces (direct term), in the same batches and the same Embree call
+// (rtcOccludedNp, coherent), but only traces them: no transport bookkeeping, no
+// output. trace_thread_seconds sums the time threads spent inside Embree.
 struct BareTraceResult {
   uint64_t rays = 0;
   double trace_thread_seconds = 0;
-  double trace_thread_cpu_seconds = 0;
   double wall_seconds = 0;
 };
 Result<BareTraceResult> TraceBare(const SampleOptions& options);
