@@ -1,6 +1,6 @@
 // Sample-stage throughput: rays/s of the whole stage (RunSample: ray generation, Embree,
 // transport bookkeeping, encoding, writing) beside a bare Embree loop tracing exactly the
-// same rays in the same process (TraceBare: only rtcOccluded1M is timed).
+// same rays in the same batches with the same Embree call (TraceBare: only rtcOccludedNp is timed).
 // ratio = stage rays/s (wall) / bare rays/s; cpu_ratio = bare Embree thread-seconds /
 // stage CPU seconds (user + sys), which a slow disk or a busy machine distorts less.
 // usage: ltb_sample_bench SCENE.toml OUT_DIR [--cube-res R] [--spp N] [--jobs J] [--reps K]

@@ -1,5 +1,6 @@
 #include "stages/sample/ray_scene.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -123,6 +124,42 @@ void RayScene::Occluded(RTCRay* rays, size_t count) const {
   rtcInitIntersectContext(&ctx);
   ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;  // rays of one texel share an origin and nearly a direction
   rtcOccluded1M(scene_, &ctx, rays, static_cast<unsigned>(count), sizeof(RTCRay));
+}
+
+void RayBatch::Reserve(size_t n) {
+  if (tfar.size() >= n) return;
+  for (auto* v : {&org_x, &org_y, &org_z, &dir_x, &dir_y, &dir_z, &tfar}) v->resize(n);
+  tnear.resize(n, 0.0f);
+  time.resize(n, 0.0f);
+  mask.resize(n, 0xFFFFFFFFu);
+  id.resize(n, 0u);
+  flags.resize(n, 0u);
+  origin_filled_ = 0;
+}
+
+void RayBatch::SetOrigin(float x, float y, float z, size_t n) {
+  if (x != ox_ || y != oy_ || z != oz_ || std::signbit(x) != std::signbit(ox_) ||
+      std::signbit(y) != std::signbit(oy_) || std::signbit(z) != std::signbit(oz_)) {
+    ox_ = x;
+    oy_ = y;
+    oz_ = z;
+    origin_filled_ = 0;
+  }
+  if (n <= origin_filled_) return;
+  std::fill(org_x.begin() + origin_filled_, org_x.begin() + n, x);
+  std::fill(org_y.begin() + origin_filled_, org_y.begin() + n, y);
+  std::fill(org_z.begin() + origin_filled_, org_z.begin() + n, z);
+  origin_filled_ = n;
+}
+
+void RayScene::Occluded(RayBatch& b, size_t count) const {
+  if (count == 0) return;
+  RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;  // rays of one texel share an origin and nearly a direction
+  RTCRayNp r{b.org_x.data(), b.org_y.data(), b.org_z.data(), b.tnear.data(), b.dir_x.data(), b.dir_y.data(),
+             b.dir_z.data(), b.time.data(),  b.tfar.data(),  b.mask.data(),  b.id.data(),    b.flags.data()};
+  rtcOccludedNp(scene_, &ctx, &r, static_cast<unsigned>(count));
 }
 
 Status RayScene::error() const {

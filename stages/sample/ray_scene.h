@@ -24,6 +24,23 @@ struct Hit {
   unsigned geom_id = 0;
 };
 
+// A batch of occlusion rays in structure-of-arrays form, as rtcOccludedNp reads it. The
+// sampler writes directions and tfar (+inf: trace; -inf: an inactive slot, tnear > tfar);
+// tnear, time, mask, id and flags are constant, and the origin is shared by the batch.
+// After Occluded, tfar[k] is -inf for an occluded (or inactive) ray.
+struct RayBatch {
+  std::vector<float> org_x, org_y, org_z, tnear, dir_x, dir_y, dir_z, time, tfar;
+  std::vector<unsigned> mask, id, flags;
+  // Room for n rays (keeps what is there; new slots get the constant fields).
+  void Reserve(size_t n);
+  // The origin of slots [0, n): fills only what is not filled yet with this origin.
+  void SetOrigin(float x, float y, float z, size_t n);
+
+ private:
+  float ox_ = 0, oy_ = 0, oz_ = 0;
+  size_t origin_filled_ = 0;
+};
+
 class RayScene {
  public:
   ~RayScene();
@@ -39,6 +56,9 @@ class RayScene {
   Hit Intersect(const glm::dvec3& origin, const glm::dvec3& dir) const;
   // Occlusion of every ray in place: an occluded ray's tfar becomes -inf. Thread-safe.
   void Occluded(RTCRay* rays, size_t count) const;
+  // The same for the first `count` slots of a structure-of-arrays batch (rtcOccludedNp,
+  // coherent flag).
+  void Occluded(RayBatch& batch, size_t count) const;
   // The first error Embree reported, if any.
   Status error() const;
 

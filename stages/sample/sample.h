@@ -50,7 +50,8 @@ Result<std::string> SceneHash(const std::string& scene_path);
 Result<SampleResult> RunSample(const SampleOptions& options, const Progress& progress);
 
 // Benchmark baseline: builds the same scene and generates exactly the occlusion rays
-// RunSample traces (direct term), but only traces them: no transport bookkeeping, no
+// RunSample traces (direct term), in the same batches and the same Embree call
+// (rtcOccludedNp, coherent), but only traces them: no transport bookkeeping, no
 // output. trace_thread_seconds sums the time threads spent inside Embree.
 struct BareTraceResult {
   uint64_t rays = 0;

@@ -1,0 +1,129 @@
+#include "stages/sample/scene_geometry.h"
+
+#include <xxhash.h>
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <limits>
+
+#include <glm/geometric.hpp>
+
+#include "format/version.h"
+#include "stages/sample/geometry.h"
+#include "stages/sample/sample.h"
+
+namespace ltb::sample {
+
+using namespace ltb::format;
+
+namespace {
+
+Status HashFile(const std::string& path, XXH3_state_t* st) {
+  std::ifstream f(path, std::ios::binary);
+  if (!f) return NotFound(path + ": cannot open");
+  std::vector<char> buf(1 << 16);
+  while (f) {
+    f.read(buf.data(), static_cast<std::streamsize>(buf.size()));
+    XXH3_64bits_update(st, buf.data(), static_cast<size_t>(f.gcount()));
+  }
+  return Status::Ok();
+}
+
+}  // namespace
+
+Result<Geometry> BuildGeometry(const SceneDesc& s) {
+  Geometry g;
+  LTB_ASSIGN_OR_RETURN(g.rays, RayScene::Create());
+  XXH3_state_t* st = XXH3_createState();
+  XXH3_64bits_reset(st);
+  Status hs = HashFile(s.path, st);
+  glm::dvec3 lo(std::numeric_limits<double>::infinity()), hi(-std::numeric_limits<double>::infinity());
+  for (const Object& o : s.objects) {
+    std::string where = s.path + ":" + std::to_string(o.line) + ": object \"" + o.name + "\"";
+    if (o.type == Object::Type::kSphere) {
+      glm::dvec3 sc = glm::abs(o.scale);
+      if (std::fabs(sc.x - sc.y) > 1e-12 * sc.x || std::fabs(sc.x - sc.z) > 1e-12 * sc.x) {
+        XXH3_freeState(st);
+        return InvalidArgument(where + ": a sphere needs a uniform scale");
+      }
+      glm::dvec3 c = glm::dvec3(sample::ObjectTransform(o) * glm::dvec4(o.center, 1.0));
+      double r = o.radius * sc.x;
+      LTB_RETURN_IF_ERROR(g.rays->AddSphere(c, r));
+      lo = glm::min(lo, c - r);
+      hi = glm::max(hi, c + r);
+    } else {
+      sample::TriangleMesh mesh;
+      if (o.type == Object::Type::kMesh) {
+        auto loaded = sample::LoadMeshFile(o.file);
+        if (!loaded.ok()) {
+          XXH3_freeState(st);
+          return loaded.status().WithContext(where);
+        }
+        mesh = std::move(loaded).value();
+        if (hs.ok()) hs = HashFile(o.file, st);
+      } else if (o.type == Object::Type::kPlane) {
+        mesh = sample::MakePlane(o.size);
+      } else {
+        mesh = sample::MakeBox(o.size, o.center);
+      }
+      g.degenerate += mesh.degenerate_dropped;
+      sample::ApplyTransform(sample::ObjectTransform(o), &mesh);
+      if (mesh.triangles.empty()) {
+        XXH3_freeState(st);
+        return InvalidArgument(where + ": has no triangles left after its transform (zero scale?)");
+      }
+      LTB_RETURN_IF_ERROR(g.rays->AddMesh(mesh));
+      for (const auto& p : mesh.positions) {
+        lo = glm::min(lo, p);
+        hi = glm::max(hi, p);
+      }
+      if (s.mode == SceneDesc::Mode::kVertex &&
+          std::find(s.vertex_objects.begin(), s.vertex_objects.end(), o.name) != s.vertex_objects.end()) {
+        for (size_t i = 0; i < mesh.positions.size(); ++i) {
+          g.vertex_rows.push_back({true, mesh.positions[i], mesh.normals[i], mesh.normals[i], o.material});
+        }
+      }
+    }
+    g.geom_material.push_back(o.material);
+  }
+  if (s.mode == SceneDesc::Mode::kVertex) {
+    for (const Object& o : s.objects) {
+      if (o.type == Object::Type::kSphere &&
+          std::find(s.vertex_objects.begin(), s.vertex_objects.end(), o.name) != s.vertex_objects.end()) {
+        XXH3_freeState(st);
+        return InvalidArgument(s.path + ":" + std::to_string(o.line) + ": object \"" + o.name +
+                               "\" is a sphere, which has no vertices to be rows");
+      }
+    }
+  }
+  uint64_t h = XXH3_64bits_digest(st);
+  XXH3_freeState(st);
+  LTB_RETURN_IF_ERROR(hs);
+  g.scene_hash = Hex64(h).substr(2);
+  LTB_RETURN_IF_ERROR(g.rays->Commit());
+  g.epsilon = std::max(1e-6, 1e-5 * glm::length(hi - lo));
+  return g;
+}
+
+}  // namespace ltb::sample
+
+namespace ltb::stages {
+
+using namespace ltb::format;
+
+Result<std::string> SceneHash(const std::string& scene_path) {
+  LTB_ASSIGN_OR_RETURN(sample::SceneDesc scene, sample::ParseScene(scene_path));
+  XXH3_state_t* st = XXH3_createState();
+  XXH3_64bits_reset(st);
+  Status s = sample::HashFile(scene.path, st);  // the same bytes, in the same order, as BuildGeometry
+  for (const sample::Object& obj : scene.objects) {
+    if (s.ok() && obj.type == sample::Object::Type::kMesh) s = sample::HashFile(obj.file, st);
+  }
+  uint64_t h = XXH3_64bits_digest(st);
+  XXH3_freeState(st);
+  LTB_RETURN_IF_ERROR(s);
+  return Hex64(h).substr(2);
+}
+
+}  // namespace ltb::stages

@@ -1,0 +1,38 @@
+// The sampler's scene side: the parsed scene's Embree geometry, the material of each
+// Embree geometry, the rows of vertex mode, the ray offset ε and the scene's content hash.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <glm/vec3.hpp>
+
+#include "format/status.h"
+#include "stages/sample/ray_scene.h"
+#include "stages/sample/scene.h"
+
+namespace ltb::sample {
+
+// A row's point: p, normal n (facing the camera in image mode), direction to the viewer
+// ω_o and material; valid = false for a pixel that sees no geometry.
+struct RowPoint {
+  bool valid = false;
+  glm::dvec3 p{0}, n{0, 0, 1}, wo{0, 0, 1};
+  int material = 0;
+};
+
+struct Geometry {
+  std::unique_ptr<RayScene> rays;
+  std::vector<int> geom_material;  // Embree geometry id -> material
+  std::vector<RowPoint> vertex_rows;
+  double epsilon = 1e-4;
+  uint64_t degenerate = 0;
+  std::string scene_hash;
+};
+
+// Loads every object of the scene into one committed Embree scene.
+Result<Geometry> BuildGeometry(const SceneDesc& s);
+
+}  // namespace ltb::sample
