@@ -214,7 +214,12 @@ with tempfile.TemporaryDirectory() as d:
     out2 = os.path.join(d, "big_int.ltm")
     pr = subprocess.Popen([t.LTBAKE, "cpca", bigl, "-o", out2, "--progress", "never", *map(str, args)],
                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(full_time * 0.5)
+    # Interrupt once the first checkpoint exists (an interrupt during initialisation keeps
+    # nothing, by design: initialisation is redone), half-way through the iterations.
+    t_start = time.monotonic()
+    while pr.poll() is None and not os.path.exists(out2 + ".cpca-state") and time.monotonic() - t_start < 600:
+        time.sleep(0.02)
+    time.sleep(full_time * 0.3)
     pr.send_signal(2)
     _, err = pr.communicate()
     if pr.returncode != 0:
