@@ -19,6 +19,8 @@ class TransposeCommand : public Command {
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     app->add_flag("!--no-verify-input", options_.verify_input,
                   "skip the checksum pass over the input (saves one sequential read of it)");
+    app->add_flag("!--no-direct-io", options_.direct_io,
+                  "write the output through the page cache instead of with O_DIRECT");
     AddCommonFlags(app, &flags_);
     AddShardFlags(app, &shard_flags_);
   }
@@ -38,13 +40,18 @@ class TransposeCommand : public Command {
     auto r = stages::RunTranspose(options_, bar.hook());
     bar.Done();
     if (!r.ok()) return ReportFailure(r.status());
+    if (!r->direct_fallback.empty() && !flags_.quiet) {
+      std::cerr << "ltbake: note: " << r->direct_fallback << "; the output was written through the page cache\n";
+    }
     if (!flags_.quiet) {
       std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << r->rows << " x " << r->cols << " in chunks of "
                 << r->block_cols << " column(s); " << r->panels << " panel(s) of up to " << r->panel_cols
                 << " columns";
       if (r->chunks_already_committed) std::cout << " (resumed: " << r->chunks_already_committed << " already committed)";
       std::cout << "; " << r->zero_chunks_out << " all-zero chunks stored free; read " << r->bytes_read
-                << " + verified " << r->bytes_verified << " bytes, wrote " << r->bytes_written << "\n";
+                << " + verified " << r->bytes_verified << " bytes, wrote " << r->bytes_written;
+      if (r->bytes_direct > 0) std::cout << " (" << r->bytes_direct << " with O_DIRECT)";
+      std::cout << "\n";
     }
     return kExitOk;
   }

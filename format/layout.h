@@ -21,7 +21,10 @@ inline constexpr uint64_t kMaxMetadataBytes = 1ull << 20;  // metadata is descri
 inline constexpr uint32_t kFrameMagic = 0x464D544C;  // "LTMF"
 inline constexpr std::array<unsigned char, 8> kTrailerMagic = {'L', 'T', 'M', 'T', 'R', 'A', 'I', 'L'};
 
-enum class FrameType : uint16_t { kChunk = 1, kIndex = 2 };
+// kPadding (written with the optional flag, so every 1.x reader skips it): zeros that put
+// the next frame's payload on a kDirectAlignment boundary for direct I/O.
+enum class FrameType : uint16_t { kChunk = 1, kIndex = 2, kPadding = 3 };
+inline constexpr uint64_t kDirectAlignment = 4096;
 inline constexpr uint16_t kFrameFlagOptional = 1;  // readers skip unknown optional frames
 
 // Chunk payload encodings (docs/FORMAT.md "Frames"). kSparse and kSparseZstd arrived in

@@ -3,6 +3,8 @@
 #include <unistd.h>
 
 #include <cstdio>
+#include <cstdlib>
+#include <cstring>
 #include <tuple>
 
 #include "format/io/container_reader.h"
@@ -27,11 +29,36 @@ ContainerWriter& ContainerWriter::operator=(ContainerWriter&& o) noexcept {
     mutations_ = o.mutations_;
     frames_ = std::move(o.frames_);
     committed_ = std::move(o.committed_);
+    direct_ = std::move(o.direct_);
+    bounce_ = std::move(o.bounce_);
+    direct_stats_ = std::move(o.direct_stats_);
   }
   return *this;
 }
 
 ContainerWriter::~ContainerWriter() = default;
+
+void ContainerWriter::FreeDeleter::operator()(std::byte* p) const { std::free(p); }
+
+namespace {
+constexpr uint64_t kBounceBytes = 1 << 20;  // staging buffer for payloads not 4096-aligned in memory
+}  // namespace
+
+DirectIoStats ContainerWriter::direct_io_stats() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return direct_stats_;
+}
+
+void ContainerWriter::OpenDirect() {
+  if (!options_.direct_io || sealed_ || file_.fd() < 0) return;
+  auto f = File::Open(file_.path(), File::Mode::kWriteDirect);
+  if (!f.ok()) {
+    direct_stats_.fallback_reason = "O_DIRECT open refused: " + f.status().message();
+    return;
+  }
+  direct_ = std::move(f).value();
+  direct_stats_.active = true;
+}
 
 namespace {
 
@@ -117,6 +144,7 @@ Result<ContainerWriter> ContainerWriter::Open(const std::string& path, const nlo
       w.header_ = prelude->header;
       Status s = w.Resume(size);
       if (!s.ok()) return s.WithContext(path);
+      w.OpenDirect();
       return w;
     }
   }
@@ -127,6 +155,7 @@ Result<ContainerWriter> ContainerWriter::Open(const std::string& path, const nlo
   if (!prelude.ok()) return prelude.status().WithContext(path + " (just created)");
   w.header_ = prelude->header;
   w.end_ = w.header_.FirstFrameOffset();
+  w.OpenDirect();
   return w;
 }
 
@@ -254,9 +283,18 @@ Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChun
   auto in_chunk = [&](const Status& s) {
     return Status(s.code(), "writing chunk " + std::to_string(chunk) + " of array \"" + a.name + "\": " + s.message());
   };
+  const bool direct = direct_.fd() >= 0 && h.payload_length >= options_.direct_min_bytes;
+  if (direct) {
+    // The payload (at frame + 64) goes on a kDirectAlignment boundary; a padding frame
+    // fills the gap (frames are 64-aligned, so the gap is 0 or at least one header).
+    const uint64_t frame = AlignUp(offset + kFrameHeaderSize, kDirectAlignment) - kFrameHeaderSize;
+    if (frame != offset) {
+      if (Status s = AppendPadding(frame); !s.ok()) return in_chunk(s);
+      offset = frame;
+    }
+  }
   // Payload and its zero padding first, the header last: the header write is the commit.
-  LTB_RETURN_IF_ERROR(CountMutation());
-  if (Status s = file_.WriteAt(offset + kFrameHeaderSize, encoded.payload); !s.ok()) return in_chunk(s);
+  if (Status s = WritePayload(offset + kFrameHeaderSize, encoded.payload, direct); !s.ok()) return in_chunk(s);
   uint64_t pad = AlignUp(h.payload_length, kAlignment) - h.payload_length;
   if (pad > 0) {
     LTB_RETURN_IF_ERROR(CountMutation());
@@ -272,6 +310,85 @@ Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChun
   end_ = offset + h.FrameSize();
   frames_.push_back({offset, h});
   committed_.insert(Key(array, chunk));
+  return Status::Ok();
+}
+
+// A padding frame from end_ to frame_offset: the file is zero-extended over it first, then
+// its header is written (its payload is zeros), so a writer stopped in between leaves an
+// uncommitted tail of zeros.
+Status ContainerWriter::AppendPadding(uint64_t frame_offset) {
+  static const std::array<std::byte, kDirectAlignment> kZeroPage{};
+  FrameHeader p;
+  p.type = static_cast<uint16_t>(FrameType::kPadding);
+  p.flags = kFrameFlagOptional;
+  p.payload_length = frame_offset - end_ - kFrameHeaderSize;
+  p.decoded_length = p.payload_length;
+  p.payload_checksum = Checksum(ByteSpan(kZeroPage.data(), p.payload_length));
+  if (p.payload_length > 0) {
+    LTB_RETURN_IF_ERROR(CountMutation());
+    LTB_RETURN_IF_ERROR(file_.Truncate(frame_offset));
+  }
+  LTB_RETURN_IF_ERROR(CountMutation());
+  LTB_RETURN_IF_ERROR(file_.WriteAt(end_, EncodeFrameHeader(p)));
+  direct_stats_.padding_frames++;
+  direct_stats_.padding_bytes += frame_offset - end_;
+  end_ = frame_offset;
+  return Status::Ok();
+}
+
+// Writes a payload at `offset`. Direct: the whole 4096-byte blocks go through the O_DIRECT
+// descriptor (from the caller's memory when it is aligned, else through the staging
+// buffer), the rest through the page cache. A file system that refuses O_DIRECT writes
+// (EINVAL) turns direct writes off for the rest of the file.
+Status ContainerWriter::WritePayload(uint64_t offset, ByteSpan payload, bool direct) {
+  uint64_t done = 0;
+  if (direct && offset % kDirectAlignment == 0) {
+    const uint64_t whole = payload.size() / kDirectAlignment * kDirectAlignment;
+    const bool aligned = reinterpret_cast<uintptr_t>(payload.data()) % kDirectAlignment == 0;
+    if (!aligned && !bounce_) {
+      bounce_.reset(static_cast<std::byte*>(std::aligned_alloc(kDirectAlignment, kBounceBytes)));
+    }
+    while (done < whole && direct_.fd() >= 0) {
+      const uint64_t n = aligned ? whole - done : std::min(kBounceBytes, whole - done);
+      ByteSpan piece = payload.subspan(done, n);
+      if (!aligned) {
+        if (!bounce_) break;  // no memory for staging: write through the page cache
+        std::memcpy(bounce_.get(), piece.data(), n);
+        piece = ByteSpan(bounce_.get(), n);
+      }
+      LTB_RETURN_IF_ERROR(CountMutation());
+      int err = 0;
+      uint64_t wrote = 0;
+      while (wrote < n) {
+        ssize_t r = ::pwrite(direct_.fd(), piece.data() + wrote, n - wrote, static_cast<off_t>(offset + done + wrote));
+        if (r < 0 && errno == EINTR) continue;
+        if (r <= 0) {
+          err = r < 0 ? errno : EIO;
+          break;
+        }
+        wrote += static_cast<uint64_t>(r);
+      }
+      if (err == EINVAL) {
+        // The file system does not take this direct write (the kernel checks alignment
+        // before writing anything): write through the page cache from here on.
+        direct_stats_.fallback_reason = "O_DIRECT write refused (EINVAL) at offset " + std::to_string(offset + done);
+        direct_stats_.active = false;
+        (void)direct_.Close();
+        break;
+      }
+      if (err != 0) {
+        return IoError(path() + ": direct write of " + std::to_string(n) + " bytes at offset " +
+                           std::to_string(offset + done),
+                       err);
+      }
+      direct_stats_.direct_bytes += n;
+      done += n;
+    }
+  }
+  if (done < payload.size()) {
+    LTB_RETURN_IF_ERROR(CountMutation());
+    LTB_RETURN_IF_ERROR(file_.WriteAt(offset + done, payload.subspan(done)));
+  }
   return Status::Ok();
 }
 

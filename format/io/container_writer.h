@@ -9,6 +9,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <mutex>
 #include <string>
 #include <unordered_set>
@@ -28,6 +29,14 @@ struct WriterOptions {
   bool overwrite_mismatch = false;
   // fdatasync after every chunk (survives power loss per chunk, at a large cost).
   bool sync_each_chunk = false;
+  // Write large chunk payloads with O_DIRECT, around the page cache: each such payload is
+  // put on a 4096-byte boundary (a small padding frame before it when needed, at most 4 KiB
+  // of zeros per chunk) and written from an aligned buffer. Saves the kernel's copy into
+  // the page cache, which bounds writers on many machines; the bytes and the commit order
+  // are the same. Falls back to ordinary writes where the file system refuses O_DIRECT.
+  bool direct_io = false;
+  // Payloads smaller than this are written through the page cache even with direct_io.
+  uint64_t direct_min_bytes = 64 << 10;
   // For crash tests: every file mutation (write, extend, sync) after the first
   // `stop_after_mutations` fails, leaving the file exactly as a writer killed there would.
   uint64_t stop_after_mutations = UINT64_MAX;
@@ -38,6 +47,15 @@ struct ResumeInfo {
   bool already_complete = false;  // ... and was sealed
   uint64_t committed_chunks = 0;  // chunks found committed
   uint64_t discarded_tail_bytes = 0;
+};
+
+// What the writer did with direct_io (for reports and tests).
+struct DirectIoStats {
+  bool active = false;           // direct_io was asked for and the file system accepted it
+  uint64_t direct_bytes = 0;     // payload bytes written with O_DIRECT
+  uint64_t padding_frames = 0;   // padding frames written to align payloads
+  uint64_t padding_bytes = 0;    // their size, headers included
+  std::string fallback_reason;   // why direct writes stopped, if they did
 };
 
 class ContainerWriter {
@@ -53,6 +71,7 @@ class ContainerWriter {
   const format::Metadata& metadata() const { return metadata_; }
   const ResumeInfo& resume_info() const { return resume_; }
   const std::string& path() const { return file_.path(); }
+  DirectIoStats direct_io_stats() const;
 
   bool Has(uint32_t array, uint64_t chunk) const;
   // Chunks of `array` not yet committed, ascending.
@@ -74,6 +93,10 @@ class ContainerWriter {
  private:
   Status Resume(uint64_t file_size);
   Status CountMutation();  // fails once options_.stop_after_mutations is reached
+  // Direct-I/O helpers; called with mu_ held.
+  void OpenDirect();
+  Status AppendPadding(uint64_t frame_offset);
+  Status WritePayload(uint64_t offset, format::ByteSpan payload, bool direct);
   static uint64_t Key(uint32_t array, uint64_t chunk) { return (uint64_t{array} << 40) | chunk; }
 
   File file_;
@@ -87,6 +110,12 @@ class ContainerWriter {
   uint64_t mutations_ = 0;
   std::vector<format::IndexEntry> frames_;
   std::unordered_set<uint64_t> committed_;
+  File direct_;  // the same file opened with O_DIRECT (options_.direct_io), else closed
+  struct FreeDeleter {
+    void operator()(std::byte* p) const;
+  };
+  std::unique_ptr<std::byte, FreeDeleter> bounce_;  // aligned staging for unaligned payloads
+  DirectIoStats direct_stats_;
 };
 
 }  // namespace ltb::io

@@ -30,6 +30,7 @@ Result<File> File::Open(const std::string& path, Mode mode) {
     case Mode::kRead: flags |= O_RDONLY; break;
     case Mode::kReadWrite: flags |= O_RDWR; break;
     case Mode::kCreateExclusive: flags |= O_RDWR | O_CREAT | O_EXCL; break;
+    case Mode::kWriteDirect: flags |= O_WRONLY | O_DIRECT; break;
   }
   int fd;
   do {

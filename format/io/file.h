@@ -12,7 +12,9 @@ namespace ltb::io {
 
 class File {
  public:
-  enum class Mode { kRead, kReadWrite, kCreateExclusive };
+  // kWriteDirect: an existing file, write-only with O_DIRECT (writes bypass the page cache;
+  // offsets, lengths and buffers must be aligned to the device's block size).
+  enum class Mode { kRead, kReadWrite, kCreateExclusive, kWriteDirect };
 
   File() = default;
   ~File();

@@ -120,6 +120,7 @@ VerifyReport VerifyContainer(const std::string& path) {
       index_frame = &e;
       continue;
     }
+    if (h.type == static_cast<uint16_t>(FrameType::kPadding)) continue;  // zeros (checked by the checksum)
     if (h.type != static_cast<uint16_t>(FrameType::kChunk)) {
       if (h.flags & kFrameFlagOptional) {
         r.notes.push_back(where + ": skipped optional frame of unknown type " + std::to_string(h.type));

@@ -27,6 +27,9 @@ struct TransposeOptions {
   // Check every input chunk's checksum first (one sequential read of the input): the panel
   // passes read partial rows, which cannot be checked against a whole-chunk checksum.
   bool verify_input = true;
+  // Write column chunks with O_DIRECT (io::WriterOptions::direct_io): the output bypasses
+  // the page cache, whose copy bounds this stage on many machines.
+  bool direct_io = true;
   // Write shard `index` of `count` (io::ShardPath(output, ...)) instead of the whole output.
   io::ShardSpec shard;
 };
@@ -41,6 +44,9 @@ struct TransposeResult {
   uint64_t bytes_read = 0;         // payload bytes read from the input by the panel passes
   uint64_t bytes_verified = 0;     // payload bytes read by the checksum pass
   uint64_t bytes_written = 0;      // payload bytes appended to the output
+  uint64_t bytes_direct = 0;       // ... of which written with O_DIRECT
+  uint64_t padding_bytes = 0;      // padding frames that align direct payloads
+  std::string direct_fallback;     // why direct writes were off or stopped, if asked for
 };
 
 Result<TransposeResult> RunTranspose(const TransposeOptions& options, const Progress& progress);
