@@ -7,7 +7,10 @@
 # from `ltb_transpose_bench make`, ~8 MiB row blocks), made once (not timed).
 # Each repetition, in an order that rotates by one step per repetition:
 #   transpose   ltbake transpose in.ltm -o out.ltm --mem-limit 1GiB --progress never
-#               (wall time; peak RSS, user and sys time from /usr/bin/time)
+#               (wall time; peak RSS, user and sys time from /usr/bin/time); the output
+#               is written with O_DIRECT (the default since 2026-11-25)
+#   transpose_buffered   the same with --no-direct-io (output through the page cache, as
+#               before 2026-11-25)
 #   dd copy     dd if=in.ltm of=copy bs=8M conv=fdatasync      (read + write once: the floor)
 #   dd read     dd if=in.ltm of=/dev/null bs=8M
 #   dd write    dd if=/dev/zero of=z bs=8M count=N conv=fdatasync   (N x 8 MiB = in.ltm's size)
@@ -133,6 +136,8 @@ if len(sys.argv) > 8 and sys.argv[8]:
     if m:
         d.update(panels=int(m[1]), panel_cols=int(m[2]), bytes_read=int(m[3]), bytes_verified=int(m[4]),
                  bytes_written=int(m[5]))
+        md = re.search(r"\((\d+) with O_DIRECT\)", out)
+        d["bytes_direct"] = int(md[1]) if md else 0
     else:
         try:
             d["tool"] = json.loads(out.strip().splitlines()[-1])
@@ -193,7 +198,8 @@ note "{\"kind\": \"make_input\", \"file_bytes\": $(stat -c %s "$IN"), \"tool\": 
 echo "  input made: $(stat -c %s "$IN") bytes"
 
 step_transpose() { transpose transpose "$1"; }
-STEPS=(step_transpose dd_copy dd_read_write)
+step_transpose_buffered() { transpose transpose_buffered "$1" --no-direct-io; }
+STEPS=(step_transpose dd_copy dd_read_write step_transpose_buffered)
 for ((rep = 1; rep <= REPS; rep++)); do
   for ((i = 0; i < ${#STEPS[@]}; i++)); do "${STEPS[(i + rep - 1) % ${#STEPS[@]}]}" "$rep"; done
 done

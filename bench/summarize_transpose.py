@@ -51,7 +51,8 @@ def main():
         rows.append((label, len(t), m, min(t), max(t), payload / m / 1e9,
                      m / floor if floor else None, max(rss) if rss else None))
 
-    add("**ltbake transpose** (checksum pass on)", "transpose")
+    add("**ltbake transpose** (checksum pass on, output with O_DIRECT)", "transpose")
+    add("ltbake transpose --no-direct-io (output through the page cache)", "transpose_buffered")
     add("ltbake transpose --no-verify-input", "transpose_no_verify")
     add("dd copy in.ltm -> file, conv=fdatasync (**floor**)", "dd_copy")
     add("dd read in.ltm + dd write zeros (same rep)", None, rw_sums)
@@ -95,6 +96,12 @@ def main():
     if t_med and floor_rw:
         out.append(f"| transpose / (dd read + dd write) | {t_med / floor_rw:.2f} | "
                    f"{', '.join(f'{x:.2f}' for x in pairs_rw)} |")
+    bu = med("transpose_buffered")
+    if bu and t_med:
+        by_rep_b = {d["rep"]: d["wall_seconds"] for d in runs.get("transpose_buffered", [])}
+        per = [by_rep_b[r] / by_rep[r]["transpose"] for r in sorted(by_rep)
+               if r in by_rep_b and "transpose" in by_rep[r]]
+        out.append(f"| transpose --no-direct-io / transpose | {bu / t_med:.2f} | {', '.join(f'{x:.2f}' for x in per)} |")
     nv = med("transpose_no_verify")
     if nv and floor:
         out.append(f"| transpose --no-verify-input / dd copy | {nv / floor:.2f} | (1 run) |")
@@ -111,13 +118,18 @@ def main():
         d = tr[0]
         out.append(f"ltbake reports (every run): {d.get('panels')} panels of up to {d.get('panel_cols')} columns; "
                    f"read {d.get('bytes_read')} + verified {d.get('bytes_verified')} bytes, wrote "
-                   f"{d.get('bytes_written')}; --no-verify-input: read "
+                   f"{d.get('bytes_written')} ({d.get('bytes_direct', 0)} with O_DIRECT); --no-verify-input: read "
                    f"{runs.get('transpose_no_verify', [{}])[0].get('bytes_read')} + verified "
                    f"{runs.get('transpose_no_verify', [{}])[0].get('bytes_verified')}.\n")
         us = [x["user_seconds"] for x in tr]
         ss = [x["sys_seconds"] for x in tr]
         out.append(f"CPU time of the transposes: user {statistics.median(us):.1f} s, sys {statistics.median(ss):.1f} s "
                    f"(medians; sys range {min(ss):.1f}–{max(ss):.1f} s).\n")
+        tb = [x for x in runs.get("transpose_buffered", []) if "user_seconds" in x]
+        if tb:
+            out.append(f"... and with --no-direct-io: user {statistics.median([x['user_seconds'] for x in tb]):.1f} s, "
+                       f"sys {statistics.median([x['sys_seconds'] for x in tb]):.1f} s (sys range "
+                       f"{min(x['sys_seconds'] for x in tb):.1f}–{max(x['sys_seconds'] for x in tb):.1f} s).\n")
     h5runs = runs.get("h5py", []) + runs.get("h5py_sliced", []) + runs.get("h5py_sliced_cache256m", [])
     if h5runs:
         out.append("h5py phases (s): " + "; ".join(
