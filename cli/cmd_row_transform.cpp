@@ -20,6 +20,8 @@ class RowTransformCommand : public Command {
         ->check(CLI::IsMember({"haar", "db1", "db2", "db3", "db4"}));
     app->add_flag("--zstd", options_.zstd, "zstd-compress chunks where it saves at least 10%");
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
+    app->add_flag("!--no-direct-io", options_.direct_io,
+                  "write the output through the page cache instead of with O_DIRECT");
     AddCommonFlags(app, &flags_);
     AddShardFlags(app, &shard_flags_);
   }
@@ -37,11 +39,16 @@ class RowTransformCommand : public Command {
     auto r = stages::RunRowTransform(options_, bar.hook());
     bar.Done();
     if (!r.ok()) return ReportFailure(r.status());
+    if (!r->direct_fallback.empty() && !flags_.quiet) {
+      std::cerr << "ltbake: note: " << r->direct_fallback << "; the output was written through the page cache\n";
+    }
     if (!flags_.quiet) {
       std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << r->rows << " rows, R = " << r->cube_res << ", filter "
                 << filter_ << ", " << r->chunks_total << " chunks";
       if (r->chunks_already_committed) std::cout << " (resumed: " << r->chunks_already_committed << " already committed)";
-      std::cout << "; skipped " << r->zero_chunks << " all-zero chunks and " << r->zero_rows << " all-zero rows\n";
+      std::cout << "; skipped " << r->zero_chunks << " all-zero chunks and " << r->zero_rows << " all-zero rows";
+      if (r->bytes_direct > 0) std::cout << "; wrote " << r->bytes_direct << " bytes with O_DIRECT";
+      std::cout << "\n";
     }
     return kExitOk;
   }

@@ -213,6 +213,7 @@ Result<RowTransformResult> RunRowTransform(const RowTransformOptions& o, const P
       Provenance("row-transform", {{"filter", wavelet::FilterName(o.filter)}, {"zstd", o.zstd}}, {&in});
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
+  wo.direct_io = o.direct_io;
   LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, out_meta, wo, o.shard));
 
   RowTransformResult result;
@@ -263,6 +264,9 @@ Result<RowTransformResult> RunRowTransform(const RowTransformOptions& o, const P
     return Status::Ok();
   });
   result.chunks_written = written;
+  const io::DirectIoStats ds = out.direct_io_stats();
+  result.bytes_direct = ds.direct_bytes;
+  result.direct_fallback = ds.fallback_reason;
   result.zero_chunks = zero_chunks;
   result.zero_rows = zero_rows;
   LTB_RETURN_IF_ERROR(s);

@@ -21,6 +21,8 @@ struct RowTransformOptions {
   int jobs = 2;
   bool zstd = false;
   bool overwrite = false;
+  // Write the output's row blocks with O_DIRECT (io::WriterOptions::direct_io).
+  bool direct_io = true;
   // Write shard `index` of `count` (io::ShardPath(output, ...)) instead of the whole output.
   io::ShardSpec shard;
 };
@@ -30,6 +32,8 @@ struct RowTransformResult {
   uint64_t chunks_total = 0, chunks_written = 0, chunks_already_committed = 0;
   uint64_t zero_chunks = 0;  // all-zero input chunks, passed through without work
   uint64_t zero_rows = 0;    // all-zero rows inside other chunks, skipped
+  uint64_t bytes_direct = 0;        // output payload bytes written with O_DIRECT
+  std::string direct_fallback;      // why direct writes were off or stopped, if asked for
 };
 
 Result<RowTransformResult> RunRowTransform(const RowTransformOptions& options, const Progress& progress);
