@@ -47,7 +47,9 @@ constexpr uint64_t kBounceBytes = 1 << 20;  // staging buffer for payloads not 4
 
 DirectIoStats ContainerWriter::direct_io_stats() const {
   std::lock_guard<std::mutex> lock(mu_);
-  return direct_stats_;
+  DirectIoStats s = direct_stats_;
+  s.active = direct_.fd() >= 0;
+  return s;
 }
 
 void ContainerWriter::OpenDirect() {
@@ -58,7 +60,6 @@ void ContainerWriter::OpenDirect() {
     return;
   }
   direct_ = std::move(f).value();
-  direct_stats_.active = true;
 }
 
 namespace {
@@ -373,7 +374,6 @@ Status ContainerWriter::WritePayload(uint64_t offset, ByteSpan payload, bool dir
         // The file system does not take this direct write (the kernel checks alignment
         // before writing anything): write through the page cache from here on.
         direct_stats_.fallback_reason = "O_DIRECT write refused (EINVAL) at offset " + std::to_string(offset + done);
-        direct_stats_.active = false;
         (void)direct_.Close();
         break;
       }

@@ -51,7 +51,7 @@ struct ResumeInfo {
 
 // What the writer did with direct_io (for reports and tests).
 struct DirectIoStats {
-  bool active = false;           // direct_io was asked for and the file system accepted it
+  bool active = false;           // direct writes are on (asked for, accepted, not fallen back)
   uint64_t direct_bytes = 0;     // payload bytes written with O_DIRECT
   uint64_t padding_frames = 0;   // padding frames written to align payloads
   uint64_t padding_bytes = 0;    // their size, headers included

@@ -18,14 +18,6 @@ namespace {
 using format::Layout;
 using test::TempDir;
 
-std::string Hash(const std::string& path) {
-  auto r = io::ContainerReader::Open(path);
-  EXPECT_TRUE(r.ok()) << r.status().message();
-  if (!r.ok()) return "";
-  auto s = io::SummarizeArray(*r, 0, 1);
-  EXPECT_TRUE(s.ok()) << s.status().message();
-  return s.ok() ? s->content_hash : "";
-}
 
 // 49 rows of 1500 f32 (6000 bytes), 12 rows per chunk: chunks of 72,000 bytes (not a
 // multiple of 4096: a buffered tail after the direct part) and a last one of 6,000 bytes
@@ -97,7 +89,7 @@ TEST(DirectIo, SameContentAlignedPayloadsAndAPlainVerify) {
     ASSERT_EQ(c->as<float>().size(), want.size());
     EXPECT_EQ(0, std::memcmp(c->as<float>().data(), want.data(), want.size() * 4)) << "chunk " << i;
   }
-  EXPECT_EQ(Hash(direct), Hash(plain));
+  EXPECT_EQ(test::HashOf(direct), test::HashOf(plain));
   EXPECT_NE(test::ReadFileBytes(direct).size(), test::ReadFileBytes(plain).size());  // the padding frames
 
   // Padding frames are known: verify reports neither problems nor notes.
@@ -121,7 +113,7 @@ TEST(DirectIo, EveryInterruptedWriteVerifiesAndResumes) {
   ASSERT_TRUE(WriteAll(ref, o, &st).ok());
   if (!st.active) GTEST_SKIP() << "the temporary directory's file system refuses O_DIRECT: " << st.fallback_reason;
   const std::vector<char> ref_bytes = test::ReadFileBytes(ref);
-  const std::string ref_hash = Hash(ref);
+  const std::string ref_hash = test::HashOf(ref);
   int interrupted = 0;
   for (uint64_t stop = 0;; ++stop) {
     const std::string path = dir.File("cut" + std::to_string(stop) + ".ltm");
@@ -129,20 +121,15 @@ TEST(DirectIo, EveryInterruptedWriteVerifiesAndResumes) {
     cut.stop_after_mutations = stop;
     if (WriteAll(path, cut).ok()) break;
     ++interrupted;
-    io::VerifyReport v = io::VerifyContainer(path);
-    EXPECT_TRUE(v.readable) << "stopped after " << stop;
-    EXPECT_TRUE(v.problems.empty()) << "stopped after " << stop << ": " << v.problems.front();
-    auto r = io::ContainerReader::Open(path);
-    ASSERT_TRUE(r.ok()) << "stopped after " << stop << ": " << r.status().message();
-    EXPECT_TRUE(r->problems().empty()) << "stopped after " << stop;
-    EXPECT_EQ(r->chunk_frames().size(), v.chunks_ok) << "stopped after " << stop;
+    test::ExpectInterruptedFileIntact(path, stop);
+    if (::testing::Test::HasFatalFailure()) return;
     // Half the cuts resume with ordinary writes (a rerun without direct I/O).
     const std::string copy = dir.File("copy" + std::to_string(stop) + ".ltm");
     std::filesystem::copy_file(path, copy);
     ASSERT_TRUE(WriteAll(path, o).ok()) << "resume after " << stop;
     EXPECT_EQ(test::ReadFileBytes(path), ref_bytes) << "resume after " << stop << " differs from an uninterrupted write";
     ASSERT_TRUE(WriteAll(copy, {}).ok()) << "buffered resume after " << stop;
-    EXPECT_EQ(Hash(copy), ref_hash) << "buffered resume after " << stop;
+    EXPECT_EQ(test::HashOf(copy), ref_hash) << "buffered resume after " << stop;
     EXPECT_TRUE(io::VerifyContainer(copy).problems.empty()) << "buffered resume after " << stop;
   }
   // 3 direct chunks (padding extension and header, direct part, buffered tail, header), the

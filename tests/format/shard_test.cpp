@@ -278,14 +278,7 @@ void WriteShards(const std::string& out, uint64_t n, uint32_t seed = 42) {
   }
 }
 
-std::string HashOf(const std::string& path) {
-  auto r = io::ContainerReader::Open(path);
-  EXPECT_TRUE(r.ok()) << r.status().message();
-  if (!r.ok()) return "";
-  auto s = io::SummarizeArray(*r, 0, 2);
-  EXPECT_TRUE(s.ok()) << s.status().message();
-  return s.ok() ? s->content_hash : "";
-}
+using test::HashOf;
 
 TEST(ShardPath, NamesTheShardDirectoryAndPadsTheNumbers) {
   EXPECT_EQ(io::ShardPath("d/rows.ltm", 2, 4), "d/rows.shards/00002-of-00004.ltm");

@@ -12,7 +12,12 @@
 #include <nlohmann/json.hpp>
 
 #include "format/array_spec.h"
+#include <gtest/gtest.h>
+
+#include "format/io/array_summary.h"
+#include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
+#include "format/io/verifier.h"
 
 namespace ltb::test {
 
@@ -91,6 +96,28 @@ inline void WriteMatrix(const std::string& path, uint64_t rows, uint64_t cols, f
   }
   auto s = w->Finish();
   if (!s.ok()) throw std::runtime_error(s.message());
+}
+
+// The content_hash of array 0 of a container ("" after a failed expectation).
+inline std::string HashOf(const std::string& path) {
+  auto r = io::ContainerReader::Open(path);
+  EXPECT_TRUE(r.ok()) << r.status().message();
+  if (!r.ok()) return "";
+  auto s = io::SummarizeArray(*r, 0, 2);
+  EXPECT_TRUE(s.ok()) << s.status().message();
+  return s.ok() ? s->content_hash : "";
+}
+
+// A file left by a writer stopped after `stop` mutations: it verifies without a problem,
+// opens, and lists exactly the chunks that verify.
+inline void ExpectInterruptedFileIntact(const std::string& path, uint64_t stop) {
+  io::VerifyReport v = io::VerifyContainer(path);
+  EXPECT_TRUE(v.readable) << "stopped after " << stop;
+  EXPECT_TRUE(v.problems.empty()) << "stopped after " << stop << ": " << v.problems.front();
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok()) << "stopped after " << stop << ": " << r.status().message();
+  EXPECT_TRUE(r->problems().empty()) << "stopped after " << stop;
+  EXPECT_EQ(r->chunk_frames().size(), v.chunks_ok) << "stopped after " << stop;
 }
 
 }  // namespace ltb::test
