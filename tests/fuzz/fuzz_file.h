@@ -17,17 +17,19 @@ namespace ltb::fuzz {
 
 // The process's own temporary directory, made on first use and removed at exit.
 inline const std::string& TempDir() {
-  static const std::string dir = [] {
+  // Never destroyed: the exit handler below runs after static destructors would have.
+  static const std::string* const dir = [] {
     std::string base = std::filesystem::is_directory("/dev/shm") ? "/dev/shm" : std::filesystem::temp_directory_path().string();
     std::string tmpl = base + "/ltb-fuzz-XXXXXX";
     if (mkdtemp(tmpl.data()) == nullptr) std::abort();
+    auto* d = new std::string(tmpl);
     std::atexit([] {
       std::error_code ec;
       std::filesystem::remove_all(TempDir(), ec);
     });
-    return tmpl;
+    return d;
   }();
-  return dir;
+  return *dir;
 }
 
 // Writes `size` bytes to TempDir()/name (replacing it) and returns the path; "" on failure.

@@ -6,8 +6,15 @@
 //              ASCII and binary (both byte orders for PLY), with and without normals,
 //              colours and texture coordinates; and by Draco as .drc (edgebreaker and
 //              sequential, several quantizations, with normals, a point cloud).
+//   OUT/ltm/   containers written by ltbake's own writer where the stages would need large
+//              inputs: payloads written with O_DIRECT behind padding frames (the stages do
+//              that only for chunks of 64 KiB and more; here from 4 KiB), sealed and not;
+//              every dtype in every encoding (raw, zero, zstd, sparse, sparse-zstd); files
+//              of a writer stopped after every few mutations (torn and unsealed).
 // usage: ltb_fuzz_seeds OUT MESH.obj
+#include <array>
 #include <cmath>
+#include <cstring>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -26,6 +33,11 @@
 #include <draco/compression/encode.h>
 #include <draco/mesh/triangle_soup_mesh_builder.h>
 #include <draco/point_cloud/point_cloud_builder.h>
+#include <nlohmann/json.hpp>
+
+#include "format/array_spec.h"
+#include "format/chunk_codec.h"
+#include "format/io/container_writer.h"
 
 namespace fs = std::filesystem;
 
@@ -152,7 +164,7 @@ void WriteDraco(const std::string& path, const PolyMesh& m, int method, int qp, 
   std::vector<std::array<PolyMesh::Point, 3>> tris;
   std::vector<std::array<PolyMesh::Normal, 3>> nrm;
   for (auto f : m.faces()) {
-    std::vector<PolyMesh::VertexHandle> vs(m.fv_begin(f), m.fv_end(f));
+    std::vector<PolyMesh::VertexHandle> vs(m.cfv_begin(f), m.cfv_end(f));
     for (size_t k = 1; k + 1 < vs.size(); ++k) {
       tris.push_back({m.point(vs[0]), m.point(vs[k]), m.point(vs[k + 1])});
       nrm.push_back({m.normal(vs[0]), m.normal(vs[k]), m.normal(vs[k + 1])});
@@ -205,7 +217,8 @@ void MeshSeeds(const std::string& dir, const std::string& input) {
   m.update_normals();
   for (auto v : m.vertices()) {
     auto p = m.point(v);
-    m.set_color(v, PolyMesh::Color((unsigned char)(std::fabs(p[0]) * 1000), (unsigned char)(std::fabs(p[1]) * 1000), 128));
+    auto byte = [](float x) { return static_cast<unsigned char>(static_cast<int>(std::fabs(x) * 1000) % 256); };
+    m.set_color(v, PolyMesh::Color(byte(p[0]), byte(p[1]), 128));
     m.set_texcoord2D(v, PolyMesh::TexCoord2D(p[0], p[2]));
   }
   using O = OpenMesh::IO::Options;
@@ -232,6 +245,84 @@ void MeshSeeds(const std::string& dir, const std::string& input) {
   DracoPointCloud(dir + "/pointcloud.drc", m);
 }
 
+nlohmann::json Array(const char* name, const char* dtype, uint64_t rows, uint64_t cols, const char* layout,
+                     uint64_t block) {
+  return {{"name", name}, {"dtype", dtype}, {"shape", {rows, cols}}, {"layout", layout}, {"block", block}};
+}
+
+// Element k of a test array of dtype `dt`, `bytes` long: mostly zeros (sparse) or dense.
+std::vector<std::byte> TestChunk(ltb::format::DType dt, uint64_t elements, uint64_t seed, bool sparse) {
+  using ltb::format::DType;
+  const uint64_t es = ltb::format::DTypeSize(dt);
+  std::vector<std::byte> out(elements * es);
+  for (uint64_t k = 0; k < elements; ++k) {
+    if (sparse && (k * 7 + seed) % 11 != 0) continue;
+    double v = double((k * 37 + seed * 11) % 97) - 40.0;
+    std::byte* p = out.data() + k * es;
+    switch (dt) {
+      case DType::kF32: { float f = float(v) * 0.25f; std::memcpy(p, &f, 4); break; }
+      case DType::kF64: { double d = v * 0.125; std::memcpy(p, &d, 8); break; }
+      case DType::kU8: { uint8_t u = uint8_t(int(v) & 0xff); std::memcpy(p, &u, 1); break; }
+      case DType::kI32: { int32_t i = int32_t(v) * 1000; std::memcpy(p, &i, 4); break; }
+      case DType::kU32: { uint32_t u = uint32_t(std::fabs(v)) * 70000u; std::memcpy(p, &u, 4); break; }
+      case DType::kU64: { uint64_t u = uint64_t(std::fabs(v)) << 40; std::memcpy(p, &u, 8); break; }
+    }
+  }
+  return out;
+}
+
+// Writes a container with the writer; `stop` < UINT64_MAX stops it after that many file
+// mutations (as a writer killed there), `seal` false leaves it unsealed.
+void WriteLtm(const std::string& path, const nlohmann::json& meta, const ltb::io::WriterOptions& wo, bool seal,
+              bool sparse_data, bool zstd) {
+  std::filesystem::remove(path);
+  auto w = ltb::io::ContainerWriter::Open(path, meta, wo);
+  if (!w.ok()) return Fail(path + ": " + w.status().ToString());
+  const auto& md = w->metadata();
+  for (uint32_t a = 0; a < md.arrays.size(); ++a) {
+    const auto& spec = md.arrays[a];
+    for (uint64_t c = 0; c < spec.ChunkCount(); ++c) {
+      ltb::format::EncodeOptions eo;
+      eo.zstd = zstd;
+      eo.sparse = true;
+      eo.dtype = spec.dtype;
+      const bool zero = sparse_data && c == 1;  // one all-zero chunk per array
+      std::vector<std::byte> data = TestChunk(spec.dtype, spec.Extent(c).Elements(), c + a, sparse_data);
+      if (zero) std::fill(data.begin(), data.end(), std::byte{0});
+      if (!w->Put(a, c, data, eo).ok()) return;  // a stopped writer: expected
+    }
+  }
+  if (seal) (void)w->Finish();
+}
+
+void LtmSeeds(const std::string& dir) {
+  fs::create_directories(dir);
+  ltb::io::WriterOptions direct;
+  direct.direct_io = true;
+  direct.direct_min_bytes = 4096;
+  nlohmann::json m = {{"arrays",
+                       {Array("matrix", "f32", 40, 32, "rows", 32), Array("mask", "u8", 40, 1, "rows", 40)}},
+                      {"basis", {{"rows", {{"kind", "generic"}}}, {"cols", {{"kind", "generic"}}}}}};
+  WriteLtm(dir + "/direct-padding.ltm", m, direct, true, false, false);
+  WriteLtm(dir + "/direct-padding-unsealed.ltm", m, direct, false, false, false);
+  nlohmann::json cols = {{"arrays", {Array("matrix", "f32", 36, 40, "cols", 30)}}};
+  WriteLtm(dir + "/direct-padding-cols.ltm", cols, direct, true, false, false);
+
+  nlohmann::json all = {{"arrays",
+                         {Array("matrix", "f32", 24, 20, "rows", 8), Array("f64", "f64", 24, 6, "cols", 2),
+                          Array("u8", "u8", 30, 1, "rows", 10), Array("i32", "i32", 12, 12, "cols", 4),
+                          Array("u32", "u32", 12, 6, "rows", 4), Array("u64", "u64", 9, 4, "rows", 3)}}};
+  ltb::io::WriterOptions plain;
+  WriteLtm(dir + "/dtypes-sparse.ltm", all, plain, true, true, false);
+  WriteLtm(dir + "/dtypes-sparse-zstd.ltm", all, plain, true, true, true);
+  WriteLtm(dir + "/dtypes-dense-zstd.ltm", all, plain, true, false, true);
+  for (uint64_t stop : {2, 5, 9, 14, 20}) {
+    ltb::io::WriterOptions torn;
+    torn.stop_after_mutations = stop;
+    WriteLtm(dir + "/torn-" + std::to_string(stop) + ".ltm", all, torn, true, true, true);
+  }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -241,5 +332,6 @@ int main(int argc, char** argv) {
   }
   ExrSeeds(std::string(argv[1]) + "/exr");
   MeshSeeds(std::string(argv[1]) + "/mesh", argv[2]);
+  LtmSeeds(std::string(argv[1]) + "/ltm");
   return failures == 0 ? 0 : 1;
 }
