@@ -43,7 +43,7 @@ for t in "${TARGETS[@]}"; do
   mkdir -p "$out"
   before=$(ls "$out" | grep -cE '^(crash|leak|timeout|oom)-' || true)
   args=(-max_total_time="$SECONDS_EACH" -max_len="$(max_len "$t")" -rss_limit_mb=1024 -malloc_limit_mb=1024
-        -timeout=20 -print_final_stats=1 -artifact_prefix="$out/")
+        -timeout=10 -close_fd_mask=3 -print_final_stats=1 -artifact_prefix="$out/")
   dict=$HERE/tests/fuzz/dict/${t%_fuzzer}.dict
   [[ -f $dict ]] && args+=(-dict="$dict")
   mode=stop-at-first
