@@ -1,10 +1,19 @@
 #include "stages/common/toml_fields.h"
 
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <sstream>
 
 namespace ltb::tomlf {
+
+namespace {
+std::string Num(double v) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.10g", v);
+  return b;
+}
+}  // namespace
 
 std::string ValueText(const toml::node& n) {
   std::ostringstream out;
@@ -46,12 +55,12 @@ Result<double> GetNumber(const std::string& path, const toml::table& t, const ch
   if (n == nullptr) return def;
   std::optional<double> v = n->value<double>();
   if (!v || !std::isfinite(*v)) {
-    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + ValueText(*n) + "; it must be a finite number in [" +
-                           std::to_string(lo) + ", " + std::to_string(hi) + "]");
+    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + ValueText(*n) + "; it must be a finite number in [" + Num(lo) +
+                           ", " + Num(hi) + "]");
   }
   if (*v < lo || *v > hi) {
-    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + std::to_string(*v) + ", outside [" +
-                           std::to_string(lo) + ", " + std::to_string(hi) + "]");
+    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + Num(*v) + ", outside [" + Num(lo) + ", " +
+                           Num(hi) + "]");
   }
   return *v;
 }

@@ -72,7 +72,12 @@ Result<glm::dvec3> GetVec3(const std::string& path, const toml::table& t, const 
   const toml::node* n = t.get(key);
   if (n == nullptr) return def;
   if (allow_scalar) {
-    if (auto s = n->value<double>()) return glm::dvec3(*s);
+    if (auto s = n->value<double>()) {
+      if (!std::isfinite(*s)) {
+        return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + tomlf::ValueText(*n) + "; it must be a finite number or [x, y, z]");
+      }
+      return glm::dvec3(*s);
+    }
   }
   const toml::array* a = n->as_array();
   if (a == nullptr || a->size() != 3) {
