@@ -4,7 +4,11 @@
 #include <cstring>
 #include <vector>
 
-#include "cli/commands.h"
+// Declared here rather than through cli/commands.h, which pulls in CLI11 (13 s of compile
+// time for this one-function file); a mismatch with the definition fails at link time.
+namespace ltb::cli {
+int LtbakeMain(int argc, char** argv);
+}
 
 int main(int argc, char** argv) {
   const char* base = argc > 0 && argv[0] ? argv[0] : "";
