@@ -5,7 +5,7 @@ BUILD_ASAN  ?= build-asan
 JOBS        ?= 2
 CMAKE_FLAGS ?=
 
-.PHONY: all setup samples configure build demo test test-fast asan bench bench-row-transform bench-transpose \
+.PHONY: all setup samples configure build demo test test-fast asan bench bench-build bench-row-transform bench-transpose \
         bench-sample fuzz clean
 
 all: build
@@ -36,21 +36,31 @@ test: build asan
 test-fast: build
 	cd $(BUILD) && ctest --output-on-failure -j $(JOBS)
 
+# The sanitizer tree builds only what its tests run (-O1, line tables only: fast to build,
+# still symbolised reports).
+ASAN_TARGETS ?= ltbake ltb_format_tests ltb_damage_tests ltb_column_tests ltb_envmap_tests ltb_cpca_tests \
+                ltb_face_kernel_tests ltb_wavelet_tests ltb_sample_tests ltb_mesh_reader_tests
 asan: setup
-	cmake -S . -B $(BUILD_ASAN) -DCMAKE_BUILD_TYPE=RelWithDebInfo -DLTB_SANITIZE=ON -DLTB_BUILD_BENCH=OFF -DLTB_ARCH=
-	cmake --build $(BUILD_ASAN) -j $(JOBS) --target ltb_format_tests ltb_damage_tests ltb_column_tests ltb_envmap_tests ltb_cpca_tests ltbake
+	cmake -S . -B $(BUILD_ASAN) -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -g1" \
+	      -DLTB_SANITIZE=ON -DLTB_BUILD_BENCH=OFF -DLTB_ARCH= $(CMAKE_FLAGS)
+	cmake --build $(BUILD_ASAN) -j $(JOBS) --target $(ASAN_TARGETS)
 
 # Benchmarks (bench/README.md). Not timed tests: they print and record figures.
-bench: build
+# The benchmarks are not part of `make build` (nor of `make test`); this builds them.
+bench-build: build
+	cmake --build $(BUILD) -j $(JOBS) --target ltm_io_bench ltb_row_transform_bench ltb_sample_bench \
+	      ltb_transpose_bench ltb_column_transform_bench
+
+bench: bench-build
 	@bash bench/run_container_io.sh $(BUILD)
 
-bench-row-transform: build
+bench-row-transform: bench-build
 	$(BUILD)/bench/ltb_row_transform_bench --rows 65536 --cube-res 32 --threads 2 --reps 5
 
-bench-transpose: build
+bench-transpose: bench-build
 	@bash bench/run_transpose.sh $(BUILD) 3
 
-bench-sample: build
+bench-sample: bench-build
 	mkdir -p bench/out
 	$(BUILD)/bench/ltb_sample_bench samples/medium.toml bench/out --cube-res 32 --reps 3
 	$(BUILD)/bench/ltb_sample_bench samples/medium.toml bench/out --cube-res 64 --reps 1

@@ -10,6 +10,7 @@
 
 #include "stages/column_transform/column_transform.h"
 #include "stages/common/toml_fields.h"
+#include "stages/sample/scene.h"
 
 namespace ltb::pipeline {
 namespace {
@@ -61,6 +62,20 @@ Result<std::string> ExpandVariables(const std::string& where, const std::string&
     i = braced ? end : end - 1;
   }
   return out;
+}
+
+// Why `path` cannot be read as a `what`, or Ok: missing, a directory, not a regular file.
+Status CheckRegular(const std::string& where, const std::string& what, const std::string& path) {
+  std::error_code ec;
+  fs::file_status st = fs::status(path, ec);
+  if (st.type() == fs::file_type::not_found) return NotFound(where + ": " + what + " " + path + " does not exist");
+  if (st.type() == fs::file_type::directory) {
+    return InvalidArgument(where + ": " + what + " " + path + " is a directory; give the path of a file");
+  }
+  if (ec || st.type() != fs::file_type::regular) {
+    return InvalidArgument(where + ": " + what + " " + path + " is not a regular file (a FIFO, socket or device?)");
+  }
+  return Status::Ok();
 }
 
 std::string Absolute(const std::string& dir, const std::string& p) {
@@ -121,7 +136,7 @@ Result<std::string> InlineScene(const std::string& path, const std::string& dir,
 Status ParseSample(const std::string& path, const toml::table& t, Recipe::Sample* s) {
   LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[sample]", {"cube_res", "spp", "bounces", "seed"}));
   if (t.contains("cube_res")) {
-    LTB_ASSIGN_OR_RETURN(uint64_t r, GetUnsigned(path, t, "cube_res", 0, 1, 4096));
+    LTB_ASSIGN_OR_RETURN(uint64_t r, GetUnsigned(path, t, "cube_res", 0, 1, sample::kMaxCubeRes));
     if (!std::has_single_bit(r)) {
       return InvalidArgument(Where(path, *t.get("cube_res")) + ": \"cube_res\" is " + std::to_string(r) +
                              ", which is not a power of two (the wavelets need 2^k: e.g. 8, 16, 32, 64)");
@@ -217,9 +232,8 @@ Status ParseRelight(const std::string& path, const std::string& dir, const toml:
     for (char& ch : e.name) {
       if (!std::isalnum(static_cast<unsigned char>(ch)) && ch != '-' && ch != '_' && ch != '.') ch = '_';
     }
-    std::error_code ec;
-    if (e.path.find("{face}") == std::string::npos && !fs::is_regular_file(e.path, ec)) {
-      return NotFound(Where(path, *envs) + ": environment map " + e.path + " does not exist");
+    if (e.path.find("{face}") == std::string::npos) {
+      LTB_RETURN_IF_ERROR(CheckRegular(Where(path, *envs), "environment map", e.path));
     }
     for (const EnvMap& other : r->envs) {
       if (other.name == e.name) {
@@ -238,7 +252,7 @@ Result<Recipe> ParseRecipe(const std::string& path_in) {
   std::error_code ec;
   std::string path = fs::absolute(path_in, ec).lexically_normal().string();
   if (ec) path = path_in;
-  LTB_ASSIGN_OR_RETURN(toml::table root, tomlf::ParseFile(path));
+  LTB_ASSIGN_OR_RETURN(toml::table root, tomlf::ParseFile(path, "recipe"));
   Recipe r;
   r.path = path;
   r.dir = fs::path(path).parent_path().string();
@@ -256,9 +270,7 @@ Result<Recipe> ParseRecipe(const std::string& path_in) {
   if (auto file = scene->value<std::string>()) {
     LTB_ASSIGN_OR_RETURN(std::string expanded, ExpandVariables(Where(path, *scene), *file));
     r.scene_path = Absolute(r.dir, expanded);
-    if (!fs::is_regular_file(r.scene_path, ec)) {
-      return NotFound(Where(path, *scene) + ": scene file " + r.scene_path + " does not exist");
-    }
+    LTB_RETURN_IF_ERROR(CheckRegular(Where(path, *scene), "scene file", r.scene_path));
   } else if (const toml::table* table = scene->as_table()) {
     LTB_ASSIGN_OR_RETURN(r.inline_scene, InlineScene(path, r.dir, *table));
   } else {

@@ -1,9 +1,34 @@
 #include "stages/common/toml_fields.h"
 
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
+#include <sstream>
 
 namespace ltb::tomlf {
+
+namespace {
+std::string Num(double v) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.10g", v);
+  return b;
+}
+}  // namespace
+
+std::string ValueText(const toml::node& n) {
+  std::ostringstream out;
+  n.visit([&](const auto& v) {
+    if constexpr (toml::is_string<decltype(v)>) {
+      out << '"' << v.get().substr(0, 60) << (v.get().size() > 60 ? "..." : "") << '"';
+    } else if constexpr (toml::is_table<decltype(v)>) {
+      out << "a table";
+    } else {
+      out << toml::toml_formatter(v, toml::format_flags::none);
+    }
+  });
+  std::string s = out.str();
+  return s.size() > 80 ? s.substr(0, 80) + "..." : s;
+}
 
 std::string Where(const std::string& path, const toml::node& n) {
   return path + ":" + std::to_string(n.source().begin.line);
@@ -29,10 +54,13 @@ Result<double> GetNumber(const std::string& path, const toml::table& t, const ch
   const toml::node* n = t.get(key);
   if (n == nullptr) return def;
   std::optional<double> v = n->value<double>();
-  if (!v || !std::isfinite(*v)) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be a number");
+  if (!v || !std::isfinite(*v)) {
+    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + ValueText(*n) + "; it must be a finite number in [" + Num(lo) +
+                           ", " + Num(hi) + "]");
+  }
   if (*v < lo || *v > hi) {
-    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + std::to_string(*v) + ", outside [" +
-                           std::to_string(lo) + ", " + std::to_string(hi) + "]");
+    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + Num(*v) + ", outside [" + Num(lo) + ", " +
+                           Num(hi) + "]");
   }
   return *v;
 }
@@ -42,9 +70,9 @@ Result<uint64_t> GetUnsigned(const std::string& path, const toml::table& t, cons
   const toml::node* n = t.get(key);
   if (n == nullptr) return def;
   std::optional<int64_t> v = n->value<int64_t>();
-  if (!v || *v < static_cast<int64_t>(lo) || static_cast<uint64_t>(*v) > hi) {
-    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be an integer in [" + std::to_string(lo) + ", " +
-                           std::to_string(hi) + "]");
+  if (!n->is_integer() || !v || *v < 0 || static_cast<uint64_t>(*v) < lo || static_cast<uint64_t>(*v) > hi) {
+    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + ValueText(*n) + "; it must be an integer in [" +
+                           std::to_string(lo) + ", " + std::to_string(hi) + "]");
   }
   return static_cast<uint64_t>(*v);
 }
@@ -53,7 +81,7 @@ Result<std::string> GetString(const std::string& path, const toml::table& t, con
   const toml::node* n = t.get(key);
   if (n == nullptr) return def;
   auto v = n->value<std::string>();
-  if (!v) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be a string");
+  if (!v) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + ValueText(*n) + "; it must be a string");
   return *v;
 }
 
@@ -61,18 +89,35 @@ Result<bool> GetBool(const std::string& path, const toml::table& t, const char* 
   const toml::node* n = t.get(key);
   if (n == nullptr) return def;
   auto v = n->value<bool>();
-  if (!v) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be true or false");
+  if (!v) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + ValueText(*n) + "; it must be true or false");
   return *v;
 }
 
-Result<toml::table> ParseFile(const std::string& path) {
+Result<toml::table> ParseFile(const std::string& path, const std::string& what) {
+  namespace fs = std::filesystem;
   std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) return NotFound(path + ": file not found");
+  fs::file_status st = fs::status(path, ec);
+  if (st.type() == fs::file_type::not_found) return NotFound(path + ": " + what + " not found");
+  if (ec) return InvalidArgument(path + ": cannot read the " + what + ": " + ec.message());
+  if (st.type() == fs::file_type::directory) {
+    return InvalidArgument(path + ": is a directory, not a " + what + "; give the path of the TOML file");
+  }
+  if (st.type() != fs::file_type::regular) {
+    return InvalidArgument(path + ": is not a regular file (a FIFO, socket or device), not a " + what);
+  }
+  constexpr uintmax_t kMaxBytes = uintmax_t{16} << 20;
+  uintmax_t size = fs::file_size(path, ec);
+  if (!ec && size > kMaxBytes) {
+    return InvalidArgument(path + ": the " + what + " is " + std::to_string(size) +
+                           " bytes; TOML files here are small (at most 16 MiB): is it the right file?");
+  }
   try {
     return toml::parse_file(path);
   } catch (const toml::parse_error& e) {
     return InvalidArgument(path + ":" + std::to_string(e.source().begin.line) + ":" +
                            std::to_string(e.source().begin.column) + ": " + std::string(e.description()));
+  } catch (const std::exception& e) {
+    return InvalidArgument(path + ": cannot read the " + what + ": " + e.what());
   }
 }
 

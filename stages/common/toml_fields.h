@@ -28,7 +28,11 @@ Result<uint64_t> GetUnsigned(const std::string& path, const toml::table& t, cons
 Result<std::string> GetString(const std::string& path, const toml::table& t, const char* key, std::string def);
 Result<bool> GetBool(const std::string& path, const toml::table& t, const char* key, bool def);
 
-// Parses a TOML file; a syntax error names path:line:column.
-Result<toml::table> ParseFile(const std::string& path);
+// The value of a node as TOML writes it (for messages): 1.5, nan, "text", [1, 2].
+std::string ValueText(const toml::node& n);
+
+// Parses a TOML file; a syntax error names path:line:column. A missing path, a directory,
+// a FIFO or device, or a file over 16 MiB is refused by name (`what`: "scene file", ...).
+Result<toml::table> ParseFile(const std::string& path, const std::string& what = "TOML file");
 
 }  // namespace ltb::tomlf

@@ -1,7 +1,9 @@
 #include "stages/sample/geometry.h"
 
+#include <cerrno>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -12,6 +14,8 @@
 #include <draco/compression/decode.h>
 #include <glm/geometric.hpp>
 #include <glm/gtc/matrix_transform.hpp>
+
+#include "stages/sample/mesh_reader.h"
 
 namespace ltb::sample {
 namespace {
@@ -105,34 +109,125 @@ Result<TriangleMesh> LoadOpenMesh(const std::string& path) {
 }  // namespace
 
 // OpenMesh's OBJ reader turns a coordinate it cannot parse ("nan", "inf", "1e999", "x")
-// into a number silently; check the `v` lines' coordinates first, naming the line.
-Status CheckObjVertices(const std::string& path) {
-  std::ifstream f(path);
-  if (!f) return NotFound(path + ": cannot open mesh file");
-  std::string line;
-  for (uint64_t n = 1; std::getline(f, line); ++n) {
-    if (line.size() < 2 || line[0] != 'v' || (line[1] != ' ' && line[1] != '\t')) continue;
-    const char* p = line.c_str() + 2;
-    for (int k = 0; k < 3; ++k) {
-      while (*p == ' ' || *p == '\t') ++p;
-      const char* start = p;
-      while (*p && *p != ' ' && *p != '\t' && *p != '\r') ++p;
-      std::string token(start, p);
-      char* end = nullptr;
-      double v = std::strtod(token.c_str(), &end);
-      if (token.empty() || end != token.c_str() + token.size() || !std::isfinite(v)) {
-        return InvalidArgument(path + ":" + std::to_string(n) + ": vertex coordinate " + std::to_string(k + 1) + " is \"" +
-                               token + "\", not a finite number; fix or remove the vertex");
+// into a number silently, and drops a face with an out-of-range index without a word:
+// check the `v` lines' coordinates and the `f` lines' indices first, naming the line.
+// (OpenMesh resolves an index against all the file's vertices, so this does too.)
+Status CheckObjFile(const std::string& path, const Progress& progress) {
+  uint64_t vertices = 0;
+  for (int pass = 0; pass < 2; ++pass) {
+    std::ifstream f(path);
+    if (!f) return NotFound(path + ": cannot open mesh file");
+    std::string line;
+    uint64_t face = 0;
+    for (uint64_t n = 1; std::getline(f, line); ++n) {
+      if ((n & 0xFFFF) == 0 && progress.Cancelled()) return Cancelled(path + ": interrupted while checking the mesh");
+      if (line.size() < 2 || (line[1] != ' ' && line[1] != '\t')) continue;
+      if (line[0] == 'v' && pass == 0) {
+        vertices++;
+        const char* p = line.c_str() + 2;
+        for (int k = 0; k < 3; ++k) {
+          while (*p == ' ' || *p == '\t') ++p;
+          const char* start = p;
+          while (*p && *p != ' ' && *p != '\t' && *p != '\r') ++p;
+          std::string token(start, p);
+          char* end = nullptr;
+          double v = std::strtod(token.c_str(), &end);
+          if (token.empty() || end != token.c_str() + token.size() || !std::isfinite(v)) {
+            return InvalidArgument(path + ":" + std::to_string(n) + ": vertex coordinate " + std::to_string(k + 1) +
+                                   " is \"" + token + "\", not a finite number; fix or remove the vertex");
+          }
+        }
+      } else if (line[0] == 'f' && pass == 1) {
+        std::istringstream in(line.substr(2));
+        std::string token;
+        while (in >> token) {
+          std::string index = token.substr(0, token.find('/'));
+          char* end = nullptr;
+          errno = 0;
+          long long v = std::strtoll(index.c_str(), &end, 10);
+          const long long nv = static_cast<long long>(vertices);
+          if (index.empty() || *end != '\0' || errno == ERANGE || v == 0 || v > nv || v < -nv) {
+            return InvalidArgument(path + ":" + std::to_string(n) + ": face " + std::to_string(face) + ": vertex index \"" +
+                                   index + "\" is out of range (the file has " + std::to_string(vertices) +
+                                   " vertices: 1.." + std::to_string(vertices) + ", or -1..-" + std::to_string(vertices) +
+                                   " counting back); fix the face");
+          }
+        }
+        face++;
       }
     }
   }
   return Status::Ok();
 }
 
-Result<TriangleMesh> LoadMeshFile(const std::string& path) {
+// A binary STL holds 84 + 50·n bytes for the n triangles its header declares; OpenMesh
+// reads any other file as ASCII STL, which turns a binary file with a wrong count into
+// an empty mesh without a word. ASCII `vertex` lines are checked for finite coordinates
+// (OpenMesh would read "nan" as a number).
+Status CheckStlFile(const std::string& path, const Progress& progress) {
+  std::ifstream f(path, std::ios::binary);
+  if (!f) return NotFound(path + ": cannot open mesh file");
+  char head[84] = {};
+  f.read(head, sizeof head);
+  const uint64_t got = static_cast<uint64_t>(f.gcount());
+  std::error_code ec;
+  const uint64_t size = std::filesystem::file_size(path, ec);
+  if (got == sizeof head) {
+    uint32_t n;
+    std::memcpy(&n, head + 80, 4);
+    if (84 + 50 * uint64_t{n} == size) return Status::Ok();  // binary, and consistent
+  }
+  std::string_view start(head, got);
+  size_t i = start.find_first_not_of(" \t\r\n");
+  if (i == std::string_view::npos || start.substr(i, 5) != "solid") {
+    uint32_t n = 0;
+    if (got == sizeof head) std::memcpy(&n, head + 80, 4);
+    return InvalidArgument(path + ": not an ASCII STL (no \"solid\") and not a binary one: its header declares " +
+                           std::to_string(n) + " triangles, which take " + std::to_string(84 + 50 * uint64_t{n}) +
+                           " bytes, but the file has " + std::to_string(size) + " (truncated, or a wrong count)");
+  }
+  f.clear();
+  f.seekg(0);
+  std::string line;
+  for (uint64_t n = 1; std::getline(f, line); ++n) {
+    if ((n & 0xFFFF) == 0 && progress.Cancelled()) return Cancelled(path + ": interrupted while checking the mesh");
+    std::istringstream in(line);
+    std::string kw;
+    if (!(in >> kw) || kw != "vertex") continue;
+    for (int k = 0; k < 3; ++k) {
+      std::string token;
+      in >> token;
+      char* end = nullptr;
+      double v = std::strtod(token.c_str(), &end);
+      if (token.empty() || end != token.c_str() + token.size() || !std::isfinite(v)) {
+        return InvalidArgument(path + ":" + std::to_string(n) + ": vertex coordinate " + std::to_string(k + 1) +
+                               " is \"" + token + "\", not a finite number; fix or remove the vertex");
+      }
+    }
+  }
+  return Status::Ok();
+}
+
+Result<TriangleMesh> LoadMeshFile(const std::string& path, const Progress& progress) {
   std::string ext = Lower(std::filesystem::path(path).extension().string());
-  if (ext == ".obj") LTB_RETURN_IF_ERROR(CheckObjVertices(path));
-  Result<TriangleMesh> r = ext == ".drc" ? LoadDraco(path) : LoadOpenMesh(path);
+  // Opening refuses a directory, FIFO or device by name (and never blocks on a FIFO).
+  LTB_ASSIGN_OR_RETURN(MeshInput in, MeshInput::Open(path, &progress));
+  Result<TriangleMesh> r = InvalidArgument(path + ": unknown mesh format");
+  if (ext == ".off") {
+    r = ReadOff(in, progress);
+  } else if (ext == ".ply") {
+    r = ReadPly(in, progress);
+  } else {
+    if (ext == ".obj") LTB_RETURN_IF_ERROR(CheckObjFile(path, progress));
+    if (ext == ".stl") LTB_RETURN_IF_ERROR(CheckStlFile(path, progress));
+    try {
+      r = ext == ".drc" ? LoadDraco(path) : LoadOpenMesh(path);
+    } catch (const std::bad_alloc&) {
+      return InvalidArgument(path + ": reading the mesh ran out of memory (a corrupt count in the file?)");
+    } catch (const std::exception& e) {
+      return InvalidArgument(path + ": cannot read the mesh: " + e.what());
+    }
+  }
   if (!r.ok()) return r;
   TriangleMesh& m = *r;
   LTB_RETURN_IF_ERROR(CheckFinite(path, m));

@@ -1,4 +1,5 @@
-// Triangle geometry for the sampler: mesh files (OpenMesh: OBJ, PLY, OFF, STL; Draco: .drc),
+// Triangle geometry for the sampler: mesh files (our own readers: OFF, PLY; OpenMesh: OBJ,
+// STL; Draco: .drc),
 // built-in primitives and object transforms.
 #pragma once
 
@@ -9,6 +10,7 @@
 #include <glm/mat4x4.hpp>
 #include <glm/vec3.hpp>
 
+#include "format/progress.h"
 #include "format/status.h"
 #include "stages/sample/scene.h"
 
@@ -22,8 +24,9 @@ struct TriangleMesh {
 };
 
 // Loads a mesh file; polygons are triangulated. Fails naming the file and the reason when
-// it cannot be read, holds no triangles, or has a non-finite vertex.
-Result<TriangleMesh> LoadMeshFile(const std::string& path);
+// it is not a regular file, cannot be read, holds no triangles, has a non-finite vertex or
+// a face with an out-of-range vertex index; Cancelled when `progress` asks to stop.
+Result<TriangleMesh> LoadMeshFile(const std::string& path, const Progress& progress = Progress{});
 
 TriangleMesh MakePlane(const glm::dvec3& size);  // size.x × size.y at z = 0, normal +z
 TriangleMesh MakeBox(const glm::dvec3& size, const glm::dvec3& center);

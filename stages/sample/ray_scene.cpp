@@ -87,8 +87,14 @@ Status RayScene::AddSphere(const glm::dvec3& c, double r) {
   return error();
 }
 
-Status RayScene::Commit() {
+Status RayScene::Commit(const Progress& progress) {
+  // Embree polls the monitor while it builds; returning false cancels the build.
+  rtcSetSceneProgressMonitorFunction(
+      scene_, [](void* p, double) -> bool { return !static_cast<const Progress*>(p)->Cancelled(); },
+      const_cast<Progress*>(&progress));
   rtcCommitScene(scene_);
+  rtcSetSceneProgressMonitorFunction(scene_, nullptr, nullptr);
+  if (progress.Cancelled()) return Cancelled("interrupted while building the ray-tracing acceleration structure");
   return error();
 }
 

@@ -12,6 +12,7 @@
 
 #include <glm/vec3.hpp>
 
+#include "format/progress.h"
 #include "format/status.h"
 #include "stages/sample/geometry.h"
 
@@ -51,7 +52,8 @@ class RayScene {
   // Geometry ids are assigned in the order of these calls, from 0.
   Status AddMesh(const TriangleMesh& mesh);
   Status AddSphere(const glm::dvec3& center, double radius);
-  Status Commit();
+  // Builds the BVH; Cancelled when `progress` asks to stop while it builds.
+  Status Commit(const Progress& progress = Progress{});
 
   Hit Intersect(const glm::dvec3& origin, const glm::dvec3& dir) const;
   // Occlusion of every ray in place: an occluded ray's tfar becomes -inf. Thread-safe.

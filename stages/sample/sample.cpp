@@ -517,7 +517,7 @@ struct Prepared {
   uint64_t seed = 0, rows = 0;
 };
 
-Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o) {
+Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress& progress) {
   auto p = std::make_unique<Prepared>();
   LTB_ASSIGN_OR_RETURN(p->scene, sample::ParseScene(o.scene));
   p->r = o.cube_res.value_or(p->scene.cube_res);
@@ -528,7 +528,7 @@ Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o) {
     return InvalidArgument("cube resolution " + std::to_string(p->r) + " is not a power of two in 1..1024 (--cube-res)");
   }
   if (p->spp == 0) return InvalidArgument("--spp must be at least 1");
-  LTB_ASSIGN_OR_RETURN(p->geo, BuildGeometry(p->scene));
+  LTB_ASSIGN_OR_RETURN(p->geo, BuildGeometry(p->scene, progress));
   p->rows = p->scene.mode == SceneDesc::Mode::kImage ? uint64_t{p->scene.camera.width} * p->scene.camera.height
                                                      : p->geo.vertex_rows.size();
   return p;
@@ -537,7 +537,7 @@ Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o) {
 }  // namespace
 
 Result<BareTraceResult> TraceBare(const SampleOptions& o) {
-  LTB_ASSIGN_OR_RETURN(std::unique_ptr<Prepared> p, Prepare(o));
+  LTB_ASSIGN_OR_RETURN(std::unique_ptr<Prepared> p, Prepare(o, Progress{}));
   Sampler sampler(p->scene, p->geo, p->r, p->spp, p->bounces, p->seed);
   std::vector<uint64_t> blocks;
   const uint64_t block = 64;
@@ -572,7 +572,7 @@ Result<BareTraceResult> TraceBare(const SampleOptions& o) {
 
 Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress) {
   auto t0 = std::chrono::steady_clock::now();
-  LTB_ASSIGN_OR_RETURN(std::unique_ptr<Prepared> prep, Prepare(o));
+  LTB_ASSIGN_OR_RETURN(std::unique_ptr<Prepared> prep, Prepare(o, progress));
   const SceneDesc& scene = prep->scene;
   const Geometry& geo = prep->geo;
   const uint32_t r = prep->r, spp = prep->spp, bounces = prep->bounces;

@@ -1,10 +1,13 @@
 #include "stages/sample/scene.h"
 
+#include <bit>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <map>
 #include <set>
 
+#include <glm/geometric.hpp>
 #include <toml++/toml.h>
 
 #include "stages/common/toml_fields.h"
@@ -18,12 +21,63 @@ using tomlf::GetString;
 using tomlf::GetUnsigned;
 using tomlf::Where;
 
+std::string Fmt(const glm::dvec3& v) {
+  char b[96];
+  std::snprintf(b, sizeof b, "[%.9g, %.9g, %.9g]", v.x, v.y, v.z);
+  return b;
+}
+
+// The camera must give Embree a well-defined frame: a view direction (eye != target), a
+// non-zero up that is not parallel to it, all of it finite once formed.
+Status CheckCamera(const std::string& path, const toml::table& cam, const Camera& c) {
+  auto where = [&](const char* key) {
+    const toml::node* n = cam.get(key);
+    return (n != nullptr ? Where(path, *n) : Where(path, cam)) + ": [camera] ";
+  };
+  const glm::dvec3 d = c.target - c.eye;
+  const double len = glm::length(d);
+  if (!(len > 0) || !std::isfinite(len)) {
+    const char* key = cam.contains("target") ? "target" : "eye";
+    if (len == 0) {
+      return InvalidArgument(where(key) + "eye " + Fmt(c.eye) + " equals target " + Fmt(c.target) +
+                             ": the camera has no view direction; move the eye or the target");
+    }
+    return InvalidArgument(where(key) + "eye " + Fmt(c.eye) + " and target " + Fmt(c.target) +
+                           " are too far apart to form a view direction");
+  }
+  const double up = glm::length(c.up);
+  if (!(up > 0) || !std::isfinite(up)) {
+    return InvalidArgument(where("up") + "up is " + Fmt(c.up) + "; it must be a non-zero vector, not parallel to the "
+                           "view direction (e.g. [0, 0, 1])");
+  }
+  const glm::dvec3 f = d / len;
+  const double s = glm::length(glm::cross(f, c.up / up));  // sine of the angle between them
+  if (!(s > 1e-6)) {
+    return InvalidArgument(where("up") + "up " + Fmt(c.up) + " is parallel to the view direction " + Fmt(f) +
+                           " (from eye to target); choose an up that is not");
+  }
+  for (const auto& [key, v] : {std::pair{"eye", c.eye}, std::pair{"target", c.target}}) {
+    for (int i = 0; i < 3; ++i) {
+      if (!std::isfinite(static_cast<float>(v[i]))) {
+        return InvalidArgument(where(key) + key + " " + Fmt(v) +
+                               " is outside what single-precision ray tracing holds; use smaller coordinates");
+      }
+    }
+  }
+  return Status::Ok();
+}
+
 Result<glm::dvec3> GetVec3(const std::string& path, const toml::table& t, const char* key, glm::dvec3 def,
                            bool allow_scalar = false) {
   const toml::node* n = t.get(key);
   if (n == nullptr) return def;
   if (allow_scalar) {
-    if (auto s = n->value<double>()) return glm::dvec3(*s);
+    if (auto s = n->value<double>()) {
+      if (!std::isfinite(*s)) {
+        return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + tomlf::ValueText(*n) + "; it must be a finite number or [x, y, z]");
+      }
+      return glm::dvec3(*s);
+    }
   }
   const toml::array* a = n->as_array();
   if (a == nullptr || a->size() != 3) {
@@ -32,7 +86,11 @@ Result<glm::dvec3> GetVec3(const std::string& path, const toml::table& t, const 
   glm::dvec3 v;
   for (int i = 0; i < 3; ++i) {
     auto x = (*a)[i].value<double>();
-    if (!x || !std::isfinite(*x)) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must hold 3 finite numbers");
+    if (!x) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must hold 3 numbers");
+    if (!std::isfinite(*x)) {
+      return InvalidArgument(Where(path, *n) + ": \"" + key + "\" element " + std::to_string(i + 1) + " is " +
+                             (std::isnan(*x) ? "nan" : *x > 0 ? "inf" : "-inf") + "; it must hold 3 finite numbers");
+    }
     v[i] = *x;
   }
   return v;
@@ -41,14 +99,7 @@ Result<glm::dvec3> GetVec3(const std::string& path, const toml::table& t, const 
 }  // namespace
 
 Result<SceneDesc> ParseScene(const std::string& path) {
-  if (!std::filesystem::exists(path)) return NotFound(path + ": scene file not found");
-  toml::table root;
-  try {
-    root = toml::parse_file(path);
-  } catch (const toml::parse_error& e) {
-    return InvalidArgument(path + ":" + std::to_string(e.source().begin.line) + ":" +
-                           std::to_string(e.source().begin.column) + ": " + std::string(e.description()));
-  }
+  LTB_ASSIGN_OR_RETURN(toml::table root, tomlf::ParseFile(path, "scene file"));
   SceneDesc s;
   s.path = path;
   LTB_RETURN_IF_ERROR(CheckKeys(path, root, "the scene", {"output", "camera", "sampling", "material", "object"}));
@@ -77,12 +128,17 @@ Result<SceneDesc> ParseScene(const std::string& path) {
     LTB_ASSIGN_OR_RETURN(uint64_t h, GetUnsigned(path, *cam, "height", s.camera.height, 1, 1 << 16));
     s.camera.width = static_cast<uint32_t>(w);
     s.camera.height = static_cast<uint32_t>(h);
+    LTB_RETURN_IF_ERROR(CheckCamera(path, *cam, s.camera));
   } else if (s.mode == SceneDesc::Mode::kImage) {
     return InvalidArgument(path + ": image mode needs a [camera] table");
   }
   if (const toml::table* smp = root["sampling"].as_table()) {
     LTB_RETURN_IF_ERROR(CheckKeys(path, *smp, "[sampling]", {"cube_res", "spp", "bounces", "seed"}));
-    LTB_ASSIGN_OR_RETURN(uint64_t r, GetUnsigned(path, *smp, "cube_res", s.cube_res, 1, 4096));
+    LTB_ASSIGN_OR_RETURN(uint64_t r, GetUnsigned(path, *smp, "cube_res", s.cube_res, 1, kMaxCubeRes));
+    if (!std::has_single_bit(r)) {
+      return InvalidArgument(Where(path, *smp->get("cube_res")) + ": \"cube_res\" is " + std::to_string(r) +
+                             ", which is not a power of two (the wavelets need 2^k: e.g. 8, 16, 32, 64)");
+    }
     LTB_ASSIGN_OR_RETURN(uint64_t spp, GetUnsigned(path, *smp, "spp", s.spp, 1, 1 << 16));
     LTB_ASSIGN_OR_RETURN(uint64_t b, GetUnsigned(path, *smp, "bounces", s.bounces, 0, 16));
     LTB_ASSIGN_OR_RETURN(s.seed, GetUnsigned(path, *smp, "seed", s.seed, 0, uint64_t{1} << 62));
@@ -156,8 +212,9 @@ Result<SceneDesc> ParseScene(const std::string& path) {
     glm::dvec3 def_size = obj.type == Object::Type::kPlane ? glm::dvec3(2, 2, 0) : glm::dvec3(1, 1, 1);
     if (obj.type == Object::Type::kPlane && o->contains("size")) {
       const toml::array* a = (*o)["size"].as_array();
-      if (a == nullptr || a->size() != 2 || !(*a)[0].value<double>() || !(*a)[1].value<double>()) {
-        return InvalidArgument(Where(path, *o->get("size")) + ": plane \"size\" must be [x, y]");
+      if (a == nullptr || a->size() != 2 || !(*a)[0].value<double>() || !(*a)[1].value<double>() ||
+          !std::isfinite(*(*a)[0].value<double>()) || !std::isfinite(*(*a)[1].value<double>())) {
+        return InvalidArgument(Where(path, *o->get("size")) + ": plane \"size\" must be [x, y], two finite numbers");
       }
       obj.size = {*(*a)[0].value<double>(), *(*a)[1].value<double>(), 0};
     } else {

@@ -13,6 +13,10 @@
 
 namespace ltb::sample {
 
+// Largest cube face resolution R the sampler takes (its texel table holds 6R² entries of
+// ~100 bytes); scenes, recipes and --cube-res are checked against it.
+inline constexpr uint32_t kMaxCubeRes = 1024;
+
 struct Material {
   std::string name;
   double albedo = 0.8;    // Lambertian reflectance, f = albedo / π
@@ -52,6 +56,10 @@ struct SceneDesc {
   uint64_t seed = 1;
 };
 
+// Reads and checks a scene. Errors name the file, the line and the key, and the value:
+// unknown keys, wrong types, non-finite numbers, a degenerate camera (eye == target, a
+// zero up, up parallel to the view), cube_res not a power of two in 1..kMaxCubeRes. A
+// path that is a directory or not a regular file is refused as such.
 Result<SceneDesc> ParseScene(const std::string& path);
 
 }  // namespace ltb::sample

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <fstream>
 #include <limits>
 
@@ -32,7 +33,19 @@ Status HashFile(const std::string& path, XXH3_state_t* st) {
 
 }  // namespace
 
-Result<Geometry> BuildGeometry(const SceneDesc& s) {
+namespace {
+
+bool FloatFinite(double x) { return std::isfinite(static_cast<float>(x)); }
+
+std::string Fmt(const glm::dvec3& v) {
+  char b[96];
+  std::snprintf(b, sizeof b, "[%.9g, %.9g, %.9g]", v.x, v.y, v.z);
+  return b;
+}
+
+}  // namespace
+
+Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
   Geometry g;
   LTB_ASSIGN_OR_RETURN(g.rays, RayScene::Create());
   XXH3_state_t* st = XXH3_createState();
@@ -49,13 +62,19 @@ Result<Geometry> BuildGeometry(const SceneDesc& s) {
       }
       glm::dvec3 c = glm::dvec3(sample::ObjectTransform(o) * glm::dvec4(o.center, 1.0));
       double r = o.radius * sc.x;
+      if (!FloatFinite(c.x) || !FloatFinite(c.y) || !FloatFinite(c.z) || !FloatFinite(r) || !(r > 0)) {
+        XXH3_freeState(st);
+        return InvalidArgument(where + ": after its transform the sphere has centre " + Fmt(c) + " and radius " +
+                               std::to_string(r) + ", outside what single-precision ray tracing holds; reduce "
+                               "\"scale\", \"translate\", \"center\" or \"radius\"");
+      }
       LTB_RETURN_IF_ERROR(g.rays->AddSphere(c, r));
       lo = glm::min(lo, c - r);
       hi = glm::max(hi, c + r);
     } else {
       sample::TriangleMesh mesh;
       if (o.type == Object::Type::kMesh) {
-        auto loaded = sample::LoadMeshFile(o.file);
+        auto loaded = sample::LoadMeshFile(o.file, progress);
         if (!loaded.ok()) {
           XXH3_freeState(st);
           return loaded.status().WithContext(where);
@@ -69,6 +88,15 @@ Result<Geometry> BuildGeometry(const SceneDesc& s) {
       }
       g.degenerate += mesh.degenerate_dropped;
       sample::ApplyTransform(sample::ObjectTransform(o), &mesh);
+      for (size_t i = 0; i < mesh.positions.size(); ++i) {
+        const glm::dvec3& p = mesh.positions[i];
+        if (!FloatFinite(p.x) || !FloatFinite(p.y) || !FloatFinite(p.z)) {
+          XXH3_freeState(st);
+          return InvalidArgument(where + ": vertex " + std::to_string(i) + " is " + Fmt(p) +
+                                 " after the object's transform, outside what single-precision ray tracing holds; "
+                                 "reduce \"scale\" or \"translate\"");
+        }
+      }
       if (mesh.triangles.empty()) {
         XXH3_freeState(st);
         return InvalidArgument(where + ": has no triangles left after its transform (zero scale?)");
@@ -101,7 +129,7 @@ Result<Geometry> BuildGeometry(const SceneDesc& s) {
   XXH3_freeState(st);
   LTB_RETURN_IF_ERROR(hs);
   g.scene_hash = Hex64(h).substr(2);
-  LTB_RETURN_IF_ERROR(g.rays->Commit());
+  LTB_RETURN_IF_ERROR(g.rays->Commit(progress));
   g.epsilon = std::max(1e-6, 1e-5 * glm::length(hi - lo));
   return g;
 }

@@ -9,6 +9,7 @@
 
 #include <glm/vec3.hpp>
 
+#include "format/progress.h"
 #include "format/status.h"
 #include "stages/sample/ray_scene.h"
 #include "stages/sample/scene.h"
@@ -32,7 +33,9 @@ struct Geometry {
   std::string scene_hash;
 };
 
-// Loads every object of the scene into one committed Embree scene.
-Result<Geometry> BuildGeometry(const SceneDesc& s);
+// Loads every object of the scene into one committed Embree scene. Every object's
+// coordinates after its transform must be finite in single precision (what Embree
+// traces); Cancelled when `progress` asks to stop (mesh reading, the BVH build).
+Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress = Progress{});
 
 }  // namespace ltb::sample

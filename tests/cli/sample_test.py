@@ -182,7 +182,7 @@ material = "m"
 
     bad("unknown.toml", base.replace("fov = 30.0", "fov = 30.0\nfocus = 2.0\nzoom = 1"),
         "unknown key(s) in [camera]: \"focus\" (line 7), \"zoom\" (line 8)")
-    bad("missing.toml", base + '[[object]]\ntype = "mesh"\nfile = "nope.obj"\n', "nope.obj: cannot open mesh file")
+    bad("missing.toml", base + '[[object]]\ntype = "mesh"\nfile = "nope.obj"\n', "nope.obj: mesh file not found")
     with open(os.path.join(d, "empty.obj"), "w") as f:
         f.write("# nothing\nv 0 0 0\nv 1 0 0\n")
     bad("empty.toml", base + '[[object]]\ntype = "mesh"\nfile = "empty.obj"\n', "empty.obj: the mesh holds no triangles")
@@ -197,9 +197,9 @@ material = "m"
                 b"property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n")
         f.write(struct.pack("<9f", 0, 0, 0, 1, 0, 0, float("nan"), 1, 0))
         f.write(struct.pack("<B3i", 3, 0, 1, 2))
-    bad("nan.toml", base + '[[object]]\ntype = "mesh"\nfile = "nan.ply"\n', "nan.ply: vertex 2 is (nan, 1.000000")
-    bad("r6.toml", base, "cube resolution 6 is not a power of two", extra=("--cube-res", "6"))
-    bad("albedo.toml", base.replace(f"albedo = {albedo}", "albedo = 1.5"), "\"albedo\" is 1.500000, outside [0.000000, 1.000000]")
+    bad("nan.toml", base + '[[object]]\ntype = "mesh"\nfile = "nan.ply"\n', "nan.ply (byte 205): vertex 2 x is nan, not a finite number")
+    bad("r6.toml", base, "--cube-res 6: expected a power of two in 1..1024", expect=2, extra=("--cube-res", "6"))
+    bad("albedo.toml", base.replace(f"albedo = {albedo}", "albedo = 1.5"), "\"albedo\" is 1.5, outside [0, 1]")
     bad("mat.toml", base.replace('material = "m"', 'material = "steel"'), "uses material \"steel\", which no [[material]] defines")
 
 finish()

@@ -1,0 +1,67 @@
+// Our own mesh readers for OFF (ASCII) and PLY (ascii, binary_little_endian,
+// binary_big_endian): one pass over the bytes, memory bounded by what the file can hold
+// (declared counts are checked against its length before anything is reserved), strict
+// (an out-of-range vertex index, a truncated body or a non-finite coordinate is an error
+// naming the file, the line or element and the value) and interruptible (every 1 MiB read
+// asks Progress::Cancelled). docs/SCENE.md "Mesh files" states what they accept.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "format/progress.h"
+#include "format/status.h"
+#include "stages/sample/geometry.h"
+
+namespace ltb::sample {
+
+// Bytes of a mesh file, read in pieces (a regular file), or bytes already in memory
+// (tests, fuzzers). Lines end at '\n'; a trailing '\r' is dropped.
+class MeshInput {
+ public:
+  // Opens a regular file; a directory, FIFO, socket or device is refused by name (opening
+  // never blocks).
+  static Result<MeshInput> Open(const std::string& path, const Progress* progress);
+  MeshInput(std::string_view bytes, std::string name);
+  MeshInput(MeshInput&&) noexcept;
+  MeshInput& operator=(MeshInput&&) noexcept;
+  MeshInput(const MeshInput&) = delete;
+  ~MeshInput();
+
+  const std::string& name() const { return name_; }
+  uint64_t size() const { return size_; }
+  uint64_t consumed() const { return base_ + pos_; }
+  uint64_t remaining() const { return size_ - consumed(); }
+  uint64_t line() const { return line_; }  // number of the line NextLine returned last
+
+  // The next line (without '\n' / '\r'); false at the end of the input.
+  Result<bool> NextLine(std::string_view* line);
+  // Exactly n bytes into dst; DataLoss naming `what` when the input ends first.
+  Status Read(void* dst, size_t n, const std::string& what);
+
+ private:
+  MeshInput() = default;
+  // Makes at least `want` bytes available from pos_ (fewer at the end of the file).
+  Status Fill(size_t want);
+
+  std::string name_;
+  int fd_ = -1;
+  const Progress* progress_ = nullptr;
+  std::vector<char> buf_;
+  const char* data_ = nullptr;  // buf_.data() for files, the caller's bytes otherwise
+  size_t pos_ = 0, end_ = 0;    // unread bytes are data_[pos_, end_)
+  uint64_t base_ = 0;           // file offset of data_[0]
+  uint64_t size_ = 0;
+  uint64_t line_ = 0;
+};
+
+// Vertex positions as float (as the file stores them, or rounded from double), polygons
+// fan-triangulated (v0, vi, vi+1) in file order. Faces with fewer than 3 vertices or a
+// repeated vertex are dropped and counted in degenerate_dropped. Vertices keep their file
+// order and ids (vertex mode rows). The mesh is not yet Finalized.
+Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress);
+Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress);
+
+}  // namespace ltb::sample
