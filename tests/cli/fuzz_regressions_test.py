@@ -65,6 +65,16 @@ def main():
         mesh_case(d, "header-without-end.ply", b"ply\nformat ascii 1.0\n", "PLY header cut after format (hang)")
         mesh_case(d, "binary-header-without-end.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 1\n",
                   "binary PLY header cut after element (hang)")
+        # drc_fuzzer, 2026-11-25: 111 bytes, a Draco mesh whose POSITION attribute is of
+        # type DT_BOOL. LoadDraco converts it with ConvertValue<float>, which loads a byte
+        # of value 2 as a bool: undefined behaviour (UBSan: draco/attributes/
+        # geometry_attribute.h:300 "load of value 2, which is not a valid value for type
+        # 'const bool'"), so the ASan tree dies of it; the release build goes on with
+        # positions made of bools. Positions that are not numbers must be an error.
+        mesh_case(d, "bool-positions.drc", bytes.fromhex(
+            "445241434f0202010000231a0b0100000000000080489e7800100000000000000027000028290101000b0100000078"
+            "00000000000000000000000b0100000000000080489e780000000000000000003f000028d8d9d8da27000028290101"
+            "000b010000007800000000000000000000"), "Draco mesh with bool positions (UB)")
         # exr_fuzzer, 2026-11-25: 15 bytes: the OpenEXR magic, version 2 and an attribute
         # of an unknown (empty) type whose size field says ~2 GB. OpenEXR allocates the
         # attribute (Imf::OpaqueAttribute::readValueFrom, malloc 1-2 GB) before reading it;
