@@ -15,10 +15,14 @@ class SampleCommand : public Command {
     auto* app = parent->add_subcommand("sample", "ray-cast the light transport matrix of a scene (Embree)");
     app->add_option("SCENE", options_.scene, "scene file (TOML, see docs/SCENE.md)")->required()->check(CLI::ExistingFile);
     app->add_option("-o,--output", options_.output, "output container (row blocks)")->required();
-    app->add_option("--cube-res", cube_res_, "cube face resolution R, a power of two (default: the scene's, else 32)");
-    app->add_option("--spp", spp_, "stratified jittered rays per texel (default: the scene's, else 4)");
-    app->add_option("--bounces", bounces_, "diffuse interreflection bounces (default: the scene's, else 0)");
-    app->add_option("--seed", seed_, "random seed (default: the scene's, else 1)");
+    app->add_option("--cube-res", cube_res_, "cube face resolution R, a power of two (default: the scene's, else 32)")
+        ->check(PowerOfTwoCheck(1024));
+    app->add_option("--spp", spp_, "stratified jittered rays per texel (default: the scene's, else 4)")
+        ->check(CLI::Range(int64_t{1}, int64_t{1} << 16));
+    app->add_option("--bounces", bounces_, "diffuse interreflection bounces (default: the scene's, else 0)")
+        ->check(CLI::Range(int64_t{0}, int64_t{16}));
+    app->add_option("--seed", seed_, "random seed (default: the scene's, else 1)")
+        ->check(CLI::Range(int64_t{0}, int64_t{1} << 62));
     app->add_option("--chunk-rows", options_.chunk_rows, "rows per chunk (default: ~2 MiB chunks)");
     app->add_option("--row-transform", row_filter_,
                     "fused sample + row-transform: wavelet-transform each row block with this filter before it is "
