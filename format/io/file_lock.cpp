@@ -108,11 +108,18 @@ Result<FileLock> FileLock::Acquire(const std::string& lock_path, const LockOptio
         std::this_thread::yield();
         lock.lock();
       }
+    }
+    // Tries on this descriptor until the lock is ours or the wait is over (the descriptor
+    // stays open meanwhile: a waiting process can be seen waiting, in /proc/PID/fd).
+    bool reopen = false;
+    while (!reopen) {
       if (::flock(fd, LOCK_EX | LOCK_NB) == 0) {
         struct stat now;
         if (::stat(lock_path.c_str(), &now) != 0 || now.st_dev != st.st_dev || now.st_ino != st.st_ino) {
-          // Its holder released (and unlinked) it between our open and flock: a new file.
+          // Its holder released (and unlinked) it since we opened it: start over with the
+          // file now at the path.
           ::close(fd);
+          reopen = true;
           continue;
         }
         // Best effort: on a full disk the lock still holds, the others just cannot name us.
@@ -124,36 +131,34 @@ Result<FileLock> FileLock::Acquire(const std::string& lock_path, const LockOptio
         state->dev = st.st_dev;
         state->ino = st.st_ino;
         state->remove_on_release = options.remove_on_release;
+        std::lock_guard<std::mutex> lock(g_mu);
         Registry()[{st.st_dev, st.st_ino}] = state;
         FileLock f;
         f.state_ = std::move(state);
         return f;
       }
-    }
-    int err = errno;
-    if (err == EINTR) {
+      const int err = errno;
+      if (err == EINTR) continue;
+      if (err != EWOULDBLOCK) {
+        ::close(fd);
+        return IoError(lock_path + ": flock", err);
+      }
+      if (Clock::now() < deadline) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(100));
+        continue;
+      }
+      // Held by another process. It records its PID right after taking the lock: give it
+      // a moment to do so before saying it is unknown.
+      long pid = ReadPid(fd);
+      for (int i = 0; pid == 0 && i < 20; ++i) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));
+        pid = ReadPid(fd);
+      }
       ::close(fd);
-      continue;
+      const std::string holder = pid > 0 ? "PID " + std::to_string(pid) : std::string("another process");
+      if (options.busy_message) return FailedPrecondition(options.busy_message(holder));
+      return FailedPrecondition(lock_path + " is locked by " + holder);
     }
-    if (err != EWOULDBLOCK) {
-      ::close(fd);
-      return IoError(lock_path + ": flock", err);
-    }
-    // Held by another process. It records its PID right after taking the lock: give it a
-    // moment to do so before saying it is unknown.
-    long pid = ReadPid(fd);
-    for (int i = 0; pid == 0 && i < 20; ++i) {
-      std::this_thread::sleep_for(std::chrono::milliseconds(5));
-      pid = ReadPid(fd);
-    }
-    ::close(fd);
-    if (Clock::now() < deadline) {
-      std::this_thread::sleep_for(std::chrono::milliseconds(100));
-      continue;
-    }
-    const std::string holder = pid > 0 ? "PID " + std::to_string(pid) : std::string("another process");
-    if (options.busy_message) return FailedPrecondition(options.busy_message(holder));
-    return FailedPrecondition(lock_path + " is locked by " + holder);
   }
 }
 
