@@ -468,8 +468,9 @@ Status WriteTextIfChanged(const std::string& path, const std::string& text) {
 // Holds the work directory for one bake at a time (io::FileLock, the same lock as a stage
 // output's). The descriptor is inherited by the stage processes, so a stage orphaned by a
 // killed run still holds it until it dies; for that the lock file is never removed.
-Result<io::FileLock> LockWorkdir(const std::string& workdir) {
+Result<io::FileLock> LockWorkdir(const std::string& workdir, const std::function<int()>& pending_signal) {
   io::LockOptions o;
+  if (pending_signal) o.cancelled = [&pending_signal] { return pending_signal() != 0; };
   o.wait_seconds = 5;  // a run that is just finishing
   o.inherit = true;
   o.remove_on_release = false;
@@ -757,7 +758,7 @@ Result<BakeOutcome> Bake::Run() {
   if (!o_.dry_run) {
     fs::create_directories(fs::path(workdir_) / "logs", ec);
     if (ec) return IoError(workdir_ + "/logs: cannot create", ec.value());
-    LTB_ASSIGN_OR_RETURN(lock, LockWorkdir(workdir_));
+    LTB_ASSIGN_OR_RETURN(lock, LockWorkdir(workdir_, o_.pending_signal));
   }
   json prev;
   if (existed && fs::exists(Path(kReport), ec)) {

@@ -144,6 +144,10 @@ Result<FileLock> FileLock::Acquire(const std::string& lock_path, const LockOptio
         return IoError(lock_path + ": flock", err);
       }
       if (Clock::now() < deadline) {
+        if (options.cancelled && options.cancelled()) {
+          ::close(fd);
+          return Cancelled("interrupted while waiting for the lock " + lock_path);
+        }
         std::this_thread::sleep_for(std::chrono::milliseconds(100));
         continue;
       }

@@ -28,6 +28,8 @@ struct LockOptions {
   // The message when another process holds the lock; `holder` is "PID 1234" (or "another
   // process" when the file names none).
   std::function<std::string(const std::string& holder)> busy_message;
+  // Polled while waiting: true stops the wait with kCancelled (a signal arrived).
+  std::function<bool()> cancelled;
 };
 
 class FileLock {

@@ -32,7 +32,7 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 from ltbtest import LTBAKE, check, finish, run  # noqa: E402
-from hostile import run_hostile  # noqa: E402
+from hostile import interrupt_while_running, run_hostile  # noqa: E402
 
 REPO = os.path.abspath(os.path.join(HERE, "..", ".."))
 TINY = os.path.join(REPO, "samples", "tiny.toml")
@@ -330,5 +330,24 @@ with tempfile.TemporaryDirectory() as d:
     check(actions and all(a == "skip" for a in actions),
           f"run after waiting for the lock redid finished steps (it read run.json before the lock): {actions}")
     check({n: content_hash(os.path.join(w, n)) for n in hashes} == hashes, "run after waiting: outputs changed")
+
+    # A run waiting for the lock stops at SIGTERM (not when its wait runs out).
+    def someone_waits():
+        for pid in os.listdir("/proc"):
+            if not pid.isdigit() or int(pid) == os.getpid():
+                continue
+            try:
+                if any(os.readlink(f"/proc/{pid}/fd/{n}") == lock for n in os.listdir(f"/proc/{pid}/fd")):
+                    return True
+            except OSError:
+                pass
+        return False
+
+    fd = os.open(lock, os.O_RDWR)
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    code, err = interrupt_while_running(["run", recipe, "--workdir", w], someone_waits, signal.SIGTERM,
+                                        what="run waiting for its work directory")
+    os.close(fd)
+    check(code == 143 and "interrupted while waiting" in err, f"run waiting for the lock, SIGTERM: exit {code}\n{err}")
 
 finish()
