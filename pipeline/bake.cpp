@@ -100,6 +100,8 @@ std::string Hex(uint64_t h) {
 }
 
 Result<std::string> HashFileBytes(const std::string& path) {
+  // A FIFO or a device would block the read or never end: refused before opening.
+  LTB_RETURN_IF_ERROR(io::RequireRegularFile(path));
   std::ifstream f(path, std::ios::binary);
   if (!f) return NotFound(path + ": cannot open");
   XXH3_state_t* st = XXH3_createState();
