@@ -27,8 +27,10 @@ class ColumnTransformCommand : public Command {
         ->check(CLI::IsMember({"legall53", "cdf97", "haar", "db1", "db2", "db3", "db4"}));
     app->add_option("--depth", depth_, "adaptive (optimal depth per column), none (2D), full (naive 4D) or a depth K")
         ->default_val("adaptive");
-    auto* terms = app->add_option("--terms", terms_, "keep the N largest terms of each column");
-    auto* keep = app->add_option("--keep", keep_, "keep this fraction of each column's terms (default 0.05)");
+    auto* terms = app->add_option("--terms", terms_, "keep the N largest terms of each column")
+                      ->check(CLI::Range(uint64_t{1}, uint64_t{1} << 62));
+    auto* keep = app->add_option("--keep", keep_, "keep this fraction of each column's terms (default 0.05)")
+                     ->check(FractionCheck());
     auto* budget = app->add_option("--budget", budget_,
                                    "one budget of nonzeros for the whole matrix, allocated by rate-distortion "
                                    "optimisation: a fraction (0.02 or 2%), a count, or a size (64MiB at 8 bytes/nonzero)");
@@ -62,7 +64,7 @@ class ColumnTransformCommand : public Command {
       options_.terms.keep = keep_;
     }
     auto mem = ParseSize(flags_.mem_limit);
-    if (!mem.ok()) return ReportFailure(mem.status().WithContext("--mem-limit"));
+    if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
     options_.mem_limit = *mem;
     options_.jobs = flags_.jobs;
     ProgressBar bar(flags_, "column-transform");
@@ -111,10 +113,6 @@ class ColumnTransformCommand : public Command {
   }
 
  private:
-  int ReportUsage(const Status& s) {
-    std::cerr << "ltbake column-transform: " << s.message() << "\n";
-    return kExitUsage;
-  }
   stages::ColumnTransformOptions options_;
   std::string filter_ = "legall53", depth_ = "adaptive", budget_;
   uint64_t terms_ = 0;

@@ -4,6 +4,7 @@
 
 #include "cli/commands.h"
 #include "cli/common.h"
+#include "format/io/file_lock.h"
 #include "stages/convert/convert.h"
 #include "stages/relight/envmap.h"
 
@@ -17,7 +18,7 @@ class ConvertCommand : public Command {
         "convert", ".npy (2-D float32/float64, C order) -> .ltm, or .ltm -> dense float32 .npy (by extension)");
     app->add_option("IN", options_.input, "input file")->required();
     app->add_option("OUT", options_.output, "output file")->required();
-    app->add_option("--chunk-size", chunk_size_, "target bytes per chunk (npy -> ltm)")->default_val("8MiB");
+    app->add_option("--chunk-size", chunk_size_, "target bytes per chunk (npy -> ltm)")->default_val("8MiB")->check(SizeCheck());
     app->add_option("--layout", layout_, "chunk layout of the .ltm: rows (row blocks) or cols (column blocks)")
         ->default_val("rows")
         ->check(CLI::IsMember({"rows", "cols"}));
@@ -44,9 +45,9 @@ class ConvertCommand : public Command {
 
   int Run() override {
     auto chunk = ParseSize(chunk_size_);
-    if (!chunk.ok()) return ReportFailure(chunk.status().WithContext("--chunk-size"));
+    if (!chunk.ok()) return ReportUsage(chunk.status().WithContext("--chunk-size"));
     auto mem = ParseSize(flags_.mem_limit);
-    if (!mem.ok()) return ReportFailure(mem.status().WithContext("--mem-limit"));
+    if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
     options_.chunk_bytes = *chunk;
     options_.mem_limit = *mem;
     options_.jobs = flags_.jobs;
@@ -72,6 +73,8 @@ class ConvertCommand : public Command {
       env.layout = *stages::ParseEnvLayout(env_layout_);  // checked by IsMember
       env.clamp = env_clamp_;
       uint64_t clamped = 0;
+      auto lock = io::LockOutput(options_.output);  // one writer per output
+      if (!lock.ok()) return ReportFailure(lock.status());
       Status s = stages::ConvertEnvToNpy(options_.input, options_.output, options_.cube_res, env, &clamped);
       if (!s.ok()) return ReportFailure(s);
       if (!flags_.quiet) {

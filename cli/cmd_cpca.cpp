@@ -51,7 +51,7 @@ class CpcaCommand : public Command {
       return kExitUsage;
     }
     auto mem = ParseSize(flags_.mem_limit);
-    if (!mem.ok()) return ReportFailure(mem.status().WithContext("--mem-limit"));
+    if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
     options_.mem_limit = *mem;
     options_.jobs = flags_.jobs;
     ProgressBar bar(flags_, "cpca");

@@ -80,7 +80,8 @@ class RelightCommand : public Command {
         ->check(CLI::IsMember({"area", "transport", "none"}));
     app->add_option("--reference", reference_, "uncompressed matrix (raw.ltm or rows.ltm) for error metrics");
     app->add_option("--frames", frames_, "time this many frames of the environment rotating once about +Z")
-        ->default_val(0);
+        ->default_val(0)
+        ->check(CLI::Range(0, 1 << 20));
     app->add_option("--rotate", rotate_deg_, "rotate the environment about +Z by this many degrees")->default_val(0.0);
     app->add_option("--env-layout", layout_, "auto, latlong, hcross, vcross or faces")
         ->default_val("auto")
@@ -111,7 +112,7 @@ class RelightCommand : public Command {
     std::optional<stages::CpcaRelighter> cpca;
     if (is_cpca) {  // clustered PCA: project the lighting per cluster, blend per row
       auto mem = ParseSize(flags_.mem_limit);
-      if (!mem.ok()) return ReportFailure(mem.status().WithContext("--mem-limit"));
+      if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
       auto r = stages::CpcaRelighter::Load(matrix_, *mem);
       if (!r.ok()) return ReportFailure(r.status());
       cpca = std::move(*r);
@@ -120,7 +121,7 @@ class RelightCommand : public Command {
       report["matrix_bytes_in_memory"] = cpca->bytes();
     } else if (!streaming) {
       auto mem = ParseSize(flags_.mem_limit);
-      if (!mem.ok()) return ReportFailure(mem.status().WithContext("--mem-limit"));
+      if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
       auto r = stages::Relighter::Load(matrix_, *mem, bar.hook());
       if (!r.ok()) return ReportFailure(r.status());
       relighter = std::move(*r);

@@ -17,31 +17,14 @@ class SampleCommand : public Command {
     // The scene's existence is checked when it is read, so a directory or a FIFO is named as such.
     app->add_option("SCENE", options_.scene, "scene file (TOML, see docs/SCENE.md)")->required();
     app->add_option("-o,--output", options_.output, "output container (row blocks)")->required();
-    app->add_option("--cube-res", cube_res_,
-                    "cube face resolution R, a power of two in 1.." + std::to_string(sample::kMaxCubeRes) +
-                        " (default: the scene's, else 32)")
-        ->check(CLI::Validator(
-            [](std::string& s) -> std::string {
-              long long v = 0;
-              try {
-                size_t pos = 0;
-                v = std::stoll(s, &pos);
-                if (pos != s.size()) v = 0;
-              } catch (...) {
-                v = 0;
-              }
-              if (v < 1 || v > sample::kMaxCubeRes || (v & (v - 1)) != 0) {
-                return "--cube-res " + s + ": expected a power of two in 1.." + std::to_string(sample::kMaxCubeRes);
-              }
-              return {};
-            },
-            "POWER OF TWO"));
+    app->add_option("--cube-res", cube_res_, "cube face resolution R, a power of two up to " + std::to_string(sample::kMaxCubeRes) + " (default: the scene's, else 32)")
+        ->check(PowerOfTwoCheck(sample::kMaxCubeRes));
     app->add_option("--spp", spp_, "stratified jittered rays per texel (default: the scene's, else 4)")
-        ->check(CLI::Range(1, 1 << 16));
+        ->check(CLI::Range(int64_t{1}, int64_t{1} << 16));
     app->add_option("--bounces", bounces_, "diffuse interreflection bounces (default: the scene's, else 0)")
-        ->check(CLI::Range(0, 16));
+        ->check(CLI::Range(int64_t{0}, int64_t{16}));
     app->add_option("--seed", seed_, "random seed (default: the scene's, else 1)")
-        ->check(CLI::Range(0LL, 1LL << 62));
+        ->check(CLI::Range(int64_t{0}, int64_t{1} << 62));
     app->add_option("--chunk-rows", options_.chunk_rows, "rows per chunk (default: ~2 MiB chunks)");
     app->add_option("--row-transform", row_filter_,
                     "fused sample + row-transform: wavelet-transform each row block with this filter before it is "

@@ -33,7 +33,7 @@ class TransposeCommand : public Command {
     }
     options_.shard = *shard;
     auto mem = ParseSize(flags_.mem_limit);
-    if (!mem.ok()) return ReportFailure(mem.status().WithContext("--mem-limit"));
+    if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
     options_.mem_limit = *mem;
     options_.jobs = flags_.jobs;
     ProgressBar bar(flags_, "transpose");

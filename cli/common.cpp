@@ -3,6 +3,8 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <cctype>
+#include <cerrno>
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
@@ -18,7 +20,9 @@ void OnSignal(int sig) { g_signal.store(sig); }
 
 void AddCommonFlags(CLI::App* app, CommonFlags* f) {
   app->add_option("--jobs,-j", f->jobs, "worker threads")->default_val(2)->check(CLI::Range(1, 1024));
-  app->add_option("--mem-limit", f->mem_limit, "memory budget for buffers, e.g. 512MiB, 4GiB")->default_val("1GiB");
+  app->add_option("--mem-limit", f->mem_limit, "memory budget for buffers, e.g. 512MiB, 4GiB")
+      ->default_val("1GiB")
+      ->check(SizeCheck());
   app->add_option("--progress", f->progress, "progress bar on stderr")
       ->default_val("auto")
       ->check(CLI::IsMember({"auto", "always", "never"}));
@@ -90,8 +94,52 @@ Result<uint64_t> ParseSize(const std::string& text) {
   else if (unit == "GB") mult = 1e9;
   else return InvalidArgument("size \"" + text + "\" has unknown unit \"" + unit + "\" (use B, KiB, MiB, GiB, TiB)");
   double bytes = v * mult;
-  if (bytes < 1 || bytes > 9.0e18) return InvalidArgument("size \"" + text + "\" is out of range");
+  if (!(bytes >= 1)) return InvalidArgument("size \"" + text + "\" is less than 1 byte (e.g. 512MiB, 4GiB)");
+  if (bytes > 9.0e18) return InvalidArgument("size \"" + text + "\" is out of range (at most 8EiB)");
   return static_cast<uint64_t>(bytes);
+}
+
+CLI::Validator SizeCheck() {
+  return CLI::Validator(
+      [](std::string& text) -> std::string {
+        auto r = ParseSize(text);
+        return r.ok() ? std::string() : r.status().message();
+      },
+      "SIZE");
+}
+
+CLI::Validator PowerOfTwoCheck(uint64_t max) {
+  return CLI::Validator(
+      [max](std::string& text) -> std::string {
+        char* end = nullptr;
+        errno = 0;
+        unsigned long long v = std::strtoull(text.c_str(), &end, 10);
+        if (text.empty() || !std::isdigit(static_cast<unsigned char>(text[0])) || *end != '\0' || errno != 0 ||
+            v == 0 || v > max || (v & (v - 1)) != 0) {
+          return "\"" + text + "\" is not a power of two in 1.." + std::to_string(max);
+        }
+        return std::string();
+      },
+      "POW2");
+}
+
+CLI::Validator FractionCheck() {
+  return CLI::Validator(
+      [](std::string& text) -> std::string {
+        char* end = nullptr;
+        double v = std::strtod(text.c_str(), &end);
+        if (end == text.c_str() || *end != '\0' || !(v > 0 && v <= 1)) {
+          return "\"" + text + "\" is not a fraction in (0, 1]";
+        }
+        return std::string();
+      },
+      "FRACTION");
+}
+
+int ReportUsage(const Status& status) {
+  std::cerr << "ltbake: usage error: " << status.message() << "\n"
+            << "Run 'ltbake --help' (or 'ltbake COMMAND --help') for usage.\n";
+  return kExitUsage;
 }
 
 void InstallSignalHandlers() {

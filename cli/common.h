@@ -42,8 +42,21 @@ Result<io::ShardSpec> ResolveShard(const ShardFlags& flags);
 // "OUT", or "shard I of N of OUT (its file)" for the messages of a stage.
 std::string OutputName(const std::string& output, const io::ShardSpec& shard);
 
-// "1GiB", "512MiB", "64M", "4096": bytes. Errors name the text.
+// "1GiB", "512MiB", "64M", "4096": bytes (at least 1). Errors name the text.
 Result<uint64_t> ParseSize(const std::string& text);
+
+// Flag validators, so a bad value is a usage error (exit 2) found while parsing, with the
+// flag and the value named ("--mem-limit: size \"0\" is ..."), before any file is opened.
+// A size, as ParseSize takes it.
+CLI::Validator SizeCheck();
+// A power of two in [1, max].
+CLI::Validator PowerOfTwoCheck(uint64_t max);
+// A number in (0, 1].
+CLI::Validator FractionCheck();
+
+// For usage errors found after parsing: prints "ltbake: usage error: MESSAGE" and a pointer
+// to --help on stderr, returns kExitUsage (2).
+int ReportUsage(const Status& status);
 
 // Installs SIGINT/SIGTERM handlers that ask running work to stop and commit.
 void InstallSignalHandlers();

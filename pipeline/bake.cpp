@@ -21,6 +21,7 @@
 #include "format/io/array_summary.h"
 #include "format/io/container_reader.h"
 #include "format/io/file.h"
+#include "format/io/file_lock.h"
 #include "format/version.h"
 #include "format/io/manifest.h"
 #include "pipeline/process.h"
@@ -99,6 +100,8 @@ std::string Hex(uint64_t h) {
 }
 
 Result<std::string> HashFileBytes(const std::string& path) {
+  // A FIFO or a device would block the read or never end: refused before opening.
+  LTB_RETURN_IF_ERROR(io::RequireRegularFile(path));
   std::ifstream f(path, std::ios::binary);
   if (!f) return NotFound(path + ": cannot open");
   XXH3_state_t* st = XXH3_createState();
@@ -464,31 +467,22 @@ Status WriteTextIfChanged(const std::string& path, const std::string& text) {
   return Status::Ok();
 }
 
-// Holds the work directory for one bake at a time. The descriptor is inherited by the
-// stage processes, so a stage orphaned by a killed run still holds it until it dies.
-class WorkdirLock {
- public:
-  ~WorkdirLock() {
-    if (fd_ >= 0) ::close(fd_);
-  }
-  Status Acquire(const std::string& workdir) {
-    std::string path = (fs::path(workdir) / ".ltbake-run.lock").string();
-    fd_ = ::open(path.c_str(), O_RDWR | O_CREAT, 0644);  // no O_CLOEXEC: stages inherit it
-    if (fd_ < 0) return IoError(path + ": cannot open the work directory's lock file", errno);
-    for (int tries = 0;; ++tries) {
-      if (::flock(fd_, LOCK_EX | LOCK_NB) == 0) return Status::Ok();
-      if (errno != EWOULDBLOCK && errno != EINTR) return IoError(path + ": flock", errno);
-      if (tries >= 50) {
-        return FailedPrecondition("work directory " + workdir + " is in use by another `ltbake run` (or a stage "
-                                  "it started that is still finishing); wait for it, or use another --workdir");
-      }
-      std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    }
-  }
-
- private:
-  int fd_ = -1;
-};
+// Holds the work directory for one bake at a time (io::FileLock, the same lock as a stage
+// output's). The descriptor is inherited by the stage processes, so a stage orphaned by a
+// killed run still holds it until it dies; for that the lock file is never removed.
+Result<io::FileLock> LockWorkdir(const std::string& workdir, const std::function<int()>& pending_signal) {
+  io::LockOptions o;
+  if (pending_signal) o.cancelled = [&pending_signal] { return pending_signal() != 0; };
+  o.wait_seconds = 5;  // a run that is just finishing
+  o.inherit = true;
+  o.remove_on_release = false;
+  o.busy_message = [&workdir](const std::string& holder) {
+    return "work directory " + workdir + " is in use by " + holder +
+           " (another `ltbake run`, or a stage it started that is still finishing); wait for it, or use another "
+           "--workdir";
+  };
+  return io::FileLock::Acquire((fs::path(workdir) / ".ltbake-run.lock").string(), o);
+}
 
 std::string Pad(std::string s, size_t w) {
   s.resize(std::max(w, s.size() + 1), ' ');  // a column wider than its field still ends in a space
@@ -761,6 +755,13 @@ Result<BakeOutcome> Bake::Run() {
   std::error_code ec;
   const bool existed = fs::exists(workdir_, ec);
   if (existed && !fs::is_directory(workdir_, ec)) return InvalidArgument(workdir_ + ": exists and is not a directory");
+  // Locked before run.json is read: a run that waited out another one sees what it did.
+  io::FileLock lock;
+  if (!o_.dry_run) {
+    fs::create_directories(fs::path(workdir_) / "logs", ec);
+    if (ec) return IoError(workdir_ + "/logs: cannot create", ec.value());
+    LTB_ASSIGN_OR_RETURN(lock, LockWorkdir(workdir_, o_.pending_signal));
+  }
   json prev;
   if (existed && fs::exists(Path(kReport), ec)) {
     std::ifstream in(Path(kReport));
@@ -784,12 +785,6 @@ Result<BakeOutcome> Bake::Run() {
     }
   }
   BakeOutcome outcome;
-  WorkdirLock lock;
-  if (!o_.dry_run) {
-    fs::create_directories(fs::path(workdir_) / "logs", ec);
-    if (ec) return IoError(workdir_ + "/logs: cannot create", ec.value());
-    LTB_RETURN_IF_ERROR(lock.Acquire(workdir_));
-  }
   // The scene: a file, or the recipe's inline table saved in the work directory.
   if (!r_.inline_scene.empty()) {
     scene_file_ = Path("scene.toml");

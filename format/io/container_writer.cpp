@@ -20,7 +20,9 @@ ContainerWriter::ContainerWriter(ContainerWriter&& o) noexcept { *this = std::mo
 
 ContainerWriter& ContainerWriter::operator=(ContainerWriter&& o) noexcept {
   if (this != &o) {
+    direct_ = File();  // the old file's descriptors close before its lock goes
     file_ = std::move(o.file_);
+    lock_ = std::move(o.lock_);
     metadata_ = std::move(o.metadata_);
     header_ = o.header_;
     resume_ = o.resume_;
@@ -124,6 +126,8 @@ Result<ContainerWriter> ContainerWriter::Open(const std::string& path, const nlo
   ContainerWriter w;
   w.options_ = options;
   w.metadata_ = std::move(parsed).value();
+  // Before anything at path is opened: a second writer stops here.
+  LTB_ASSIGN_OR_RETURN(w.lock_, LockOutput(path));
 
   if (PathExists(path)) {
     LTB_ASSIGN_OR_RETURN(File f, File::Open(path, File::Mode::kReadWrite));
@@ -408,6 +412,16 @@ Status ContainerWriter::Put(uint32_t array, uint64_t chunk, ByteSpan data, const
   eo.dtype = a.dtype;  // the sparse payload depends on the element type: always the array's
   EncodedChunk c = EncodeChunk(data, eo);
   return Append(array, chunk, c);
+}
+
+Status ContainerWriter::Discard() {
+  const std::string p = path();
+  Status s = direct_.Close();
+  Status c = file_.Close();
+  if (s.ok()) s = c;
+  if (!p.empty() && std::remove(p.c_str()) != 0 && errno != ENOENT && s.ok()) s = IoError(p + ": remove", errno);
+  *this = ContainerWriter();
+  return s;
 }
 
 Status ContainerWriter::Finish() {

@@ -6,6 +6,10 @@
 // the uncommitted tail is cut off and Has() reports what is already there, so the caller
 // appends only what is missing. Finish() checks every chunk is present and seals the file
 // with an index and a trailer.
+//
+// One writer per file: Open takes the output's lock (LockOutput) before it opens or
+// creates anything, and the writer holds it until it is destroyed; a second writer of the
+// same path (another process) fails with "PATH is in use by PID N" and touches nothing.
 #pragma once
 
 #include <cstdint>
@@ -20,6 +24,7 @@
 #include "format/array_spec.h"
 #include "format/chunk_codec.h"
 #include "format/io/file.h"
+#include "format/io/file_lock.h"
 #include "format/layout.h"
 
 namespace ltb::io {
@@ -65,6 +70,7 @@ class ContainerWriter {
   ContainerWriter& operator=(ContainerWriter&&) noexcept;
   ~ContainerWriter();
 
+  // kFailedPrecondition "PATH is in use by PID N ..." when another process writes path.
   static Result<ContainerWriter> Open(const std::string& path, const nlohmann::json& metadata,
                                       const WriterOptions& options = {});
 
@@ -90,6 +96,11 @@ class ContainerWriter {
   // when a chunk is missing. A no-op on an already sealed file.
   Status Finish();
 
+  // Closes the file and removes it, still holding the output's lock (so no other writer can
+  // have started on it in between); leaves an empty writer. For a stage that finds its
+  // freshly written output unusable.
+  Status Discard();
+
  private:
   Status Resume(uint64_t file_size);
   Status CountMutation();  // fails once options_.stop_after_mutations is reached
@@ -99,6 +110,7 @@ class ContainerWriter {
   Status WritePayload(uint64_t offset, format::ByteSpan payload, bool direct);
   static uint64_t Key(uint32_t array, uint64_t chunk) { return (uint64_t{array} << 40) | chunk; }
 
+  FileLock lock_;  // first: released after the file is closed
   File file_;
   format::Metadata metadata_;
   format::FileHeader header_;

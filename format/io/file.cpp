@@ -24,8 +24,45 @@ File& File::operator=(File&& other) noexcept {
   return *this;
 }
 
+std::string FileKind(unsigned mode) {
+  switch (mode & S_IFMT) {
+    case S_IFREG: return "a regular file";
+    case S_IFDIR: return "a directory";
+    case S_IFIFO: return "a FIFO (named pipe)";
+    case S_IFCHR: return "a character device";
+    case S_IFBLK: return "a block device";
+    case S_IFSOCK: return "a socket";
+    case S_IFLNK: return "a symbolic link";
+  }
+  return "not a regular file (file type " + std::to_string(mode & S_IFMT) + ")";
+}
+
+namespace {
+
+Status NotRegular(const std::string& path, unsigned mode) {
+  return InvalidArgument(path + ": is " + FileKind(mode) +
+                         ", not a regular file; ltbake reads and writes only regular files (give the path of a file)");
+}
+
+}  // namespace
+
+Status RequireRegularFile(const std::string& path) {
+  struct stat st;
+  if (::stat(path.c_str(), &st) != 0) {
+    int err = errno;
+    Status s = IoError(path + ": cannot open", err);
+    if (err == ENOENT) return Status(StatusCode::kNotFound, s.message());
+    return s;
+  }
+  if (!S_ISREG(st.st_mode)) return NotRegular(path, st.st_mode);
+  return Status::Ok();
+}
+
 Result<File> File::Open(const std::string& path, Mode mode) {
-  int flags = O_CLOEXEC;
+  // O_NONBLOCK: opening a FIFO for reading would otherwise wait for a writer (forever, and
+  // deaf to signals). What the path is gets checked on the descriptor (fstat, no race with
+  // a rename), then the flag is cleared: regular files ignore it anyway.
+  int flags = O_CLOEXEC | O_NONBLOCK;
   switch (mode) {
     case Mode::kRead: flags |= O_RDONLY; break;
     case Mode::kReadWrite: flags |= O_RDWR; break;
@@ -38,14 +75,31 @@ Result<File> File::Open(const std::string& path, Mode mode) {
   } while (fd < 0 && errno == EINTR);
   if (fd < 0) {
     int err = errno;
+    struct stat st;
+    // EISDIR (a directory opened for writing), ENXIO (a FIFO without a reader, a socket):
+    // say what the path is rather than the errno.
+    if ((err == EISDIR || err == ENXIO || err == EOPNOTSUPP) && ::stat(path.c_str(), &st) == 0 && !S_ISREG(st.st_mode)) {
+      return NotRegular(path, st.st_mode);
+    }
     Status s = IoError(path + ": cannot open", err);
     if (err == ENOENT) return Status(StatusCode::kNotFound, s.message());
     return s;
   }
   struct stat st;
-  if (::fstat(fd, &st) == 0 && S_ISDIR(st.st_mode)) {
+  if (::fstat(fd, &st) != 0) {
+    int err = errno;
     ::close(fd);
-    return InvalidArgument(path + ": is a directory, not a file");
+    return IoError(path + ": fstat", err);
+  }
+  if (!S_ISREG(st.st_mode)) {
+    ::close(fd);
+    return NotRegular(path, st.st_mode);
+  }
+  int fl = ::fcntl(fd, F_GETFL);
+  if (fl < 0 || ::fcntl(fd, F_SETFL, fl & ~O_NONBLOCK) != 0) {
+    int err = errno;
+    ::close(fd);
+    return IoError(path + ": fcntl(F_SETFL)", err);
   }
   File f;
   f.fd_ = fd;

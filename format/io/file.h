@@ -1,5 +1,6 @@
 // A file descriptor with full-length positional reads/writes; every failure names the
-// path and strerror(errno).
+// path and strerror(errno). Only regular files open: a directory, FIFO, device or socket is
+// refused up front (kInvalidArgument naming the path and what it is), without blocking.
 #pragma once
 
 #include <cstdint>
@@ -23,6 +24,8 @@ class File {
   File(const File&) = delete;
   File& operator=(const File&) = delete;
 
+  // Fails with kNotFound when the path does not exist, kInvalidArgument when it is not a
+  // regular file (a FIFO is opened non-blocking to find out: no wait for a writer).
   static Result<File> Open(const std::string& path, Mode mode);
 
   Result<uint64_t> Size() const;
@@ -40,6 +43,13 @@ class File {
   int fd_ = -1;
   std::string path_;
 };
+
+// "a directory", "a FIFO (named pipe)", "a character device", ... for a st_mode.
+std::string FileKind(unsigned mode);
+// For readers that open files through another library (std::ifstream, OpenEXR, OpenMesh):
+// Ok for a regular file (symbolic links followed); kNotFound, or kInvalidArgument naming
+// what the path is, otherwise. Never blocks.
+Status RequireRegularFile(const std::string& path);
 
 // fsync of the directory holding path, so a rename in it is durable.
 Status SyncParentDirectory(const std::string& path);

@@ -13,6 +13,7 @@
 #include "format/io/array_summary.h"
 #include "format/io/container_writer.h"
 #include "format/io/file.h"
+#include "format/io/file_lock.h"
 
 namespace ltb::io {
 
@@ -123,11 +124,11 @@ Status WriteFileAtomically(const std::string& path, const std::string& text) {
 }  // namespace
 
 bool LooksLikeManifest(const std::string& path) {
-  int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) return false;
+  // Through File::Open: a FIFO or a device is not read here (the caller's own open refuses it).
+  auto f = File::Open(path, File::Mode::kRead);
+  if (!f.ok()) return false;
   char buf[kMagicLength];
-  ssize_t n = ::pread(fd, buf, kMagicLength, 0);
-  ::close(fd);
+  ssize_t n = ::pread(f->fd(), buf, kMagicLength, 0);
   return n == static_cast<ssize_t>(kMagicLength) && std::memcmp(buf, kManifestMagic, kMagicLength) == 0;
 }
 
@@ -293,6 +294,8 @@ Result<CommitResult> CommitShards(const std::string& output, uint64_t count, con
     return InvalidArgument("--nshards 1: a stage run as one shard writes " + output +
                            " itself, as a whole container; there is nothing to commit");
   }
+  // One writer of OUT at a time: a commit, a merge into it, or a whole-output stage run.
+  LTB_ASSIGN_OR_RETURN(FileLock lock, LockOutput(output));
   std::vector<std::string> missing;
   for (uint64_t i = 0; i < count; ++i)
     if (!PathExists(ShardPath(output, i, count))) missing.push_back(std::to_string(i));
@@ -397,6 +400,10 @@ VerifyReport VerifyManifest(const std::string& path) {
   if (!joined.ok()) report.problems.push_back(joined.status().message());
   bool sealed = joined.ok();
   const std::string dir = Directory(path);
+  // The recorded hashes are recomputed from the shards' data: a manifest whose hashes were
+  // edited (or that was committed from other shards) does not pass.
+  ContentHasher total;
+  bool all_hashed = true;
   for (const ShardRecord& rec : info->shards) {
     const std::string full = dir + "/" + rec.path;
     const std::string name = ShardName(rec.index, info->count, full);
@@ -411,6 +418,36 @@ VerifyReport VerifyManifest(const std::string& path) {
     for (const std::string& p : s.problems) report.problems.push_back(name + ": " + p);
     for (const std::string& n : s.notes) report.notes.push_back(name + ": " + n);
     sealed = sealed && s.sealed;
+    if (!s.problems.empty() || !s.sealed) {
+      all_hashed = false;
+      continue;
+    }
+    auto shard = ContainerReader::Open(full);
+    auto summary = shard.ok() ? SummarizeArray(*shard, 0, 1) : Result<ArraySummary>(shard.status());
+    if (!summary.ok()) {
+      report.problems.push_back(name + ": cannot recompute its content_hash: " + summary.status().message());
+      all_hashed = false;
+      continue;
+    }
+    if (summary->content_hash != rec.content_hash) {
+      report.problems.push_back(path + ": shards[" + std::to_string(rec.index) + "].content_hash is " +
+                                rec.content_hash + ", but " + name + " holds content_hash " + summary->content_hash +
+                                ": the manifest does not describe this shard; commit the shards again (`ltbake commit`)");
+    }
+    if (summary->hash_sum != rec.hash_sum) {
+      report.problems.push_back(path + ": shards[" + std::to_string(rec.index) + "].hash_sum is " +
+                                Hex64(rec.hash_sum).substr(2) + ", but " + name + " sums to " +
+                                Hex64(summary->hash_sum).substr(2) +
+                                ": the manifest does not describe this shard; commit the shards again (`ltbake commit`)");
+    }
+    total.AddSum(summary->hash_sum);
+  }
+  if (all_hashed && joined.ok()) {
+    const std::string whole = total.Finish(joined->metadata().matrix());
+    if (whole != info->content_hash) {
+      report.problems.push_back(path + ": content_hash is " + info->content_hash + ", but its shards hold content_hash " +
+                                whole + "; commit the shards again (`ltbake commit`)");
+    }
   }
   report.sealed = sealed;
   report.complete = sealed && report.problems.empty() && report.chunks_ok == report.chunks_expected;

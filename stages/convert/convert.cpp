@@ -15,6 +15,7 @@
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
 #include "format/io/file.h"
+#include "format/io/file_lock.h"
 #include "format/io/mapped_region.h"
 #include "format/npy.h"
 #include "format/version.h"
@@ -251,10 +252,7 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
   if (!s.ok()) {
     // Bad input found part way: a file this run created cannot be finished, so it goes.
     // An interrupted run keeps its file so the next run resumes it.
-    if (s.code() == StatusCode::kInvalidArgument && !writer.resume_info().resumed) {
-      writer = io::ContainerWriter();
-      std::remove(o.output.c_str());
-    }
+    if (s.code() == StatusCode::kInvalidArgument && !writer.resume_info().resumed) (void)writer.Discard();
     return s;
   }
   LTB_RETURN_IF_ERROR(writer.Finish());
@@ -394,8 +392,14 @@ Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress
 }  // namespace
 
 Result<ConvertResult> RunConvert(const ConvertOptions& o, const Progress& progress) {
-  if (EndsWith(o.input, ".npy") && EndsWith(o.output, ".ltm")) return NpyToLtm(o, progress);
-  if (EndsWith(o.input, ".ltm") && EndsWith(o.output, ".npy")) return LtmToNpy(o, progress);
+  const bool to_ltm = EndsWith(o.input, ".npy") && EndsWith(o.output, ".ltm");
+  const bool to_npy = EndsWith(o.input, ".ltm") && EndsWith(o.output, ".npy");
+  if (to_ltm || to_npy) {
+    // Held for the whole conversion (the container writer shares it): a second convert into
+    // the same output stops here, before it removes or opens anything.
+    LTB_ASSIGN_OR_RETURN(io::FileLock lock, io::LockOutput(o.output));
+    return to_ltm ? NpyToLtm(o, progress) : LtmToNpy(o, progress);
+  }
   return InvalidArgument("convert " + o.input + " " + o.output +
                          ": supported conversions are .npy -> .ltm, .ltm -> .npy and an environment map (.exr, .hdr) "
                          "-> .npy cubemap with --cube-res R (by file extension)");

@@ -14,6 +14,7 @@
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
 #include "format/io/file.h"
+#include "format/io/file_lock.h"
 #include "stages/common/basis.h"
 #include "stages/common/parallel_for.h"
 #include "stages/cpca/cpca_checkpoint.h"
@@ -673,6 +674,9 @@ Result<CpcaResult> RunCpca(const CpcaOptions& o, const Progress& progress) {
   result.basis = s;
   result.memory_bytes = fixed + pr.sample_rows * per_sample_row;
 
+  // One writer per output, before the output or its checkpoint is touched (held to the end;
+  // the container writer shares it).
+  LTB_ASSIGN_OR_RETURN(io::FileLock output_lock, io::LockOutput(o.output));
   // An existing output: done already, resumable, or another run's.
   if (io::PathExists(o.output)) {
     auto prev = io::ContainerReader::Open(o.output);

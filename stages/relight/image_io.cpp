@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "format/io/file.h"
+#include "format/io/file_lock.h"
 #include "format/npy.h"
 
 namespace ltb::stages {
@@ -96,6 +97,9 @@ Status WriteImage(const std::string& path, const float* rgb, uint64_t rows, uint
     return InvalidArgument(path + ": the matrix rows are not an image (" + std::to_string(rows) +
                            " rows); write .npy instead");
   }
+  // One writer per output: a second relight into the same path would remove this one's
+  // partial file under it.
+  LTB_ASSIGN_OR_RETURN(io::FileLock lock, io::LockOutput(path));
   std::string tmp = path + ".partial" + (exr ? ".exr" : png ? ".png" : ".npy");
   std::remove(tmp.c_str());
   Status s = exr ? WriteExr(tmp, rgb, width, height)

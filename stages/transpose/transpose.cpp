@@ -320,8 +320,7 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
   result.direct_fallback = ds.fallback_reason;
   if (!verify_status.ok() && verify_status.code() != StatusCode::kCancelled) {
     const std::string written_path = out.path();
-    out = io::ContainerWriter();
-    std::remove(written_path.c_str());
+    (void)out.Discard();  // removed before the output's lock is released
     return verify_status.WithContext("input checksum pass (" + written_path + " removed: it may hold columns built from the "
                                      "damaged input); repair or regenerate the input and rerun");
   }

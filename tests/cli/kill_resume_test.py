@@ -1,4 +1,5 @@
-"""Kill-and-resume: an `ltbake convert` writer is SIGKILLed at random moments until 20 have landed
+"""Kill-and-resume: an `ltbake convert` writer is SIGKILLed at random moments until 20 (times
+LTB_TEST_SCALE, at least 4) have landed
 mid-write. Each
 time the partial file must verify (committed chunks intact), list only whole chunks, and
 a resumed run must append only the missing chunks and end with the same content_hash as
@@ -22,6 +23,9 @@ LTBAKE = sys.argv[1]
 SEED = int(sys.argv[sys.argv.index("--seed") + 1]) if "--seed" in sys.argv else 20261122
 rng = random.Random(SEED)
 failures = []
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from ltbtest import scaled  # noqa: E402
+KILLS = scaled(20, minimum=4)  # kills that land mid-write (LTB_TEST_SCALE)
 
 
 def check(cond, what):
@@ -101,10 +105,10 @@ with tempfile.TemporaryDirectory() as d:
                 return written
         return total
 
-    # Kill at random moments until 20 kills have landed while chunks were being written
+    # Kill at random moments until KILLS kills have landed while chunks were being written
     # (kills before the file exists or after it is sealed are retried, within a bound).
     attempts = 0
-    while mid_write < 20 and attempts < 100:
+    while mid_write < KILLS and attempts < 5 * KILLS:
         attempts += 1
         if os.path.exists(out):
             os.remove(out)
@@ -138,7 +142,7 @@ with tempfile.TemporaryDirectory() as d:
 
     print(f"uninterrupted write {full:.3f}s, {total} chunks; {mid_write} kills landed mid-write in {attempts} "
           f"attempts (mean {committed_sum / max(1, mid_write):.0f} chunks committed); chain committed counts {history}")
-    check(mid_write == 20, f"only {mid_write} of {attempts} kills landed while chunks were being written")
+    check(mid_write == KILLS, f"only {mid_write} of {attempts} kills landed while chunks were being written")
 
 if failures:
     print("\n".join(failures))

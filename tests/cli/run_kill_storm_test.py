@@ -25,11 +25,11 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ltbtest import LTBAKE, check, finish, run  # noqa: E402
+from ltbtest import LTBAKE, check, finish, run, scaled  # noqa: E402
 
 REPO = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 SEED = int(sys.argv[sys.argv.index("--seed") + 1]) if "--seed" in sys.argv else 20261122
-KILLS = int(sys.argv[sys.argv.index("--kills") + 1]) if "--kills" in sys.argv else 30
+KILLS = int(sys.argv[sys.argv.index("--kills") + 1]) if "--kills" in sys.argv else scaled(30, minimum=10)
 rng = random.Random(SEED)
 NODES = ["sample+row-transform", "transpose", "column-transform", "quantize", "relight:sky"]
 
