@@ -23,8 +23,11 @@ for t in "${TARGETS[@]}"; do
           -timeout=10 -close_fd_mask=1 "$dir/$f" 2>&1)
     rc=$?
     what=$(grep -m1 -oE 'ERROR: [A-Za-z]+: [^(]*(\(malloc\([0-9]+\)\))?|runtime error: .*|Assertion .*|timeout after [0-9]+ seconds' <<<"$out")
-    frames=$(grep -E '^ +#[0-9]+ ' <<<"$out" | grep -vE 'libFuzzer|fuzzer::|__sanitizer|__asan|__ubsan|__interceptor|libc\.so|/libc-|raise|abort|__assert|pthread_kill|operator new|_M_|std::__|LLVMFuzzerTestOneInput|libc_start|_start|RunMallocHooks|MallocHook|malloc|calloc|realloc' |
-             head -3 | sed -E 's/^ +#[0-9]+ 0x[0-9a-f]+ in //; s/\(.*BuildId.*\)//; s/ \/work\/[^ ]*\/\.\.\// /' | cut -c1-160)
+    # Frames as "function file:line", without libFuzzer, the sanitizers, libc and the
+    # standard library's own functions.
+    frames=$(grep -E '^ +#[0-9]+ 0x[0-9a-f]+ in ' <<<"$out" | sed -E 's/^ +#[0-9]+ 0x[0-9a-f]+ in //; s/ \(.*BuildId.*\)//' |
+             grep -vE '^(fuzzer::|__sanitizer|__asan|__ubsan|__interceptor|__libc|__pthread|__GI_|raise|abort|__assert|operator (new|delete)|std::|void std::|allocate |deallocate |_start|main |LLVMFuzzerTestOneInput|RunMallocHooks|malloc|calloc|realloc)' |
+             grep -v 'include/c++/' | head -3 | sed -E 's/\(([^()]|\([^()]*\))*\)//g; s| /work/[^ ]*/\.\./| |' | cut -c1-120)
     what=$(sed -E 's/malloc\([0-9]+\)/malloc(N)/' <<<"$what")
     printf '%s\t%s\t%s\n' "${what:-exit $rc, no report (fixed?)}" "$(tr '\n' '|' <<<"$frames")" "$f"
   done | sort | awk -F'\t' '{k=$1"\t"$2; n[k]++; if(!(k in ex)) ex[k]=$3} END {for (k in n) printf "  %3d x %s\n        e.g. %s\n", n[k], k, ex[k]}'
