@@ -183,10 +183,10 @@ with tempfile.TemporaryDirectory() as d:
     scene_case("nested", "x = " + "[" * 5000 + "]" * 5000 + "\n", ["nested.toml:1"])
     # Bad flag values are usage errors (exit 2).
     ok = write(os.path.join(d, "ok.toml"), "[camera]\nwidth = 2\nheight = 2\n" + plane)
-    for flags, says in ((("--spp", "0"), "--spp"), (("--cube-res", "4096"), "--cube-res 4096"),
-                        (("--cube-res", "3"), "--cube-res 3"), (("--cube-res", "abc"), "--cube-res"),
-                        (("--bounces", "99"), "--bounces"), (("--seed", "-5"), "--seed")):
-        run_hostile(sample(d, ok, *flags), names=[says], expect=(2,), time_limit=20, what=" ".join(flags))
+    for flags, says in ((("--spp", "0"), ["--spp"]), (("--cube-res", "4096"), ["--cube-res", "4096", "1024"]),
+                        (("--cube-res", "3"), ["--cube-res", '"3"']), (("--cube-res", "abc"), ["--cube-res"]),
+                        (("--bounces", "99"), ["--bounces"]), (("--seed", "-5"), ["--seed"])):
+        run_hostile(sample(d, ok, *flags), names=says, expect=(2,), time_limit=20, what=" ".join(flags))
     # Scene paths that are not regular files.
     os.mkdir(os.path.join(d, "scene_dir"))
     run_hostile(sample(d, os.path.join(d, "scene_dir")), names=["scene_dir", "is a directory"], time_limit=20)
