@@ -186,7 +186,7 @@ material = "m"
     with open(os.path.join(d, "empty.obj"), "w") as f:
         f.write("# nothing\nv 0 0 0\nv 1 0 0\n")
     bad("empty.toml", base + '[[object]]\ntype = "mesh"\nfile = "empty.obj"\n', "empty.obj: the mesh holds no triangles")
-    # An OBJ's text "nan" (which OpenMesh would parse as a number) is caught before loading.
+    # An OBJ's text "nan" is an error naming the line (OpenMesh, which read OBJ before, took it for a number).
     with open(os.path.join(d, "nan.obj"), "w") as f:
         f.write("v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n")
     bad("nanobj.toml", base + '[[object]]\ntype = "mesh"\nfile = "nan.obj"\n', 'nan.obj:2: vertex coordinate 3 is "nan"')
