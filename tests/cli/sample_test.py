@@ -198,7 +198,7 @@ material = "m"
         f.write(struct.pack("<9f", 0, 0, 0, 1, 0, 0, float("nan"), 1, 0))
         f.write(struct.pack("<B3i", 3, 0, 1, 2))
     bad("nan.toml", base + '[[object]]\ntype = "mesh"\nfile = "nan.ply"\n', "nan.ply (byte 205): vertex 2 x is nan, not a finite number")
-    bad("r6.toml", base, "--cube-res 6: expected a power of two in 1..1024", expect=2, extra=("--cube-res", "6"))
+    bad("r6.toml", base, "--cube-res: \"6\" is not a power of two in 1..1024", expect=2, extra=("--cube-res", "6"))
     bad("albedo.toml", base.replace(f"albedo = {albedo}", "albedo = 1.5"), "\"albedo\" is 1.5, outside [0, 1]")
     bad("mat.toml", base.replace('material = "m"', 'material = "steel"'), "uses material \"steel\", which no [[material]] defines")
 
