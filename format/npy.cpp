@@ -62,6 +62,8 @@ class PyLiteralParser {
         ++p_;
       } else if (c == '#') {
         while (p_ < s_.size() && s_[p_] != '\n') ++p_;
+      } else if (c == '\\' && (s_.compare(p_ + 1, 1, "\n") == 0 || s_.compare(p_ + 1, 2, "\r\n") == 0)) {
+        p_ += s_[p_ + 1] == '\n' ? 2 : 3;  // an explicit line join
       } else {
         break;
       }

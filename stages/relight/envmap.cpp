@@ -1,7 +1,6 @@
 #include "stages/relight/envmap.h"
 
 #include <sys/mman.h>
-#include <sys/stat.h>
 
 #include <algorithm>
 #include <cctype>
@@ -25,6 +24,7 @@
 #include "format/io/file.h"
 #include "format/npy.h"
 #include "stages/common/cubemap.h"
+#include "stages/common/regular_file.h"
 
 namespace ltb::stages {
 
@@ -70,24 +70,6 @@ struct Image {
 constexpr uint64_t kRowsPerPoll = 64;
 
 std::string MiB(uint64_t bytes) { return Num(double(bytes) / (1 << 20)) + " MiB"; }
-
-// Refuses what is not a regular file before anything opens it: opening a FIFO blocks until
-// a writer appears, a directory or a device is no image.
-Status CheckRegularFile(const std::string& path) {
-  struct stat st {};
-  if (::stat(path.c_str(), &st) != 0) {
-    if (errno == ENOENT) return NotFound(path + ": no such file");
-    return IoError(path + ": stat", errno);
-  }
-  if (S_ISREG(st.st_mode)) return Status::Ok();
-  const char* what = S_ISDIR(st.st_mode)    ? "a directory"
-                     : S_ISFIFO(st.st_mode) ? "a FIFO (named pipe)"
-                     : S_ISCHR(st.st_mode)  ? "a character device"
-                     : S_ISBLK(st.st_mode)  ? "a block device"
-                     : S_ISSOCK(st.st_mode) ? "a socket"
-                                            : "not a regular file";
-  return InvalidArgument(path + ": is " + what + ", not an image file; name a .exr or .hdr file");
-}
 
 // `count` floats of pixels (rgb.resize), or a status naming the image. Call only after the
 // sizes were checked against the cap, the file and the memory limit; never throws.
@@ -450,12 +432,12 @@ Result<Image> ReadExr(const std::string& path, const EnvLoadOptions& o) {
 }
 
 Result<Image> ReadImage(const std::string& path, const EnvLoadOptions& o) {
-  LTB_RETURN_IF_ERROR(CheckRegularFile(path));
+  LTB_RETURN_IF_ERROR(CheckRegularFile(path, "name a .exr or .hdr image file"));
   {
     LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(path, io::File::Mode::kRead));
     LTB_ASSIGN_OR_RETURN(uint64_t size, f.Size());
     std::byte magic[4] = {};
-    if (size >= 4) LTB_RETURN_IF_ERROR(f.ReadAt(0, format::MutableByteSpan(magic, 4)));
+    LTB_RETURN_IF_ERROR(f.ReadAt(0, format::MutableByteSpan(magic, std::min<uint64_t>(size, 4))));
     if (size >= 4 && magic[0] == std::byte{0x76} && magic[1] == std::byte{0x2f} && magic[2] == std::byte{0x31} &&
         magic[3] == std::byte{0x01}) {
       return ReadExr(path, o);
