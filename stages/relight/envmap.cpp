@@ -69,7 +69,11 @@ struct Image {
 // Rows decoded between two polls of the cancel hook.
 constexpr uint64_t kRowsPerPoll = 64;
 
-std::string MiB(uint64_t bytes) { return Num(double(bytes) / (1 << 20)) + " MiB"; }
+std::string MiB(uint64_t bytes) {
+  char buf[48];
+  std::snprintf(buf, sizeof buf, "%.1f MiB", double(bytes) / (1 << 20));
+  return buf;
+}
 
 // `count` floats of pixels (rgb.resize), or a status naming the image. Call only after the
 // sizes were checked against the cap, the file and the memory limit; never throws.
@@ -724,6 +728,19 @@ uint64_t GroupFor(uint64_t n, uint64_t target) {
 }  // namespace
 
 Result<CubemapResampler> CubemapResampler::Create(const EnvMap& env, uint64_t cube_res, const Progress& progress) {
+  // The tables are bounded by R (and the working grid by 2^22 pixels), but a row of the
+  // source is held in double: a lat-long map of extreme width may not fit. No exception
+  // leaves the library.
+  try {
+    return CreateUnchecked(env, cube_res, progress);
+  } catch (const std::bad_alloc&) {
+    return InvalidArgument(env.path + ": no memory to resample the " + Size(env.width, env.height) +
+                           " map to an R = " + std::to_string(cube_res) + " cubemap");
+  }
+}
+
+Result<CubemapResampler> CubemapResampler::CreateUnchecked(const EnvMap& env, uint64_t cube_res,
+                                                           const Progress& progress) {
   if (cube_res < 1 || cube_res > kMaxCubeRes) {
     return InvalidArgument("cubemap resolution " + std::to_string(cube_res) + " is outside 1.." +
                            std::to_string(kMaxCubeRes));

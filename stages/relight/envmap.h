@@ -122,6 +122,8 @@ class CubemapResampler {
   double TexelSolidAngle(uint64_t texel) const { return omega_[texel]; }
 
  private:
+  static Result<CubemapResampler> CreateUnchecked(const EnvMap& env, uint64_t cube_res, const Progress& progress);
+
   struct Band {
     uint32_t row = 0;   // working row
     double weight = 0;  // solid angle per working column in this band
