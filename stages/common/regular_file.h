@@ -8,6 +8,7 @@
 #include <cerrno>
 #include <string>
 
+#include "format/io/file.h"
 #include "format/status.h"
 
 namespace ltb::stages {
@@ -21,13 +22,8 @@ inline Status CheckRegularFile(const std::string& path, const std::string& wante
     return IoError(path + ": stat", errno);
   }
   if (S_ISREG(st.st_mode)) return Status::Ok();
-  const char* what = S_ISDIR(st.st_mode)    ? "a directory"
-                     : S_ISFIFO(st.st_mode) ? "a FIFO (named pipe)"
-                     : S_ISCHR(st.st_mode)  ? "a character device"
-                     : S_ISBLK(st.st_mode)  ? "a block device"
-                     : S_ISSOCK(st.st_mode) ? "a socket"
-                                            : "a special file";
-  return InvalidArgument(path + ": is " + what + ", not a regular file; " + wanted);
+  // The same words as io::File::Open uses for what the path is.
+  return InvalidArgument(path + ": is " + io::FileKind(st.st_mode) + ", not a regular file; " + wanted);
 }
 
 }  // namespace ltb::stages
