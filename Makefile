@@ -5,7 +5,7 @@ BUILD_ASAN  ?= build-asan
 JOBS        ?= 2
 CMAKE_FLAGS ?=
 
-.PHONY: all setup samples configure build demo test test-fast asan bench bench-build bench-row-transform bench-transpose \
+.PHONY: all setup samples configure build demo test test-serial test-fast asan bench bench-build bench-row-transform bench-transpose \
         bench-sample fuzz clean
 
 all: build
@@ -30,8 +30,14 @@ demo: build
 # The whole suite (tests/README.md): every test in the release tree, then the sanitizer
 # tree's unit tests, smoke run and hostile-input suites. TEST_SCALE scales the repetition
 # counts of the heavy scripts (kill storms): 0.4 for CI's time budget, 1 for the full counts.
+# The sanitizer tree builds while the release tests run (scripts/run_tests.sh).
 TEST_SCALE ?= 0.4
-test: build asan
+test: build
+	@bash scripts/run_tests.sh "$(BUILD)" "$(BUILD_ASAN)" "$(JOBS)" "$(TEST_SCALE)" \
+	  '$(MAKE) --no-print-directory asan BUILD_ASAN=$(BUILD_ASAN) JOBS=$(JOBS) CMAKE_FLAGS="$(CMAKE_FLAGS)"'
+
+# The same, one phase after the other (when the machine is busy with other work).
+test-serial: build asan
 	cd $(BUILD) && LTB_TEST_SCALE=$(TEST_SCALE) ctest --output-on-failure -j $(JOBS)
 	cd $(BUILD_ASAN) && LTB_TEST_SCALE=$(TEST_SCALE) ctest --output-on-failure -j $(JOBS) -L asan
 

@@ -69,13 +69,17 @@ class ConvertCommand : public Command {
         std::cerr << "ltbake: usage error: converting an environment map needs --cube-res R\n";
         return kExitUsage;
       }
+      ProgressBar bar(flags_, "convert");
       stages::EnvLoadOptions env;
       env.layout = *stages::ParseEnvLayout(env_layout_);  // checked by IsMember
       env.clamp = env_clamp_;
+      env.max_bytes = *mem;        // the map's pixels (and an .hdr's bytes) within --mem-limit
+      env.progress = bar.hook();  // SIGINT/SIGTERM while loading or resampling: 130/143
       uint64_t clamped = 0;
       auto lock = io::LockOutput(options_.output);  // one writer per output
       if (!lock.ok()) return ReportFailure(lock.status());
       Status s = stages::ConvertEnvToNpy(options_.input, options_.output, options_.cube_res, env, &clamped);
+      bar.Done();
       if (!s.ok()) return ReportFailure(s);
       if (!flags_.quiet) {
         std::cout << "wrote " << options_.output << ": " << 6 * options_.cube_res * options_.cube_res

@@ -41,7 +41,7 @@ class Environment {
     }
     LTB_ASSIGN_OR_RETURN(stages::EnvMap map, stages::LoadEnvMap(path, o));
     e.clamped_ = map.clamped;
-    LTB_ASSIGN_OR_RETURN(stages::CubemapResampler r, stages::CubemapResampler::Create(map, cube_res));
+    LTB_ASSIGN_OR_RETURN(stages::CubemapResampler r, stages::CubemapResampler::Create(map, cube_res, o.progress));
     e.resampler_ = std::make_unique<stages::CubemapResampler>(std::move(r));
     return e;
   }
@@ -94,10 +94,14 @@ class RelightCommand : public Command {
 
   int Run() override {
     auto weighting = stages::ParseWeighting(weighting_);
+    auto mem = ParseSize(flags_.mem_limit);
+    if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
+    ProgressBar bar(flags_, "relight");
     stages::EnvLoadOptions eo;
     eo.clamp = clamp_;
     eo.layout = *stages::ParseEnvLayout(layout_);  // checked by IsMember
-    ProgressBar bar(flags_, "relight");
+    eo.max_bytes = *mem;  // the map's pixels (and an .hdr's bytes) within --mem-limit
+    eo.progress = bar.hook();
     nlohmann::json report = {{"matrix", matrix_}, {"env", env_}, {"terms", terms_}, {"weighting", weighting_}};
 
     auto t0 = Clock::now();
@@ -111,8 +115,6 @@ class RelightCommand : public Command {
     std::optional<stages::Relighter> relighter;
     std::optional<stages::CpcaRelighter> cpca;
     if (is_cpca) {  // clustered PCA: project the lighting per cluster, blend per row
-      auto mem = ParseSize(flags_.mem_limit);
-      if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
       auto r = stages::CpcaRelighter::Load(matrix_, *mem);
       if (!r.ok()) return ReportFailure(r.status());
       cpca = std::move(*r);
@@ -120,8 +122,6 @@ class RelightCommand : public Command {
       report["cpca"] = {{"clusters", cpca->model().clusters()}, {"basis", cpca->model().basis()}};
       report["matrix_bytes_in_memory"] = cpca->bytes();
     } else if (!streaming) {
-      auto mem = ParseSize(flags_.mem_limit);
-      if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
       auto r = stages::Relighter::Load(matrix_, *mem, bar.hook());
       if (!r.ok()) return ReportFailure(r.status());
       relighter = std::move(*r);
@@ -170,7 +170,7 @@ class RelightCommand : public Command {
         std::vector<float> dense(cube.size(), 0.0f);
         for (size_t k = 0; k < terms.column.size(); ++k)
           for (int c = 0; c < 3; ++c) dense[terms.column[k] * 3 + c] = terms.rgb[k * 3 + c];
-        LTB_ASSIGN_OR_RETURN(image, stages::RelightStreaming(matrix_, dense.data(), flags_.jobs, Progress{}));
+        LTB_ASSIGN_OR_RETURN(image, stages::RelightStreaming(matrix_, dense.data(), flags_.jobs, bar.hook()));
       }
       auto c = Clock::now();
       if (lighting_ms) *lighting_ms = Ms(a, b);
@@ -191,6 +191,13 @@ class RelightCommand : public Command {
     if (frames_ > 0) {
       std::vector<double> ms;
       for (int f = 0; f < frames_; ++f) {
+        // The timing loop runs until done or interrupted (SIGINT/SIGTERM: exit 130/143; the
+        // image above is already written).
+        if (ReceivedSignal() != 0) {
+          return ReportFailure(Cancelled("relight: interrupted after " + std::to_string(f) + " of " +
+                                         std::to_string(frames_) + " timing frames; " + output_ +
+                                         " was written before them"));
+        }
         auto a = Clock::now();
         s = frame(rotation + 2 * std::numbers::pi * f / frames_, nullptr, nullptr);
         if (!s.ok()) return ReportFailure(s);
@@ -219,7 +226,7 @@ class RelightCommand : public Command {
       env->Cubemap(rotation, &full);
       std::vector<float> full_ref = full;
       ref_basis->ToBasis(full_ref.data());
-      auto exact = stages::RelightStreaming(reference_, full_ref.data(), flags_.jobs, Progress{});
+      auto exact = stages::RelightStreaming(reference_, full_ref.data(), flags_.jobs, bar.hook());
       if (!exact.ok()) return ReportFailure(exact.status());
       // Lighting alone: the kept terms, back in pixels, then into the reference's basis.
       std::vector<float> approx(full.size(), 0.0f);
@@ -227,7 +234,7 @@ class RelightCommand : public Command {
         for (int c = 0; c < 3; ++c) approx[first_terms.column[k] * 3 + c] = first_terms.rgb[k * 3 + c];
       basis->ToPixels(approx.data());
       ref_basis->ToBasis(approx.data());
-      auto light_only = stages::RelightStreaming(reference_, approx.data(), flags_.jobs, Progress{});
+      auto light_only = stages::RelightStreaming(reference_, approx.data(), flags_.jobs, bar.hook());
       if (!light_only.ok()) return ReportFailure(light_only.status());
       auto metrics = [&](const std::vector<float>& img) {
         auto e = stages::CompareImages(img.data(), exact->data(), rows, width, height);
@@ -249,7 +256,7 @@ class RelightCommand : public Command {
       } else if (cpca) {
         cpca->Relight(all.data(), matrix_only.data());
       } else {
-        auto m = stages::RelightStreaming(matrix_, all.data(), flags_.jobs, Progress{});
+        auto m = stages::RelightStreaming(matrix_, all.data(), flags_.jobs, bar.hook());
         if (!m.ok()) return ReportFailure(m.status());
         matrix_only = std::move(*m);
       }

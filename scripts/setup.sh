@@ -10,7 +10,7 @@ PACKAGES=(
   libembree-dev embree-tools       # ray casting (sample stage); Cornell box model
   libopenexr-dev libimath-dev      # EXR images and environment maps
   libdraco-dev draco               # Draco meshes (.drc) and draco_encoder/decoder tools
-  libopenmesh-dev                  # OBJ/PLY/OFF/STL meshes
+  libopenmesh-dev                  # independent reader the mesh reader tests compare with
   libglm-dev                       # vector math
   libtbb-dev                       # threads
   libeigen3-dev                    # CPCA linear algebra

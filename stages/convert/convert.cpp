@@ -22,6 +22,7 @@
 #include "stages/column_transform/column_codec.h"
 #include "stages/common/basis.h"
 #include "stages/common/parallel_for.h"
+#include "stages/common/regular_file.h"
 #include "stages/cpca/cpca_model.h"
 
 namespace ltb::stages {
@@ -84,6 +85,7 @@ struct NpyInput {
 
 Result<NpyInput> OpenNpy(const std::string& path) {
   NpyInput in;
+  LTB_RETURN_IF_ERROR(CheckRegularFile(path, "convert reads a .npy or .ltm file"));
   LTB_ASSIGN_OR_RETURN(in.file, File::Open(path, File::Mode::kRead));
   LTB_ASSIGN_OR_RETURN(uint64_t size, in.file.Size());
   std::vector<std::byte> head(std::min<uint64_t>(size, kMaxNpyHeaderBytes + 12));
@@ -112,12 +114,15 @@ Result<NpyInput> OpenNpy(const std::string& path) {
     return InvalidArgument(path + ": shape (" + std::to_string(in.rows) + ", " + std::to_string(in.cols) +
                            ") is empty or beyond " + std::to_string(kMaxDim) + " per axis");
   }
+  // Checked: a shape whose size passes 2^64 is named as such, never as a wrapped size.
+  auto data = NpyDataBytes(hd);
+  if (!data.ok()) return data.status().WithContext(path);
   uint64_t bytes;
-  if (MulOverflows(in.rows, in.cols, &bytes) || MulOverflows(bytes, hd.itemsize, &bytes) ||
-      AddOverflows(bytes, hd.data_offset, &bytes) || bytes != size) {
+  if (AddOverflows(*data, hd.data_offset, &bytes) || bytes != size) {
     return InvalidArgument(path + ": shape (" + std::to_string(in.rows) + ", " + std::to_string(in.cols) + ") of '" +
-                           hd.descr + "' needs " + std::to_string(bytes) + " bytes with the header, the file has " +
-                           std::to_string(size) + " (truncated or damaged?)");
+                           hd.descr + "' needs " + std::to_string(*data) + " bytes of data after the " +
+                           std::to_string(hd.data_offset) + "-byte header, the file has " + std::to_string(size) +
+                           " bytes in all (truncated or damaged?)");
   }
   return in;
 }

@@ -24,6 +24,7 @@
 #include "format/io/file.h"
 #include "format/npy.h"
 #include "stages/common/cubemap.h"
+#include "stages/common/regular_file.h"
 
 namespace ltb::stages {
 
@@ -59,29 +60,85 @@ double CosDiff(double a, double b) { return 2.0 * std::sin(0.5 * (a + b)) * std:
 
 struct Image {
   uint64_t width = 0, height = 0;
-  std::vector<float> rgb;
+  PixelBuffer rgb;
   const char* channel[3] = {"R", "G", "B"};  // for messages ("Y" for luminance files)
   bool lossy = false;                        // lossy EXR compression (DWAA, DWAB, B44, B44A)
   std::string compression;
 };
 
-Result<std::vector<uint8_t>> ReadWholeFile(const std::string& path) {
+// Rows decoded between two polls of the cancel hook.
+constexpr uint64_t kRowsPerPoll = 64;
+
+std::string MiB(uint64_t bytes) {
+  char buf[48];
+  std::snprintf(buf, sizeof buf, "%.1f MiB", double(bytes) / (1 << 20));
+  return buf;
+}
+
+// `count` floats of pixels (rgb.resize), or a status naming the image. Call only after the
+// sizes were checked against the cap, the file and the memory limit; never throws.
+Status AllocatePixels(PixelBuffer* rgb, uint64_t count, const std::string& path, const std::string& what) {
+  try {
+    rgb->resize(count);
+  } catch (const std::exception&) {  // bad_alloc, length_error
+    return InvalidArgument(path + ": no memory for the " + what + " (" + MiB(count * sizeof(float)) +
+                           "); free memory or use a smaller map");
+  }
+  return Status::Ok();
+}
+
+// Refuses an image whose pixels (and other buffers, `extra` bytes) would pass the memory
+// limit, before anything of that size is allocated.
+Status CheckMemory(uint64_t pixels, uint64_t extra, uint64_t max_bytes, const std::string& path,
+                   const std::string& what) {
+  if (max_bytes == 0) return Status::Ok();
+  uint64_t need = 0;
+  if (format::MulOverflows(pixels, 3 * sizeof(float), &need) || format::AddOverflows(need, extra, &need) ||
+      need > max_bytes) {
+    return InvalidArgument(path + ": " + what + " needs " + MiB(need) + " of memory, beyond the memory limit of " +
+                           MiB(max_bytes) + " (--mem-limit); raise --mem-limit or use a smaller map");
+  }
+  return Status::Ok();
+}
+
+Result<std::vector<uint8_t>> ReadWholeFile(const std::string& path, uint64_t max_bytes) {
   LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(path, io::File::Mode::kRead));
   LTB_ASSIGN_OR_RETURN(uint64_t size, f.Size());
   if (size > (uint64_t(4) << 30)) {
     return InvalidArgument(path + ": " + std::to_string(size) +
                            " bytes; environment maps over 4 GiB are not supported");
   }
-  std::vector<uint8_t> bytes(size);
+  if (max_bytes != 0 && size > max_bytes) {
+    return InvalidArgument(path + ": the file is " + MiB(size) + ", beyond the memory limit of " + MiB(max_bytes) +
+                           " (--mem-limit); raise --mem-limit");
+  }
+  std::vector<uint8_t> bytes;
+  try {
+    bytes.resize(size);
+  } catch (const std::exception&) {
+    return InvalidArgument(path + ": no memory to read its " + std::to_string(size) + " bytes");
+  }
   LTB_RETURN_IF_ERROR(f.ReadAt(0, format::MutableByteSpan(reinterpret_cast<std::byte*>(bytes.data()), size)));
   return bytes;
+}
+
+// A decimal dimension of a Radiance resolution line: digits only, 1..2^63.
+bool ParseDimension(const std::string& token, uint64_t* out) {
+  if (token.empty() || token.size() > 19) return false;
+  uint64_t v = 0;
+  for (char c : token) {
+    if (c < '0' || c > '9') return false;
+    v = v * 10 + uint64_t(c - '0');  // 19 digits cannot overflow 64 bits
+  }
+  *out = v;
+  return v > 0;
 }
 
 // Radiance RGBE (.hdr): header lines up to a blank line, a resolution line, then scanlines
 // either run-length encoded per component (the "new" format, widths 8..32767) or flat RGBE
 // with the original (1,1,1,n) repeat records. RGBE -> float as in Greg Ward's rgbe.c and
 // stb_image: mantissa · 2^(e − 136), 0 when e = 0.
-Result<Image> ReadHdr(const std::string& path, const std::vector<uint8_t>& buf) {
+Result<Image> ReadHdr(const std::string& path, const std::vector<uint8_t>& buf, const EnvLoadOptions& o) {
   const uint64_t size = buf.size();
   uint64_t pos = 0;
   auto next_line = [&](std::string* line) {
@@ -118,28 +175,56 @@ Result<Image> ReadHdr(const std::string& path, const std::vector<uint8_t>& buf) 
                     std::to_string(std::min<uint64_t>(pos, 1u << 16)) + " bytes (truncated or not an .hdr file)");
   }
   if (!next_line(&line)) return DataLoss(path + ": Radiance .hdr: truncated before the resolution line");
-  char ya[3] = {}, xa[3] = {};
-  long long h = 0, w = 0;
-  int consumed = 0;
-  if (std::sscanf(line.c_str(), "%2s %lld %2s %lld%n", ya, &h, xa, &w, &consumed) != 4 ||
-      static_cast<size_t>(consumed) != line.size()) {
-    return DataLoss(path + ": Radiance .hdr: bad resolution line \"" + line + "\" (expected e.g. \"-Y 512 +X 1024\")");
+  std::string shown = line.substr(0, 80);
+  for (char& c : shown) {
+    if (static_cast<unsigned char>(c) < 0x20 || static_cast<unsigned char>(c) >= 0x7f) c = '?';
   }
-  std::string ys = ya, xs = xa;
+  std::vector<std::string> tok;
+  for (size_t i = 0; i < line.size();) {
+    while (i < line.size() && (line[i] == ' ' || line[i] == '\t')) ++i;
+    size_t j = i;
+    while (j < line.size() && line[j] != ' ' && line[j] != '\t') ++j;
+    if (j > i) tok.push_back(line.substr(i, j - i));
+    i = j;
+  }
+  if (tok.size() != 4 || tok[0].size() != 2 || tok[2].size() != 2) {
+    return DataLoss(path + ": Radiance .hdr: bad resolution line \"" + shown + "\" (expected e.g. \"-Y 512 +X 1024\")");
+  }
+  const std::string& ys = tok[0];
+  const std::string& xs = tok[2];
   if ((ys != "-Y" && ys != "+Y") || (xs != "+X" && xs != "-X")) {
-    return Unimplemented(path + ": Radiance .hdr orientation \"" + line +
+    return Unimplemented(path + ": Radiance .hdr orientation \"" + shown +
                          "\" is not supported; ltbake reads -Y H +X W and its flips (+Y, -X), not transposed images");
   }
-  if (w <= 0 || h <= 0 || uint64_t(w) * uint64_t(h) > kMaxPixels) {
-    return InvalidArgument(path + ": Radiance .hdr size " + std::to_string(w) + "x" + std::to_string(h) +
-                           " is empty or beyond " + std::to_string(kMaxPixels) + " pixels");
+  uint64_t w = 0, h = 0, pixels = 0;
+  if (!ParseDimension(tok[1], &h) || !ParseDimension(tok[3], &w)) {
+    return DataLoss(path + ": Radiance .hdr resolution line \"" + shown + "\": the " +
+                    (ParseDimension(tok[1], &h) ? "width \"" + tok[3] : "height \"" + tok[1]) +
+                    "\" is not a positive integer below 10^19");
   }
+  if (format::MulOverflows(w, h, &pixels) || pixels > kMaxPixels) {
+    return InvalidArgument(path + ": Radiance .hdr size " + Size(w, h) + " (resolution line \"" + shown +
+                           "\") is beyond " + std::to_string(kMaxPixels) + " pixels (16384 x 16384)");
+  }
+  // Every scanline takes at least 4 bytes of the file (one flat pixel or a run-length header).
+  const uint64_t data_bytes = size - pos;
+  if (h > data_bytes / 4) {
+    return DataLoss(path + ": Radiance .hdr declares " + std::to_string(h) + " scanlines (resolution line \"" + shown +
+                    "\") but holds " + std::to_string(data_bytes) +
+                    " bytes of pixel data, less than 4 per scanline (truncated, or the size is damaged)");
+  }
+  LTB_RETURN_IF_ERROR(CheckMemory(pixels, size + w * 4, o.max_bytes, path, "the Radiance .hdr image " + Size(w, h)));
   const bool flip_y = ys == "+Y", flip_x = xs == "-X";
   Image img;
   img.width = w;
   img.height = h;
-  img.rgb.resize(img.width * img.height * 3);
-  std::vector<uint8_t> scan(img.width * 4);
+  LTB_RETURN_IF_ERROR(AllocatePixels(&img.rgb, pixels * 3, path, Size(w, h) + " image"));
+  std::vector<uint8_t> scan;
+  try {
+    scan.resize(img.width * 4);
+  } catch (const std::exception&) {
+    return InvalidArgument(path + ": no memory for a scanline of " + std::to_string(w) + " pixels");
+  }
   auto truncated = [&](uint64_t y) {
     return DataLoss(path + ": Radiance .hdr truncated: the pixel data ends in scanline " + std::to_string(y) + " of " +
                     std::to_string(h) + " (the file has " + std::to_string(size) + " bytes)");
@@ -149,6 +234,9 @@ Result<Image> ReadHdr(const std::string& path, const std::vector<uint8_t>& buf) 
                     what + " (damaged file)");
   };
   for (uint64_t y = 0; y < img.height; ++y) {
+    if (y % kRowsPerPoll == 0 && o.progress.Cancelled()) {
+      return Cancelled(path + ": interrupted while decoding scanline " + std::to_string(y) + " of " + std::to_string(h));
+    }
     if (pos + 4 > size) return truncated(y);
     const uint8_t* b = &buf[pos];
     if (img.width >= 8 && img.width < 32768 && b[0] == 2 && b[1] == 2 && (b[2] & 0x80) == 0) {
@@ -218,18 +306,39 @@ Result<Image> ReadHdr(const std::string& path, const std::vector<uint8_t>& buf) 
   return img;
 }
 
+// Where pixel (0, 0) lies for a frame buffer whose first element holds pixel (x0, y0), rows
+// w pixels apart (OpenEXR addresses frame buffers by absolute pixel coordinates). Computed on
+// integers, modulo 2^64: the address may lie far outside the buffer and is only ever used
+// with the offsets of the pixels inside it.
+template <typename T>
+T* FrameOrigin(T* first, int64_t x0, int64_t y0, int64_t w) {
+  const uint64_t offset = (uint64_t(y0) * uint64_t(w) + uint64_t(x0)) * sizeof(T);
+  return reinterpret_cast<T*>(reinterpret_cast<uintptr_t>(first) - offset);
+}
+
 // OpenEXR through the library (every compression it knows, scanline or tiled, part 0):
 // R, G, B (A ignored) as float; luminance-chroma (Y, RY, BY) through RgbaInputFile;
-// luminance Y alone replicated to grey.
-Result<Image> ReadExr(const std::string& path) {
+// luminance Y alone replicated to grey. Read in strips of rows: a damaged chunk fails at
+// its strip, and the cancel hook is polled between strips.
+Result<Image> ReadExr(const std::string& path, const EnvLoadOptions& o) {
   try {
     Imf::InputFile file(path.c_str());
     const Imf::Header& header = file.header();
     const Imath::Box2i dw = header.dataWindow();
     const int64_t w = int64_t(dw.max.x) - dw.min.x + 1, h = int64_t(dw.max.y) - dw.min.y + 1;
-    if (w <= 0 || h <= 0 || uint64_t(w) * uint64_t(h) > kMaxPixels) {
-      return InvalidArgument(path + ": OpenEXR data window " + std::to_string(w) + "x" + std::to_string(h) +
-                             " is empty or beyond " + std::to_string(kMaxPixels) + " pixels");
+    uint64_t pixels = 0;
+    const std::string window = "data window (" + std::to_string(dw.min.x) + ", " + std::to_string(dw.min.y) +
+                               ") - (" + std::to_string(dw.max.x) + ", " + std::to_string(dw.max.y) + ")";
+    if (w <= 0 || h <= 0 || format::MulOverflows(uint64_t(w), uint64_t(h), &pixels) || pixels > kMaxPixels) {
+      return InvalidArgument(path + ": OpenEXR " + window + " is " + std::to_string(w) + "x" + std::to_string(h) +
+                             ", empty or beyond " + std::to_string(kMaxPixels) + " pixels (16384 x 16384)");
+    }
+    // The chunk table (read and, when damaged, rebuilt from the chunks by OpenEXR) must cover
+    // the whole window: a window patched larger than the data fails here, before the pixels
+    // are allocated.
+    if (!file.isComplete()) {
+      return DataLoss(path + ": OpenEXR file is incomplete: its chunks do not cover the " + window + " (" +
+                      Size(w, h) + "); the file is truncated or its data window is damaged");
     }
     Image img;
     img.width = w;
@@ -258,7 +367,19 @@ Result<Image> ReadExr(const std::string& path) {
     const bool rgb = channels.findChannel("R") && channels.findChannel("G") && channels.findChannel("B");
     const bool chroma = channels.findChannel("Y") && (channels.findChannel("RY") || channels.findChannel("BY"));
     const bool lum = channels.findChannel("Y") != nullptr;
-    img.rgb.resize(uint64_t(w) * h * 3);
+    if (!rgb && !lum) {
+      return InvalidArgument(path + ": OpenEXR file has channels " + (names.empty() ? "(none)" : names) +
+                             "; an environment map needs R, G and B (A is ignored) or luminance Y");
+    }
+    // Strips: whole chunks (every compression's lines per chunk divides 256), ~4 MiB of floats.
+    const uint64_t strip = std::max<uint64_t>(256, ((uint64_t(4) << 20) / (uint64_t(w) * 12)) / 256 * 256);
+    const uint64_t strip_px = strip * uint64_t(w);
+    const uint64_t scratch = rgb ? 0 : chroma ? strip_px * sizeof(Imf::Rgba) : strip_px * sizeof(float);
+    LTB_RETURN_IF_ERROR(CheckMemory(pixels, scratch, o.max_bytes, path, "the OpenEXR image " + Size(w, h)));
+    LTB_RETURN_IF_ERROR(AllocatePixels(&img.rgb, pixels * 3, path, Size(w, h) + " image"));
+    std::vector<Imf::Rgba> rgba;
+    std::vector<float> lum_strip;
+    std::unique_ptr<Imf::RgbaInputFile> rf;
     if (rgb) {
       Imf::FrameBuffer fb;
       const char* name[3] = {"R", "G", "B"};
@@ -267,29 +388,46 @@ Result<Image> ReadExr(const std::string& path) {
                   Imf::Slice::Make(Imf::FLOAT, img.rgb.data() + c, dw, 3 * sizeof(float), 3 * sizeof(float) * w));
       }
       file.setFrameBuffer(fb);
-      file.readPixels(dw.min.y, dw.max.y);
     } else if (chroma) {
-      Imf::RgbaInputFile rf(path.c_str());
-      std::vector<Imf::Rgba> px(uint64_t(w) * h);
-      Imf::Rgba* base = px.data() - (int64_t(dw.min.y) * w + dw.min.x);
-      rf.setFrameBuffer(base, 1, w);
-      rf.readPixels(dw.min.y, dw.max.y);
-      for (uint64_t i = 0; i < px.size(); ++i) {
-        img.rgb[i * 3] = px[i].r;
-        img.rgb[i * 3 + 1] = px[i].g;
-        img.rgb[i * 3 + 2] = px[i].b;
-      }
-    } else if (lum) {
-      std::vector<float> y(uint64_t(w) * h);
-      Imf::FrameBuffer fb;
-      fb.insert("Y", Imf::Slice::Make(Imf::FLOAT, y.data(), dw));
-      file.setFrameBuffer(fb);
-      file.readPixels(dw.min.y, dw.max.y);
-      for (uint64_t i = 0; i < y.size(); ++i) img.rgb[i * 3] = img.rgb[i * 3 + 1] = img.rgb[i * 3 + 2] = y[i];
-      img.channel[0] = img.channel[1] = img.channel[2] = "Y";
+      rf = std::make_unique<Imf::RgbaInputFile>(path.c_str());
+      rgba.resize(strip_px);
     } else {
-      return InvalidArgument(path + ": OpenEXR file has channels " + (names.empty() ? "(none)" : names) +
-                             "; an environment map needs R, G and B (A is ignored) or luminance Y");
+      lum_strip.resize(strip_px);
+      img.channel[0] = img.channel[1] = img.channel[2] = "Y";
+    }
+    for (int64_t y0 = dw.min.y; y0 <= dw.max.y; y0 += int64_t(strip)) {
+      if (o.progress.Cancelled()) {
+        return Cancelled(path + ": interrupted while reading row " + std::to_string(y0 - dw.min.y) + " of " +
+                         std::to_string(h));
+      }
+      const int64_t y1 = std::min<int64_t>(dw.max.y, y0 + int64_t(strip) - 1);
+      const uint64_t first = uint64_t(y0 - dw.min.y) * uint64_t(w), count = uint64_t(y1 - y0 + 1) * uint64_t(w);
+      try {
+        if (rgb) {
+          file.readPixels(int(y0), int(y1));
+        } else if (chroma) {
+          // (0, 0) of the frame buffer is where pixel (min.x, y0) of the strip lands.
+          rf->setFrameBuffer(FrameOrigin(rgba.data(), dw.min.x, y0, w), 1, size_t(w));
+          rf->readPixels(int(y0), int(y1));
+          for (uint64_t i = 0; i < count; ++i) {
+            img.rgb[(first + i) * 3] = rgba[i].r;
+            img.rgb[(first + i) * 3 + 1] = rgba[i].g;
+            img.rgb[(first + i) * 3 + 2] = rgba[i].b;
+          }
+        } else {
+          Imf::FrameBuffer fb;
+          fb.insert("Y", Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(FrameOrigin(lum_strip.data(), dw.min.x, y0, w)),
+                                    sizeof(float), sizeof(float) * size_t(w)));
+          file.setFrameBuffer(fb);
+          file.readPixels(int(y0), int(y1));
+          for (uint64_t i = 0; i < count; ++i) {
+            img.rgb[(first + i) * 3] = img.rgb[(first + i) * 3 + 1] = img.rgb[(first + i) * 3 + 2] = lum_strip[i];
+          }
+        }
+      } catch (const std::exception& e) {
+        return DataLoss(path + ": OpenEXR could not read rows " + std::to_string(y0 - dw.min.y) + ".." +
+                        std::to_string(y1 - dw.min.y) + " of " + std::to_string(h) + " (" + window + "): " + e.what());
+      }
     }
     return img;
   } catch (const std::exception& e) {
@@ -297,22 +435,25 @@ Result<Image> ReadExr(const std::string& path) {
   }
 }
 
-Result<Image> ReadImage(const std::string& path) {
-  if (!io::PathExists(path)) return NotFound(path + ": no such file");
+Result<Image> ReadImage(const std::string& path, const EnvLoadOptions& o) {
+  LTB_RETURN_IF_ERROR(CheckRegularFile(path, "name a .exr or .hdr image file"));
   {
     LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(path, io::File::Mode::kRead));
     LTB_ASSIGN_OR_RETURN(uint64_t size, f.Size());
     std::byte magic[4] = {};
-    if (size >= 4) LTB_RETURN_IF_ERROR(f.ReadAt(0, format::MutableByteSpan(magic, 4)));
+    LTB_RETURN_IF_ERROR(f.ReadAt(0, format::MutableByteSpan(magic, std::min<uint64_t>(size, 4))));
     if (size >= 4 && magic[0] == std::byte{0x76} && magic[1] == std::byte{0x2f} && magic[2] == std::byte{0x31} &&
         magic[3] == std::byte{0x01}) {
-      return ReadExr(path);
+      return ReadExr(path, o);
+    }
+    if (size < 2 || magic[0] != std::byte{'#'} || magic[1] != std::byte{'?'}) {
+      std::string what =
+          size == 0 ? "the file is empty" : "it has neither the OpenEXR magic (76 2f 31 01) nor \"#?\"";
+      return InvalidArgument(path + ": not an OpenEXR (.exr) or Radiance (.hdr) image: " + what);
     }
   }
-  LTB_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, ReadWholeFile(path));
-  if (bytes.size() >= 2 && bytes[0] == '#' && bytes[1] == '?') return ReadHdr(path, bytes);
-  std::string what = bytes.empty() ? "the file is empty" : "it has neither the OpenEXR magic (76 2f 31 01) nor \"#?\"";
-  return InvalidArgument(path + ": not an OpenEXR (.exr) or Radiance (.hdr) image: " + what);
+  LTB_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, ReadWholeFile(path, o.max_bytes));
+  return ReadHdr(path, bytes, o);
 }
 
 // ---- layouts ------------------------------------------------------------------------
@@ -364,11 +505,15 @@ FaceGeometry FacesOf(const EnvMap& env) {
 // the layout uses. The message names the first offending value in row-major order and how
 // many there are.
 Status CheckValues(Image* img, const std::string& path, EnvLayout layout, uint64_t face_size, bool clamp,
-                   uint64_t* clamped) {
+                   uint64_t* clamped, const Progress& progress) {
   uint64_t bad = 0, first_x = 0, first_y = 0;
   int first_c = 0;
   float first_v = 0, most_negative = 0;
   for (uint64_t y = 0; y < img->height; ++y) {
+    if (y % kRowsPerPoll == 0 && progress.Cancelled()) {
+      return Cancelled(path + ": interrupted while checking row " + std::to_string(y) + " of " +
+                       std::to_string(img->height));
+    }
     for (uint64_t x = 0; x < img->width; ++x) {
       if ((layout == EnvLayout::kHCross || layout == EnvLayout::kVCross) &&
           CrossFace(layout, x / face_size, y / face_size) < 0) {
@@ -421,19 +566,26 @@ Result<EnvMap> LoadFaces(const std::string& path, const EnvLoadOptions& o) {
     std::string p = path;
     for (size_t at; (at = p.find(kPlaceholder)) != std::string::npos;)
       p.replace(at, std::strlen(kPlaceholder), kFaceNames[f]);
-    LTB_ASSIGN_OR_RETURN(Image img, ReadImage(p));
+    // Faces after the first share the memory limit with the six-face map already allocated.
+    EnvLoadOptions face_options = o;
+    if (f > 0 && o.max_bytes != 0) {
+      face_options.max_bytes = std::max<uint64_t>(1, o.max_bytes - std::min(o.max_bytes, env.rgb.size() * sizeof(float)));
+    }
+    LTB_ASSIGN_OR_RETURN(Image img, ReadImage(p, face_options));
     if (img.width != img.height) {
       return InvalidArgument(p + ": a cube face must be square, this one is " + Size(img.width, img.height));
     }
     if (f == 0) {
       env.width = img.width;
       env.height = 6 * img.width;
-      env.rgb.resize(env.width * env.height * 3);
+      const std::string what = "the six " + Size(img.width, img.width) + " faces of " + path;
+      LTB_RETURN_IF_ERROR(CheckMemory(env.width * env.height, img.rgb.size() * sizeof(float), o.max_bytes, p, what));
+      LTB_RETURN_IF_ERROR(AllocatePixels(&env.rgb, env.width * env.height * 3, p, what));
     } else if (img.width != env.width) {
       return InvalidArgument(p + ": face is " + Size(img.width, img.height) + ", the +X face is " +
                              Size(env.width, env.width) + "; all six faces must have the same size");
     }
-    LTB_RETURN_IF_ERROR(CheckValues(&img, p, EnvLayout::kFaces, env.width, o.clamp, &env.clamped));
+    LTB_RETURN_IF_ERROR(CheckValues(&img, p, EnvLayout::kFaces, env.width, o.clamp, &env.clamped, o.progress));
     std::copy(img.rgb.begin(), img.rgb.end(), env.rgb.begin() + f * env.width * env.width * 3);
   }
   return env;
@@ -474,7 +626,7 @@ Result<EnvMap> LoadEnvMap(const std::string& path, const EnvLoadOptions& o) {
     }
     return LoadFaces(path, o);
   }
-  LTB_ASSIGN_OR_RETURN(Image img, ReadImage(path));
+  LTB_ASSIGN_OR_RETURN(Image img, ReadImage(path, o));
   const uint64_t w = img.width, h = img.height;
   EnvLayout layout = o.layout;
   if (layout == EnvLayout::kAuto) {
@@ -502,7 +654,7 @@ Result<EnvMap> LoadEnvMap(const std::string& path, const EnvLoadOptions& o) {
   env.height = h;
   env.path = path;
   const uint64_t face = layout == EnvLayout::kHCross ? w / 4 : layout == EnvLayout::kVCross ? w / 3 : w;
-  LTB_RETURN_IF_ERROR(CheckValues(&img, path, layout, face, o.clamp, &env.clamped));
+  LTB_RETURN_IF_ERROR(CheckValues(&img, path, layout, face, o.clamp, &env.clamped, o.progress));
   env.rgb = std::move(img.rgb);
   return env;
 }
@@ -575,7 +727,20 @@ uint64_t GroupFor(uint64_t n, uint64_t target) {
 
 }  // namespace
 
-Result<CubemapResampler> CubemapResampler::Create(const EnvMap& env, uint64_t cube_res) {
+Result<CubemapResampler> CubemapResampler::Create(const EnvMap& env, uint64_t cube_res, const Progress& progress) {
+  // The tables are bounded by R (and the working grid by 2^22 pixels), but a row of the
+  // source is held in double: a lat-long map of extreme width may not fit. No exception
+  // leaves the library.
+  try {
+    return CreateUnchecked(env, cube_res, progress);
+  } catch (const std::bad_alloc&) {
+    return InvalidArgument(env.path + ": no memory to resample the " + Size(env.width, env.height) +
+                           " map to an R = " + std::to_string(cube_res) + " cubemap");
+  }
+}
+
+Result<CubemapResampler> CubemapResampler::CreateUnchecked(const EnvMap& env, uint64_t cube_res,
+                                                           const Progress& progress) {
   if (cube_res < 1 || cube_res > kMaxCubeRes) {
     return InvalidArgument("cubemap resolution " + std::to_string(cube_res) + " is outside 1.." +
                            std::to_string(kMaxCubeRes));
@@ -585,6 +750,12 @@ Result<CubemapResampler> CubemapResampler::Create(const EnvMap& env, uint64_t cu
                            " values, its size " + Size(env.width, env.height) + " needs 3 per pixel");
   }
   const uint64_t R = cube_res, n = 6 * R * R;
+  // Polled every few rows of each pass (a huge source or R = 512 takes seconds).
+  auto cancelled = [&](uint64_t i, const char* pass) -> Status {
+    if (i % kRowsPerPoll != 0 || !progress.Cancelled()) return Status::Ok();
+    return Cancelled(env.path + ": interrupted while resampling to the R = " + std::to_string(R) + " cubemap (" +
+                     pass + ")");
+  };
   CubemapResampler rs;
   rs.r_ = R;
   rs.omega_.resize(n);
@@ -618,6 +789,7 @@ Result<CubemapResampler> CubemapResampler::Create(const EnvMap& env, uint64_t cu
       rs.ww_ = W;
     }
     for (uint64_t j = 0; j < H; ++j) {
+      LTB_RETURN_IF_ERROR(cancelled(j, "source power"));
       double omega = CosDiff(kPi * j / H, kPi * (j + 1) / H) * 2.0 * kPi / W;
       double s[3] = {0, 0, 0};
       for (uint64_t i = 0; i < W; ++i)
@@ -629,6 +801,7 @@ Result<CubemapResampler> CubemapResampler::Create(const EnvMap& env, uint64_t cu
     work.assign(rs.hw_ * rs.ww_ * 3, 0.0);
     std::vector<double> row(W * 3);
     for (uint64_t J = 0; J < rs.hw_; ++J) {
+      LTB_RETURN_IF_ERROR(cancelled(J, "working grid"));
       std::fill(row.begin(), row.end(), 0.0);
       double wsum = 0;
       for (const Overlap& o : rows[J]) {
@@ -657,11 +830,13 @@ Result<CubemapResampler> CubemapResampler::Create(const EnvMap& env, uint64_t cu
       return &env.rgb[((g.y0[f] + t) * env.width + g.x0[f] + s) * 3];
     };
     for (int f = 0; f < 6; ++f)
-      for (uint64_t t = 0; t < F; ++t)
+      for (uint64_t t = 0; t < F; ++t) {
+        LTB_RETURN_IF_ERROR(cancelled(t, "source power"));
         for (uint64_t s = 0; s < F; ++s) {
           const double omega = cubemap::TexelSolidAngle({f, uint32_t(s), uint32_t(t)}, uint32_t(F));
           for (int c = 0; c < 3; ++c) rs.power_[c] += source(f, s, t)[c] * omega;
         }
+      }
     // Splat k×k sub-texels of each source texel (exact solid angles) into the working pixel
     // holding their centre; sub-texels about half a working row across at the face centre.
     uint64_t k = std::max<uint64_t>(1, uint64_t(std::ceil(4.0 * rs.hw_ / (kPi * F))));
@@ -676,6 +851,7 @@ Result<CubemapResampler> CubemapResampler::Create(const EnvMap& env, uint64_t cu
     std::vector<double> ldw(rs.hw_ * rs.ww_ * 3, 0.0), dw(rs.hw_ * rs.ww_, 0.0);
     for (int f = 0; f < 6; ++f)
       for (uint64_t q = 0; q < m; ++q) {
+        LTB_RETURN_IF_ERROR(cancelled(q, "working grid"));
         const double v = -1.0 + 2.0 * (q + 0.5) / m;
         for (uint64_t p = 0; p < m; ++p) {
           const double u = -1.0 + 2.0 * (p + 0.5) / m;
@@ -730,7 +906,8 @@ Result<CubemapResampler> CubemapResampler::Create(const EnvMap& env, uint64_t cu
   const double eps = 1e-11 * ww;
   std::vector<double> dsum(n, 0.0);
   std::vector<std::pair<double, uint32_t>> marks;
-  for (uint64_t J = 0; J < hw; ++J)
+  for (uint64_t J = 0; J < hw; ++J) {
+    LTB_RETURN_IF_ERROR(cancelled(J, "latitude bands"));
     for (uint64_t q = 0; q < sub; ++q) {
       const double ta = kPi * double(J * sub + q) / double(hw * sub),
                    tb = kPi * double(J * sub + q + 1) / double(hw * sub);
@@ -781,6 +958,7 @@ Result<CubemapResampler> CubemapResampler::Create(const EnvMap& env, uint64_t cu
       }
       rs.bands_.push_back(band);
     }
+  }
   rs.texel_scale_.resize(n);
   for (uint64_t t = 0; t < n; ++t) {
     if (dsum[t] > 0) {
@@ -885,7 +1063,7 @@ Status ConvertEnvToNpy(const std::string& in, const std::string& out, uint64_t c
   }
   LTB_ASSIGN_OR_RETURN(EnvMap env, LoadEnvMap(in, options));
   if (clamped != nullptr) *clamped = env.clamped;
-  LTB_ASSIGN_OR_RETURN(CubemapResampler rs, CubemapResampler::Create(env, cube_res));
+  LTB_ASSIGN_OR_RETURN(CubemapResampler rs, CubemapResampler::Create(env, cube_res, options.progress));
   const uint64_t texels = 6 * cube_res * cube_res;
   std::vector<float> cube(texels * 3);
   rs.Resample(0.0, cube.data());

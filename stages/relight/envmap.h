@@ -6,14 +6,40 @@
 
 #include <cstdint>
 #include <memory>
+#include <new>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <glm/vec3.hpp>
 
+#include "format/progress.h"
 #include "format/status.h"
 
 namespace ltb::stages {
+
+// An allocator whose value-initialisation leaves floats uninitialised: the readers size a
+// pixel buffer once, after every check of the file, and its pages are committed only as
+// pixels are decoded into them (a file that fails half way has cost what it decoded).
+template <typename T>
+struct DefaultInitAllocator : std::allocator<T> {
+  template <typename U>
+  struct rebind {
+    using other = DefaultInitAllocator<U>;
+  };
+  DefaultInitAllocator() = default;
+  template <typename U>
+  DefaultInitAllocator(const DefaultInitAllocator<U>&) noexcept {}  // NOLINT(implicit)
+  template <typename U>
+  void construct(U* p) noexcept {
+    ::new (static_cast<void*>(p)) U;
+  }
+  template <typename U, typename... Args>
+  void construct(U* p, Args&&... args) {
+    ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+  }
+};
+using PixelBuffer = std::vector<float, DefaultInitAllocator<float>>;
 
 enum class EnvLayout { kAuto, kLatLong, kHCross, kVCross, kFaces };
 
@@ -26,6 +52,12 @@ struct EnvLoadOptions {
   // Fix values that are not radiance instead of refusing the map: NaN and negatives
   // become 0, +Inf the largest finite float. Each fixed value is counted in EnvMap::clamped.
   bool clamp = false;
+  // Memory the loader may use for pixels and file bytes (`--mem-limit`); 0: no limit but
+  // the fixed cap of 2^28 pixels. Checked against the sizes a file declares before
+  // anything of that size is allocated.
+  uint64_t max_bytes = 0;
+  // Cancellation (SIGINT/SIGTERM), checked between strips of rows: a Cancelled status.
+  Progress progress;
 };
 
 struct EnvMap {
@@ -33,7 +65,7 @@ struct EnvMap {
   // Source pixels. kFaces: F × 6F, the six F×F faces stacked top to bottom in ltbake face
   // order (+X, −X, +Y, −Y, +Z, −Z), each in the face's (s right, t down) orientation.
   uint64_t width = 0, height = 0;
-  std::vector<float> rgb;  // width·height·3, row-major, row 0 = top
+  PixelBuffer rgb;         // width·height·3, row-major, row 0 = top
   uint64_t clamped = 0;    // values fixed by EnvLoadOptions::clamp (negative, NaN, Inf)
   std::string path;
 };
@@ -43,6 +75,9 @@ struct EnvMap {
 // ny pz nz. kAuto picks the layout from the size: width = 2·height lat-long, 4:3
 // horizontal cross, 3:4 vertical cross (and "{face}" six faces). Errors name the file and,
 // for values that are not radiance, the pixel (x, y), channel and value.
+// Hostile files: sizes are checked with overflow-safe arithmetic against the cap, the
+// file's length and options.max_bytes before allocating; only regular files are opened
+// (a FIFO, device or directory is refused without blocking); no exception escapes.
 Result<EnvMap> LoadEnvMap(const std::string& path, const EnvLoadOptions& options);
 
 // The lat-long convention (Blender/Cycles equirectangular): column fraction u ∈ [0, 1),
@@ -66,8 +101,8 @@ void DirectionToLatLong(const glm::dvec3& d, double* u, double* v);
 // k columns. Cost per frame: O(number of intervals) ≈ 50·R², independent of the source size.
 class CubemapResampler {
  public:
-  // cube_res: 1..512.
-  static Result<CubemapResampler> Create(const EnvMap& env, uint64_t cube_res);
+  // cube_res: 1..512. `progress` is polled for cancellation (a Cancelled status).
+  static Result<CubemapResampler> Create(const EnvMap& env, uint64_t cube_res, const Progress& progress = {});
 
   // rotation: radians about +Z (counter-clockwise seen from above): what the source shows
   // in direction d appears in direction Rz(rotation)·d. `out` holds 6R²·3 floats.
@@ -87,6 +122,8 @@ class CubemapResampler {
   double TexelSolidAngle(uint64_t texel) const { return omega_[texel]; }
 
  private:
+  static Result<CubemapResampler> CreateUnchecked(const EnvMap& env, uint64_t cube_res, const Progress& progress);
+
   struct Band {
     uint32_t row = 0;   // working row
     double weight = 0;  // solid angle per working column in this band

@@ -13,6 +13,7 @@
 #include "stages/column_transform/column_codec.h"
 #include "stages/common/basis.h"
 #include "stages/common/parallel_for.h"
+#include "stages/common/regular_file.h"
 
 namespace ltb::stages {
 
@@ -316,37 +317,57 @@ Result<std::vector<float>> RelightStreaming(const std::string& path, const float
 }
 
 Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t r) {
+  LTB_RETURN_IF_ERROR(CheckRegularFile(path, "name a 6R² × 3 cubemap .npy file"));
   LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(path, io::File::Mode::kRead));
   LTB_ASSIGN_OR_RETURN(uint64_t size, f.Size());
-  std::vector<std::byte> head(std::min<uint64_t>(size, kMaxNpyHeaderBytes));
+  std::vector<std::byte> head(std::min<uint64_t>(size, kMaxNpyHeaderBytes + 12));
   LTB_RETURN_IF_ERROR(f.ReadAt(0, head));
   auto h = ParseNpyHeader(head);
   if (!h.ok()) return h.status().WithContext(path);
-  const uint64_t n = 6 * r * r;
+  uint64_t n = 0;
+  if (r == 0 || MulOverflows(r, r, &n) || MulOverflows(n, 6, &n) || n > (uint64_t(1) << 40)) {
+    return InvalidArgument(path + ": cube resolution " + std::to_string(r) + " of the matrix is out of range");
+  }
+  std::string shape;
+  for (uint64_t d : h->shape) shape += (shape.empty() ? "" : ", ") + std::to_string(d);
+  if (h->shape.size() == 1) shape += ",";
   if (h->fortran_order || h->shape.size() != 2 || h->shape[0] != n || h->shape[1] != 3 ||
       (h->descr != "<f4" && h->descr != "<f8")) {
-    return InvalidArgument(path + ": expected a C-order float32/float64 array of shape (" + std::to_string(n) +
-                           ", 3), a cubemap for R = " + std::to_string(r) + " (`ltbake convert env.exr env.npy --cube-res " +
-                           std::to_string(r) + "` writes one)");
+    return InvalidArgument(path + ": holds a " + (h->fortran_order ? "Fortran-order" : "C-order") + " '" + h->descr +
+                           "' array of shape (" + shape + "); expected a C-order float32/float64 array of shape (" +
+                           std::to_string(n) + ", 3), a cubemap for R = " + std::to_string(r) +
+                           " (`ltbake convert env.exr env.npy --cube-res " + std::to_string(r) + "` writes one)");
   }
-  if (h->data_offset + n * 3 * h->itemsize > size) return InvalidArgument(path + ": truncated");
-  std::vector<std::byte> raw(n * 3 * h->itemsize);
-  LTB_RETURN_IF_ERROR(f.ReadAt(h->data_offset, raw));
+  LTB_ASSIGN_OR_RETURN(uint64_t data_bytes, NpyDataBytes(*h));
+  if (h->data_offset > size || data_bytes > size - h->data_offset) {
+    return InvalidArgument(path + ": truncated: shape (" + shape + ") of '" + h->descr + "' needs " +
+                           std::to_string(data_bytes) + " bytes after the " + std::to_string(h->data_offset) +
+                           "-byte header, the file has " + std::to_string(size - std::min(size, h->data_offset)));
+  }
+  // The output is no larger than the file; the values are read in strips of 1 MiB.
   std::vector<float> out(n * 3);
-  for (uint64_t i = 0; i < n * 3; ++i) {
-    double v;
-    if (h->itemsize == 4) {
-      float x;
-      std::memcpy(&x, raw.data() + i * 4, 4);
-      v = x;
-    } else {
-      std::memcpy(&v, raw.data() + i * 8, 8);
+  const uint64_t per_strip = (uint64_t(1) << 20) / h->itemsize;
+  std::vector<std::byte> raw(std::min(n * 3, per_strip) * h->itemsize);
+  for (uint64_t first = 0; first < n * 3; first += per_strip) {
+    const uint64_t count = std::min(per_strip, n * 3 - first);
+    LTB_RETURN_IF_ERROR(f.ReadAt(h->data_offset + first * h->itemsize,
+                                 format::MutableByteSpan(raw.data(), count * h->itemsize)));
+    for (uint64_t k = 0; k < count; ++k) {
+      double v;
+      if (h->itemsize == 4) {
+        float x;
+        std::memcpy(&x, raw.data() + k * 4, 4);
+        v = x;
+      } else {
+        std::memcpy(&v, raw.data() + k * 8, 8);
+      }
+      const uint64_t i = first + k;
+      if (!std::isfinite(v) || v < 0) {
+        return InvalidArgument(path + ": texel " + std::to_string(i / 3) + " channel " + std::to_string(i % 3) +
+                               " is " + std::to_string(v) + "; radiance must be finite and non-negative");
+      }
+      out[i] = static_cast<float>(v);
     }
-    if (!std::isfinite(v) || v < 0) {
-      return InvalidArgument(path + ": texel " + std::to_string(i / 3) + " channel " + std::to_string(i % 3) + " is " +
-                             std::to_string(v) + "; radiance must be finite and non-negative");
-    }
-    out[i] = static_cast<float>(v);
   }
   return out;
 }

@@ -97,7 +97,8 @@ Result<std::vector<float>> RelightStreaming(const std::string& path, const float
                                             const Progress& progress);
 
 // A 6R² × 3 cubemap of radiance from .npy (float32 or float64, C order), checked finite
-// and non-negative.
+// and non-negative. Only a regular file is opened; the declared shape must be (6R², 3) and
+// its size (checked arithmetic) must fit the file before anything is allocated.
 Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t cube_res);
 
 // Error metrics of an RGB image (rows × 3) against a reference.

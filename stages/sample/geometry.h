@@ -1,6 +1,6 @@
-// Triangle geometry for the sampler: mesh files (our own readers: OFF, PLY; OpenMesh: OBJ,
-// STL; Draco: .drc),
-// built-in primitives and object transforms.
+// Triangle geometry for the sampler: mesh files (our own readers for OFF, PLY, OBJ and
+// STL, stages/sample/mesh_reader.h; Draco for .drc), built-in primitives and object
+// transforms.
 #pragma once
 
 #include <cstdint>

@@ -12,58 +12,15 @@
 #include <cstring>
 #include <limits>
 
+#include "stages/sample/mesh_text.h"
+
 namespace ltb::sample {
+
+using namespace mesh_text;
 
 namespace {
 
-constexpr size_t kPiece = size_t{1} << 20;      // bytes read at a time
-constexpr size_t kMaxLine = size_t{64} << 20;   // a longer line is refused
-constexpr uint64_t kMaxVertices = std::numeric_limits<uint32_t>::max();  // indices are 32-bit
 static_assert(std::endian::native == std::endian::little, "the PLY reader swaps bytes for big-endian files only");
-
-std::string Quote(std::string_view s) {
-  std::string out = "\"";
-  for (char c : s.substr(0, 40)) out += (static_cast<unsigned char>(c) < 32 || c == 127) ? '?' : c;
-  return out + (s.size() > 40 ? "...\"" : "\"");
-}
-
-// Whitespace-separated tokens of one line.
-struct Tokens {
-  std::string_view rest;
-  bool Next(std::string_view* t) {
-    size_t i = 0;
-    while (i < rest.size() && (rest[i] == ' ' || rest[i] == '\t' || rest[i] == '\r' || rest[i] == '\f' || rest[i] == '\v'))
-      ++i;
-    size_t j = i;
-    while (j < rest.size() && !(rest[j] == ' ' || rest[j] == '\t' || rest[j] == '\r' || rest[j] == '\f' || rest[j] == '\v'))
-      ++j;
-    *t = rest.substr(i, j - i);
-    rest.remove_prefix(j);
-    return !t->empty();
-  }
-};
-
-template <typename T>
-bool ParseNumber(std::string_view t, T* out) {
-  if (!t.empty() && t[0] == '+') t.remove_prefix(1);
-  if (t.empty()) return false;
-  auto [p, ec] = std::from_chars(t.data(), t.data() + t.size(), *out);
-  return ec == std::errc() && p == t.data() + t.size();
-}
-
-// *out = a·b + c; false (and *out = 2^64 - 1) when that does not fit in 64 bits.
-bool MulAdd(uint64_t a, uint64_t b, uint64_t c, uint64_t* out) {
-  uint64_t m;
-  if (__builtin_mul_overflow(a, b, &m) || __builtin_add_overflow(m, c, out)) {
-    *out = std::numeric_limits<uint64_t>::max();
-    return false;
-  }
-  return true;
-}
-
-std::string Bytes(uint64_t n) {
-  return n == std::numeric_limits<uint64_t>::max() ? std::string("more than 2^64") : std::to_string(n);
-}
 
 // Appends the polygon's fan triangles, or counts it as degenerate (fewer than 3
 // vertices, or a vertex repeated). `stamp[v]` holds the last polygon that used v.
@@ -217,6 +174,11 @@ Result<bool> MeshInput::NextLine(std::string_view* line) {
   ++line_;
   if (!line->empty() && line->back() == '\r') line->remove_suffix(1);
   return true;
+}
+
+Result<std::string_view> MeshInput::Peek(size_t n) {
+  LTB_RETURN_IF_ERROR(Fill(n));
+  return std::string_view(data_ + pos_, std::min(n, end_ - pos_));
 }
 
 Status MeshInput::Read(void* dst, size_t n, const std::string& what) {

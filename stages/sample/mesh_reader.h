@@ -1,6 +1,6 @@
-// Our own mesh readers for OFF (ASCII) and PLY (ascii, binary_little_endian,
-// binary_big_endian): one pass over the bytes, memory bounded by what the file can hold
-// (declared counts are checked against its length before anything is reserved), strict
+// Our own mesh readers for OFF (ASCII), PLY (ascii, binary_little_endian,
+// binary_big_endian), OBJ (obj_reader.cpp) and STL (binary and ASCII, stl_reader.cpp):
+// one pass over the bytes, memory bounded by what the file can hold (declared counts are checked against its length before anything is reserved), strict
 // (an out-of-range vertex index, a truncated body or a non-finite coordinate is an error
 // naming the file, the line or element and the value) and interruptible (every 1 MiB read
 // asks Progress::Cancelled). docs/SCENE.md "Mesh files" states what they accept.
@@ -38,7 +38,9 @@ class MeshInput {
 
   // The next line (without '\n' / '\r'); false at the end of the input.
   Result<bool> NextLine(std::string_view* line);
-  // Exactly n bytes into dst; DataLoss naming `what` when the input ends first.
+  // The next min(n, remaining()) bytes without consuming them (valid until the next call).
+  Result<std::string_view> Peek(size_t n);
+  // Exactly n bytes into dst (nullptr: skip them); DataLoss naming `what` when the input ends first.
   Status Read(void* dst, size_t n, const std::string& what);
 
  private:
@@ -63,5 +65,16 @@ class MeshInput {
 // order and ids (vertex mode rows). The mesh is not yet Finalized.
 Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress);
 Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress);
+// OBJ: `v x y z [w]` and `f` with i, i/t, i//n or i/t/n references (1-based, or negative
+// counting back from the last vertex read); every other statement is skipped. A repeated
+// vertex is removed from a face (keeping the first), as OpenMesh did; a face left with
+// fewer than 3 is dropped and counted. A face with fewer than 3 references, an index 0 or
+// out of range, or a malformed reference is an error naming the line, the face and the
+// value.
+Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress);
+// STL, binary (84 + 50·n bytes exactly) or ASCII (starting with "solid"). Vertices with
+// equal coordinates are merged in order of first appearance; a triangle whose corners
+// merge is dropped and counted.
+Result<TriangleMesh> ReadStl(MeshInput& in, const Progress& progress);
 
 }  // namespace ltb::sample

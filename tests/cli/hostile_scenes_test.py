@@ -119,6 +119,46 @@ with tempfile.TemporaryDirectory() as d:
               "endloop\nendfacet\nendsolid x\n", ["nan.stl:4", "\"nan\""])
     mesh_case(d, "lie.stl", b" " * 80 + struct.pack("<I", 4000000000) + b"\0" * 50,
               ["declares 4000000000 triangles", "134"], what="binary STL with a lying triangle count")
+    # ---- OBJ and STL (our own readers since OpenMesh was replaced; docs/SCENE.md).
+    # The fuzzers' reproducers (branch fuzz, tests/cli/fuzz_regressions_test.py): a face
+    # reference without a vertex index made OpenMesh assert (exit 134); a PLY header cut
+    # before end_header made OpenMesh re-read its last keyword forever, printing.
+    for name, data, names in (
+            ("face-without-vertex.obj", b"f /4", ["face-without-vertex.obj:1", "face 0", "\"/4\"", "malformed"]),
+            ("face-without-vertex-after-valid.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf /4\n",
+             ["face-without-vertex-after-valid.obj:5", "face 1", "\"/4\""]),
+            ("header-without-end.ply", b"ply\nformat ascii 1.0\n", ["end_header"]),
+            ("binary-header-without-end.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 1\n",
+             ["end_header"])):
+        _, err = mesh_case(d, name, data, names, what=f"fuzz reproducer {name}")
+        check(len(err) <= 64 << 10, f"{name}: {len(err)} bytes on stderr (a reader printing in a loop?)")
+    V3 = "v 0 0 0\nv 1 0 0\nv 0 1 0\n"
+    mesh_case(d, "slashes.obj", V3 + "f 1/1/1/1 2 3\n", ["slashes.obj:4", "\"1/1/1/1\"", "malformed"])
+    mesh_case(d, "zero.obj", V3 + "f 0 1 2\n", ["zero.obj:4", "face 0", "vertex index \"0\""])
+    mesh_case(d, "neg.obj", V3 + "f -1 -2 -4\n", ["neg.obj:4", "vertex index \"-4\"", "3 vertices so far"])
+    mesh_case(d, "twoverts.obj", V3 + "f 1 2 3\nf 1 2\n", ["twoverts.obj:5", "face 1 lists 2 vertices"])
+    mesh_case(d, "hugeindex.obj", V3 + "f 1 2 4000000000\n", ["hugeindex.obj:4", "\"4000000000\"", "out of range"])
+    mesh_case(d, "forward.obj", "f 1 2 3\n" + V3[:16] + "\n", ["forward.obj:1", "face 0", "\"3\"", "the file has 2"],
+              what="OBJ face naming a vertex never defined")
+    mesh_case(d, "nan.obj", V3 + "v nan 0 0\nf 1 2 3\n", ["nan.obj:4", "\"nan\""])
+    mesh_case(d, "short.obj", "v 0 0 0\nv 1 0\n", ["short.obj:2", "fewer than 3 coordinates"])
+    cube_stl = ("solid c\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\nendloop\n"
+                "endfacet\nendsolid c\n")
+    mesh_case(d, "trunc.stl", cube_stl[:60], ["trunc.stl", "the file ends", "truncated"])
+    mesh_case(d, "noend.stl", cube_stl[:cube_stl.index("endsolid")], ["noend.stl", "before \"endsolid\""])
+    mesh_case(d, "four.stl", cube_stl.replace("endloop", "vertex 1 1 0\nendloop"), ["four.stl:7", "expected \"endloop\""])
+    tri = struct.pack("<12fH", 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0)
+    mesh_case(d, "truncbin.stl", b"binary".ljust(80) + struct.pack("<I", 1000) + tri * 10,
+              ["declares 1000 triangles", "50084 bytes", "the file has 584"])
+    mesh_case(d, "solidlie.stl", b"solid but binary".ljust(80) + struct.pack("<I", 4000000000) + tri,
+              ["solidlie.stl", "read as binary", "declares 4000000000 triangles"],
+              what="binary STL whose header starts with 'solid', with a lying count")
+    mesh_case(d, "nanbin.stl", b"binary".ljust(80) + struct.pack("<I", 1) +
+              struct.pack("<12fH", 0, 0, 1, 0, 0, 0, 1, float("nan"), 0, 0, 1, 0, 0),
+              ["nanbin.stl (byte 112)", "triangle 0 vertex 1 y", "not a finite"])
+    mesh_case(d, "empty.stl", b"", ["empty.stl", "too short"])
+    mesh_case(d, "unknown.xyz", "0 0 0\n", ["unknown.xyz", "unknown mesh format \".xyz\""])
+
     # ---- Counts reported truthfully: repeated-vertex and 2-vertex faces are dropped and counted.
     path = os.path.join(d, "degenerate.off")
     write(path, "OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n3 1 1 2\n2 0 1\n3 1 3 2\n")
@@ -183,10 +223,10 @@ with tempfile.TemporaryDirectory() as d:
     scene_case("nested", "x = " + "[" * 5000 + "]" * 5000 + "\n", ["nested.toml:1"])
     # Bad flag values are usage errors (exit 2).
     ok = write(os.path.join(d, "ok.toml"), "[camera]\nwidth = 2\nheight = 2\n" + plane)
-    for flags, says in ((("--spp", "0"), "--spp"), (("--cube-res", "4096"), "--cube-res 4096"),
-                        (("--cube-res", "3"), "--cube-res 3"), (("--cube-res", "abc"), "--cube-res"),
-                        (("--bounces", "99"), "--bounces"), (("--seed", "-5"), "--seed")):
-        run_hostile(sample(d, ok, *flags), names=[says], expect=(2,), time_limit=20, what=" ".join(flags))
+    for flags, says in ((("--spp", "0"), ["--spp"]), (("--cube-res", "4096"), ["--cube-res", "4096", "1024"]),
+                        (("--cube-res", "3"), ["--cube-res", '"3"']), (("--cube-res", "abc"), ["--cube-res"]),
+                        (("--bounces", "99"), ["--bounces"]), (("--seed", "-5"), ["--seed"])):
+        run_hostile(sample(d, ok, *flags), names=says, expect=(2,), time_limit=20, what=" ".join(flags))
     # Scene paths that are not regular files.
     os.mkdir(os.path.join(d, "scene_dir"))
     run_hostile(sample(d, os.path.join(d, "scene_dir")), names=["scene_dir", "is a directory"], time_limit=20)
@@ -247,7 +287,15 @@ with tempfile.TemporaryDirectory() as d:
                     faces.append(struct.pack("<B3i", 3, a, a + w + 1, a + w))
             o.write(b"".join(faces))
 
-    for kind, make, small, large in (("star.off", star_off, 40000, 200000), ("grid.ply", grid_ply, 200, 448)):
+    def star_obj(path, n):
+        import random
+        rnd = random.Random(7)
+        with open(path, "w") as o:
+            o.writelines(f"v {rnd.random()!r} {rnd.random()!r} {rnd.random()!r}\n" for _ in range(n))
+            o.writelines(f"f 1 {a} {b}\n" for a, b in (rnd.sample(range(2, n + 1), 2) for _ in range(n)))
+
+    for kind, make, small, large in (("star.off", star_off, 40000, 200000), ("grid.ply", grid_ply, 200, 448),
+                                     ("star.obj", star_obj, 40000, 200000)):
         times = []
         for size in (small, large):
             name = f"{size}_{kind}"
@@ -260,7 +308,7 @@ with tempfile.TemporaryDirectory() as d:
             times.append(time.monotonic() - t0)
         ratio = times[1] / max(times[0], 1e-3)
         print(f"{kind}: {small} -> {large}: {times[0]:.2f} s -> {times[1]:.2f} s (ratio {ratio:.1f}, "
-              f"{(large / small) if kind == 'star.off' else (large / small) ** 2:.1f}x the size)")
+              f"{(large / small) if kind.startswith('star') else (large / small) ** 2:.1f}x the size)")
         check(ratio < 12, f"{kind}: parse time grows superlinearly: {times[0]:.2f} s -> {times[1]:.2f} s")
 
     # ---- A signal during a long parse ends the run promptly, naming the mesh.
@@ -287,11 +335,18 @@ with tempfile.TemporaryDirectory() as d:
             return False
         return ready
 
-    for sig, want in ((signal.SIGTERM, 143), (signal.SIGINT, 130)):
-        code, err = interrupt_while_running(sample(d, long_scene), reading(long_scene, 8 << 20), sig, time_limit=60,
-                                            what=f"{signal.Signals(sig).name} while parsing long.off")
-        check(code == want, f"{signal.Signals(sig).name} during the parse: exit {code}, expected {want}\n{err}")
-        check("long.off" in err and "interrupted while reading the mesh" in err,
+    long_obj = os.path.join(d, "long.obj")
+    with open(long_obj, "wb") as o:
+        o.write(b"v 0.123456 0.234567 0.345678\n" * n + b"f 1 2 3\n")
+    long_obj_scene = scene_for(d, "long_obj", "long.obj")
+
+    for sig, want, mesh, scene in ((signal.SIGTERM, 143, "long.off", long_scene),
+                                   (signal.SIGINT, 130, "long.off", long_scene),
+                                   (signal.SIGTERM, 143, "long.obj", long_obj_scene)):
+        code, err = interrupt_while_running(sample(d, scene), reading(scene, 8 << 20), sig, time_limit=60,
+                                            what=f"{signal.Signals(sig).name} while parsing {mesh}")
+        check(code == want, f"{signal.Signals(sig).name} during the parse of {mesh}: exit {code}, expected {want}\n{err}")
+        check(mesh in err and "interrupted while reading the mesh" in err,
               f"{signal.Signals(sig).name} during the parse: the message does not name the mesh read:\n{err}")
 
 finish()

@@ -186,7 +186,7 @@ material = "m"
     with open(os.path.join(d, "empty.obj"), "w") as f:
         f.write("# nothing\nv 0 0 0\nv 1 0 0\n")
     bad("empty.toml", base + '[[object]]\ntype = "mesh"\nfile = "empty.obj"\n', "empty.obj: the mesh holds no triangles")
-    # An OBJ's text "nan" (which OpenMesh would parse as a number) is caught before loading.
+    # An OBJ's text "nan" is an error naming the line (OpenMesh, which read OBJ before, took it for a number).
     with open(os.path.join(d, "nan.obj"), "w") as f:
         f.write("v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n")
     bad("nanobj.toml", base + '[[object]]\ntype = "mesh"\nfile = "nan.obj"\n', 'nan.obj:2: vertex coordinate 3 is "nan"')
@@ -198,7 +198,7 @@ material = "m"
         f.write(struct.pack("<9f", 0, 0, 0, 1, 0, 0, float("nan"), 1, 0))
         f.write(struct.pack("<B3i", 3, 0, 1, 2))
     bad("nan.toml", base + '[[object]]\ntype = "mesh"\nfile = "nan.ply"\n', "nan.ply (byte 205): vertex 2 x is nan, not a finite number")
-    bad("r6.toml", base, "--cube-res 6: expected a power of two in 1..1024", expect=2, extra=("--cube-res", "6"))
+    bad("r6.toml", base, "--cube-res: \"6\" is not a power of two in 1..1024", expect=2, extra=("--cube-res", "6"))
     bad("albedo.toml", base.replace(f"albedo = {albedo}", "albedo = 1.5"), "\"albedo\" is 1.5, outside [0, 1]")
     bad("mat.toml", base.replace('material = "m"', 'material = "steel"'), "uses material \"steel\", which no [[material]] defines")
 

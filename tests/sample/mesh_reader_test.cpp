@@ -1,13 +1,18 @@
-// Our OFF and PLY readers against meshes known in closed form: the unit cube written as
-// OFF and as PLY in every encoding (ascii, binary little and big endian) with extra
-// properties and assorted integer types loads to the same 8 vertices and the same 12 fan
-// triangles, whose areas sum to 6 and whose signed volume is 1; hostile headers, lying
-// list counts, out-of-range indices and truncated bodies are errors naming the field.
+// Our OFF, PLY, OBJ and STL readers against meshes known in closed form: the unit cube
+// written as OFF, as PLY in every encoding (ascii, binary little and big endian) with
+// extra properties and assorted integer types, as OBJ (quads, negative indices, i/t/n
+// references) and as ASCII and binary STL loads to the same 8 vertices and the same 12
+// fan triangles, whose areas sum to 6 and whose signed volume is 1; hostile headers,
+// lying counts, out-of-range indices and truncated bodies are errors naming the field.
+// OBJ and STL are also compared with OpenMesh, which read them before (an independent
+// reader): the same float positions and the same triangles in the same order.
 #include <gtest/gtest.h>
 
 #include <unistd.h>
 
+#include <array>
 #include <bit>
+#include <cstdio>
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -15,6 +20,9 @@
 #include <vector>
 
 #include <glm/geometric.hpp>
+
+#include <OpenMesh/Core/IO/MeshIO.hh>
+#include <OpenMesh/Core/Mesh/TriMesh_ArrayKernelT.hh>
 
 #include "stages/sample/geometry.h"
 #include "stages/sample/mesh_reader.h"
@@ -230,6 +238,270 @@ TEST(MeshReader, ElementsWithoutPropertiesCostNothingWhateverTheyDeclare) {
   ExpectCube(Ply(s));
 }
 
+// ---- OBJ ----
+
+Result<TriangleMesh> Obj(const std::string& bytes) {
+  MeshInput in(bytes, "test.obj");
+  return ReadObj(in, Progress{});
+}
+Result<TriangleMesh> Stl(const std::string& bytes) {
+  MeshInput in(bytes, "test.stl");
+  return ReadStl(in, Progress{});
+}
+
+// The cube as OBJ: the 8 vertices (with a w), then the quads with every reference form
+// (i, i/t, i//n, i/t/n) and negative indices counting back from the last vertex read, and
+// the statements a reader skips (comments, vt, vn, o, g, s, usemtl, mtllib, l).
+std::string CubeObj() {
+  std::string s = "# the unit cube\nmtllib cube.mtl\no cube\ng faces\n";
+  for (int v = 0; v < 8; ++v) {
+    glm::dvec3 p = CubeVertex(v);
+    s += "v " + std::to_string(int(p.x)) + " " + std::to_string(int(p.y)) + " " + std::to_string(int(p.z)) + " 1.0\n";
+  }
+  s += "vt 0 0\nvt 1 0\nvn 0 0 1\ns 1\nusemtl grey\nl 1 2\n";
+  const char* forms[4] = {"%d", "%d/1", "%d//1", "%d/2/1"};
+  for (int f = 0; f < 6; ++f) {
+    s += "f";
+    for (int k = 0; k < 4; ++k) {
+      // Alternate 1-based and negative (-8 is the first vertex) references.
+      int index = (f + k) % 2 == 0 ? kQuads[f][k] + 1 : kQuads[f][k] - 8;
+      char buf[32];
+      std::snprintf(buf, sizeof buf, forms[(f + k) % 4], index);
+      s += std::string(" ") + buf;
+    }
+    s += f == 2 ? " # a trailing comment\n" : "\n";
+  }
+  return s;
+}
+
+TEST(MeshReader, ObjCubeWithQuadsNegativeIndicesAndEveryReferenceForm) { ExpectCube(Obj(CubeObj())); }
+
+TEST(MeshReader, ObjCrlfLineContinuationsAndFacesBeforeTheirVertices) {
+  std::string s = CubeObj();
+  // Continue the first face over two lines, and move all faces before the vertices (the
+  // faces then use 1-based indices only, negative ones would count back from nothing).
+  std::string faces, rest;
+  for (int f = 0; f < 6; ++f) {
+    faces += "f";
+    for (int k = 0; k < 4; ++k) faces += (f == 0 && k == 2 ? " \\\r\n  " : " ") + std::to_string(kQuads[f][k] + 1);
+    faces += "\r\n";
+  }
+  for (int v = 0; v < 8; ++v) {
+    glm::dvec3 p = CubeVertex(v);
+    rest += "v " + std::to_string(int(p.x)) + " " + std::to_string(int(p.y)) + " " + std::to_string(int(p.z)) + "\r\n";
+  }
+  ExpectCube(Obj(faces + rest));
+}
+
+TEST(MeshReader, ObjPolygonIsAFanRepeatsAreRemovedAndDegenerateFacesCounted) {
+  auto r = Obj("v 0 0 0\nv 1 0 0\nv 2 1 0\nv 1 2 0\nv 0 1 0\n"
+               "f 1 2 3 4 5\n"  // a pentagon: 3 fan triangles
+               "f 1 2 2 3\n"    // a quad with a repeated corner: the triangle 1 2 3 (OpenMesh did the same)
+               "f 1 1 2\n");    // 2 distinct vertices: dropped, counted
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  std::vector<glm::uvec3> want = {{0, 1, 2}, {0, 2, 3}, {0, 3, 4}, {0, 1, 2}};
+  EXPECT_EQ(r->triangles, want);
+  EXPECT_EQ(r->degenerate_dropped, 1u);
+}
+
+TEST(MeshReader, ObjVertexPositionsAreRoundedToFloatOnce) {
+  auto r = Obj("v 0.1 1e-3 0.333333333333333333333\nv +1 -2.5e+1 .5\nv 3 0 0\nf 1 2 3\n");
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_EQ(r->positions[0], glm::dvec3(0.1f, 1e-3f, 1.0f / 3));
+  EXPECT_EQ(r->positions[1], glm::dvec3(1, -25, 0.5));
+}
+
+TEST(MeshReader, ObjBadReferencesNameTheLineTheFaceAndTheValue) {
+  const std::string v3 = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+  // The fuzzer's find: a reference with no vertex index (OpenMesh asserted on it).
+  ExpectError(Obj("f /4"), {"test.obj:1", "face 0", "\"/4\"", "malformed"});
+  ExpectError(Obj(v3 + "f 1 2 3\nf /4\n"), {"test.obj:5", "face 1", "\"/4\"", "malformed"});
+  ExpectError(Obj(v3 + "f 1/x 2 3\n"), {"test.obj:4", "\"1/x\"", "malformed"});
+  ExpectError(Obj(v3 + "f 1/2/3/4 2 3\n"), {"test.obj:4", "\"1/2/3/4\"", "malformed"});
+  ExpectError(Obj(v3 + "f one 2 3\n"), {"test.obj:4", "vertex index \"one\"", "not an integer"});
+  ExpectError(Obj(v3 + "f 1 2\n"), {"test.obj:4", "face 0 lists 2 vertices", "at least 3"});
+  ExpectError(Obj(v3 + "f\n"), {"test.obj:4", "face 0 lists 0 vertices"});
+  ExpectError(Obj(v3 + "f 0 1 2\n"), {"test.obj:4", "vertex index \"0\"", "out of range", "0 is never valid"});
+  ExpectError(Obj(v3 + "f -4 1 2\n"), {"test.obj:4", "vertex index \"-4\"", "3 vertices so far"});
+  ExpectError(Obj(v3 + "f 1 2 3\nf 1 2 99\n"), {"test.obj:5", "face 1", "vertex index \"99\"", "out of range"});
+  // A forward index the rest of the file could define is checked at the end.
+  ExpectError(Obj(v3 + "f 1 2 4\n# room for one more vertex: v 1 1 1\n"),
+              {"test.obj:4", "face 0", "vertex index \"4\"", "the file has 3 vertices"});
+  ExpectError(Obj(v3 + "f 1 2 99999999999999999999\n"), {"vertex index \"99999999999999999999\""});
+  ExpectError(Obj(v3 + "f 1 2 -99999999999999999999\n"), {"vertex index \"-99999999999999999999\""});
+}
+
+TEST(MeshReader, ObjNonFiniteAndMissingCoordinatesNameTheVertex) {
+  ExpectError(Obj("v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n"),
+              {"test.obj:2", "vertex coordinate 3 is \"nan\"", "vertex 2"});
+  ExpectError(Obj("v 0 0 0\nv 1 inf 0\n"), {"test.obj:2", "\"inf\""});
+  ExpectError(Obj("v 0 0 1e999\n"), {"test.obj:1", "\"1e999\""});
+  ExpectError(Obj("v 0 0 0\nv 1 0\n"), {"test.obj:2", "vertex 2 has fewer than 3 coordinates"});
+  ExpectError(Obj("v 0 0 0,5\n"), {"test.obj:1", "\"0,5\""});
+}
+
+TEST(MeshReader, ObjContinuationJoinsTheNextLine) {
+  auto r = Obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 \\\n3\n");
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_EQ(r->triangles.size(), 1u);
+}
+
+// ---- STL ----
+
+// The cube's 12 fan triangles as STL facets (positions, no indices).
+std::vector<std::array<glm::vec3, 3>> CubeFacets() {
+  std::vector<std::array<glm::vec3, 3>> out;
+  for (const auto& q : kQuads) {
+    for (int i = 1; i <= 2; ++i) {
+      out.push_back({glm::vec3(CubeVertex(q[0])), glm::vec3(CubeVertex(q[i])), glm::vec3(CubeVertex(q[i + 1]))});
+    }
+  }
+  return out;
+}
+
+std::string CubeStlAscii() {
+  std::string s = "solid cube exported by hand\n";
+  for (const auto& t : CubeFacets()) {
+    s += "  facet normal 0 0 0\n    outer loop\n";
+    for (const auto& p : t) {
+      s += "      vertex " + std::to_string(p.x) + " " + std::to_string(p.y) + " " + std::to_string(p.z) + "\n";
+    }
+    s += "    endloop\n  endfacet\n";
+  }
+  return s + "endsolid cube exported by hand\n";
+}
+
+std::string CubeStlBinary(const std::string& header = "binary cube") {
+  std::string s = header;
+  s.resize(80, ' ');
+  Put(&s, uint32_t(12), false);
+  for (const auto& t : CubeFacets()) {
+    for (int c = 0; c < 3; ++c) Put(&s, 0.0f, false);  // normal
+    for (const auto& p : t)
+      for (int c = 0; c < 3; ++c) Put(&s, p[c], false);
+    Put(&s, uint16_t(0), false);  // attribute byte count
+  }
+  return s;
+}
+
+// STL's vertices are the distinct positions in order of first appearance; the triangles
+// are the cube's, corner for corner.
+void ExpectStlCube(const Result<TriangleMesh>& r) {
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  const TriangleMesh& m = *r;
+  ASSERT_EQ(m.positions.size(), 8u);
+  ASSERT_EQ(m.triangles.size(), 12u);
+  auto facets = CubeFacets();
+  double area = 0, volume = 0;
+  for (size_t i = 0; i < 12; ++i) {
+    for (int k = 0; k < 3; ++k) {
+      EXPECT_EQ(m.positions[m.triangles[i][k]], glm::dvec3(facets[i][k])) << "triangle " << i << " corner " << k;
+    }
+    glm::dvec3 a = m.positions[m.triangles[i][0]], b = m.positions[m.triangles[i][1]], c = m.positions[m.triangles[i][2]];
+    area += glm::length(glm::cross(b - a, c - a)) / 2;
+    volume += glm::dot(a, glm::cross(b, c)) / 6;
+  }
+  // First appearance: the first facet's corners are vertices 0, 1, 2.
+  EXPECT_EQ(m.triangles[0], glm::uvec3(0, 1, 2));
+  EXPECT_DOUBLE_EQ(area, 6.0);
+  EXPECT_DOUBLE_EQ(volume, 1.0);
+  EXPECT_EQ(m.degenerate_dropped, 0u);
+}
+
+TEST(MeshReader, StlCubeAsciiAndBinary) {
+  ExpectStlCube(Stl(CubeStlAscii()));
+  ExpectStlCube(Stl(CubeStlBinary()));
+  // Many binary writers start the header with "solid": the length decides.
+  ExpectStlCube(Stl(CubeStlBinary("solid cube, but binary")));
+}
+
+TEST(MeshReader, StlAsciiAcceptsAnyLayoutAnyCaseAndSeveralSolids) {
+  // After the solid's name line: everything on one line, in upper case, the first
+  // vertex's x written as -0 (merged with the 0 of later corners), then a second solid.
+  std::string s = CubeStlAscii();
+  std::string body = s.substr(s.find('\n') + 1);
+  for (char& c : body) c = c == '\n' ? ' ' : char(std::toupper(static_cast<unsigned char>(c)));
+  body.replace(body.find("0.000000"), 8, "-0.0");
+  ExpectStlCube(Stl("solid cube\n" + body + "\nsolid empty\nendsolid\n"));
+}
+
+TEST(MeshReader, StlDegenerateFacetsAreCounted) {
+  std::string s = "solid d\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\nendloop\nendfacet\n"
+                  "facet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 0 -0\nendloop\nendfacet\n"
+                  "endsolid d\n";
+  auto r = Stl(s);
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_EQ(r->triangles.size(), 1u);
+  EXPECT_EQ(r->positions.size(), 3u);
+  EXPECT_EQ(r->degenerate_dropped, 1u);
+}
+
+TEST(MeshReader, StlHostileInputsAreErrorsNamingTheField) {
+  // A binary count the file cannot hold (and no "solid"): both numbers named.
+  std::string lie = CubeStlBinary();
+  uint32_t huge = 4000000000u;
+  std::memcpy(&lie[80], &huge, 4);
+  ExpectError(Stl(lie), {"declares 4000000000 triangles", "200000000084 bytes", "the file has 684"});
+  // A truncated binary file.
+  std::string bin = CubeStlBinary();
+  ExpectError(Stl(bin.substr(0, bin.size() - 7)), {"declares 12 triangles", "the file has 677"});
+  // The same, when its header starts with "solid": read as ASCII, the error says both.
+  std::string sbin = CubeStlBinary("solid but binary");
+  ExpectError(Stl(sbin.substr(0, sbin.size() - 7)), {"test.stl", "before \"endsolid\"", "read as binary", "declares 12 triangles"});
+  ExpectError(Stl("junk"), {"too short for a binary one"});
+  ExpectError(Stl(""), {"too short"});
+  std::string ascii = CubeStlAscii();
+  ExpectError(Stl(ascii.substr(0, ascii.size() / 2)), {"test.stl", "the file ends", "truncated"});
+  ExpectError(Stl(ascii.substr(0, ascii.find("endsolid"))), {"before \"endsolid\""});
+  std::string nan = ascii;
+  nan.replace(nan.find("vertex 0.000000 0.000000 0.000000") + 7, 8, "nan");
+  ExpectError(Stl(nan), {"test.stl:4", "facet 0 vertex 0 coordinate 1 is \"nan\""});
+  std::string four = ascii;
+  four.insert(four.find("endloop"), "vertex 1 1 1\n");
+  ExpectError(Stl(four), {"test.stl:7", "expected \"endloop\"", "exactly 3 vertices", "\"vertex\""});
+  std::string binf = CubeStlBinary();
+  float inf = std::numeric_limits<float>::infinity();
+  std::memcpy(&binf[84 + 50 * 3 + 12 + 12 * 2 + 4], &inf, 4);
+  ExpectError(Stl(binf), {"test.stl (byte 274)", "triangle 3 vertex 2 y", "not a finite"});
+}
+
+// ---- OBJ and STL against OpenMesh ----
+
+using OmMesh = OpenMesh::TriMesh_ArrayKernelT<>;
+
+// Reads `path` with OpenMesh: positions (float, as it stores them) and the faces' vertex
+// ids in face order.
+void ReadWithOpenMesh(const std::string& path, std::vector<glm::dvec3>* positions, std::vector<glm::uvec3>* triangles) {
+  OmMesh mesh;
+  OpenMesh::IO::Options opt;
+  ASSERT_TRUE(OpenMesh::IO::read_mesh(mesh, path, opt)) << path;
+  for (auto v : mesh.vertices()) {
+    auto p = mesh.point(v);
+    positions->push_back({p[0], p[1], p[2]});
+  }
+  for (auto f : mesh.faces()) {
+    std::vector<unsigned> ids;
+    for (auto v : mesh.fv_range(f)) ids.push_back(static_cast<unsigned>(v.idx()));
+    ASSERT_EQ(ids.size(), 3u);
+    triangles->push_back({ids[0], ids[1], ids[2]});
+  }
+}
+
+void ExpectSameAsOpenMesh(const std::string& path) {
+  SCOPED_TRACE(path);
+  std::vector<glm::dvec3> positions;
+  std::vector<glm::uvec3> triangles;
+  ReadWithOpenMesh(path, &positions, &triangles);
+  auto in = MeshInput::Open(path, nullptr);
+  ASSERT_TRUE(in.ok()) << in.status().message();
+  const bool stl = path.ends_with(".stl");
+  auto r = stl ? ReadStl(*in, Progress{}) : ReadObj(*in, Progress{});
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  ASSERT_GT(triangles.size(), 0u);
+  EXPECT_EQ(r->positions, positions);  // exactly: the same float for every coordinate
+  EXPECT_EQ(r->triangles, triangles);
+}
+
 class MeshFile : public ::testing::Test {
  protected:
   std::string Write(const std::string& name, const std::string& bytes) {
@@ -288,6 +560,94 @@ TEST_F(MeshFile, DirectoriesAndDevicesAreRefusedByName) {
   r = LoadMeshFile("/dev/null");
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.status().message().find("character device"), std::string::npos) << r.status().message();
+}
+
+// A w×w grid of quads as OBJ, larger than the 1 MiB read piece: coordinates with 9
+// significant digits (not floats: each is rounded), references alternating i/t/n and
+// negative, and (unless `continued` is false) every tenth face continued over two lines.
+std::string GridObj(int w, bool continued = true) {
+  std::string s = "# grid\n";
+  uint64_t x = 12345;
+  char buf[96];
+  for (int y = 0; y < w; ++y) {
+    for (int i = 0; i < w; ++i) {
+      x = x * 6364136223846793005ull + 1442695040888963407ull;
+      std::snprintf(buf, sizeof buf, "v %.9g %.9g %.9g\n", i * 0.01 + 1e-3 * double(x >> 40) / (1 << 24),
+                    y * 0.01 + 1e-3 * double((x >> 16) & 0xFFFFFF) / (1 << 24), double(x >> 11) / (1ull << 53));
+      s += buf;
+    }
+  }
+  s += "vt 0 0\nvn 0 0 1\n";
+  const int n = w * w;
+  for (int y = 0; y + 1 < w; ++y) {
+    for (int i = 0; i + 1 < w; ++i) {
+      int a = y * w + i + 1;  // 1-based
+      int c[4] = {a, a + 1, a + w + 1, a + w};
+      std::snprintf(buf, sizeof buf, "f %d/1/1 %d %s%d//1 %d\n", c[0], c[1] - n - 1, continued && (y * w + i) % 10 == 0 ? "\\\n " : "",
+                    c[2], c[3] - n - 1);
+      s += buf;
+    }
+  }
+  return s;
+}
+
+TEST_F(MeshFile, ObjFileReadsLikeMemoryAcrossPieces) {
+  std::string bytes = GridObj(200);
+  ASSERT_GT(bytes.size(), size_t{2} << 20);
+  auto mem = Obj(bytes);
+  ASSERT_TRUE(mem.ok()) << mem.status().message();
+  auto file = LoadMeshFile(Write("grid.obj", bytes));
+  ASSERT_TRUE(file.ok()) << file.status().message();
+  EXPECT_EQ(file->positions, mem->positions);
+  EXPECT_EQ(file->triangles, mem->triangles);
+  EXPECT_EQ(file->triangles.size(), 2u * 199 * 199);
+}
+
+TEST_F(MeshFile, CancelStopsReadingObjAndStl) {
+  Progress p;
+  p.cancelled = [] { return true; };
+  std::string stl;
+  for (int i = 0; i < 3000; ++i) stl += CubeStlAscii();  // several solids, > 1 MiB
+  for (const std::string& path : {Write("grid.obj", GridObj(200)), Write("cubes.stl", stl)}) {
+    auto r = LoadMeshFile(path, p);
+    ASSERT_FALSE(r.ok()) << path;
+    EXPECT_EQ(r.status().code(), StatusCode::kCancelled) << r.status().message();
+    EXPECT_NE(r.status().message().find("interrupted while reading the mesh"), std::string::npos);
+  }
+}
+
+TEST_F(MeshFile, ObjAndStlReadLikeOpenMesh) {
+  ExpectSameAsOpenMesh(Write("cube.obj", CubeObj()));
+  // Without continuation lines: OpenMesh does not join them (it dropped such a face).
+  ExpectSameAsOpenMesh(Write("grid.obj", GridObj(60, false)));
+  ExpectSameAsOpenMesh(Write("cube_ascii.stl", CubeStlAscii()));
+  ExpectSameAsOpenMesh(Write("cube_binary.stl", CubeStlBinary("solid, yet binary")));
+  // The grid as STL, both encodings: shared corners merge in order of first appearance.
+  auto grid = Obj(GridObj(60));
+  ASSERT_TRUE(grid.ok()) << grid.status().message();
+  std::string ascii = "solid grid\n", binary(80, ' ');
+  Put(&binary, uint32_t(grid->triangles.size()), false);
+  for (const auto& t : grid->triangles) {
+    ascii += "facet normal 0 0 1\nouter loop\n";
+    for (int c = 0; c < 3; ++c) Put(&binary, 0.0f, false);
+    for (int k = 0; k < 3; ++k) {
+      glm::vec3 p(grid->positions[t[k]]);
+      char buf[96];
+      std::snprintf(buf, sizeof buf, "vertex %.9g %.9g %.9g\n", p.x, p.y, p.z);
+      ascii += buf;
+      for (int c = 0; c < 3; ++c) Put(&binary, p[c], false);
+    }
+    ascii += "endloop\nendfacet\n";
+    Put(&binary, uint16_t(0), false);
+  }
+  ExpectSameAsOpenMesh(Write("grid_ascii.stl", ascii + "endsolid grid\n"));
+  ExpectSameAsOpenMesh(Write("grid_binary.stl", binary));
+}
+
+TEST(MeshReader, BundledBunnyObjReadsLikeOpenMesh) {
+  const std::string path = std::string(LTB_SOURCE_DIR) + "/data/meshes/bunny.obj";
+  if (!std::ifstream(path)) GTEST_SKIP() << path << " missing: run scripts/fetch_samples.sh";
+  ExpectSameAsOpenMesh(path);
 }
 
 }  // namespace
