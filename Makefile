@@ -74,13 +74,20 @@ bench-sample: bench-build
 	$(BUILD)/bench/ltb_sample_bench samples/medium.toml bench/out --cube-res 32 --reps 3
 	$(BUILD)/bench/ltb_sample_bench samples/medium.toml bench/out --cube-res 64 --reps 1
 
-# libFuzzer target for the container reader (docs/FUZZING.md); FUZZ_SECONDS of fuzzing.
+# libFuzzer targets for every reader (docs/FUZZING.md), built in build-fuzz/ with the
+# libraries instrumented (ASan + UBSan + coverage); each runs FUZZ_SECONDS in turn, one at a
+# time on one core. FUZZ_TARGETS picks some (e.g. "npy_fuzzer hdr_fuzzer"); FUZZ_KEEP_GOING=1
+# goes on past findings (fork mode). Not part of `make test`.
 FUZZ_SECONDS ?= 60
-fuzz: build
-	CC=clang CXX=clang++ cmake -S . -B build-fuzz -DLTB_BUILD_FUZZERS=ON -DLTB_BUILD_TESTS=OFF -DLTB_BUILD_BENCH=OFF -DLTB_ARCH= -DLTB_SANITIZE=OFF
-	cmake --build build-fuzz -j $(JOBS) --target ltm_reader_fuzzer
-	bash scripts/fuzz_corpus.sh $(BUILD) build-fuzz/corpus
-	build-fuzz/tests/fuzz/ltm_reader_fuzzer -max_total_time=$(FUZZ_SECONDS) -max_len=65536 -rss_limit_mb=1024 build-fuzz/corpus
+FUZZ_TARGETS ?=
+FUZZ_BUILD  ?= build-fuzz
+fuzz: configure samples
+	cmake --build $(BUILD) -j $(JOBS) --target ltbake
+	CC=clang CXX=clang++ cmake -S . -B $(FUZZ_BUILD) -DLTB_BUILD_FUZZERS=ON -DLTB_BUILD_TESTS=OFF -DLTB_BUILD_BENCH=OFF \
+	  -DLTB_ARCH= -DLTB_SANITIZE=OFF $$(command -v ccache >/dev/null && echo -DCMAKE_CXX_COMPILER_LAUNCHER=ccache)
+	cmake --build $(FUZZ_BUILD) -j $(JOBS) --target fuzzers ltb_fuzz_seeds
+	bash scripts/fuzz_corpus.sh $(BUILD) $(FUZZ_BUILD) $(FUZZ_BUILD)/corpus
+	bash scripts/fuzz_run.sh $(FUZZ_BUILD) $(FUZZ_BUILD)/corpus $(FUZZ_SECONDS) $(FUZZ_TARGETS)
 
 clean:
 	rm -rf $(BUILD) $(BUILD_ASAN) build-fuzz

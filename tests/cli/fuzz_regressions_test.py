@@ -1,0 +1,89 @@
+"""Reproducers found by the libFuzzer targets (docs/FUZZING.md "Findings"), each run
+through ltbake the way a user reaches that reader, with the hostile-input checks
+(tests/cli/hostile.py): exit 1, a message naming the file, a time bound and a peak-memory
+bound. The bytes are the minimized fuzzer inputs, written here in full.
+
+usage: fuzz_regressions_test.py PATH_TO_LTBAKE
+"""
+import os
+import sys
+import tempfile
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from hostile import run_hostile  # noqa: E402
+from ltbtest import check, finish, write  # noqa: E402
+
+# Libraries never print: whatever a reader says reaches the user once, in the error.
+MAX_STDERR = 64 << 10
+
+
+def scene_for(d, name, mesh):
+    return write(os.path.join(d, name + ".toml"), f"""[camera]
+eye = [0.5, -3.0, 2.0]
+target = [0.5, 0.5, 0.0]
+width = 4
+height = 4
+[sampling]
+cube_res = 1
+spp = 1
+[[object]]
+name = "m"
+type = "mesh"
+file = "{mesh}"
+""")
+
+
+def mesh_case(d, name, data, what):
+    with open(os.path.join(d, name), "wb") as f:
+        f.write(data)
+    scene = scene_for(d, "scene_" + name.replace(".", "_"), name)
+    _, err = run_hostile(["sample", scene, "-o", os.path.join(d, "out.ltm"), "--overwrite"], names=[name],
+                         time_limit=30, what=what)
+    check(len(err) <= MAX_STDERR, f"{what}: {len(err)} bytes on stderr (a reader printing in a loop?)")
+
+
+def env_case(d, name, data, what):
+    path = os.path.join(d, name)
+    with open(path, "wb") as f:
+        f.write(data)
+    run_hostile(["convert", path, os.path.join(d, "env.npy"), "--cube-res", "2"], names=[name], time_limit=30,
+                what=what)
+
+
+def main():
+    with tempfile.TemporaryDirectory() as d:
+        # obj_fuzzer, 2026-11-25: a face line whose only vertex reference has no vertex
+        # index. OpenMesh's OBJ reader asserts (OBJReader.cc:633 `!vhandles.empty()`, the
+        # Debian build keeps assertions): ltbake sample aborted with exit 134.
+        mesh_case(d, "face-without-vertex.obj", b"f /4", "OBJ 'f /4' (OpenMesh assertion)")
+        mesh_case(d, "face-without-vertex-after-valid.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf /4\n",
+                  "OBJ valid face then 'f /4'")
+        # ply_fuzzer, 2026-11-25: a PLY header that ends (end of file) before end_header.
+        # OpenMesh's PLY header loop never sees end of file: it re-reads the last keyword
+        # forever, printing "Unsupported keyword : format" to stderr (GBs per minute) and
+        # ignoring SIGTERM.
+        mesh_case(d, "header-without-end.ply", b"ply\nformat ascii 1.0\n", "PLY header cut after format (hang)")
+        mesh_case(d, "binary-header-without-end.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 1\n",
+                  "binary PLY header cut after element (hang)")
+        # drc_fuzzer, 2026-11-25: 111 bytes, a Draco mesh whose POSITION attribute is of
+        # type DT_BOOL. LoadDraco converts it with ConvertValue<float>, which loads a byte
+        # of value 2 as a bool: undefined behaviour (UBSan: draco/attributes/
+        # geometry_attribute.h:300 "load of value 2, which is not a valid value for type
+        # 'const bool'"), so the ASan tree dies of it; the release build goes on with
+        # positions made of bools. Positions that are not numbers must be an error.
+        mesh_case(d, "bool-positions.drc", bytes.fromhex(
+            "445241434f0202010000231a0b0100000000000080489e7800100000000000000027000028290101000b0100000078"
+            "00000000000000000000000b0100000000000080489e780000000000000000003f000028d8d9d8da27000028290101"
+            "000b010000007800000000000000000000"), "Draco mesh with bool positions (UB)")
+        # exr_fuzzer, 2026-11-25: 15 bytes: the OpenEXR magic, version 2 and an attribute
+        # of an unknown (empty) type whose size field says ~2 GB. OpenEXR allocates the
+        # attribute (Imf::OpaqueAttribute::readValueFrom, malloc 1-2 GB) before reading it;
+        # the read then fails and ltbake reports it (exit 1). The allocation is not touched,
+        # so peak RSS stays small; this case guards exit 1, the message and that bound.
+        env_case(d, "attribute-size.exr", bytes.fromhex("762f310102000000c700000097ed7b"),
+                 "EXR header attribute of ~2 GB declared size")
+    finish()
+
+
+if __name__ == "__main__":
+    main()
