@@ -435,6 +435,57 @@ Result<Image> ReadExr(const std::string& path, const EnvLoadOptions& o) {
   }
 }
 
+// OpenEXR allocates each header attribute's declared size before reading it (a 15-byte
+// file declaring a 2 GB attribute: found by exr_fuzzer). Walks the header(s) first, as
+// the OpenEXR file layout describes them: after the magic and the version field, each
+// attribute is a name and a type name (NUL-terminated), an int32 size and that many bytes;
+// an empty name ends a header (a multi-part file has several, then one more empty name).
+// Every size must fit in the bytes left in the file.
+Status CheckExrHeaderSizes(const std::string& path, io::File& f, uint64_t size) {
+  const uint64_t cap = std::min<uint64_t>(size, uint64_t(64) << 20);  // headers are small
+  std::vector<uint8_t> b(cap);
+  LTB_RETURN_IF_ERROR(f.ReadAt(0, format::MutableByteSpan(reinterpret_cast<std::byte*>(b.data()), cap)));
+  if (cap < 8) return DataLoss(path + ": OpenEXR file ends inside its version field (" + std::to_string(size) + " bytes)");
+  const uint32_t version = uint32_t(b[4]) | uint32_t(b[5]) << 8 | uint32_t(b[6]) << 16 | uint32_t(b[7]) << 24;
+  const bool multipart = (version & 0x1000u) != 0;
+  const size_t max_name = (version & 0x400u) ? 255 : 31;
+  uint64_t pos = 8;
+  auto read_name = [&](std::string* name) -> Status {
+    uint64_t end = pos;
+    while (end < cap && b[end] != 0) ++end;
+    if (end >= cap) return DataLoss(path + ": OpenEXR header ends inside a name at byte " + std::to_string(pos));
+    if (end - pos > max_name) {
+      return DataLoss(path + ": OpenEXR header name at byte " + std::to_string(pos) + " is " +
+                      std::to_string(end - pos) + " bytes long (at most " + std::to_string(max_name) + ")");
+    }
+    name->assign(reinterpret_cast<const char*>(b.data()) + pos, end - pos);
+    pos = end + 1;
+    return Status::Ok();
+  };
+  for (int part = 0;; ++part) {
+    std::string name, type;
+    bool any = false;
+    for (;;) {
+      LTB_RETURN_IF_ERROR(read_name(&name));
+      if (name.empty()) break;
+      any = true;
+      LTB_RETURN_IF_ERROR(read_name(&type));
+      if (pos + 4 > cap) return DataLoss(path + ": OpenEXR header ends inside the size of attribute \"" + name + "\"");
+      const int32_t n = int32_t(uint32_t(b[pos]) | uint32_t(b[pos + 1]) << 8 | uint32_t(b[pos + 2]) << 16 |
+                                uint32_t(b[pos + 3]) << 24);
+      pos += 4;
+      if (n < 0 || uint64_t(n) > size - pos) {
+        return DataLoss(path + ": OpenEXR header attribute \"" + name + "\" (type \"" + type + "\") at byte " +
+                        std::to_string(pos - 4) + " declares " + std::to_string(n) + " bytes, but " +
+                        std::to_string(size - pos) + " follow in the file (damaged or not an OpenEXR file)");
+      }
+      pos += uint64_t(n);
+      if (pos > cap) return Status::Ok();  // a header this large: left to OpenEXR, sizes so far are sane
+    }
+    if (!multipart || !any) return Status::Ok();
+  }
+}
+
 Result<Image> ReadImage(const std::string& path, const EnvLoadOptions& o) {
   LTB_RETURN_IF_ERROR(CheckRegularFile(path, "name a .exr or .hdr image file"));
   {
@@ -444,6 +495,7 @@ Result<Image> ReadImage(const std::string& path, const EnvLoadOptions& o) {
     LTB_RETURN_IF_ERROR(f.ReadAt(0, format::MutableByteSpan(magic, std::min<uint64_t>(size, 4))));
     if (size >= 4 && magic[0] == std::byte{0x76} && magic[1] == std::byte{0x2f} && magic[2] == std::byte{0x31} &&
         magic[3] == std::byte{0x01}) {
+      LTB_RETURN_IF_ERROR(CheckExrHeaderSizes(path, f, size));
       return ReadExr(path, o);
     }
     if (size < 2 || magic[0] != std::byte{'#'} || magic[1] != std::byte{'?'}) {

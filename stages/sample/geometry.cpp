@@ -44,6 +44,20 @@ Result<TriangleMesh> LoadDraco(const std::string& path) {
   std::unique_ptr<draco::Mesh> mesh = std::move(decoded).value();
   const draco::PointAttribute* pos = mesh->GetNamedAttribute(draco::GeometryAttribute::POSITION);
   if (pos == nullptr) return InvalidArgument(path + ": Draco mesh has no position attribute");
+  // Positions are numbers: a bool (or unknown) attribute type would be read through a bool
+  // lvalue holding any byte (undefined behaviour, found by the fuzzer).
+  switch (pos->data_type()) {
+    case draco::DT_FLOAT32: case draco::DT_FLOAT64: case draco::DT_INT8: case draco::DT_UINT8:
+    case draco::DT_INT16: case draco::DT_UINT16: case draco::DT_INT32: case draco::DT_UINT32: break;
+    default:
+      return InvalidArgument(path + ": Draco mesh position attribute has data type " +
+                             std::to_string(static_cast<int>(pos->data_type())) +
+                             "; positions must be float or integer (re-encode the mesh with draco_encoder)");
+  }
+  if (pos->num_components() < 3) {
+    return InvalidArgument(path + ": Draco mesh positions have " + std::to_string(int(pos->num_components())) +
+                           " components; 3 (x, y, z) are needed");
+  }
   TriangleMesh out;
   out.positions.resize(mesh->num_points());
   for (draco::PointIndex i(0); i < mesh->num_points(); ++i) {
