@@ -51,6 +51,9 @@ for t in "${TARGETS[@]}"; do
     args+=(-fork=1 -ignore_crashes=1 -ignore_ooms=1 -ignore_timeouts=1)
     mode=keep-going
   fi
+  # The targets' temporary files: a process that dies of a finding leaves its own behind.
+  export LTB_FUZZ_TMP
+  LTB_FUZZ_TMP=$(mktemp -d "$( [[ -d /dev/shm ]] && echo /dev/shm || echo "${TMPDIR:-/tmp}")/ltb-fuzz-run-XXXXXX")
   log=$FUZZ_BUILD/logs/$t.log
   start=$(date +%s)
   # shellcheck disable=SC2086
@@ -72,6 +75,7 @@ for t in "${TARGETS[@]}"; do
            -rss_limit_mb=1024 -malloc_limit_mb=1024 -timeout=10 -close_fd_mask=3 "$corpus" 2>&1 |
            grep -oE 'INITED cov: [0-9]+' | tail -1 | awk '{print $3}')
   [[ -n $replay ]] && edges=$replay
+  rm -rf "$LTB_FUZZ_TMP"
   corp=$(ls "$corpus" | wc -l)
   after=$(ls "$out" | grep -cE '^(crash|leak|timeout|oom)-' || true)
   findings=$((after - before))

@@ -479,6 +479,37 @@ Status CheckExrHeaderSizes(const std::string& path, io::File& f, uint64_t size) 
                         std::to_string(pos - 4) + " declares " + std::to_string(n) + " bytes, but " +
                         std::to_string(size - pos) + " follow in the file (damaged or not an OpenEXR file)");
       }
+      // OpenEXR reads the types it knows by their own layout, not by the size field: a size
+      // that disagrees would make its reading and this walk part ways (exr_fuzzer).
+      static const std::pair<const char*, int32_t> kFixed[] = {
+          {"box2i", 16}, {"box2f", 16}, {"int", 4}, {"float", 4}, {"double", 8}, {"v2i", 8}, {"v2f", 8},
+          {"v3i", 12}, {"v3f", 12}, {"compression", 1}, {"lineOrder", 1}, {"envmap", 1}, {"rational", 8},
+          {"timecode", 8}, {"keycode", 28}, {"tiledesc", 9}, {"m33f", 36}, {"m44f", 64}, {"chromaticities", 32},
+          {"deepImageState", 1}};
+      for (const auto& [t, want] : kFixed) {
+        if (type == t && n != want) {
+          return DataLoss(path + ": OpenEXR header attribute \"" + name + "\" of type " + type + " at byte " +
+                          std::to_string(pos - 4) + " declares " + std::to_string(n) + " bytes; that type has " +
+                          std::to_string(want) + " (damaged file)");
+        }
+      }
+      if (type == "chlist" && pos + uint64_t(n) <= cap) {
+        // Channels: name NUL, int32 type, uint8 pLinear, 3 reserved, int32 x/y sampling; a NUL ends the list.
+        uint64_t c = pos, end = pos + uint64_t(n);
+        bool ok = false;
+        while (c < end) {
+          if (b[c] == 0) {
+            ok = c + 1 == end;
+            break;
+          }
+          while (c < end && b[c] != 0) ++c;
+          c += 1 + 16;
+        }
+        if (!ok) {
+          return DataLoss(path + ": OpenEXR channel list \"" + name + "\" at byte " + std::to_string(pos) +
+                          " does not end where its size (" + std::to_string(n) + " bytes) says (damaged file)");
+        }
+      }
       pos += uint64_t(n);
       if (pos > cap) return Status::Ok();  // a header this large: left to OpenEXR, sizes so far are sane
     }

@@ -82,6 +82,18 @@ def main():
         # so peak RSS stays small; this case guards exit 1, the message and that bound.
         env_case(d, "attribute-size.exr", bytes.fromhex("762f310102000000c700000097ed7b"),
                  "EXR header attribute of ~2 GB declared size")
+        # exr_fuzzer, after CheckExrHeaderSizes (2026-11-25 17:10): 29 bytes each, an
+        # attribute "n"/"s" of type chlist with size 0. OpenEXR reads a chlist by its own
+        # structure, not by the size field, so its reading and a walk by sizes part ways:
+        # OpenEXR then takes later bytes as an attribute (OpaqueAttribute::readValueFrom,
+        # malloc ~1.6 GB) or as the image's layout (ScanLineInputFile::ScanLineInputFile,
+        # malloc ~1.5 GB) before failing. Exit 1 and small RSS in the release build; the
+        # allocations are over the fuzzers' 1 GiB limit.
+        env_case(d, "chlist-desync.exr", bytes.fromhex("762f3101020000006e0063686c69737400000000000010000000425959"),
+                 "EXR chlist of size 0 (OpenEXR opaque attribute of ~1.6 GB)")
+        env_case(d, "chlist-desync-scanline.exr",
+                 bytes.fromhex("762f310102000000730063686c6973740000000000000f000000000064"),
+                 "EXR chlist of size 0 (OpenEXR scanline tables of ~1.5 GB)")
     finish()
 
 

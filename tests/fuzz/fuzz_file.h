@@ -15,11 +15,16 @@
 
 namespace ltb::fuzz {
 
-// The process's own temporary directory, made on first use and removed at exit.
+// The process's own temporary directory, made on first use and removed at a normal exit.
 inline const std::string& TempDir() {
   // Never destroyed: the exit handler below runs after static destructors would have.
   static const std::string* const dir = [] {
-    std::string base = std::filesystem::is_directory("/dev/shm") ? "/dev/shm" : std::filesystem::temp_directory_path().string();
+    // LTB_FUZZ_TMP (fuzz_run.sh sets it, and removes it after each target: a process that
+    // dies of a finding skips the exit handler), else /dev/shm, else the temp directory.
+    const char* env = std::getenv("LTB_FUZZ_TMP");
+    std::string base = env != nullptr && *env != '\0'              ? std::string(env)
+                       : std::filesystem::is_directory("/dev/shm") ? "/dev/shm"
+                                                                   : std::filesystem::temp_directory_path().string();
     std::string tmpl = base + "/ltb-fuzz-XXXXXX";
     if (mkdtemp(tmpl.data()) == nullptr) std::abort();
     auto* d = new std::string(tmpl);
