@@ -10,27 +10,13 @@ import sys
 import tempfile
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from hostile import run_hostile  # noqa: E402
+from hostile import run_hostile, scene_for  # noqa: E402
 from ltbtest import check, finish, write  # noqa: E402
 
 # Libraries never print: whatever a reader says reaches the user once, in the error.
 MAX_STDERR = 64 << 10
 
 
-def scene_for(d, name, mesh):
-    return write(os.path.join(d, name + ".toml"), f"""[camera]
-eye = [0.5, -3.0, 2.0]
-target = [0.5, 0.5, 0.0]
-width = 4
-height = 4
-[sampling]
-cube_res = 1
-spp = 1
-[[object]]
-name = "m"
-type = "mesh"
-file = "{mesh}"
-""")
 
 
 def mesh_case(d, name, data, what):

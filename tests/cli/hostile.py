@@ -90,3 +90,20 @@ def interrupt_while_running(args, ready, sig=signal.SIGTERM, time_limit=60.0, wh
     check(p.returncode in (want, 1), f"{label}: exit {p.returncode} after {signal.Signals(sig).name}, "
           f"expected {want} (or 1)\n{stderr.decode(errors='replace')}")
     return p.returncode, stderr.decode(errors="replace")
+
+
+def scene_for(d, name, mesh, extra=""):
+    """A small image-mode scene around one mesh object (the mesh path relative to d)."""
+    return ltbtest.write(os.path.join(d, name + ".toml"), f"""[camera]
+eye = [0.5, -3.0, 2.0]
+target = [0.5, 0.5, 0.0]
+width = 4
+height = 4
+[sampling]
+cube_res = 1
+spp = 1
+[[object]]
+name = "m"
+type = "mesh"
+file = "{mesh}"
+{extra}""")

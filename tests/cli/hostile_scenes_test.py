@@ -14,27 +14,12 @@ import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from hostile import SANITIZED, interrupt_while_running, run_hostile  # noqa: E402
+from hostile import SANITIZED, interrupt_while_running, run_hostile, scene_for  # noqa: E402
 from ltbtest import check, finish, write  # noqa: E402
 
 PLY_XYZ = "element vertex {nv}\nproperty float x\nproperty float y\nproperty float z\n"
 
 
-def scene_for(d, name, mesh, extra=""):
-    """A small image-mode scene around one mesh object."""
-    return write(os.path.join(d, name + ".toml"), f"""[camera]
-eye = [0.5, -3.0, 2.0]
-target = [0.5, 0.5, 0.0]
-width = 4
-height = 4
-[sampling]
-cube_res = 1
-spp = 1
-[[object]]
-name = "m"
-type = "mesh"
-file = "{mesh}"
-{extra}""")
 
 
 def sample(d, scene, *flags):
