@@ -39,33 +39,34 @@ std::string FileKind(unsigned mode) {
 
 namespace {
 
-Status NotRegular(const std::string& path, unsigned mode) {
-  return InvalidArgument(path + ": is " + FileKind(mode) +
-                         ", not a regular file; ltbake reads and writes only regular files (give the path of a file)");
+constexpr const char* kOnlyRegular = "ltbake reads and writes only regular files (give the path of a file)";
+
+Status NotRegular(const std::string& path, unsigned mode, const std::string& wanted = kOnlyRegular) {
+  return InvalidArgument(path + ": is " + FileKind(mode) + ", not a regular file; " + wanted);
 }
 
 }  // namespace
 
-Status RequireRegularFile(const std::string& path) {
+Status RequireRegularFile(const std::string& path, const std::string& wanted) {
   struct stat st;
   if (::stat(path.c_str(), &st) != 0) {
     int err = errno;
-    Status s = IoError(path + ": cannot open", err);
-    if (err == ENOENT) return Status(StatusCode::kNotFound, s.message());
-    return s;
+    if (err == ENOENT) return NotFound(path + ": no such file" + (wanted.empty() ? "" : "; " + wanted));
+    return IoError(path + ": cannot open", err);
   }
-  if (!S_ISREG(st.st_mode)) return NotRegular(path, st.st_mode);
+  if (!S_ISREG(st.st_mode)) return NotRegular(path, st.st_mode, wanted.empty() ? kOnlyRegular : wanted);
   return Status::Ok();
 }
 
-Result<File> File::Open(const std::string& path, Mode mode) {
+Result<File> File::Open(const std::string& path, Mode mode, bool inherit) {
   // O_NONBLOCK: opening a FIFO for reading would otherwise wait for a writer (forever, and
   // deaf to signals). What the path is gets checked on the descriptor (fstat, no race with
   // a rename), then the flag is cleared: regular files ignore it anyway.
-  int flags = O_CLOEXEC | O_NONBLOCK;
+  int flags = (inherit ? 0 : O_CLOEXEC) | O_NONBLOCK;
   switch (mode) {
     case Mode::kRead: flags |= O_RDONLY; break;
     case Mode::kReadWrite: flags |= O_RDWR; break;
+    case Mode::kCreate: flags |= O_RDWR | O_CREAT; break;
     case Mode::kCreateExclusive: flags |= O_RDWR | O_CREAT | O_EXCL; break;
     case Mode::kWriteDirect: flags |= O_WRONLY | O_DIRECT; break;
   }

@@ -13,9 +13,10 @@ namespace ltb::io {
 
 class File {
  public:
-  // kWriteDirect: an existing file, write-only with O_DIRECT (writes bypass the page cache;
-  // offsets, lengths and buffers must be aligned to the device's block size).
-  enum class Mode { kRead, kReadWrite, kCreateExclusive, kWriteDirect };
+  // kCreate: read-write, created when missing (lock files). kWriteDirect: an existing file,
+  // write-only with O_DIRECT (writes bypass the page cache; offsets, lengths and buffers
+  // must be aligned to the device's block size).
+  enum class Mode { kRead, kReadWrite, kCreate, kCreateExclusive, kWriteDirect };
 
   File() = default;
   ~File();
@@ -26,7 +27,8 @@ class File {
 
   // Fails with kNotFound when the path does not exist, kInvalidArgument when it is not a
   // regular file (a FIFO is opened non-blocking to find out: no wait for a writer).
-  static Result<File> Open(const std::string& path, Mode mode);
+  // `inherit`: the descriptor stays open across exec (no O_CLOEXEC).
+  static Result<File> Open(const std::string& path, Mode mode, bool inherit = false);
 
   Result<uint64_t> Size() const;
   // Reads exactly out.size() bytes at offset (fails on a short file).
@@ -37,6 +39,12 @@ class File {
   Status Close();
 
   int fd() const { return fd_; }
+  // Gives up the descriptor (the caller closes it); the File is closed afterwards.
+  int Release() {
+    int fd = fd_;
+    fd_ = -1;
+    return fd;
+  }
   const std::string& path() const { return path_; }
 
  private:
@@ -46,10 +54,12 @@ class File {
 
 // "a directory", "a FIFO (named pipe)", "a character device", ... for a st_mode.
 std::string FileKind(unsigned mode);
-// For readers that open files through another library (std::ifstream, OpenEXR, OpenMesh):
-// Ok for a regular file (symbolic links followed); kNotFound, or kInvalidArgument naming
-// what the path is, otherwise. Never blocks.
-Status RequireRegularFile(const std::string& path);
+// For readers that open files through another library (std::ifstream, OpenEXR, Draco) or
+// that want to refuse a path before any work: Ok for a regular file (symbolic links
+// followed); kNotFound "PATH: no such file", or kInvalidArgument "PATH: is a FIFO (named
+// pipe), not a regular file", otherwise, each followed by `wanted` ("name a .exr or .hdr
+// image file") when given. Never blocks.
+Status RequireRegularFile(const std::string& path, const std::string& wanted = "");
 
 // fsync of the directory holding path, so a rename in it is durable.
 Status SyncParentDirectory(const std::string& path);

@@ -68,29 +68,21 @@ Result<FileLock> FileLock::Acquire(const std::string& lock_path, const LockOptio
   using Clock = std::chrono::steady_clock;
   const auto deadline = Clock::now() + std::chrono::duration_cast<Clock::duration>(
                                            std::chrono::duration<double>(std::max(0.0, options.wait_seconds)));
-  const int flags = O_RDWR | O_CREAT | O_NONBLOCK | (options.inherit ? 0 : O_CLOEXEC);
   for (;;) {
-    int fd;
-    do {
-      fd = ::open(lock_path.c_str(), flags, 0644);
-    } while (fd < 0 && errno == EINTR);
-    if (fd < 0) {
-      int err = errno;
-      struct stat st;
-      if (::stat(lock_path.c_str(), &st) == 0 && !S_ISREG(st.st_mode)) {
-        return InvalidArgument(lock_path + ": the lock file is " + FileKind(st.st_mode) + "; remove it");
+    // Open refuses a lock path that is not a regular file, without blocking on a FIFO.
+    auto opened = File::Open(lock_path, File::Mode::kCreate, options.inherit);
+    if (!opened.ok()) {
+      if (opened.status().code() == StatusCode::kInvalidArgument) {
+        return InvalidArgument(opened.status().message() + " (it is where a lock file goes: remove it)");
       }
-      return IoError(lock_path + ": cannot create the lock file", err);
+      return opened.status().WithContext("cannot create the lock file");
     }
+    const int fd = opened->Release();
     struct stat st;
     if (::fstat(fd, &st) != 0) {
       int err = errno;
       ::close(fd);
       return IoError(lock_path + ": fstat", err);
-    }
-    if (!S_ISREG(st.st_mode)) {
-      ::close(fd);
-      return InvalidArgument(lock_path + ": the lock file is " + FileKind(st.st_mode) + "; remove it");
     }
     {
       std::unique_lock<std::mutex> lock(g_mu);

@@ -22,7 +22,6 @@
 #include "stages/column_transform/column_codec.h"
 #include "stages/common/basis.h"
 #include "stages/common/parallel_for.h"
-#include "stages/common/regular_file.h"
 #include "stages/cpca/cpca_model.h"
 
 namespace ltb::stages {
@@ -85,7 +84,7 @@ struct NpyInput {
 
 Result<NpyInput> OpenNpy(const std::string& path) {
   NpyInput in;
-  LTB_RETURN_IF_ERROR(CheckRegularFile(path, "convert reads a .npy or .ltm file"));
+  LTB_RETURN_IF_ERROR(io::RequireRegularFile(path, "convert reads a .npy or .ltm file"));
   LTB_ASSIGN_OR_RETURN(in.file, File::Open(path, File::Mode::kRead));
   LTB_ASSIGN_OR_RETURN(uint64_t size, in.file.Size());
   std::vector<std::byte> head(std::min<uint64_t>(size, kMaxNpyHeaderBytes + 12));

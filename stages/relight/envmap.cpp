@@ -24,7 +24,6 @@
 #include "format/io/file.h"
 #include "format/npy.h"
 #include "stages/common/cubemap.h"
-#include "stages/common/regular_file.h"
 
 namespace ltb::stages {
 
@@ -518,7 +517,7 @@ Status CheckExrHeaderSizes(const std::string& path, io::File& f, uint64_t size) 
 }
 
 Result<Image> ReadImage(const std::string& path, const EnvLoadOptions& o) {
-  LTB_RETURN_IF_ERROR(CheckRegularFile(path, "name a .exr or .hdr image file"));
+  LTB_RETURN_IF_ERROR(io::RequireRegularFile(path, "name a .exr or .hdr image file"));
   {
     LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(path, io::File::Mode::kRead));
     LTB_ASSIGN_OR_RETURN(uint64_t size, f.Size());

@@ -13,7 +13,6 @@
 #include "stages/column_transform/column_codec.h"
 #include "stages/common/basis.h"
 #include "stages/common/parallel_for.h"
-#include "stages/common/regular_file.h"
 
 namespace ltb::stages {
 
@@ -317,7 +316,7 @@ Result<std::vector<float>> RelightStreaming(const std::string& path, const float
 }
 
 Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t r) {
-  LTB_RETURN_IF_ERROR(CheckRegularFile(path, "name a 6R² × 3 cubemap .npy file"));
+  LTB_RETURN_IF_ERROR(io::RequireRegularFile(path, "name a 6R² × 3 cubemap .npy file"));
   LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(path, io::File::Mode::kRead));
   LTB_ASSIGN_OR_RETURN(uint64_t size, f.Size());
   std::vector<std::byte> head(std::min<uint64_t>(size, kMaxNpyHeaderBytes + 12));
