@@ -12,7 +12,7 @@ PACKAGES=(
   libdraco-dev draco               # Draco meshes (.drc) and draco_encoder/decoder tools
   libopenmesh-dev                  # independent reader the mesh reader tests compare with
   libglm-dev                       # vector math
-  libtbb-dev                       # threads
+  libtbb-dev                       # Embree's tasking system (its CMake config needs it)
   libeigen3-dev                    # CPCA linear algebra
   libzstd-dev                      # zstd chunk encoding in .ltm
   libxxhash-dev                    # chunk checksums and content_hash

@@ -95,7 +95,7 @@ Status CreateFile(const std::string& path, const std::string& metadata_bytes) {
 }
 
 // Names the first top-level metadata key whose value differs.
-std::string FirstDifference(const nlohmann::json& file, const nlohmann::json& wanted) {
+std::string FirstKeyDifference(const nlohmann::json& file, const nlohmann::json& wanted) {
   for (auto it = wanted.begin(); it != wanted.end(); ++it) {
     if (!file.contains(it.key())) return "key \"" + it.key() + "\" is not in the file";
     if (file[it.key()] != it.value()) {
@@ -142,7 +142,7 @@ Result<ContainerWriter> ContainerWriter::Open(const std::string& path, const nlo
     } else if (prelude->metadata_bytes != bytes) {
       if (!options.overwrite_mismatch) {
         return FailedPrecondition(path + ": exists and was written with other parameters (" +
-                                  FirstDifference(prelude->metadata.json, metadata) +
+                                  FirstKeyDifference(prelude->metadata.json, metadata) +
                                   "); remove it, or rerun with --overwrite to replace it");
       }
     } else {

@@ -28,7 +28,7 @@ std::string ShardName(uint64_t index, uint64_t count, const std::string& path) {
 }
 
 // The first place two metadata objects differ, as "key.path: A here, B there".
-std::string FirstDifference(const nlohmann::json& a, const nlohmann::json& b, const std::string& at = "") {
+std::string FirstJsonDifference(const nlohmann::json& a, const nlohmann::json& b, const std::string& at = "") {
   if (a.is_object() && b.is_object()) {
     std::set<std::string> keys;
     for (auto it = a.begin(); it != a.end(); ++it) keys.insert(it.key());
@@ -37,13 +37,13 @@ std::string FirstDifference(const nlohmann::json& a, const nlohmann::json& b, co
       const std::string path = at.empty() ? k : at + "." + k;
       if (!a.contains(k)) return path + ": absent here, " + b[k].dump() + " expected";
       if (!b.contains(k)) return path + ": " + a[k].dump() + " here, absent in the others";
-      if (a[k] != b[k]) return FirstDifference(a[k], b[k], path);
+      if (a[k] != b[k]) return FirstJsonDifference(a[k], b[k], path);
     }
     return "";
   }
   if (a.is_array() && b.is_array() && a.size() == b.size()) {
     for (size_t i = 0; i < a.size(); ++i)
-      if (a[i] != b[i]) return FirstDifference(a[i], b[i], at + "[" + std::to_string(i) + "]");
+      if (a[i] != b[i]) return FirstJsonDifference(a[i], b[i], at + "[" + std::to_string(i) + "]");
     return "";
   }
   std::string va = a.dump(), vb = b.dump();
@@ -243,7 +243,7 @@ Status ContainerReader::LoadManifest() {
                               " of the stage and commit again (`ltbake run` does both, only for shards it needs)";
     if (!PathExists(full)) return NotFound(mpath + ": " + name + " is missing" + rerun);
     LTB_ASSIGN_OR_RETURN(ContainerReader r, OpenShard(mpath, rec.index, info.count, full));
-    const std::string diff = FirstDifference(WithoutShard(r.metadata().json), metadata_.json);
+    const std::string diff = FirstJsonDifference(WithoutShard(r.metadata().json), metadata_.json);
     if (!diff.empty()) {
       return FailedPrecondition(mpath + ": " + name + " was written with other parameters than the manifest (" +
                                 diff + ")" + rerun);
@@ -327,7 +327,7 @@ Result<CommitResult> CommitShards(const std::string& output, uint64_t count, con
     if (i == 0) {
       whole = meta;
       next.assign(r.metadata().arrays.size(), 0);
-    } else if (std::string diff = FirstDifference(meta, whole); !diff.empty()) {
+    } else if (std::string diff = FirstJsonDifference(meta, whole); !diff.empty()) {
       return FailedPrecondition(output + ": " + name + " was written with other parameters than shard 0 (" + diff +
                                 "); rerun the shards whose parameters are out of date");
     }

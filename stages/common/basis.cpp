@@ -21,8 +21,6 @@ nlohmann::json WaveletCubemapCols(uint64_t r, const std::string& filter) {
 nlohmann::json ImageRows(uint64_t w, uint64_t h) { return {{"kind", "image"}, {"width", w}, {"height", h}}; }
 nlohmann::json GenericAxis() { return {{"kind", "generic"}}; }
 
-bool IsPowerOfTwo(uint64_t v) { return v != 0 && (v & (v - 1)) == 0; }
-
 Result<std::optional<CubemapCols>> ReadCubemapCols(const format::Metadata& meta) {
   const auto& j = meta.json;
   if (!j.contains("basis") || !j["basis"].is_object() || !j["basis"].contains("cols")) return std::optional<CubemapCols>{};

@@ -8,6 +8,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "format/bits.h"
 #include "format/array_spec.h"
 #include "format/io/container_reader.h"
 #include "format/status.h"
@@ -36,8 +37,6 @@ struct ImageSize {
 };
 // The image the rows are the pixels of, when they are.
 std::optional<ImageSize> ReadImageRows(const format::Metadata& meta);
-
-bool IsPowerOfTwo(uint64_t v);
 
 // A stage's input: its matrix must be f32 and every chunk of every array committed.
 Status RequireCompleteF32Matrix(const io::ContainerReader& in);

@@ -65,6 +65,9 @@ struct Image {
   std::string compression;
 };
 
+// The densest Radiance .hdr accepted: pixels per byte of pixel data (ReadHdr).
+constexpr uint64_t kMaxHdrPixelsPerByte = 256;
+
 // Rows decoded between two polls of the cancel hook.
 constexpr uint64_t kRowsPerPoll = 64;
 
@@ -211,6 +214,17 @@ Result<Image> ReadHdr(const std::string& path, const std::vector<uint8_t>& buf, 
     return DataLoss(path + ": Radiance .hdr declares " + std::to_string(h) + " scanlines (resolution line \"" + shown +
                     "\") but holds " + std::to_string(data_bytes) +
                     " bytes of pixel data, less than 4 per scanline (truncated, or the size is damaged)");
+  }
+  // Radiance's run-length encoding packs at most 127 values of one channel into 2 bytes, so
+  // even a constant map holds about 16 pixels per byte of pixel data. The old-style repeat
+  // records can in principle go further (a 4-byte record repeating 2^24 pixels), which lets
+  // a few hundred bytes declare gigabytes of pixels: a size beyond kMaxHdrPixelsPerByte is
+  // refused before anything of that size is allocated (fuzzer finding, hdr_fuzzer run 5).
+  if (pixels / kMaxHdrPixelsPerByte > data_bytes) {
+    return DataLoss(path + ": Radiance .hdr declares " + Size(w, h) + " = " + std::to_string(pixels) +
+                    " pixels (resolution line \"" + shown + "\") in " + std::to_string(data_bytes) +
+                    " bytes of pixel data, more than " + std::to_string(kMaxHdrPixelsPerByte) +
+                    " pixels per byte: the size is damaged (if the map is real, save it again, or as .exr)");
   }
   LTB_RETURN_IF_ERROR(CheckMemory(pixels, size + w * 4, o.max_bytes, path, "the Radiance .hdr image " + Size(w, h)));
   const bool flip_y = ys == "+Y", flip_x = xs == "-X";

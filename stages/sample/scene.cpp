@@ -21,12 +21,6 @@ using tomlf::GetString;
 using tomlf::GetUnsigned;
 using tomlf::Where;
 
-std::string Fmt(const glm::dvec3& v) {
-  char b[96];
-  std::snprintf(b, sizeof b, "[%.9g, %.9g, %.9g]", v.x, v.y, v.z);
-  return b;
-}
-
 // The camera must give Embree a well-defined frame: a view direction (eye != target), a
 // non-zero up that is not parallel to it, all of it finite once formed.
 Status CheckCamera(const std::string& path, const toml::table& cam, const Camera& c) {
@@ -39,27 +33,27 @@ Status CheckCamera(const std::string& path, const toml::table& cam, const Camera
   if (!(len > 0) || !std::isfinite(len)) {
     const char* key = cam.contains("target") ? "target" : "eye";
     if (len == 0) {
-      return InvalidArgument(where(key) + "eye " + Fmt(c.eye) + " equals target " + Fmt(c.target) +
+      return InvalidArgument(where(key) + "eye " + FormatVec3(c.eye) + " equals target " + FormatVec3(c.target) +
                              ": the camera has no view direction; move the eye or the target");
     }
-    return InvalidArgument(where(key) + "eye " + Fmt(c.eye) + " and target " + Fmt(c.target) +
+    return InvalidArgument(where(key) + "eye " + FormatVec3(c.eye) + " and target " + FormatVec3(c.target) +
                            " are too far apart to form a view direction");
   }
   const double up = glm::length(c.up);
   if (!(up > 0) || !std::isfinite(up)) {
-    return InvalidArgument(where("up") + "up is " + Fmt(c.up) + "; it must be a non-zero vector, not parallel to the "
+    return InvalidArgument(where("up") + "up is " + FormatVec3(c.up) + "; it must be a non-zero vector, not parallel to the "
                            "view direction (e.g. [0, 0, 1])");
   }
   const glm::dvec3 f = d / len;
   const double s = glm::length(glm::cross(f, c.up / up));  // sine of the angle between them
   if (!(s > 1e-6)) {
-    return InvalidArgument(where("up") + "up " + Fmt(c.up) + " is parallel to the view direction " + Fmt(f) +
+    return InvalidArgument(where("up") + "up " + FormatVec3(c.up) + " is parallel to the view direction " + FormatVec3(f) +
                            " (from eye to target); choose an up that is not");
   }
   for (const auto& [key, v] : {std::pair{"eye", c.eye}, std::pair{"target", c.target}}) {
     for (int i = 0; i < 3; ++i) {
       if (!std::isfinite(static_cast<float>(v[i]))) {
-        return InvalidArgument(where(key) + key + " " + Fmt(v) +
+        return InvalidArgument(where(key) + key + " " + FormatVec3(v) +
                                " is outside what single-precision ray tracing holds; use smaller coordinates");
       }
     }
@@ -97,6 +91,13 @@ Result<glm::dvec3> GetVec3(const std::string& path, const toml::table& t, const 
 }
 
 }  // namespace
+
+std::string FormatVec3(const glm::dvec3& v) {
+  char b[96];
+  std::snprintf(b, sizeof b, "[%.9g, %.9g, %.9g]", v.x, v.y, v.z);
+  return b;
+}
+
 
 Result<SceneDesc> ParseScene(const std::string& path) {
   LTB_ASSIGN_OR_RETURN(toml::table root, tomlf::ParseFile(path, "scene file"));

@@ -62,4 +62,7 @@ struct SceneDesc {
 // path that is a directory or not a regular file is refused as such.
 Result<SceneDesc> ParseScene(const std::string& path);
 
+// "[x, y, z]" with 9 significant digits, for messages.
+std::string FormatVec3(const glm::dvec3& v);
+
 }  // namespace ltb::sample

@@ -37,12 +37,6 @@ namespace {
 
 bool FloatFinite(double x) { return std::isfinite(static_cast<float>(x)); }
 
-std::string Fmt(const glm::dvec3& v) {
-  char b[96];
-  std::snprintf(b, sizeof b, "[%.9g, %.9g, %.9g]", v.x, v.y, v.z);
-  return b;
-}
-
 }  // namespace
 
 Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
@@ -64,7 +58,7 @@ Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
       double r = o.radius * sc.x;
       if (!FloatFinite(c.x) || !FloatFinite(c.y) || !FloatFinite(c.z) || !FloatFinite(r) || !(r > 0)) {
         XXH3_freeState(st);
-        return InvalidArgument(where + ": after its transform the sphere has centre " + Fmt(c) + " and radius " +
+        return InvalidArgument(where + ": after its transform the sphere has centre " + FormatVec3(c) + " and radius " +
                                std::to_string(r) + ", outside what single-precision ray tracing holds; reduce "
                                "\"scale\", \"translate\", \"center\" or \"radius\"");
       }
@@ -92,7 +86,7 @@ Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
         const glm::dvec3& p = mesh.positions[i];
         if (!FloatFinite(p.x) || !FloatFinite(p.y) || !FloatFinite(p.z)) {
           XXH3_freeState(st);
-          return InvalidArgument(where + ": vertex " + std::to_string(i) + " is " + Fmt(p) +
+          return InvalidArgument(where + ": vertex " + std::to_string(i) + " is " + FormatVec3(p) +
                                  " after the object's transform, outside what single-precision ray tracing holds; "
                                  "reduce \"scale\" or \"translate\"");
         }

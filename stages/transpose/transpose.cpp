@@ -187,6 +187,17 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
     if (in.Find(0, i)->header.encoding != static_cast<uint16_t>(Encoding::kZero)) in_chunks.push_back(i);
   }
 
+  const uint64_t panel_floats = result.panel_cols * rows;
+  // Page-aligned, so direct writes take each column chunk from the panel without a copy.
+  // Allocated before the checksum thread starts: a failure returns with no thread to join.
+  AlignedFloats buffers[2];
+  for (int b = 0; b < (panels.size() > 1 ? 2 : 1); ++b) {
+    if (!buffers[b].resize(panel_floats)) {
+      return InvalidArgument("cannot allocate a panel buffer of " + std::to_string(panel_floats * 4) +
+                               " bytes; lower --mem-limit");
+    }
+  }
+
   // The checksum pass runs beside the panels (it reads the input sequentially while they
   // read column ranges; both share the page cache). Panel filling stops if it fails, and
   // the output, possibly built from damaged input, is removed.
@@ -206,15 +217,6 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
       });
       if (!verify_status.ok()) verify_failed = true;
     });
-  }
-  const uint64_t panel_floats = result.panel_cols * rows;
-  // Page-aligned, so direct writes take each column chunk from the panel without a copy.
-  AlignedFloats buffers[2];
-  for (int b = 0; b < (panels.size() > 1 ? 2 : 1); ++b) {
-    if (!buffers[b].resize(panel_floats)) {
-      return InvalidArgument("cannot allocate a panel buffer of " + std::to_string(panel_floats * 4) +
-                               " bytes; lower --mem-limit");
-    }
   }
 
   PanelQueue queue;

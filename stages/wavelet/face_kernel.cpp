@@ -2,6 +2,8 @@
 
 #include <cstring>
 
+#include "format/bits.h"
+
 #if defined(__AVX2__)
 #include <immintrin.h>
 #endif
@@ -403,8 +405,6 @@ void FacesFor(std::span<const double> taps, size_t r, size_t count, const float*
     default: return FacesT<F, 0>(k, r, count, src, dst, scratch);
   }
 }
-
-bool IsPowerOfTwo(size_t v) { return v != 0 && (v & (v - 1)) == 0; }
 
 }  // namespace
 

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cstring>
 
+#include "format/bits.h"
+
 namespace ltb::wavelet {
 namespace {
 
@@ -211,8 +213,6 @@ void BiorthSynthesis(Filter f, T* data, size_t n, size_t stride, size_t lanes, T
   }
   Unpack(scratch, n, stride, lanes, data);
 }
-
-bool IsPowerOfTwo(size_t v) { return v != 0 && (v & (v - 1)) == 0; }
 
 }  // namespace
 

@@ -80,6 +80,18 @@ def main():
         env_case(d, "chlist-desync-scanline.exr",
                  bytes.fromhex("762f310102000000730063686c6973740000000000000f000000000064"),
                  "EXR chlist of size 0 (OpenEXR scanline tables of ~1.5 GB)")
+        # hdr_fuzzer, run 5 (2026-11-25 18:20): 498 bytes declaring 6432767 x 32 pixels,
+        # whose scanlines are flat pixels followed by old-style repeat records (1 1 1 n, each
+        # one shifting the count 8 bits further), so a 16-byte scanline is 6.4M valid pixels:
+        # the reader allocated 2.47 GB (and the CLI, within its 1 GiB --mem-limit, decoded
+        # 617 MB from 173 bytes for 8 such rows). Written here as that: 8 rows of one pixel
+        # and three repeat records.
+        w, rows = 6432767, 8
+        rest = w - 1
+        scan = bytes([128, 64, 32, 129]) + b"".join(bytes([1, 1, 1, (rest >> sh) & 0xFF]) for sh in (0, 8, 16))
+        env_case(d, "repeat-bomb.hdr",
+                 b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n" + f"-Y {rows} +X {w}\n".encode() + scan * rows,
+                 "HDR of 8 x 6.4M pixels in 128 bytes of old-style repeats (decompression bomb)")
     finish()
 
 
