@@ -24,17 +24,13 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double Ms(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
 
-bool EndsWith(const std::string& s, const std::string& suffix) {
-  return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
-}
-
 // The lighting: a resampled environment map (rotatable) or a ready cubemap from .npy.
 class Environment {
  public:
   static Result<Environment> Open(const std::string& path, uint64_t cube_res, const stages::EnvLoadOptions& o) {
     Environment e;
     e.cube_res_ = cube_res;
-    if (EndsWith(path, ".npy")) {
+    if (path.ends_with(".npy")) {
       LTB_ASSIGN_OR_RETURN(std::vector<float> m, stages::ReadCubemapNpy(path, cube_res));
       e.fixed_ = std::move(m);
       return e;

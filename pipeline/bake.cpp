@@ -19,6 +19,7 @@
 #include <thread>
 
 #include "format/io/array_summary.h"
+#include "format/io/atomic_file.h"
 #include "format/io/container_reader.h"
 #include "format/io/file.h"
 #include "format/io/file_lock.h"
@@ -428,26 +429,7 @@ Decision Decide(const Node& n, const json* record, const json& inputs, const Out
 }
 
 Status WriteJsonAtomically(const std::string& path, const json& j) {
-  std::string tmp = path + ".tmp";
-  {
-    auto f = io::File::Open(tmp, io::File::Mode::kCreateExclusive);
-    if (!f.ok()) {
-      std::error_code ec;
-      fs::remove(tmp, ec);
-      f = io::File::Open(tmp, io::File::Mode::kCreateExclusive);
-    }
-    if (!f.ok()) return f.status();
-    std::string text = j.dump(2) + "\n";
-    Status s = f->WriteAt(0, format::ByteSpan(reinterpret_cast<const std::byte*>(text.data()), text.size()));
-    if (s.ok()) s = f->DataSync();
-    if (!s.ok()) {
-      std::error_code ec;
-      fs::remove(tmp, ec);
-      return s;
-    }
-  }
-  if (::rename(tmp.c_str(), path.c_str()) != 0) return IoError("rename " + tmp + " -> " + path, errno);
-  return io::SyncParentDirectory(path);
+  return io::WriteFileAtomically(path, j.dump(2) + "\n");
 }
 
 Status WriteTextIfChanged(const std::string& path, const std::string& text) {
@@ -456,15 +438,7 @@ Status WriteTextIfChanged(const std::string& path, const std::string& text) {
     std::string old((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
     if (old == text) return Status::Ok();
   }
-  std::string tmp = path + ".tmp";
-  {
-    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-    out << text;
-    out.flush();
-    if (!out) return IoError(tmp + ": cannot write", errno);
-  }
-  if (::rename(tmp.c_str(), path.c_str()) != 0) return IoError("rename " + tmp + " -> " + path, errno);
-  return Status::Ok();
+  return io::WriteFileAtomically(path, text);
 }
 
 // Holds the work directory for one bake at a time (io::FileLock, the same lock as a stage

@@ -8,6 +8,7 @@
 #include <cstring>
 #include <tuple>
 
+#include "format/io/atomic_file.h"
 #include "format/io/container_reader.h"
 #include "format/io/frame_scan.h"
 #include "format/version.h"
@@ -76,22 +77,11 @@ Status CreateFile(const std::string& path, const std::string& metadata_bytes) {
   h.metadata_length = mb.size();
   h.metadata_checksum = Checksum(mb);
   auto hb = EncodeFileHeader(h);
-  std::string tmp = path + ".creating-" + std::to_string(::getpid());
-  std::remove(tmp.c_str());
-  {
-    LTB_ASSIGN_OR_RETURN(File f, File::Open(tmp, File::Mode::kCreateExclusive));
-    LTB_RETURN_IF_ERROR(f.WriteAt(0, hb));
-    LTB_RETURN_IF_ERROR(f.WriteAt(kHeaderSize, mb));
-    LTB_RETURN_IF_ERROR(f.Truncate(h.FirstFrameOffset()));  // zero padding up to the first frame
-    LTB_RETURN_IF_ERROR(f.DataSync());
-    LTB_RETURN_IF_ERROR(f.Close());
-  }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-    Status s = IoError(path + ": rename from " + tmp, errno);
-    std::remove(tmp.c_str());
-    return s;
-  }
-  return SyncParentDirectory(path);
+  LTB_ASSIGN_OR_RETURN(AtomicFile f, AtomicFile::Create(path));
+  LTB_RETURN_IF_ERROR(f.file().WriteAt(0, hb));
+  LTB_RETURN_IF_ERROR(f.file().WriteAt(kHeaderSize, mb));
+  LTB_RETURN_IF_ERROR(f.file().Truncate(h.FirstFrameOffset()));  // zero padding up to the first frame
+  return f.Commit();
 }
 
 // Names the first top-level metadata key whose value differs.

@@ -11,6 +11,7 @@
 
 #include "format/content_hash.h"
 #include "format/io/array_summary.h"
+#include "format/io/atomic_file.h"
 #include "format/io/container_writer.h"
 #include "format/io/file.h"
 #include "format/io/file_lock.h"
@@ -104,21 +105,6 @@ Result<ContainerReader> OpenShard(const std::string& owner, uint64_t index, uint
                               std::to_string(want) + " chunks" + (r->sealed() ? "" : ", not sealed") + ")" + rerun);
   }
   return r;
-}
-
-Status WriteFileAtomically(const std::string& path, const std::string& text) {
-  const std::string tmp = path + ".tmp-" + std::to_string(::getpid());
-  std::remove(tmp.c_str());
-  LTB_ASSIGN_OR_RETURN(File f, File::Open(tmp, File::Mode::kCreateExclusive));
-  Status s = f.WriteAt(0, ByteSpan(reinterpret_cast<const std::byte*>(text.data()), text.size()));
-  if (s.ok()) s = f.DataSync();
-  if (s.ok()) s = f.Close();
-  if (s.ok() && std::rename(tmp.c_str(), path.c_str()) != 0) s = IoError(path + ": rename from " + tmp, errno);
-  if (!s.ok()) {
-    std::remove(tmp.c_str());
-    return s;
-  }
-  return SyncParentDirectory(path);
 }
 
 }  // namespace

@@ -12,6 +12,7 @@
 #include <thread>
 #include <vector>
 
+#include "format/io/atomic_file.h"
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
 #include "format/io/file.h"
@@ -30,16 +31,6 @@ using namespace ltb::format;
 using io::File;
 
 namespace {
-
-// Ends writing `tmp` (already failed when `s` is not ok): sync, close and rename it to
-// `path`, or remove it, so `path` is never a half-written file.
-Status PublishTemp(io::File* out, const std::string& tmp, const std::string& path, Status s) {
-  if (s.ok()) s = out->DataSync();
-  if (s.ok()) s = out->Close();
-  if (s.ok() && std::rename(tmp.c_str(), path.c_str()) != 0) s = IoError(path + ": rename from " + tmp, errno);
-  if (!s.ok()) std::remove(tmp.c_str());
-  return s;
-}
 
 // --basis pixels: inverts the row transform of decoded rows (a no-op without the flag).
 struct RowInverse {
@@ -71,10 +62,6 @@ struct RowInverse {
                            scratch.data());
   }
 };
-
-bool EndsWith(const std::string& s, const std::string& suffix) {
-  return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
-}
 
 struct NpyInput {
   File file;
@@ -277,9 +264,9 @@ Result<ConvertResult> CpcaToNpy(const ConvertOptions& o, const io::ContainerRead
   result.chunks_total = model.row_chunks();
   std::vector<std::byte> header = EncodeNpyHeader("<f4", {rows, cols});
   const uint64_t data_offset = header.size(), total = data_offset + rows * cols * 4;
-  std::string tmp = o.output + ".partial";
-  std::remove(tmp.c_str());
-  LTB_ASSIGN_OR_RETURN(File out, File::Open(tmp, File::Mode::kCreateExclusive));
+  // Written beside the output and renamed at the end: OUT never holds a partial matrix.
+  LTB_ASSIGN_OR_RETURN(io::AtomicFile atomic, io::AtomicFile::Create(o.output));
+  const File& out = atomic.file();
   Status s = out.WriteAt(0, header);
   if (s.ok()) s = out.Truncate(total);
   std::vector<uint64_t> chunks(model.row_chunks());
@@ -293,7 +280,8 @@ Result<ConvertResult> CpcaToNpy(const ConvertOptions& o, const io::ContainerRead
       return out.WriteAt(data_offset + e.row0 * cols * 4, BytesOf(v));
     });
   }
-  LTB_RETURN_IF_ERROR(PublishTemp(&out, tmp, o.output, s));
+  LTB_RETURN_IF_ERROR(s);
+  LTB_RETURN_IF_ERROR(atomic.Commit());
   result.chunks_written = chunks.size();
   result.bytes_out = total;
   return result;
@@ -327,10 +315,9 @@ Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress
   std::vector<std::byte> header = EncodeNpyHeader("<f4", {a.rows, a.cols});
   uint64_t data_offset = header.size();
   uint64_t total = data_offset + a.rows * a.cols * 4;
-  // Write beside the output and rename at the end: OUT never holds a partial matrix.
-  std::string tmp = o.output + ".partial";
-  std::remove(tmp.c_str());
-  LTB_ASSIGN_OR_RETURN(File out, File::Open(tmp, File::Mode::kCreateExclusive));
+  // Written beside the output and renamed at the end: OUT never holds a partial matrix.
+  LTB_ASSIGN_OR_RETURN(io::AtomicFile atomic, io::AtomicFile::Create(o.output));
+  const File& out = atomic.file();
   LTB_RETURN_IF_ERROR(out.WriteAt(0, header));
   LTB_RETURN_IF_ERROR(out.Truncate(total));  // zero chunks need no write
 
@@ -387,7 +374,8 @@ Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress
       if (s.ok() && progress.Cancelled()) s = Cancelled("interrupted; no output written");
     }
   }
-  LTB_RETURN_IF_ERROR(PublishTemp(&out, tmp, o.output, s));
+  LTB_RETURN_IF_ERROR(s);
+  LTB_RETURN_IF_ERROR(atomic.Commit());
   result.chunks_written = a.ChunkCount();
   result.bytes_out = total;
   return result;
@@ -396,8 +384,8 @@ Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress
 }  // namespace
 
 Result<ConvertResult> RunConvert(const ConvertOptions& o, const Progress& progress) {
-  const bool to_ltm = EndsWith(o.input, ".npy") && EndsWith(o.output, ".ltm");
-  const bool to_npy = EndsWith(o.input, ".ltm") && EndsWith(o.output, ".npy");
+  const bool to_ltm = o.input.ends_with(".npy") && o.output.ends_with(".ltm");
+  const bool to_npy = o.input.ends_with(".ltm") && o.output.ends_with(".npy");
   if (to_ltm || to_npy) {
     // Held for the whole conversion (the container writer shares it): a second convert into
     // the same output stops here, before it removes or opens anything.

@@ -4,6 +4,7 @@
 #include <cstring>
 
 #include "format/bytes.h"
+#include "format/io/atomic_file.h"
 #include "format/io/file.h"
 
 namespace ltb::stages {
@@ -26,14 +27,7 @@ Status WriteCpcaCheckpoint(const std::string& path, const CpcaCheckpoint& cp) {
   if (!cp.values.empty()) std::memcpy(p + 8, cp.values.data(), cp.values.size() * 8);
   p += 8 + cp.values.size() * 8;
   StoreU64(p, Checksum(ByteSpan(buf.data(), p - buf.data())));
-  const std::string tmp = path + ".tmp";
-  std::remove(tmp.c_str());
-  LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(tmp, io::File::Mode::kCreateExclusive));
-  LTB_RETURN_IF_ERROR(f.WriteAt(0, buf));
-  LTB_RETURN_IF_ERROR(f.DataSync());
-  LTB_RETURN_IF_ERROR(f.Close());
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) return IoError(path + ": rename from " + tmp, errno);
-  return io::SyncParentDirectory(path);
+  return io::WriteFileAtomically(path, buf);
 }
 
 Result<std::optional<CpcaCheckpoint>> ReadCpcaCheckpoint(const std::string& path, uint64_t max_values) {

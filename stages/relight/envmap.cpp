@@ -21,6 +21,7 @@
 #include <OpenEXR/ImfRgbaFile.h>
 #include <glm/geometric.hpp>
 
+#include "format/io/atomic_file.h"
 #include "format/io/file.h"
 #include "format/npy.h"
 #include "stages/common/cubemap.h"
@@ -1165,22 +1166,11 @@ Status ConvertEnvToNpy(const std::string& in, const std::string& out, uint64_t c
   rs.Resample(0.0, cube.data());
   std::vector<std::byte> header = format::EncodeNpyHeader("<f4", {texels, 3});
   // Written beside the output and renamed: OUT never holds a partial cubemap.
-  const std::string tmp = out + ".partial";
-  std::remove(tmp.c_str());
-  Status s;
-  {
-    LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(tmp, io::File::Mode::kCreateExclusive));
-    s = f.WriteAt(0, header);
-    if (s.ok()) {
-      s = f.WriteAt(header.size(),
-                    format::ByteSpan(reinterpret_cast<const std::byte*>(cube.data()), cube.size() * sizeof(float)));
-    }
-    if (s.ok()) s = f.DataSync();
-    if (s.ok()) s = f.Close();
-  }
-  if (s.ok() && std::rename(tmp.c_str(), out.c_str()) != 0) s = IoError(out + ": rename from " + tmp, errno);
-  if (!s.ok()) std::remove(tmp.c_str());
-  return s;
+  LTB_ASSIGN_OR_RETURN(io::AtomicFile f, io::AtomicFile::Create(out));
+  LTB_RETURN_IF_ERROR(f.file().WriteAt(0, header));
+  LTB_RETURN_IF_ERROR(f.file().WriteAt(
+      header.size(), format::ByteSpan(reinterpret_cast<const std::byte*>(cube.data()), cube.size() * sizeof(float))));
+  return f.Commit();
 }
 
 }  // namespace ltb::stages

@@ -11,6 +11,7 @@
 #include <cstdio>
 #include <vector>
 
+#include "format/io/atomic_file.h"
 #include "format/io/file.h"
 #include "format/io/file_lock.h"
 #include "format/npy.h"
@@ -18,19 +19,6 @@
 namespace ltb::stages {
 
 namespace {
-
-bool EndsWith(const std::string& s, const std::string& suffix) {
-  return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
-}
-
-Status Publish(const std::string& tmp, const std::string& path) {
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-    Status s = IoError(path + ": rename from " + tmp, errno);
-    std::remove(tmp.c_str());
-    return s;
-  }
-  return Status::Ok();
-}
 
 Status WriteExr(const std::string& tmp, const float* rgb, uint64_t w, uint64_t h) {
   try {
@@ -47,7 +35,6 @@ Status WriteExr(const std::string& tmp, const float* rgb, uint64_t w, uint64_t h
     file.setFrameBuffer(fb);
     file.writePixels(static_cast<int>(h));
   } catch (const std::exception& e) {
-    std::remove(tmp.c_str());
     return InvalidArgument(tmp + ": OpenEXR: " + e.what());
   }
   return Status::Ok();
@@ -72,26 +59,22 @@ Status WritePng(const std::string& tmp, const float* rgb, uint64_t w, uint64_t h
     px[i] = static_cast<uint8_t>(std::lround(255.0 * SrgbEncode(exposure * rgb[i])));
   }
   if (stbi_write_png(tmp.c_str(), static_cast<int>(w), static_cast<int>(h), 3, px.data(), static_cast<int>(w * 3)) == 0) {
-    std::remove(tmp.c_str());
     return IoError(tmp + ": writing the PNG failed", errno);
   }
   return Status::Ok();
 }
 
-Status WriteNpy(const std::string& tmp, const float* rgb, uint64_t rows) {
+Status WriteNpy(const io::File& f, const float* rgb, uint64_t rows) {
   std::vector<std::byte> header = format::EncodeNpyHeader("<f4", {rows, 3});
-  LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(tmp, io::File::Mode::kCreateExclusive));
   LTB_RETURN_IF_ERROR(f.WriteAt(0, header));
-  LTB_RETURN_IF_ERROR(f.WriteAt(header.size(), format::ByteSpan(reinterpret_cast<const std::byte*>(rgb), rows * 12)));
-  LTB_RETURN_IF_ERROR(f.DataSync());
-  return f.Close();
+  return f.WriteAt(header.size(), format::ByteSpan(reinterpret_cast<const std::byte*>(rgb), rows * 12));
 }
 
 }  // namespace
 
 Status WriteImage(const std::string& path, const float* rgb, uint64_t rows, uint64_t width, uint64_t height,
                   const ImageWriteOptions& options) {
-  const bool exr = EndsWith(path, ".exr"), png = EndsWith(path, ".png"), npy = EndsWith(path, ".npy");
+  const bool exr = path.ends_with(".exr"), png = path.ends_with(".png"), npy = path.ends_with(".npy");
   if (!exr && !png && !npy) return InvalidArgument(path + ": the output is chosen by extension: .exr, .png or .npy");
   if ((exr || png) && (width * height != rows || width == 0)) {
     return InvalidArgument(path + ": the matrix rows are not an image (" + std::to_string(rows) +
@@ -100,15 +83,13 @@ Status WriteImage(const std::string& path, const float* rgb, uint64_t rows, uint
   // One writer per output: a second relight into the same path would remove this one's
   // partial file under it.
   LTB_ASSIGN_OR_RETURN(io::FileLock lock, io::LockOutput(path));
-  std::string tmp = path + ".partial" + (exr ? ".exr" : png ? ".png" : ".npy");
-  std::remove(tmp.c_str());
-  Status s = exr ? WriteExr(tmp, rgb, width, height)
-                 : png ? WritePng(tmp, rgb, width, height, options.exposure) : WriteNpy(tmp, rgb, rows);
-  if (!s.ok()) {
-    std::remove(tmp.c_str());
-    return s;
-  }
-  return Publish(tmp, path);
+  // The EXR and PNG writers open the temporary path themselves (the same file: Commit
+  // syncs its data through the AtomicFile's descriptor).
+  LTB_ASSIGN_OR_RETURN(io::AtomicFile f, io::AtomicFile::Create(path));
+  const std::string& tmp = f.temp_path();
+  LTB_RETURN_IF_ERROR(exr ? WriteExr(tmp, rgb, width, height)
+                          : png ? WritePng(tmp, rgb, width, height, options.exposure) : WriteNpy(f.file(), rgb, rows));
+  return f.Commit();
 }
 
 }  // namespace ltb::stages

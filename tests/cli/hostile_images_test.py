@@ -178,10 +178,11 @@ with tempfile.TemporaryDirectory() as d:
     convert_env(f, [f, "scanline 0", "repeat record"], what="hdr flat repeat without a pixel")
     f = hdr(p("flat_rep_over.hdr"), "-Y 2 +X 4", bytes([5, 5, 5, 128, 1, 1, 1, 200]) * 2)
     convert_env(f, [f, "scanline 0", "repeat of 200 overflows"], what="hdr flat repeat past the width")
-    # Legitimately tiny, legitimately huge: 8192 flat scanlines of 16384 equal pixels in 16 bytes
-    # each (128 KiB) decode to 1.5 GiB: refused by --mem-limit (default 1 GiB) before allocating.
+    # Tiny and huge: 8192 flat scanlines of 16384 equal pixels in 16 bytes each (128 KiB,
+    # 1024 pixels per byte) would decode to 1.5 GiB: refused before allocating, as denser
+    # than any writer makes (Radiance's run-length coding holds ~16 pixels per byte).
     f = hdr(p("repeats.hdr"), "-Y 8192 +X 16384", hdr_flat_repeat_scanline(16384) * 8192)
-    convert_env(f, [f, "16384x8192", "memory limit", "--mem-limit"], what="hdr 1.5 GiB of repeat records")
+    convert_env(f, [f, "16384x8192", "pixels per byte"], what="hdr 1.5 GiB of repeat records")
     f = hdr(p("repeats_small.hdr"), "-Y 512 +X 1024", hdr_flat_repeat_scanline(1024) * 512)
     convert_env(f, [f, "1024x512", "memory limit", "--mem-limit"], extra=["--mem-limit", "2MiB"],
                 what="hdr 6 MiB of pixels under --mem-limit 2MiB")
@@ -403,7 +404,7 @@ with tempfile.TemporaryDirectory() as d:
     relight_env(p("wrap_4611686018427387905_4.hdr"), ["beyond"], "relight --env hdr whose size wraps")
     relight_env(p("huge.hdr"), ["beyond"], "relight --env hdr 2^32 x 2^32")
     relight_env(p("small_big.hdr"), ["16384 scanlines"], "relight --env 1 KB hdr declaring 16384^2")
-    relight_env(p("repeats.hdr"), ["memory limit"], "relight --env hdr of 1.5 GiB repeat records")
+    relight_env(p("repeats.hdr"), ["pixels per byte"], "relight --env hdr of 1.5 GiB repeat records")
     relight_env(p("win3.exr"), ["16384x16384", "memory limit"], "relight --env exr window patched to 16384^2")
     relight_env(p("win3.exr"), ["data window"], "relight --env exr window patched to 16384^2, --mem-limit 4GiB",
                 extra=["--mem-limit", "4GiB"])
