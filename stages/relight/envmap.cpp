@@ -387,7 +387,7 @@ Result<Image> ReadExr(const std::string& path, const EnvLoadOptions& o) {
     }
     // Strips: whole chunks (every compression's lines per chunk divides 256), ~4 MiB of floats.
     const uint64_t strip = std::max<uint64_t>(256, ((uint64_t(4) << 20) / (uint64_t(w) * 12)) / 256 * 256);
-    const uint64_t strip_px = strip * uint64_t(w);
+    const uint64_t strip_px = std::min<uint64_t>(strip, uint64_t(h)) * uint64_t(w);  // buffers: rows of one strip
     const uint64_t scratch = rgb ? 0 : chroma ? strip_px * sizeof(Imf::Rgba) : strip_px * sizeof(float);
     LTB_RETURN_IF_ERROR(CheckMemory(pixels, scratch, o.max_bytes, path, "the OpenEXR image " + Size(w, h)));
     LTB_RETURN_IF_ERROR(AllocatePixels(&img.rgb, pixels * 3, path, Size(w, h) + " image"));
@@ -449,13 +449,78 @@ Result<Image> ReadExr(const std::string& path, const EnvLoadOptions& o) {
   }
 }
 
+// What CheckExrHeaderSizes reads of one part's header to foresee OpenEXR's allocations.
+struct ExrLayout {
+  bool has_window = false, has_channels = false, tiled = false;
+  int32_t window[4] = {0, 0, 0, 0};  // xMin, yMin, xMax, yMax
+  uint64_t bytes_per_pixel = 0;      // all channels
+  int compression = 0;
+  uint32_t tile_x = 0, tile_y = 0;
+};
+
+// Lines per chunk of each OpenEXR compression (NO, RLE, ZIPS, ZIP, PIZ, PXR24, B44, B44A,
+// DWAA, DWAB); others are refused by OpenEXR itself.
+uint64_t ExrLinesPerChunk(int compression) {
+  static constexpr uint64_t kLines[] = {1, 1, 1, 16, 32, 16, 32, 32, 32, 256};
+  return compression >= 0 && compression < 10 ? kLines[compression] : 1;
+}
+
+// The most one block of lines (or one tile) may take in OpenEXR, with its compressor's
+// buffers, whatever the memory limit: a 16384-wide map of four float channels in DWAB
+// chunks of 256 lines needs 64 MiB per block.
+constexpr uint64_t kMaxExrBlockBytes = uint64_t(512) << 20;
+
+Status CheckExrLayout(const std::string& path, int part, const ExrLayout& l, uint64_t size, uint64_t max_bytes) {
+  if (!l.has_window || !l.has_channels) return Status::Ok();  // OpenEXR refuses the header itself
+  const int64_t w = int64_t(l.window[2]) - l.window[0] + 1, h = int64_t(l.window[3]) - l.window[1] + 1;
+  if (w <= 0 || h <= 0) return Status::Ok();  // refused with the window's values by ReadExr
+  const std::string where = path + ": OpenEXR part " + std::to_string(part) + " (data window " +
+                            std::to_string(w) + "x" + std::to_string(h) + ", ";
+  // Chunks, each with an 8-byte entry in the offset table that follows the header(s).
+  double chunks = 0, block = 0;
+  if (l.tiled) {
+    if (l.tile_x == 0 || l.tile_y == 0) return Status::Ok();  // refused by OpenEXR
+    chunks = std::ceil(double(w) / l.tile_x) * std::ceil(double(h) / l.tile_y);
+    block = double(l.tile_x) * l.tile_y * double(l.bytes_per_pixel);
+  } else {
+    const uint64_t lines = ExrLinesPerChunk(l.compression);
+    chunks = std::ceil(double(h) / double(lines));
+    block = double(w) * double(l.bytes_per_pixel) * double(lines);  // allocated whole, even for fewer rows
+  }
+  if (chunks * 8 > double(size)) {
+    return DataLoss(where + std::to_string(uint64_t(chunks)) + " chunks): its chunk offset table alone needs " +
+                    std::to_string(uint64_t(chunks) * 8) + " bytes, more than the file's " + std::to_string(size) +
+                    " (the data window is damaged or the file is truncated)");
+  }
+  // A block of lines or a tile, and the compressor's input and output buffers of that size.
+  const double need = 3 * block;
+  const uint64_t cap = max_bytes ? std::min(max_bytes, kMaxExrBlockBytes) : kMaxExrBlockBytes;
+  if (need > double(cap)) {
+    const std::string unit = l.tiled ? "tile of " + std::to_string(l.tile_x) + "x" + std::to_string(l.tile_y)
+                                     : "block of " + std::to_string(ExrLinesPerChunk(l.compression)) + " lines";
+    return InvalidArgument(where + std::to_string(l.bytes_per_pixel) + " bytes per pixel): OpenEXR would need " +
+                           MiB(uint64_t(need)) + " to decode one " + unit + ", beyond " +
+                           (cap == max_bytes ? "the memory limit of " + MiB(cap) + " (--mem-limit)"
+                                             : "the " + MiB(cap) + " ltbake allows for one block") +
+                           " (the data window is damaged, or save the map with fewer lines per chunk)");
+  }
+  return Status::Ok();
+}
+
 // OpenEXR allocates each header attribute's declared size before reading it (a 15-byte
 // file declaring a 2 GB attribute: found by exr_fuzzer). Walks the header(s) first, as
 // the OpenEXR file layout describes them: after the magic and the version field, each
 // attribute is a name and a type name (NUL-terminated), an int32 size and that many bytes;
 // an empty name ends a header (a multi-part file has several, then one more empty name).
 // Every size must fit in the bytes left in the file.
-Status CheckExrHeaderSizes(const std::string& path, io::File& f, uint64_t size) {
+//
+// OpenEXR also allocates, as it opens a part, its chunk offset table (8 bytes per chunk)
+// and a block of lines (or one tile) with its compressor's buffers, sized from the data
+// window, channels and compression alone: a 200-byte file declaring a window 1.5 million
+// pixels wide made it allocate 1.5 GB (exr_fuzzer run 5). So each header's dataWindow,
+// channels, compression and tiles are read here too, and a part is refused when its offset
+// table cannot fit in the file or one block of it would pass max_bytes (or kMaxExrBlockBytes).
+Status CheckExrHeaderSizes(const std::string& path, io::File& f, uint64_t size, uint64_t max_bytes) {
   const uint64_t cap = std::min<uint64_t>(size, uint64_t(64) << 20);  // headers are small
   std::vector<uint8_t> b(cap);
   LTB_RETURN_IF_ERROR(f.ReadAt(0, format::MutableByteSpan(reinterpret_cast<std::byte*>(b.data()), cap)));
@@ -476,12 +541,19 @@ Status CheckExrHeaderSizes(const std::string& path, io::File& f, uint64_t size) 
     pos = end + 1;
     return Status::Ok();
   };
+  auto i32 = [&](uint64_t at) {
+    return int32_t(uint32_t(b[at]) | uint32_t(b[at + 1]) << 8 | uint32_t(b[at + 2]) << 16 | uint32_t(b[at + 3]) << 24);
+  };
   for (int part = 0;; ++part) {
     std::string name, type;
     bool any = false;
+    ExrLayout layout;
     for (;;) {
       LTB_RETURN_IF_ERROR(read_name(&name));
-      if (name.empty()) break;
+      if (name.empty()) {
+        if (any) LTB_RETURN_IF_ERROR(CheckExrLayout(path, part, layout, size, max_bytes));
+        break;
+      }
       any = true;
       LTB_RETURN_IF_ERROR(read_name(&type));
       if (pos + 4 > cap) return DataLoss(path + ": OpenEXR header ends inside the size of attribute \"" + name + "\"");
@@ -517,11 +589,28 @@ Status CheckExrHeaderSizes(const std::string& path, io::File& f, uint64_t size) 
             break;
           }
           while (c < end && b[c] != 0) ++c;
+          if (c + 1 + 16 <= end) {
+            const int32_t pixel_type = i32(c + 1);
+            layout.bytes_per_pixel += pixel_type == 1 ? 2 : 4;  // HALF; UINT, FLOAT (others: refused by OpenEXR)
+          }
           c += 1 + 16;
         }
+        if (name == "channels") layout.has_channels = true;
         if (!ok) {
           return DataLoss(path + ": OpenEXR channel list \"" + name + "\" at byte " + std::to_string(pos) +
                           " does not end where its size (" + std::to_string(n) + " bytes) says (damaged file)");
+        }
+      }
+      if (pos + uint64_t(n) <= cap) {
+        if (name == "dataWindow" && type == "box2i") {
+          layout.has_window = true;
+          for (int k = 0; k < 4; ++k) layout.window[k] = i32(pos + 4 * k);
+        } else if (name == "compression" && type == "compression") {
+          layout.compression = b[pos];
+        } else if (name == "tiles" && type == "tiledesc") {
+          layout.tiled = true;
+          layout.tile_x = uint32_t(i32(pos));
+          layout.tile_y = uint32_t(i32(pos + 4));
         }
       }
       pos += uint64_t(n);
@@ -540,7 +629,7 @@ Result<Image> ReadImage(const std::string& path, const EnvLoadOptions& o) {
     LTB_RETURN_IF_ERROR(f.ReadAt(0, format::MutableByteSpan(magic, std::min<uint64_t>(size, 4))));
     if (size >= 4 && magic[0] == std::byte{0x76} && magic[1] == std::byte{0x2f} && magic[2] == std::byte{0x31} &&
         magic[3] == std::byte{0x01}) {
-      LTB_RETURN_IF_ERROR(CheckExrHeaderSizes(path, f, size));
+      LTB_RETURN_IF_ERROR(CheckExrHeaderSizes(path, f, size, o.max_bytes));
       return ReadExr(path, o);
     }
     if (size < 2 || magic[0] != std::byte{'#'} || magic[1] != std::byte{'?'}) {

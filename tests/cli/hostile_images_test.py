@@ -64,7 +64,24 @@ def exr_attr(name, typ, data):
     return name.encode() + b"\0" + typ.encode() + b"\0" + struct.pack("<i", len(data)) + data
 
 
-EXR_LINES = {0: 1, 1: 1, 2: 1, 3: 16, 4: 32}  # lines per chunk: NONE RLE ZIPS ZIP PIZ
+EXR_LINES = {0: 1, 1: 1, 2: 1, 3: 16, 4: 32, 9: 256}  # lines per chunk: NONE RLE ZIPS ZIP PIZ ... DWAB
+
+
+def exr_header_only(window, channels="BGR", compression=0, tiles=None):
+    """An OpenEXR header (scanline, or tiled with `tiles` = (x, y)) declaring `window`,
+    followed by an offset table of 8 entries and nothing else: what a few hundred bytes can
+    make OpenEXR allocate before it reads any pixel."""
+    ch = b"".join(c.encode() + b"\0" + struct.pack("<iB3xii", 2, 0, 1, 1) for c in channels) + b"\0"
+    head = b"\x76\x2f\x31\x01" + struct.pack("<I", 2 | (0x200 if tiles else 0))
+    head += exr_attr("channels", "chlist", ch) + exr_attr("compression", "compression", bytes([compression]))
+    head += exr_attr("dataWindow", "box2i", struct.pack("<4i", *window))
+    head += exr_attr("displayWindow", "box2i", struct.pack("<4i", *window))
+    head += exr_attr("lineOrder", "lineOrder", b"\0") + exr_attr("pixelAspectRatio", "float", struct.pack("<f", 1))
+    head += exr_attr("screenWindowCenter", "v2f", struct.pack("<2f", 0, 0))
+    head += exr_attr("screenWindowWidth", "float", struct.pack("<f", 1))
+    if tiles:
+        head += exr_attr("tiles", "tiledesc", struct.pack("<IIB", tiles[0], tiles[1], 0))
+    return head + b"\0" + struct.pack("<8Q", *([len(head) + 1 + 64] * 8))
 
 
 def exr(w, h, value=(1.0, 0.5, 0.25), window=None, compression=3, channels="BGR", truncate=None):
@@ -125,12 +142,12 @@ with tempfile.TemporaryDirectory() as d:
     p = lambda name: os.path.join(d, name)  # noqa: E731
 
     # ---- Radiance .hdr through `convert` --------------------------------------------------
-    def convert_env(path, names, expect=(1,), extra=(), what=None):
+    def convert_env(path, names, expect=(1,), extra=(), what=None, extra_mib=0):
         out = p("out.npy")
         if os.path.exists(out):
             os.remove(out)
         code, err = run_hostile(["convert", path, out, "--cube-res", 4, *Q, *extra], names=names, expect=expect,
-                                time_limit=T, extra_mib=2 * mib(path), what=what)
+                                time_limit=T, extra_mib=2 * mib(path) + extra_mib, what=what)
         check(not os.path.exists(out), f"{what or path}: a failed convert left {out}")
         check(not os.path.exists(out + ".partial"), f"{what or path}: a failed convert left {out}.partial")
         return code, err
@@ -222,6 +239,25 @@ with tempfile.TemporaryDirectory() as d:
     convert_env(f, [f], what="exr inverted data window")
     f = write(p("win_max.exr"), exr(64, 32, window=(-2**31, -2**31, 2**31 - 1, 2**31 - 1)))
     convert_env(f, [f], what="exr window of the whole int range")
+    # exr_fuzzer run 5: OpenEXR sizes its chunk offset table and one block of lines (or one
+    # tile, with its compressor's buffers) from the header alone, as it opens the file. A
+    # 1 x 2^30 window without compression declares 2^30 chunks (an 8 GiB offset table) in a
+    # 400-byte file; a DWAB block of 256 lines of a 2^20-wide window is 3 GiB (9 GiB with the
+    # compressor's buffers); a 65536² tile 48 GiB. Each is refused from the header walk, naming what it declares.
+    f = write(p("table.exr"), exr_header_only((0, 0, 0, 2**30 - 1)))
+    convert_env(f, [f, "1x1073741824", "chunk offset table", "8589934592 bytes"], what="exr 8 GiB offset table")
+    f = write(p("dwab.exr"), exr_header_only((0, 0, 2**20 - 1, 0), compression=9))
+    convert_env(f, [f, "1048576x1", "block of 256 lines", "9216.0 MiB", "512.0 MiB ltbake allows"],
+                what="exr DWAB block of 3 GiB")
+    f = write(p("tile.exr"), exr_header_only((0, 0, 63, 31), tiles=(65536, 65536)))
+    convert_env(f, [f, "tile of 65536x65536"], what="exr tile of 65536^2")
+    # ... and a 2^20-wide, one-row Y map: ltbake's own strip buffers were sized for 256
+    # rows (1 GiB of scratch for one row, refused by --mem-limit); now for the rows there are. Refused only for its
+    # missing pixels, not for memory.
+    f = write(p("wide_y.exr"), exr_header_only((0, 0, 2**20 - 1, 0), channels="Y"))
+    # Justified: the RGB floats of the row (12 MiB), a strip of Y (4 MiB), OpenEXR's line (4 MiB).
+    _, err = convert_env(f, [f], what="exr Y map 2^20 x 1", extra_mib=20)
+    check("memory" not in err, f"exr Y map 2^20 x 1: refused for memory, not for its missing pixels: {err[-300:]}")
     # exr_fuzzer's finding: an attribute declaring ~2 GB in a 15-byte file (OpenEXR
     # allocated the declared size before reading); refused from the header walk.
     f = write(p("attr2g.exr"), b"\x76\x2f\x31\x01\x02\x00\x00\x00a\x00\x00\xff\xff\xff\x7f")

@@ -26,7 +26,7 @@ std::string ReadAll(const std::string& path) {
   return ss.str();
 }
 
-void WriteAll(const std::string& path, const std::string& text) {
+void WriteText(const std::string& path, const std::string& text) {
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
   out << text;
 }
@@ -34,7 +34,7 @@ void WriteAll(const std::string& path, const std::string& text) {
 TEST(AtomicFile, CommitReplacesTheWholeFileAndLeavesNoTemporary) {
   test::TempDir dir;
   const std::string path = dir.File("out.json");
-  WriteAll(path, "old content, longer than the new one");
+  WriteText(path, "old content, longer than the new one");
   auto f = io::AtomicFile::Create(path);
   ASSERT_TRUE(f.ok()) << f.status().message();
   EXPECT_EQ(f->temp_path(), path + ".partial");
@@ -51,7 +51,7 @@ TEST(AtomicFile, CommitReplacesTheWholeFileAndLeavesNoTemporary) {
 TEST(AtomicFile, AWriterThatReturnsWithoutCommitLeavesTheOldFile) {
   test::TempDir dir;
   const std::string path = dir.File("out.npy");
-  WriteAll(path, "committed");
+  WriteText(path, "committed");
   {
     auto f = io::AtomicFile::Create(path);
     ASSERT_TRUE(f.ok());
@@ -70,7 +70,7 @@ TEST(AtomicFile, AWriterThatReturnsWithoutCommitLeavesTheOldFile) {
 TEST(AtomicFile, AStalePartialFileFromAKilledWriterIsReplaced) {
   test::TempDir dir;
   const std::string path = dir.File("cube.npy");
-  WriteAll(path + ".partial", "left by a writer that was killed");
+  WriteText(path + ".partial", "left by a writer that was killed");
   ASSERT_TRUE(io::WriteFileAtomically(path, std::string("whole")).ok());
   EXPECT_EQ(ReadAll(path), "whole");
   EXPECT_FALSE(fs::exists(path + ".partial"));
@@ -82,7 +82,7 @@ TEST(AtomicFile, ALibraryMayWriteTheTemporaryPathItself) {
   const std::string path = dir.File("image.png");
   auto f = io::AtomicFile::Create(path);
   ASSERT_TRUE(f.ok());
-  WriteAll(f->temp_path(), "written by another library");
+  WriteText(f->temp_path(), "written by another library");
   ASSERT_TRUE(f->Commit().ok());
   EXPECT_EQ(ReadAll(path), "written by another library");
 }

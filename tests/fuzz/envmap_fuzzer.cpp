@@ -2,8 +2,8 @@
 // extension LTB_FUZZ_EXT (".hdr": ltbake's Radiance RGBE reader; ".exr": OpenEXR through
 // its library). LoadEnvMap reads it (the format by its magic bytes, the layout from the
 // size: lat-long, crosses, with clamping so more maps reach the next step); a map that loads
-// is resampled to a small cubemap (R = 4), as relight and convert do. None of it may crash,
-// hang or leak.
+// is resampled to a small cubemap (R = 4), as relight and convert do, within a memory
+// limit of 512 MiB. None of it may crash, hang, leak or allocate past the limit.
 // Build and run: docs/FUZZING.md.
 #include <cstddef>
 #include <cstdint>
@@ -22,6 +22,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (path.empty()) return 0;
   ltb::stages::EnvLoadOptions options;
   options.clamp = true;
+  // As the CLI passes its --mem-limit (default 1 GiB): half the fuzzer's -malloc_limit_mb,
+  // so what the limit allows also fits in the fuzzer's.
+  options.max_bytes = uint64_t(512) << 20;
   auto env = ltb::stages::LoadEnvMap(path, options);
   if (!env.ok()) return 0;
   constexpr uint64_t kR = 4;
