@@ -454,7 +454,8 @@ struct ExrLayout {
   bool has_window = false, has_channels = false, tiled = false;
   int32_t window[4] = {0, 0, 0, 0};  // xMin, yMin, xMax, yMax
   uint64_t bytes_per_pixel = 0;      // all channels
-  int compression = 0;
+  bool chroma = false;               // luminance-chroma (RY or BY): read through RgbaInputFile
+  int compression = 3;               // OpenEXR's default when the header names none: ZIP
   uint32_t tile_x = 0, tile_y = 0;
 };
 
@@ -493,11 +494,15 @@ Status CheckExrLayout(const std::string& path, int part, const ExrLayout& l, uin
                     " (the data window is damaged or the file is truncated)");
   }
   // A block of lines or a tile, and the compressor's input and output buffers of that size.
-  const double need = 3 * block;
+  // RgbaInputFile, which reads luminance-chroma files, also keeps about 32 lines of Rgba
+  // (8 bytes a pixel) of the window's width to filter the chroma (exr_fuzzer run 6: 539
+  // bytes declaring a 5.8M-wide window made it allocate 1.49 GB, 256 bytes per column).
+  const double need = std::max(3 * block, l.chroma ? 256.0 * double(w) : 0.0);
   const uint64_t cap = max_bytes ? std::min(max_bytes, kMaxExrBlockBytes) : kMaxExrBlockBytes;
   if (need > double(cap)) {
-    const std::string unit = l.tiled ? "tile of " + std::to_string(l.tile_x) + "x" + std::to_string(l.tile_y)
-                                     : "block of " + std::to_string(ExrLinesPerChunk(l.compression)) + " lines";
+    const std::string unit = need > 3 * block ? "row of luminance-chroma pixels (about 32 lines of RGBA)"
+                             : l.tiled        ? "tile of " + std::to_string(l.tile_x) + "x" + std::to_string(l.tile_y)
+                                              : "block of " + std::to_string(ExrLinesPerChunk(l.compression)) + " lines";
     return InvalidArgument(where + std::to_string(l.bytes_per_pixel) + " bytes per pixel): OpenEXR would need " +
                            MiB(uint64_t(need)) + " to decode one " + unit + ", beyond " +
                            (cap == max_bytes ? "the memory limit of " + MiB(cap) + " (--mem-limit)"
@@ -581,21 +586,28 @@ Status CheckExrHeaderSizes(const std::string& path, io::File& f, uint64_t size, 
       }
       if (type == "chlist" && pos + uint64_t(n) <= cap) {
         // Channels: name NUL, int32 type, uint8 pLinear, 3 reserved, int32 x/y sampling; a NUL ends the list.
-        uint64_t c = pos, end = pos + uint64_t(n);
-        bool ok = false;
+        uint64_t c = pos, end = pos + uint64_t(n), bytes_per_pixel = 0;
+        bool ok = false, chroma = false;
         while (c < end) {
           if (b[c] == 0) {
             ok = c + 1 == end;
             break;
           }
+          const uint64_t first = c;
           while (c < end && b[c] != 0) ++c;
+          const std::string channel(reinterpret_cast<const char*>(b.data() + first), c - first);
+          chroma = chroma || channel == "RY" || channel == "BY";
           if (c + 1 + 16 <= end) {
             const int32_t pixel_type = i32(c + 1);
-            layout.bytes_per_pixel += pixel_type == 1 ? 2 : 4;  // HALF; UINT, FLOAT (others: refused by OpenEXR)
+            bytes_per_pixel += pixel_type == 1 ? 2 : 4;  // HALF; UINT, FLOAT (others: refused by OpenEXR)
           }
           c += 1 + 16;
         }
-        if (name == "channels") layout.has_channels = true;
+        if (name == "channels") {  // a repeated attribute replaces the earlier one, as in OpenEXR
+          layout.has_channels = true;
+          layout.bytes_per_pixel = bytes_per_pixel;
+          layout.chroma = chroma;
+        }
         if (!ok) {
           return DataLoss(path + ": OpenEXR channel list \"" + name + "\" at byte " + std::to_string(pos) +
                           " does not end where its size (" + std::to_string(n) + " bytes) says (damaged file)");

@@ -80,6 +80,24 @@ def main():
         env_case(d, "chlist-desync-scanline.exr",
                  bytes.fromhex("762f310102000000730063686c6973740000000000000f000000000064"),
                  "EXR chlist of size 0 (OpenEXR scanline tables of ~1.5 GB)")
+        # exr_fuzzer, run 6 (2026-11-25 19:56, 10 minutes): headers without a "compression"
+        # attribute (its name mangled), so OpenEXR uses its default, ZIP (16 lines a chunk),
+        # while the header check took "none" (1 line): a 16.8M x 2 luminance-chroma window
+        # (201 bytes) and a 9.1M x 1 RGBA window (247 bytes) made newCompressor allocate
+        # 1.07 and 1.17 GB.
+        env_case(d, "default-zip-chroma.exr", bytes.fromhex(
+            "762f3101020000006368616e6e656c730063686c6973740039000000425900010000000100000002000000020000005259"
+            "000100000001000000020000000200000059000100000000000000010000000100000000636f6d707265737369f06f6e00"
+            "636f6d7072657373696f6e0001000000046461746157696e646f7700626f783269001000000000000000000000000f0900"
+            "0101000000000000010020000178656c41737065637452616e616d653820396039a0ffffffffffffffffffffffffff3ba0"
+            "3be03b103c"), "EXR without compression attribute, 16.8M-wide chroma window (ZIP default)")
+        env_case(d, "default-zip-rgba.exr", bytes.fromhex(
+            "762f3101020000006368616e6e656c730063686c6973740049000000410001000000000000000100000001000000420001"
+            "000000000000000100000001000000470001000000000000000100000001000000520001000000000000000100000001000000"
+            "006368616e6e656c73696f6e0063526d7072657373696f6e0001000000036461746157696e646f7700626f7832690010000000"
+            "000000000000000000008b00000000000000000000000000000000000000000000000000000000000000000000000000000000"
+            "000000000000000000000000000000000000000000000000000000000000000000000000000000630000bcbf00"),
+            "EXR without compression attribute, 9.1M-wide RGBA window (ZIP default)")
         # hdr_fuzzer, run 5 (2026-11-25 18:20): 498 bytes declaring 6432767 x 32 pixels,
         # whose scanlines are flat pixels followed by old-style repeat records (1 1 1 n, each
         # one shifting the count 8 bits further), so a 16-byte scanline is 6.4M valid pixels:

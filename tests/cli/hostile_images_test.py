@@ -73,7 +73,9 @@ def exr_header_only(window, channels="BGR", compression=0, tiles=None):
     make OpenEXR allocate before it reads any pixel."""
     ch = b"".join(c.encode() + b"\0" + struct.pack("<iB3xii", 2, 0, 1, 1) for c in channels) + b"\0"
     head = b"\x76\x2f\x31\x01" + struct.pack("<I", 2 | (0x200 if tiles else 0))
-    head += exr_attr("channels", "chlist", ch) + exr_attr("compression", "compression", bytes([compression]))
+    head += exr_attr("channels", "chlist", ch)
+    if compression is not None:  # None: no attribute (OpenEXR then uses ZIP)
+        head += exr_attr("compression", "compression", bytes([compression]))
     head += exr_attr("dataWindow", "box2i", struct.pack("<4i", *window))
     head += exr_attr("displayWindow", "box2i", struct.pack("<4i", *window))
     head += exr_attr("lineOrder", "lineOrder", b"\0") + exr_attr("pixelAspectRatio", "float", struct.pack("<f", 1))
@@ -249,6 +251,12 @@ with tempfile.TemporaryDirectory() as d:
     f = write(p("dwab.exr"), exr_header_only((0, 0, 2**20 - 1, 0), compression=9))
     convert_env(f, [f, "1048576x1", "block of 256 lines", "9216.0 MiB", "512.0 MiB ltbake allows"],
                 what="exr DWAB block of 3 GiB")
+    # Without a compression attribute OpenEXR reads ZIP blocks of 16 lines (exr_fuzzer run 6).
+    f = write(p("nocomp.exr"), exr_header_only((0, 0, 2**23 - 1, 0), compression=None))
+    convert_env(f, [f, "8388608x1", "block of 16 lines", "4608.0 MiB"], what="exr without compression attribute")
+    # Luminance-chroma: RgbaInputFile keeps ~32 Rgba lines of the window's width (run 6).
+    f = write(p("yc.exr"), exr_header_only((0, 0, 2**22 - 1, 0), channels=("Y", "RY", "BY")))
+    convert_env(f, [f, "4194304x1", "luminance-chroma", "1024.0 MiB"], what="exr luminance-chroma 2^22 wide")
     f = write(p("tile.exr"), exr_header_only((0, 0, 63, 31), tiles=(65536, 65536)))
     convert_env(f, [f, "tile of 65536x65536"], what="exr tile of 65536^2")
     # ... and a 2^20-wide, one-row Y map: ltbake's own strip buffers were sized for 256
