@@ -6,7 +6,7 @@ set -euo pipefail
 
 # Package -> why ltbake needs it (README "Dependencies" mirrors this list).
 PACKAGES=(
-  cmake make g++ pkg-config        # build
+  cmake make ninja-build g++ pkg-config  # build
   libembree-dev embree-tools       # ray casting (sample stage); Cornell box model
   libopenexr-dev libimath-dev      # EXR images and environment maps
   libdraco-dev draco               # Draco meshes (.drc) and draco_encoder/decoder tools
