@@ -29,11 +29,12 @@ class ColumnTransformCommand : public Command {
         ->default_val("adaptive");
     auto* terms = app->add_option("--terms", terms_, "keep the N largest terms of each column")
                       ->check(CLI::Range(uint64_t{1}, uint64_t{1} << 62));
-    auto* keep = app->add_option("--keep", keep_, "keep this fraction of each column's terms (default 0.05)")
+    auto* keep = app->add_option("--keep", keep_, "keep this fraction of each column's terms: 0.05 or 5% (default)")
                      ->check(FractionCheck());
     auto* budget = app->add_option("--budget", budget_,
                                    "one budget of nonzeros for the whole matrix, allocated by rate-distortion "
-                                   "optimisation: a fraction (0.02 or 2%), a count, or a size (64MiB at 8 bytes/nonzero)");
+                                   "optimisation: a fraction (0.02 or 2%), a count, or a size (64MiB at 8 bytes/nonzero)")
+                       ->check(BudgetCheck());
     terms->excludes(keep)->excludes(budget);
     keep->excludes(budget);
     app->add_flag("!--no-zstd", options_.zstd, "do not zstd-compress the sparse chunks");
@@ -60,10 +61,10 @@ class ColumnTransformCommand : public Command {
     } else if (terms_ > 0) {
       options_.terms.kind = stages::TermsMode::Kind::kTerms;
       options_.terms.terms = terms_;
-    } else if (keep_ > 0) {
-      options_.terms.keep = keep_;
+    } else if (!keep_.empty()) {
+      options_.terms.keep = *stages::ParseFraction(keep_);  // checked by FractionCheck
     }
-    auto mem = ParseSize(flags_.mem_limit);
+    auto mem = stages::ParseByteSize(flags_.mem_limit);
     if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
     options_.mem_limit = *mem;
     options_.jobs = flags_.jobs;
@@ -116,7 +117,7 @@ class ColumnTransformCommand : public Command {
   stages::ColumnTransformOptions options_;
   std::string filter_ = "legall53", depth_ = "adaptive", budget_;
   uint64_t terms_ = 0;
-  double keep_ = 0;
+  std::string keep_;
   bool json_ = false;
   CommonFlags flags_;
   ShardFlags shard_flags_;

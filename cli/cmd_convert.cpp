@@ -44,9 +44,9 @@ class ConvertCommand : public Command {
   }
 
   int Run() override {
-    auto chunk = ParseSize(chunk_size_);
+    auto chunk = stages::ParseByteSize(chunk_size_);
     if (!chunk.ok()) return ReportUsage(chunk.status().WithContext("--chunk-size"));
-    auto mem = ParseSize(flags_.mem_limit);
+    auto mem = stages::ParseByteSize(flags_.mem_limit);
     if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
     options_.chunk_bytes = *chunk;
     options_.mem_limit = *mem;

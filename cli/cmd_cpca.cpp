@@ -50,7 +50,7 @@ class CpcaCommand : public Command {
                 << "\n";
       return kExitUsage;
     }
-    auto mem = ParseSize(flags_.mem_limit);
+    auto mem = stages::ParseByteSize(flags_.mem_limit);
     if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
     options_.mem_limit = *mem;
     options_.jobs = flags_.jobs;

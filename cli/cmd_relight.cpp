@@ -1,10 +1,14 @@
 // ltbake relight MATRIX --env ENV -o IMAGE [--terms N] [--weighting area|transport|none]
 //                      [--reference RAW.ltm] [--frames N] [--rotate DEG] [--json]
 #include <algorithm>
+#include <cctype>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <iomanip>
 #include <iostream>
+#include <limits>
 #include <numbers>
 
 #include <nlohmann/json.hpp>
@@ -69,7 +73,23 @@ class RelightCommand : public Command {
     app->add_option("--env", env_, "environment map: .exr or .hdr (lat-long, cross, or six files with {face}), or a "
                                    "6R²×3 cubemap .npy")->required();
     app->add_option("-o,--output", output_, "relit image: .exr (linear), .png (sRGB), .npy (rows × 3)")->required();
-    app->add_option("--terms", terms_, "lighting terms kept (non-linear wavelet approximation)")->default_val(100);
+    app->add_option("--terms", terms_text_,
+                    "lighting terms kept, N >= 1 or all (non-linear approximation: the N largest coefficients of "
+                    "the map in the matrix's lighting basis; for a pixel-basis matrix, the N brightest texels)")
+        ->default_val("100")
+        ->check(CLI::Validator(
+            [](std::string& text) -> std::string {
+              if (text == "all") return std::string();
+              char* end = nullptr;
+              errno = 0;
+              const unsigned long long v = std::strtoull(text.c_str(), &end, 10);
+              if (text.empty() || !std::isdigit(static_cast<unsigned char>(text[0])) || *end != '\0' || errno != 0 ||
+                  v == 0 || v > (1ULL << 62)) {
+                return "\"" + text + "\" is not a number of terms (1, 2, ... or all; 0 would relight nothing)";
+              }
+              return std::string();
+            },
+            "N|all"));
     app->add_option("--weighting", weighting_, "rank lighting terms by area (magnitude × support area), transport "
                                                "(× the column's norm) or none")
         ->default_val("area")
@@ -90,7 +110,9 @@ class RelightCommand : public Command {
 
   int Run() override {
     auto weighting = stages::ParseWeighting(weighting_);
-    auto mem = ParseSize(flags_.mem_limit);
+    // "all": every nonzero coefficient (SelectTerms keeps min(N, nonzeros)).
+    terms_ = terms_text_ == "all" ? std::numeric_limits<uint64_t>::max() : std::stoull(terms_text_);
+    auto mem = stages::ParseByteSize(flags_.mem_limit);
     if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
     ProgressBar bar(flags_, "relight");
     stages::EnvLoadOptions eo;
@@ -98,7 +120,7 @@ class RelightCommand : public Command {
     eo.layout = *stages::ParseEnvLayout(layout_);  // checked by IsMember
     eo.max_bytes = *mem;  // the map's pixels (and an .hdr's bytes) within --mem-limit
     eo.progress = bar.hook();
-    nlohmann::json report = {{"matrix", matrix_}, {"env", env_}, {"terms", terms_}, {"weighting", weighting_}};
+    nlohmann::json report = {{"matrix", matrix_}, {"env", env_}, {"terms", terms_text_ == "all" ? nlohmann::json("all") : nlohmann::json(terms_)}, {"weighting", weighting_}};
 
     auto t0 = Clock::now();
     auto reader = io::ContainerReader::Open(matrix_);
@@ -286,6 +308,7 @@ class RelightCommand : public Command {
 
  private:
   std::string matrix_, env_, output_, weighting_ = "area", reference_, layout_ = "auto";
+  std::string terms_text_ = "100";
   uint64_t terms_ = 100;
   int frames_ = 0;
   double rotate_deg_ = 0, exposure_ = 0;

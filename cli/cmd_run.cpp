@@ -68,7 +68,7 @@ class RunCommand : public Command {
     }
     options_.jobs = flags_.jobs;
     options_.mem_limit = flags_.mem_limit;
-    auto mem = ParseSize(flags_.mem_limit);
+    auto mem = stages::ParseByteSize(flags_.mem_limit);
     if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
     options_.quiet = flags_.quiet;
     options_.progress = !flags_.quiet && (flags_.progress == "always" || (flags_.progress == "auto" && ::isatty(2)));

@@ -75,34 +75,10 @@ std::string OutputName(const std::string& output, const io::ShardSpec& shard) {
          io::ShardPath(output, shard.index, shard.count) + ")";
 }
 
-Result<uint64_t> ParseSize(const std::string& text) {
-  const char* begin = text.c_str();
-  char* end = nullptr;
-  double v = std::strtod(begin, &end);
-  if (end == begin || !std::isdigit(static_cast<unsigned char>(text[0]))) {
-    return InvalidArgument("size \"" + text + "\" does not start with a number (e.g. 512MiB, 4GiB)");
-  }
-  std::string unit(end);
-  double mult = 0;
-  if (unit.empty() || unit == "B") mult = 1;
-  else if (unit == "K" || unit == "KiB" || unit == "k") mult = 1024.0;
-  else if (unit == "M" || unit == "MiB") mult = 1024.0 * 1024;
-  else if (unit == "G" || unit == "GiB") mult = 1024.0 * 1024 * 1024;
-  else if (unit == "T" || unit == "TiB") mult = 1024.0 * 1024 * 1024 * 1024;
-  else if (unit == "KB") mult = 1e3;
-  else if (unit == "MB") mult = 1e6;
-  else if (unit == "GB") mult = 1e9;
-  else return InvalidArgument("size \"" + text + "\" has unknown unit \"" + unit + "\" (use B, KiB, MiB, GiB, TiB)");
-  double bytes = v * mult;
-  if (!(bytes >= 1)) return InvalidArgument("size \"" + text + "\" is less than 1 byte (e.g. 512MiB, 4GiB)");
-  if (bytes > 9.0e18) return InvalidArgument("size \"" + text + "\" is out of range (at most 8EiB)");
-  return static_cast<uint64_t>(bytes);
-}
-
 CLI::Validator SizeCheck() {
   return CLI::Validator(
       [](std::string& text) -> std::string {
-        auto r = ParseSize(text);
+        auto r = stages::ParseByteSize(text);
         return r.ok() ? std::string() : r.status().message();
       },
       "SIZE");
@@ -126,14 +102,19 @@ CLI::Validator PowerOfTwoCheck(uint64_t max) {
 CLI::Validator FractionCheck() {
   return CLI::Validator(
       [](std::string& text) -> std::string {
-        char* end = nullptr;
-        double v = std::strtod(text.c_str(), &end);
-        if (end == text.c_str() || *end != '\0' || !(v > 0 && v <= 1)) {
-          return "\"" + text + "\" is not a fraction in (0, 1]";
-        }
-        return std::string();
+        auto r = stages::ParseFraction(text);
+        return r.ok() ? std::string() : r.status().message();
       },
       "FRACTION");
+}
+
+CLI::Validator BudgetCheck() {
+  return CLI::Validator(
+      [](std::string& text) -> std::string {
+        auto r = stages::ParseBudget(text);
+        return r.ok() ? std::string() : r.status().message();
+      },
+      "BUDGET");
 }
 
 int ReportUsage(const Status& status) {

@@ -12,6 +12,7 @@
 #include "format/io/manifest.h"
 #include "format/progress.h"
 #include "format/status.h"
+#include "stages/common/quantity.h"
 
 namespace ltb::cli {
 
@@ -42,17 +43,16 @@ Result<io::ShardSpec> ResolveShard(const ShardFlags& flags);
 // "OUT", or "shard I of N of OUT (its file)" for the messages of a stage.
 std::string OutputName(const std::string& output, const io::ShardSpec& shard);
 
-// "1GiB", "512MiB", "64M", "4096": bytes (at least 1). Errors name the text.
-Result<uint64_t> ParseSize(const std::string& text);
-
 // Flag validators, so a bad value is a usage error (exit 2) found while parsing, with the
 // flag and the value named ("--mem-limit: size \"0\" is ..."), before any file is opened.
-// A size, as ParseSize takes it.
+// A size, as stages::ParseByteSize takes it ("1GiB", "512M", "4096").
 CLI::Validator SizeCheck();
 // A power of two in [1, max].
 CLI::Validator PowerOfTwoCheck(uint64_t max);
-// A number in (0, 1].
+// A fraction in (0, 1], as stages::ParseFraction takes it ("0.05", "5%").
 CLI::Validator FractionCheck();
+// A nonzero budget, as stages::ParseBudget takes it ("2%", "150000", "64MiB").
+CLI::Validator BudgetCheck();
 
 // For usage errors found after parsing: prints "ltbake: usage error: MESSAGE" and a pointer
 // to --help on stderr, returns kExitUsage (2).

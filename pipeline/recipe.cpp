@@ -9,6 +9,7 @@
 #include <toml++/toml.h>
 
 #include "stages/column_transform/column_transform.h"
+#include "stages/common/quantity.h"
 #include "stages/common/toml_fields.h"
 #include "stages/sample/scene.h"
 
@@ -179,9 +180,13 @@ Status ParseColumnTransform(const std::string& path, const toml::table& t, Recip
     return InvalidArgument(Where(path, t) + ": [column-transform] gives more than one of \"keep\", \"terms\", "
                            "\"budget\"; choose one");
   }
-  if (t.contains("keep")) {
-    LTB_ASSIGN_OR_RETURN(double k, GetNumber(path, t, "keep", 0.05, 1e-9, 1.0));
-    c->keep = k;
+  if (const toml::node* k = t.get("keep"); k && k->is_string()) {  // "5%", as --keep takes it
+    auto f = stages::ParseFraction(*k->value<std::string>());
+    if (!f.ok()) return f.status().WithContext(Where(path, *k) + ": \"keep\"");
+    c->keep = *f;
+  } else if (k) {
+    LTB_ASSIGN_OR_RETURN(double v, GetNumber(path, t, "keep", 0.05, 1e-9, 1.0));
+    c->keep = v;
   }
   if (t.contains("terms")) {
     LTB_ASSIGN_OR_RETURN(uint64_t n, GetUnsigned(path, t, "terms", 0, 1, uint64_t{1} << 40));
@@ -197,8 +202,7 @@ Status ParseColumnTransform(const std::string& path, const toml::table& t, Recip
     } else {
       return InvalidArgument(Where(path, *b) + ": \"budget\" must be a fraction, a count or a size (\"2%\", \"64MiB\")");
     }
-    // The matrix size is not known yet: check the syntax against a large stand-in.
-    auto parsed = stages::ParseBudget(*c->budget, uint64_t{1} << 30, uint64_t{1} << 30);
+    auto parsed = stages::ParseBudget(*c->budget);
     if (!parsed.ok()) return parsed.status().WithContext(Where(path, *b) + ": \"budget\"");
   }
   if (given == 0) c->keep = 0.05;

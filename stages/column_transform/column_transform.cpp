@@ -12,6 +12,7 @@
 #include "stages/column_transform/column_compressor.h"
 #include "stages/common/basis.h"
 #include "stages/common/parallel_for.h"
+#include "stages/common/quantity.h"
 
 namespace ltb::stages {
 
@@ -44,44 +45,6 @@ std::string DepthModeName(const DepthMode& m) {
     case DepthMode::Kind::kFixed: return std::to_string(m.fixed);
   }
   return "?";
-}
-
-Result<uint64_t> ParseBudget(const std::string& text, uint64_t rows, uint64_t cols) {
-  auto bad = [&] {
-    return InvalidArgument("--budget \"" + text +
-                           "\": expected a fraction of the matrix (0.02 or 2%), a count of nonzeros (150000) or a size "
-                           "(64MiB, at 8 bytes per nonzero)");
-  };
-  if (text.empty()) return bad();
-  size_t pos = 0;
-  double v = 0;
-  try {
-    v = std::stod(text, &pos);
-  } catch (...) {
-    return bad();
-  }
-  std::string unit = text.substr(pos);
-  if (!std::isfinite(v) || v <= 0) return bad();
-  const double elements = static_cast<double>(rows) * static_cast<double>(cols);
-  double count;
-  if (unit == "%") {
-    if (v > 100) return bad();
-    count = v / 100 * elements;
-  } else if (unit.empty() && text.find_first_of(".eE") != std::string::npos) {
-    if (v > 1) return bad();
-    count = v * elements;
-  } else if (unit.empty()) {
-    count = v;
-  } else {
-    double scale = 0;
-    for (auto [name, s] : {std::pair<const char*, double>{"B", 1}, {"KiB", 1024.0}, {"MiB", 1048576.0},
-                           {"GiB", 1073741824.0}, {"K", 1e3}, {"M", 1e6}, {"G", 1e9}}) {
-      if (unit == name) scale = s;
-    }
-    if (scale == 0) return bad();
-    count = v * scale / 8;
-  }
-  return static_cast<uint64_t>(std::min(std::floor(count), elements));
 }
 
 namespace {
@@ -220,7 +183,9 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
       selection = {{"keep", o.terms.keep}, {"terms", terms}};
       break;
     case TermsMode::Kind::kBudget: {
-      LTB_ASSIGN_OR_RETURN(budget, ParseBudget(o.terms.budget, a.rows, a.cols));
+      auto parsed = ParseBudget(o.terms.budget);
+      if (!parsed.ok()) return parsed.status().WithContext("--budget");
+      budget = BudgetNonzeros(*parsed, a.rows, a.cols);
       selection = {{"budget", budget}};
       break;
     }

@@ -35,12 +35,8 @@ struct TermsMode {
   enum class Kind { kTerms, kKeep, kBudget } kind = Kind::kKeep;
   uint64_t terms = 0;   // kTerms: N per column
   double keep = 0.05;   // kKeep: fraction of each column's W·H
-  std::string budget;   // kBudget: as given ("0.02", "2%", "150000", "64MiB")
+  std::string budget;   // kBudget: as given ("0.02", "2%", "150000", "64MiB"): stages::ParseBudget
 };
-// The budget as a number of nonzeros for a rows × cols matrix: a fraction ("0.02",
-// "2%") of its elements, a count ("150000"), or a size ("64MiB") at 8 bytes per nonzero
-// (a u32 position and an f32 value).
-Result<uint64_t> ParseBudget(const std::string& text, uint64_t rows, uint64_t cols);
 
 struct ColumnTransformOptions {
   std::string input;

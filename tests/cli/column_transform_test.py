@@ -180,6 +180,26 @@ with tempfile.TemporaryDirectory() as d:
     rep = ct(flat, "--depth", "none", "--budget", 300)
     check(rep["nonzeros"] == 300, f"depth none --budget 300 kept {rep['nonzeros']}")
 
+    # Budgets and fractions read as every size flag reads them: K, M, G are powers of 1024
+    # (a size budget is 8 bytes per nonzero), KB, MB, GB powers of 1000; "5%" is 0.05.
+    for text, nonzeros in (("2K", 2048 // 8), ("2KiB", 2048 // 8), ("2KB", 2000 // 8), ("4000B", 500)):
+        rep = ct(os.path.join(d, "bud_size.ltm"), "--depth", "none", "--budget", text, "--overwrite")
+        check(rep is not None and nonzeros * 0.99 <= rep["nonzeros"] <= nonzeros,
+              f"--budget {text}: {rep and rep['nonzeros']} nonzeros, expected {nonzeros} (met from below)")
+    hk = []
+    for keep in ("0.25", "25%"):
+        out = os.path.join(d, f"keep_{len(hk)}.ltm")
+        ct(out, "--keep", keep)
+        hk.append(info(out)["content_hash"])
+    check(hk[0] == hk[1], "--keep 25% and --keep 0.25 give different outputs")
+    # Bad values are usage errors (exit 2) naming the flag, before any file is opened.
+    for args in (("--budget", "12Q"), ("--budget", "0"), ("--budget", "150%"), ("--keep", "0"), ("--keep", "2x"),
+                 ("--keep", "101%"), ("--mem-limit", "64Q")):
+        p = run("column-transform", os.path.join(d, "missing.ltm"), "-o", os.path.join(d, "never.ltm"), *args,
+                expect=2)
+        check(p.returncode == 2 and args[0] in p.stderr, f"{args}: exit {p.returncode}, stderr {p.stderr!r}")
+        check(not os.path.exists(os.path.join(d, "never.ltm")), f"{args}: an output was written")
+
     # 5. quantize.
     c4 = os.path.join(d, "c4.ltm")
     ct(c4, "--terms", 40)

@@ -86,6 +86,13 @@ with tempfile.TemporaryDirectory() as d:
     b0 = np.load(p("b0.npy")).astype(np.float64)
     err = np.abs(b0 - exact).max() / np.abs(exact).max()
     check(err < 1e-5, f"depth none, all terms: relative max error {err} against T·L")
+    # --terms all: every nonzero lighting coefficient, the same image as N = 6R².
+    rep = relight(p("c0.ltm"), p("b0all.npy"), "--terms", "all")
+    check(rep.get("terms") == "all" and np.array_equal(np.load(p("b0all.npy")), np.load(p("b0.npy"))),
+          f"--terms all differs from --terms {cols}: {rep}")
+    for bad in ("0", "-3", "some", "1.5"):
+        r = run("relight", p("c0.ltm"), "--env", env, "-o", p("never.npy"), "--terms", bad, expect=2)
+        check("--terms" in r.stderr and not os.path.exists(p("never.npy")), f"--terms {bad}: {r.stderr}")
 
     # 2. adaptive (Eq. 8): equals decoded matrix × the same N-term lighting.
     Lw = haar_faces(L, R)

@@ -231,6 +231,12 @@ with tempfile.TemporaryDirectory() as d:
     bad("cube_res", BASE + "[sample]\ncube_res = 12\n", 2, "bad.toml:6", "12", "not a power of two")
     bad("two budgets", BASE + "[column-transform]\nkeep = 0.1\nterms = 4\n", 2, "more than one of")
     bad("bad filter", BASE + '[row-transform]\nfilter = "db9"\n', 2, '"db9"', "haar")
+    bad("keep over 100%", BASE + '[column-transform]\nkeep = "150%"\n', 2, '"keep"', '"150%"', "fraction")
+    bad("budget unit", BASE + '[column-transform]\nbudget = "12Q"\n', 2, '"budget"', '"12Q"')
+    # ... and "5%" is read as --keep reads it: the plan's column-transform gets --keep 0.05.
+    pct = run("run", write(os.path.join(d, "pct.toml"), BASE + '[column-transform]\nkeep = "5%"\n'), "--workdir",
+              os.path.join(d, "wpct"), "--dry-run")
+    check("--keep 0.05" in pct.stdout + pct.stderr, f"keep = \"5%\": plan lacks --keep 0.05:\n{pct.stdout}")
     bad("relight without envs", BASE + "[relight]\nterms = 10\n", 2, "needs \"envs\"")
     os.environ.pop("LTBAKE_NO_SUCH_VAR", None)
     bad("unset variable", BASE + '[relight]\nenvs = ["${LTBAKE_NO_SUCH_VAR}/a.exr"]\n', 2, "LTBAKE_NO_SUCH_VAR",

@@ -1,0 +1,104 @@
+#include "stages/common/quantity.h"
+
+#include <cctype>
+#include <cmath>
+#include <cstdlib>
+#include <utility>
+
+namespace ltb::stages {
+namespace {
+
+// The number at the start of text and what follows it; false when there is no number or
+// the text does not start with a digit (strtod would take "inf", "nan", "+1", " 1").
+bool SplitNumber(const std::string& text, double* value, std::string* unit) {
+  if (text.empty() || !std::isdigit(static_cast<unsigned char>(text[0]))) return false;
+  const char* begin = text.c_str();
+  char* end = nullptr;
+  *value = std::strtod(begin, &end);
+  if (end == begin) return false;
+  *unit = std::string(end);
+  return true;
+}
+
+// Bytes per unit of ParseByteSize; 0 for an unknown unit.
+double UnitBytes(const std::string& unit) {
+  static const std::pair<const char*, double> kUnits[] = {
+      {"", 1},          {"B", 1},          {"k", 1024.0},      {"K", 1024.0},      {"KiB", 1024.0},
+      {"M", 1048576.0}, {"MiB", 1048576.0}, {"G", 1073741824.0}, {"GiB", 1073741824.0},
+      {"T", 1099511627776.0}, {"TiB", 1099511627776.0}, {"KB", 1e3}, {"MB", 1e6}, {"GB", 1e9}, {"TB", 1e12}};
+  for (const auto& [name, bytes] : kUnits) {
+    if (unit == name) return bytes;
+  }
+  return 0;
+}
+
+}  // namespace
+
+Result<uint64_t> ParseByteSize(const std::string& text) {
+  double v = 0;
+  std::string unit;
+  if (!SplitNumber(text, &v, &unit)) {
+    return InvalidArgument("size \"" + text + "\" does not start with a number (e.g. 512MiB, 4GiB)");
+  }
+  const double mult = UnitBytes(unit);
+  if (mult == 0) {
+    return InvalidArgument("size \"" + text + "\" has unknown unit \"" + unit +
+                           "\" (use B; K, M, G, T or KiB, MiB, GiB, TiB for powers of 1024; KB, MB, GB, TB for "
+                           "powers of 1000)");
+  }
+  const double bytes = v * mult;
+  if (!(bytes >= 1)) return InvalidArgument("size \"" + text + "\" is less than 1 byte (e.g. 512MiB, 4GiB)");
+  if (bytes > 9.0e18) return InvalidArgument("size \"" + text + "\" is out of range (at most 8EiB)");
+  return static_cast<uint64_t>(bytes);
+}
+
+Result<double> ParseFraction(const std::string& text) {
+  double v = 0;
+  std::string unit;
+  const bool number = SplitNumber(text, &v, &unit);
+  if (number && unit == "%") v /= 100;
+  if (!number || (!unit.empty() && unit != "%") || !(v > 0 && v <= 1)) {
+    return InvalidArgument("\"" + text + "\" is not a fraction in (0, 1] (e.g. 0.05 or 5%)");
+  }
+  return v;
+}
+
+Result<Budget> ParseBudget(const std::string& text) {
+  auto bad = [&] {
+    return InvalidArgument("budget \"" + text +
+                           "\": expected a fraction of the matrix (0.02 or 2%), a count of nonzeros (150000) or a "
+                           "size (64MiB or 64M, at 8 bytes per nonzero)");
+  };
+  double v = 0;
+  std::string unit;
+  if (!SplitNumber(text, &v, &unit) || !std::isfinite(v) || v <= 0) return bad();
+  Budget b;
+  if (unit == "%") {
+    if (v > 100) return bad();
+    b.kind = Budget::Kind::kFraction;
+    b.value = v / 100;
+  } else if (unit.empty() && text.find_first_of(".eE") != std::string::npos) {
+    if (v > 1) return bad();
+    b.kind = Budget::Kind::kFraction;
+    b.value = v;
+  } else if (unit.empty()) {
+    b.kind = Budget::Kind::kCount;
+    b.value = v;
+  } else {
+    auto bytes = ParseByteSize(text);
+    if (!bytes.ok()) return bad();
+    b.kind = Budget::Kind::kBytes;
+    b.value = static_cast<double>(*bytes);
+  }
+  return b;
+}
+
+uint64_t BudgetNonzeros(const Budget& budget, uint64_t rows, uint64_t cols) {
+  const double elements = static_cast<double>(rows) * static_cast<double>(cols);
+  double count = budget.value;
+  if (budget.kind == Budget::Kind::kFraction) count = budget.value * elements;
+  if (budget.kind == Budget::Kind::kBytes) count = budget.value / 8;
+  return static_cast<uint64_t>(std::min(std::floor(count), elements));
+}
+
+}  // namespace ltb::stages
