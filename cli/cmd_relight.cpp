@@ -103,6 +103,8 @@ class RelightCommand : public Command {
         ->default_val("auto")
         ->check(CLI::IsMember({"auto", "latlong", "hcross", "vcross", "faces"}));
     app->add_flag("--clamp", clamp_, "clamp negative, NaN and infinite radiance to valid values (counted)");
+    app->add_flag("--no-clamp-output", keep_negative_,
+                  "keep negative radiance in the relit image (by default clamped to 0: compression ringing)");
     app->add_option("--exposure", exposure_, "PNG exposure (0: automatic)")->default_val(0.0);
     app->add_flag("--json", json_, "print timings and metrics as JSON");
     AddCommonFlags(app, &flags_);
@@ -146,6 +148,11 @@ class RelightCommand : public Command {
       report["nonzeros"] = relighter->nonzeros();
       report["matrix_bytes_in_memory"] = relighter->bytes();
     }
+    // Rows that see no geometry are black in every output (stages::FinishRelitImage).
+    auto mask = stages::ReadRowMask(matrix_);
+    if (!mask.ok()) return ReportFailure(mask.status());
+    stages::OutputFixes fixes;
+    auto finish = [&](std::vector<float>* img) { fixes = stages::FinishRelitImage(*mask, keep_negative_, img); };
     auto t1 = Clock::now();
     auto env = Environment::Open(env_, basis->cube_res(), eo);
     if (!env.ok()) return ReportFailure(env.status());
@@ -190,6 +197,7 @@ class RelightCommand : public Command {
           for (int c = 0; c < 3; ++c) dense[terms.column[k] * 3 + c] = terms.rgb[k * 3 + c];
         LTB_ASSIGN_OR_RETURN(image, stages::RelightStreaming(matrix_, dense.data(), flags_.jobs, bar.hook()));
       }
+      finish(&image);
       auto c = Clock::now();
       if (lighting_ms) *lighting_ms = Ms(a, b);
       if (relight_ms) *relight_ms = Ms(b, c);
@@ -201,6 +209,8 @@ class RelightCommand : public Command {
     report["lighting_ms"] = lighting_ms;
     report["relight_ms"] = relight_ms;
     report["terms_used"] = terms.column.size();
+    report["output"] = {{"masked_rows", fixes.masked_rows},
+                        {"clamped_values", keep_negative_ ? nlohmann::json(nullptr) : nlohmann::json(fixes.clamped_values)}};
     s = stages::WriteImage(output_, image.data(), rows, width, height, {.exposure = exposure_});
     if (!s.ok()) return ReportFailure(s);
     std::vector<float> first = image;
@@ -246,6 +256,7 @@ class RelightCommand : public Command {
       ref_basis->ToBasis(full_ref.data());
       auto exact = stages::RelightStreaming(reference_, full_ref.data(), flags_.jobs, bar.hook());
       if (!exact.ok()) return ReportFailure(exact.status());
+      finish(&*exact);  // T·L ≥ 0: clamps f32 rounding at most
       // Lighting alone: the kept terms, back in pixels, then into the reference's basis.
       std::vector<float> approx(full.size(), 0.0f);
       for (size_t k = 0; k < first_terms.column.size(); ++k)
@@ -254,6 +265,7 @@ class RelightCommand : public Command {
       ref_basis->ToBasis(approx.data());
       auto light_only = stages::RelightStreaming(reference_, approx.data(), flags_.jobs, bar.hook());
       if (!light_only.ok()) return ReportFailure(light_only.status());
+      finish(&*light_only);
       auto metrics = [&](const std::vector<float>& img) {
         auto e = stages::CompareImages(img.data(), exact->data(), rows, width, height);
         nlohmann::json j = {{"rel_l2", e.rel_l2}, {"psnr_db", e.psnr}};
@@ -278,6 +290,7 @@ class RelightCommand : public Command {
         if (!m.ok()) return ReportFailure(m.status());
         matrix_only = std::move(*m);
       }
+      finish(&matrix_only);
       report["error_matrix_only"] = metrics(matrix_only);
     }
     bar.Done();
@@ -312,7 +325,7 @@ class RelightCommand : public Command {
   uint64_t terms_ = 100;
   int frames_ = 0;
   double rotate_deg_ = 0, exposure_ = 0;
-  bool clamp_ = false, json_ = false;
+  bool clamp_ = false, json_ = false, keep_negative_ = false;
   CommonFlags flags_;
 };
 

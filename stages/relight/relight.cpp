@@ -407,4 +407,51 @@ ImageErrors CompareImages(const float* image, const float* ref, uint64_t rows, u
   return e;
 }
 
+Result<std::vector<uint8_t>> ReadRowMask(const std::string& path) {
+  LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(path));
+  const Metadata& meta = in.metadata();
+  std::vector<uint8_t> mask;
+  const int m = meta.FindArray("mask");
+  if (m < 0) return mask;
+  const ArraySpec& s = meta.arrays[m];
+  const uint64_t rows = meta.matrix().rows;
+  if (s.dtype != DType::kU8 || s.cols != 1 || s.rows != rows || s.layout != Layout::kRows) {
+    return DataLoss(path + ": side table \"mask\" is " + std::to_string(s.rows) + " x " + std::to_string(s.cols) +
+                    " " + DTypeName(s.dtype) + ", not one u8 per row of the " + std::to_string(rows) + "-row matrix");
+  }
+  mask.reserve(rows);
+  for (uint64_t c = 0; c < s.ChunkCount(); ++c) {
+    LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(static_cast<uint32_t>(m), c));
+    auto v = chunk.as<uint8_t>();
+    mask.insert(mask.end(), v.begin(), v.end());
+  }
+  if (mask.size() != rows) {
+    return DataLoss(path + ": side table \"mask\" holds " + std::to_string(mask.size()) + " rows, not " +
+                    std::to_string(rows));
+  }
+  return mask;
+}
+
+OutputFixes FinishRelitImage(const std::vector<uint8_t>& mask, bool keep_negative, std::vector<float>* image) {
+  OutputFixes fixes;
+  const uint64_t rows = image->size() / 3;
+  float* px = image->data();
+  if (mask.size() == rows) {
+    for (uint64_t r = 0; r < rows; ++r) {
+      if (mask[r] != 0) continue;
+      px[3 * r] = px[3 * r + 1] = px[3 * r + 2] = 0.0f;
+      ++fixes.masked_rows;
+    }
+  }
+  if (!keep_negative) {
+    for (float& v : *image) {
+      if (v < 0.0f) {
+        v = 0.0f;
+        ++fixes.clamped_values;
+      }
+    }
+  }
+  return fixes;
+}
+
 }  // namespace ltb::stages

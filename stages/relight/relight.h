@@ -109,4 +109,20 @@ struct ImageErrors {
 };
 ImageErrors CompareImages(const float* image, const float* reference, uint64_t rows, uint64_t width, uint64_t height);
 
+// The matrix's "mask" side table (a u8 per row, 0: the pixel sees no geometry), read whole;
+// empty when the container has none (a converted .npy matrix, cpca.ltm). The file, the
+// table and the chunk are named on errors.
+Result<std::vector<uint8_t>> ReadRowMask(const std::string& path);
+
+// What relight does to every image it outputs (docs/RELIGHT.md "Output"): a row whose mask
+// is 0 is black — the uncompressed transport there is exactly 0, and what a compressed
+// matrix holds there is ringing of its column transform — and, unless keep_negative,
+// negative radiance (the same ringing, or an approximated lighting's negative lobes) is
+// clamped to 0. `mask` is empty or one entry per row.
+struct OutputFixes {
+  uint64_t masked_rows = 0;      // rows set to 0 by the mask (whatever they held)
+  uint64_t clamped_values = 0;   // negative values set to 0
+};
+OutputFixes FinishRelitImage(const std::vector<uint8_t>& mask, bool keep_negative, std::vector<float>* image);
+
 }  // namespace ltb::stages

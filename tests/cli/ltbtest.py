@@ -74,3 +74,23 @@ def kill_storm(args, out, kills, max_delay, seed):
         if os.path.exists(out):
             v = json.loads(run("verify", "--allow-incomplete", "--json", out).stdout)[0]
             check(v["ok"], f"kill {k}: partial output does not verify: {v}")
+
+
+def side_table(ltm, name):
+    """A side table (row blocks, raw or all-zero chunks: mask, position, normal) read
+    straight from the file's bytes at the offsets `inspect --chunks` lists, as NumPy."""
+    import json
+    import numpy as np
+    info = json.loads(run("inspect", ltm, "--json", "--chunks").stdout)
+    arr = next(a for a in info["arrays"] if a["name"] == name)
+    rows, cols, block = arr["shape"][0], arr["shape"][1], arr["block"]
+    dtype = {"f32": np.float32, "u8": np.uint8}[arr["dtype"]]
+    raw = open(ltm, "rb").read()
+    out = np.zeros((rows, cols), dtype)
+    for c in info["chunk_list"]:
+        if c["array"] != name or c["encoding"] == "zero":
+            continue
+        r0 = c["index"] * block
+        v = np.frombuffer(raw, dtype, count=c["decoded_bytes"] // np.dtype(dtype).itemsize, offset=c["offset"] + 64)
+        out[r0:r0 + len(v) // cols] = v.reshape(-1, cols)
+    return out

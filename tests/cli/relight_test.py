@@ -18,7 +18,7 @@ import numpy as np
 import pywt
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ltbtest import check, finish, run  # noqa: E402
+from ltbtest import check, finish, run, side_table  # noqa: E402
 
 
 def haar_faces(L, R):
@@ -181,5 +181,47 @@ with tempfile.TemporaryDirectory() as d:
         check(a.get("clamped_values", 0) > 0 and b.get("terms_used") == 30, f"env reports: {a} {b}")
     else:
         check(False, f"blender-data maps not found under {envdir!r}: scripts/setup.sh installs blender-data")
+
+    # 8. What every output gets (docs/RELIGHT.md "Output"): negative radiance clamped to 0
+    # unless --no-clamp-output. A transport matrix with negative entries makes T·L negative
+    # in places; with every term the image is T·L exactly, so the clamped one is max(T·L, 0).
+    Tn = T.copy()
+    Tn[:, ::3] *= -1
+    np.save(p("Tn.npy"), Tn)
+    run("convert", p("Tn.npy"), p("tn.ltm"), "--cube-res", R, "--image", f"{W}x{H}", "--layout", "cols", *q)
+    want = Tn.astype(np.float64) @ L.astype(np.float64)
+    kept = relight(p("tn.ltm"), p("tn_keep.npy"), "--terms", "all", "--no-clamp-output")
+    clamped = relight(p("tn.ltm"), p("tn_clamp.npy"), "--terms", "all")
+    nk, nc = np.load(p("tn_keep.npy")), np.load(p("tn_clamp.npy"))
+    check((want < 0).sum() > 0 and np.abs(nk - want).max() <= 1e-5 * np.abs(want).max(),
+          f"--no-clamp-output: differs from T·L by {np.abs(nk - want).max()} ({(want < 0).sum()} negative pixels)")
+    check(np.array_equal(nc, np.maximum(nk, 0)), "default output is not max(T·L, 0)")
+    check(clamped.get("output", {}).get("clamped_values") == int((nk < 0).sum()) and
+          kept.get("output", {}).get("clamped_values") is None, f"clamp counts: {clamped.get('output')} {kept.get('output')}")
+
+    # ... and rows that see no geometry (mask 0) are black: a real bake's final.ltm carries
+    # the mask, and its column transform rings into those rows (the matrix decoded to pixels
+    # holds nonzeros there). With every term, the image is D·L on mask-1 rows, 0 elsewhere.
+    bake = p("bake")
+    run("run", os.path.join(os.path.dirname(os.path.abspath(__file__)), "../../samples/tiny-bake.toml"), "--workdir",
+        bake, "-q")
+    fin = os.path.join(bake, "final.ltm")
+    mask = side_table(fin, "mask")[:, 0]
+    run("convert", fin, p("fin.npy"), "--basis", "pixels", *q)
+    D = np.load(p("fin.npy")).astype(np.float64)
+    Lb = np.random.default_rng(5).uniform(0.1, 1.0, (D.shape[1], 3)).astype(np.float32)
+    np.save(p("envb.npy"), Lb)
+    want = D @ Lb.astype(np.float64)
+    bg = mask == 0
+    check(bg.sum() > 0 and (~bg).sum() > 0 and np.abs(want[bg]).max() > 0,
+          f"tiny bake: expected background rows holding ringing ({bg.sum()} mask-0 rows)")
+    for extra in ((), ("--no-clamp-output",)):
+        rep = json.loads(run("relight", fin, "--env", p("envb.npy"), "-o", p("bm.npy"), "--terms", "all", "--json",
+                             *q, *extra).stdout)
+        img = np.load(p("bm.npy")).astype(np.float64)
+        expect = np.where(bg[:, None], 0.0, want if extra else np.maximum(want, 0))
+        err = np.abs(img - expect).max()
+        check(err <= 1e-4 * np.abs(want).max(), f"mask {extra}: differs from D·L with black background by {err}")
+        check(rep.get("output", {}).get("masked_rows") == int(bg.sum()), f"mask {extra}: report {rep.get('output')}")
 
 finish()

@@ -28,7 +28,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ltbtest import LTBAKE, check, failures, finish, kill_storm, run  # noqa: E402
+from ltbtest import LTBAKE, check, failures, finish, kill_storm, run, side_table  # noqa: E402
 
 DELTA = 1e-9
 
@@ -47,23 +47,6 @@ def load(d, ltm):
     run("convert", ltm, out)
     T = np.load(out).astype(np.float64)
     return T
-
-
-def side_table(ltm, name):
-    """Reads a side table's raw chunks (row blocks) straight from the file."""
-    info = json.loads(run("inspect", ltm, "--json", "--chunks").stdout)
-    arr = next(a for a in info["arrays"] if a["name"] == name)
-    rows, cols, block = arr["shape"][0], arr["shape"][1], arr["block"]
-    dtype = {"f32": np.float32, "u8": np.uint8}[arr["dtype"]]
-    raw = open(ltm, "rb").read()
-    out = np.zeros((rows, cols), dtype)
-    for c in info["chunk_list"]:
-        if c["array"] != name or c["encoding"] == "zero":
-            continue
-        r0 = c["index"] * block
-        v = np.frombuffer(raw, dtype, count=c["decoded_bytes"] // np.dtype(dtype).itemsize, offset=c["offset"] + 64)
-        out[r0:r0 + len(v) // cols] = v.reshape(-1, cols)
-    return out
 
 
 def scene(d, name, body):
