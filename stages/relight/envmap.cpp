@@ -78,6 +78,22 @@ std::string MiB(uint64_t bytes) {
   return buf;
 }
 
+// The same for sizes computed in double from a hostile header, which may pass 2^64 (a
+// conversion to uint64_t would be undefined: exr_fuzzer run 7).
+std::string MiB(double bytes) {
+  char buf[48];
+  std::snprintf(buf, sizeof buf, "%.1f MiB", bytes / (1 << 20));
+  return buf;
+}
+
+// A count held in a double, in full while exact (below 2^53), else in %.4g.
+std::string Count(double v) {
+  if (v < 9007199254740992.0) return std::to_string(uint64_t(v));
+  char buf[48];
+  std::snprintf(buf, sizeof buf, "%.4g", v);
+  return buf;
+}
+
 // `count` floats of pixels (rgb.resize), or a status naming the image. Call only after the
 // sizes were checked against the cap, the file and the memory limit; never throws.
 Status AllocatePixels(PixelBuffer* rgb, uint64_t count, const std::string& path, const std::string& what) {
@@ -489,8 +505,8 @@ Status CheckExrLayout(const std::string& path, int part, const ExrLayout& l, uin
     block = double(w) * double(l.bytes_per_pixel) * double(lines);  // allocated whole, even for fewer rows
   }
   if (chunks * 8 > double(size)) {
-    return DataLoss(where + std::to_string(uint64_t(chunks)) + " chunks): its chunk offset table alone needs " +
-                    std::to_string(uint64_t(chunks) * 8) + " bytes, more than the file's " + std::to_string(size) +
+    return DataLoss(where + Count(chunks) + " chunks): its chunk offset table alone needs " + Count(chunks * 8) +
+                    " bytes, more than the file's " + std::to_string(size) +
                     " (the data window is damaged or the file is truncated)");
   }
   // A block of lines or a tile, and the compressor's input and output buffers of that size.
@@ -504,7 +520,7 @@ Status CheckExrLayout(const std::string& path, int part, const ExrLayout& l, uin
                              : l.tiled        ? "tile of " + std::to_string(l.tile_x) + "x" + std::to_string(l.tile_y)
                                               : "block of " + std::to_string(ExrLinesPerChunk(l.compression)) + " lines";
     return InvalidArgument(where + std::to_string(l.bytes_per_pixel) + " bytes per pixel): OpenEXR would need " +
-                           MiB(uint64_t(need)) + " to decode one " + unit + ", beyond " +
+                           MiB(need) + " to decode one " + unit + ", beyond " +
                            (cap == max_bytes ? "the memory limit of " + MiB(cap) + " (--mem-limit)"
                                              : "the " + MiB(cap) + " ltbake allows for one block") +
                            " (the data window is damaged, or save the map with fewer lines per chunk)");

@@ -259,6 +259,13 @@ with tempfile.TemporaryDirectory() as d:
     convert_env(f, [f, "4194304x1", "luminance-chroma", "1024.0 MiB"], what="exr luminance-chroma 2^22 wide")
     f = write(p("tile.exr"), exr_header_only((0, 0, 63, 31), tiles=(65536, 65536)))
     convert_env(f, [f, "tile of 65536x65536"], what="exr tile of 65536^2")
+    # Sizes past 2^64 (exr_fuzzer run 7: their conversion to an integer for the message was
+    # undefined behaviour, which the sanitizer tree reports): a tile of (2^32 - 1)², and
+    # 2^64 tiles of 1x1 over the whole int range.
+    f = write(p("tile_max.exr"), exr_header_only((0, 0, 63, 31), tiles=(2**32 - 1, 2**32 - 1)))
+    convert_env(f, [f, "tile of 4294967295x4294967295"], what="exr tile of (2^32-1)^2")
+    f = write(p("tiles_2_64.exr"), exr_header_only((-2**31, -2**31, 2**31 - 1, 2**31 - 1), tiles=(1, 1)))
+    convert_env(f, [f, "1.845e+19 chunks", "chunk offset table"], what="exr 2^64 tiles")
     # ... and a 2^20-wide, one-row Y map: ltbake's own strip buffers were sized for 256
     # rows (1 GiB of scratch for one row, refused by --mem-limit); now for the rows there are. Refused only for its
     # missing pixels, not for memory.
