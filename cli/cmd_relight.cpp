@@ -122,7 +122,8 @@ class RelightCommand : public Command {
     eo.layout = *stages::ParseEnvLayout(layout_);  // checked by IsMember
     eo.max_bytes = *mem;  // the map's pixels (and an .hdr's bytes) within --mem-limit
     eo.progress = bar.hook();
-    nlohmann::json report = {{"matrix", matrix_}, {"env", env_}, {"terms", terms_text_ == "all" ? nlohmann::json("all") : nlohmann::json(terms_)}, {"weighting", weighting_}};
+    const nlohmann::json terms_json = terms_text_ == "all" ? nlohmann::json("all") : nlohmann::json(terms_);
+    nlohmann::json report = {{"matrix", matrix_}, {"env", env_}, {"terms", terms_json}, {"weighting", weighting_}};
 
     auto t0 = Clock::now();
     auto reader = io::ContainerReader::Open(matrix_);
@@ -209,8 +210,8 @@ class RelightCommand : public Command {
     report["lighting_ms"] = lighting_ms;
     report["relight_ms"] = relight_ms;
     report["terms_used"] = terms.column.size();
-    report["output"] = {{"masked_rows", fixes.masked_rows},
-                        {"clamped_values", keep_negative_ ? nlohmann::json(nullptr) : nlohmann::json(fixes.clamped_values)}};
+    report["output"] = {{"masked_rows", fixes.masked_rows}, {"clamped_values", nullptr}};
+    if (!keep_negative_) report["output"]["clamped_values"] = fixes.clamped_values;
     s = stages::WriteImage(output_, image.data(), rows, width, height, {.exposure = exposure_});
     if (!s.ok()) return ReportFailure(s);
     std::vector<float> first = image;
