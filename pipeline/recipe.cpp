@@ -165,8 +165,8 @@ Status ParseColumnTransform(const std::string& path, const toml::table& t, Recip
   LTB_ASSIGN_OR_RETURN(c->filter, GetChoice(path, t, "filter", c->filter,
                                             {"legall53", "cdf97", "haar", "db1", "db2", "db3", "db4"}));
   if (const toml::node* d = t.get("depth")) {
-    if (auto k = d->value<int64_t>()) {
-      c->depth = std::to_string(*k);
+    if (d->is_integer()) {  // never a float node's value<int64_t>() (a plain cast in toml++)
+      c->depth = std::to_string(*d->value<int64_t>());
     } else if (auto s = d->value<std::string>()) {
       c->depth = *s;
     } else {

@@ -69,8 +69,10 @@ Result<uint64_t> GetUnsigned(const std::string& path, const toml::table& t, cons
                              uint64_t hi) {
   const toml::node* n = t.get(key);
   if (n == nullptr) return def;
-  std::optional<int64_t> v = n->value<int64_t>();
-  if (!n->is_integer() || !v || *v < 0 || static_cast<uint64_t>(*v) < lo || static_cast<uint64_t>(*v) > hi) {
+  // Only an integer node is asked for its integer: toml++ converts a float node to int64_t
+  // by a plain cast, undefined beyond its range (a seed of 1e30: found by UBSan).
+  const std::optional<int64_t> v = n->is_integer() ? n->value<int64_t>() : std::nullopt;
+  if (!v || *v < 0 || static_cast<uint64_t>(*v) < lo || static_cast<uint64_t>(*v) > hi) {
     return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + ValueText(*n) + "; it must be an integer in [" +
                            std::to_string(lo) + ", " + std::to_string(hi) + "]");
   }
