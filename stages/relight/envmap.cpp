@@ -766,10 +766,18 @@ Status CheckValues(Image* img, const std::string& path, EnvLayout layout, uint64
   return InvalidArgument(msg);
 }
 
-std::string AcceptedLayouts() {
-  return "accepted: lat-long width = 2·height (e.g. 2048x1024), horizontal cross 4:3 (4F x 3F), vertical cross "
-         "3:4 (3F x 4F), or six square face files through a {face} path (px nx py ny pz nz); --env-layout latlong "
-         "takes any size";
+// What auto-detection accepts, for a map of w × h it did not recognise. A square map is
+// named for what it most likely is (an angular light probe or a mirror ball, which ltbake
+// does not read): `--env-layout latlong` would read it without error and wrongly.
+std::string AcceptedLayouts(uint64_t w, uint64_t h) {
+  std::string s =
+      "accepted: lat-long width = 2·height (e.g. 2048x1024), horizontal cross 4:3 (4F x 3F), vertical cross "
+      "3:4 (3F x 4F), or six square face files through a {face} path (px nx py ny pz nz)";
+  if (w == h) {
+    return s + ". A square map is usually an angular (light-probe) or mirror-ball map, which ltbake does not read: "
+               "resample it to lat-long first (--env-layout latlong would read it, wrongly)";
+  }
+  return s + "; --env-layout latlong reads a lat-long map of any other size";
 }
 
 Result<EnvMap> LoadFaces(const std::string& path, const EnvLoadOptions& o) {
@@ -852,7 +860,7 @@ Result<EnvMap> LoadEnvMap(const std::string& path, const EnvLoadOptions& o) {
       layout = EnvLayout::kVCross;
     } else {
       return InvalidArgument(path + ": " + Size(w, h) + " is not an environment map shape ltbake recognises; " +
-                             AcceptedLayouts());
+                             AcceptedLayouts(w, h));
     }
   } else if (layout == EnvLayout::kHCross && 3 * w != 4 * h) {
     return InvalidArgument(path + ": " + Size(w, h) + " is not a horizontal cross (4F x 3F, width:height = 4:3)");

@@ -212,6 +212,14 @@ with tempfile.TemporaryDirectory() as d:
         cube = np.load(p("ok.npy"))
         check(np.allclose(cube, 1.0, rtol=1e-5), f"repeat-record hdr decoded to {cube.min()}..{cube.max()}, not 1.0")
 
+    # A square map (a light probe, most likely) is refused by auto-detection, naming what it
+    # probably is, and the message must not point at --env-layout latlong as the way out.
+    f = hdr(p("probe.hdr"), "-Y 16 +X 16", rle_scanline(16) * 16)
+    _, err = convert_env(f, [f, "16x16", "angular", "mirror-ball", "lat-long first"], what="square .hdr (a probe?)")
+    check("--env-layout latlong reads" not in err, f"square map: the message suggests latlong: {err}")
+    f = hdr(p("odd.hdr"), "-Y 10 +X 16", rle_scanline(16) * 10)
+    convert_env(f, [f, "16x10", "--env-layout latlong reads a lat-long map"], what="16x10 .hdr")
+
     # ---- OpenEXR ----------------------------------------------------------------------
     write(p("ok.exr"), exr(64, 32))
     code, _ = run_hostile(["convert", p("ok.exr"), p("ok_exr.npy"), "--cube-res", 4, *Q], expect=(0,), time_limit=T,
