@@ -34,9 +34,9 @@ class ConvertCommand : public Command {
         ->check(CLI::IsMember({"stored", "pixels"}));
     app->add_option("--env-layout", env_layout_,
                     "environment map input (.exr/.hdr, or six faces through {face}) -> .npy cubemap: auto, latlong, "
-                    "hcross, vcross or faces")
+                    "hcross, vcross, faces or angular (light probe)")
         ->default_val("auto")
-        ->check(CLI::IsMember({"auto", "latlong", "hcross", "vcross", "faces"}));
+        ->check(CLI::IsMember({"auto", "latlong", "hcross", "vcross", "faces", "angular"}));
     app->add_flag("--clamp", env_clamp_,
                   "environment map input: set NaN and negative values to 0 and +Inf to the largest float instead of "
                   "refusing them");

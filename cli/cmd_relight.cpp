@@ -99,9 +99,9 @@ class RelightCommand : public Command {
         ->default_val(0)
         ->check(CLI::Range(0, 1 << 20));
     app->add_option("--rotate", rotate_deg_, "rotate the environment about +Z by this many degrees")->default_val(0.0);
-    app->add_option("--env-layout", layout_, "auto, latlong, hcross, vcross or faces")
+    app->add_option("--env-layout", layout_, "auto, latlong, hcross, vcross, faces or angular (light probe)")
         ->default_val("auto")
-        ->check(CLI::IsMember({"auto", "latlong", "hcross", "vcross", "faces"}));
+        ->check(CLI::IsMember({"auto", "latlong", "hcross", "vcross", "faces", "angular"}));
     app->add_flag("--clamp", clamp_, "clamp negative, NaN and infinite radiance to valid values (counted)");
     app->add_flag("--no-clamp-output", keep_negative_,
                   "keep negative radiance in the relit image (by default clamped to 0: compression ringing)");

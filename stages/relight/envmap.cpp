@@ -689,6 +689,38 @@ int CrossFace(EnvLayout layout, uint64_t col, uint64_t row) {
   return 0;
 }
 
+// Angular (light-probe) maps, as Debevec distributes his probes: a square image whose
+// inscribed disk holds every direction. With (u, v) in [-1, 1]² (u right, v up) and
+// r = |(u, v)|, the direction at (u, v) lies at the angle π·r from the map's centre
+// direction, towards the image direction (u, v); the disk's rim is the direction behind.
+// The centre is the direction of a lat-long map's centre column (+X), up is +Z and right
+// is the direction of increasing lat-long u at that centre (−Y), so a probe and its
+// lat-long panorama converted centre to centre give the same cubemap (docs/ENVMAPS.md).
+glm::dvec3 AngularDirection(double u, double v) {
+  const double r = std::sqrt(u * u + v * v);
+  const double s = r > 0 ? std::sin(kPi * r) / r : kPi;  // sin(πr)/r → π at the centre
+  return {std::cos(kPi * r), -u * s, v * s};  // forward +X, right −Y, up +Z
+}
+
+// The pixel (x, y) of a W×W angular map holding direction d.
+void DirectionToAngular(const glm::dvec3& d, uint64_t w, uint64_t* x, uint64_t* y) {
+  const glm::dvec3 n = glm::normalize(d);
+  const double pu = -n.y, pv = n.z, len = std::sqrt(pu * pu + pv * pv);
+  const double r = std::acos(std::clamp(n.x, -1.0, 1.0)) / kPi;
+  const double u = len > 0 ? pu / len * r : 0.0, v = len > 0 ? pv / len * r : 0.0;
+  *x = std::min<uint64_t>(w - 1, uint64_t(std::max(0.0, (u + 1.0) * 0.5 * double(w))));
+  *y = std::min<uint64_t>(w - 1, uint64_t(std::max(0.0, (1.0 - v) * 0.5 * double(w))));
+}
+
+// Whether pixel (x, y) of a W×W angular map touches the disk (the pixels the resampler
+// reads; the values of the others are never used, so they are not checked).
+bool InAngularDisk(uint64_t x, uint64_t y, uint64_t w) {
+  auto nearest = [](double a, double b) { return a > 0 ? a : b < 0 ? b : 0.0; };  // of [a, b] to 0
+  const double u = nearest(2.0 * double(x) / double(w) - 1.0, 2.0 * double(x + 1) / double(w) - 1.0);
+  const double v = nearest(1.0 - 2.0 * double(y + 1) / double(w), 1.0 - 2.0 * double(y) / double(w));
+  return u * u + v * v <= 1.0;
+}
+
 // Face size and the pixel origin of each face in a face layout.
 struct FaceGeometry {
   uint64_t size = 0;
@@ -733,6 +765,7 @@ Status CheckValues(Image* img, const std::string& path, EnvLayout layout, uint64
           CrossFace(layout, x / face_size, y / face_size) < 0) {
         continue;
       }
+      if (layout == EnvLayout::kAngular && !InAngularDisk(x, y, img->width)) continue;
       float* p = &img->rgb[(y * img->width + x) * 3];
       for (int c = 0; c < 3; ++c) {
         const float v = p[c];
@@ -767,15 +800,17 @@ Status CheckValues(Image* img, const std::string& path, EnvLayout layout, uint64
 }
 
 // What auto-detection accepts, for a map of w × h it did not recognise. A square map is
-// named for what it most likely is (an angular light probe or a mirror ball, which ltbake
-// does not read): `--env-layout latlong` would read it without error and wrongly.
+// named for what it most likely is (an angular light probe, read with --env-layout angular,
+// or a mirror ball, which ltbake does not read): `--env-layout latlong` would read it
+// without error and wrongly.
 std::string AcceptedLayouts(uint64_t w, uint64_t h) {
   std::string s =
       "accepted: lat-long width = 2·height (e.g. 2048x1024), horizontal cross 4:3 (4F x 3F), vertical cross "
       "3:4 (3F x 4F), or six square face files through a {face} path (px nx py ny pz nz)";
   if (w == h) {
-    return s + ". A square map is usually an angular (light-probe) or mirror-ball map, which ltbake does not read: "
-               "resample it to lat-long first (--env-layout latlong would read it, wrongly)";
+    return s + ". A square map is usually an angular (light-probe) map: say so with --env-layout angular; a "
+               "mirror-ball map ltbake does not read: resample it to lat-long first (--env-layout latlong would read "
+               "either, wrongly)";
   }
   return s + "; --env-layout latlong reads a lat-long map of any other size";
 }
@@ -822,16 +857,19 @@ const char* EnvLayoutName(EnvLayout layout) {
     case EnvLayout::kHCross: return "hcross";
     case EnvLayout::kVCross: return "vcross";
     case EnvLayout::kFaces: return "faces";
+    case EnvLayout::kAngular: return "angular";
   }
   return "?";
 }
 
 Result<EnvLayout> ParseEnvLayout(const std::string& name) {
   for (EnvLayout l :
-       {EnvLayout::kAuto, EnvLayout::kLatLong, EnvLayout::kHCross, EnvLayout::kVCross, EnvLayout::kFaces}) {
+       {EnvLayout::kAuto, EnvLayout::kLatLong, EnvLayout::kHCross, EnvLayout::kVCross, EnvLayout::kFaces,
+        EnvLayout::kAngular}) {
     if (name == EnvLayoutName(l)) return l;
   }
-  return InvalidArgument("environment layout \"" + name + "\" is not one of auto, latlong, hcross, vcross, faces");
+  return InvalidArgument("environment layout \"" + name +
+                         "\" is not one of auto, latlong, hcross, vcross, faces, angular");
 }
 
 bool IsEnvMapPath(const std::string& path) {
@@ -866,6 +904,8 @@ Result<EnvMap> LoadEnvMap(const std::string& path, const EnvLoadOptions& o) {
     return InvalidArgument(path + ": " + Size(w, h) + " is not a horizontal cross (4F x 3F, width:height = 4:3)");
   } else if (layout == EnvLayout::kVCross && 4 * w != 3 * h) {
     return InvalidArgument(path + ": " + Size(w, h) + " is not a vertical cross (3F x 4F, width:height = 3:4)");
+  } else if (layout == EnvLayout::kAngular && w != h) {
+    return InvalidArgument(path + ": " + Size(w, h) + " is not an angular map (a square image holding the disk)");
   } else if (layout == EnvLayout::kFaces && h != 6 * w) {
     return InvalidArgument(path + ": " + Size(w, h) +
                            " is not a strip of six faces (F x 6F); for six files use a path with {face}");
@@ -1100,6 +1140,50 @@ Result<CubemapResampler> CubemapResampler::CreateUnchecked(const EnvMap& env, ui
           cubemap::Texel x =
               cubemap::DirectionToTexel(LatLongDirection((I + 0.5) / rs.ww_, (J + 0.5) / rs.hw_), uint32_t(F));
           for (int c = 0; c < 3; ++c) work[px * 3 + c] = source(x.face, x.s, x.t)[c];
+        }
+      }
+  } else if (env.layout == EnvLayout::kAngular) {
+    // As for cube faces: k×k sub-pixels of each source pixel splatted into the working pixel
+    // holding their centre direction, each weighing its solid angle π·sin(πr)/r·du·dv (the
+    // map is equi-angular in r: dω = sin θ dθ dφ with θ = πr). Sub-pixels about half a
+    // working row across (a pixel spans 2π/W in θ).
+    const uint64_t W = env.width;
+    rs.hw_ = target_rows;
+    rs.ww_ = target_cols;
+    uint64_t k = std::max<uint64_t>(1, uint64_t(std::ceil(4.0 * double(rs.hw_) / double(W))));
+    while (k > 1 && W * W * k * k > (1ull << 25)) --k;
+    const double du = 2.0 / double(W * k);
+    std::vector<double> ldw(rs.hw_ * rs.ww_ * 3, 0.0), dw(rs.hw_ * rs.ww_, 0.0);
+    for (uint64_t y = 0; y < W * k; ++y) {
+      LTB_RETURN_IF_ERROR(cancelled(y, "working grid"));
+      const double v = 1.0 - (double(y) + 0.5) * du;
+      for (uint64_t x = 0; x < W * k; ++x) {
+        const double u = -1.0 + (double(x) + 0.5) * du;
+        const double r = std::sqrt(u * u + v * v);
+        if (r > 1.0) continue;
+        const double domega = (r > 0 ? kPi * std::sin(kPi * r) / r : kPi * kPi) * du * du;
+        double lu, lv;
+        DirectionToLatLong(AngularDirection(u, v), &lu, &lv);
+        const uint64_t I = std::min<uint64_t>(uint64_t(lu * rs.ww_), rs.ww_ - 1);
+        const uint64_t J = std::min<uint64_t>(uint64_t(lv * rs.hw_), rs.hw_ - 1);
+        const float* L = &env.rgb[((y / k) * W + x / k) * 3];
+        dw[J * rs.ww_ + I] += domega;
+        for (int c = 0; c < 3; ++c) {
+          ldw[(J * rs.ww_ + I) * 3 + c] += L[c] * domega;
+          rs.power_[c] += L[c] * domega;
+        }
+      }
+    }
+    work.assign(rs.hw_ * rs.ww_ * 3, 0.0);
+    for (uint64_t J = 0; J < rs.hw_; ++J)
+      for (uint64_t I = 0; I < rs.ww_; ++I) {
+        const uint64_t px = J * rs.ww_ + I;
+        if (dw[px] > 0) {
+          for (int c = 0; c < 3; ++c) work[px * 3 + c] = ldw[px * 3 + c] / dw[px];
+        } else {  // reached by no sub-pixel centre: the source at the working pixel's centre
+          uint64_t x, y;
+          DirectionToAngular(LatLongDirection((I + 0.5) / rs.ww_, (J + 0.5) / rs.hw_), W, &x, &y);
+          for (int c = 0; c < 3; ++c) work[px * 3 + c] = env.rgb[(y * W + x) * 3 + c];
         }
       }
   } else {

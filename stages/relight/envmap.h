@@ -41,9 +41,9 @@ struct DefaultInitAllocator : std::allocator<T> {
 };
 using PixelBuffer = std::vector<float, DefaultInitAllocator<float>>;
 
-enum class EnvLayout { kAuto, kLatLong, kHCross, kVCross, kFaces };
+enum class EnvLayout { kAuto, kLatLong, kHCross, kVCross, kFaces, kAngular };
 
-// "auto", "latlong", "hcross", "vcross", "faces" (the --env-layout spellings).
+// "auto", "latlong", "hcross", "vcross", "faces", "angular" (the --env-layout spellings).
 const char* EnvLayoutName(EnvLayout layout);
 Result<EnvLayout> ParseEnvLayout(const std::string& name);
 

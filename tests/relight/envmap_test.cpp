@@ -379,6 +379,56 @@ TEST_F(EnvMapTest, LatLongCrossesAndFacesOfTheSameFunctionAgree) {
   }
 }
 
+TEST_F(EnvMapTest, AngularMapOfTheSameFunctionAgreesWithLatLong) {
+  // docs/ENVMAPS.md: pixel (u, v) of an angular map (u right, v up, in [-1, 1]) shows the
+  // direction at angle π·|(u, v)| from the centre direction towards (u, v) in the image's
+  // right/up frame; the centre is a lat-long map's centre column, up is +Z, right is the
+  // direction of increasing lat-long u there. Derived here from the test's own lat-long
+  // Direction(), not from ltbake's. Pixels outside the disk hold NaN: they must never be read.
+  const glm::dvec3 fwd = Direction(0.5, 0.5), up(0, 0, 1);
+  const glm::dvec3 right = glm::normalize(Direction(0.5 + 1e-6, 0.5) - fwd);
+  const int W = 512;
+  Pixels ang(size_t(W) * W * 3);
+  for (int y = 0; y < W; ++y)
+    for (int x = 0; x < W; ++x) {
+      // Pixels whose square misses the disk are never read: NaN there must go unnoticed.
+      const double u0 = 2.0 * x / W - 1, u1 = 2.0 * (x + 1) / W - 1, v0 = 1 - 2.0 * (y + 1) / W, v1 = 1 - 2.0 * y / W;
+      const double nu = u0 > 0 ? u0 : u1 < 0 ? u1 : 0, nv = v0 > 0 ? v0 : v1 < 0 ? v1 : 0;
+      const double u = (u0 + u1) / 2, v = (v0 + v1) / 2, r = std::sqrt(u * u + v * v);
+      glm::dvec3 d = std::cos(kPi * r) * fwd;
+      if (r > 0) d += std::sin(kPi * r) * (u / r * right + v / r * up);
+      for (int c = 0; c < 3; ++c) {
+        ang[(size_t(y) * W + x) * 3 + c] = nu * nu + nv * nv > 1 ? std::nanf("") : float(Smooth(d, c));
+      }
+    }
+  WriteExrFloat(Path("ang.exr"), W, W, ang);
+  WriteExrFloat(Path("ll.exr"), 1024, 512, LatLongOf(1024, 512, [](const glm::dvec3& d, int c) { return Smooth(d, c); }));
+  EnvLoadOptions o;
+  o.layout = EnvLayout::kAngular;
+  const uint64_t r = 8;
+  for (double rot : {0.0, 0.9}) {
+    Cube ll = Resampled(Path("ll.exr"), r, rot), an = Resampled(Path("ang.exr"), r, rot, o);
+    double worst = 0;
+    for (size_t i = 0; i < ll.texels.size(); ++i) {
+      worst = std::max(worst, double(std::fabs(ll.texels[i] - an.texels[i]) / ll.texels[i]));
+    }
+    std::printf("[ envmap ] angular 512² vs lat-long 1024x512, R=%d, rotation %.1f: worst texel difference %.2g\n",
+                int(r), rot, worst);
+    EXPECT_LT(worst, 5e-3) << "rotation " << rot;
+    for (int c = 0; c < 3; ++c) {
+      EXPECT_NEAR(an.rs.SourcePower(c), ll.rs.SourcePower(c), 2e-3 * ll.rs.SourcePower(c)) << "channel " << c;
+    }
+  }
+  // Only a square map is angular; auto-detection names the layout for a square one.
+  WriteExrFloat(Path("wide.exr"), 64, 48, Pixels(64 * 48 * 3, 1.0f));
+  auto wide = LoadEnvMap(Path("wide.exr"), o);
+  ASSERT_FALSE(wide.ok());
+  EXPECT_NE(wide.status().message().find("not an angular map"), std::string::npos) << wide.status().message();
+  auto square = LoadEnvMap(Path("ang.exr"), {});
+  ASSERT_FALSE(square.ok());
+  EXPECT_NE(square.status().message().find("--env-layout angular"), std::string::npos) << square.status().message();
+}
+
 TEST_F(EnvMapTest, CrossAtTheCubeResolutionIsNearlyItself) {
   // A cross with faces of R×R texels resamples (through the working lat-long grid) close to
   // its own texels: each texel keeps most of its value (docs/ENVMAPS.md quotes the blur).
