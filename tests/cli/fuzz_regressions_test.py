@@ -68,6 +68,32 @@ def main():
         # so peak RSS stays small; this case guards exit 1, the message and that bound.
         env_case(d, "attribute-size.exr", bytes.fromhex("762f310102000000c700000097ed7b"),
                  "EXR header attribute of ~2 GB declared size")
+        # drc_fuzzer, run 6 (2026-11-25 21:40, 10 minutes): Draco headers whose declared counts
+        # make the edgebreaker decoder (libdraco, before ltbake sees any data) reserve 5.7 GB
+        # (134 bytes: virtual, the release build exits 1 at 11 MB) or decode 409 MB of
+        # buffers (548 bytes) before failing. The first keeps every hostile bound. The second
+        # is an OPEN finding (docs/FUZZING.md): exit 1 and the file named, but its peak memory
+        # is past the 64 MiB bound; it is checked here at its measured size, so it cannot grow.
+        mesh_case(d, "reserve-5.7g.drc", bytes.fromhex(
+            "445241434f0100010110f50100000000002d5555555555555555555555555555555555555555555555555555555555555555"
+            "555555555555555555555555555555555555555555555555555555555555555555555555555555555555555555555555555555"
+            "555555555555555555555555555555550000002000000000000000"), "Draco header declaring 5.7 GB of connectivity")
+        with open(os.path.join(d, "decode-409m.drc"), "wb") as f:
+            f.write(bytes.fromhex(
+            "445241434f010101010101010101010101010101010101010101010101010101010101010101010101010101010101010101"
+            "0101010101010194949494949494190000009494949494949494949494949494949494949494948888888888888888888894"
+            "94949494949494949494949494949494949494949494949494949494949494949494949494949494942e9494949494949494"
+            "949494888888888888888888888888000000000000001d888888888888888888888888888888888888888888888888888888"
+            "8888888888888888888888880202010000001a010001015002020203f80044524143e302020101000002af32da1d00d91cb0"
+            "00ffff011044524101f543949494949494949494949494949494949494949494949494949494949494949494949494949494"
+            "94949494949494949494949494949494946cf3a6005061000001010101010101010101010101010101010101010101010101"
+            "0101010101010101010101010101010101010101010101010101010101010101949494949494949494949494949494949494"
+            "9494949494949494949488888888888888888888949494949494949494949494949494949494949494949494949494949494"
+            "9494949494949494949494949494949494949494949494888888888888888888888888000000000000001d88888888888888"
+            "88888888888888888888888888888888888888888888888888888888888888888888888888be215c234011807ccd9ab8"))
+        run_hostile(["sample", scene_for(d, "scene_decode409m", "decode-409m.drc"), "-o", os.path.join(d, "out.ltm"),
+                     "--overwrite"], names=["decode-409m.drc"], time_limit=30, extra_mib=400,
+                    what="Draco mesh decoding 409 MB from 548 bytes (open finding: bounded at its size)")
         # exr_fuzzer, after CheckExrHeaderSizes (2026-11-25 17:10): 29 bytes each, an
         # attribute "n"/"s" of type chlist with size 0. OpenEXR reads a chlist by its own
         # structure, not by the size field, so its reading and a walk by sizes part ways:
