@@ -1,11 +1,8 @@
 // ltbake relight MATRIX --env ENV -o IMAGE [--terms N] [--weighting area|transport|none]
 //                      [--reference RAW.ltm] [--frames N] [--rotate DEG] [--json]
 #include <algorithm>
-#include <cctype>
-#include <cerrno>
 #include <chrono>
 #include <cmath>
-#include <cstdlib>
 #include <iomanip>
 #include <iostream>
 #include <limits>
@@ -77,19 +74,7 @@ class RelightCommand : public Command {
                     "lighting terms kept, N >= 1 or all (non-linear approximation: the N largest coefficients of "
                     "the map in the matrix's lighting basis; for a pixel-basis matrix, the N brightest texels)")
         ->default_val("100")
-        ->check(CLI::Validator(
-            [](std::string& text) -> std::string {
-              if (text == "all") return std::string();
-              char* end = nullptr;
-              errno = 0;
-              const unsigned long long v = std::strtoull(text.c_str(), &end, 10);
-              if (text.empty() || !std::isdigit(static_cast<unsigned char>(text[0])) || *end != '\0' || errno != 0 ||
-                  v == 0 || v > (1ULL << 62)) {
-                return "\"" + text + "\" is not a number of terms (1, 2, ... or all; 0 would relight nothing)";
-              }
-              return std::string();
-            },
-            "N|all"));
+        ->check(TermsCheck());
     app->add_option("--weighting", weighting_, "rank lighting terms by area (magnitude × support area), transport "
                                                "(× the column's norm) or none")
         ->default_val("area")
@@ -150,7 +135,7 @@ class RelightCommand : public Command {
       report["matrix_bytes_in_memory"] = relighter->bytes();
     }
     // Rows that see no geometry are black in every output (stages::FinishRelitImage).
-    auto mask = stages::ReadRowMask(matrix_);
+    auto mask = stages::ReadRowMask(*reader);
     if (!mask.ok()) return ReportFailure(mask.status());
     stages::OutputFixes fixes;
     auto finish = [&](std::vector<float>* img) { fixes = stages::FinishRelitImage(*mask, keep_negative_, img); };

@@ -75,23 +75,43 @@ std::string OutputName(const std::string& output, const io::ShardSpec& shard) {
          io::ShardPath(output, shard.index, shard.count) + ")";
 }
 
-CLI::Validator SizeCheck() {
+namespace {
+
+// A validator from a stages:: parser: the parser's message on failure.
+template <typename Parse>
+CLI::Validator ParsedCheck(Parse parse, const char* name) {
   return CLI::Validator(
-      [](std::string& text) -> std::string {
-        auto r = stages::ParseByteSize(text);
+      [parse](std::string& text) -> std::string {
+        auto r = parse(text);
         return r.ok() ? std::string() : r.status().message();
       },
-      "SIZE");
+      name);
 }
+
+// A decimal integer in [1, max] written with digits only; false otherwise.
+bool ParseCount(const std::string& text, uint64_t max, uint64_t* value) {
+  char* end = nullptr;
+  errno = 0;
+  const unsigned long long v = std::strtoull(text.c_str(), &end, 10);
+  if (text.empty() || !std::isdigit(static_cast<unsigned char>(text[0])) || *end != '\0' || errno != 0 || v == 0 ||
+      v > max) {
+    return false;
+  }
+  *value = v;
+  return true;
+}
+
+}  // namespace
+
+CLI::Validator SizeCheck() { return ParsedCheck(stages::ParseByteSize, "SIZE"); }
+CLI::Validator FractionCheck() { return ParsedCheck(stages::ParseFraction, "FRACTION"); }
+CLI::Validator BudgetCheck() { return ParsedCheck(stages::ParseBudget, "BUDGET"); }
 
 CLI::Validator PowerOfTwoCheck(uint64_t max) {
   return CLI::Validator(
       [max](std::string& text) -> std::string {
-        char* end = nullptr;
-        errno = 0;
-        unsigned long long v = std::strtoull(text.c_str(), &end, 10);
-        if (text.empty() || !std::isdigit(static_cast<unsigned char>(text[0])) || *end != '\0' || errno != 0 ||
-            v == 0 || v > max || (v & (v - 1)) != 0) {
+        uint64_t v = 0;
+        if (!ParseCount(text, max, &v) || (v & (v - 1)) != 0) {
           return "\"" + text + "\" is not a power of two in 1.." + std::to_string(max);
         }
         return std::string();
@@ -99,22 +119,16 @@ CLI::Validator PowerOfTwoCheck(uint64_t max) {
       "POW2");
 }
 
-CLI::Validator FractionCheck() {
+CLI::Validator TermsCheck() {
   return CLI::Validator(
       [](std::string& text) -> std::string {
-        auto r = stages::ParseFraction(text);
-        return r.ok() ? std::string() : r.status().message();
+        uint64_t v = 0;
+        if (text != "all" && !ParseCount(text, uint64_t{1} << 62, &v)) {
+          return "\"" + text + "\" is not a number of terms (1, 2, ... or all; 0 would relight nothing)";
+        }
+        return std::string();
       },
-      "FRACTION");
-}
-
-CLI::Validator BudgetCheck() {
-  return CLI::Validator(
-      [](std::string& text) -> std::string {
-        auto r = stages::ParseBudget(text);
-        return r.ok() ? std::string() : r.status().message();
-      },
-      "BUDGET");
+      "N|all");
 }
 
 int ReportUsage(const Status& status) {

@@ -53,6 +53,8 @@ CLI::Validator PowerOfTwoCheck(uint64_t max);
 CLI::Validator FractionCheck();
 // A nonzero budget, as stages::ParseBudget takes it ("2%", "150000", "64MiB").
 CLI::Validator BudgetCheck();
+// A number of terms: an integer >= 1, or "all".
+CLI::Validator TermsCheck();
 
 // For usage errors found after parsing: prints "ltbake: usage error: MESSAGE" and a pointer
 // to --help on stderr, returns kExitUsage (2).

@@ -989,6 +989,43 @@ uint64_t GroupFor(uint64_t n, uint64_t target) {
 
 }  // namespace
 
+namespace {
+
+// Sub-samples of a source (cube-face texels, angular-map pixels) splatted into the working
+// lat-long grid: each adds its radiance × solid angle to the working pixel holding its
+// centre direction; Finish divides by the solid angle gathered, and gives a pixel no
+// sub-sample reached (thin ones near the poles) the source at its centre direction.
+struct WorkingSplat {
+  uint64_t hw, ww;
+  std::vector<double> ldw, dw;
+  WorkingSplat(uint64_t rows, uint64_t cols) : hw(rows), ww(cols), ldw(rows * cols * 3, 0.0), dw(rows * cols, 0.0) {}
+  void Add(const glm::dvec3& d, const float* L, double domega) {
+    double lu, lv;
+    DirectionToLatLong(d, &lu, &lv);
+    const uint64_t I = std::min<uint64_t>(uint64_t(lu * ww), ww - 1);
+    const uint64_t J = std::min<uint64_t>(uint64_t(lv * hw), hw - 1);
+    dw[J * ww + I] += domega;
+    for (int c = 0; c < 3; ++c) ldw[(J * ww + I) * 3 + c] += L[c] * domega;
+  }
+  // at(direction) -> const float*: the source pixel holding a direction.
+  template <typename At>
+  void Finish(std::vector<double>* work, At at) const {
+    work->assign(hw * ww * 3, 0.0);
+    for (uint64_t J = 0; J < hw; ++J)
+      for (uint64_t I = 0; I < ww; ++I) {
+        const uint64_t px = J * ww + I;
+        if (dw[px] > 0) {
+          for (int c = 0; c < 3; ++c) (*work)[px * 3 + c] = ldw[px * 3 + c] / dw[px];
+        } else {
+          const float* L = at(LatLongDirection((I + 0.5) / ww, (J + 0.5) / hw));
+          for (int c = 0; c < 3; ++c) (*work)[px * 3 + c] = L[c];
+        }
+      }
+  }
+};
+
+}  // namespace
+
 Result<CubemapResampler> CubemapResampler::Create(const EnvMap& env, uint64_t cube_res, const Progress& progress) {
   // The tables are bounded by R (and the working grid by 2^22 pixels), but a row of the
   // source is held in double: a lat-long map of extreme width may not fit. No exception
@@ -1110,7 +1147,7 @@ Result<CubemapResampler> CubemapResampler::CreateUnchecked(const EnvMap& env, ui
         const double x = -1.0 + 2.0 * p / m, y = -1.0 + 2.0 * q / m;
         corner[q * (m + 1) + p] = std::atan2(x * y, std::sqrt(x * x + y * y + 1.0));
       }
-    std::vector<double> ldw(rs.hw_ * rs.ww_ * 3, 0.0), dw(rs.hw_ * rs.ww_, 0.0);
+    WorkingSplat splat(rs.hw_, rs.ww_);
     for (int f = 0; f < 6; ++f)
       for (uint64_t q = 0; q < m; ++q) {
         LTB_RETURN_IF_ERROR(cancelled(q, "working grid"));
@@ -1119,29 +1156,13 @@ Result<CubemapResampler> CubemapResampler::CreateUnchecked(const EnvMap& env, ui
           const double u = -1.0 + 2.0 * (p + 0.5) / m;
           const double domega = corner[(q + 1) * (m + 1) + p + 1] - corner[(q + 1) * (m + 1) + p] -
                                 corner[q * (m + 1) + p + 1] + corner[q * (m + 1) + p];
-          double lu, lv;
-          DirectionToLatLong(cubemap::FaceDirection(f, u, v), &lu, &lv);
-          const uint64_t I = std::min<uint64_t>(uint64_t(lu * rs.ww_), rs.ww_ - 1);
-          const uint64_t J = std::min<uint64_t>(uint64_t(lv * rs.hw_), rs.hw_ - 1);
-          const float* L = source(f, p / k, q / k);
-          dw[J * rs.ww_ + I] += domega;
-          for (int c = 0; c < 3; ++c) ldw[(J * rs.ww_ + I) * 3 + c] += L[c] * domega;
+          splat.Add(cubemap::FaceDirection(f, u, v), source(f, p / k, q / k), domega);
         }
       }
-    // Working pixels no sub-texel centre reached (thin ones near the poles): the source at
-    // their centre direction.
-    work.assign(rs.hw_ * rs.ww_ * 3, 0.0);
-    for (uint64_t J = 0; J < rs.hw_; ++J)
-      for (uint64_t I = 0; I < rs.ww_; ++I) {
-        const uint64_t px = J * rs.ww_ + I;
-        if (dw[px] > 0) {
-          for (int c = 0; c < 3; ++c) work[px * 3 + c] = ldw[px * 3 + c] / dw[px];
-        } else {
-          cubemap::Texel x =
-              cubemap::DirectionToTexel(LatLongDirection((I + 0.5) / rs.ww_, (J + 0.5) / rs.hw_), uint32_t(F));
-          for (int c = 0; c < 3; ++c) work[px * 3 + c] = source(x.face, x.s, x.t)[c];
-        }
-      }
+    splat.Finish(&work, [&](const glm::dvec3& d) {
+      const cubemap::Texel x = cubemap::DirectionToTexel(d, uint32_t(F));
+      return source(x.face, x.s, x.t);
+    });
   } else if (env.layout == EnvLayout::kAngular) {
     // As for cube faces: k×k sub-pixels of each source pixel splatted into the working pixel
     // holding their centre direction, each weighing its solid angle π·sin(πr)/r·du·dv (the
@@ -1153,7 +1174,7 @@ Result<CubemapResampler> CubemapResampler::CreateUnchecked(const EnvMap& env, ui
     uint64_t k = std::max<uint64_t>(1, uint64_t(std::ceil(4.0 * double(rs.hw_) / double(W))));
     while (k > 1 && W * W * k * k > (1ull << 25)) --k;
     const double du = 2.0 / double(W * k);
-    std::vector<double> ldw(rs.hw_ * rs.ww_ * 3, 0.0), dw(rs.hw_ * rs.ww_, 0.0);
+    WorkingSplat splat(rs.hw_, rs.ww_);
     for (uint64_t y = 0; y < W * k; ++y) {
       LTB_RETURN_IF_ERROR(cancelled(y, "working grid"));
       const double v = 1.0 - (double(y) + 0.5) * du;
@@ -1162,30 +1183,16 @@ Result<CubemapResampler> CubemapResampler::CreateUnchecked(const EnvMap& env, ui
         const double r = std::sqrt(u * u + v * v);
         if (r > 1.0) continue;
         const double domega = (r > 0 ? kPi * std::sin(kPi * r) / r : kPi * kPi) * du * du;
-        double lu, lv;
-        DirectionToLatLong(AngularDirection(u, v), &lu, &lv);
-        const uint64_t I = std::min<uint64_t>(uint64_t(lu * rs.ww_), rs.ww_ - 1);
-        const uint64_t J = std::min<uint64_t>(uint64_t(lv * rs.hw_), rs.hw_ - 1);
         const float* L = &env.rgb[((y / k) * W + x / k) * 3];
-        dw[J * rs.ww_ + I] += domega;
-        for (int c = 0; c < 3; ++c) {
-          ldw[(J * rs.ww_ + I) * 3 + c] += L[c] * domega;
-          rs.power_[c] += L[c] * domega;
-        }
+        splat.Add(AngularDirection(u, v), L, domega);
+        for (int c = 0; c < 3; ++c) rs.power_[c] += L[c] * domega;
       }
     }
-    work.assign(rs.hw_ * rs.ww_ * 3, 0.0);
-    for (uint64_t J = 0; J < rs.hw_; ++J)
-      for (uint64_t I = 0; I < rs.ww_; ++I) {
-        const uint64_t px = J * rs.ww_ + I;
-        if (dw[px] > 0) {
-          for (int c = 0; c < 3; ++c) work[px * 3 + c] = ldw[px * 3 + c] / dw[px];
-        } else {  // reached by no sub-pixel centre: the source at the working pixel's centre
-          uint64_t x, y;
-          DirectionToAngular(LatLongDirection((I + 0.5) / rs.ww_, (J + 0.5) / rs.hw_), W, &x, &y);
-          for (int c = 0; c < 3; ++c) work[px * 3 + c] = env.rgb[(y * W + x) * 3 + c];
-        }
-      }
+    splat.Finish(&work, [&](const glm::dvec3& d) {
+      uint64_t x, y;
+      DirectionToAngular(d, W, &x, &y);
+      return &env.rgb[(y * W + x) * 3];
+    });
   } else {
     return InvalidArgument(env.path + ": environment map layout is unresolved (auto)");
   }

@@ -407,8 +407,8 @@ ImageErrors CompareImages(const float* image, const float* ref, uint64_t rows, u
   return e;
 }
 
-Result<std::vector<uint8_t>> ReadRowMask(const std::string& path) {
-  LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(path));
+Result<std::vector<uint8_t>> ReadRowMask(const io::ContainerReader& in) {
+  const std::string& path = in.path();
   const Metadata& meta = in.metadata();
   std::vector<uint8_t> mask;
   const int m = meta.FindArray("mask");

@@ -22,6 +22,10 @@
 #include "format/status.h"
 #include "stages/wavelet/wavelet.h"
 
+namespace ltb::io {
+class ContainerReader;
+}  // namespace ltb::io
+
 namespace ltb::stages {
 
 enum class Weighting { kArea, kTransport, kNone };
@@ -112,7 +116,7 @@ ImageErrors CompareImages(const float* image, const float* reference, uint64_t r
 // The matrix's "mask" side table (a u8 per row, 0: the pixel sees no geometry), read whole;
 // empty when the container has none (a converted .npy matrix, cpca.ltm). The file, the
 // table and the chunk are named on errors.
-Result<std::vector<uint8_t>> ReadRowMask(const std::string& path);
+Result<std::vector<uint8_t>> ReadRowMask(const io::ContainerReader& in);
 
 // What relight does to every image it outputs (docs/RELIGHT.md "Output"): a row whose mask
 // is 0 is black — the uncompressed transport there is exactly 0, and what a compressed
