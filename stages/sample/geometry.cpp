@@ -11,6 +11,7 @@
 #include <glm/geometric.hpp>
 #include <glm/gtc/matrix_transform.hpp>
 
+#include "stages/sample/draco_header.h"
 #include "stages/sample/mesh_reader.h"
 
 namespace ltb::sample {
@@ -36,6 +37,9 @@ Result<TriangleMesh> LoadDraco(const std::string& path) {
   std::ifstream f(path, std::ios::binary);
   if (!f) return NotFound(path + ": cannot open mesh file");
   std::vector<char> data((std::istreambuf_iterator<char>(f)), {});
+  // libdraco sizes its tables by the header's counts before it decodes anything.
+  LTB_RETURN_IF_ERROR(CheckDracoCounts(
+      path, std::span(reinterpret_cast<const unsigned char*>(data.data()), data.size())));
   draco::DecoderBuffer buffer;
   buffer.Init(data.data(), data.size());
   draco::Decoder decoder;
