@@ -37,6 +37,10 @@ class ColumnTransformCommand : public Command {
                        ->check(BudgetCheck());
     terms->excludes(keep)->excludes(budget);
     keep->excludes(budget);
+    app->add_option("--block-cols", options_.block_cols,
+                    "columns per output chunk (default: as many as fill 32 MiB dense, so the file carries few "
+                    "frames; 1 = one chunk per column)")
+        ->check(CLI::Range(uint64_t{1}, uint64_t{1} << 40));
     app->add_flag("!--no-zstd", options_.zstd, "do not zstd-compress the sparse chunks");
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     app->add_flag("--json", json_, "print the summary as JSON");

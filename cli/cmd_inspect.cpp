@@ -111,6 +111,21 @@ class InspectCommand : public Command {
       }
       out["arrays"].push_back(j);
     }
+    // Bytes on disk: payloads of the matrix and of the side tables, and the container's own
+    // bytes (header, metadata, frame headers, padding, index, trailer; a manifest's text).
+    {
+      uint64_t total = reader.file_size(), matrix = 0, side = 0;
+      if (reader.is_manifest()) {
+        for (const auto& sh : reader.shards()) total += sh->file_size();
+      }
+      for (const json& a : out["arrays"]) {
+        (a["name"] == meta.arrays[0].name ? matrix : side) += a["chunks"]["stored_bytes"].get<uint64_t>();
+      }
+      const uint64_t overhead = total - std::min(total, matrix + side);
+      out["on_disk"] = {{"total_bytes", total}, {"matrix_bytes", matrix}, {"side_table_bytes", side},
+                        {"overhead_bytes", overhead},
+                        {"overhead_fraction", total ? static_cast<double>(overhead) / static_cast<double>(total) : 0.0}};
+    }
     // The matrix (array 0) at top level, as DESIGN.md lists the keys.
     const json& m = out["arrays"][0];
     for (const char* k : {"shape", "dtype", "layout", "block", "chunks", "content_hash", "stats"}) {
@@ -176,6 +191,14 @@ class InspectCommand : public Command {
       std::cout << "  shard " << out["shard"]["index"] << " of " << out["shard"]["count"]
                 << " (holds only its own chunks; `ltbake commit` joins the shards)\n";
     }
+    {
+      const json& d = out["on_disk"];
+      char pct[32];
+      std::snprintf(pct, sizeof pct, "%.1f%%", 100 * d["overhead_fraction"].get<double>());
+      std::cout << "  on disk: " << HumanBytes(d["total_bytes"]) << " = matrix " << HumanBytes(d["matrix_bytes"])
+                << " + side tables " << HumanBytes(d["side_table_bytes"]) << " + container "
+                << HumanBytes(d["overhead_bytes"]) << " (" << pct << ": headers, index, padding)\n";
+    }
     for (const json& a : out["arrays"]) {
       const json& c = a["chunks"];
       std::cout << "  " << a["name"].get<std::string>() << ": " << a["shape"][0] << " x " << a["shape"][1] << " "
@@ -215,8 +238,8 @@ class InspectCommand : public Command {
     if (out.contains("quantization")) {
       const json& q = out["quantization"];
       std::cout << "  quantization: " << q["bits"] << " bits, scaling " << q.value("scaling", "?") << ", "
-                << q["nonzeros"] << " nonzeros in " << HumanBytes(q["matrix_bytes"]) << " ("
-                << q["bytes_per_nonzero"].get<double>() << " bytes per nonzero)\n";
+                << q["nonzeros"] << " nonzeros, matrix payload " << HumanBytes(q["matrix_bytes"]) << " ("
+                << q["bytes_per_nonzero"].get<double>() << " bytes per nonzero; the whole file: `on disk` above)\n";
     }
     if (out.contains("cpca")) {
       const json& c = out["cpca"];

@@ -1,4 +1,5 @@
 // ltbake quantize IN -o OUT [--bits 9] [--no-dither] [--scaling level|none]
+#include <filesystem>
 #include <iomanip>
 #include <iostream>
 
@@ -44,9 +45,15 @@ class QuantizeCommand : public Command {
     auto r = stages::RunQuantize(options_, bar.hook());
     bar.Done();
     if (!r.ok()) return ReportFailure(r.status());
+    const std::string file = options_.shard.sharded()
+                                 ? io::ShardPath(options_.output, options_.shard.index, options_.shard.count)
+                                 : options_.output;
+    std::error_code ec;
+    const uint64_t file_bytes = std::filesystem::file_size(file, ec);  // what is on disk
     if (json_) {
       nlohmann::json j = {{"output", options_.output},
-                          {"file", options_.shard.sharded() ? io::ShardPath(options_.output, options_.shard.index, options_.shard.count) : options_.output},        {"bits", options_.bits},
+                          {"file", file},                     {"file_bytes", ec ? 0 : file_bytes},
+                          {"bits", options_.bits},
                           {"scaling", scaling_},              {"dither", options_.dither},
                           {"nonzeros_in", r->nonzeros_in},    {"nonzeros_out", r->nonzeros_out},
                           {"matrix_bytes", r->matrix_bytes},  {"bytes_per_nonzero", r->BytesPerNonzero()},
@@ -55,8 +62,9 @@ class QuantizeCommand : public Command {
       std::cout << j.dump(2) << "\n";
     } else if (!flags_.quiet) {
       std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << options_.bits << " bits, " << r->nonzeros_out << " of "
-                << r->nonzeros_in << " coefficients nonzero after quantization, " << r->matrix_bytes << " bytes ("
-                << std::setprecision(3) << r->BytesPerNonzero() << " bytes per nonzero)";
+                << r->nonzeros_in << " coefficients nonzero after quantization; matrix payload " << r->matrix_bytes
+                << " bytes (" << std::setprecision(3) << r->BytesPerNonzero() << " bytes per nonzero), file "
+                << (ec ? std::string("?") : std::to_string(file_bytes)) << " bytes on disk";
       if (r->chunks_already_committed) std::cout << " (resumed: " << r->chunks_already_committed << " already committed)";
       std::cout << "\n";
     }

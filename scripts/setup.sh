@@ -15,6 +15,7 @@ PACKAGES=(
   libtbb-dev                       # Embree's tasking system (its CMake config needs it)
   libeigen3-dev                    # CPCA linear algebra
   libzstd-dev                      # zstd chunk encoding in .ltm
+  zstd                             # the zstd CLI: tests decode zstd side-table chunks with it
   libxxhash-dev                    # chunk checksums and content_hash
   libcli11-dev                     # command line parsing
   nlohmann-json3-dev               # container metadata, --json output

@@ -91,6 +91,16 @@ int PickDepth(const ColumnCurves& cc, int g, double lambda, uint64_t* count) {
   return best;
 }
 
+}  // namespace
+
+uint64_t OutputBlockColumns(uint64_t rows, uint64_t cols, uint64_t nshards) {
+  uint64_t block = std::max<uint64_t>(1, kTargetChunkBytes / (std::max<uint64_t>(rows, 1) * 4));
+  if (nshards > 1) block = std::min(block, std::max<uint64_t>(1, (cols + 4 * nshards - 1) / (4 * nshards)));
+  return std::max<uint64_t>(1, std::min(block, cols));
+}
+
+namespace {
+
 struct Plan {
   uint64_t width = 0, height = 0;
   int min_depth = 0, max_depth = 0;
@@ -151,18 +161,26 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
   if (plan.width * plan.height > UINT32_MAX) {
     return InvalidArgument(o.input + ": columns of " + std::to_string(a.rows) + " rows exceed 2^32 coefficients");
   }
-  plan.block = a.block;
+  plan.block = o.block_cols ? std::min<uint64_t>(o.block_cols, a.cols) : OutputBlockColumns(a.rows, a.cols, o.shard.count);
   const uint64_t pixels = a.rows;
   const bool ortho = wavelet::IsOrthonormal(o.filter);
+  if (plan.block * pixels > kMaxSparseElements) {
+    return InvalidArgument("--block-cols " + std::to_string(plan.block) + ": a chunk of " + std::to_string(plan.block) +
+                           " columns of " + std::to_string(pixels) + " rows is over the 2^32 elements of a sparse "
+                           "chunk; use at most " + std::to_string(kMaxSparseElements / pixels));
+  }
 
-  // Memory: each job holds a compressor and one input and one output chunk.
-  const uint64_t chunk_bytes = plan.block * pixels * 4;
-  const uint64_t per_job = ColumnCompressor::WorkingBytes(plan.width, plan.height, plan.max_depth, ortho) + 2 * chunk_bytes;
+  // Memory: each job holds a compressor, one input chunk, and the output chunk dense and
+  // encoded (at most as large).
+  const uint64_t per_job = ColumnCompressor::WorkingBytes(plan.width, plan.height, plan.max_depth, ortho) +
+                           a.block * pixels * 4 + 2 * plan.block * pixels * 4;
   int jobs = std::max(1, o.jobs);
   if (per_job > o.mem_limit) {
     return FailedPrecondition("column-transform needs " + std::to_string(per_job >> 20) + " MiB per job for " +
-                              std::to_string(plan.width) + "x" + std::to_string(plan.height) +
-                              " columns, over --mem-limit " + std::to_string(o.mem_limit >> 20) + " MiB; raise --mem-limit");
+                              std::to_string(plan.block) + " columns of " + std::to_string(plan.width) + "x" +
+                              std::to_string(plan.height) + " per output chunk, over --mem-limit " +
+                              std::to_string(o.mem_limit >> 20) + " MiB; raise --mem-limit" +
+                              (plan.block > 1 ? " or lower --block-cols" : ""));
   }
   jobs = static_cast<int>(std::min<uint64_t>(jobs, o.mem_limit / per_job));
 
@@ -193,7 +211,9 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
 
   nlohmann::json out_meta = meta.json;
   ArraySpec out_spec = a;
+  out_spec.block = plan.block;
   out_meta["arrays"][0] = out_spec.ToJson();
+  for (size_t arr = 1; arr < meta.arrays.size(); ++arr) out_meta["arrays"][arr] = PassThroughSpec(meta.arrays[arr]).ToJson();
   ArraySpec depth_spec;
   depth_spec.name = kDepthArray;
   depth_spec.dtype = DType::kU8;
@@ -244,13 +264,9 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
   for (const ArraySpec& s : out.metadata().arrays) result.chunks_total += s.ChunkCount();
   result.chunks_already_committed = out.resume_info().committed_chunks;
 
-  // Row side tables pass through.
+  // Row side tables pass through, in few chunks.
   for (uint32_t arr = 1; arr < meta.arrays.size(); ++arr) {
-    for (uint64_t c : out.Missing(arr)) {
-      LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(arr, c));
-      LTB_RETURN_IF_ERROR(out.Put(arr, c, chunk.bytes()));
-      result.chunks_written++;
-    }
+    LTB_RETURN_IF_ERROR(CopyArray(in, arr, out, &result.chunks_written));
   }
 
   std::vector<uint64_t> items;
@@ -396,54 +412,63 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
   eo.zstd = o.zstd;
   eo.sparse = true;
   eo.dtype = DType::kF32;
+  EncodeOptions side;  // depth and column_stats: zstd where it saves
+  side.zstd = true;
   std::atomic<uint64_t> written{0};
   Status s = ParallelFor(items, jobs, progress, "chunks", [&](uint64_t c) -> Status {
     LTB_ASSIGN_OR_RETURN(ColumnCompressor * comp, thread_compressor());
-    LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(0, c));
-    const ChunkExtent e = chunk.extent();
-    auto values = chunk.as<float>();
-    std::vector<float> dense(e.cols * pixels, 0.0f);
-    std::vector<uint8_t> depths(e.cols, 0);
-    std::vector<double> stats(e.cols * kStatsPerColumn, 0.0);
+    // Output chunk c: columns [col0, col0 + ncols), read from the input chunks over them.
+    const uint64_t col0 = c * plan.block, ncols = std::min(plan.block, a.cols - col0);
+    std::vector<float> dense(ncols * pixels, 0.0f);
+    std::vector<uint8_t> depths(ncols, 0);
+    std::vector<double> stats(ncols * kStatsPerColumn, 0.0);
     ColumnChoice choice[ColumnCompressor::kLanes];
     Selection sel[ColumnCompressor::kLanes];
     int override_depth[ColumnCompressor::kLanes];
-    for (uint64_t k0 = 0; k0 < e.cols; k0 += ColumnCompressor::kLanes) {
-      size_t n = std::min<uint64_t>(ColumnCompressor::kLanes, e.cols - k0);
-      const float* cols[ColumnCompressor::kLanes];
-      for (size_t k = 0; k < n; ++k) {
-        cols[k] = values.data() + (k0 + k) * pixels;
-        if (budget_depth.empty()) {
-          sel[k].kind = Selection::Kind::kTerms;
-          sel[k].terms = terms;
-          override_depth[k] = -1;
-        } else {
-          sel[k].kind = Selection::Kind::kThreshold;
-          sel[k].threshold_bin = threshold_bin;
-          sel[k].terms = budget_extra[e.col0 + k0 + k];
-          override_depth[k] = budget_depth[e.col0 + k0 + k];
+    for (uint64_t ic = col0 / a.block; ic * a.block < col0 + ncols; ++ic) {
+      LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(0, ic));
+      const ChunkExtent e = chunk.extent();
+      auto values = chunk.as<float>();
+      const uint64_t j0 = std::max(e.col0, col0), j1 = std::min(e.col0 + e.cols, col0 + ncols);
+      for (uint64_t jb = j0; jb < j1; jb += ColumnCompressor::kLanes) {
+        size_t n = std::min<uint64_t>(ColumnCompressor::kLanes, j1 - jb);
+        const float* cols[ColumnCompressor::kLanes];
+        for (size_t k = 0; k < n; ++k) {
+          const uint64_t j = jb + k;
+          cols[k] = values.data() + (j - e.col0) * pixels;
+          if (budget_depth.empty()) {
+            sel[k].kind = Selection::Kind::kTerms;
+            sel[k].terms = terms;
+            override_depth[k] = -1;
+          } else {
+            sel[k].kind = Selection::Kind::kThreshold;
+            sel[k].threshold_bin = threshold_bin;
+            sel[k].terms = budget_extra[j];
+            override_depth[k] = budget_depth[j];
+          }
         }
-      }
-      Status cs = comp->Choose(cols, n, sel, override_depth, choice);
-      if (!cs.ok()) return cs.WithContext(o.input + ": column " + std::to_string(e.col0 + k0));
-      for (size_t k = 0; k < n; ++k) {
-        float* out_col = dense.data() + (k0 + k) * pixels;
-        for (size_t i = 0; i < choice[k].index.size(); ++i) out_col[choice[k].index[i]] = choice[k].value[i];
-        depths[k0 + k] = static_cast<uint8_t>(choice[k].depth);
-        stats[(k0 + k) * kStatsPerColumn + 0] = choice[k].energy;
-        stats[(k0 + k) * kStatsPerColumn + 1] = choice[k].error;
-        stats[(k0 + k) * kStatsPerColumn + 2] = static_cast<double>(choice[k].index.size());
+        Status cs = comp->Choose(cols, n, sel, override_depth, choice);
+        if (!cs.ok()) return cs.WithContext(o.input + ": column " + std::to_string(jb));
+        for (size_t k = 0; k < n; ++k) {
+          const uint64_t m = jb + k - col0;  // column within the output chunk
+          float* out_col = dense.data() + m * pixels;
+          for (size_t i = 0; i < choice[k].index.size(); ++i) out_col[choice[k].index[i]] = choice[k].value[i];
+          depths[m] = static_cast<uint8_t>(choice[k].depth);
+          stats[m * kStatsPerColumn + 0] = choice[k].energy;
+          stats[m * kStatsPerColumn + 1] = choice[k].error;
+          stats[m * kStatsPerColumn + 2] = static_cast<double>(choice[k].index.size());
+        }
       }
     }
     if (!out.Has(0, c)) {
       LTB_RETURN_IF_ERROR(out.Put(0, c, BytesOf(dense), eo));
     }
     if (!out.Has(depth_array, c)) {
-      LTB_RETURN_IF_ERROR(out.Put(depth_array, c, BytesOf(depths)));
+      LTB_RETURN_IF_ERROR(out.Put(depth_array, c, BytesOf(depths), side));
     }
     if (!out.Has(stats_array, c)) {
       LTB_RETURN_IF_ERROR(
-          out.Put(stats_array, c, BytesOf(stats)));
+          out.Put(stats_array, c, BytesOf(stats), side));
     }
     written++;
     return Status::Ok();

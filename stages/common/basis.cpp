@@ -3,6 +3,7 @@
 #include <xxhash.h>
 
 #include <algorithm>
+#include <cstring>
 #include <filesystem>
 
 #include "format/version.h"
@@ -95,6 +96,46 @@ nlohmann::json Provenance(const std::string& stage, const nlohmann::json& parame
     in.push_back({{"file", std::filesystem::path(r->path()).filename().string()}, {"fingerprint", Fingerprint(*r)}});
   }
   return {{"tool", std::string("ltbake ") + kToolVersion}, {"stage", stage}, {"parameters", parameters}, {"inputs", in}};
+}
+
+format::ArraySpec PassThroughSpec(const format::ArraySpec& in) {
+  format::ArraySpec out = in;
+  if (in.layout == format::Layout::kRows) {
+    out.block = format::BlockForTargetBytes(in.rows, in.cols, in.dtype, in.layout, kSideTableChunkBytes);
+  }
+  return out;
+}
+
+Status CopyArray(const io::ContainerReader& in, uint32_t arr, io::ContainerWriter& out, uint64_t* chunks_written) {
+  const format::ArraySpec& src = in.metadata().arrays[arr];
+  const format::ArraySpec& dst = out.metadata().arrays[arr];
+  if (src.layout != dst.layout || src.rows != dst.rows || src.cols != dst.cols || src.dtype != dst.dtype) {
+    return Internal("CopyArray: array \"" + src.name + "\" changes shape, dtype or layout");
+  }
+  // A chunk is a run of lines (rows of a rows-layout array, columns of a cols-layout one)
+  // of `line` bytes each: copy the lines of each output chunk from the input chunks over them.
+  const bool rows = src.layout == format::Layout::kRows;
+  const uint64_t line = (rows ? src.cols : src.rows) * format::DTypeSize(src.dtype);
+  format::EncodeOptions eo;
+  eo.zstd = true;
+  for (uint64_t c : out.Missing(arr)) {
+    if (src.block == dst.block) {
+      LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(arr, c));
+      LTB_RETURN_IF_ERROR(out.Put(arr, c, chunk.bytes(), eo));
+    } else {
+      const uint64_t lines = rows ? src.rows : src.cols;
+      const uint64_t l0 = c * dst.block, l1 = std::min(lines, l0 + dst.block);
+      std::vector<std::byte> buf((l1 - l0) * line);
+      for (uint64_t ic = l0 / src.block; ic * src.block < l1; ++ic) {
+        LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(arr, ic));
+        const uint64_t i0 = ic * src.block, a = std::max(i0, l0), b = std::min(i0 + src.block, l1);
+        std::memcpy(buf.data() + (a - l0) * line, chunk.bytes().data() + (a - i0) * line, (b - a) * line);
+      }
+      LTB_RETURN_IF_ERROR(out.Put(arr, c, format::ByteSpan(buf.data(), buf.size()), eo));
+    }
+    if (chunks_written) ++*chunks_written;
+  }
+  return Status::Ok();
 }
 
 }  // namespace ltb::stages

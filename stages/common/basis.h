@@ -11,6 +11,7 @@
 #include "format/bits.h"
 #include "format/array_spec.h"
 #include "format/io/container_reader.h"
+#include "format/io/container_writer.h"
 #include "format/status.h"
 
 namespace ltb::stages {
@@ -42,6 +43,14 @@ std::optional<ImageSize> ReadImageRows(const format::Metadata& meta);
 Status RequireCompleteF32Matrix(const io::ContainerReader& in);
 // Refuses a cpca.ltm (cluster means, bases and weights are not a transport matrix).
 Status RefuseCpcaOutput(const io::ContainerReader& in, const std::string& stage);
+
+// Side tables a stage passes through: a rows-layout side table in as few chunks as fit
+// kSideTableChunkBytes (each chunk costs ~170 bytes of frame and index), others as they are.
+inline constexpr uint64_t kSideTableChunkBytes = 16ull << 20;
+format::ArraySpec PassThroughSpec(const format::ArraySpec& in);
+// Copies array `arr` of `in` into `out`, whose spec for it may have another block than the
+// input's (same layout, shape and dtype); skips chunks `out` already has; zstd where it saves.
+Status CopyArray(const io::ContainerReader& in, uint32_t arr, io::ContainerWriter& out, uint64_t* chunks_written);
 
 // {"tool", "stage", "parameters", "inputs": [{"file", "fingerprint"}]}
 nlohmann::json Provenance(const std::string& stage, const nlohmann::json& parameters,

@@ -98,11 +98,7 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& pro
   result.chunks_already_committed = out.resume_info().committed_chunks;
 
   for (uint32_t arr = 1; arr < meta.arrays.size(); ++arr) {
-    for (uint64_t c : out.Missing(arr)) {
-      LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(arr, c));
-      LTB_RETURN_IF_ERROR(out.Put(arr, c, chunk.bytes()));
-      result.chunks_written++;
-    }
+    LTB_RETURN_IF_ERROR(CopyArray(in, arr, out, &result.chunks_written));
   }
   std::vector<uint64_t> items = out.Missing(0);
   for (uint64_t c : out.Missing(scale_array)) items.push_back(c);
@@ -114,6 +110,8 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& pro
   eo.sparse = true;
   eo.dtype = DType::kI32;
   eo.zstd = o.zstd;
+  EncodeOptions side;  // the per-column scales: zstd where it saves
+  side.zstd = true;
   std::atomic<uint64_t> written{0};
   // The codec of the input knows no quantization; the factors of this run's scaling:
   const auto factors = QuantizationFactors(codec.filter(), codec.width(), codec.height(), codec.max_depth(),
@@ -160,7 +158,7 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& pro
     }
     if (!out.Has(scale_array, c)) {
       LTB_RETURN_IF_ERROR(
-          out.Put(scale_array, c, BytesOf(scales)));
+          out.Put(scale_array, c, BytesOf(scales), side));
     }
     written++;
     return Status::Ok();

@@ -257,16 +257,44 @@ with tempfile.TemporaryDirectory() as d:
     ref_out = os.path.join(d, "big_ref.ltm")
     run("column-transform", big_ltm, "-o", ref_out, "--terms", 50, "--progress", "never")
     out = os.path.join(d, "big_out.ltm")
-    kill_storm(["column-transform", big_ltm, "-o", out, "--terms", 50, "--progress", "never"], out, kills=6,
-               max_delay=0.6, seed=3)
-    run("column-transform", big_ltm, "-o", out, "--terms", 50, "--progress", "never")
+    # 16 columns per chunk here (the default puts all 384 in one): kills land between chunks,
+    # and the reference's other chunking must not change the content.
+    kill_storm(["column-transform", big_ltm, "-o", out, "--terms", 50, "--block-cols", 16, "--progress", "never"], out,
+               kills=6, max_delay=0.6, seed=3)
+    run("column-transform", big_ltm, "-o", out, "--terms", 50, "--block-cols", 16, "--progress", "never")
     check(info(out)["content_hash"] == info(ref_out)["content_hash"], "column-transform after kills: content differs")
     qref = os.path.join(d, "big_q_ref.ltm")
     run("quantize", ref_out, "-o", qref, "--progress", "never")
     qout = os.path.join(d, "big_q.ltm")
-    kill_storm(["quantize", ref_out, "-o", qout, "--progress", "never"], qout, kills=4, max_delay=0.3, seed=4)
-    run("quantize", ref_out, "-o", qout, "--progress", "never")
+    kill_storm(["quantize", out, "-o", qout, "--progress", "never"], qout, kills=4, max_delay=0.3, seed=4)
+    run("quantize", out, "-o", qout, "--progress", "never")
     check(info(qout)["content_hash"] == info(qref)["content_hash"], "quantize after kills: content differs")
+
+    # 9. Column-group chunks (issue 16): any --block-cols stores the same matrix and side
+    # tables; the default groups columns, so the container's own bytes (frame headers,
+    # index) are a small part of the file; inspect's on-disk parts add up to the file.
+    hashes, disk = {}, {}
+    for bc in (None, 1, 7):
+        c_ = os.path.join(d, f"bc{bc}.ltm")
+        q_ = os.path.join(d, f"bcq{bc}.ltm")
+        ct(c_, "--budget", "4%", *(("--block-cols", bc) if bc else ()))
+        run("quantize", c_, "-o", q_, "--progress", "never")
+        ic, iq = info(c_), info(q_)
+        hashes[bc] = [a.get("content_hash") for a in ic["arrays"] + iq["arrays"]]
+        disk[bc] = iq["on_disk"]
+        od = iq["on_disk"]
+        check(od["total_bytes"] == os.path.getsize(q_) and
+              od["matrix_bytes"] + od["side_table_bytes"] + od["overhead_bytes"] == od["total_bytes"],
+              f"--block-cols {bc}: on_disk parts do not add up to the file: {od}")
+        qj = json.loads(run("quantize", c_, "-o", q_, "--overwrite", "--json", "--progress", "never").stdout)
+        check(qj.get("file_bytes") == os.path.getsize(q_), f"quantize --json file_bytes {qj.get('file_bytes')}")
+        if bc == 7:
+            check(ic["block"] == 7 and ic["chunks"]["expected"] == -(-m.shape[1] // 7), f"--block-cols 7: {ic['chunks']}")
+        if bc is None:
+            check(ic["block"] == m.shape[1] and iq["block"] == m.shape[1], f"default block: {ic['block']} (expected all {m.shape[1]} columns)")
+    check(hashes[None] == hashes[1] == hashes[7], f"--block-cols changes the content: {hashes}")
+    check(disk[None]["overhead_bytes"] < disk[1]["overhead_bytes"] / 4 and disk[None]["overhead_bytes"] < 4096,
+          f"column groups should cut the container's bytes: {disk}")
 
     # 8. Refusals.
     rows_ltm = os.path.join(d, "rows.ltm")

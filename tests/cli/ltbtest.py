@@ -77,8 +77,9 @@ def kill_storm(args, out, kills, max_delay, seed):
 
 
 def side_table(ltm, name):
-    """A side table (row blocks, raw or all-zero chunks: mask, position, normal) read
-    straight from the file's bytes at the offsets `inspect --chunks` lists, as NumPy."""
+    """A side table (row blocks: mask, position, normal, ...) read straight from the file's
+    bytes at the offsets `inspect --chunks` lists, as NumPy: raw chunks as they are, zstd
+    ones through the zstd command-line tool (Debian `zstd`, an independent decoder)."""
     import json
     import numpy as np
     info = json.loads(run("inspect", ltm, "--json", "--chunks").stdout)
@@ -91,6 +92,13 @@ def side_table(ltm, name):
         if c["array"] != name or c["encoding"] == "zero":
             continue
         r0 = c["index"] * block
-        v = np.frombuffer(raw, dtype, count=c["decoded_bytes"] // np.dtype(dtype).itemsize, offset=c["offset"] + 64)
+        if c["encoding"] == "zstd":
+            payload = raw[c["offset"] + 64:c["offset"] + 64 + c["stored_bytes"]]
+            data = subprocess.run(["zstd", "-d", "-c", "-q"], input=payload, capture_output=True, check=True).stdout
+            assert len(data) == c["decoded_bytes"], f"{ltm}: zstd chunk {c['index']} of {name} decodes to {len(data)} bytes"
+            v = np.frombuffer(data, dtype)
+        else:
+            assert c["encoding"] == "raw", f"{ltm}: {name} chunk {c['index']} is {c['encoding']}"
+            v = np.frombuffer(raw, dtype, count=c["decoded_bytes"] // np.dtype(dtype).itemsize, offset=c["offset"] + 64)
         out[r0:r0 + len(v) // cols] = v.reshape(-1, cols)
     return out
