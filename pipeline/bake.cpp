@@ -234,10 +234,15 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
     } else if (stage == "quantize") {
       const auto& q = r.quantize;
       n.inputs = {"cols4d.ltm"};
-      n.params = {{"bits", q.bits}, {"scaling", q.scaling}, {"dither", q.dither}, {"seed", q.seed}};
-      n.args = {"quantize", path("cols4d.ltm"), "--bits", std::to_string(q.bits), "--scaling", q.scaling,
-                "--seed", std::to_string(q.seed)};
-      if (!q.dither) n.args.push_back("--no-dither");
+      if (q.bits) {
+        n.params = {{"bits", *q.bits}, {"scaling", q.scaling}, {"dither", q.dither}, {"seed", q.seed}};
+        n.args = {"quantize", path("cols4d.ltm"), "--bits", std::to_string(*q.bits), "--scaling", q.scaling,
+                  "--seed", std::to_string(q.seed)};
+        if (!q.dither) n.args.push_back("--no-dither");
+      } else {
+        n.params = {{"error_ratio", q.error_ratio}};
+        n.args = {"quantize", path("cols4d.ltm"), "--error-ratio", Shortest(q.error_ratio)};
+      }
     } else if (stage == "cpca") {
       n.inputs = {"rows.ltm"};
       const auto& c = r.cpca;

@@ -313,11 +313,25 @@ Result<Recipe> ParseRecipe(const std::string& path_in) {
   LTB_RETURN_IF_ERROR(ParseColumnTransform(path, ct ? *ct : kEmpty, &r.column_transform));
   LTB_ASSIGN_OR_RETURN(const toml::table* q, table("quantize"));
   if (q) {
-    LTB_RETURN_IF_ERROR(CheckKeys(path, *q, "[quantize]", {"bits", "scaling", "dither", "seed"}));
-    LTB_ASSIGN_OR_RETURN(r.quantize.bits, GetUnsigned(path, *q, "bits", r.quantize.bits, 2, 24));
+    LTB_RETURN_IF_ERROR(CheckKeys(path, *q, "[quantize]", {"error_ratio", "bits", "scaling", "dither", "seed"}));
+    if (q->contains("bits") && q->contains("error_ratio")) {
+      return InvalidArgument(path + ": [quantize] takes error_ratio (one step for the matrix) or bits (per-column "
+                             "maxima), not both");
+    }
+    LTB_ASSIGN_OR_RETURN(r.quantize.error_ratio, GetNumber(path, *q, "error_ratio", r.quantize.error_ratio, 1.000001, 100));
+    if (q->contains("bits")) {
+      LTB_ASSIGN_OR_RETURN(uint64_t bits, GetUnsigned(path, *q, "bits", 9, 2, 24));
+      r.quantize.bits = bits;
+    }
     LTB_ASSIGN_OR_RETURN(r.quantize.scaling, GetChoice(path, *q, "scaling", r.quantize.scaling, {"level", "none"}));
     LTB_ASSIGN_OR_RETURN(r.quantize.dither, GetBool(path, *q, "dither", r.quantize.dither));
     LTB_ASSIGN_OR_RETURN(r.quantize.seed, GetUnsigned(path, *q, "seed", r.quantize.seed, 0, uint64_t{1} << 62));
+    for (const char* k : {"scaling", "dither", "seed"}) {
+      if (q->contains(k) && !q->contains("bits")) {
+        return InvalidArgument(path + ": [quantize] " + k + " goes with bits (per-column quantization); the default "
+                               "error_ratio mode has one step and no " + k);
+      }
+    }
   }
   LTB_ASSIGN_OR_RETURN(const toml::table* cpca, table("cpca"));
   if (cpca) {

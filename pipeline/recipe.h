@@ -66,7 +66,10 @@ struct Recipe {
     bool zstd = true;
   } column_transform;
   struct Quantize {
-    uint64_t bits = 9;
+    // One step for the matrix (quantize --error-ratio) unless `bits` is given (per-column
+    // maxima, quantize --bits, which scaling, dither and seed go with).
+    double error_ratio = 1.1;
+    std::optional<uint64_t> bits;
     std::string scaling = "level";
     bool dither = true;
     uint64_t seed = 1;

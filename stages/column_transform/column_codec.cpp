@@ -136,7 +136,12 @@ std::vector<std::vector<double>> QuantizationFactors(wavelet::Filter filter, uin
   const uint64_t pixels = width * height;
   std::vector<std::vector<double>> f(max_depth + 1, std::vector<double>(pixels, 1.0));
   if (scaling == Scaling::kNone) return f;
-  if (scaling == Scaling::kNormLevel) f = SynthesisEnergies(filter, width, height, max_depth);
+  if (scaling == Scaling::kNormLevel || scaling == Scaling::kNorm) f = SynthesisEnergies(filter, width, height, max_depth);
+  if (scaling == Scaling::kNorm) {
+    for (auto& fd : f)
+      for (double& v : fd) v = std::sqrt(v);
+    return f;
+  }
   for (int d = 0; d <= max_depth; ++d) {
     auto lv = ColumnCodec::ComputeLevels(width, height, d);
     for (uint64_t p = 0; p < pixels; ++p) f[d][p] = std::ldexp(std::sqrt(f[d][p]), lv[p]);
@@ -145,7 +150,7 @@ std::vector<std::vector<double>> QuantizationFactors(wavelet::Filter filter, uin
 }
 
 Result<Scaling> ParseScaling(const std::string& name) {
-  for (Scaling s : {Scaling::kNone, Scaling::kLevel, Scaling::kNormLevel})
+  for (Scaling s : {Scaling::kNone, Scaling::kLevel, Scaling::kNormLevel, Scaling::kNorm})
     if (name == ScalingName(s)) return s;
   return InvalidArgument("scaling \"" + name + "\" is unknown (written by a newer ltbake?)");
 }
@@ -155,6 +160,7 @@ const char* ScalingName(Scaling s) {
     case Scaling::kNone: return "none";
     case Scaling::kLevel: return "level";
     case Scaling::kNormLevel: return "norm-level";
+    case Scaling::kNorm: return "norm";
   }
   return "?";
 }

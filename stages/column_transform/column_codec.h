@@ -27,9 +27,10 @@
 namespace ltb::stages {
 
 // Metadata "quantization.scaling": "norm-level" (‖ψ̃‖ · 2^level, what `--scaling level`
-// writes), "none" (1), and "level" (2^level alone: files from the first quantize build,
-// 2026-11-22, still decode).
-enum class Scaling { kNone, kLevel, kNormLevel };
+// writes), "none" (1), "level" (2^level alone: files from the first quantize build,
+// 2026-11-22, still decode) and "norm" (‖ψ̃‖ alone: one quantization step in these units
+// is the same image-domain error at every position, what `quantize --error-ratio` writes).
+enum class Scaling { kNone, kLevel, kNormLevel, kNorm };
 Result<Scaling> ParseScaling(const std::string& name);
 const char* ScalingName(Scaling s);
 

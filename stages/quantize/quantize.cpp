@@ -2,11 +2,13 @@
 
 #include <algorithm>
 #include <atomic>
+#include <bit>
 #include <cmath>
 
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
 #include "stages/column_transform/column_codec.h"
+#include "stages/column_transform/column_transform.h"
 #include "stages/common/basis.h"
 #include "stages/common/parallel_for.h"
 
@@ -42,7 +44,93 @@ int32_t QuantizeValue(double v, double m, double levels, bool dither, uint64_t s
   return static_cast<int32_t>(q);
 }
 
-Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& progress) {
+double StepForErrorRatio(double ratio, double truncation_error, double energy, uint64_t kept) {
+  if (kept == 0) return 1.0;  // nothing to quantize
+  const double e = std::max(truncation_error, 1e-10 * energy);
+  return std::sqrt(12.0 * (ratio * ratio - 1.0) * e / static_cast<double>(kept));
+}
+
+namespace {
+
+// The scaled coefficients (v · factor) of a deterministic sample of the matrix's nonzeros:
+// each one with probability 1/stride by a hash of (column, position), gathered in chunk
+// order whatever the number of jobs; `count` is every nonzero.
+struct StepSample {
+  std::vector<double> values;
+  uint64_t count = 0;
+};
+
+constexpr uint64_t kStepSample = 4u << 20;
+
+Result<double> RefineStep(const io::ContainerReader& in, const ColumnCodec& codec,
+                              const std::vector<std::vector<double>>& factors, double ratio,
+                              const ColumnTransformResult& totals, double model_step, int jobs,
+                              const Progress& progress) {
+  const ArraySpec& a = in.metadata().matrix();
+  const uint64_t pixels = a.rows;
+  const uint64_t stride = std::max<uint64_t>(1, (totals.nonzeros + kStepSample - 1) / kStepSample);
+  std::vector<StepSample> per_chunk(a.ChunkCount());
+  std::vector<uint64_t> chunks(a.ChunkCount());
+  for (uint64_t c = 0; c < chunks.size(); ++c) chunks[c] = c;
+  Status s = ParallelFor(chunks, jobs, progress, "chunks (step search)", [&](uint64_t c) -> Status {
+    LTB_ASSIGN_OR_RETURN(SparseChunk sc, in.ReadSparse(0, c));
+    LTB_ASSIGN_OR_RETURN(io::Chunk dc, in.ReadChunk(static_cast<uint32_t>(codec.depth_array()), c));
+    auto depths = dc.as<uint8_t>();
+    auto values = sc.as<float>();
+    StepSample& out = per_chunk[c];
+    for (size_t i = 0; i < sc.index.size(); ++i) {
+      const uint64_t k = sc.index[i] / pixels, p = sc.index[i] % pixels, col = sc.extent.col0 + k;
+      const int d = depths[k];
+      if (d > codec.max_depth()) return DataLoss(in.path() + ": column " + std::to_string(col) + " has depth " + std::to_string(d));
+      out.count++;
+      if (stride > 1 && SplitMix64(col * 0x9E3779B97F4A7C15ull ^ SplitMix64(p)) % stride != 0) continue;
+      out.values.push_back(static_cast<double>(values[i]) * factors[d][p]);
+    }
+    return Status::Ok();
+  });
+  LTB_RETURN_IF_ERROR(s);
+  std::vector<double> x;
+  uint64_t count = 0;
+  for (StepSample& ps : per_chunk) {
+    x.insert(x.end(), ps.values.begin(), ps.values.end());
+    count += ps.count;
+  }
+  if (x.empty()) return model_step;
+  const double weight = static_cast<double>(count) / static_cast<double>(x.size());
+  const double target = (ratio * ratio - 1.0) * std::max(totals.error, 1e-10 * totals.energy);
+  auto error = [&](double step) {
+    double e = 0;
+    for (double v : x) {
+      const double d = std::round(v / step) * step - v;  // as QuantizeValue rounds
+      e += d * d;
+    }
+    return e * weight;
+  };
+  // The largest step whose error stays within the target, bisected in log(step) over
+  // 2^±12 around the model's (the error grows with the step, up to small wiggles).
+  double lo = std::log2(model_step) - 12, hi = std::log2(model_step) + 12;
+  if (error(std::exp2(lo)) > target) return std::exp2(lo);
+  if (error(std::exp2(hi)) <= target) return std::exp2(hi);
+  for (int it = 0; it < 48; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    (error(std::exp2(mid)) <= target ? lo : hi) = mid;
+  }
+  return std::exp2(lo);
+}
+
+}  // namespace
+
+Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progress& progress) {
+  QuantizeOptions o = options;
+  const bool step_mode = o.error_ratio != 0;
+  if (step_mode) {
+    if (!(o.error_ratio > 1.0 && o.error_ratio <= 100.0)) {
+      return InvalidArgument("--error-ratio " + std::to_string(o.error_ratio) +
+                             ": expected a factor in (1, 100] on the RMS error, e.g. 1.1");
+    }
+    o.bits = 24;
+    o.dither = false;
+  }
   if (o.bits < 2 || o.bits > 24) {
     return InvalidArgument("--bits " + std::to_string(o.bits) + ": expected 2..24 (f32 coefficients carry 24 bits)");
   }
@@ -60,7 +148,23 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& pro
   const ArraySpec& a = meta.matrix();
   const uint64_t pixels = a.rows;
 
-  const Scaling scaling = o.level_scaling ? Scaling::kNormLevel : Scaling::kNone;
+  const Scaling scaling = step_mode ? Scaling::kNorm : o.level_scaling ? Scaling::kNormLevel : Scaling::kNone;
+  // The codec of the input knows no quantization; the factors of this run's scaling:
+  const auto factors = QuantizationFactors(codec.filter(), codec.width(), codec.height(), codec.max_depth(),
+                                           scaling);
+  // --error-ratio: the step from the input's totals (its column_stats), then refined on the
+  // coefficients themselves (N·Δ²/12 holds only while Δ is small beside them).
+  double step = 0;
+  ColumnTransformResult totals_in;
+  if (step_mode) {
+    LTB_ASSIGN_OR_RETURN(totals_in, SummarizeColumnTransform(o.input));
+    step = StepForErrorRatio(o.error_ratio, totals_in.error, totals_in.energy, totals_in.nonzeros);
+    if (!(step > 0) || !std::isfinite(step)) {
+      return DataLoss(o.input + ": column_stats give no usable quantization step (error " +
+                      std::to_string(totals_in.error) + ", energy " + std::to_string(totals_in.energy) + ")");
+    }
+    LTB_ASSIGN_OR_RETURN(step, RefineStep(in, codec, factors, o.error_ratio, totals_in, step, o.jobs, progress));
+  }
   nlohmann::json out_meta = meta.json;
   ArraySpec m = a;
   m.dtype = DType::kI32;
@@ -82,11 +186,14 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& pro
                               {"seed", o.seed},
                               {"scale_array", kScaleArray},
                               {"decode", "v = q / (2^(bits-1) - 1) * scale / factor (docs/COLUMN-TRANSFORM.md)"}};
-  out_meta["provenance"] = Provenance(
-      "quantize",
-      {{"bits", o.bits}, {"scaling", ScalingName(scaling)}, {"dither", o.dither}, {"seed", o.seed},
-       {"zstd", o.zstd}},
-      {&in});
+  nlohmann::json params = {{"bits", o.bits}, {"scaling", ScalingName(scaling)}, {"dither", o.dither},
+                           {"seed", o.seed}, {"zstd", o.zstd}};
+  if (step_mode) {
+    out_meta["quantization"]["error_ratio"] = o.error_ratio;
+    out_meta["quantization"]["step"] = step;
+    params = {{"error_ratio", o.error_ratio}, {"zstd", o.zstd}};
+  }
+  out_meta["provenance"] = Provenance("quantize", params, {&in});
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
   LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, out_meta, wo, o.shard));
@@ -106,6 +213,12 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& pro
   items.erase(std::unique(items.begin(), items.end()), items.end());
 
   const double levels = Quantization{o.bits}.Levels();
+  std::atomic<uint64_t> qerr_bits{0};  // Σ squared quantization error (double bits, CAS-added)
+  auto add_error = [&](double e) {
+    uint64_t cur = qerr_bits.load();
+    while (!qerr_bits.compare_exchange_weak(cur, std::bit_cast<uint64_t>(std::bit_cast<double>(cur) + e))) {
+    }
+  };
   EncodeOptions eo;
   eo.sparse = true;
   eo.dtype = DType::kI32;
@@ -113,9 +226,6 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& pro
   EncodeOptions side;  // the per-column scales: zstd where it saves
   side.zstd = true;
   std::atomic<uint64_t> written{0};
-  // The codec of the input knows no quantization; the factors of this run's scaling:
-  const auto factors = QuantizationFactors(codec.filter(), codec.width(), codec.height(), codec.max_depth(),
-                                           scaling);
   Status s = ParallelFor(items, o.jobs, progress, "chunks", [&](uint64_t c) -> Status {
     LTB_ASSIGN_OR_RETURN(SparseChunk sc, in.ReadSparse(0, c));
     LTB_ASSIGN_OR_RETURN(io::Chunk dc, in.ReadChunk(static_cast<uint32_t>(codec.depth_array()), c));
@@ -147,11 +257,17 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& pro
         if (mx == 0) continue;  // only signed zeros
         return DataLoss(o.input + ": column " + std::to_string(e.col0 + k) + " holds a non-finite coefficient");
       }
+      if (step_mode) mx = step * levels;  // q = round(v / Δ): the same step in every column
       scales[k] = mx;
+      double column_error = 0;
       for (size_t i = begin; i < pos; ++i) {
         uint32_t p = sc.index[i] - static_cast<uint32_t>(k * pixels);
-        dense[sc.index[i]] = QuantizeValue(scaled[i - begin], mx, levels, o.dither, o.seed, e.col0 + k, p);
+        const int32_t q = QuantizeValue(scaled[i - begin], mx, levels, o.dither, o.seed, e.col0 + k, p);
+        dense[sc.index[i]] = q;
+        const double err = static_cast<double>(q) * (mx / levels) - scaled[i - begin];
+        column_error += err * err;
       }
+      add_error(column_error);
     }
     if (!out.Has(0, c)) {
       LTB_RETURN_IF_ERROR(out.Put(0, c, BytesOf(dense), eo));
@@ -167,6 +283,11 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& o, const Progress& pro
   LTB_RETURN_IF_ERROR(s);
   LTB_RETURN_IF_ERROR(out.Finish());
 
+  result.step = step;
+  // Only a run that quantized every chunk saw every error (a resumed one reports NaN).
+  result.quantization_error = result.chunks_already_committed == 0 ? std::bit_cast<double>(qerr_bits.load()) : NAN;
+  result.truncation_error = totals_in.error;
+  result.energy = totals_in.energy;
   const Metadata out_meta_parsed = out.metadata();
   LTB_ASSIGN_OR_RETURN(QuantizeResult totals, SummarizeQuantized(out.path()));
   result.nonzeros_out = totals.nonzeros_out;

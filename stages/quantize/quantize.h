@@ -8,6 +8,17 @@
 //                   position): deterministic, never per thread (|error| < one step).
 // Zeros are dropped; the rest is stored sparse (delta-coded positions, zigzag varints,
 // zstd when it pays). Decoding: v = q / Q · M / 2^l.
+//
+// `--error-ratio R` (the default, R = 1.1) quantizes the whole matrix with ONE step Δ in
+// units of each coefficient's synthesis norm (scaling "norm"), so a step costs the same
+// image-domain error everywhere: at high rate the rate–distortion optimum for squared
+// error (equal slopes). Rounding to the nearest step adds about Δ²/12 per kept
+// coefficient; Δ is chosen so that this lifts column-transform's truncation error E (its
+// column_stats) by the factor R in RMS:  N · Δ²/12 = (R² − 1) · E  for N kept
+// coefficients. Values that round to 0 are dropped. Stored as the same decode formula with
+// Q = 2^23 − 1 (bits 24) and M = Δ · Q for every column, so every reader decodes it.
+// Measured on the bundled scene (bench/results/quantize_rd.md): the per-column maximum at
+// 9 bits adds a floor; the step does not.
 #pragma once
 
 #include <cstdint>
@@ -24,6 +35,9 @@ struct QuantizeOptions {
   std::string input;
   std::string output;
   int bits = 9;
+  // > 1: one step for the matrix (see above; bits, level_scaling and dither are not used);
+  // 0: the per-column maximum with `bits`.
+  double error_ratio = 0;
   bool level_scaling = true;
   bool dither = true;
   uint64_t seed = 1;
@@ -40,6 +54,9 @@ struct QuantizeResult {
   uint64_t nonzeros_in = 0;   // coefficients kept by column-transform
   uint64_t nonzeros_out = 0;  // after quantization (zeros dropped)
   uint64_t matrix_bytes = 0;  // stored payload bytes of the matrix chunks
+  // --error-ratio: the step, and the truncation error E of the input and the quantization
+  // error added (Σ of squared image-domain errors, exact for orthonormal filters).
+  double step = 0, truncation_error = 0, quantization_error = 0, energy = 0;
   double BytesPerNonzero() const { return nonzeros_out ? static_cast<double>(matrix_bytes) / nonzeros_out : 0; }
 };
 
@@ -48,6 +65,10 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
 // The quantization of one value v (already scaled by 2^l) of a column with maximum
 // magnitude m > 0: exposed for tests.
 int32_t QuantizeValue(double v, double m, double levels, bool dither, uint64_t seed, uint64_t column, uint32_t position);
+
+// The step of --error-ratio R for N kept coefficients with truncation error E and energy
+// `energy` (a lossless input, E = 0, takes E = 1e-10 · energy: RMS 1e-5 of the signal).
+double StepForErrorRatio(double ratio, double truncation_error, double energy, uint64_t kept);
 
 // Totals of a quantize output (used by the stage and by `inspect`).
 Result<QuantizeResult> SummarizeQuantized(const std::string& path);

@@ -205,11 +205,34 @@ with tempfile.TemporaryDirectory() as d:
     ct(c4, "--terms", 40)
     ref = decode(c4, d, "c4.npy")
     fin = os.path.join(d, "final.ltm")
-    q = json.loads(run("quantize", c4, "-o", fin, "--json", "--progress", "never").stdout)
+    q = json.loads(run("quantize", c4, "-o", fin, "--bits", 9, "--json", "--progress", "never").stdout)
     got = decode(fin, d, "final.npy")
     rel = np.sqrt(((got - ref) ** 2).sum() / (ref.astype(np.float64) ** 2).sum())
     check(rel < 0.01, f"quantize 9 bits: relative RMS change {rel}")
     check(q["bytes_per_nonzero"] > 0 and q["nonzeros_out"] <= q["nonzeros_in"], f"quantize report: {q}")
+    # The default, one step for the matrix (--error-ratio 1.1): against the original matrix
+    # m, the decoded error is at most 1.1x column-transform's in RMS (Haar: orthonormal, so
+    # truncation and quantization errors add exactly and the reported ratio is the NumPy
+    # one; LeGall 5/3: biorthogonal, within the 1.2x). Larger ratios, fewer bytes.
+    mm = m.astype(np.float64)
+    for filt, slack in (("haar", 1.0), ("legall53", 1.2 / 1.1)):
+        c_ = os.path.join(d, f"c4_{filt}.ltm")
+        ct(c_, "--filter", filt, "--budget", "10%")
+        e_t = float(((decode(c_, d, "ct.npy") - mm) ** 2).sum())
+        sizes = {}
+        for ratio in (1.1, 1.5):
+            f_ = os.path.join(d, f"fs_{filt}_{ratio}.ltm")
+            args = ("--error-ratio", ratio) if ratio != 1.1 else ()
+            qs = json.loads(run("quantize", c_, "-o", f_, "--json", "--progress", "never", *args).stdout)
+            e_q = float(((decode(f_, d, "fs.npy") - mm) ** 2).sum())
+            got_ratio = np.sqrt(e_q / e_t)
+            check(qs["mode"] == "step" and 1.0 <= got_ratio <= ratio * slack + 1e-6,
+                  f"{filt} --error-ratio {ratio}: decoded RMS error x{got_ratio:.4f} over column-transform's")
+            if filt == "haar":
+                check(abs(qs["rms_error_ratio"] - got_ratio) <= 1e-3 * got_ratio,
+                      f"haar: reported ratio {qs['rms_error_ratio']} vs NumPy {got_ratio}")
+            sizes[ratio] = qs["matrix_bytes"]
+        check(sizes[1.5] < sizes[1.1], f"{filt}: a larger --error-ratio should store fewer bytes: {sizes}")
     # --scaling: at depth 0 every factor is 1, so level and none store the same integers;
     # on Haar columns level scaling (factor 2^l) lowers the quantization error.
     c0 = os.path.join(d, "c0.ltm")
@@ -217,7 +240,7 @@ with tempfile.TemporaryDirectory() as d:
     h0 = []
     for scaling in ("level", "none"):
         out = os.path.join(d, f"f0_{scaling}.ltm")
-        run("quantize", c0, "-o", out, "--scaling", scaling, "--progress", "never")
+        run("quantize", c0, "-o", out, "--bits", 9, "--scaling", scaling, "--progress", "never")
         h0.append(info(out)["content_hash"])
     check(h0[0] == h0[1], "depth none: --scaling level and none should store the same integers")
     ch = os.path.join(d, "ch.ltm")

@@ -4,7 +4,7 @@ NAME.out the expected stdout and stderr. Paths are normalised ({tmp}, {samples})
 usage: golden_test.py PATH_TO_LTBAKE [--regen]   (--regen rewrites the .out files)
 
 Fixtures made fresh in {tmp} for every run:
-  sample.ltm   samples/tiny-transport.npy converted with 256-byte chunks
+  sample.ltm   samples/tiny-transport.npy converted with 256-byte chunks (one job: chunks in order)
   corrupt.ltm  sample.ltm with one payload byte of chunk 1 flipped
   newer.ltm    sample.ltm with its format major set to 2
   partial.ltm  sample.ltm cut after its third chunk (as a killed writer leaves it)
@@ -27,7 +27,7 @@ passed = 0
 
 def make_fixtures(tmp):
     sample = os.path.join(tmp, "sample.ltm")
-    subprocess.run([LTBAKE, "convert", os.path.join(SAMPLES, "tiny-transport.npy"), sample, "--chunk-size", "256",
+    subprocess.run([LTBAKE, "convert", os.path.join(SAMPLES, "tiny-transport.npy"), sample, "--chunk-size", "256", "--jobs", "1",
                     "-q"], check=True)
     chunks = json.loads(subprocess.run([LTBAKE, "inspect", sample, "--json", "--chunks"], check=True,
                                        capture_output=True, text=True).stdout)["chunk_list"]

@@ -166,7 +166,7 @@ with tempfile.TemporaryDirectory() as d:
     scene_text = open(TINY).read()
     inline = "\n".join(("[scene." + l[1:] if l.startswith("[") and not l.startswith("[[") else
                         "[[scene." + l[2:] if l.startswith("[[") else l) for l in scene_text.splitlines())
-    rec_inline = variant("inline", 'name = "inline"\n' + inline + "\n")
+    rec_inline = variant("inline", 'name = "inline"\n' + inline + "\n[quantize]\nbits = 9\n")
     w5 = os.path.join(d, "w5")
     run("run", rec_inline, "--workdir", w5, "-q")
     check(os.path.exists(os.path.join(w5, "scene.toml")), "inline scene: scene.toml not written")
@@ -238,6 +238,15 @@ with tempfile.TemporaryDirectory() as d:
               os.path.join(d, "wpct"), "--dry-run")
     check("--keep 0.05" in pct.stdout + pct.stderr, f"keep = \"5%\": plan lacks --keep 0.05:\n{pct.stdout}")
     bad("relight without envs", BASE + "[relight]\nterms = 10\n", 2, "needs \"envs\"")
+    # [quantize]: error_ratio (one step, the default 1.1) or bits (per-column), not both;
+    # scaling, dither and seed only with bits.
+    bad("bits and error_ratio", BASE + "error_ratio = 1.2\n", 2, "error_ratio", "bits", "not both")
+    bad("dither without bits", BASE.replace("bits = 9", "dither = false"), 2, "dither goes with bits")
+    bad("error_ratio of 1", BASE.replace("bits = 9", "error_ratio = 1.0"), 2, '"error_ratio"')
+    for text, want in ((BASE.replace("[quantize]\nbits = 9\n", ""), "--error-ratio 1.1"),
+                       (BASE.replace("bits = 9", "error_ratio = 1.25"), "--error-ratio 1.25")):
+        plan = run("run", write(os.path.join(d, "er.toml"), text), "--workdir", os.path.join(d, "wer"), "--dry-run")
+        check(want in plan.stdout + plan.stderr, f"quantize plan lacks {want}:\n{plan.stdout}")
     os.environ.pop("LTBAKE_NO_SUCH_VAR", None)
     bad("unset variable", BASE + '[relight]\nenvs = ["${LTBAKE_NO_SUCH_VAR}/a.exr"]\n', 2, "LTBAKE_NO_SUCH_VAR",
         "not set")
