@@ -1,0 +1,123 @@
+#!/usr/bin/python3
+"""2D against adaptive 4D in BYTES ON DISK at equal matrix error (issue 16's measure).
+
+Bakes a scene once (sample -> row-transform db2 -> transpose), then for each method and
+global budget runs `column-transform --depth D --budget B` and `quantize` (the default,
+one step with --error-ratio 1.1, unless LTB_BYTES_QUANTIZE says otherwise), and measures
+the size of final.ltm on disk and its matrix error against rows.ltm in NumPy
+(||T - T'||_F / ||T||_F in the row-transformed basis, db2 being orthonormal: the pixel
+error). The 2D curve's bytes are interpolated (log-log) at each 4D error to give the ratio.
+
+    /usr/bin/python3 bench/bytes_on_disk.py [BUILD_DIR=build]
+
+Environment: LTB_BYTES_SCENE (samples/medium.toml), LTB_BYTES_SIZE (128: the image is
+SIZE x SIZE), LTB_BYTES_CUBE_RES (32), LTB_BYTES_2D ("0.5% 1% 2% 4% 8% 16%"),
+LTB_BYTES_4D ("0.25% 0.5% 1% 2% 4%"), LTB_BYTES_QUANTIZE (extra quantize flags, e.g.
+"--bits 9"), LTB_BYTES_DIR (bench/out/bytes), LTB_BYTES_NAME (bytes_on_disk).
+Writes bench/results/NAME.md and .csv. Time here (2 vCPUs): about 4 minutes at the defaults.
+"""
+import csv
+import json
+import math
+import os
+import platform
+import re
+import subprocess
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+BUILD = os.path.abspath(sys.argv[1] if len(sys.argv) > 1 else os.path.join(ROOT, "build"))
+LTB = os.path.join(BUILD, "ltbake")
+SCENE = os.environ.get("LTB_BYTES_SCENE", os.path.join(ROOT, "samples", "medium.toml"))
+SIZE = int(os.environ.get("LTB_BYTES_SIZE", "128"))
+R = int(os.environ.get("LTB_BYTES_CUBE_RES", "32"))
+B2D = os.environ.get("LTB_BYTES_2D", "0.5% 1% 2% 4% 8% 16%").split()
+B4D = os.environ.get("LTB_BYTES_4D", "0.25% 0.5% 1% 2% 4%").split()
+QFLAGS = os.environ.get("LTB_BYTES_QUANTIZE", "").split()
+OUT = os.environ.get("LTB_BYTES_DIR", os.path.join(HERE, "out", "bytes"))
+NAME = os.environ.get("LTB_BYTES_NAME", "bytes_on_disk")
+
+
+def run(*args):
+    t = time.time()
+    p = subprocess.run([str(a) for a in args], capture_output=True, text=True)
+    if p.returncode != 0:
+        raise SystemExit(f"{' '.join(map(str, args))}\n{p.stderr}")
+    return p, time.time() - t
+
+
+def main():
+    os.makedirs(OUT, exist_ok=True)
+    # The scene at SIZE x SIZE, its relative paths made absolute.
+    text = open(SCENE).read()
+    text = re.sub(r"(?m)^width = \d+", f"width = {SIZE}", text)
+    text = re.sub(r"(?m)^height = \d+", f"height = {SIZE}", text)
+    sdir = os.path.dirname(os.path.abspath(SCENE))
+    text = re.sub(r'(?m)^(file|path) = "([^"/][^"]*)"', lambda m: f'{m.group(1)} = "{os.path.join(sdir, m.group(2))}"', text)
+    scene = os.path.join(OUT, "scene.toml")
+    open(scene, "w").write(text)
+    p = lambda n: os.path.join(OUT, n)
+    run(LTB, "sample", scene, "-o", p("raw.ltm"), "--cube-res", R, "-q", "--overwrite")
+    run(LTB, "row-transform", p("raw.ltm"), "-o", p("rows.ltm"), "--filter", "db2", "-q", "--overwrite")
+    run(LTB, "transpose", p("rows.ltm"), "-o", p("cols.ltm"), "-q", "--overwrite")
+    run(LTB, "convert", p("rows.ltm"), p("rows.npy"), "-q", "--overwrite")
+    os.remove(p("raw.ltm"))
+    rows = []
+    for depth, budgets in (("none", B2D), ("adaptive", B4D)):
+        for b in budgets:
+            c4, fin, npy = p("c4.ltm"), p("final.ltm"), p("final.npy")
+            ct, t_ct = run(LTB, "column-transform", p("cols.ltm"), "-o", c4, "--depth", depth, "--budget", b,
+                           "--json", "-q", "--overwrite")
+            q, t_q = run(LTB, "quantize", c4, "-o", fin, "--json", "-q", "--overwrite", *QFLAGS)
+            run(LTB, "convert", fin, npy, "-q", "--overwrite")
+            err = json.loads(run("/usr/bin/python3", os.path.join(HERE, "fig7.py"), "error", p("rows.npy"), npy)[0].stdout)
+            ins = json.loads(run(LTB, "inspect", fin, "--json", "--no-content")[0].stdout)["on_disk"]
+            qj, cj = json.loads(q.stdout), json.loads(ct.stdout)
+            rows.append({"method": "2D" if depth == "none" else "adaptive 4D", "budget": b,
+                         "nonzeros": qj["nonzeros_out"], "file_bytes": os.path.getsize(fin),
+                         "matrix_bytes": ins["matrix_bytes"], "side_table_bytes": ins["side_table_bytes"],
+                         "overhead_bytes": ins["overhead_bytes"],
+                         "bytes_per_nonzero": qj["bytes_per_nonzero"],
+                         "error_unquantized": cj["relative_rms_error"],
+                         "error": next(iter(err["tests"].values()))["rel_rms_error"], "seconds": round(t_ct + t_q, 2)})
+            os.remove(npy)
+            print(rows[-1], flush=True)
+    os.remove(p("rows.npy"))
+    with open(os.path.join(HERE, "results", NAME + ".csv"), "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0].keys()))
+        w.writeheader()
+        w.writerows(rows)
+    two = sorted((r["error"], r["file_bytes"]) for r in rows if r["method"] == "2D")
+
+    def bytes_2d_at(e):  # log-log interpolation on the 2D curve; None outside it
+        for (e0, b0), (e1, b1) in zip(two, two[1:]):
+            if e0 <= e <= e1 and e1 > e0:
+                t = (math.log(e) - math.log(e0)) / (math.log(e1) - math.log(e0))
+                return math.exp(math.log(b0) + t * (math.log(b1) - math.log(b0)))
+        return None
+
+    git = subprocess.run(["git", "-C", ROOT, "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    lines = [f"# Bytes on disk at equal matrix error: 2D against adaptive 4D ({NAME})", "",
+             f"Generated by `bench/bytes_on_disk.py` (issue 16). Scene {os.path.relpath(SCENE, ROOT)} at {SIZE}x{SIZE} "
+             f"pixels, R = {R} ({6 * R * R} lights), db2 rows, LeGall 5/3 columns, global budgets, "
+             f"quantize {' '.join(QFLAGS) or '(default: --error-ratio 1.1)'}; git {git}; "
+             f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {platform.node()} ({os.cpu_count()} CPUs).",
+             "Error: NumPy ||T - T'||_F / ||T||_F of the decoded final.ltm against rows.ltm. "
+             "Ratio: the 2D file's bytes at the same error (log-log interpolation of the 2D curve) over the 4D file's.", "",
+             "| method | budget | nonzeros | final.ltm bytes | matrix | side tables | container | bytes/nz | error (unquantized) | error | 2D bytes at this error / 4D bytes |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        ratio = ""
+        if r["method"] != "2D":
+            b2 = bytes_2d_at(r["error"])
+            ratio = f"{b2 / r['file_bytes']:.2f}x" if b2 else "(outside the 2D curve)"
+        lines.append(f"| {r['method']} | {r['budget']} | {r['nonzeros']:,} | {r['file_bytes']:,} | {r['matrix_bytes']:,} | "
+                     f"{r['side_table_bytes']:,} | {r['overhead_bytes']:,} | {r['bytes_per_nonzero']:.3f} | "
+                     f"{r['error_unquantized']:.4f} | {r['error']:.4f} | {ratio} |")
+    open(os.path.join(HERE, "results", NAME + ".md"), "w").write("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+main()
