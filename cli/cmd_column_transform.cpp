@@ -29,11 +29,12 @@ class ColumnTransformCommand : public Command {
         ->default_val("adaptive");
     auto* terms = app->add_option("--terms", terms_, "keep the N largest terms of each column")
                       ->check(CLI::Range(uint64_t{1}, uint64_t{1} << 62));
-    auto* keep = app->add_option("--keep", keep_, "keep this fraction of each column's terms: 0.05 or 5% (default)")
+    auto* keep = app->add_option("--keep", keep_, "keep this fraction of each column's terms: 0.05 or 5%")
                      ->check(FractionCheck());
     auto* budget = app->add_option("--budget", budget_,
                                    "one budget of nonzeros for the whole matrix, allocated by rate-distortion "
-                                   "optimisation: a fraction (0.02 or 2%), a count, or a size (64MiB at 8 bytes/nonzero)")
+                                   "optimisation: a fraction (0.02 or 2%), a count, or a size (64MiB at 8 bytes/nonzero); "
+                                   "the default is 5%")
                        ->check(BudgetCheck());
     terms->excludes(keep)->excludes(budget);
     keep->excludes(budget);
@@ -66,8 +67,9 @@ class ColumnTransformCommand : public Command {
       options_.terms.kind = stages::TermsMode::Kind::kTerms;
       options_.terms.terms = terms_;
     } else if (!keep_.empty()) {
+      options_.terms.kind = stages::TermsMode::Kind::kKeep;
       options_.terms.keep = *stages::ParseFraction(keep_);  // checked by FractionCheck
-    }
+    }  // else the default: --budget 5%
     auto mem = stages::ParseByteSize(flags_.mem_limit);
     if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
     options_.mem_limit = *mem;

@@ -195,6 +195,15 @@ class RelightCommand : public Command {
     report["lighting_ms"] = lighting_ms;
     report["relight_ms"] = relight_ms;
     report["terms_used"] = terms.column.size();
+    // What a term is in this matrix's column basis, and how much of the map it keeps.
+    {
+      double total = 0, kept = 0;  // `cube` holds the first frame's lighting in the basis
+      for (float v : cube) total += static_cast<double>(v) * v;
+      for (float v : terms.rgb) kept += static_cast<double>(v) * v;
+      report["terms_basis"] = basis->wavelet() ? "wavelet " + std::string(wavelet::FilterName(basis->filter())) : "pixels";
+      report["terms_available"] = cube.size() / 3;
+      report["lighting_energy_kept"] = total > 0 ? kept / total : 1.0;
+    }
     report["output"] = {{"masked_rows", fixes.masked_rows}, {"clamped_values", nullptr}};
     if (!keep_negative_) report["output"]["clamped_values"] = fixes.clamped_values;
     s = stages::WriteImage(output_, image.data(), rows, width, height, {.exposure = exposure_});
@@ -283,23 +292,33 @@ class RelightCommand : public Command {
     if (json_) {
       std::cout << report.dump(2) << "\n";
     } else if (!flags_.quiet) {
-      std::cout << "wrote " << output_ << ": " << terms.column.size() << " lighting terms (" << weighting_
-                << " weighting); lighting " << std::setprecision(3) << lighting_ms << " ms, relight " << relight_ms
-                << " ms";
+      const bool pixels = report["terms_basis"] == "pixels";
+      const uint64_t available = report["terms_available"];
+      std::cout << "wrote " << output_ << ": " << terms.column.size() << " of " << available << " lighting terms ("
+                << (pixels ? "texels" : "wavelet coefficients, " + report["terms_basis"].get<std::string>().substr(8))
+                << ", " << weighting_ << " weighting; " << std::setprecision(3)
+                << 100 * report["lighting_energy_kept"].get<double>() << "% of the map's energy); lighting "
+                << lighting_ms << " ms, relight " << relight_ms << " ms";
       if (report.contains("frames")) {
         std::cout << "; " << frames_ << " frames: median " << report["frames"]["median_ms"].get<double>() << " ms ("
                   << report["frames"]["fps"].get<double>() << " fps)";
       }
       std::cout << "\n";
+      if (pixels && terms.column.size() < available) {
+        std::cout << "  note: " << matrix_ << " has pixel-basis columns, so a term is one texel and "
+                  << terms.column.size() << " texels keep only part of the light; relight a row-transformed bake "
+                     "(rows.ltm, cols4d.ltm, final.ltm) for wavelet terms, or pass --terms all\n";
+      }
       if (report.contains("error")) {
         auto line = [&](const char* what, const nlohmann::json& e) {
           std::cout << "  " << what << ": rel. L2 " << e["rel_l2"].get<double>();
           if (e.contains("rel_h1")) std::cout << ", rel. H1 " << e["rel_h1"].get<double>();
           std::cout << ", PSNR " << e["psnr_db"].get<double>() << " dB\n";
         };
-        line("error", report["error"]);
-        line("  lighting approximation alone", report["error_lighting_only"]);
-        line("  matrix compression alone", report["error_matrix_only"]);
+        std::cout << "  against " << reference_ << " relit with every lighting term (the exact image):\n";
+        line("  error of this image", report["error"]);
+        line("    lighting approximation alone (these terms through the reference)", report["error_lighting_only"]);
+        line("    matrix compression alone (every term through this matrix)", report["error_matrix_only"]);
       }
     }
     return kExitOk;

@@ -223,12 +223,12 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
       if (col.terms) {
         n.params["terms"] = *col.terms;
         n.args.insert(n.args.end(), {"--terms", std::to_string(*col.terms)});
-      } else if (col.budget) {
-        n.params["budget"] = *col.budget;
-        n.args.insert(n.args.end(), {"--budget", *col.budget});
+      } else if (col.keep) {
+        n.params["keep"] = *col.keep;
+        n.args.insert(n.args.end(), {"--keep", Shortest(*col.keep)});
       } else {
-        n.params["keep"] = col.keep.value_or(0.05);
-        n.args.insert(n.args.end(), {"--keep", Shortest(col.keep.value_or(0.05))});
+        n.params["budget"] = col.budget.value_or("5%");
+        n.args.insert(n.args.end(), {"--budget", col.budget.value_or("5%")});
       }
       if (!col.zstd) n.args.push_back("--no-zstd");
     } else if (stage == "quantize") {

@@ -205,7 +205,7 @@ Status ParseColumnTransform(const std::string& path, const toml::table& t, Recip
     auto parsed = stages::ParseBudget(*c->budget);
     if (!parsed.ok()) return parsed.status().WithContext(Where(path, *b) + ": \"budget\"");
   }
-  if (given == 0) c->keep = 0.05;
+  if (given == 0) c->budget = "5%";  // one rate-distortion budget (docs/COLUMN-TRANSFORM.md)
   LTB_ASSIGN_OR_RETURN(c->zstd, GetBool(path, t, "zstd", c->zstd));
   return Status::Ok();
 }

@@ -293,6 +293,14 @@ with tempfile.TemporaryDirectory() as d:
     run("quantize", out, "-o", qout, "--progress", "never")
     check(info(qout)["content_hash"] == info(qref)["content_hash"], "quantize after kills: content differs")
 
+    # 10. The default selection is one budget of 5% of the matrix (not 5% of each column).
+    dflt, b5, k5 = (os.path.join(d, n) for n in ("dflt.ltm", "b5.ltm", "k5.ltm"))
+    ct(dflt)
+    ct(b5, "--budget", "5%")
+    ct(k5, "--keep", 0.05)
+    check(info(dflt)["content_hash"] == info(b5)["content_hash"] != info(k5)["content_hash"],
+          "the default selection should be --budget 5%")
+
     # 9. Column-group chunks (issue 16): any --block-cols stores the same matrix and side
     # tables; the default groups columns, so the container's own bytes (frame headers,
     # index) are a small part of the file; inspect's on-disk parts add up to the file.

@@ -118,6 +118,21 @@ with tempfile.TemporaryDirectory() as d:
     rep = relight(p("cq.ltm"), p("bt.npy"), "--terms", 10, "--weighting", "transport")
     check(rep.get("terms_used") == 10, f"transport weighting: {rep}")
 
+    # 3b. What a term is: in pixel-basis columns (raw.ltm) one texel, and the text says so;
+    # the share of the map's energy kept is NumPy's for the 10 brightest texels (|rgb|).
+    # In a row-transformed bake a term is a wavelet coefficient; with every term, all of it.
+    rp = relight(p("raw.ltm"), p("bp.npy"), "--terms", 10, "--weighting", "none")
+    e = (L.astype(np.float64) ** 2).sum(axis=1)
+    want_kept = np.sort(e)[-10:].sum() / e.sum()
+    check(rp.get("terms_basis") == "pixels" and rp.get("terms_available") == cols and
+          abs(rp.get("lighting_energy_kept", -1) - want_kept) <= 1e-6, f"pixel terms: {rp} (NumPy kept {want_kept})")
+    txt = run("relight", p("raw.ltm"), "--env", env, "-o", p("bp.npy"), "--terms", 10, *q).stdout
+    check("10 of " + str(cols) in txt and "texels" in txt and "--terms all" in txt, f"pixel terms text: {txt}")
+    rw = relight(p("c0.ltm"), p("bw.npy"), "--terms", "all")
+    check(rw.get("terms_basis") == "wavelet haar" and abs(rw.get("lighting_energy_kept", -1) - 1) <= 1e-9, f"{rw}")
+    txt = run("relight", p("c0.ltm"), "--env", env, "-o", p("bw.npy"), "--terms", 10, *q).stdout
+    check("wavelet coefficients, haar" in txt and "note:" not in txt, f"wavelet terms text: {txt}")
+
     # 4. rows.ltm, streamed == T·L with all terms; the reference metrics match NumPy.
     relight(p("rows.ltm"), p("br.npy"), "--terms", cols)
     br = np.load(p("br.npy")).astype(np.float64)

@@ -244,6 +244,7 @@ with tempfile.TemporaryDirectory() as d:
     bad("dither without bits", BASE.replace("bits = 9", "dither = false"), 2, "dither goes with bits")
     bad("error_ratio of 1", BASE.replace("bits = 9", "error_ratio = 1.0"), 2, '"error_ratio"')
     for text, want in ((BASE.replace("[quantize]\nbits = 9\n", ""), "--error-ratio 1.1"),
+                       (BASE, "--budget 5%"),  # [column-transform] defaults to one 5% budget
                        (BASE.replace("bits = 9", "error_ratio = 1.25"), "--error-ratio 1.25")):
         plan = run("run", write(os.path.join(d, "er.toml"), text), "--workdir", os.path.join(d, "wer"), "--dry-run")
         check(want in plan.stdout + plan.stderr, f"quantize plan lacks {want}:\n{plan.stdout}")
