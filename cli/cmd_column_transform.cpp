@@ -36,8 +36,13 @@ class ColumnTransformCommand : public Command {
                                    "optimisation: a fraction (0.02 or 2%), a count, or a size (64MiB at 8 bytes/nonzero); "
                                    "the default is 5%")
                        ->check(BudgetCheck());
-    terms->excludes(keep)->excludes(budget);
-    keep->excludes(budget);
+    auto* target = app->add_option("--target-error", target_,
+                                   "instead of a count: the fewest nonzeros (one rate-distortion threshold, as "
+                                   "--budget) whose relative RMS error is at most this, e.g. 0.02 or 2%")
+                       ->check(FractionCheck());
+    terms->excludes(keep)->excludes(budget)->excludes(target);
+    keep->excludes(budget)->excludes(target);
+    budget->excludes(target);
     app->add_option("--block-cols", options_.block_cols,
                     "columns per output chunk (default: as many as fill 32 MiB dense, so the file carries few "
                     "frames; 1 = one chunk per column)")
@@ -60,7 +65,10 @@ class ColumnTransformCommand : public Command {
     auto depth = stages::ParseDepthMode(depth_);
     if (!depth.ok()) return ReportUsage(depth.status());
     options_.depth = *depth;
-    if (!budget_.empty()) {
+    if (!target_.empty()) {
+      options_.terms.kind = stages::TermsMode::Kind::kTargetError;
+      options_.terms.target_error = *stages::ParseFraction(target_);  // checked by FractionCheck
+    } else if (!budget_.empty()) {
       options_.terms.kind = stages::TermsMode::Kind::kBudget;
       options_.terms.budget = budget_;
     } else if (terms_ > 0) {
@@ -97,7 +105,12 @@ class ColumnTransformCommand : public Command {
                           {"chunks_written", r->chunks_written},
                           {"chunks_already_committed", r->chunks_already_committed},
                           {"jobs", r->jobs_used}};
-      if (options_.terms.kind == stages::TermsMode::Kind::kBudget) {
+      if (options_.terms.kind == stages::TermsMode::Kind::kTargetError) {
+        j["target_error"] = options_.terms.target_error;
+        j["estimated_error"] = r->estimated_error;
+      }
+      if (options_.terms.kind == stages::TermsMode::Kind::kBudget ||
+          options_.terms.kind == stages::TermsMode::Kind::kTargetError) {
         j["budget"] = r->budget;
         j["lambda"] = r->lambda;
         j["histogram_bytes"] = r->histogram_bytes;
@@ -114,6 +127,9 @@ class ColumnTransformCommand : public Command {
       std::cout << "\n";
       if (options_.terms.kind == stages::TermsMode::Kind::kBudget) {
         std::cout << "  budget " << r->budget << " nonzeros, lambda " << r->lambda << "\n";
+      } else if (options_.terms.kind == stages::TermsMode::Kind::kTargetError) {
+        std::cout << "  target error " << options_.terms.target_error << ": " << r->budget
+                  << " nonzeros (estimated error " << r->estimated_error << "), lambda " << r->lambda << "\n";
       }
     }
     return kExitOk;
@@ -123,7 +139,7 @@ class ColumnTransformCommand : public Command {
   stages::ColumnTransformOptions options_;
   std::string filter_ = "legall53", depth_ = "adaptive", budget_;
   uint64_t terms_ = 0;
-  std::string keep_;
+  std::string keep_, target_;
   bool json_ = false;
   CommonFlags flags_;
   ShardFlags shard_flags_;

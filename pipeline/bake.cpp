@@ -223,6 +223,9 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
       if (col.terms) {
         n.params["terms"] = *col.terms;
         n.args.insert(n.args.end(), {"--terms", std::to_string(*col.terms)});
+      } else if (col.target_error) {
+        n.params["target_error"] = *col.target_error;
+        n.args.insert(n.args.end(), {"--target-error", Shortest(*col.target_error)});
       } else if (col.keep) {
         n.params["keep"] = *col.keep;
         n.args.insert(n.args.end(), {"--keep", Shortest(*col.keep)});

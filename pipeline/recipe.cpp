@@ -161,7 +161,7 @@ Status ParseSample(const std::string& path, const toml::table& t, Recipe::Sample
 
 Status ParseColumnTransform(const std::string& path, const toml::table& t, Recipe::ColumnTransform* c) {
   LTB_RETURN_IF_ERROR(
-      CheckKeys(path, t, "[column-transform]", {"filter", "depth", "keep", "terms", "budget", "zstd"}));
+      CheckKeys(path, t, "[column-transform]", {"filter", "depth", "keep", "terms", "budget", "target_error", "zstd"}));
   LTB_ASSIGN_OR_RETURN(c->filter, GetChoice(path, t, "filter", c->filter,
                                             {"legall53", "cdf97", "haar", "db1", "db2", "db3", "db4"}));
   if (const toml::node* d = t.get("depth")) {
@@ -175,10 +175,19 @@ Status ParseColumnTransform(const std::string& path, const toml::table& t, Recip
     auto mode = stages::ParseDepthMode(c->depth);
     if (!mode.ok()) return mode.status().WithContext(Where(path, *d) + ": \"depth\"");
   }
-  int given = t.contains("keep") + t.contains("terms") + t.contains("budget");
+  int given = t.contains("keep") + t.contains("terms") + t.contains("budget") + t.contains("target_error");
   if (given > 1) {
     return InvalidArgument(Where(path, t) + ": [column-transform] gives more than one of \"keep\", \"terms\", "
-                           "\"budget\"; choose one");
+                           "\"budget\", \"target_error\"; choose one");
+  }
+  if (const toml::node* k = t.get("target_error"); k && k->is_string()) {  // "2%", as --target-error takes it
+    auto f = stages::ParseFraction(*k->value<std::string>());
+    if (!f.ok()) return f.status().WithContext(Where(path, *k) + ": \"target_error\"");
+    if (!(*f < 1)) return InvalidArgument(Where(path, *k) + ": \"target_error\" must be below 100%");
+    c->target_error = *f;
+  } else if (k) {
+    LTB_ASSIGN_OR_RETURN(double v, GetNumber(path, t, "target_error", 0.02, 1e-9, 0.999999));
+    c->target_error = v;
   }
   if (const toml::node* k = t.get("keep"); k && k->is_string()) {  // "5%", as --keep takes it
     auto f = stages::ParseFraction(*k->value<std::string>());

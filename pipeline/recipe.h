@@ -59,10 +59,12 @@ struct Recipe {
   struct ColumnTransform {
     std::string filter = "legall53";
     std::string depth = "adaptive";
-    // Exactly one of: keep (fraction of each column's terms), terms (per column), budget.
+    // At most one of: keep (fraction of each column's terms), terms (per column), budget,
+    // target_error (relative RMS error); none given means budget = "5%".
     std::optional<double> keep;
     std::optional<uint64_t> terms;
     std::optional<std::string> budget;
+    std::optional<double> target_error;
     bool zstd = true;
   } column_transform;
   struct Quantize {

@@ -207,7 +207,15 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
       selection = {{"budget", budget}};
       break;
     }
+    case TermsMode::Kind::kTargetError:
+      if (!(o.terms.target_error > 0 && o.terms.target_error < 1)) {
+        return InvalidArgument("--target-error " + std::to_string(o.terms.target_error) +
+                               ": expected a relative RMS error in (0, 1), e.g. 0.02 or 2%");
+      }
+      selection = {{"target_error", o.terms.target_error}};
+      break;
   }
+  const bool global = o.terms.kind == TermsMode::Kind::kBudget || o.terms.kind == TermsMode::Kind::kTargetError;
 
   nlohmann::json out_meta = meta.json;
   ArraySpec out_spec = a;
@@ -300,7 +308,7 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
   std::vector<int8_t> budget_depth;
   std::vector<uint64_t> budget_extra;  // terms each column takes from the bin below the threshold
   int threshold_bin = 0;
-  if (o.terms.kind == TermsMode::Kind::kBudget && !items.empty()) {
+  if (global && !items.empty()) {
     std::vector<ColumnCurves> curves(a.cols);
     std::atomic<uint64_t> hist_bytes{0};
     std::vector<uint64_t> all_chunks(a.ChunkCount());
@@ -371,8 +379,37 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
       }
       return sum;
     };
+    // --target-error: the relative error at threshold bin g, each column at its depth.
+    auto error_at = [&](int g) {
+      double lambda = BinLowerEdge(g), dropped = 0, energy = 0;
+      for (const ColumnCurves& cc : curves) {
+        if (cc.bin.empty()) continue;
+        uint64_t n = 0;
+        int d = PickDepth(cc, g, lambda, &n);
+        Point p = Evaluate(cc, d, g, lambda);
+        dropped += p.cost - lambda * static_cast<double>(p.count);
+        energy += cc.depth_total[d];
+      }
+      return energy > 0 ? std::sqrt(std::max(0.0, dropped) / energy) : 0.0;
+    };
     if (lo > hi) {
       threshold_bin = 0;  // every column is empty
+    } else if (o.terms.kind == TermsMode::Kind::kTargetError) {
+      // The largest threshold (fewest terms) within the target; bins are 1/8 octave apart.
+      const double t = o.terms.target_error;
+      if (error_at(hi + 1) <= t) {
+        threshold_bin = hi + 1;
+      } else {
+        int l = lo, h = hi + 1;  // error_at(l) ≤ t (every term kept) < error_at(h)
+        while (h - l > 1) {
+          int mid = l + (h - l) / 2;
+          (error_at(mid) <= t ? l : h) = mid;
+        }
+        threshold_bin = l;
+      }
+      budget = total(threshold_bin);  // met exactly: nothing to fill from the bin below
+      result.budget = budget;
+      result.estimated_error = error_at(threshold_bin);
     } else if (total(lo) <= budget) {
       threshold_bin = lo;
     } else {

@@ -38,10 +38,13 @@ std::string DepthModeName(const DepthMode& mode);
 // The default is one budget of 5% of the matrix's coefficients: the same count per column
 // (--keep 0.05, the paper's) gave 1.5–2× the relit error at equal nonzeros on the demo.
 struct TermsMode {
-  enum class Kind { kTerms, kKeep, kBudget } kind = Kind::kBudget;
+  enum class Kind { kTerms, kKeep, kBudget, kTargetError } kind = Kind::kBudget;
   uint64_t terms = 0;   // kTerms: N per column
   double keep = 0.05;   // kKeep: fraction of each column's W·H
   std::string budget = "5%";  // kBudget: as given ("0.02", "2%", "150000", "64MiB"): stages::ParseBudget
+  // kTargetError: the fewest nonzeros (one rate-distortion threshold, as the budget) whose
+  // relative RMS error, as the energy histograms estimate it, is at most this (0 < e < 1).
+  double target_error = 0;
 };
 
 struct ColumnTransformOptions {
@@ -70,8 +73,10 @@ struct ColumnTransformResult {
   uint64_t nonzeros = 0;
   double energy = 0, error = 0;  // Σ over columns, image domain
   std::vector<uint64_t> depth_histogram;  // columns per depth 0..max_depth (empty ones excluded)
-  // Budget mode:
+  // Budget mode (and --target-error: the budget it found, and the histograms' estimate of
+  // the error, which the reported error above replaces with the exact one):
   uint64_t budget = 0;
+  double estimated_error = 0;
   double lambda = 0;
   uint64_t histogram_bytes = 0;
 };

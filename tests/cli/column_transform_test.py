@@ -301,6 +301,21 @@ with tempfile.TemporaryDirectory() as d:
     check(info(dflt)["content_hash"] == info(b5)["content_hash"] != info(k5)["content_hash"],
           "the default selection should be --budget 5%")
 
+    # 11. --target-error: the fewest nonzeros within a relative RMS error. Haar is
+    # orthonormal, so the histograms' estimate is the error, which NumPy measures on the
+    # decoded matrix; half the nonzeros (as a budget) is over the target.
+    te = os.path.join(d, "te.ltm")
+    rep = ct(te, "--filter", "haar", "--target-error", "5%")
+    dec = decode(te, d, "te.npy").astype(np.float64)
+    err_np = np.sqrt(((dec - m.astype(np.float64)) ** 2).sum() / energy)
+    check(rep["relative_rms_error"] <= 0.05 + 1e-9 and abs(err_np - rep["relative_rms_error"]) <= 1e-4 * err_np and
+          abs(rep["estimated_error"] - rep["relative_rms_error"]) <= 1e-6, f"--target-error 5%: {rep}, NumPy {err_np}")
+    half = ct(os.path.join(d, "te_half.ltm"), "--filter", "haar", "--budget", str(rep["nonzeros"] // 2))
+    check(half["relative_rms_error"] > 0.05, f"half the nonzeros should miss 5%: {half['relative_rms_error']}")
+    p_ = run("column-transform", cols, "-o", os.path.join(d, "never.ltm"), "--target-error", "5%", "--budget", "2%",
+             expect=2)
+    check("--target-error" in p_.stderr or "--budget" in p_.stderr, f"--target-error with --budget: {p_.stderr}")
+
     # 9. Column-group chunks (issue 16): any --block-cols stores the same matrix and side
     # tables; the default groups columns, so the container's own bytes (frame headers,
     # index) are a small part of the file; inspect's on-disk parts add up to the file.

@@ -243,8 +243,11 @@ with tempfile.TemporaryDirectory() as d:
     bad("bits and error_ratio", BASE + "error_ratio = 1.2\n", 2, "error_ratio", "bits", "not both")
     bad("dither without bits", BASE.replace("bits = 9", "dither = false"), 2, "dither goes with bits")
     bad("error_ratio of 1", BASE.replace("bits = 9", "error_ratio = 1.0"), 2, '"error_ratio"')
+    bad("target_error and budget", BASE + '[column-transform]\ntarget_error = 0.02\nbudget = "2%"\n', 2,
+        "more than one of")
     for text, want in ((BASE.replace("[quantize]\nbits = 9\n", ""), "--error-ratio 1.1"),
                        (BASE, "--budget 5%"),  # [column-transform] defaults to one 5% budget
+                       (BASE + '[column-transform]\ntarget_error = "2%"\n', "--target-error 0.02"),
                        (BASE.replace("bits = 9", "error_ratio = 1.25"), "--error-ratio 1.25")):
         plan = run("run", write(os.path.join(d, "er.toml"), text), "--workdir", os.path.join(d, "wer"), "--dry-run")
         check(want in plan.stdout + plan.stderr, f"quantize plan lacks {want}:\n{plan.stdout}")
