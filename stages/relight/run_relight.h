@@ -1,0 +1,52 @@
+// `ltbake relight MATRIX --env ENV -o IMAGE` as a library call (docs/RELIGHT.md): opens the
+// matrix (final.ltm / cols4d.ltm / cols.ltm in memory with Eq. 8, cpca.ltm per cluster,
+// rows.ltm / raw.ltm streamed), the environment (a map resampled to the bake's cubemap, or
+// a ready cubemap .npy), keeps the N-term lighting approximation, relights, applies the
+// output policy (mask-0 rows black, negatives clamped), writes IMAGE, optionally times
+// rotating frames and measures the errors against an uncompressed reference. The CLI
+// (cli/cmd_relight.cpp) only parses flags and prints the report.
+#pragma once
+
+#include <cstdint>
+#include <limits>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+#include "format/progress.h"
+#include "format/status.h"
+#include "stages/relight/envmap.h"
+#include "stages/relight/relight.h"
+
+namespace ltb::stages {
+
+struct RelightOptions {
+  std::string matrix;
+  std::string env;     // .exr / .hdr (EnvLoadOptions) or a 6R² × 3 cubemap .npy
+  std::string output;  // .exr, .png or .npy
+  static constexpr uint64_t kAllTerms = std::numeric_limits<uint64_t>::max();
+  uint64_t terms = 100;  // ≥ 1; kAllTerms keeps every nonzero coefficient
+  Weighting weighting = Weighting::kArea;
+  std::string reference;  // uncompressed matrix for the error metrics (empty: none)
+  int frames = 0;         // timing frames, the environment rotating once about +Z
+  double rotate_deg = 0;  // rotation of the environment about +Z for the written image
+  double exposure = 0;    // PNG exposure (0: automatic)
+  bool keep_negative = false;  // --no-clamp-output
+  EnvLayout env_layout = EnvLayout::kAuto;
+  bool clamp_env = false;
+  uint64_t mem_limit = 1ull << 30;
+  int jobs = 2;
+};
+
+// The report `--json` prints (docs/RELIGHT.md lists its keys): matrix, env, terms,
+// weighting, load and per-frame times, terms_used / terms_basis / terms_available /
+// lighting_energy_kept, output (masked_rows, clamped_values), frames, and with a reference
+// error / error_lighting_only / error_matrix_only.
+struct RelightResult {
+  nlohmann::json report;
+};
+
+// Cancelled (progress.Cancelled()) between timing frames, after the image is written.
+Result<RelightResult> RunRelight(const RelightOptions& options, const Progress& progress);
+
+}  // namespace ltb::stages
