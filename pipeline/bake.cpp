@@ -28,6 +28,7 @@
 #include "pipeline/process.h"
 #include "pipeline/shards.h"
 #include "pipeline/recipe.h"
+#include "pipeline/stage_table.h"
 #include "stages/common/basis.h"
 #include "stages/sample/sample.h"
 #include "stages/sample/scene.h"
@@ -58,40 +59,9 @@ struct Graph {
   std::set<std::string> wanted;   // work-directory files to leave on disk
 };
 
-const std::map<std::string, std::string>& OutputOf() {
-  static const std::map<std::string, std::string> m = {{"sample", "raw.ltm"},
-                                                       {"row-transform", "rows.ltm"},
-                                                       {"transpose", "cols.ltm"},
-                                                       {"column-transform", "cols4d.ltm"},
-                                                       {"quantize", "final.ltm"},
-                                                       {"cpca", "cpca.ltm"}};
-  return m;
-}
-
-std::vector<std::string> Deps(const Recipe& r, const std::string& stage) {
-  if (stage == "row-transform") return {"sample"};
-  if (stage == "transpose") return {"row-transform"};
-  if (stage == "column-transform") return {"transpose"};
-  if (stage == "quantize") return {"column-transform"};
-  if (stage == "cpca") return {"row-transform"};
-  if (stage == "relight") {
-    std::vector<std::string> d = {r.relight.matrix == "cpca" ? "cpca" : "quantize"};
-    if (r.relight.reference) d.push_back("row-transform");
-    return d;
-  }
-  return {};
-}
-
 int StageIndex(const std::string& s) {
   const auto& n = StageNames();
   return static_cast<int>(std::find(n.begin(), n.end(), s) - n.begin());
-}
-
-// The shortest text that reads back as the same double.
-std::string Shortest(double v) {
-  char b[64];
-  auto r = std::to_chars(b, b + sizeof b, v);
-  return std::string(b, r.ptr);
 }
 
 std::string Hex(uint64_t h) {
@@ -161,7 +131,7 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
     std::string s = todo.back();
     todo.pop_back();
     if (!needed.insert(s).second) continue;
-    for (const auto& d : Deps(r, s)) todo.push_back(d);
+    for (const auto& d : StageNeeds(r, s)) todo.push_back(d);
   }
   if (!o.from.empty() && !needed.count(o.from)) {
     return InvalidArgument("--from " + o.from + ": that stage is not part of this bake (its targets need: " + [&] {
@@ -175,86 +145,31 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
                     !g.targets.count("sample") && o.from != "row-transform";
 
   auto path = [&](const std::string& file) { return (fs::path(workdir) / file).string(); };
-  const auto& col = r.column_transform;
-  for (const std::string& stage : StageNames()) {
+  const StageContext ctx{path, scene_file};
+  for (const StageInfo& info : StageTable()) {
+    const std::string stage(info.name);
     if (!needed.count(stage)) continue;
     if (stage == "row-transform" && fuse) continue;  // done by the fused node
     Node n;
     n.name = stage;
     n.stages = {stage};
-    if (stage == "sample") {
-      json p = json::object();
-      auto opt = [&](const char* flag, const char* key, const std::optional<uint64_t>& v) {
-        p[key] = v ? json(*v) : json(nullptr);
-        if (v) {
-          n.args.push_back(flag);
-          n.args.push_back(std::to_string(*v));
-        }
-      };
-      n.args = {"sample", scene_file};
-      opt("--cube-res", "cube_res", r.sample.cube_res);
-      opt("--spp", "spp", r.sample.spp);
-      opt("--bounces", "bounces", r.sample.bounces);
-      opt("--seed", "seed", r.sample.seed);
-      n.params = p;
-      n.output = "raw.ltm";
-      if (fuse) {
-        n.name = "sample+row-transform";
-        n.stages = {"sample", "row-transform"};
-        n.output = "rows.ltm";
-        n.params = {{"sample", p}, {"row-transform", {{"filter", r.row_transform.filter}, {"zstd", r.row_transform.zstd}}}};
-        n.args.insert(n.args.end(), {"--row-transform", r.row_transform.filter});
-        if (r.row_transform.zstd) n.args.push_back("--row-zstd");
-      }
-    } else if (stage == "row-transform") {
-      n.inputs = {"raw.ltm"};
-      n.params = {{"filter", r.row_transform.filter}, {"zstd", r.row_transform.zstd}};
-      n.args = {"row-transform", path("raw.ltm"), "--filter", r.row_transform.filter};
-      if (r.row_transform.zstd) n.args.push_back("--zstd");
-    } else if (stage == "transpose") {
-      n.inputs = {"rows.ltm"};
-      n.params = {{"zstd", r.transpose.zstd}};
-      n.args = {"transpose", path("rows.ltm")};
-      if (r.transpose.zstd) n.args.push_back("--zstd");
-    } else if (stage == "column-transform") {
-      n.inputs = {"cols.ltm"};
-      n.params = {{"filter", col.filter}, {"depth", col.depth}, {"zstd", col.zstd}};
-      n.args = {"column-transform", path("cols.ltm"), "--filter", col.filter, "--depth", col.depth};
-      if (col.terms) {
-        n.params["terms"] = *col.terms;
-        n.args.insert(n.args.end(), {"--terms", std::to_string(*col.terms)});
-      } else if (col.target_error) {
-        n.params["target_error"] = *col.target_error;
-        n.args.insert(n.args.end(), {"--target-error", Shortest(*col.target_error)});
-      } else if (col.keep) {
-        n.params["keep"] = *col.keep;
-        n.args.insert(n.args.end(), {"--keep", Shortest(*col.keep)});
-      } else {
-        n.params["budget"] = col.budget.value_or("5%");
-        n.args.insert(n.args.end(), {"--budget", col.budget.value_or("5%")});
-      }
-      if (!col.zstd) n.args.push_back("--no-zstd");
-    } else if (stage == "quantize") {
-      const auto& q = r.quantize;
-      n.inputs = {"cols4d.ltm"};
-      if (q.bits) {
-        n.params = {{"bits", *q.bits}, {"scaling", q.scaling}, {"dither", q.dither}, {"seed", q.seed}};
-        n.args = {"quantize", path("cols4d.ltm"), "--bits", std::to_string(*q.bits), "--scaling", q.scaling,
-                  "--seed", std::to_string(q.seed)};
-        if (!q.dither) n.args.push_back("--no-dither");
-      } else {
-        n.params = {{"error_ratio", q.error_ratio}};
-        n.args = {"quantize", path("cols4d.ltm"), "--error-ratio", Shortest(q.error_ratio)};
-      }
-    } else if (stage == "cpca") {
-      n.inputs = {"rows.ltm"};
-      const auto& c = r.cpca;
-      n.params = {{"clusters", c.clusters}, {"basis", c.basis}, {"max_iterations", c.max_iterations}, {"seed", c.seed}};
-      n.args = {"cpca", path("rows.ltm"), "--clusters", std::to_string(c.clusters), "--basis", std::to_string(c.basis),
-                "--max-iterations", std::to_string(c.max_iterations), "--seed", std::to_string(c.seed)};
+    if (info.command) {
+      StageCommand c = info.command(r, ctx);
+      n.inputs = std::move(c.inputs);
+      n.params = std::move(c.params);
+      n.args = std::move(c.args);
+      n.output = info.output;
     }
-    if (stage != "relight") {
-      if (n.output.empty()) n.output = OutputOf().at(stage);
+    if (stage == "sample" && fuse) {  // sample + row-transform in one step: no raw.ltm
+      n.name = "sample+row-transform";
+      n.stages = {"sample", "row-transform"};
+      n.output = "rows.ltm";
+      n.params = {{"sample", n.params},
+                  {"row-transform", {{"filter", r.row_transform.filter}, {"zstd", r.row_transform.zstd}}}};
+      n.args.insert(n.args.end(), {"--row-transform", r.row_transform.filter});
+      if (r.row_transform.zstd) n.args.push_back("--row-zstd");
+    }
+    if (info.command) {
       g.nodes.push_back(std::move(n));
       continue;
     }
@@ -493,7 +408,10 @@ std::string SummaryTable(const json& stages) {
 
 // Steps that run as shards when --shards N > 1: the matrix stages (cpca's clustering is
 // global; relight makes an image).
-bool Shardable(const Node& n) { return !n.image && n.stages.front() != "cpca"; }
+bool Shardable(const Node& n) {
+  const StageInfo* s = FindStage(n.stages.front());
+  return !n.image && s != nullptr && s->shardable;
+}
 
 // Removes a step's output: the file, and for a stage manifest its shard directory.
 void RemoveOutput(const std::string& path, std::error_code& ec) {

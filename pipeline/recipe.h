@@ -14,12 +14,9 @@
 
 namespace ltb::pipeline {
 
-// The stages of a bake, in graph order (docs/RECIPE.md "The stage graph").
-inline const std::vector<std::string>& StageNames() {
-  static const std::vector<std::string> names = {"sample",   "row-transform", "transpose", "column-transform",
-                                                 "quantize", "cpca",          "relight"};
-  return names;
-}
+// The stages of a bake, in graph order (docs/RECIPE.md "The stage graph"): the names of
+// the rows of StageTable() (pipeline/stage_table.h).
+const std::vector<std::string>& StageNames();
 
 // The intermediates a recipe may keep, by file stem (raw.ltm, rows.ltm, ...).
 inline const std::vector<std::string>& IntermediateNames() {

@@ -1,0 +1,144 @@
+#include "pipeline/stage_table.h"
+
+#include <charconv>
+#include <optional>
+
+namespace ltb::pipeline {
+namespace {
+
+using nlohmann::json;
+
+StageCommand Sample(const Recipe& r, const StageContext& ctx) {
+  StageCommand c;
+  c.args = {"sample", ctx.scene_file};
+  auto opt = [&](const char* flag, const char* key, const std::optional<uint64_t>& v) {
+    c.params[key] = v ? json(*v) : json(nullptr);
+    if (v) {
+      c.args.push_back(flag);
+      c.args.push_back(std::to_string(*v));
+    }
+  };
+  opt("--cube-res", "cube_res", r.sample.cube_res);
+  opt("--spp", "spp", r.sample.spp);
+  opt("--bounces", "bounces", r.sample.bounces);
+  opt("--seed", "seed", r.sample.seed);
+  return c;
+}
+
+StageCommand RowTransform(const Recipe& r, const StageContext& ctx) {
+  StageCommand c;
+  c.inputs = {"raw.ltm"};
+  c.params = {{"filter", r.row_transform.filter}, {"zstd", r.row_transform.zstd}};
+  c.args = {"row-transform", ctx.path("raw.ltm"), "--filter", r.row_transform.filter};
+  if (r.row_transform.zstd) c.args.push_back("--zstd");
+  return c;
+}
+
+StageCommand Transpose(const Recipe& r, const StageContext& ctx) {
+  StageCommand c;
+  c.inputs = {"rows.ltm"};
+  c.params = {{"zstd", r.transpose.zstd}};
+  c.args = {"transpose", ctx.path("rows.ltm")};
+  if (r.transpose.zstd) c.args.push_back("--zstd");
+  return c;
+}
+
+StageCommand ColumnTransform(const Recipe& r, const StageContext& ctx) {
+  const auto& col = r.column_transform;
+  StageCommand c;
+  c.inputs = {"cols.ltm"};
+  c.params = {{"filter", col.filter}, {"depth", col.depth}, {"zstd", col.zstd}};
+  c.args = {"column-transform", ctx.path("cols.ltm"), "--filter", col.filter, "--depth", col.depth};
+  if (col.terms) {
+    c.params["terms"] = *col.terms;
+    c.args.insert(c.args.end(), {"--terms", std::to_string(*col.terms)});
+  } else if (col.target_error) {
+    c.params["target_error"] = *col.target_error;
+    c.args.insert(c.args.end(), {"--target-error", Shortest(*col.target_error)});
+  } else if (col.keep) {
+    c.params["keep"] = *col.keep;
+    c.args.insert(c.args.end(), {"--keep", Shortest(*col.keep)});
+  } else {
+    c.params["budget"] = col.budget.value_or("5%");
+    c.args.insert(c.args.end(), {"--budget", col.budget.value_or("5%")});
+  }
+  if (!col.zstd) c.args.push_back("--no-zstd");
+  return c;
+}
+
+StageCommand Quantize(const Recipe& r, const StageContext& ctx) {
+  const auto& q = r.quantize;
+  StageCommand c;
+  c.inputs = {"cols4d.ltm"};
+  if (q.bits) {
+    c.params = {{"bits", *q.bits}, {"scaling", q.scaling}, {"dither", q.dither}, {"seed", q.seed}};
+    c.args = {"quantize", ctx.path("cols4d.ltm"), "--bits", std::to_string(*q.bits), "--scaling", q.scaling,
+              "--seed", std::to_string(q.seed)};
+    if (!q.dither) c.args.push_back("--no-dither");
+  } else {
+    c.params = {{"error_ratio", q.error_ratio}};
+    c.args = {"quantize", ctx.path("cols4d.ltm"), "--error-ratio", Shortest(q.error_ratio)};
+  }
+  return c;
+}
+
+StageCommand Cpca(const Recipe& r, const StageContext& ctx) {
+  const auto& p = r.cpca;
+  StageCommand c;
+  c.inputs = {"rows.ltm"};
+  c.params = {{"clusters", p.clusters}, {"basis", p.basis}, {"max_iterations", p.max_iterations}, {"seed", p.seed}};
+  c.args = {"cpca", ctx.path("rows.ltm"), "--clusters", std::to_string(p.clusters), "--basis", std::to_string(p.basis),
+            "--max-iterations", std::to_string(p.max_iterations), "--seed", std::to_string(p.seed)};
+  return c;
+}
+
+}  // namespace
+
+const std::vector<StageInfo>& StageTable() {
+  static const std::vector<StageInfo> table = {
+      {"sample", "raw.ltm", {}, true, "ray-cast the transport matrix of the scene (Embree)", Sample},
+      {"row-transform", "rows.ltm", {"sample"}, true, "2D wavelets per cube face along each row", RowTransform},
+      {"transpose", "cols.ltm", {"row-transform"}, true, "row blocks to column blocks, out of core", Transpose},
+      {"column-transform", "cols4d.ltm", {"transpose"}, true,
+       "adaptive 4D: each column image at its best depth, its largest terms kept", ColumnTransform},
+      {"quantize", "final.ltm", {"column-transform"}, true, "quantize the kept coefficients", Quantize},
+      {"cpca", "cpca.ltm", {"row-transform"}, false, "clustered PCA of the row-transformed matrix", Cpca},
+      {"relight", "", {}, false, "relight under each environment map, with its error", nullptr},
+  };
+  return table;
+}
+
+const StageInfo* FindStage(std::string_view name) {
+  for (const StageInfo& s : StageTable())
+    if (s.name == name) return &s;
+  return nullptr;
+}
+
+std::vector<std::string> StageNeeds(const Recipe& r, std::string_view name) {
+  if (name == "relight") {
+    std::vector<std::string> d = {r.relight.matrix == "cpca" ? "cpca" : "quantize"};
+    if (r.relight.reference) d.push_back("row-transform");
+    return d;
+  }
+  std::vector<std::string> out;
+  if (const StageInfo* s = FindStage(name))
+    for (std::string_view n : s->needs) out.emplace_back(n);
+  return out;
+}
+
+const std::vector<std::string>& StageNames() {
+  static const std::vector<std::string> names = [] {
+    std::vector<std::string> n;
+    for (const StageInfo& s : StageTable()) n.emplace_back(s.name);
+    return n;
+  }();
+  return names;
+}
+
+std::string Shortest(double v) {
+  char b[64];
+  auto r = std::to_chars(b, b + sizeof b, v);
+  return std::string(b, r.ptr);
+}
+
+}  // namespace ltb::pipeline

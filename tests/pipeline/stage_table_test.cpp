@@ -1,0 +1,58 @@
+// The stage table against its own promises: graph order (a stage's needs come before it),
+// one output file per stage, the names recipes accept are the table's, and each stage's
+// command for the default recipe runs that stage on the outputs of the stages it needs.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <set>
+#include <string>
+
+#include "pipeline/stage_table.h"
+
+namespace ltb::pipeline {
+namespace {
+
+TEST(StageTable, NeedsComeFirstAndOutputsAreDistinct) {
+  std::set<std::string_view> seen, outputs;
+  for (const StageInfo& s : StageTable()) {
+    for (std::string_view n : s.needs) EXPECT_TRUE(seen.count(n)) << s.name << " needs " << n << ", listed after it";
+    if (!s.output.empty()) {
+      EXPECT_TRUE(outputs.insert(s.output).second) << s.output << " made twice";
+    }
+    seen.insert(s.name);
+    EXPECT_EQ(FindStage(s.name), &s);
+  }
+  EXPECT_EQ(FindStage("colour"), nullptr);
+  ASSERT_EQ(StageNames().size(), StageTable().size());
+  for (size_t i = 0; i < StageNames().size(); ++i) EXPECT_EQ(StageNames()[i], StageTable()[i].name);
+}
+
+TEST(StageTable, DefaultCommandsReadWhatTheirNeedsMake) {
+  Recipe r;  // every key at its default
+  StageContext ctx{[](const std::string& f) { return "/work/" + f; }, "/work/scene.toml"};
+  for (const StageInfo& s : StageTable()) {
+    if (!s.command) continue;  // relight: one step per map, built by the graph
+    StageCommand c = s.command(r, ctx);
+    ASSERT_FALSE(c.args.empty());
+    EXPECT_EQ(c.args[0], s.name);
+    std::set<std::string> made;
+    for (std::string_view n : s.needs) made.insert(std::string(FindStage(n)->output));
+    for (const std::string& in : c.inputs) {
+      EXPECT_TRUE(made.count(in)) << s.name << " reads " << in << " that no stage it needs makes";
+      EXPECT_NE(std::find(c.args.begin(), c.args.end(), "/work/" + in), c.args.end()) << s.name << " " << in;
+    }
+    EXPECT_EQ(c.inputs.size(), s.needs.size()) << s.name;
+  }
+  // The defaults of issue 16: one 5% budget, one quantization step with ratio 1.1.
+  auto ct = FindStage("column-transform")->command(r, ctx).args;
+  EXPECT_NE(std::find(ct.begin(), ct.end(), "--budget"), ct.end());
+  auto q = FindStage("quantize")->command(r, ctx).args;
+  EXPECT_EQ(q.back(), "1.1");
+  EXPECT_EQ(StageNeeds(r, "relight"), std::vector<std::string>{"quantize"});
+  r.relight.matrix = "cpca";
+  r.relight.reference = true;
+  EXPECT_EQ(StageNeeds(r, "relight"), (std::vector<std::string>{"cpca", "row-transform"}));
+}
+
+}  // namespace
+}  // namespace ltb::pipeline
