@@ -1,4 +1,4 @@
-// ltbake quantize IN -o OUT [--error-ratio 1.1 | --bits 9 [--no-dither] [--scaling level|none]]
+// ltbake quantize IN -o OUT [--error-ratio 1.1 | --bits 9 [--dither] [--scaling level|none]]
 #include <cmath>
 #include <filesystem>
 #include <iomanip>
@@ -33,7 +33,9 @@ class QuantizeCommand : public Command {
         ->default_val("level")
         ->check(CLI::IsMember({"level", "none"}))
         ->needs(bits);
-    app->add_flag("!--no-dither", options_.dither, "with --bits: round to nearest instead of dithering")->needs(bits);
+    app->add_flag("--dither,!--no-dither", options_.dither,
+                  "with --bits: dither instead of rounding to nearest (unbiased, but more RMS error; off by default)")
+        ->needs(bits);
     app->add_option("--seed", options_.seed, "with --bits: dither seed")->default_val(1)->needs(bits);
     app->add_flag("!--no-zstd", options_.zstd, "do not zstd-compress the sparse chunks");
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");

@@ -70,7 +70,7 @@ struct Recipe {
     double error_ratio = 1.1;
     std::optional<uint64_t> bits;
     std::string scaling = "level";
-    bool dither = true;
+    bool dither = false;
     uint64_t seed = 1;
   } quantize;
   struct Cpca {

@@ -74,7 +74,7 @@ StageCommand Quantize(const Recipe& r, const StageContext& ctx) {
     c.params = {{"bits", *q.bits}, {"scaling", q.scaling}, {"dither", q.dither}, {"seed", q.seed}};
     c.args = {"quantize", ctx.path("cols4d.ltm"), "--bits", std::to_string(*q.bits), "--scaling", q.scaling,
               "--seed", std::to_string(q.seed)};
-    if (!q.dither) c.args.push_back("--no-dither");
+    if (q.dither) c.args.push_back("--dither");
   } else {
     c.params = {{"error_ratio", q.error_ratio}};
     c.args = {"quantize", ctx.path("cols4d.ltm"), "--error-ratio", Shortest(q.error_ratio)};

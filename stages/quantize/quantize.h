@@ -39,7 +39,7 @@ struct QuantizeOptions {
   // 0: the per-column maximum with `bits`.
   double error_ratio = 0;
   bool level_scaling = true;
-  bool dither = true;
+  bool dither = false;  // --dither: adds RMS error (0.0114 against 0.0081 on the demo matrix)
   uint64_t seed = 1;
   int jobs = 2;
   bool zstd = true;

@@ -233,6 +233,13 @@ with tempfile.TemporaryDirectory() as d:
                       f"haar: reported ratio {qs['rms_error_ratio']} vs NumPy {got_ratio}")
             sizes[ratio] = qs["matrix_bytes"]
         check(sizes[1.5] < sizes[1.1], f"{filt}: a larger --error-ratio should store fewer bytes: {sizes}")
+    # --bits rounds by default (dithering costs RMS error); --dither asks for it.
+    hd = {}
+    for extra in ((), ("--no-dither",), ("--dither",)):
+        out = os.path.join(d, "fd.ltm")
+        run("quantize", c4, "-o", out, "--bits", 9, "--overwrite", "--progress", "never", *extra)
+        hd[extra] = info(out)["content_hash"]
+    check(hd[()] == hd[("--no-dither",)] != hd[("--dither",)], f"--bits default should round: {hd}")
     # --scaling: at depth 0 every factor is 1, so level and none store the same integers;
     # on Haar columns level scaling (factor 2^l) lowers the quantization error.
     c0 = os.path.join(d, "c0.ltm")
