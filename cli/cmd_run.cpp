@@ -62,6 +62,9 @@ class RunCommand : public Command {
   }
 
   int Run() override {
+    // The stages it starts inherit this: an interrupted stage leaves the message (with the
+    // command that resumes the whole bake) to this process (ReportFailure).
+    ::setenv(kRunPidVariable, std::to_string(::getpid()).c_str(), 1);
     if (app_->count("--force") > 0 && options_.force.empty()) options_.force = {"all"};
     for (auto& f : options_.force) {
       if (f.empty()) f = "all";

@@ -148,9 +148,14 @@ void InstallSignalHandlers() {
 int ReceivedSignal() { return g_signal.load(); }
 
 int ReportFailure(const Status& status) {
-  std::cerr << "ltbake: error: " << status.message() << "\n";
   int sig = ReceivedSignal();
-  if (status.code() == StatusCode::kCancelled || sig != 0) {
+  const bool interrupted = status.code() == StatusCode::kCancelled || sig != 0;
+  // A stage started by `ltbake run` leaves an interruption to its parent, which says what
+  // stopped and how to resume the bake (one message, not two).
+  const char* run_pid = std::getenv(kRunPidVariable);
+  const bool child_of_run = run_pid != nullptr && std::to_string(::getpid()) != run_pid;
+  if (!(interrupted && child_of_run)) std::cerr << "ltbake: error: " << status.message() << "\n";
+  if (interrupted) {
     if (sig == SIGTERM) return 143;
     return 130;
   }

@@ -67,6 +67,8 @@ int ReceivedSignal();
 // Prints the error to stderr and returns the exit code: 130/143 after SIGINT/SIGTERM,
 // 1 otherwise.
 int ReportFailure(const Status& status);
+// Set by `ltbake run` to its PID for the stages it starts (see ReportFailure).
+inline constexpr const char* kRunPidVariable = "LTBAKE_RUN_PID";
 
 // A progress bar on stderr: only on a TTY unless --progress always; at most ~6 updates/s;
 // shows rate and ETA.
