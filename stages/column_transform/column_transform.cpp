@@ -164,7 +164,7 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
   plan.block = o.block_cols ? std::min<uint64_t>(o.block_cols, a.cols) : OutputBlockColumns(a.rows, a.cols, o.shard.count);
   const uint64_t pixels = a.rows;
   const bool ortho = wavelet::IsOrthonormal(o.filter);
-  if (plan.block * pixels > kMaxSparseElements) {
+  if (plan.block > kMaxSparseElements / pixels) {  // (block · pixels could overflow)
     return InvalidArgument("--block-cols " + std::to_string(plan.block) + ": a chunk of " + std::to_string(plan.block) +
                            " columns of " + std::to_string(pixels) + " rows is over the 2^32 elements of a sparse "
                            "chunk; use at most " + std::to_string(kMaxSparseElements / pixels));

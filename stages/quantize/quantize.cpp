@@ -62,14 +62,17 @@ struct StepSample {
 
 constexpr uint64_t kStepSample = 4u << 20;
 
+// The largest step whose quantization error over the matrix (estimated on the sample) is
+// at most (ratio² − 1) times the truncation error. Reads every chunk, also in a shard, so
+// every shard finds the same step (it is in the metadata).
 Result<double> RefineStep(const io::ContainerReader& in, const ColumnCodec& codec,
-                              const std::vector<std::vector<double>>& factors, double ratio,
-                              const ColumnTransformResult& totals, double model_step, int jobs,
-                              const Progress& progress) {
+                          const std::vector<std::vector<double>>& factors, double ratio,
+                          const ColumnTransformResult& totals, double model_step, int jobs, const Progress& progress) {
   const ArraySpec& a = in.metadata().matrix();
   const uint64_t pixels = a.rows;
   const uint64_t stride = std::max<uint64_t>(1, (totals.nonzeros + kStepSample - 1) / kStepSample);
   std::vector<StepSample> per_chunk(a.ChunkCount());
+  std::atomic<uint64_t> sampled{0};  // bounded: column_stats that undercount are damage
   std::vector<uint64_t> chunks(a.ChunkCount());
   for (uint64_t c = 0; c < chunks.size(); ++c) chunks[c] = c;
   Status s = ParallelFor(chunks, jobs, progress, "chunks (step search)", [&](uint64_t c) -> Status {
@@ -81,10 +84,16 @@ Result<double> RefineStep(const io::ContainerReader& in, const ColumnCodec& code
     for (size_t i = 0; i < sc.index.size(); ++i) {
       const uint64_t k = sc.index[i] / pixels, p = sc.index[i] % pixels, col = sc.extent.col0 + k;
       const int d = depths[k];
-      if (d > codec.max_depth()) return DataLoss(in.path() + ": column " + std::to_string(col) + " has depth " + std::to_string(d));
+      if (d > codec.max_depth()) {
+        return DataLoss(in.path() + ": column " + std::to_string(col) + " has depth " + std::to_string(d));
+      }
       out.count++;
       if (stride > 1 && SplitMix64(col * 0x9E3779B97F4A7C15ull ^ SplitMix64(p)) % stride != 0) continue;
       out.values.push_back(static_cast<double>(values[i]) * factors[d][p]);
+    }
+    if (sampled.fetch_add(out.values.size()) + out.values.size() > 4 * kStepSample + totals.nonzeros) {
+      return DataLoss(in.path() + ": its column_stats count " + std::to_string(totals.nonzeros) +
+                      " nonzeros, but the matrix holds far more; the file is damaged (rerun column-transform)");
     }
     return Status::Ok();
   });
