@@ -1,0 +1,84 @@
+// The bake graph as pure logic (pipeline/graph.h): what a recipe's targets need, the fused
+// sample + row-transform step, --until and --from, one relight step per map.
+#include <gtest/gtest.h>
+
+#include <string>
+#include <vector>
+
+#include "pipeline/graph.h"
+
+namespace ltb::pipeline {
+namespace {
+
+std::vector<std::string> Names(const Graph& g) {
+  std::vector<std::string> n;
+  for (const Node& node : g.nodes) n.push_back(node.name);
+  return n;
+}
+
+Recipe Base() {
+  Recipe r;
+  r.path = "/w/r.toml";
+  r.targets = {"quantize"};
+  r.keep = {"rows", "cols", "cols4d"};
+  return r;
+}
+
+TEST(Graph, QuantizeFusesSampleAndRowTransform) {
+  auto g = BuildGraph(Base(), BakeOptions{}, "/work", "/work/scene.toml");
+  ASSERT_TRUE(g.ok()) << g.status().message();
+  EXPECT_EQ(Names(*g), (std::vector<std::string>{"sample+row-transform", "transpose", "column-transform", "quantize"}));
+  EXPECT_EQ(g->nodes[0].output, "rows.ltm");
+  EXPECT_EQ(g->nodes[3].output, "final.ltm");
+  EXPECT_EQ(g->nodes[3].inputs, std::vector<std::string>{"cols4d.ltm"});
+  EXPECT_TRUE(g->wanted.count("final.ltm") && g->wanted.count("cols4d.ltm") && !g->wanted.count("raw.ltm"));
+  EXPECT_EQ(g->nodes[0].args[0], "sample");
+  EXPECT_EQ(g->nodes[0].args[1], "/work/scene.toml");
+}
+
+TEST(Graph, KeepingRawSplitsTheFusedStep) {
+  Recipe r = Base();
+  r.keep.insert("raw");
+  auto g = BuildGraph(r, BakeOptions{}, "/work", "/work/scene.toml");
+  ASSERT_TRUE(g.ok());
+  EXPECT_EQ(Names(*g),
+            (std::vector<std::string>{"sample", "row-transform", "transpose", "column-transform", "quantize"}));
+  EXPECT_EQ(g->nodes[1].inputs, std::vector<std::string>{"raw.ltm"});
+}
+
+TEST(Graph, UntilAndFrom) {
+  BakeOptions o;
+  o.until = "transpose";
+  auto g = BuildGraph(Base(), o, "/work", "/work/scene.toml");
+  ASSERT_TRUE(g.ok());
+  EXPECT_EQ(Names(*g), (std::vector<std::string>{"sample+row-transform", "transpose"}));
+  o = BakeOptions{};
+  o.from = "cpca";  // not needed by quantize
+  auto bad = BuildGraph(Base(), o, "/work", "/work/scene.toml");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.status().message().find("not part of this bake"), std::string::npos);
+  o.from = "colour";
+  bad = BuildGraph(Base(), o, "/work", "/work/scene.toml");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.status().message().find("is not a stage"), std::string::npos);
+}
+
+TEST(Graph, OneRelightStepPerMapWithItsReference) {
+  Recipe r = Base();
+  r.targets = {"quantize", "relight"};
+  r.relight.present = true;
+  r.relight.reference = true;
+  r.relight.envs = {{"sunset", "/maps/sunset.exr"}, {"forest", "/maps/forest.exr"}};
+  auto g = BuildGraph(r, BakeOptions{}, "/work", "/work/scene.toml");
+  ASSERT_TRUE(g.ok()) << g.status().message();
+  ASSERT_EQ(g->nodes.size(), 6u);
+  EXPECT_EQ(g->nodes[4].name, "relight:sunset");
+  EXPECT_EQ(g->nodes[5].output, "relit-forest.png");
+  EXPECT_EQ(g->nodes[4].inputs, (std::vector<std::string>{"final.ltm", "rows.ltm"}));
+  EXPECT_TRUE(g->nodes[4].image);
+  r.relight.present = false;
+  EXPECT_FALSE(BuildGraph(r, BakeOptions{}, "/work", "/work/scene.toml").ok());
+}
+
+}  // namespace
+}  // namespace ltb::pipeline
