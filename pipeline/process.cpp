@@ -112,7 +112,11 @@ Result<ChildResult> RunChild(const std::vector<std::string>& argv, const ChildIo
 
   ChildResult result;
   std::string err_line;
-  bool forwarded = false;
+  bool forwarded = false, killed = false;
+  std::chrono::steady_clock::time_point forwarded_at, killed_at;
+  auto seconds_since = [](std::chrono::steady_clock::time_point t) {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+  };
   struct pollfd fds[2] = {{out_pipe[0], POLLIN, 0}, {err_pipe[0], POLLIN, 0}};
   int open_fds = 2;
   char buf[1 << 14];
@@ -121,8 +125,16 @@ Result<ChildResult> RunChild(const std::vector<std::string>& argv, const ChildIo
       if (int sig = io.pending_signal(); sig != 0) {
         ::kill(pid, sig);
         forwarded = true;
+        forwarded_at = std::chrono::steady_clock::now();
       }
     }
+    if (!killed && ((forwarded && seconds_since(forwarded_at) > io.kill_after_seconds) ||
+                    (io.deadline_seconds > 0 && seconds_since(start) > io.deadline_seconds))) {
+      ::kill(pid, SIGKILL);  // its pipes close as it dies; wait4 below reaps it
+      killed = true;
+      killed_at = std::chrono::steady_clock::now();
+    }
+    if (killed && seconds_since(killed_at) > 2) break;  // a grandchild may still hold the pipes
     int n = ::poll(fds, 2, 100);
     if (n < 0) {
       if (errno == EINTR) continue;

@@ -28,6 +28,12 @@ struct ChildIo {
   std::function<void(std::string_view)> on_stdout;  // may be empty
   std::function<void(std::string_view)> on_stderr;  // may be empty
   std::function<int()> pending_signal;              // a signal to forward (0: none), polled
+  // A child that has not exited this long after the forwarded signal is killed (SIGKILL):
+  // a Slurm client whose controller is gone retries for minutes and ignores SIGTERM.
+  double kill_after_seconds = 30;
+  // > 0: the child is killed (SIGKILL) after this long whatever it is doing (scancel after
+  // an interrupt, which must not keep the run from stopping).
+  double deadline_seconds = 0;
 };
 
 Result<ChildResult> RunChild(const std::vector<std::string>& argv, const ChildIo& io);

@@ -214,6 +214,7 @@ Result<ShardedStep> RunSlurm(const EngineOptions& o, const std::vector<std::stri
       // sbatch --wait does not take its job with it: cancel what this run submitted.
       ChildIo quiet;
       quiet.log_path = io.log_path;
+      quiet.deadline_seconds = 60;  // a controller that is gone must not keep the run from stopping
       (void)RunChild({scancel, "--name=" + job_name}, quiet);
       for (uint64_t i : left) runs[i].status = ShardFileComplete(output, i, o.shards) ? "done" : "interrupted";
       result.interrupted = true;
