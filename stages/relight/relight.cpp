@@ -25,6 +25,16 @@ Result<Weighting> ParseWeighting(const std::string& name) {
   return InvalidArgument("--weighting \"" + name + "\": expected area, transport or none");
 }
 
+const char* WeightingName(Weighting w) {
+  switch (w) {
+    case Weighting::kArea: return "area";
+    case Weighting::kTransport: return "transport";
+    case Weighting::kNone: return "none";
+  }
+  return "?";
+}
+
+
 namespace {
 
 // Support area, in texels, of the basis function of each column of one face's Mallat

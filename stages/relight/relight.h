@@ -30,6 +30,7 @@ namespace ltb::stages {
 
 enum class Weighting { kArea, kTransport, kNone };
 Result<Weighting> ParseWeighting(const std::string& name);
+const char* WeightingName(Weighting w);  // the --weighting spelling
 
 // The kept lighting terms: column index (in the matrix's column basis) and RGB weight.
 struct LightTerms {

@@ -54,15 +54,6 @@ class Environment {
   uint64_t clamped_ = 0;
 };
 
-const char* WeightingName(Weighting w) {
-  switch (w) {
-    case Weighting::kArea: return "area";
-    case Weighting::kTransport: return "transport";
-    case Weighting::kNone: return "none";
-  }
-  return "?";
-}
-
 }  // namespace
 
 Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progress) {

@@ -14,36 +14,33 @@
 namespace ltb::pipeline {
 namespace {
 
-std::string LogPath() { return ::testing::TempDir() + "/ltb_process_test_" + std::to_string(::getpid()) + ".log"; }
+// How `sh -c script` ended under `io` (its log in the test's temporary directory).
+int TermSignal(const std::string& script, ChildIo io) {
+  io.log_path = ::testing::TempDir() + "/ltb_process_test_" + std::to_string(::getpid()) + ".log";
+  auto r = RunChild({"/bin/sh", "-c", script}, io);
+  EXPECT_TRUE(r.ok()) << r.status().message();
+  return r.ok() ? r->term_signal : -1;
+}
 
 TEST(RunChild, AnIgnoredForwardedSignalIsFollowedBySigkill) {
   ChildIo io;
-  io.log_path = LogPath();
   bool ready = false;  // signal once the trap is set (the child says so), not before
   io.on_stdout = [&](std::string_view t) { ready = ready || t.find("ready") != std::string_view::npos; };
   io.pending_signal = [&] { return ready ? SIGTERM : 0; };
   io.kill_after_seconds = 0.2;
-  auto r = RunChild({"/bin/sh", "-c", "trap '' TERM; echo ready; exec sleep 1000"}, io);
-  ASSERT_TRUE(r.ok()) << r.status().message();
-  EXPECT_EQ(r->term_signal, SIGKILL);
+  EXPECT_EQ(TermSignal("trap '' TERM; echo ready; exec sleep 1000", io), SIGKILL);
 }
 
 TEST(RunChild, ADeadlineKillsAChildThatRunsOn) {
   ChildIo io;
-  io.log_path = LogPath();
   io.deadline_seconds = 0.2;
-  auto r = RunChild({"/bin/sh", "-c", "exec sleep 1000"}, io);
-  ASSERT_TRUE(r.ok()) << r.status().message();
-  EXPECT_EQ(r->term_signal, SIGKILL);
+  EXPECT_EQ(TermSignal("exec sleep 1000", io), SIGKILL);
 }
 
 TEST(RunChild, AChildThatStopsOnTheSignalIsNotKilled) {
   ChildIo io;
-  io.log_path = LogPath();
   io.pending_signal = [] { return SIGTERM; };
-  auto r = RunChild({"/bin/sh", "-c", "exec sleep 1000"}, io);
-  ASSERT_TRUE(r.ok()) << r.status().message();
-  EXPECT_EQ(r->term_signal, SIGTERM);
+  EXPECT_EQ(TermSignal("exec sleep 1000", io), SIGTERM);
 }
 
 }  // namespace
