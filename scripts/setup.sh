@@ -25,6 +25,7 @@ PACKAGES=(
   libstb-dev                       # Radiance .hdr reading
   blender-data                     # CC0 environment maps (DWAB .exr, studiolights/world; scripts/find_envmaps.sh)
   clang libclang-rt-14-dev         # libFuzzer target (LTB_BUILD_FUZZERS)
+  clang-format                     # the house style (.clang-format; tests/format_check.sh)
   python3 python3-numpy python3-pywt python3-h5py python3-matplotlib python3-xxhash python3-sklearn  # oracles, baselines, plots
   nodejs                           # converting the sample meshes (npm is checked below)
   slurm-wlm munge slurm-client     # cluster test: a single-node Slurm on localhost (tests/cluster, docs/cluster.md)
