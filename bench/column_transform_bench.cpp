@@ -32,17 +32,23 @@ int Fail(const std::string& s) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  if (argc < 2) return Fail("usage: ltb_column_transform_bench COLS.ltm [--filter F] [--terms N] [--columns K] [--reps R]");
+  if (argc < 2)
+    return Fail("usage: ltb_column_transform_bench COLS.ltm [--filter F] [--terms N] [--columns K] [--reps R]");
   std::string path = argv[1], filter_name = "legall53";
   uint64_t terms = 0, max_columns = 0;
   int reps = 5;
   for (int i = 2; i + 1 < argc; i += 2) {
     std::string k = argv[i], v = argv[i + 1];
-    if (k == "--filter") filter_name = v;
-    else if (k == "--terms") terms = std::stoull(v);
-    else if (k == "--columns") max_columns = std::stoull(v);
-    else if (k == "--reps") reps = std::stoi(v);
-    else return Fail("unknown option " + k);
+    if (k == "--filter")
+      filter_name = v;
+    else if (k == "--terms")
+      terms = std::stoull(v);
+    else if (k == "--columns")
+      max_columns = std::stoull(v);
+    else if (k == "--reps")
+      reps = std::stoi(v);
+    else
+      return Fail("unknown option " + k);
   }
   auto filter = wavelet::ParseFilter(filter_name);
   if (!filter.ok()) return Fail(filter.status().message());
@@ -115,11 +121,12 @@ int main(int argc, char** argv) {
   }
   double mp = Median(tp), ma = Median(ta);
   std::printf(
-      "{\"file\": \"%s\", \"filter\": \"%s\", \"image\": [%llu, %llu], \"depths\": %d, \"columns\": %llu, \"terms\": %llu, "
+      "{\"file\": \"%s\", \"filter\": \"%s\", \"image\": [%llu, %llu], \"depths\": %d, \"columns\": %llu, \"terms\": "
+      "%llu, "
       "\"reps\": %d, \"plain_forward_s\": %.4f, \"adaptive_s\": %.4f, \"ratio\": %.3f, \"plain_min_s\": %.4f, "
       "\"adaptive_min_s\": %.4f, \"kept\": %llu, \"sink\": %g}\n",
-      path.c_str(), filter_name.c_str(), static_cast<unsigned long long>(w), static_cast<unsigned long long>(h), depth + 1,
-      static_cast<unsigned long long>(ncols), static_cast<unsigned long long>(terms), reps, mp, ma, ma / mp,
+      path.c_str(), filter_name.c_str(), static_cast<unsigned long long>(w), static_cast<unsigned long long>(h),
+      depth + 1, static_cast<unsigned long long>(ncols), static_cast<unsigned long long>(terms), reps, mp, ma, ma / mp,
       *std::min_element(tp.begin(), tp.end()), *std::min_element(ta.begin(), ta.end()),
       static_cast<unsigned long long>(kept), sink);
   return 0;

@@ -30,13 +30,12 @@
 #include <deque>
 #include <fstream>
 #include <mutex>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <span>
 #include <string>
 #include <thread>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 #include "format/array_spec.h"
 #include "format/chunk_codec.h"
@@ -106,10 +105,14 @@ uint64_t ParseBytes(const std::string& s) {
   double v = std::strtod(s.c_str(), &end);
   std::string unit = end ? end : "";
   uint64_t mul = 1;
-  if (unit == "K" || unit == "KiB") mul = 1ull << 10;
-  else if (unit == "M" || unit == "MiB") mul = 1ull << 20;
-  else if (unit == "G" || unit == "GiB") mul = 1ull << 30;
-  else if (!unit.empty()) Die("bad size '" + s + "' (use a number with an optional K, M or G suffix)");
+  if (unit == "K" || unit == "KiB")
+    mul = 1ull << 10;
+  else if (unit == "M" || unit == "MiB")
+    mul = 1ull << 20;
+  else if (unit == "G" || unit == "GiB")
+    mul = 1ull << 30;
+  else if (!unit.empty())
+    Die("bad size '" + s + "' (use a number with an optional K, M or G suffix)");
   if (!(v > 0)) Die("bad size '" + s + "'");
   return static_cast<uint64_t>(v * static_cast<double>(mul));
 }
@@ -144,13 +147,20 @@ Args ParseArgs(int argc, char** argv) {
       if (i + 1 >= argc) Die(f + " needs a value");
       return argv[++i];
     };
-    if (f == "--bytes") a.bytes = ParseBytes(next());
-    else if (f == "--chunk-bytes") a.chunk_bytes = ParseBytes(next());
-    else if (f == "--no-verify") a.verify = false;
-    else if (f == "--threads") a.threads = std::max(1, std::atoi(next().c_str()));
-    else if (f == "--prefetch") a.prefetch = std::strtoull(next().c_str(), nullptr, 10);
-    else if (f == "--sync-each-chunk") a.sync_each_chunk = true;
-    else Die("unknown flag " + f);
+    if (f == "--bytes")
+      a.bytes = ParseBytes(next());
+    else if (f == "--chunk-bytes")
+      a.chunk_bytes = ParseBytes(next());
+    else if (f == "--no-verify")
+      a.verify = false;
+    else if (f == "--threads")
+      a.threads = std::max(1, std::atoi(next().c_str()));
+    else if (f == "--prefetch")
+      a.prefetch = std::strtoull(next().c_str(), nullptr, 10);
+    else if (f == "--sync-each-chunk")
+      a.sync_each_chunk = true;
+    else
+      Die("unknown flag " + f);
   }
   return a;
 }
@@ -253,7 +263,7 @@ int Write(const Args& a) {
   if (!s.ok()) Die(s.message());
   auto t1 = Clock::now();
 
-  struct stat st{};
+  struct stat st {};
   ::stat(a.path.c_str(), &st);
   uint64_t payload = spec.rows * kRowBytes;
   double secs = Seconds(t0, t1);
@@ -313,8 +323,8 @@ int Read(const Args& a) {
     if (chunk >= chunks) return;
     const ltb::format::IndexEntry* e = r->Find(0, chunk);
     if (e == nullptr) return;
-    ::posix_fadvise(prefetch_fd, static_cast<off_t>(e->frame_offset),
-                    static_cast<off_t>(e->header.FrameSize()), POSIX_FADV_WILLNEED);
+    ::posix_fadvise(prefetch_fd, static_cast<off_t>(e->frame_offset), static_cast<off_t>(e->header.FrameSize()),
+                    POSIX_FADV_WILLNEED);
   };
 
   std::mutex mu;
@@ -396,7 +406,7 @@ uint64_t ResidentBytes(int fd, uint64_t size) {
 int Evict(const Args& a, bool evict) {
   int fd = ::open(a.path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) Die(a.path + ": " + std::strerror(errno));
-  struct stat st{};
+  struct stat st {};
   ::fstat(fd, &st);
   uint64_t size = static_cast<uint64_t>(st.st_size);
   uint64_t before = ResidentBytes(fd, size);

@@ -36,11 +36,16 @@ int main(int argc, char** argv) {
   std::string only;  // --filter NAME: just that one
   for (int i = 1; i + 1 < argc; i += 2) {
     std::string k = argv[i];
-    if (k == "--rows") rows = std::strtoull(argv[i + 1], nullptr, 10);
-    else if (k == "--cube-res") r = std::strtoull(argv[i + 1], nullptr, 10);
-    else if (k == "--threads") threads = std::atoi(argv[i + 1]);
-    else if (k == "--reps") reps = std::atoi(argv[i + 1]);
-    else if (k == "--filter") only = argv[i + 1];
+    if (k == "--rows")
+      rows = std::strtoull(argv[i + 1], nullptr, 10);
+    else if (k == "--cube-res")
+      r = std::strtoull(argv[i + 1], nullptr, 10);
+    else if (k == "--threads")
+      threads = std::atoi(argv[i + 1]);
+    else if (k == "--reps")
+      reps = std::atoi(argv[i + 1]);
+    else if (k == "--filter")
+      only = argv[i + 1];
   }
   const uint64_t cols = 6 * r * r, block = 256;  // rows per work item, like a chunk of the stage
   // Not value-initialised: the threads touch the pages first (fill, then an untimed copy).
@@ -59,9 +64,8 @@ int main(int argc, char** argv) {
   });
   double gb = rows * cols * 4.0 / 1e9;
   // Untimed: fault in dst's pages, so the first repetition does not time the page faults.
-  TimeParallel(threads, rows, block, [&](uint64_t r0, uint64_t n) {
-    std::memcpy(dst + r0 * cols, src + r0 * cols, n * cols * 4);
-  });
+  TimeParallel(threads, rows, block,
+               [&](uint64_t r0, uint64_t n) { std::memcpy(dst + r0 * cols, src + r0 * cols, n * cols * 4); });
   for (int rep = 0; rep < reps; ++rep) {
     double tc = TimeParallel(threads, rows, block, [&](uint64_t r0, uint64_t n) {
       std::memcpy(dst + r0 * cols, src + r0 * cols, n * cols * 4);

@@ -32,10 +32,14 @@ int main(int argc, char** argv) {
   int reps = 3;
   for (int i = 3; i + 1 < argc; i += 2) {
     std::string k = argv[i];
-    if (k == "--cube-res") o.cube_res = static_cast<uint32_t>(std::atoi(argv[i + 1]));
-    else if (k == "--spp") o.spp = static_cast<uint32_t>(std::atoi(argv[i + 1]));
-    else if (k == "--jobs") o.jobs = std::atoi(argv[i + 1]);
-    else if (k == "--reps") reps = std::atoi(argv[i + 1]);
+    if (k == "--cube-res")
+      o.cube_res = static_cast<uint32_t>(std::atoi(argv[i + 1]));
+    else if (k == "--spp")
+      o.spp = static_cast<uint32_t>(std::atoi(argv[i + 1]));
+    else if (k == "--jobs")
+      o.jobs = std::atoi(argv[i + 1]);
+    else if (k == "--reps")
+      reps = std::atoi(argv[i + 1]);
   }
   o.output = (std::filesystem::path(dir) / "sample-bench.ltm").string();
   for (int rep = 0; rep < reps; ++rep) {
@@ -55,13 +59,14 @@ int main(int argc, char** argv) {
     double stage_rate = stage->rays / stage->seconds;
     // Bare rate with the same number of threads busy: rays per second of Embree time per thread.
     double bare_rate = bare->rays / (bare->trace_thread_seconds / o.jobs);
-    std::printf("{\"rep\":%d,\"cube_res\":%u,\"spp\":%u,\"jobs\":%d,\"stage_rays\":%llu,\"stage_seconds\":%.3f,"
-                "\"stage_rays_per_s\":%.4g,\"bare_rays\":%llu,\"bare_embree_thread_seconds\":%.3f,"
-                "\"bare_rays_per_s\":%.4g,\"ratio\":%.3f,\"stage_cpu_seconds\":%.3f,"
-                "\"cpu_ratio\":%.3f}\n",
-                rep, stage->cube_res, stage->spp, o.jobs, static_cast<unsigned long long>(stage->rays), stage->seconds,
-                stage_rate, static_cast<unsigned long long>(bare->rays), bare->trace_thread_seconds, bare_rate,
-                stage_rate / bare_rate, stage_cpu, bare->trace_thread_seconds / stage_cpu);
+    std::printf(
+        "{\"rep\":%d,\"cube_res\":%u,\"spp\":%u,\"jobs\":%d,\"stage_rays\":%llu,\"stage_seconds\":%.3f,"
+        "\"stage_rays_per_s\":%.4g,\"bare_rays\":%llu,\"bare_embree_thread_seconds\":%.3f,"
+        "\"bare_rays_per_s\":%.4g,\"ratio\":%.3f,\"stage_cpu_seconds\":%.3f,"
+        "\"cpu_ratio\":%.3f}\n",
+        rep, stage->cube_res, stage->spp, o.jobs, static_cast<unsigned long long>(stage->rays), stage->seconds,
+        stage_rate, static_cast<unsigned long long>(bare->rays), bare->trace_thread_seconds, bare_rate,
+        stage_rate / bare_rate, stage_cpu, bare->trace_thread_seconds / stage_cpu);
     std::fflush(stdout);
   }
   std::filesystem::remove(o.output);

@@ -22,21 +22,20 @@
 //       (within the row block), to see whether a deeper I/O queue helps when the input is
 //       not cached.
 //       Evict the file first to measure the disk. One JSON line.
+#include <fcntl.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
-#include <atomic>
 #include <cstring>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <thread>
 #include <vector>
-
-#include <fcntl.h>
-#include <unistd.h>
-
-#include <nlohmann/json.hpp>
 
 #include "format/array_spec.h"
 #include "format/chunk_codec.h"
@@ -77,10 +76,14 @@ uint64_t ParseBytes(const std::string& s) {
   double v = std::strtod(s.c_str(), &end);
   std::string unit = end ? end : "";
   uint64_t mul = 1;
-  if (unit == "K" || unit == "KiB") mul = 1ull << 10;
-  else if (unit == "M" || unit == "MiB") mul = 1ull << 20;
-  else if (unit == "G" || unit == "GiB") mul = 1ull << 30;
-  else if (!unit.empty()) Die("bad size '" + s + "'");
+  if (unit == "K" || unit == "KiB")
+    mul = 1ull << 10;
+  else if (unit == "M" || unit == "MiB")
+    mul = 1ull << 20;
+  else if (unit == "G" || unit == "GiB")
+    mul = 1ull << 30;
+  else if (!unit.empty())
+    Die("bad size '" + s + "'");
   if (!(v > 0)) Die("bad size '" + s + "'");
   return static_cast<uint64_t>(v * static_cast<double>(mul));
 }
@@ -115,15 +118,24 @@ Args ParseArgs(int argc, char** argv) {
       if (i + 1 >= argc) Die(f + " needs a value");
       return argv[++i];
     };
-    if (f == "--rows") a.rows = std::strtoull(next().c_str(), nullptr, 10);
-    else if (f == "--cols") a.cols = std::strtoull(next().c_str(), nullptr, 10);
-    else if (f == "--chunk-bytes") a.chunk_bytes = ParseBytes(next());
-    else if (f == "--samples") a.samples = std::strtoull(next().c_str(), nullptr, 10);
-    else if (f == "--col0") a.col0 = std::strtoull(next().c_str(), nullptr, 10);
-    else if (f == "--panel-cols") a.panel_cols = std::strtoull(next().c_str(), nullptr, 10);
-    else if (f == "--prefetch-rows") a.prefetch_rows = std::strtoull(next().c_str(), nullptr, 10);
-    else if (f == "--jobs") a.jobs = std::max(1, std::atoi(next().c_str()));
-    else Die("unknown flag " + f);
+    if (f == "--rows")
+      a.rows = std::strtoull(next().c_str(), nullptr, 10);
+    else if (f == "--cols")
+      a.cols = std::strtoull(next().c_str(), nullptr, 10);
+    else if (f == "--chunk-bytes")
+      a.chunk_bytes = ParseBytes(next());
+    else if (f == "--samples")
+      a.samples = std::strtoull(next().c_str(), nullptr, 10);
+    else if (f == "--col0")
+      a.col0 = std::strtoull(next().c_str(), nullptr, 10);
+    else if (f == "--panel-cols")
+      a.panel_cols = std::strtoull(next().c_str(), nullptr, 10);
+    else if (f == "--prefetch-rows")
+      a.prefetch_rows = std::strtoull(next().c_str(), nullptr, 10);
+    else if (f == "--jobs")
+      a.jobs = std::max(1, std::atoi(next().c_str()));
+    else
+      Die("unknown flag " + f);
   }
   if (a.rows == 0 || a.cols == 0) Die("--rows and --cols must be positive");
   return a;
@@ -149,8 +161,9 @@ int Make(const Args& a) {
   for (uint64_t i = 0; i < spec.ChunkCount(); ++i) {
     ltb::format::ChunkExtent e = spec.Extent(i);
     FillRows(buf.data(), e.row0, e.rows, spec.cols);
-    ltb::Status s = w->Put(0, i, ltb::format::ByteSpan(reinterpret_cast<const std::byte*>(buf.data()),
-                                                        e.rows * spec.cols * sizeof(float)), eo);
+    ltb::Status s = w->Put(
+        0, i, ltb::format::ByteSpan(reinterpret_cast<const std::byte*>(buf.data()), e.rows * spec.cols * sizeof(float)),
+        eo);
     if (!s.ok()) Die(s.message());
   }
   ltb::Status s = w->Finish();
@@ -210,9 +223,9 @@ int Check(const Args& a) {
       ++checked;
     }
   }
-  nlohmann::json out = {{"mode", "check"},        {"path", a.path},          {"rows", spec.rows},
-                        {"cols", spec.cols},      {"block_cols", spec.block}, {"columns_checked", cols},
-                        {"elements", checked},    {"mismatches", mismatches}, {"ok", mismatches == 0}};
+  nlohmann::json out = {{"mode", "check"},     {"path", a.path},           {"rows", spec.rows},
+                        {"cols", spec.cols},   {"block_cols", spec.block}, {"columns_checked", cols},
+                        {"elements", checked}, {"mismatches", mismatches}, {"ok", mismatches == 0}};
   std::printf("%s\n", out.dump().c_str());
   return mismatches == 0 ? 0 : 1;
 }
@@ -268,10 +281,18 @@ int PanelRead(const Args& a) {
   for (auto& t : threads) t.join();
   double secs = Seconds(t0, Clock::now());
   ::close(fd);
-  nlohmann::json out = {{"mode", "panel-read"},   {"path", a.path},        {"col0", a.col0},
-                        {"panel_cols", a.panel_cols}, {"segment_bytes", seg}, {"jobs", a.jobs},
-                        {"prefetch_rows", a.prefetch_rows}, {"preads", calls.load()}, {"fadvise_calls", advised.load()},
-                        {"bytes", bytes.load()},  {"seconds", secs},       {"gb_per_s", bytes.load() / secs / 1e9}};
+  nlohmann::json out = {{"mode", "panel-read"},
+                        {"path", a.path},
+                        {"col0", a.col0},
+                        {"panel_cols", a.panel_cols},
+                        {"segment_bytes", seg},
+                        {"jobs", a.jobs},
+                        {"prefetch_rows", a.prefetch_rows},
+                        {"preads", calls.load()},
+                        {"fadvise_calls", advised.load()},
+                        {"bytes", bytes.load()},
+                        {"seconds", secs},
+                        {"gb_per_s", bytes.load() / secs / 1e9}};
   std::printf("%s\n", out.dump().c_str());
   return 0;
 }

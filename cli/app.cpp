@@ -20,17 +20,18 @@ void PrintVersion() {
 namespace ltb::cli {
 
 int LtbakeMain(int argc, char** argv) {
-  CLI::App app{"ltbake: bake and compress light transport matrices for all-frequency relighting.\n"
-               "Exit codes: 0 ok, 1 failed, 2 usage error, 130/143 interrupted (state committed; rerun resumes)."};
+  CLI::App app{
+      "ltbake: bake and compress light transport matrices for all-frequency relighting.\n"
+      "Exit codes: 0 ok, 1 failed, 2 usage error, 130/143 interrupted (state committed; rerun resumes)."};
   app.name("ltbake");
   app.require_subcommand(0, 1);
   bool version = false;
   app.add_flag("--version", version, "print the tool version and the .ltm format versions it reads and writes");
 
   std::map<CLI::App*, std::unique_ptr<Command>> commands;
-  for (auto reg : {RegisterInspect, RegisterVerify, RegisterConvert, RegisterRowTransform, RegisterTranspose, RegisterSample,
-                   RegisterColumnTransform, RegisterQuantize, RegisterCpca, RegisterRelight, RegisterRun,
-                   RegisterCommit, RegisterMerge}) {
+  for (auto reg : {RegisterInspect, RegisterVerify, RegisterConvert, RegisterRowTransform, RegisterTranspose,
+                   RegisterSample, RegisterColumnTransform, RegisterQuantize, RegisterCpca, RegisterRelight,
+                   RegisterRun, RegisterCommit, RegisterMerge}) {
     auto cmd = reg(&app);
     commands[app.get_subcommands({}).back()] = std::move(cmd);
   }

@@ -3,7 +3,6 @@
 #include <cmath>
 #include <iomanip>
 #include <iostream>
-
 #include <nlohmann/json.hpp>
 
 #include "cli/commands.h"
@@ -31,11 +30,12 @@ class ColumnTransformCommand : public Command {
                       ->check(CLI::Range(uint64_t{1}, uint64_t{1} << 62));
     auto* keep = app->add_option("--keep", keep_, "keep this fraction of each column's terms: 0.05 or 5%")
                      ->check(FractionCheck());
-    auto* budget = app->add_option("--budget", budget_,
-                                   "one budget of nonzeros for the whole matrix, allocated by rate-distortion "
-                                   "optimisation: a fraction (0.02 or 2%), a count, or a size (64MiB at 8 bytes/nonzero); "
-                                   "the default is 5%")
-                       ->check(BudgetCheck());
+    auto* budget =
+        app->add_option("--budget", budget_,
+                        "one budget of nonzeros for the whole matrix, allocated by rate-distortion "
+                        "optimisation: a fraction (0.02 or 2%), a count, or a size (64MiB at 8 bytes/nonzero); "
+                        "the default is 5%")
+            ->check(BudgetCheck());
     auto* target = app->add_option("--target-error", target_,
                                    "instead of a count: the fewest nonzeros (one rate-distortion threshold, as "
                                    "--budget) whose relative RMS error is at most this, e.g. 0.02 or 2%")
@@ -77,7 +77,7 @@ class ColumnTransformCommand : public Command {
     } else if (!keep_.empty()) {
       options_.terms.kind = stages::TermsMode::Kind::kKeep;
       options_.terms.keep = *stages::ParseFraction(keep_);  // checked by FractionCheck
-    }  // else the default: --budget 5%
+    }                                                       // else the default: --budget 5%
     auto mem = stages::ParseByteSize(flags_.mem_limit);
     if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
     options_.mem_limit = *mem;
@@ -89,22 +89,24 @@ class ColumnTransformCommand : public Command {
     double rel = r->energy > 0 ? std::sqrt(r->error / r->energy) : 0.0;
     double fraction = static_cast<double>(r->nonzeros) / (static_cast<double>(r->rows) * static_cast<double>(r->cols));
     if (json_) {
-      nlohmann::json j = {{"output", options_.output},
-                          {"file", options_.shard.sharded() ? io::ShardPath(options_.output, options_.shard.index, options_.shard.count) : options_.output},
-                          {"rows", r->rows},
-                          {"cols", r->cols},
-                          {"image", {{"width", r->width}, {"height", r->height}}},
-                          {"depths", {r->min_depth, r->max_depth}},
-                          {"depth_histogram", r->depth_histogram},
-                          {"empty_columns", r->empty_columns},
-                          {"nonzeros", r->nonzeros},
-                          {"nonzero_fraction", fraction},
-                          {"energy", r->energy},
-                          {"error", r->error},
-                          {"relative_rms_error", rel},
-                          {"chunks_written", r->chunks_written},
-                          {"chunks_already_committed", r->chunks_already_committed},
-                          {"jobs", r->jobs_used}};
+      nlohmann::json j = {
+          {"output", options_.output},
+          {"file", options_.shard.sharded() ? io::ShardPath(options_.output, options_.shard.index, options_.shard.count)
+                                            : options_.output},
+          {"rows", r->rows},
+          {"cols", r->cols},
+          {"image", {{"width", r->width}, {"height", r->height}}},
+          {"depths", {r->min_depth, r->max_depth}},
+          {"depth_histogram", r->depth_histogram},
+          {"empty_columns", r->empty_columns},
+          {"nonzeros", r->nonzeros},
+          {"nonzero_fraction", fraction},
+          {"energy", r->energy},
+          {"error", r->error},
+          {"relative_rms_error", rel},
+          {"chunks_written", r->chunks_written},
+          {"chunks_already_committed", r->chunks_already_committed},
+          {"jobs", r->jobs_used}};
       if (options_.terms.kind == stages::TermsMode::Kind::kTargetError) {
         j["target_error"] = options_.terms.target_error;
         j["estimated_error"] = r->estimated_error;
@@ -117,9 +119,10 @@ class ColumnTransformCommand : public Command {
       }
       std::cout << j.dump(2) << "\n";
     } else if (!flags_.quiet) {
-      std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << r->cols << " columns of " << r->width << "x" << r->height
-                << ", depths " << r->min_depth << ".." << r->max_depth;
-      if (r->chunks_already_committed) std::cout << " (resumed: " << r->chunks_already_committed << " already committed)";
+      std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << r->cols << " columns of "
+                << r->width << "x" << r->height << ", depths " << r->min_depth << ".." << r->max_depth;
+      if (r->chunks_already_committed)
+        std::cout << " (resumed: " << r->chunks_already_committed << " already committed)";
       std::cout << "\n  kept " << r->nonzeros << " nonzeros (" << std::setprecision(4) << 100 * fraction
                 << "% of the matrix), relative RMS error " << rel << "; " << r->empty_columns << " empty columns\n";
       std::cout << "  columns per depth:";

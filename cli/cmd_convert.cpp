@@ -18,7 +18,9 @@ class ConvertCommand : public Command {
         "convert", ".npy (2-D float32/float64, C order) -> .ltm, or .ltm -> dense float32 .npy (by extension)");
     app->add_option("IN", options_.input, "input file")->required();
     app->add_option("OUT", options_.output, "output file")->required();
-    app->add_option("--chunk-size", chunk_size_, "target bytes per chunk (npy -> ltm)")->default_val("8MiB")->check(SizeCheck());
+    app->add_option("--chunk-size", chunk_size_, "target bytes per chunk (npy -> ltm)")
+        ->default_val("8MiB")
+        ->check(SizeCheck());
     app->add_option("--layout", layout_, "chunk layout of the .ltm: rows (row blocks) or cols (column blocks)")
         ->default_val("rows")
         ->check(CLI::IsMember({"rows", "cols"}));
@@ -73,7 +75,7 @@ class ConvertCommand : public Command {
       stages::EnvLoadOptions env;
       env.layout = *stages::ParseEnvLayout(env_layout_);  // checked by IsMember
       env.clamp = env_clamp_;
-      env.max_bytes = *mem;        // the map's pixels (and an .hdr's bytes) within --mem-limit
+      env.max_bytes = *mem;       // the map's pixels (and an .hdr's bytes) within --mem-limit
       env.progress = bar.hook();  // SIGINT/SIGTERM while loading or resampling: 130/143
       uint64_t clamped = 0;
       auto lock = io::LockOutput(options_.output);  // one writer per output

@@ -1,7 +1,6 @@
 // ltbake cpca IN -o OUT --clusters K --basis S
 #include <iomanip>
 #include <iostream>
-
 #include <nlohmann/json.hpp>
 
 #include "cli/commands.h"
@@ -18,20 +17,31 @@ class CpcaCommand : public Command {
         "cpca", "clustered PCA (Sloan et al. 2003) of a row-block matrix: K clusters, each a mean + S directions");
     app->add_option("IN", options_.input, "row-block matrix (rows.ltm from row-transform, or raw.ltm)")->required();
     app->add_option("-o,--output", options_.output, "output container (cpca.ltm)")->required();
-    app->add_option("--clusters,-k", options_.clusters, "number of clusters K")->default_val(16)->check(CLI::Range(1, 1 << 20));
-    app->add_option("--basis,-s", options_.basis, "principal directions per cluster S")->default_val(8)->check(CLI::Range(0, 1 << 16));
+    app->add_option("--clusters,-k", options_.clusters, "number of clusters K")
+        ->default_val(16)
+        ->check(CLI::Range(1, 1 << 20));
+    app->add_option("--basis,-s", options_.basis, "principal directions per cluster S")
+        ->default_val(8)
+        ->check(CLI::Range(0, 1 << 16));
     app->add_option("--growth-step", options_.growth_step,
-                    "basis vectors added per growth level (0, step, 2·step, …, S)")->default_val(1)->check(CLI::Range(1, 1 << 16));
+                    "basis vectors added per growth level (0, step, 2·step, …, S)")
+        ->default_val(1)
+        ->check(CLI::Range(1, 1 << 16));
     app->add_option("--level-iterations", options_.level_iterations, "passes per intermediate growth level")
-        ->default_val(2)->check(CLI::Range(1, 1000));
+        ->default_val(2)
+        ->check(CLI::Range(1, 1000));
     app->add_option("--max-iterations", options_.max_iterations, "cap on assignment/refit passes over the data")
-        ->default_val(30)->check(CLI::Range(1, 100000));
+        ->default_val(30)
+        ->check(CLI::Range(1, 100000));
     app->add_option("--tolerance", options_.tolerance,
-                    "a level ends when a pass improves the error by less than this fraction")->default_val(1e-3);
+                    "a level ends when a pass improves the error by less than this fraction")
+        ->default_val(1e-3);
     app->add_option("--oversample", options_.oversample, "extra directions tracked per cluster (subspace iteration)")
-        ->default_val(8)->check(CLI::Range(0, 1024));
+        ->default_val(8)
+        ->check(CLI::Range(0, 1024));
     app->add_option("--sample-rows", options_.sample_rows, "rows held in memory for the seeded k-means++ start")
-        ->default_val(32768)->check(CLI::Range(1, 1 << 30));
+        ->default_val(32768)
+        ->check(CLI::Range(1, 1 << 30));
     app->add_option("--seed", options_.seed, "seed of the initialisation")->default_val(1);
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     app->add_flag("--json", json_, "print the summary as JSON");
@@ -81,8 +91,10 @@ class CpcaCommand : public Command {
                 << std::setprecision(4) << r->relative_rms_error << ", " << r->model_bytes + r->row_bytes
                 << " bytes stored";
       if (r->empty_clusters) std::cout << " (" << r->empty_clusters << " clusters empty)";
-      if (r->already_complete) std::cout << " (already complete)";
-      else if (r->resumed) std::cout << " (resumed)";
+      if (r->already_complete)
+        std::cout << " (already complete)";
+      else if (r->resumed)
+        std::cout << " (resumed)";
       std::cout << "\n";
     }
     return kExitOk;

@@ -3,7 +3,6 @@
 #include <cmath>
 #include <cstdio>
 #include <iostream>
-
 #include <nlohmann/json.hpp>
 
 #include "cli/commands.h"
@@ -76,7 +75,8 @@ class InspectCommand : public Command {
       const ArraySpec& a = meta.arrays[i];
       json j = a.ToJson();
       const uint64_t expected = meta.OwnedChunks(i);  // a shard file: the chunks it owns
-      json chunks = {{"expected", expected}, {"committed", reader.committed(i)},
+      json chunks = {{"expected", expected},
+                     {"committed", reader.committed(i)},
                      {"missing", expected - std::min(expected, reader.committed(i))}};
       uint64_t by_enc[5] = {0, 0, 0, 0, 0}, stored = 0;
       for (const auto& e : reader.chunk_frames()) {
@@ -101,13 +101,14 @@ class InspectCommand : public Command {
         const io::ArrayStats& s = summary->stats;
         j["content_hash"] = summary->content_hash.empty() ? json(nullptr) : json(summary->content_hash);
         uint64_t finite = s.count - s.nan - s.inf;
-        j["stats"] = {{"count", s.count},
-                      {"min", NumberOrNull(finite ? s.min : NAN)},
-                      {"max", NumberOrNull(finite ? s.max : NAN)},
-                      {"mean", NumberOrNull(finite ? s.sum / static_cast<double>(finite) : NAN)},
-                      {"nan_count", s.nan},
-                      {"inf_count", s.inf},
-                      {"nonzero_fraction", s.count ? static_cast<double>(s.nonzero) / static_cast<double>(s.count) : 0.0}};
+        j["stats"] = {
+            {"count", s.count},
+            {"min", NumberOrNull(finite ? s.min : NAN)},
+            {"max", NumberOrNull(finite ? s.max : NAN)},
+            {"mean", NumberOrNull(finite ? s.sum / static_cast<double>(finite) : NAN)},
+            {"nan_count", s.nan},
+            {"inf_count", s.inf},
+            {"nonzero_fraction", s.count ? static_cast<double>(s.nonzero) / static_cast<double>(s.count) : 0.0}};
       }
       out["arrays"].push_back(j);
     }
@@ -122,9 +123,12 @@ class InspectCommand : public Command {
         (a["name"] == meta.arrays[0].name ? matrix : side) += a["chunks"]["stored_bytes"].get<uint64_t>();
       }
       const uint64_t overhead = total - std::min(total, matrix + side);
-      out["on_disk"] = {{"total_bytes", total}, {"matrix_bytes", matrix}, {"side_table_bytes", side},
-                        {"overhead_bytes", overhead},
-                        {"overhead_fraction", total ? static_cast<double>(overhead) / static_cast<double>(total) : 0.0}};
+      out["on_disk"] = {
+          {"total_bytes", total},
+          {"matrix_bytes", matrix},
+          {"side_table_bytes", side},
+          {"overhead_bytes", overhead},
+          {"overhead_fraction", total ? static_cast<double>(overhead) / static_cast<double>(total) : 0.0}};
     }
     // The matrix (array 0) at top level, as DESIGN.md lists the keys.
     const json& m = out["arrays"][0];
@@ -179,8 +183,7 @@ class InspectCommand : public Command {
  private:
   void PrintText(const json& out) {
     std::cout << path_ << ": .ltm format " << out["format_version"].get<std::string>() << ", "
-              << HumanBytes(out["file_bytes"]) << ", "
-              << (out["complete"].get<bool>() ? "complete" : "INCOMPLETE")
+              << HumanBytes(out["file_bytes"]) << ", " << (out["complete"].get<bool>() ? "complete" : "INCOMPLETE")
               << (out["sealed"].get<bool>() ? " (sealed)" : " (not sealed)") << "\n";
     if (out.contains("manifest")) {
       std::cout << "  stage manifest of " << out["manifest"]["nshards"] << " shards:";
@@ -207,8 +210,7 @@ class InspectCommand : public Command {
                 << ", zero " << c["zero"] << ", zstd " << c["zstd"]
                 << (c.contains("sparse") ? ", sparse " + c["sparse"].dump() + ", sparse+zstd " + c["sparse_zstd"].dump()
                                          : std::string())
-                << "), stored "
-                << HumanBytes(c["stored_bytes"]) << "\n";
+                << "), stored " << HumanBytes(c["stored_bytes"]) << "\n";
       if (a.contains("content_hash")) {
         std::cout << "    content_hash: "
                   << (a["content_hash"].is_null() ? "(incomplete)" : a["content_hash"].get<std::string>()) << "\n";
@@ -243,10 +245,10 @@ class InspectCommand : public Command {
     }
     if (out.contains("cpca")) {
       const json& c = out["cpca"];
-      std::cout << "  cpca: " << c.value("clusters", json()).dump() << " clusters x " << c.value("basis_dim", json()).dump()
-                << " directions, " << c.value("rows", json()).dump() << " rows of " << c.value("dims", json()).dump()
-                << ", " << c.value("iterations", json()).dump() << " passes, relative RMS error "
-                << c.value("relative_rms_error", json()).dump() << ", empty clusters "
+      std::cout << "  cpca: " << c.value("clusters", json()).dump() << " clusters x "
+                << c.value("basis_dim", json()).dump() << " directions, " << c.value("rows", json()).dump()
+                << " rows of " << c.value("dims", json()).dump() << ", " << c.value("iterations", json()).dump()
+                << " passes, relative RMS error " << c.value("relative_rms_error", json()).dump() << ", empty clusters "
                 << c.value("empty_clusters", json()).dump() << "\n";
     }
     if (out["uncommitted_tail_bytes"].get<uint64_t>() > 0) {

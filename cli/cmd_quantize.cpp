@@ -3,7 +3,6 @@
 #include <filesystem>
 #include <iomanip>
 #include <iostream>
-
 #include <nlohmann/json.hpp>
 
 #include "cli/commands.h"
@@ -16,20 +15,23 @@ namespace {
 class QuantizeCommand : public Command {
  public:
   explicit QuantizeCommand(CLI::App* parent) {
-    auto* app = parent->add_subcommand(
-        "quantize", "quantize a column-transform output (final.ltm): one step for the whole matrix (default), or per-column maxima with --bits");
+    auto* app = parent->add_subcommand("quantize",
+                                       "quantize a column-transform output (final.ltm): one step for the whole matrix "
+                                       "(default), or per-column maxima with --bits");
     app->add_option("IN", options_.input, "input container (from `ltbake column-transform`)")->required();
     app->add_option("-o,--output", options_.output, "output container (final.ltm, what relight reads)")->required();
     auto* ratio = app->add_option("--error-ratio", options_.error_ratio,
                                   "one quantization step for the whole matrix (the default, 1.1), chosen so the "
                                   "matrix's RMS error grows by at most this factor over column-transform's")
                       ->check(CLI::Range(1.000001, 100.0));
-    auto* bits = bits_opt_ = app->add_option("--bits", options_.bits,
-                                 "instead: each column normalised by its largest coefficient and quantized to "
-                                 "this many bits, sign included (2..24; CP07 §4.3)")
-                     ->check(CLI::Range(2, 24));
+    auto* bits = bits_opt_ =
+        app->add_option("--bits", options_.bits,
+                        "instead: each column normalised by its largest coefficient and quantized to "
+                        "this many bits, sign included (2..24; CP07 §4.3)")
+            ->check(CLI::Range(2, 24));
     ratio->excludes(bits);
-    app->add_option("--scaling", scaling_, "with --bits: level multiplies level-l coefficients by 2^l first; none: do not")
+    app->add_option("--scaling", scaling_,
+                    "with --bits: level multiplies level-l coefficients by 2^l first; none: do not")
         ->default_val("level")
         ->check(CLI::IsMember({"level", "none"}))
         ->needs(bits);
@@ -72,13 +74,16 @@ class QuantizeCommand : public Command {
     if (json_) {
       auto num = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); };
       nlohmann::json j = {{"output", options_.output},
-                          {"file", file},                     {"file_bytes", ec ? 0 : file_bytes},
+                          {"file", file},
+                          {"file_bytes", ec ? 0 : file_bytes},
                           {"mode", step_mode ? "step" : "bits"},
                           {"bits", step_mode ? 24 : options_.bits},
                           {"scaling", step_mode ? "norm" : scaling_},
                           {"dither", step_mode ? false : options_.dither},
-                          {"nonzeros_in", r->nonzeros_in},    {"nonzeros_out", r->nonzeros_out},
-                          {"matrix_bytes", r->matrix_bytes},  {"bytes_per_nonzero", r->BytesPerNonzero()},
+                          {"nonzeros_in", r->nonzeros_in},
+                          {"nonzeros_out", r->nonzeros_out},
+                          {"matrix_bytes", r->matrix_bytes},
+                          {"bytes_per_nonzero", r->BytesPerNonzero()},
                           {"chunks_written", r->chunks_written},
                           {"chunks_already_committed", r->chunks_already_committed}};
       if (step_mode) {
@@ -99,11 +104,12 @@ class QuantizeCommand : public Command {
       } else {
         std::cout << options_.bits << " bits, ";
       }
-      std::cout << r->nonzeros_out << " of "
-                << r->nonzeros_in << " coefficients nonzero after quantization; matrix payload " << r->matrix_bytes
-                << " bytes (" << std::setprecision(3) << r->BytesPerNonzero() << " bytes per nonzero), file "
+      std::cout << r->nonzeros_out << " of " << r->nonzeros_in
+                << " coefficients nonzero after quantization; matrix payload " << r->matrix_bytes << " bytes ("
+                << std::setprecision(3) << r->BytesPerNonzero() << " bytes per nonzero), file "
                 << (ec ? std::string("?") : std::to_string(file_bytes)) << " bytes on disk";
-      if (r->chunks_already_committed) std::cout << " (resumed: " << r->chunks_already_committed << " already committed)";
+      if (r->chunks_already_committed)
+        std::cout << " (resumed: " << r->chunks_already_committed << " already committed)";
       std::cout << "\n";
     }
     return kExitOk;

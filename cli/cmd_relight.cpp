@@ -2,9 +2,8 @@
 //                      [--reference RAW.ltm] [--frames N] [--rotate DEG] [--json]
 #include <iomanip>
 #include <iostream>
-#include <string>
-
 #include <nlohmann/json.hpp>
+#include <string>
 
 #include "cli/commands.h"
 #include "cli/common.h"
@@ -19,19 +18,25 @@ namespace {
 class RelightCommand : public Command {
  public:
   explicit RelightCommand(CLI::App* parent) {
-    auto* app = parent->add_subcommand("relight", "relight a baked matrix under an environment map (Eq. 8 for final.ltm)");
-    app->add_option("MATRIX", matrix_, "final.ltm or cols4d.ltm (fast, in memory); cpca.ltm (in memory); cols.ltm; "
-                                       "rows.ltm / raw.ltm (streamed)")->required();
-    app->add_option("--env", env_, "environment map: .exr or .hdr (lat-long, cross, or six files with {face}), or a "
-                                   "6R²×3 cubemap .npy")->required();
+    auto* app =
+        parent->add_subcommand("relight", "relight a baked matrix under an environment map (Eq. 8 for final.ltm)");
+    app->add_option("MATRIX", matrix_,
+                    "final.ltm or cols4d.ltm (fast, in memory); cpca.ltm (in memory); cols.ltm; "
+                    "rows.ltm / raw.ltm (streamed)")
+        ->required();
+    app->add_option("--env", env_,
+                    "environment map: .exr or .hdr (lat-long, cross, or six files with {face}), or a "
+                    "6R²×3 cubemap .npy")
+        ->required();
     app->add_option("-o,--output", output_, "relit image: .exr (linear), .png (sRGB), .npy (rows × 3)")->required();
     app->add_option("--terms", terms_text_,
                     "lighting terms kept, N >= 1 or all (non-linear approximation: the N largest coefficients of "
                     "the map in the matrix's lighting basis; for a pixel-basis matrix, the N brightest texels)")
         ->default_val("100")
         ->check(TermsCheck());
-    app->add_option("--weighting", weighting_, "rank lighting terms by area (magnitude × support area), transport "
-                                               "(× the column's norm) or none")
+    app->add_option("--weighting", weighting_,
+                    "rank lighting terms by area (magnitude × support area), transport "
+                    "(× the column's norm) or none")
         ->default_val("area")
         ->check(CLI::IsMember({"area", "transport", "none"}));
     app->add_option("--reference", reference_, "uncompressed matrix (raw.ltm or rows.ltm) for error metrics");
@@ -84,15 +89,16 @@ class RelightCommand : public Command {
                 << (pixels ? "texels" : "wavelet coefficients, " + report["terms_basis"].get<std::string>().substr(8))
                 << ", " << weighting_ << " weighting; " << std::setprecision(3)
                 << 100 * report["lighting_energy_kept"].get<double>() << "% of the map's energy); lighting "
-                << report["lighting_ms"].get<double>() << " ms, relight " << report["relight_ms"].get<double>() << " ms";
+                << report["lighting_ms"].get<double>() << " ms, relight " << report["relight_ms"].get<double>()
+                << " ms";
       if (report.contains("frames")) {
         std::cout << "; " << frames_ << " frames: median " << report["frames"]["median_ms"].get<double>() << " ms ("
                   << report["frames"]["fps"].get<double>() << " fps)";
       }
       std::cout << "\n";
       if (pixels && terms_used < available) {
-        std::cout << "  note: " << matrix_ << " has pixel-basis columns, so a term is one texel and "
-                  << terms_used << " texels keep only part of the light; relight a row-transformed bake "
+        std::cout << "  note: " << matrix_ << " has pixel-basis columns, so a term is one texel and " << terms_used
+                  << " texels keep only part of the light; relight a row-transformed bake "
                      "(rows.ltm, cols4d.ltm, final.ltm) for wavelet terms, or pass --terms all\n";
       }
       if (report.contains("error")) {

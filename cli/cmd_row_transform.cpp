@@ -43,9 +43,10 @@ class RowTransformCommand : public Command {
       std::cerr << "ltbake: note: " << r->direct_fallback << "; the output was written through the page cache\n";
     }
     if (!flags_.quiet) {
-      std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << r->rows << " rows, R = " << r->cube_res << ", filter "
-                << filter_ << ", " << r->chunks_total << " chunks";
-      if (r->chunks_already_committed) std::cout << " (resumed: " << r->chunks_already_committed << " already committed)";
+      std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << r->rows
+                << " rows, R = " << r->cube_res << ", filter " << filter_ << ", " << r->chunks_total << " chunks";
+      if (r->chunks_already_committed)
+        std::cout << " (resumed: " << r->chunks_already_committed << " already committed)";
       std::cout << "; skipped " << r->zero_chunks << " all-zero chunks and " << r->zero_rows << " all-zero rows";
       if (r->bytes_direct > 0) std::cout << "; wrote " << r->bytes_direct << " bytes with O_DIRECT";
       std::cout << "\n";

@@ -25,8 +25,9 @@ class RunCommand : public Command {
  public:
   explicit RunCommand(CLI::App* parent) {
     auto* app = parent->add_subcommand(
-        "run", "run a bake recipe: every stage its targets need, skipping what is up to date (content and "
-               "parameters), resuming what was interrupted (docs/RECIPE.md)");
+        "run",
+        "run a bake recipe: every stage its targets need, skipping what is up to date (content and "
+        "parameters), resuming what was interrupted (docs/RECIPE.md)");
     app->add_option("RECIPE", options_.recipe, "recipe file (TOML, see samples/tiny-bake.toml)")->required();
     app->add_option("--workdir", options_.workdir, "work directory (overrides the recipe's workdir)");
     app->add_option("--from", options_.from, "start at this stage: earlier stages are not run, their outputs are used");

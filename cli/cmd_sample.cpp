@@ -17,7 +17,9 @@ class SampleCommand : public Command {
     // The scene's existence is checked when it is read, so a directory or a FIFO is named as such.
     app->add_option("SCENE", options_.scene, "scene file (TOML, see docs/SCENE.md)")->required();
     app->add_option("-o,--output", options_.output, "output container (row blocks)")->required();
-    app->add_option("--cube-res", cube_res_, "cube face resolution R, a power of two up to " + std::to_string(sample::kMaxCubeRes) + " (default: the scene's, else 32)")
+    app->add_option("--cube-res", cube_res_,
+                    "cube face resolution R, a power of two up to " + std::to_string(sample::kMaxCubeRes) +
+                        " (default: the scene's, else 32)")
         ->check(PowerOfTwoCheck(sample::kMaxCubeRes));
     app->add_option("--spp", spp_, "stratified jittered rays per texel (default: the scene's, else 4)")
         ->check(CLI::Range(int64_t{1}, int64_t{1} << 16));
@@ -56,10 +58,12 @@ class SampleCommand : public Command {
     if (!flags_.quiet) {
       char rate[64];
       std::snprintf(rate, sizeof rate, "%.3g", r->seconds > 0 ? r->rays / r->seconds : 0.0);
-      std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << r->rows << " rows x " << 6ull * r->cube_res * r->cube_res
-                << " texels (R = " << r->cube_res << ", spp " << r->spp << ", bounces " << r->bounces << ")";
+      std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << r->rows << " rows x "
+                << 6ull * r->cube_res * r->cube_res << " texels (R = " << r->cube_res << ", spp " << r->spp
+                << ", bounces " << r->bounces << ")";
       if (!row_filter_.empty()) std::cout << ", row-transformed (" << row_filter_ << ")";
-      if (r->chunks_already_committed) std::cout << ", resumed (" << r->chunks_already_committed << " chunks were committed)";
+      if (r->chunks_already_committed)
+        std::cout << ", resumed (" << r->chunks_already_committed << " chunks were committed)";
       std::cout << "\n  rows that see geometry: " << r->valid_rows << " (the rest are all-zero rows, mask 0)"
                 << "\n  rays traced: " << r->rays << " in " << r->seconds << " s (" << rate << " rays/s)"
                 << "\n  skipped: " << r->texels_below_horizon << " (row, texel) pairs wholly below the horizon, "

@@ -1,6 +1,5 @@
 // ltbake commit OUT --nshards N   and   ltbake merge MANIFEST -o OUT
 #include <iostream>
-
 #include <nlohmann/json.hpp>
 
 #include "cli/commands.h"
@@ -39,8 +38,12 @@ class CommitCommand : public Command {
       for (const auto& s : r->shards) {
         shards.push_back({{"index", s.index}, {"path", s.path}, {"bytes", s.bytes}, {"content_hash", s.content_hash}});
       }
-      std::cout << nlohmann::json{{"manifest", output_}, {"nshards", nshards_}, {"content_hash", r->content_hash},
-                                  {"bytes", r->bytes}, {"shards", shards}}.dump(2)
+      std::cout << nlohmann::json{{"manifest", output_},
+                                  {"nshards", nshards_},
+                                  {"content_hash", r->content_hash},
+                                  {"bytes", r->bytes},
+                                  {"shards", shards}}
+                       .dump(2)
                 << "\n";
     } else if (!flags_.quiet) {
       std::cout << "committed " << output_ << ": " << nshards_ << " shards, " << r->bytes << " bytes, content_hash "

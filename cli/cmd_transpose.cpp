@@ -44,10 +44,11 @@ class TransposeCommand : public Command {
       std::cerr << "ltbake: note: " << r->direct_fallback << "; the output was written through the page cache\n";
     }
     if (!flags_.quiet) {
-      std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << r->rows << " x " << r->cols << " in chunks of "
-                << r->block_cols << " column(s); " << r->panels << " panel(s) of up to " << r->panel_cols
-                << " columns";
-      if (r->chunks_already_committed) std::cout << " (resumed: " << r->chunks_already_committed << " already committed)";
+      std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << r->rows << " x " << r->cols
+                << " in chunks of " << r->block_cols << " column(s); " << r->panels << " panel(s) of up to "
+                << r->panel_cols << " columns";
+      if (r->chunks_already_committed)
+        std::cout << " (resumed: " << r->chunks_already_committed << " already committed)";
       std::cout << "; " << r->zero_chunks_out << " all-zero chunks stored free; read " << r->bytes_read
                 << " + verified " << r->bytes_verified << " bytes, wrote " << r->bytes_written;
       if (r->bytes_direct > 0) std::cout << " (" << r->bytes_direct << " with O_DIRECT)";

@@ -1,6 +1,5 @@
 // ltbake verify FILE... [--allow-incomplete] [--json]
 #include <iostream>
-
 #include <nlohmann/json.hpp>
 
 #include "cli/commands.h"
@@ -50,9 +49,9 @@ class VerifyCommand : public Command {
       } else if (incomplete) {
         std::cout << (allow_incomplete_ ? "ok   " : "INCOMPLETE ") << path << ": " << r.chunks_ok << " of "
                   << r.chunks_expected << " chunks committed and intact, not sealed"
-                  << (r.uncommitted_tail_bytes ? "; " + std::to_string(r.uncommitted_tail_bytes) +
-                                                     " uncommitted bytes at the end"
-                                               : "")
+                  << (r.uncommitted_tail_bytes
+                          ? "; " + std::to_string(r.uncommitted_tail_bytes) + " uncommitted bytes at the end"
+                          : "")
                   << " (rerun the stage that writes it to resume)\n";
       } else if (!flags_.quiet) {
         std::cout << "ok   " << path << ": " << r.chunks_ok << " chunks, sealed, complete\n";

@@ -2,9 +2,8 @@
 // after parsing, returning the process exit code.
 #pragma once
 
-#include <memory>
-
 #include <CLI/CLI.hpp>
+#include <memory>
 
 namespace ltb::cli {
 

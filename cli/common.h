@@ -2,12 +2,11 @@
 // signal handling and the Status -> exit code mapping (DESIGN.md "CLI contract").
 #pragma once
 
+#include <CLI/CLI.hpp>
 #include <chrono>
 #include <cstdint>
 #include <mutex>
 #include <string>
-
-#include <CLI/CLI.hpp>
 
 #include "format/io/manifest.h"
 #include "format/progress.h"

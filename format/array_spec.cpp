@@ -7,24 +7,36 @@ namespace ltb::format {
 
 const char* DTypeName(DType t) {
   switch (t) {
-    case DType::kF32: return "f32";
-    case DType::kF64: return "f64";
-    case DType::kU8: return "u8";
-    case DType::kI32: return "i32";
-    case DType::kU32: return "u32";
-    case DType::kU64: return "u64";
+    case DType::kF32:
+      return "f32";
+    case DType::kF64:
+      return "f64";
+    case DType::kU8:
+      return "u8";
+    case DType::kI32:
+      return "i32";
+    case DType::kU32:
+      return "u32";
+    case DType::kU64:
+      return "u64";
   }
   return "?";
 }
 
 uint64_t DTypeSize(DType t) {
   switch (t) {
-    case DType::kF32: return 4;
-    case DType::kF64: return 8;
-    case DType::kU8: return 1;
-    case DType::kI32: return 4;
-    case DType::kU32: return 4;
-    case DType::kU64: return 8;
+    case DType::kF32:
+      return 4;
+    case DType::kF64:
+      return 8;
+    case DType::kU8:
+      return 1;
+    case DType::kI32:
+      return 4;
+    case DType::kU32:
+      return 4;
+    case DType::kU64:
+      return 8;
   }
   return 1;
 }
@@ -61,8 +73,8 @@ Status ArraySpec::Validate() const {
   std::string where = "array \"" + name + "\"";
   if (name.empty()) return InvalidArgument("array with an empty name");
   if (rows == 0 || cols == 0 || rows > kMaxDim || cols > kMaxDim) {
-    return InvalidArgument(where + ": shape " + std::to_string(rows) + "x" + std::to_string(cols) +
-                           " is outside 1.." + std::to_string(kMaxDim) + " per axis");
+    return InvalidArgument(where + ": shape " + std::to_string(rows) + "x" + std::to_string(cols) + " is outside 1.." +
+                           std::to_string(kMaxDim) + " per axis");
   }
   uint64_t extent = layout == Layout::kRows ? rows : cols;
   if (block == 0 || block > extent) {
@@ -78,8 +90,11 @@ Status ArraySpec::Validate() const {
 }
 
 nlohmann::json ArraySpec::ToJson() const {
-  return {{"name", name}, {"dtype", DTypeName(dtype)}, {"shape", {rows, cols}},
-          {"layout", LayoutName(layout)}, {"block", block}};
+  return {{"name", name},
+          {"dtype", DTypeName(dtype)},
+          {"shape", {rows, cols}},
+          {"layout", LayoutName(layout)},
+          {"block", block}};
 }
 
 int Metadata::FindArray(const std::string& name) const {
@@ -112,9 +127,12 @@ Result<ArraySpec> ParseArray(const nlohmann::json& j, size_t index) {
   LTB_ASSIGN_OR_RETURN(a.cols, GetUnsigned(shape[1], where + ".shape[1]"));
   if (!j["layout"].is_string()) return InvalidArgument(where + ".layout is not a string");
   std::string layout = j["layout"].get<std::string>();
-  if (layout == "rows") a.layout = Layout::kRows;
-  else if (layout == "cols") a.layout = Layout::kCols;
-  else return InvalidArgument(where + ".layout is \"" + layout + "\" (expected \"rows\" or \"cols\")");
+  if (layout == "rows")
+    a.layout = Layout::kRows;
+  else if (layout == "cols")
+    a.layout = Layout::kCols;
+  else
+    return InvalidArgument(where + ".layout is \"" + layout + "\" (expected \"rows\" or \"cols\")");
   LTB_ASSIGN_OR_RETURN(a.block, GetUnsigned(j["block"], where + ".block"));
   LTB_RETURN_IF_ERROR(a.Validate().WithContext(where));
   return a;
@@ -178,9 +196,7 @@ Result<Metadata> MetadataFromJson(nlohmann::json json) {
 std::pair<uint64_t, uint64_t> ShardChunkRange(uint64_t chunk_count, uint64_t index, uint64_t count) {
   if (count == 0 || index >= count) return {chunk_count, chunk_count};  // owns nothing (callers check first)
   // 128-bit products: chunk counts and shard counts are capped, but stay exact anyway.
-  auto at = [&](uint64_t i) {
-    return static_cast<uint64_t>(static_cast<unsigned __int128>(chunk_count) * i / count);
-  };
+  auto at = [&](uint64_t i) { return static_cast<uint64_t>(static_cast<unsigned __int128>(chunk_count) * i / count); };
   return {at(index), at(index + 1)};
 }
 

@@ -3,12 +3,11 @@
 #pragma once
 
 #include <cstdint>
-#include <optional>
-#include <utility>
-#include <string>
-#include <vector>
-
 #include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
 
 #include "format/bytes.h"
 #include "format/status.h"

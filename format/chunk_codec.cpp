@@ -54,19 +54,25 @@ bool ValuesAreVarints(DType t) { return t != DType::kF32 && t != DType::kF64; }
 // Largest value a stored varint may carry for this dtype (zigzag-encoded for i32).
 uint64_t MaxVarintValue(DType t) {
   switch (t) {
-    case DType::kU8: return 0xFF;
+    case DType::kU8:
+      return 0xFF;
     case DType::kI32:
-    case DType::kU32: return 0xFFFFFFFFull;
-    default: return ~uint64_t{0};
+    case DType::kU32:
+      return 0xFFFFFFFFull;
+    default:
+      return ~uint64_t{0};
   }
 }
 
 // The element's bit pattern, zero-extended (little-endian host).
 uint64_t LoadBits(const std::byte* p, uint64_t size) {
   switch (size) {
-    case 1: return static_cast<uint8_t>(*p);
-    case 4: return LoadU32(p);
-    default: return LoadU64(p);
+    case 1:
+      return static_cast<uint8_t>(*p);
+    case 4:
+      return LoadU32(p);
+    default:
+      return LoadU64(p);
   }
 }
 void StoreBits(std::byte* p, uint64_t size, uint64_t bits) { std::memcpy(p, &bits, size); }
@@ -100,7 +106,10 @@ template <typename Sink>
 class SparseParser {
  public:
   SparseParser(DType dtype, uint64_t elements, Sink* sink)
-      : dtype_(dtype), size_(DTypeSize(dtype)), elements_(elements), varint_values_(ValuesAreVarints(dtype)),
+      : dtype_(dtype),
+        size_(DTypeSize(dtype)),
+        elements_(elements),
+        varint_values_(ValuesAreVarints(dtype)),
         sink_(sink) {}
 
   Status Feed(ByteSpan bytes) {
@@ -187,7 +196,8 @@ class SparseParser {
                        ", too large for " + DTypeName(dtype_));
         }
         return Value(dtype_ == DType::kI32 ? UnZigZag32(v) : v);
-      case Part::kEnd: break;
+      case Part::kEnd:
+        break;
     }
     return Internal("sparse parser: item after the end");
   }
@@ -289,7 +299,8 @@ Result<uint64_t> ZstdDecodedSize(ByteSpan payload, uint64_t cap) {
   uint64_t total = 0;
   LTB_RETURN_IF_ERROR(StreamZstd(payload, [&](ByteSpan piece) -> Status {
     total += piece.size();
-    if (total > cap) return DataLoss("zstd payload decodes to more than the " + std::to_string(cap) + " bytes expected");
+    if (total > cap)
+      return DataLoss("zstd payload decodes to more than the " + std::to_string(cap) + " bytes expected");
     return Status::Ok();
   }));
   return total;

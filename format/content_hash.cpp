@@ -74,9 +74,15 @@ uint64_t HashTyped(const std::byte* bytes, const ArraySpec& spec, const ChunkExt
 void ContentHasher::AddChunk(const ArraySpec& spec, const ChunkExtent& extent, ByteSpan decoded) {
   // Chunk payloads are 64-byte aligned (mmap) or come from vectors, so typed access is aligned.
   switch (DTypeSize(spec.dtype)) {
-    case 1: sum_ += HashTyped<uint8_t>(decoded.data(), spec, extent); break;
-    case 4: sum_ += HashTyped<uint32_t>(decoded.data(), spec, extent); break;
-    case 8: sum_ += HashTyped<uint64_t>(decoded.data(), spec, extent); break;
+    case 1:
+      sum_ += HashTyped<uint8_t>(decoded.data(), spec, extent);
+      break;
+    case 4:
+      sum_ += HashTyped<uint32_t>(decoded.data(), spec, extent);
+      break;
+    case 8:
+      sum_ += HashTyped<uint64_t>(decoded.data(), spec, extent);
+      break;
   }
 }
 

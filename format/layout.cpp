@@ -21,11 +21,16 @@ bool AllZero(ByteSpan bytes) {
 
 const char* EncodingName(Encoding e) {
   switch (e) {
-    case Encoding::kRaw: return "raw";
-    case Encoding::kZero: return "zero";
-    case Encoding::kZstd: return "zstd";
-    case Encoding::kSparse: return "sparse";
-    case Encoding::kSparseZstd: return "sparse-zstd";
+    case Encoding::kRaw:
+      return "raw";
+    case Encoding::kZero:
+      return "zero";
+    case Encoding::kZstd:
+      return "zstd";
+    case Encoding::kSparse:
+      return "sparse";
+    case Encoding::kSparseZstd:
+      return "sparse-zstd";
   }
   return "unknown";
 }
@@ -52,8 +57,8 @@ std::array<std::byte, kHeaderSize> EncodeFileHeader(const FileHeader& h) {
 
 Result<FileHeader> DecodeFileHeader(ByteSpan bytes, uint64_t file_size) {
   if (bytes.size() < kHeaderSize || file_size < kHeaderSize) {
-    return DataLoss("file is " + std::to_string(file_size) + " bytes, shorter than the " +
-                    std::to_string(kHeaderSize) + "-byte .ltm header; it is not an .ltm container or was truncated");
+    return DataLoss("file is " + std::to_string(file_size) + " bytes, shorter than the " + std::to_string(kHeaderSize) +
+                    "-byte .ltm header; it is not an .ltm container or was truncated");
   }
   if (std::memcmp(bytes.data(), kFileMagic.data(), kFileMagic.size()) != 0) {
     return InvalidArgument("not an .ltm container (bad magic at offset 0)");
@@ -63,9 +68,8 @@ Result<FileHeader> DecodeFileHeader(ByteSpan bytes, uint64_t file_size) {
   h.minor = LoadU16(&bytes[10]);
   // The version is checked before the checksum: a newer major may lay out its header differently.
   if (h.major > kFormatMajor) {
-    return Unimplemented("written by .ltm format " + VersionString(h.major, h.minor) +
-                         "; this build of ltbake " + kToolVersion + " reads up to " +
-                         VersionString(kFormatMajor, kFormatMinor) + " (major " +
+    return Unimplemented("written by .ltm format " + VersionString(h.major, h.minor) + "; this build of ltbake " +
+                         kToolVersion + " reads up to " + VersionString(kFormatMajor, kFormatMinor) + " (major " +
                          std::to_string(kFormatMajor) + ".x) — upgrade ltbake");
   }
   if (h.major < 1) {
@@ -126,8 +130,7 @@ std::array<std::byte, kFrameHeaderSize> EncodeFrameHeader(const FrameHeader& h) 
 Result<FrameHeader> DecodeFrameHeader(ByteSpan bytes, uint64_t frame_offset, uint64_t file_size) {
   if (bytes.size() < kFrameHeaderSize) return DataLoss("frame header truncated");
   if (LoadU32(&bytes[0]) != kFrameMagic) {
-    return DataLoss(AllZero(bytes.subspan(0, kFrameHeaderSize)) ? "no frame header (zero bytes)"
-                                                                : "bad frame magic");
+    return DataLoss(AllZero(bytes.subspan(0, kFrameHeaderSize)) ? "no frame header (zero bytes)" : "bad frame magic");
   }
   uint64_t stored = LoadU64(&bytes[56]);
   uint64_t actual = Checksum(bytes.subspan(0, 56));

@@ -16,9 +16,9 @@ inline constexpr std::array<unsigned char, 8> kFileMagic = {0x89, 'L', 'T', 'M',
 inline constexpr uint64_t kHeaderSize = 64;
 inline constexpr uint64_t kFrameHeaderSize = 64;
 inline constexpr uint64_t kTrailerSize = 64;
-inline constexpr uint64_t kAlignment = 64;  // every frame and payload starts on this boundary
+inline constexpr uint64_t kAlignment = 64;                 // every frame and payload starts on this boundary
 inline constexpr uint64_t kMaxMetadataBytes = 1ull << 20;  // metadata is descriptive; tables go in chunks
-inline constexpr uint32_t kFrameMagic = 0x464D544C;  // "LTMF"
+inline constexpr uint32_t kFrameMagic = 0x464D544C;        // "LTMF"
 inline constexpr std::array<unsigned char, 8> kTrailerMagic = {'L', 'T', 'M', 'T', 'R', 'A', 'I', 'L'};
 
 // kPadding (written with the optional flag, so every 1.x reader skips it): zeros that put
@@ -84,7 +84,6 @@ struct IndexEntry {
 };
 std::vector<std::byte> EncodeIndex(const std::vector<IndexEntry>& entries);
 // Every entry's frame must lie inside [first_frame_offset, file_size).
-Result<std::vector<IndexEntry>> DecodeIndex(ByteSpan payload, uint64_t first_frame_offset,
-                                            uint64_t file_size);
+Result<std::vector<IndexEntry>> DecodeIndex(ByteSpan payload, uint64_t first_frame_offset, uint64_t file_size);
 
 }  // namespace ltb::format

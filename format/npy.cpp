@@ -18,13 +18,13 @@ constexpr size_t kMaxDims = 32;
 struct PyValue {
   enum class Kind { kStr, kBytes, kInt, kFloat, kBool, kNone, kTuple, kList, kDict };
   Kind kind = Kind::kNone;
-  std::string str;              // kStr (UTF-8), kBytes
-  bool negative = false;        // kInt
-  bool too_big = false;         // kInt beyond 2^64 - 1 in magnitude
-  uint64_t magnitude = 0;       // kInt
-  bool truth = false;           // kBool
-  std::vector<PyValue> items;   // kTuple, kList; kDict: key, value, key, value, ...
-  size_t begin = 0, end = 0;    // source text, for messages
+  std::string str;             // kStr (UTF-8), kBytes
+  bool negative = false;       // kInt
+  bool too_big = false;        // kInt beyond 2^64 - 1 in magnitude
+  uint64_t magnitude = 0;      // kInt
+  bool truth = false;          // kBool
+  std::vector<PyValue> items;  // kTuple, kList; kDict: key, value, key, value, ...
+  size_t begin = 0, end = 0;   // source text, for messages
 };
 
 class PyLiteralParser {
@@ -50,9 +50,7 @@ class PyLiteralParser {
   }
   bool At(char c) const { return p_ < s_.size() && s_[p_] == c; }
   static bool IsDigit(char c) { return c >= '0' && c <= '9'; }
-  static bool IsIdent(char c) {
-    return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || IsDigit(c) || c == '_';
-  }
+  static bool IsIdent(char c) { return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || IsDigit(c) || c == '_'; }
   // Whitespace and comments; inside brackets Python also joins lines, and the header's
   // only top-level newline is the padding at its end.
   void SkipSpace() {
@@ -221,7 +219,10 @@ class PyLiteralParser {
         for (int i = 0; i < n; ++i, ++p_) {
           if (p_ >= s_.size()) return false;
           const char h = s_[p_];
-          const int d = IsDigit(h) ? h - '0' : (h >= 'a' && h <= 'f') ? h - 'a' + 10 : (h >= 'A' && h <= 'F') ? h - 'A' + 10 : -1;
+          const int d = IsDigit(h)               ? h - '0'
+                        : (h >= 'a' && h <= 'f') ? h - 'a' + 10
+                        : (h >= 'A' && h <= 'F') ? h - 'A' + 10
+                                                 : -1;
           if (d < 0) return false;
           *v = *v * 16 + uint32_t(d);
         }
@@ -229,21 +230,43 @@ class PyLiteralParser {
       };
       uint32_t v = 0;
       switch (e) {
-        case '\n': break;  // line continuation
-        case '\\': case '\'': case '"': *out += e; break;
-        case 'a': *out += '\a'; break;
-        case 'b': *out += '\b'; break;
-        case 'f': *out += '\f'; break;
-        case 'n': *out += '\n'; break;
-        case 'r': *out += '\r'; break;
-        case 't': *out += '\t'; break;
-        case 'v': *out += '\v'; break;
+        case '\n':
+          break;  // line continuation
+        case '\\':
+        case '\'':
+        case '"':
+          *out += e;
+          break;
+        case 'a':
+          *out += '\a';
+          break;
+        case 'b':
+          *out += '\b';
+          break;
+        case 'f':
+          *out += '\f';
+          break;
+        case 'n':
+          *out += '\n';
+          break;
+        case 'r':
+          *out += '\r';
+          break;
+        case 't':
+          *out += '\t';
+          break;
+        case 'v':
+          *out += '\v';
+          break;
         case 'x':
           if (!hex(2, &v)) return Error("a bad \\x escape");
-          if (bytes) *out += static_cast<char>(v);
-          else AppendUtf8(v, out);
+          if (bytes)
+            *out += static_cast<char>(v);
+          else
+            AppendUtf8(v, out);
           break;
-        case 'u': case 'U':
+        case 'u':
+        case 'U':
           if (bytes) {
             *out += '\\';
             *out += e;
@@ -262,8 +285,10 @@ class PyLiteralParser {
             for (int i = 0; i < 2 && p_ < s_.size() && s_[p_] >= '0' && s_[p_] <= '7'; ++i, ++p_) {
               v = v * 8 + uint32_t(s_[p_] - '0');
             }
-            if (bytes) *out += static_cast<char>(v & 0xFF);
-            else AppendUtf8(v, out);
+            if (bytes)
+              *out += static_cast<char>(v & 0xFF);
+            else
+              AppendUtf8(v, out);
           } else {  // unknown escapes keep their backslash
             *out += '\\';
             *out += e;
@@ -307,7 +332,8 @@ class PyLiteralParser {
       if (base == 10 && (c == 'e' || c == 'E')) d = -1;
       if (d < 0 || unsigned(d) >= base) break;
       if (digits == 0 && d != 0) nonzero_lead = true;
-      if (MulOverflows(out.magnitude, base, &out.magnitude) || AddOverflows(out.magnitude, uint64_t(d), &out.magnitude)) {
+      if (MulOverflows(out.magnitude, base, &out.magnitude) ||
+          AddOverflows(out.magnitude, uint64_t(d), &out.magnitude)) {
         out.too_big = true;
       }
       ++digits;
@@ -317,9 +343,9 @@ class PyLiteralParser {
     if (p_ > start && s_[p_ - 1] == '_') return Error("a misplaced '_' in a number");
     if (base == 10 && (At('.') || At('e') || At('E') || At('j') || At('J'))) {
       // A float or complex literal: consume it and report it as such.
-      while (p_ < s_.size() && (IsDigit(s_[p_]) || s_[p_] == '.' || s_[p_] == '_' || s_[p_] == 'e' ||
-                                s_[p_] == 'E' || s_[p_] == 'j' || s_[p_] == 'J' ||
-                                ((s_[p_] == '+' || s_[p_] == '-') && (s_[p_ - 1] == 'e' || s_[p_ - 1] == 'E')))) {
+      while (p_ < s_.size() &&
+             (IsDigit(s_[p_]) || s_[p_] == '.' || s_[p_] == '_' || s_[p_] == 'e' || s_[p_] == 'E' || s_[p_] == 'j' ||
+              s_[p_] == 'J' || ((s_[p_] == '+' || s_[p_] == '-') && (s_[p_ - 1] == 'e' || s_[p_ - 1] == 'E')))) {
         ++p_;
       }
       out.kind = PyValue::Kind::kFloat;
@@ -458,9 +484,7 @@ Result<NpyHeader> ParseNpyHeader(ByteSpan b) {
   }
   for (const PyValue& d : shape->items) {
     if (d.kind != PyValue::Kind::kInt || (d.negative && d.magnitude != 0) || d.too_big) {
-      const char* why = d.kind != PyValue::Kind::kInt ? "not an integer"
-                        : d.too_big                   ? "beyond 2^64"
-                                                      : "negative";
+      const char* why = d.kind != PyValue::Kind::kInt ? "not an integer" : d.too_big ? "beyond 2^64" : "negative";
       return InvalidArgument(".npy header: 'shape' " + Source(text, *shape) + " has the entry " + Source(text, d) +
                              ", " + why);
     }
@@ -504,8 +528,10 @@ std::vector<std::byte> EncodeNpyHeader(const std::string& descr, const std::vect
   std::memcpy(out.data(), kMagic, 6);
   out[6] = std::byte{static_cast<unsigned char>(v2 ? 2 : 1)};
   out[7] = std::byte{0};
-  if (v2) StoreU32(&out[8], static_cast<uint32_t>(s.size()));
-  else StoreU16(&out[8], static_cast<uint16_t>(s.size()));
+  if (v2)
+    StoreU32(&out[8], static_cast<uint32_t>(s.size()));
+  else
+    StoreU16(&out[8], static_cast<uint16_t>(s.size()));
   std::memcpy(out.data() + prefix, s.data(), s.size());
   return out;
 }

@@ -11,11 +11,11 @@
 namespace ltb::format {
 
 struct NpyHeader {
-  std::string descr;           // e.g. "<f4"
+  std::string descr;  // e.g. "<f4"
   bool fortran_order = false;
   std::vector<uint64_t> shape;
-  uint64_t data_offset = 0;    // where the array data starts
-  uint64_t itemsize = 0;       // from descr
+  uint64_t data_offset = 0;  // where the array data starts
+  uint64_t itemsize = 0;     // from descr
 };
 
 inline constexpr uint64_t kMaxNpyHeaderBytes = 1 << 16;

@@ -59,7 +59,7 @@ Status IoError(const std::string& what, int errnum);
 template <typename T>
 class [[nodiscard]] Result {
  public:
-  Result(T value) : value_(std::move(value)) {}  // NOLINT(implicit)
+  Result(T value) : value_(std::move(value)) {}          // NOLINT(implicit)
   Result(Status status) : status_(std::move(status)) {}  // NOLINT(implicit)
 
   bool ok() const { return status_.ok(); }
@@ -95,5 +95,4 @@ class [[nodiscard]] Result {
   lhs = std::move(tmp).value()
 
 // LTB_ASSIGN_OR_RETURN(auto x, MakeX()); returns the status on failure.
-#define LTB_ASSIGN_OR_RETURN(lhs, expr) \
-  LTB_ASSIGN_OR_RETURN_IMPL(LTB_CONCAT(ltb_result_, __LINE__), lhs, expr)
+#define LTB_ASSIGN_OR_RETURN(lhs, expr) LTB_ASSIGN_OR_RETURN_IMPL(LTB_CONCAT(ltb_result_, __LINE__), lhs, expr)

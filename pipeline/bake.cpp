@@ -6,8 +6,8 @@
 #include <xxhash.h>
 
 #include <algorithm>
-#include <charconv>
 #include <cerrno>
+#include <charconv>
 #include <chrono>
 #include <csignal>
 #include <ctime>
@@ -23,12 +23,12 @@
 #include "format/io/container_reader.h"
 #include "format/io/file.h"
 #include "format/io/file_lock.h"
-#include "format/version.h"
 #include "format/io/manifest.h"
-#include "pipeline/process.h"
-#include "pipeline/shards.h"
-#include "pipeline/recipe.h"
+#include "format/version.h"
 #include "pipeline/graph.h"
+#include "pipeline/process.h"
+#include "pipeline/recipe.h"
+#include "pipeline/shards.h"
 #include "pipeline/stage_table.h"
 #include "stages/common/basis.h"
 #include "stages/sample/sample.h"
@@ -41,7 +41,6 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 constexpr const char* kReport = "run.json";
-
 
 std::string Hex(uint64_t h) {
   char b[17];
@@ -75,22 +74,25 @@ std::string Now() {
 
 std::string HumanBytes(uint64_t b) {
   char s[32];
-  if (b >= (1ull << 30)) std::snprintf(s, sizeof s, "%.2f GiB", b / double(1ull << 30));
-  else if (b >= (1ull << 20)) std::snprintf(s, sizeof s, "%.1f MiB", b / double(1ull << 20));
-  else if (b >= 1024) std::snprintf(s, sizeof s, "%.1f KiB", b / 1024.0);
-  else std::snprintf(s, sizeof s, "%llu B", static_cast<unsigned long long>(b));
+  if (b >= (1ull << 30))
+    std::snprintf(s, sizeof s, "%.2f GiB", b / double(1ull << 30));
+  else if (b >= (1ull << 20))
+    std::snprintf(s, sizeof s, "%.1f MiB", b / double(1ull << 20));
+  else if (b >= 1024)
+    std::snprintf(s, sizeof s, "%.1f KiB", b / 1024.0);
+  else
+    std::snprintf(s, sizeof s, "%llu B", static_cast<unsigned long long>(b));
   return s;
 }
-
 
 // What is on disk at a node's output.
 struct OutputState {
   bool exists = false;
-  bool complete = false;     // sealed container, or an image file
-  std::string fingerprint;   // stages::Fingerprint, or the image file's hash
+  bool complete = false;    // sealed container, or an image file
+  std::string fingerprint;  // stages::Fingerprint, or the image file's hash
   uint64_t committed = 0, total = 0;
   uint64_t bytes = 0;
-  std::string problem;       // unreadable: why
+  std::string problem;  // unreadable: why
 };
 
 OutputState Inspect(const Node& n, const std::string& path) {
@@ -190,8 +192,8 @@ Decision Decide(const Node& n, const json* record, const json& inputs, const Out
       return d;
     }
     d.action = "run";
-    d.reason = done ? n.output + " is missing" + (needed_reason.empty() ? "" : " and " + needed_reason)
-                    : "not made yet";
+    d.reason =
+        done ? n.output + " is missing" + (needed_reason.empty() ? "" : " and " + needed_reason) : "not made yet";
     return d;
   }
   if (!out.problem.empty()) {
@@ -201,13 +203,14 @@ Decision Decide(const Node& n, const json* record, const json& inputs, const Out
   }
   if (!out.complete) {
     d.action = "resume";
-    d.reason = "interrupted: " + std::to_string(out.committed) + " of " + std::to_string(out.total) +
-               " chunks committed";
+    d.reason =
+        "interrupted: " + std::to_string(out.committed) + " of " + std::to_string(out.total) + " chunks committed";
     return d;
   }
   if (!done) {
     d.action = "run";
-    d.reason = n.output + " exists but run.json has no record of it: the stage checks it (a no-op if it was made "
+    d.reason = n.output +
+               " exists but run.json has no record of it: the stage checks it (a no-op if it was made "
                "with the same parameters and input)";
     return d;
   }
@@ -315,8 +318,8 @@ class Bake {
   Recipe r_;
   std::string workdir_, scene_file_, scene_hash_;
   Graph g_;
-  std::map<std::string, json> previous_;  // node -> its entry in the last run.json
-  std::set<std::string> ours_;            // files earlier runs of this recipe made
+  std::map<std::string, json> previous_;        // node -> its entry in the last run.json
+  std::set<std::string> ours_;                  // files earlier runs of this recipe made
   std::map<std::string, std::string> hash_of_;  // work file -> content_hash, known this run
   json entries_ = json::array();
   json report_;
@@ -399,8 +402,8 @@ int Bake::RunSharded(const Node& n, const json* record, bool trust_record, bool 
     by_index[i] = r;
   }
   for (const ShardRun& r : ran->shards) {
-    json j = {{"index", r.index}, {"status", r.status}, {"attempts", r.attempts}, {"log", r.log},
-              {"exit_code", r.exit_code}};
+    json j = {
+        {"index", r.index}, {"status", r.status}, {"attempts", r.attempts}, {"log", r.log}, {"exit_code", r.exit_code}};
     if (o_.cluster.engine == "local") {
       j["wall_seconds"] = r.wall_seconds;
       j["peak_rss_bytes"] = r.peak_rss_bytes;
@@ -514,7 +517,8 @@ void Bake::DeleteUnneeded(size_t upto) {
 Result<BakeOutcome> Bake::Run() {
   workdir_ = !o_.workdir.empty() ? fs::absolute(o_.workdir).lexically_normal().string() : r_.workdir;
   if (workdir_.empty()) {
-    return InvalidArgument(r_.path + ": the recipe names no work directory: add workdir = \"DIR\" or pass --workdir DIR");
+    return InvalidArgument(r_.path +
+                           ": the recipe names no work directory: add workdir = \"DIR\" or pass --workdir DIR");
   }
   for (const auto& f : o_.force) {
     if (f == "all" || f.empty()) {
@@ -594,8 +598,13 @@ Result<BakeOutcome> Bake::Run() {
              {"recipe", {{"name", r_.name}, {"path", r_.path}}},
              {"workdir", workdir_},
              {"started", Now()},
-             {"command", {{"jobs", o_.jobs}, {"mem_limit", o_.mem_limit}, {"from", o_.from}, {"until", o_.until},
-                          {"force", o_.force}, {"dry_run", o_.dry_run}}}};
+             {"command",
+              {{"jobs", o_.jobs},
+               {"mem_limit", o_.mem_limit},
+               {"from", o_.from},
+               {"until", o_.until},
+               {"force", o_.force},
+               {"dry_run", o_.dry_run}}}};
   // Stages before --from are not run: their outputs must exist and be complete.
   const int from = o_.from.empty() ? -1 : StageIndex(o_.from);
   auto before_from = [&](const Node& n) {
@@ -622,7 +631,8 @@ Result<BakeOutcome> Bake::Run() {
       if (before_from(n)) {
         plan[i] = {false, "given", "before --from " + o_.from};
         auto rec = previous_.find(n.name);
-        if (out.complete && rec != previous_.end() && rec->second["output"].value("fingerprint", "") == out.fingerprint) {
+        if (out.complete && rec != previous_.end() &&
+            rec->second["output"].value("fingerprint", "") == out.fingerprint) {
           hash_of_[n.output] = rec->second["output"].value("content_hash", "");
         } else {
           hash_of_[n.output] = out.complete ? "(computed when run)" : "";
@@ -714,7 +724,10 @@ Result<BakeOutcome> Bake::Run() {
       entry["reason"] = "before --from " + o_.from;
       entry.erase("wall_seconds");
       entry.erase("peak_rss_bytes");
-      entry["output"] = {{"file", n.output}, {"path", out_path}, {"bytes", out.bytes}, {"content_hash", h},
+      entry["output"] = {{"file", n.output},
+                         {"path", out_path},
+                         {"bytes", out.bytes},
+                         {"content_hash", h},
                          {"fingerprint", out.fingerprint}};
       if (!entry.contains("status")) entry["status"] = "given";
       entries_.push_back(entry);
@@ -813,8 +826,8 @@ Result<BakeOutcome> Bake::Run() {
           (child->term_signal == SIGTERM)) {
         e["status"] = "interrupted";
         int code = child->exit_code == 143 || child->term_signal == SIGTERM || sig == SIGTERM ? 143 : 130;
-        outcome.failure = "interrupted during " + n.name + "; what it committed is kept: rerun `ltbake run " +
-                          r_.path + "` to resume";
+        outcome.failure = "interrupted during " + n.name + "; what it committed is kept: rerun `ltbake run " + r_.path +
+                          "` to resume";
         return finish("interrupted", code);
       }
       if (child->exit_code != 0) {
@@ -827,8 +840,9 @@ Result<BakeOutcome> Bake::Run() {
         }
         if (why.empty()) why = "\n  (no error message; see the log)";
         if (why.find("--overwrite") != std::string::npos) {
-          why += "\n  (" + n.output + " in the work directory was not made by this recipe's runs; `ltbake run --force " +
-                 n.stages.front() + "` replaces it)";
+          why += "\n  (" + n.output +
+                 " in the work directory was not made by this recipe's runs; `ltbake run --force " + n.stages.front() +
+                 "` replaces it)";
         }
         e["errors"] = child->errors;
         outcome.failure = "stage " + n.name + " failed (exit " + std::to_string(child->exit_code) + "):" + why +
@@ -849,15 +863,19 @@ Result<BakeOutcome> Bake::Run() {
     hash_of_[n.output] = *h;
     e["status"] = "done";
     e["finished"] = Now();
-    e["output"] = {{"file", n.output},   {"path", out_path},           {"bytes", made.bytes},
-                   {"content_hash", *h}, {"fingerprint", made.fingerprint},
+    e["output"] = {{"file", n.output},
+                   {"path", out_path},
+                   {"bytes", made.bytes},
+                   {"content_hash", *h},
+                   {"fingerprint", made.fingerprint},
                    {"hash_seconds", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()}};
     if (n.image && o_.say && !o_.quiet) {
       std::string line = "wrote " + out_path;
       const json& m = e.value("metrics", json::object());
       if (m.contains("error")) {
         char b[160];
-        std::snprintf(b, sizeof b, ": error against rows.ltm rel. L2 %.4g, PSNR %.1f dB (lighting alone %.4g, matrix alone %.4g)",
+        std::snprintf(b, sizeof b,
+                      ": error against rows.ltm rel. L2 %.4g, PSNR %.1f dB (lighting alone %.4g, matrix alone %.4g)",
                       m["error"].value("rel_l2", 0.0), m["error"].value("psnr_db", 0.0),
                       m.value("error_lighting_only", json::object()).value("rel_l2", 0.0),
                       m.value("error_matrix_only", json::object()).value("rel_l2", 0.0));

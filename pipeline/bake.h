@@ -8,10 +8,9 @@
 
 #include <cstdint>
 #include <functional>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 #include "format/status.h"
 #include "pipeline/shards.h"
@@ -20,15 +19,15 @@ namespace ltb::pipeline {
 
 struct BakeOptions {
   std::string recipe;
-  std::string workdir;              // overrides the recipe's
-  std::string from, until;          // stage names; empty: the whole graph
-  std::vector<std::string> force;   // stages to redo; "all" redoes every stage
+  std::string workdir;             // overrides the recipe's
+  std::string from, until;         // stage names; empty: the whole graph
+  std::vector<std::string> force;  // stages to redo; "all" redoes every stage
   bool dry_run = false;
   int jobs = 2;
-  std::string mem_limit = "1GiB";   // given to each stage in turn (stages run one at a time)
-  bool progress = false;            // ask stages to draw progress bars (forwarded to stderr)
+  std::string mem_limit = "1GiB";  // given to each stage in turn (stages run one at a time)
+  bool progress = false;           // ask stages to draw progress bars (forwarded to stderr)
   bool quiet = false;
-  std::string ltbake;               // the ltbake executable stages are run with
+  std::string ltbake;  // the ltbake executable stages are run with
   // Sharding (docs/cluster.md): with shards > 1, stages other than cpca and relight run as
   // shards through the engine ("local": a process pool; "slurm": job arrays), then are
   // committed. jobs, say and pending_signal are taken from these options.
@@ -41,10 +40,10 @@ struct BakeOptions {
 };
 
 struct BakeOutcome {
-  int exit_code = 0;         // 0 ok, 1 a stage failed, 130/143 interrupted
-  std::string report_path;   // run.json (empty for --dry-run)
-  std::string summary;       // the summary table (or the plan, for --dry-run)
-  std::string failure;       // what failed, the log and the command that re-runs just that stage
+  int exit_code = 0;        // 0 ok, 1 a stage failed, 130/143 interrupted
+  std::string report_path;  // run.json (empty for --dry-run)
+  std::string summary;      // the summary table (or the plan, for --dry-run)
+  std::string failure;      // what failed, the log and the command that re-runs just that stage
 };
 
 // Errors (a bad recipe, a work directory of another bake, an input that does not exist)

@@ -100,10 +100,14 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
       m.env = env.path;
       m.inputs = {matrix};
       m.output = "relit-" + env.name + "." + rl.format;
-      m.params = {{"env", env.path}, {"terms", rl.terms}, {"weighting", rl.weighting}, {"clamp", rl.clamp},
+      m.params = {{"env", env.path},     {"terms", rl.terms},       {"weighting", rl.weighting}, {"clamp", rl.clamp},
                   {"format", rl.format}, {"exposure", rl.exposure}, {"reference", rl.reference}};
-      m.args = {"relight", path(matrix), "--env", env.path, "--terms", std::to_string(rl.terms), "--weighting",
-                rl.weighting, "--exposure", Shortest(rl.exposure), "--json"};
+      m.args = {"relight",     path(matrix),
+                "--env",       env.path,
+                "--terms",     std::to_string(rl.terms),
+                "--weighting", rl.weighting,
+                "--exposure",  Shortest(rl.exposure),
+                "--json"};
       if (rl.clamp) m.args.push_back("--clamp");
       if (rl.reference) {
         m.inputs.push_back("rows.ltm");

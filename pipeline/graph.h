@@ -5,11 +5,10 @@
 // (tests/pipeline/graph_test.cpp). bake.cpp decides and runs the steps.
 #pragma once
 
+#include <nlohmann/json.hpp>
 #include <set>
 #include <string>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 #include "format/status.h"
 #include "pipeline/bake.h"
@@ -25,7 +24,7 @@ struct Node {
   std::string output;               // work-directory file it makes
   bool image = false;               // output is an image (relight), not a container
   std::string env;                  // relight: the environment map
-  nlohmann::json params;                      // what the output depends on besides its inputs' content
+  nlohmann::json params;            // what the output depends on besides its inputs' content
   std::vector<std::string> args;    // the stage command after the executable, without -o and common flags
 };
 

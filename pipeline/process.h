@@ -15,8 +15,8 @@
 namespace ltb::pipeline {
 
 struct ChildResult {
-  int exit_code = -1;    // when the child exited normally
-  int term_signal = 0;   // when a signal killed it
+  int exit_code = -1;   // when the child exited normally
+  int term_signal = 0;  // when a signal killed it
   double wall_seconds = 0;
   uint64_t peak_rss_bytes = 0;
   std::string stdout_text;          // everything it printed on stdout

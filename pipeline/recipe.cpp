@@ -1,12 +1,12 @@
 #include "pipeline/recipe.h"
 
+#include <toml++/toml.h>
+
 #include <algorithm>
 #include <bit>
 #include <cstdlib>
 #include <filesystem>
 #include <sstream>
-
-#include <toml++/toml.h>
 
 #include "stages/column_transform/column_transform.h"
 #include "stages/common/quantity.h"
@@ -96,8 +96,8 @@ Result<std::vector<std::string>> GetStringList(const std::string& path, const to
     auto v = item.value<std::string>();
     if (!v) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be a list of strings");
     if (!allowed.empty() && std::find(allowed.begin(), allowed.end(), *v) == allowed.end()) {
-      return InvalidArgument(Where(path, *n) + ": \"" + key + "\" names \"" + *v + "\", which is not one of: " +
-                             Join(allowed));
+      return InvalidArgument(Where(path, *n) + ": \"" + key + "\" names \"" + *v +
+                             "\", which is not one of: " + Join(allowed));
     }
     out.push_back(*v);
   }
@@ -108,8 +108,8 @@ Result<std::string> GetChoice(const std::string& path, const toml::table& t, con
                               const std::vector<std::string>& allowed) {
   LTB_ASSIGN_OR_RETURN(std::string v, GetString(path, t, key, def));
   if (std::find(allowed.begin(), allowed.end(), v) == allowed.end()) {
-    return InvalidArgument(Where(path, *t.get(key)) + ": \"" + key + "\" is \"" + v + "\"; expected one of: " +
-                           Join(allowed));
+    return InvalidArgument(Where(path, *t.get(key)) + ": \"" + key + "\" is \"" + v +
+                           "\"; expected one of: " + Join(allowed));
   }
   return v;
 }
@@ -162,8 +162,8 @@ Status ParseSample(const std::string& path, const toml::table& t, Recipe::Sample
 Status ParseColumnTransform(const std::string& path, const toml::table& t, Recipe::ColumnTransform* c) {
   LTB_RETURN_IF_ERROR(
       CheckKeys(path, t, "[column-transform]", {"filter", "depth", "keep", "terms", "budget", "target_error", "zstd"}));
-  LTB_ASSIGN_OR_RETURN(c->filter, GetChoice(path, t, "filter", c->filter,
-                                            {"legall53", "cdf97", "haar", "db1", "db2", "db3", "db4"}));
+  LTB_ASSIGN_OR_RETURN(
+      c->filter, GetChoice(path, t, "filter", c->filter, {"legall53", "cdf97", "haar", "db1", "db2", "db3", "db4"}));
   if (const toml::node* d = t.get("depth")) {
     if (d->is_integer()) {  // never a float node's value<int64_t>() (a plain cast in toml++)
       c->depth = std::to_string(*d->value<int64_t>());
@@ -177,7 +177,8 @@ Status ParseColumnTransform(const std::string& path, const toml::table& t, Recip
   }
   int given = t.contains("keep") + t.contains("terms") + t.contains("budget") + t.contains("target_error");
   if (given > 1) {
-    return InvalidArgument(Where(path, t) + ": [column-transform] gives more than one of \"keep\", \"terms\", "
+    return InvalidArgument(Where(path, t) +
+                           ": [column-transform] gives more than one of \"keep\", \"terms\", "
                            "\"budget\", \"target_error\"; choose one");
   }
   if (const toml::node* k = t.get("target_error"); k && k->is_string()) {  // "2%", as --target-error takes it
@@ -209,7 +210,8 @@ Status ParseColumnTransform(const std::string& path, const toml::table& t, Recip
     } else if (auto s = b->value<std::string>()) {
       c->budget = *s;
     } else {
-      return InvalidArgument(Where(path, *b) + ": \"budget\" must be a fraction, a count or a size (\"2%\", \"64MiB\")");
+      return InvalidArgument(Where(path, *b) +
+                             ": \"budget\" must be a fraction, a count or a size (\"2%\", \"64MiB\")");
     }
     auto parsed = stages::ParseBudget(*c->budget);
     if (!parsed.ok()) return parsed.status().WithContext(Where(path, *b) + ": \"budget\"");
@@ -232,7 +234,8 @@ Status ParseRelight(const std::string& path, const std::string& dir, const toml:
   LTB_ASSIGN_OR_RETURN(r->exposure, GetNumber(path, t, "exposure", r->exposure, -64, 64));
   const toml::node* envs = t.get("envs");
   if (envs == nullptr || envs->as_array() == nullptr || envs->as_array()->empty()) {
-    return InvalidArgument(Where(path, t) + ": [relight] needs \"envs\", a list of environment maps "
+    return InvalidArgument(Where(path, t) +
+                           ": [relight] needs \"envs\", a list of environment maps "
                            "(.exr/.hdr lat-long or cross, or a 6R²×3 .npy cubemap)");
   }
   for (const auto& item : *envs->as_array()) {
@@ -277,7 +280,8 @@ Result<Recipe> ParseRecipe(const std::string& path_in) {
 
   const toml::node* scene = root.get("scene");
   if (scene == nullptr) {
-    return InvalidArgument(path + ": the recipe names no scene: add scene = \"scene.toml\" (a path relative to the "
+    return InvalidArgument(path +
+                           ": the recipe names no scene: add scene = \"scene.toml\" (a path relative to the "
                            "recipe) or an inline [scene] table");
   }
   if (auto file = scene->value<std::string>()) {
@@ -300,7 +304,8 @@ Result<Recipe> ParseRecipe(const std::string& path_in) {
   auto table = [&](const char* key) -> Result<const toml::table*> {
     const toml::node* n = root.get(key);
     if (n == nullptr) return static_cast<const toml::table*>(nullptr);
-    if (n->as_table() == nullptr) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be a [" + key + "] table");
+    if (n->as_table() == nullptr)
+      return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be a [" + key + "] table");
     return n->as_table();
   };
   static const toml::table kEmpty;
@@ -309,8 +314,8 @@ Result<Recipe> ParseRecipe(const std::string& path_in) {
   LTB_ASSIGN_OR_RETURN(const toml::table* rows, table("row-transform"));
   if (rows) {
     LTB_RETURN_IF_ERROR(CheckKeys(path, *rows, "[row-transform]", {"filter", "zstd"}));
-    LTB_ASSIGN_OR_RETURN(r.row_transform.filter,
-                         GetChoice(path, *rows, "filter", r.row_transform.filter, {"haar", "db1", "db2", "db3", "db4"}));
+    LTB_ASSIGN_OR_RETURN(r.row_transform.filter, GetChoice(path, *rows, "filter", r.row_transform.filter,
+                                                           {"haar", "db1", "db2", "db3", "db4"}));
     LTB_ASSIGN_OR_RETURN(r.row_transform.zstd, GetBool(path, *rows, "zstd", r.row_transform.zstd));
   }
   LTB_ASSIGN_OR_RETURN(const toml::table* tr, table("transpose"));
@@ -324,10 +329,12 @@ Result<Recipe> ParseRecipe(const std::string& path_in) {
   if (q) {
     LTB_RETURN_IF_ERROR(CheckKeys(path, *q, "[quantize]", {"error_ratio", "bits", "scaling", "dither", "seed"}));
     if (q->contains("bits") && q->contains("error_ratio")) {
-      return InvalidArgument(path + ": [quantize] takes error_ratio (one step for the matrix) or bits (per-column "
+      return InvalidArgument(path +
+                             ": [quantize] takes error_ratio (one step for the matrix) or bits (per-column "
                              "maxima), not both");
     }
-    LTB_ASSIGN_OR_RETURN(r.quantize.error_ratio, GetNumber(path, *q, "error_ratio", r.quantize.error_ratio, 1.000001, 100));
+    LTB_ASSIGN_OR_RETURN(r.quantize.error_ratio,
+                         GetNumber(path, *q, "error_ratio", r.quantize.error_ratio, 1.000001, 100));
     if (q->contains("bits")) {
       LTB_ASSIGN_OR_RETURN(uint64_t bits, GetUnsigned(path, *q, "bits", 9, 2, 24));
       r.quantize.bits = bits;
@@ -337,8 +344,10 @@ Result<Recipe> ParseRecipe(const std::string& path_in) {
     LTB_ASSIGN_OR_RETURN(r.quantize.seed, GetUnsigned(path, *q, "seed", r.quantize.seed, 0, uint64_t{1} << 62));
     for (const char* k : {"scaling", "dither", "seed"}) {
       if (q->contains(k) && !q->contains("bits")) {
-        return InvalidArgument(path + ": [quantize] " + k + " goes with bits (per-column quantization); the default "
-                               "error_ratio mode has one step and no " + k);
+        return InvalidArgument(path + ": [quantize] " + k +
+                               " goes with bits (per-column quantization); the default "
+                               "error_ratio mode has one step and no " +
+                               k);
       }
     }
   }

@@ -74,18 +74,18 @@ struct Recipe {
     uint64_t seed = 1;
   } quantize;
   struct Cpca {
-    bool present = false;  // a [cpca] table was given
+    bool present = false;               // a [cpca] table was given
     uint64_t clusters = 16, basis = 8;  // K clusters, S principal directions each
     uint64_t max_iterations = 30, seed = 1;
   } cpca;
   struct Relight {
-    bool present = false;  // a [relight] table was given
+    bool present = false;          // a [relight] table was given
     std::string matrix = "final";  // final | cpca
     std::vector<EnvMap> envs;
     uint64_t terms = 100;
     std::string weighting = "area";
     bool clamp = false;
-    bool reference = false;  // compare with the uncompressed rows.ltm (which is then kept)
+    bool reference = false;      // compare with the uncompressed rows.ltm (which is then kept)
     std::string format = "png";  // png | exr
     double exposure = 0;
   } relight;

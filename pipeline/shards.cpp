@@ -63,8 +63,8 @@ std::string ArrayList(const std::vector<uint64_t>& todo) {
 
 std::vector<std::string> ShardArgs(const std::vector<std::string>& stage, uint64_t index, uint64_t count, int jobs) {
   std::vector<std::string> argv = stage;
-  argv.insert(argv.end(), {"--shard", std::to_string(index), "--nshards", std::to_string(count), "--jobs",
-                           std::to_string(jobs)});
+  argv.insert(argv.end(),
+              {"--shard", std::to_string(index), "--nshards", std::to_string(count), "--jobs", std::to_string(jobs)});
   return argv;
 }
 
@@ -150,7 +150,8 @@ Result<std::string> FindProgram(const std::string& name) {
     std::string full = (dir.empty() ? "." : dir) + "/" + name;
     if (::access(full.c_str(), X_OK) == 0) return full;
   }
-  return FailedPrecondition(name + " is not on $PATH: install slurm-client (Debian) on the submitting machine, or run "
+  return FailedPrecondition(name +
+                            " is not on $PATH: install slurm-client (Debian) on the submitting machine, or run "
                             "with --engine local");
 }
 
@@ -173,10 +174,12 @@ Result<ShardedStep> RunSlurm(const EngineOptions& o, const std::vector<std::stri
   std::vector<std::string> argv = stage;
   argv.insert(argv.end(), {"--nshards", std::to_string(o.shards)});
   const std::string script = log_dir + "/" + step + ".sbatch";
-  LTB_RETURN_IF_ERROR(WriteScript(
-      script, "#!/bin/bash\n# Written by `ltbake run`: one shard of step " + step + " per array task.\n"
-              "exec " + ShellQuote(argv) + " --shard \"$SLURM_ARRAY_TASK_ID\" --jobs \"${SLURM_CPUS_PER_TASK:-" +
-              std::to_string(cpus) + "}\"\n"));
+  LTB_RETURN_IF_ERROR(WriteScript(script, "#!/bin/bash\n# Written by `ltbake run`: one shard of step " + step +
+                                              " per array task.\n"
+                                              "exec " +
+                                              ShellQuote(argv) +
+                                              " --shard \"$SLURM_ARRAY_TASK_ID\" --jobs \"${SLURM_CPUS_PER_TASK:-" +
+                                              std::to_string(cpus) + "}\"\n"));
   // Unique per submission, so a cancel reaches only this run's jobs.
   const std::string job_name = "ltbake-" + step + "-" + std::to_string(::getpid()) + "-" +
                                std::to_string(std::chrono::steady_clock::now().time_since_epoch().count() % 1000000);
@@ -184,9 +187,14 @@ Result<ShardedStep> RunSlurm(const EngineOptions& o, const std::vector<std::stri
   for (uint64_t i : todo) runs[i] = ShardRun{.index = i, .status = "failed", .log = ShardLog(log_dir, step, i)};
   std::vector<uint64_t> left = todo;
   for (int round = 0; round <= o.retries && !left.empty(); ++round) {
-    std::vector<std::string> cmd = {sbatch, "--wait", "--parsable", "--job-name=" + job_name,
-                                    "--array=" + ArrayList(left), "--output=" + log_dir + "/" + step + ".shard-%a.log",
-                                    "--open-mode=append", "--cpus-per-task=" + std::to_string(cpus)};
+    std::vector<std::string> cmd = {sbatch,
+                                    "--wait",
+                                    "--parsable",
+                                    "--job-name=" + job_name,
+                                    "--array=" + ArrayList(left),
+                                    "--output=" + log_dir + "/" + step + ".shard-%a.log",
+                                    "--open-mode=append",
+                                    "--cpus-per-task=" + std::to_string(cpus)};
     if (!o.partition.empty()) cmd.push_back("--partition=" + o.partition);
     if (!o.mem.empty()) cmd.push_back("--mem=" + o.mem);
     cmd.insert(cmd.end(), o.sbatch_args.begin(), o.sbatch_args.end());

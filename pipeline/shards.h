@@ -21,14 +21,14 @@ namespace ltb::pipeline {
 struct EngineOptions {
   std::string engine = "local";  // local | slurm
   uint64_t shards = 1;
-  int jobs = 2;                  // local: threads in all, split among the processes running at once
-                                 // (set from BakeOptions::jobs)
+  int jobs = 2;  // local: threads in all, split among the processes running at once
+                 // (set from BakeOptions::jobs)
   // slurm
   std::string partition;
-  int cpus_per_task = 0;         // 0: jobs
-  std::string mem;               // --mem per task, e.g. 4G (empty: the cluster's default)
+  int cpus_per_task = 0;  // 0: jobs
+  std::string mem;        // --mem per task, e.g. 4G (empty: the cluster's default)
   std::vector<std::string> sbatch_args;
-  int retries = 2;               // resubmissions of failed shards
+  int retries = 2;  // resubmissions of failed shards
   std::string sbatch = "sbatch", scancel = "scancel";
   // Set from BakeOptions by `ltbake run`:
   std::function<void(const std::string&)> say;

@@ -73,7 +73,7 @@ StageCommand Quantize(const Recipe& r, const StageContext& ctx) {
   if (q.bits) {
     c.params = {{"bits", *q.bits}, {"scaling", q.scaling}, {"dither", q.dither}, {"seed", q.seed}};
     c.args = {"quantize", ctx.path("cols4d.ltm"), "--bits", std::to_string(*q.bits), "--scaling", q.scaling,
-              "--seed", std::to_string(q.seed)};
+              "--seed",   std::to_string(q.seed)};
     if (q.dither) c.args.push_back("--dither");
   } else {
     c.params = {{"error_ratio", q.error_ratio}};
@@ -87,8 +87,9 @@ StageCommand Cpca(const Recipe& r, const StageContext& ctx) {
   StageCommand c;
   c.inputs = {"rows.ltm"};
   c.params = {{"clusters", p.clusters}, {"basis", p.basis}, {"max_iterations", p.max_iterations}, {"seed", p.seed}};
-  c.args = {"cpca", ctx.path("rows.ltm"), "--clusters", std::to_string(p.clusters), "--basis", std::to_string(p.basis),
-            "--max-iterations", std::to_string(p.max_iterations), "--seed", std::to_string(p.seed)};
+  c.args = {"cpca",    ctx.path("rows.ltm"),    "--clusters",       std::to_string(p.clusters),
+            "--basis", std::to_string(p.basis), "--max-iterations", std::to_string(p.max_iterations),
+            "--seed",  std::to_string(p.seed)};
   return c;
 }
 
@@ -99,8 +100,12 @@ const std::vector<StageInfo>& StageTable() {
       {"sample", "raw.ltm", {}, true, "ray-cast the transport matrix of the scene (Embree)", Sample},
       {"row-transform", "rows.ltm", {"sample"}, true, "2D wavelets per cube face along each row", RowTransform},
       {"transpose", "cols.ltm", {"row-transform"}, true, "row blocks to column blocks, out of core", Transpose},
-      {"column-transform", "cols4d.ltm", {"transpose"}, true,
-       "adaptive 4D: each column image at its best depth, its largest terms kept", ColumnTransform},
+      {"column-transform",
+       "cols4d.ltm",
+       {"transpose"},
+       true,
+       "adaptive 4D: each column image at its best depth, its largest terms kept",
+       ColumnTransform},
       {"quantize", "final.ltm", {"column-transform"}, true, "quantize the kept coefficients", Quantize},
       {"cpca", "cpca.ltm", {"row-transform"}, false, "clustered PCA of the row-transformed matrix", Cpca},
       {"relight", "", {}, false, "relight under each environment map, with its error", nullptr},

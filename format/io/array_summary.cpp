@@ -39,12 +39,24 @@ void AddValues(std::span<const T> v, ArrayStats* s) {
 
 void AddChunkStats(const ArraySpec& a, const Chunk& c, ArrayStats* s) {
   switch (a.dtype) {
-    case DType::kF32: AddValues(c.as<float>(), s); break;
-    case DType::kF64: AddValues(c.as<double>(), s); break;
-    case DType::kU8: AddValues(c.as<uint8_t>(), s); break;
-    case DType::kI32: AddValues(c.as<int32_t>(), s); break;
-    case DType::kU32: AddValues(c.as<uint32_t>(), s); break;
-    case DType::kU64: AddValues(c.as<uint64_t>(), s); break;
+    case DType::kF32:
+      AddValues(c.as<float>(), s);
+      break;
+    case DType::kF64:
+      AddValues(c.as<double>(), s);
+      break;
+    case DType::kU8:
+      AddValues(c.as<uint8_t>(), s);
+      break;
+    case DType::kI32:
+      AddValues(c.as<int32_t>(), s);
+      break;
+    case DType::kU32:
+      AddValues(c.as<uint32_t>(), s);
+      break;
+    case DType::kU64:
+      AddValues(c.as<uint64_t>(), s);
+      break;
   }
 }
 

@@ -15,7 +15,7 @@ struct ArrayStats {
   uint64_t nonzero = 0;
   uint64_t nan = 0;
   uint64_t inf = 0;
-  double min = std::numeric_limits<double>::infinity();   // over finite values
+  double min = std::numeric_limits<double>::infinity();  // over finite values
   double max = -std::numeric_limits<double>::infinity();
   double sum = 0;  // over finite values, in chunk order
 };

@@ -22,13 +22,12 @@ Result<ContainerPrelude> ReadPrelude(const File& file, uint64_t file_size) {
   ContainerPrelude p;
   std::array<std::byte, kHeaderSize> hb{};
   if (file_size >= kHeaderSize) LTB_RETURN_IF_ERROR(file.ReadAt(0, hb));
-  LTB_ASSIGN_OR_RETURN(p.header, DecodeFileHeader(ByteSpan(hb.data(), file_size >= kHeaderSize ? kHeaderSize : 0),
-                                                  file_size));
+  LTB_ASSIGN_OR_RETURN(p.header,
+                       DecodeFileHeader(ByteSpan(hb.data(), file_size >= kHeaderSize ? kHeaderSize : 0), file_size));
   // DecodeFileHeader has checked metadata_length against the cap and the file size.
   p.metadata_bytes.resize(p.header.metadata_length);
-  LTB_RETURN_IF_ERROR(
-      file.ReadAt(kHeaderSize, MutableByteSpan(reinterpret_cast<std::byte*>(p.metadata_bytes.data()),
-                                               p.metadata_bytes.size())));
+  LTB_RETURN_IF_ERROR(file.ReadAt(
+      kHeaderSize, MutableByteSpan(reinterpret_cast<std::byte*>(p.metadata_bytes.data()), p.metadata_bytes.size())));
   ByteSpan mb(reinterpret_cast<const std::byte*>(p.metadata_bytes.data()), p.metadata_bytes.size());
   uint64_t actual = Checksum(mb);
   if (actual != p.header.metadata_checksum) {
@@ -94,8 +93,7 @@ Status ContainerReader::LoadFromIndex(uint64_t index_offset) {
     return DataLoss("index payload checksum mismatch: expected=" + Hex64(h.payload_checksum) +
                     ", actual=" + Hex64(actual));
   }
-  LTB_ASSIGN_OR_RETURN(std::vector<IndexEntry> entries,
-                       DecodeIndex(payload, header_.FirstFrameOffset(), index_offset));
+  LTB_ASSIGN_OR_RETURN(std::vector<IndexEntry> entries, DecodeIndex(payload, header_.FirstFrameOffset(), index_offset));
   for (const IndexEntry& e : entries) AddFrame(e);
   scan_end_ = index_offset;
   return Status::Ok();
@@ -182,13 +180,14 @@ Result<const IndexEntry*> ContainerReader::Locate(uint32_t array, uint64_t chunk
   if (array >= metadata_.arrays.size()) return InvalidArgument("no array " + std::to_string(array));
   const ArraySpec& a = metadata_.arrays[array];
   if (chunk >= a.ChunkCount()) {
-    return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name +
-                           "\" out of range (" + std::to_string(a.ChunkCount()) + " chunks)");
+    return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name + "\" out of range (" +
+                           std::to_string(a.ChunkCount()) + " chunks)");
   }
   const IndexEntry* e = Find(array, chunk);
   *where = path() + ": " + ChunkName(array, chunk);
   if (e == nullptr) {
-    return NotFound(*where + " is missing (never committed; the file is incomplete — rerun the stage that writes it to resume)");
+    return NotFound(*where +
+                    " is missing (never committed; the file is incomplete — rerun the stage that writes it to resume)");
   }
   return e;
 }
@@ -300,8 +299,9 @@ Result<SparseChunk> ContainerReader::ReadSparse(uint32_t array, uint64_t chunk, 
     return out;
   }
   if (elements > kMaxSparseElements) {
-    return InvalidArgument(where + " has " + std::to_string(elements) + " elements, more than a sparse chunk indexes (" +
-                           std::to_string(kMaxSparseElements) + "); read it with ReadChunk");
+    return InvalidArgument(where + " has " + std::to_string(elements) +
+                           " elements, more than a sparse chunk indexes (" + std::to_string(kMaxSparseElements) +
+                           "); read it with ReadChunk");
   }
   if (encoding == Encoding::kZero) return out;
   LTB_ASSIGN_OR_RETURN(Chunk dense, ReadChunk(array, chunk, options));
@@ -331,8 +331,8 @@ Status ContainerReader::VerifyChunk(uint32_t array, uint64_t chunk, MutableByteS
   LTB_RETURN_IF_ERROR(s);
   if (actual != e->header.payload_checksum) {
     return DataLoss(path() + ": " + ChunkName(array, chunk) + " at offset " +
-                    std::to_string(e->frame_offset + kFrameHeaderSize) + ": checksum mismatch: expected=" +
-                    Hex64(e->header.payload_checksum) + ", actual=" + Hex64(actual));
+                    std::to_string(e->frame_offset + kFrameHeaderSize) +
+                    ": checksum mismatch: expected=" + Hex64(e->header.payload_checksum) + ", actual=" + Hex64(actual));
   }
   return Status::Ok();
 }

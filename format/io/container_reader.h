@@ -132,7 +132,7 @@ class ContainerReader {
   std::vector<uint64_t> committed_;
   std::vector<std::string> problems_;
   std::vector<std::shared_ptr<const ContainerReader>> parts_;  // a manifest's shards
-  std::vector<uint32_t> frame_part_;                          // per chunk_frames_ slot
+  std::vector<uint32_t> frame_part_;                           // per chunk_frames_ slot
 };
 
 // A fingerprint of what the file holds: its metadata and every committed chunk's

@@ -159,9 +159,9 @@ Status ContainerWriter::Resume(uint64_t file_size) {
   resume_.resumed = true;
   LTB_ASSIGN_OR_RETURN(ScanResult scan, ScanFrames(file_, header_.FirstFrameOffset(), file_size));
   if (!scan.gaps.empty()) {
-    return DataLoss("damaged at offset " + std::to_string(scan.gaps.front().offset) + " (" +
-                    scan.gaps.front().reason + ") with committed chunks after it; refusing to append. Run `ltbake verify " +
-                    file_.path() + "` and remove the file to start over");
+    return DataLoss("damaged at offset " + std::to_string(scan.gaps.front().offset) + " (" + scan.gaps.front().reason +
+                    ") with committed chunks after it; refusing to append. Run `ltbake verify " + file_.path() +
+                    "` and remove the file to start over");
   }
   uint64_t end = header_.FirstFrameOffset();
   bool saw_index = false;
@@ -229,8 +229,8 @@ Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChun
   if (array >= metadata_.arrays.size()) return InvalidArgument(path() + ": no array " + std::to_string(array));
   const ArraySpec& a = metadata_.arrays[array];
   if (chunk >= a.ChunkCount()) {
-    return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name +
-                           "\" out of range (" + std::to_string(a.ChunkCount()) + " chunks)");
+    return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name + "\" out of range (" +
+                           std::to_string(a.ChunkCount()) + " chunks)");
   }
   if (!metadata_.Owns(array, chunk)) {
     const auto& [b, e] = metadata_.shard->chunks[array];
@@ -253,8 +253,8 @@ Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChun
     }
     if (a.Extent(chunk).Elements() > kMaxSparseElements) {
       return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name + "\" has " +
-                             std::to_string(a.Extent(chunk).Elements()) + " elements, more than a sparse chunk holds (" +
-                             std::to_string(kMaxSparseElements) + ")");
+                             std::to_string(a.Extent(chunk).Elements()) +
+                             " elements, more than a sparse chunk holds (" + std::to_string(kMaxSparseElements) + ")");
     }
   }
   FrameHeader h;
@@ -372,9 +372,9 @@ Status ContainerWriter::WritePayload(uint64_t offset, ByteSpan payload, bool dir
         break;
       }
       if (err != 0) {
-        return IoError(path() + ": direct write of " + std::to_string(n) + " bytes at offset " +
-                           std::to_string(offset + done),
-                       err);
+        return IoError(
+            path() + ": direct write of " + std::to_string(n) + " bytes at offset " + std::to_string(offset + done),
+            err);
       }
       direct_stats_.direct_bytes += n;
       done += n;
@@ -426,8 +426,8 @@ Status ContainerWriter::Finish() {
     }
   }
   if (missing > 0) {
-    return FailedPrecondition(path() + ": cannot seal: " + std::to_string(missing) + " chunks missing (first: " +
-                              first + ")");
+    return FailedPrecondition(path() + ": cannot seal: " + std::to_string(missing) +
+                              " chunks missing (first: " + first + ")");
   }
   std::vector<std::byte> index = EncodeIndex(frames_);
   FrameHeader h;

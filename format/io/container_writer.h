@@ -15,11 +15,10 @@
 #include <cstdint>
 #include <memory>
 #include <mutex>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <unordered_set>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 #include "format/array_spec.h"
 #include "format/chunk_codec.h"
@@ -56,11 +55,11 @@ struct ResumeInfo {
 
 // What the writer did with direct_io (for reports and tests).
 struct DirectIoStats {
-  bool active = false;           // direct writes are on (asked for, accepted, not fallen back)
-  uint64_t direct_bytes = 0;     // payload bytes written with O_DIRECT
-  uint64_t padding_frames = 0;   // padding frames written to align payloads
-  uint64_t padding_bytes = 0;    // their size, headers included
-  std::string fallback_reason;   // why direct writes stopped, if they did
+  bool active = false;          // direct writes are on (asked for, accepted, not fallen back)
+  uint64_t direct_bytes = 0;    // payload bytes written with O_DIRECT
+  uint64_t padding_frames = 0;  // padding frames written to align payloads
+  uint64_t padding_bytes = 0;   // their size, headers included
+  std::string fallback_reason;  // why direct writes stopped, if they did
 };
 
 class ContainerWriter {

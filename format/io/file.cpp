@@ -26,13 +26,20 @@ File& File::operator=(File&& other) noexcept {
 
 std::string FileKind(unsigned mode) {
   switch (mode & S_IFMT) {
-    case S_IFREG: return "a regular file";
-    case S_IFDIR: return "a directory";
-    case S_IFIFO: return "a FIFO (named pipe)";
-    case S_IFCHR: return "a character device";
-    case S_IFBLK: return "a block device";
-    case S_IFSOCK: return "a socket";
-    case S_IFLNK: return "a symbolic link";
+    case S_IFREG:
+      return "a regular file";
+    case S_IFDIR:
+      return "a directory";
+    case S_IFIFO:
+      return "a FIFO (named pipe)";
+    case S_IFCHR:
+      return "a character device";
+    case S_IFBLK:
+      return "a block device";
+    case S_IFSOCK:
+      return "a socket";
+    case S_IFLNK:
+      return "a symbolic link";
   }
   return "not a regular file (file type " + std::to_string(mode & S_IFMT) + ")";
 }
@@ -64,11 +71,21 @@ Result<File> File::Open(const std::string& path, Mode mode, bool inherit) {
   // a rename), then the flag is cleared: regular files ignore it anyway.
   int flags = (inherit ? 0 : O_CLOEXEC) | O_NONBLOCK;
   switch (mode) {
-    case Mode::kRead: flags |= O_RDONLY; break;
-    case Mode::kReadWrite: flags |= O_RDWR; break;
-    case Mode::kCreate: flags |= O_RDWR | O_CREAT; break;
-    case Mode::kCreateExclusive: flags |= O_RDWR | O_CREAT | O_EXCL; break;
-    case Mode::kWriteDirect: flags |= O_WRONLY | O_DIRECT; break;
+    case Mode::kRead:
+      flags |= O_RDONLY;
+      break;
+    case Mode::kReadWrite:
+      flags |= O_RDWR;
+      break;
+    case Mode::kCreate:
+      flags |= O_RDWR | O_CREAT;
+      break;
+    case Mode::kCreateExclusive:
+      flags |= O_RDWR | O_CREAT | O_EXCL;
+      break;
+    case Mode::kWriteDirect:
+      flags |= O_WRONLY | O_DIRECT;
+      break;
   }
   int fd;
   do {
@@ -79,7 +96,8 @@ Result<File> File::Open(const std::string& path, Mode mode, bool inherit) {
     struct stat st;
     // EISDIR (a directory opened for writing), ENXIO (a FIFO without a reader, a socket):
     // say what the path is rather than the errno.
-    if ((err == EISDIR || err == ENXIO || err == EOPNOTSUPP) && ::stat(path.c_str(), &st) == 0 && !S_ISREG(st.st_mode)) {
+    if ((err == EISDIR || err == ENXIO || err == EOPNOTSUPP) && ::stat(path.c_str(), &st) == 0 &&
+        !S_ISREG(st.st_mode)) {
       return NotRegular(path, st.st_mode);
     }
     Status s = IoError(path + ": cannot open", err);
@@ -124,8 +142,8 @@ Status File::ReadAt(uint64_t offset, format::MutableByteSpan out) const {
                      errno);
     }
     if (n == 0) {
-      return DataLoss(path_ + ": unexpected end of file reading " + std::to_string(out.size()) +
-                      " bytes at offset " + std::to_string(offset));
+      return DataLoss(path_ + ": unexpected end of file reading " + std::to_string(out.size()) + " bytes at offset " +
+                      std::to_string(offset));
     }
     done += static_cast<size_t>(n);
   }
@@ -138,8 +156,7 @@ Status File::WriteAt(uint64_t offset, format::ByteSpan data) const {
     ssize_t n = ::pwrite(fd_, data.data() + done, data.size() - done, static_cast<off_t>(offset + done));
     if (n < 0) {
       if (errno == EINTR) continue;
-      return IoError(path_ + ": write of " + std::to_string(data.size()) + " bytes at offset " +
-                         std::to_string(offset),
+      return IoError(path_ + ": write of " + std::to_string(data.size()) + " bytes at offset " + std::to_string(offset),
                      errno);
     }
     done += static_cast<size_t>(n);

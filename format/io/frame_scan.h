@@ -12,9 +12,9 @@
 namespace ltb::io {
 
 struct ScanGap {
-  uint64_t offset = 0;   // where the chain broke
-  uint64_t resume = 0;   // next valid frame found after the damage
-  std::string reason;    // why the frame at `offset` did not decode
+  uint64_t offset = 0;  // where the chain broke
+  uint64_t resume = 0;  // next valid frame found after the damage
+  std::string reason;   // why the frame at `offset` did not decode
 };
 
 struct ScanResult {

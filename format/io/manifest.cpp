@@ -154,7 +154,8 @@ Result<ManifestInfo> ReadManifest(const std::string& path) {
   }
   std::string text(size, '\0');
   LTB_RETURN_IF_ERROR(f.ReadAt(0, MutableByteSpan(reinterpret_cast<std::byte*>(text.data()), text.size())));
-  if (text.compare(0, kMagicLength, kManifestMagic) != 0) return DataLoss(path + ": not a stage manifest (no magic line)");
+  if (text.compare(0, kMagicLength, kManifestMagic) != 0)
+    return DataLoss(path + ": not a stage manifest (no magic line)");
   nlohmann::json j = nlohmann::json::parse(text.begin() + kMagicLength, text.end(), nullptr, false);
   auto bad = [&](const std::string& what) {
     return DataLoss(path + ": manifest " + what + "; commit the shards again (`ltbake commit`) or rerun the stage");
@@ -188,7 +189,8 @@ Result<ManifestInfo> ReadManifest(const std::string& path) {
     for (const char* key : {"index", "path", "bytes", "fingerprint", "content_hash", "hash_sum"})
       if (!s.contains(key)) return bad(where + " lacks \"" + key + "\"");
     ShardRecord r;
-    if (!s["index"].is_number_unsigned() || s["index"].get<uint64_t>() != i) return bad(where + ".index is not " + std::to_string(i));
+    if (!s["index"].is_number_unsigned() || s["index"].get<uint64_t>() != i)
+      return bad(where + ".index is not " + std::to_string(i));
     r.index = i;
     if (!s["path"].is_string()) return bad(where + ".path is not a string");
     r.path = s["path"].get<std::string>();
@@ -231,8 +233,8 @@ Status ContainerReader::LoadManifest() {
     LTB_ASSIGN_OR_RETURN(ContainerReader r, OpenShard(mpath, rec.index, info.count, full));
     const std::string diff = FirstJsonDifference(WithoutShard(r.metadata().json), metadata_.json);
     if (!diff.empty()) {
-      return FailedPrecondition(mpath + ": " + name + " was written with other parameters than the manifest (" +
-                                diff + ")" + rerun);
+      return FailedPrecondition(mpath + ": " + name + " was written with other parameters than the manifest (" + diff +
+                                ")" + rerun);
     }
     if (r.file_size() != rec.bytes) {
       return DataLoss(mpath + ": " + name + " is " + std::to_string(r.file_size()) + " bytes; the manifest recorded " +
@@ -295,8 +297,10 @@ Result<CommitResult> CommitShards(const std::string& output, uint64_t count, con
                     "` (`ltbake run` reruns only missing shards)");
   }
   if (PathExists(output) && !LooksLikeManifest(output) && !options.overwrite) {
-    return FailedPrecondition(output + " exists and is not a stage manifest; pass --overwrite to replace it with the "
-                              "manifest of its " + std::to_string(count) + " shards");
+    return FailedPrecondition(output +
+                              " exists and is not a stage manifest; pass --overwrite to replace it with the "
+                              "manifest of its " +
+                              std::to_string(count) + " shards");
   }
   CommitResult result;
   nlohmann::json whole;
@@ -327,7 +331,8 @@ Result<CommitResult> CommitShards(const std::string& output, uint64_t count, con
       if (a == 0) continue;
       for (uint64_t c = b; c < e; ++c) {
         Status s = r.VerifyChunk(a, c, buffer);
-        if (!s.ok()) return DataLoss(output + ": " + name + " is damaged: " + s.message() + "; rerun shard " + std::to_string(i));
+        if (!s.ok())
+          return DataLoss(output + ": " + name + " is damaged: " + s.message() + "; rerun shard " + std::to_string(i));
       }
     }
     auto summary = SummarizeArray(r, 0, options.threads);
@@ -416,23 +421,25 @@ VerifyReport VerifyManifest(const std::string& path) {
       continue;
     }
     if (summary->content_hash != rec.content_hash) {
-      report.problems.push_back(path + ": shards[" + std::to_string(rec.index) + "].content_hash is " +
-                                rec.content_hash + ", but " + name + " holds content_hash " + summary->content_hash +
-                                ": the manifest does not describe this shard; commit the shards again (`ltbake commit`)");
+      report.problems.push_back(
+          path + ": shards[" + std::to_string(rec.index) + "].content_hash is " + rec.content_hash + ", but " + name +
+          " holds content_hash " + summary->content_hash +
+          ": the manifest does not describe this shard; commit the shards again (`ltbake commit`)");
     }
     if (summary->hash_sum != rec.hash_sum) {
-      report.problems.push_back(path + ": shards[" + std::to_string(rec.index) + "].hash_sum is " +
-                                Hex64(rec.hash_sum).substr(2) + ", but " + name + " sums to " +
-                                Hex64(summary->hash_sum).substr(2) +
-                                ": the manifest does not describe this shard; commit the shards again (`ltbake commit`)");
+      report.problems.push_back(
+          path + ": shards[" + std::to_string(rec.index) + "].hash_sum is " + Hex64(rec.hash_sum).substr(2) + ", but " +
+          name + " sums to " + Hex64(summary->hash_sum).substr(2) +
+          ": the manifest does not describe this shard; commit the shards again (`ltbake commit`)");
     }
     total.AddSum(summary->hash_sum);
   }
   if (all_hashed && joined.ok()) {
     const std::string whole = total.Finish(joined->metadata().matrix());
     if (whole != info->content_hash) {
-      report.problems.push_back(path + ": content_hash is " + info->content_hash + ", but its shards hold content_hash " +
-                                whole + "; commit the shards again (`ltbake commit`)");
+      report.problems.push_back(path + ": content_hash is " + info->content_hash +
+                                ", but its shards hold content_hash " + whole +
+                                "; commit the shards again (`ltbake commit`)");
     }
   }
   report.sealed = sealed;
@@ -446,7 +453,8 @@ Result<MergeResult> MergeManifest(const std::string& manifest, const std::string
   if (!in.is_manifest()) return InvalidArgument(manifest + " is a container, not a stage manifest: nothing to merge");
   std::error_code ec;
   if (std::filesystem::exists(output, ec) && std::filesystem::equivalent(manifest, output, ec)) {
-    return InvalidArgument(output + " is the manifest itself; merge into another file, then rename it over the manifest");
+    return InvalidArgument(output +
+                           " is the manifest itself; merge into another file, then rename it over the manifest");
   }
   WriterOptions wo;
   wo.overwrite_mismatch = overwrite;

@@ -121,7 +121,8 @@ VerifyReport VerifyContainer(const std::string& path) {
     uint64_t payload_offset = e.frame_offset + kFrameHeaderSize;
     uint64_t padded_end = std::min(size, e.frame_offset + h.FrameSize());
     if (index_frame != nullptr) {
-      r.problems.push_back(where + ": frame after the index frame at offset " + std::to_string(index_frame->frame_offset));
+      r.problems.push_back(where + ": frame after the index frame at offset " +
+                           std::to_string(index_frame->frame_offset));
     }
     if (!RangeIsZero(*file, payload_offset + h.payload_length, padded_end - payload_offset - h.payload_length, &err)) {
       r.problems.push_back(where + ": payload padding: " + err);
@@ -167,8 +168,8 @@ VerifyReport VerifyContainer(const std::string& path) {
     }
     if (!meta.Owns(h.array, h.chunk_index)) {
       r.problems.push_back(where + ": chunk " + std::to_string(h.chunk_index) + " of array \"" + a.name +
-                           "\" belongs to another shard (this is shard " + std::to_string(meta.shard->index) +
-                           " of " + std::to_string(meta.shard->count) + ")");
+                           "\" belongs to another shard (this is shard " + std::to_string(meta.shard->index) + " of " +
+                           std::to_string(meta.shard->count) + ")");
       continue;
     }
     Status len = CheckChunkLengths(h, a.ChunkBytes(h.chunk_index));
@@ -179,7 +180,8 @@ VerifyReport VerifyContainer(const std::string& path) {
     // Compressed payloads are parsed through a mapping, only once their checksum has been
     // read back with pread (so every byte of it is on disk) and the file still covers them.
     MappedRegion region;
-    if (h.encoding == static_cast<uint16_t>(Encoding::kZstd) || h.encoding == static_cast<uint16_t>(Encoding::kSparse) ||
+    if (h.encoding == static_cast<uint16_t>(Encoding::kZstd) ||
+        h.encoding == static_cast<uint16_t>(Encoding::kSparse) ||
         h.encoding == static_cast<uint16_t>(Encoding::kSparseZstd)) {
       auto now = file->Size();
       if (!now.ok() || *now < payload_offset + h.payload_length) {
@@ -197,9 +199,10 @@ VerifyReport VerifyContainer(const std::string& path) {
     if (h.encoding == static_cast<uint16_t>(Encoding::kZstd)) {
       auto n = ZstdDecodedSize(region.bytes(), h.decoded_length);
       if (!n.ok() || *n != h.decoded_length) {
-        r.problems.push_back(where + ": " + (n.ok() ? "zstd payload decodes to " + std::to_string(*n) +
-                                                          " bytes, expected " + std::to_string(h.decoded_length)
-                                                    : n.status().message()));
+        r.problems.push_back(where + ": " +
+                             (n.ok() ? "zstd payload decodes to " + std::to_string(*n) + " bytes, expected " +
+                                           std::to_string(h.decoded_length)
+                                     : n.status().message()));
         continue;
       }
     }
@@ -268,8 +271,8 @@ VerifyReport VerifyContainer(const std::string& path) {
     // Read, not mapped (see ChecksumRange); its length is within the file (DecodeFrameHeader).
     std::vector<std::byte> index(index_frame->header.payload_length);
     Status read = file->ReadAt(index_frame->frame_offset + kFrameHeaderSize, index);
-    auto entries = read.ok() ? DecodeIndex(index, first, index_frame->frame_offset)
-                             : Result<std::vector<IndexEntry>>(read);
+    auto entries =
+        read.ok() ? DecodeIndex(index, first, index_frame->frame_offset) : Result<std::vector<IndexEntry>>(read);
     if (!entries.ok()) {
       r.problems.push_back("index frame at offset " + std::to_string(index_frame->frame_offset) + ": " +
                            entries.status().message());
@@ -277,7 +280,8 @@ VerifyReport VerifyContainer(const std::string& path) {
       std::set<std::pair<uint64_t, uint64_t>> listed, scanned;
       for (const IndexEntry& e : *entries) listed.insert({e.frame_offset, e.header.payload_checksum});
       for (const IndexEntry& e : scan->frames)
-        if (e.header.type == static_cast<uint16_t>(FrameType::kChunk)) scanned.insert({e.frame_offset, e.header.payload_checksum});
+        if (e.header.type == static_cast<uint16_t>(FrameType::kChunk))
+          scanned.insert({e.frame_offset, e.header.payload_checksum});
       if (listed != scanned) {
         r.problems.push_back("index lists " + std::to_string(listed.size()) + " chunk frames, the scan found " +
                              std::to_string(scanned.size()) + " (or at other offsets)");

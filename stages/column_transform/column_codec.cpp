@@ -21,7 +21,8 @@ Result<ColumnCodec> ColumnCodec::FromMetadata(const Metadata& meta, const std::s
   auto f = wavelet::ParseFilter(ct["filter"].get<std::string>());
   if (!f.ok()) return bad(f.status().message());
   c.filter_ = *f;
-  if (!ct.contains("image") || !ct["image"].is_object() || !ct["image"].value("width", nlohmann::json()).is_number_unsigned() ||
+  if (!ct.contains("image") || !ct["image"].is_object() ||
+      !ct["image"].value("width", nlohmann::json()).is_number_unsigned() ||
       !ct["image"].value("height", nlohmann::json()).is_number_unsigned()) {
     return bad("no image size");
   }
@@ -34,7 +35,8 @@ Result<ColumnCodec> ColumnCodec::FromMetadata(const Metadata& meta, const std::s
   if (!ct.value("max_depth", nlohmann::json()).is_number_unsigned()) return bad("no max_depth");
   c.max_depth_ = ct["max_depth"].get<int>();
   if (c.max_depth_ > wavelet::MaxDepth(c.width_, c.height_)) return bad("max_depth beyond the image");
-  if (c.max_depth_ > 0 && !wavelet::CheckSize(c.filter_, c.width_, c.height_).ok()) return bad("filter and size disagree");
+  if (c.max_depth_ > 0 && !wavelet::CheckSize(c.filter_, c.width_, c.height_).ok())
+    return bad("filter and size disagree");
   c.depth_array_ = meta.FindArray(ct.value("depth_array", std::string("depth")));
   if (c.depth_array_ < 0) return bad("no depth array");
   const ArraySpec& ds = meta.arrays[c.depth_array_];
@@ -45,7 +47,8 @@ Result<ColumnCodec> ColumnCodec::FromMetadata(const Metadata& meta, const std::s
   if (meta.matrix().layout != Layout::kCols) return bad("matrix is not in column blocks");
   if (meta.json.contains("quantization")) {
     const auto& q = meta.json["quantization"];
-    if (!q.is_object() || !q.value("bits", nlohmann::json()).is_number_unsigned()) return bad("quantization without bits");
+    if (!q.is_object() || !q.value("bits", nlohmann::json()).is_number_unsigned())
+      return bad("quantization without bits");
     c.quant_.bits = q["bits"].get<int>();
     if (c.quant_.bits < 2 || c.quant_.bits > 24) return bad("bits " + std::to_string(c.quant_.bits));
     auto scaling = ParseScaling(q.value("scaling", std::string("?")));
@@ -136,7 +139,8 @@ std::vector<std::vector<double>> QuantizationFactors(wavelet::Filter filter, uin
   const uint64_t pixels = width * height;
   std::vector<std::vector<double>> f(max_depth + 1, std::vector<double>(pixels, 1.0));
   if (scaling == Scaling::kNone) return f;
-  if (scaling == Scaling::kNormLevel || scaling == Scaling::kNorm) f = SynthesisEnergies(filter, width, height, max_depth);
+  if (scaling == Scaling::kNormLevel || scaling == Scaling::kNorm)
+    f = SynthesisEnergies(filter, width, height, max_depth);
   if (scaling == Scaling::kNorm) {
     for (auto& fd : f)
       for (double& v : fd) v = std::sqrt(v);
@@ -157,10 +161,14 @@ Result<Scaling> ParseScaling(const std::string& name) {
 
 const char* ScalingName(Scaling s) {
   switch (s) {
-    case Scaling::kNone: return "none";
-    case Scaling::kLevel: return "level";
-    case Scaling::kNormLevel: return "norm-level";
-    case Scaling::kNorm: return "norm";
+    case Scaling::kNone:
+      return "none";
+    case Scaling::kLevel:
+      return "level";
+    case Scaling::kNormLevel:
+      return "norm-level";
+    case Scaling::kNorm:
+      return "norm";
   }
   return "?";
 }

@@ -35,7 +35,7 @@ Result<Scaling> ParseScaling(const std::string& name);
 const char* ScalingName(Scaling s);
 
 struct Quantization {
-  int bits = 0;          // 0: not quantized (column-transform output)
+  int bits = 0;  // 0: not quantized (column-transform output)
   Scaling scaling = Scaling::kNormLevel;
   bool dither = true;
   uint64_t seed = 0;

@@ -1,13 +1,13 @@
 #include "stages/column_transform/column_compressor.h"
 
-#include "stages/column_transform/column_codec.h"
-
 #include <algorithm>
 #include <array>
-#include <cstring>
 #include <cmath>
+#include <cstring>
 #include <functional>
 #include <string>
+
+#include "stages/column_transform/column_codec.h"
 
 namespace ltb::stages {
 
@@ -72,17 +72,18 @@ Result<ColumnCompressor> ColumnCompressor::Create(wavelet::Filter filter, uint64
     c.weights_ = SynthesisEnergies(filter, width, height, max_depth);
     c.root_weights_.resize((max_depth + 1) * c.pixels_);
     for (int d = 0; d <= max_depth; ++d)
-      for (uint64_t p = 0; p < c.pixels_; ++p) c.root_weights_[d * c.pixels_ + p] = static_cast<float>(std::sqrt(c.weights_[d][p]));
+      for (uint64_t p = 0; p < c.pixels_; ++p)
+        c.root_weights_[d * c.pixels_ + p] = static_cast<float>(std::sqrt(c.weights_[d][p]));
   }
   return c;
 }
 
 uint64_t ColumnCompressor::WorkingBytes(uint64_t width, uint64_t height, int max_depth, bool orthonormal) {
   uint64_t p = width * height;
-  uint64_t b = p * kLanes * 4 * 3        // coefficients, wavelet scratch, selection keys
-               + p * (8 + 4 + 4)         // weighted energies, bins, candidates
-               + p * kLanes * (4 + 4)    // kept positions and values per lane (worst case)
-               + p * kLanes * 4;         // the caller's output chunk
+  uint64_t b = p * kLanes * 4 * 3      // coefficients, wavelet scratch, selection keys
+               + p * (8 + 4 + 4)       // weighted energies, bins, candidates
+               + p * kLanes * (4 + 4)  // kept positions and values per lane (worst case)
+               + p * kLanes * 4;       // the caller's output chunk
   if (!orthonormal) b += p * kLanes * 4 + p * (8 + 4) * static_cast<uint64_t>(max_depth + 1);
   return b;
 }
@@ -177,8 +178,8 @@ void ColumnCompressor::SelectTerms(size_t lane, int depth, uint64_t terms, std::
   }
 }
 
-void ColumnCompressor::Select(size_t lane, int depth, const Selection& sel, double energy,
-                              std::vector<uint32_t>* kept, double* dropped) {
+void ColumnCompressor::Select(size_t lane, int depth, const Selection& sel, double energy, std::vector<uint32_t>* kept,
+                              double* dropped) {
   kept->clear();
   const bool weighted = !orthonormal_ && depth > 0;
   const double trim_total = kExactRelativeEnergy * energy;
@@ -275,7 +276,8 @@ Status ColumnCompressor::Choose(const float* const* columns, size_t n, const Sel
   bool have[kLanes] = {};
   std::fill(std::begin(key_depth_), std::end(key_depth_), -1);  // new columns: no keys yet
   for (int d = 0; d < first; ++d) {
-    wavelet::AnalysisStep2D(filter_, coeffs_.data(), width_, kLanes, bands_[d].width, bands_[d].height, scratch_.data());
+    wavelet::AnalysisStep2D(filter_, coeffs_.data(), width_, kLanes, bands_[d].width, bands_[d].height,
+                            scratch_.data());
   }
   for (int d = first; d <= last; ++d) {
     if (d > first) {
@@ -322,7 +324,8 @@ Status ColumnCompressor::Histograms(const float* const* columns, size_t n, Energ
   LTB_RETURN_IF_ERROR(Load(columns, n, energy, live));
   for (size_t i = 0; i < n * static_cast<size_t>(depths()); ++i) out[i] = EnergyHistogram{};
   for (int d = 0; d < min_depth_; ++d) {
-    wavelet::AnalysisStep2D(filter_, coeffs_.data(), width_, kLanes, bands_[d].width, bands_[d].height, scratch_.data());
+    wavelet::AnalysisStep2D(filter_, coeffs_.data(), width_, kLanes, bands_[d].width, bands_[d].height,
+                            scratch_.data());
   }
   for (int d = min_depth_; d <= max_depth_; ++d) {
     if (d > min_depth_) {

@@ -37,8 +37,8 @@ double BinLowerEdge(int bin);  // 2^(bin/8): EnergyBin(e) >= bin  <=>  e >= BinL
 
 struct ColumnChoice {
   int depth = 0;
-  double energy = 0;  // Σ x² of the column image
-  double error = 0;   // Σ (x − x̂)² of the kept approximation at `depth`
+  double energy = 0;            // Σ x² of the column image
+  double error = 0;             // Σ (x − x̂)² of the kept approximation at `depth`
   std::vector<uint32_t> index;  // kept coefficient positions (y·W + x in the Mallat layout), ascending
   std::vector<float> value;     // their coefficients
 };
@@ -53,9 +53,9 @@ struct Selection {
 
 // Per (column, depth) histogram of weighted coefficient energies, for the budget search.
 struct EnergyHistogram {
-  std::vector<int32_t> bin;      // ascending
-  std::vector<uint64_t> count;   // coefficients in the bin
-  std::vector<double> energy;    // Σ weighted energy in the bin
+  std::vector<int32_t> bin;     // ascending
+  std::vector<uint64_t> count;  // coefficients in the bin
+  std::vector<double> energy;   // Σ weighted energy in the bin
 };
 
 class ColumnCompressor {
@@ -114,15 +114,15 @@ class ColumnCompressor {
   std::vector<float> coeffs_;                 // [pixel][lane]
   std::vector<float> work_;                   // reconstruction buffer [pixel][lane]
   std::vector<float> scratch_;
-  std::vector<double> mag_;                   // weighted energies of one lane (budget paths)
+  std::vector<double> mag_;  // weighted energies of one lane (budget paths)
   std::vector<int32_t> bins_;
-  static constexpr int kKeyShift = 20;        // histogram of the key's top 11 bits (sign is 0)
+  static constexpr int kKeyShift = 20;  // histogram of the key's top 11 bits (sign is 0)
   static constexpr size_t kKeyBins = size_t{1} << (31 - kKeyShift);
-  std::vector<float> root_weights_;           // per depth ‖ψ̃‖, flattened (biorthogonal only)
-  std::vector<uint32_t> keys_;                // [lane][pixel] float bits of |c|·‖ψ̃‖
-  std::vector<uint32_t> key_hist_;            // [lane][bin]
-  int key_depth_[kLanes] = {};                // depth the lane's keys describe (−1: none)
-  std::vector<uint32_t> cand_;                // keys in the threshold bin
+  std::vector<float> root_weights_;  // per depth ‖ψ̃‖, flattened (biorthogonal only)
+  std::vector<uint32_t> keys_;       // [lane][pixel] float bits of |c|·‖ψ̃‖
+  std::vector<uint32_t> key_hist_;   // [lane][bin]
+  int key_depth_[kLanes] = {};       // depth the lane's keys describe (−1: none)
+  std::vector<uint32_t> cand_;       // keys in the threshold bin
   std::vector<uint64_t> hist_count_;
   std::vector<double> hist_energy_;
 };

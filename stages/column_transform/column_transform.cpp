@@ -39,10 +39,14 @@ Result<DepthMode> ParseDepthMode(const std::string& text) {
 
 std::string DepthModeName(const DepthMode& m) {
   switch (m.kind) {
-    case DepthMode::Kind::kAdaptive: return "adaptive";
-    case DepthMode::Kind::kNone: return "none";
-    case DepthMode::Kind::kFull: return "full";
-    case DepthMode::Kind::kFixed: return std::to_string(m.fixed);
+    case DepthMode::Kind::kAdaptive:
+      return "adaptive";
+    case DepthMode::Kind::kNone:
+      return "none";
+    case DepthMode::Kind::kFull:
+      return "full";
+    case DepthMode::Kind::kFixed:
+      return std::to_string(m.fixed);
   }
   return "?";
 }
@@ -56,8 +60,8 @@ constexpr uint64_t kStatsPerColumn = 3;  // energy, error, nonzeros
 // Per-column energy histograms of every depth, for the budget search (compact: one set of
 // flat vectors per column).
 struct ColumnCurves {
-  std::vector<uint32_t> offset;     // depths + 1 entries into the flat vectors
-  std::vector<int32_t> bin;         // ascending within a depth
+  std::vector<uint32_t> offset;             // depths + 1 entries into the flat vectors
+  std::vector<int32_t> bin;                 // ascending within a depth
   std::vector<uint64_t> count_at_or_above;  // Σ counts of bins >= this one
   std::vector<double> energy_below;         // Σ energy of bins < this one
   std::vector<double> depth_total;          // Σ energy of all bins, per depth
@@ -115,12 +119,15 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
   const Metadata& meta = in.metadata();
   const ArraySpec& a = meta.matrix();
   if (meta.json.contains("column_transform")) {
-    return FailedPrecondition(o.input + ": is already column-transformed (by `ltbake column-transform`); its input "
+    return FailedPrecondition(o.input +
+                              ": is already column-transformed (by `ltbake column-transform`); its input "
                               "is the output of `ltbake transpose`");
   }
   if (a.layout != Layout::kCols) {
-    return FailedPrecondition(o.input + ": is stored in row blocks; column-transform needs column blocks — run "
-                              "`ltbake transpose " + o.input + " -o cols.ltm` first");
+    return FailedPrecondition(o.input +
+                              ": is stored in row blocks; column-transform needs column blocks — run "
+                              "`ltbake transpose " +
+                              o.input + " -o cols.ltm` first");
   }
   LTB_RETURN_IF_ERROR(RequireCompleteF32Matrix(in));
 
@@ -137,19 +144,26 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
                                 .value("rows", nlohmann::json::object())
                                 .value("kind", std::string("generic"));
     return FailedPrecondition(
-        o.input + ": its rows are " + (rows_kind == "vertices" ? "mesh vertices" : "not declared an image (" + rows_kind + ")") +
+        o.input + ": its rows are " +
+        (rows_kind == "vertices" ? "mesh vertices" : "not declared an image (" + rows_kind + ")") +
         ", so its columns have no 2D image domain to transform; use `--depth none` (the 2D method), or compress it "
         "with `ltbake cpca`");
   }
   const int deepest = wavelet::MaxDepth(plan.width, plan.height);
   switch (o.depth.kind) {
-    case DepthMode::Kind::kAdaptive: plan.max_depth = deepest; break;
-    case DepthMode::Kind::kNone: break;
-    case DepthMode::Kind::kFull: plan.min_depth = plan.max_depth = deepest; break;
+    case DepthMode::Kind::kAdaptive:
+      plan.max_depth = deepest;
+      break;
+    case DepthMode::Kind::kNone:
+      break;
+    case DepthMode::Kind::kFull:
+      plan.min_depth = plan.max_depth = deepest;
+      break;
     case DepthMode::Kind::kFixed:
       if (o.depth.fixed > deepest) {
         return InvalidArgument("--depth " + std::to_string(o.depth.fixed) + ": a " + std::to_string(plan.width) + "x" +
-                               std::to_string(plan.height) + " image has at most " + std::to_string(deepest) + " steps");
+                               std::to_string(plan.height) + " image has at most " + std::to_string(deepest) +
+                               " steps");
       }
       plan.min_depth = plan.max_depth = o.depth.fixed;
       break;
@@ -161,13 +175,16 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
   if (plan.width * plan.height > UINT32_MAX) {
     return InvalidArgument(o.input + ": columns of " + std::to_string(a.rows) + " rows exceed 2^32 coefficients");
   }
-  plan.block = o.block_cols ? std::min<uint64_t>(o.block_cols, a.cols) : OutputBlockColumns(a.rows, a.cols, o.shard.count);
+  plan.block =
+      o.block_cols ? std::min<uint64_t>(o.block_cols, a.cols) : OutputBlockColumns(a.rows, a.cols, o.shard.count);
   const uint64_t pixels = a.rows;
   const bool ortho = wavelet::IsOrthonormal(o.filter);
   if (plan.block > kMaxSparseElements / pixels) {  // (block · pixels could overflow)
     return InvalidArgument("--block-cols " + std::to_string(plan.block) + ": a chunk of " + std::to_string(plan.block) +
-                           " columns of " + std::to_string(pixels) + " rows is over the 2^32 elements of a sparse "
-                           "chunk; use at most " + std::to_string(kMaxSparseElements / pixels));
+                           " columns of " + std::to_string(pixels) +
+                           " rows is over the 2^32 elements of a sparse "
+                           "chunk; use at most " +
+                           std::to_string(kMaxSparseElements / pixels));
   }
 
   // Memory: each job holds a compressor, one input chunk, and the output chunk dense and
@@ -221,7 +238,8 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
   ArraySpec out_spec = a;
   out_spec.block = plan.block;
   out_meta["arrays"][0] = out_spec.ToJson();
-  for (size_t arr = 1; arr < meta.arrays.size(); ++arr) out_meta["arrays"][arr] = PassThroughSpec(meta.arrays[arr]).ToJson();
+  for (size_t arr = 1; arr < meta.arrays.size(); ++arr)
+    out_meta["arrays"][arr] = PassThroughSpec(meta.arrays[arr]).ToJson();
   ArraySpec depth_spec;
   depth_spec.name = kDepthArray;
   depth_spec.dtype = DType::kU8;
@@ -504,8 +522,7 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
       LTB_RETURN_IF_ERROR(out.Put(depth_array, c, BytesOf(depths), side));
     }
     if (!out.Has(stats_array, c)) {
-      LTB_RETURN_IF_ERROR(
-          out.Put(stats_array, c, BytesOf(stats), side));
+      LTB_RETURN_IF_ERROR(out.Put(stats_array, c, BytesOf(stats), side));
     }
     written++;
     return Status::Ok();
@@ -535,8 +552,8 @@ Result<ColumnTransformResult> SummarizeColumnTransform(const std::string& path) 
   if (depth_array < 0 || stats_array < 0) return DataLoss(path + ": column_transform names arrays that are missing");
   const ArraySpec& ds = meta.arrays[depth_array];
   const ArraySpec& ss = meta.arrays[stats_array];
-  if (ds.dtype != DType::kU8 || ss.dtype != DType::kF64 || ss.cols != kStatsPerColumn || ds.rows != meta.matrix().cols ||
-      ss.rows != meta.matrix().cols) {
+  if (ds.dtype != DType::kU8 || ss.dtype != DType::kF64 || ss.cols != kStatsPerColumn ||
+      ds.rows != meta.matrix().cols || ss.rows != meta.matrix().cols) {
     return DataLoss(path + ": depth / column_stats arrays have unexpected shapes");
   }
   ColumnTransformResult t;
@@ -553,8 +570,7 @@ Result<ColumnTransformResult> SummarizeColumnTransform(const std::string& path) 
     auto d = dc.as<uint8_t>();
     auto st = sc.as<double>();
     for (size_t k = 0; k < d.size(); ++k) {
-      double energy = st[k * kStatsPerColumn], error = st[k * kStatsPerColumn + 1],
-             nnz = st[k * kStatsPerColumn + 2];
+      double energy = st[k * kStatsPerColumn], error = st[k * kStatsPerColumn + 1], nnz = st[k * kStatsPerColumn + 2];
       t.energy += energy;
       t.error += error;
       t.nonzeros += static_cast<uint64_t>(nnz);

@@ -16,10 +16,9 @@
 
 #include <cstdint>
 #include <string>
-
-#include "format/io/manifest.h"
 #include <vector>
 
+#include "format/io/manifest.h"
 #include "format/progress.h"
 #include "format/status.h"
 #include "stages/wavelet/wavelet.h"
@@ -39,8 +38,8 @@ std::string DepthModeName(const DepthMode& mode);
 // (--keep 0.05, the paper's) gave 1.5–2× the relit error at equal nonzeros on the demo.
 struct TermsMode {
   enum class Kind { kTerms, kKeep, kBudget, kTargetError } kind = Kind::kBudget;
-  uint64_t terms = 0;   // kTerms: N per column
-  double keep = 0.05;   // kKeep: fraction of each column's W·H
+  uint64_t terms = 0;         // kTerms: N per column
+  double keep = 0.05;         // kKeep: fraction of each column's W·H
   std::string budget = "5%";  // kBudget: as given ("0.02", "2%", "150000", "64MiB"): stages::ParseBudget
   // kTargetError: the fewest nonzeros (one rate-distortion threshold, as the budget) whose
   // relative RMS error, as the energy histograms estimate it, is at most this (0 < e < 1).
@@ -71,7 +70,7 @@ struct ColumnTransformResult {
   // Over the whole output (read back from its side tables, so also right after a resume):
   uint64_t empty_columns = 0;
   uint64_t nonzeros = 0;
-  double energy = 0, error = 0;  // Σ over columns, image domain
+  double energy = 0, error = 0;           // Σ over columns, image domain
   std::vector<uint64_t> depth_histogram;  // columns per depth 0..max_depth (empty ones excluded)
   // Budget mode (and --target-error: the budget it found, and the histograms' estimate of
   // the error, which the reported error above replaces with the exact one):

@@ -15,8 +15,8 @@ nlohmann::json PixelCubemapCols(uint64_t r) { return {{"kind", "cubemap"}, {"cub
 nlohmann::json WaveletCubemapCols(uint64_t r, const std::string& filter) {
   uint64_t depth = 0;
   while ((uint64_t{1} << depth) < r) ++depth;
-  return {{"kind", "cubemap"}, {"cube_res", r}, {"basis", "wavelet"}, {"filter", filter}, {"depth", depth},
-          {"layout", "mallat per face"}};
+  return {{"kind", "cubemap"}, {"cube_res", r},  {"basis", "wavelet"},
+          {"filter", filter},  {"depth", depth}, {"layout", "mallat per face"}};
 }
 
 nlohmann::json ImageRows(uint64_t w, uint64_t h) { return {{"kind", "image"}, {"width", w}, {"height", h}}; }
@@ -24,7 +24,8 @@ nlohmann::json GenericAxis() { return {{"kind", "generic"}}; }
 
 Result<std::optional<CubemapCols>> ReadCubemapCols(const format::Metadata& meta) {
   const auto& j = meta.json;
-  if (!j.contains("basis") || !j["basis"].is_object() || !j["basis"].contains("cols")) return std::optional<CubemapCols>{};
+  if (!j.contains("basis") || !j["basis"].is_object() || !j["basis"].contains("cols"))
+    return std::optional<CubemapCols>{};
   const auto& c = j["basis"]["cols"];
   if (!c.is_object() || c.value("kind", "") != "cubemap") return std::optional<CubemapCols>{};
   CubemapCols out;
@@ -63,8 +64,11 @@ std::optional<ImageSize> ReadImageRows(const format::Metadata& meta) {
 
 Status RefuseCpcaOutput(const io::ContainerReader& in, const std::string& stage) {
   if (!in.metadata().json.contains("cpca")) return Status::Ok();
-  return FailedPrecondition(in.path() + ": is a cpca output (cluster means, bases and per-row weights), not a "
-                            "transport matrix; " + stage + " takes the matrix itself (rows.ltm and what follows it). "
+  return FailedPrecondition(in.path() +
+                            ": is a cpca output (cluster means, bases and per-row weights), not a "
+                            "transport matrix; " +
+                            stage +
+                            " takes the matrix itself (rows.ltm and what follows it). "
                             "Use cpca.ltm with `ltbake relight` or `ltbake convert`");
 }
 
@@ -95,7 +99,8 @@ nlohmann::json Provenance(const std::string& stage, const nlohmann::json& parame
   for (const auto* r : inputs) {
     in.push_back({{"file", std::filesystem::path(r->path()).filename().string()}, {"fingerprint", Fingerprint(*r)}});
   }
-  return {{"tool", std::string("ltbake ") + kToolVersion}, {"stage", stage}, {"parameters", parameters}, {"inputs", in}};
+  return {
+      {"tool", std::string("ltbake ") + kToolVersion}, {"stage", stage}, {"parameters", parameters}, {"inputs", in}};
 }
 
 format::ArraySpec PassThroughSpec(const format::ArraySpec& in) {

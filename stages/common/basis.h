@@ -3,13 +3,12 @@
 #pragma once
 
 #include <cstdint>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
 
-#include <nlohmann/json.hpp>
-
-#include "format/bits.h"
 #include "format/array_spec.h"
+#include "format/bits.h"
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
 #include "format/status.h"

@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-
 #include <glm/geometric.hpp>
 
 namespace ltb::cubemap {
@@ -56,7 +55,8 @@ double TexelAngularRadius(const Texel& x, uint32_t r) {
   double u0 = 2.0 * x.s / r - 1.0, v0 = 2.0 * x.t / r - 1.0, h = 2.0 / r;
   double min_cos = 1.0;
   for (double du : {0.0, h})
-    for (double dv : {0.0, h}) min_cos = std::min(min_cos, glm::dot(c, glm::normalize(FaceDirection(x.face, u0 + du, v0 + dv))));
+    for (double dv : {0.0, h})
+      min_cos = std::min(min_cos, glm::dot(c, glm::normalize(FaceDirection(x.face, u0 + du, v0 + dv))));
   return std::acos(std::clamp(min_cos, -1.0, 1.0));
 }
 

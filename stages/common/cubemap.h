@@ -4,7 +4,6 @@
 #pragma once
 
 #include <cstdint>
-
 #include <glm/vec3.hpp>
 
 namespace ltb::cubemap {
@@ -17,12 +16,18 @@ struct Texel {
 // Unnormalised direction through face point (u, v) in [-1, 1]² (|d| = sqrt(1 + u² + v²)).
 inline glm::dvec3 FaceDirection(int face, double u, double v) {
   switch (face) {
-    case 0: return {1, -v, -u};
-    case 1: return {-1, -v, u};
-    case 2: return {u, 1, v};
-    case 3: return {u, -1, -v};
-    case 4: return {u, -v, 1};
-    default: return {-u, -v, -1};
+    case 0:
+      return {1, -v, -u};
+    case 1:
+      return {-1, -v, u};
+    case 2:
+      return {u, 1, v};
+    case 3:
+      return {u, -1, -v};
+    case 4:
+      return {u, -v, 1};
+    default:
+      return {-u, -v, -1};
   }
 }
 // Face and face coordinates (u, v) of a direction (any length > 0).
@@ -32,7 +37,8 @@ Texel DirectionToTexel(const glm::dvec3& d, uint32_t r);
 inline uint64_t Column(const Texel& x, uint32_t r) { return uint64_t(x.face) * r * r + uint64_t(x.t) * r + x.s; }
 inline Texel ColumnToTexel(uint64_t column, uint32_t r) {
   uint64_t rr = uint64_t(r) * r;
-  return {static_cast<int>(column / rr), static_cast<uint32_t>(column % rr % r), static_cast<uint32_t>(column % rr / r)};
+  return {static_cast<int>(column / rr), static_cast<uint32_t>(column % rr % r),
+          static_cast<uint32_t>(column % rr / r)};
 }
 // Unit direction through the texel centre.
 glm::dvec3 TexelCenter(const Texel& x, uint32_t r);

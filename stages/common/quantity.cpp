@@ -22,10 +22,21 @@ bool SplitNumber(const std::string& text, double* value, std::string* unit) {
 
 // Bytes per unit of ParseByteSize; 0 for an unknown unit.
 double UnitBytes(const std::string& unit) {
-  static const std::pair<const char*, double> kUnits[] = {
-      {"", 1},          {"B", 1},          {"k", 1024.0},      {"K", 1024.0},      {"KiB", 1024.0},
-      {"M", 1048576.0}, {"MiB", 1048576.0}, {"G", 1073741824.0}, {"GiB", 1073741824.0},
-      {"T", 1099511627776.0}, {"TiB", 1099511627776.0}, {"KB", 1e3}, {"MB", 1e6}, {"GB", 1e9}, {"TB", 1e12}};
+  static const std::pair<const char*, double> kUnits[] = {{"", 1},
+                                                          {"B", 1},
+                                                          {"k", 1024.0},
+                                                          {"K", 1024.0},
+                                                          {"KiB", 1024.0},
+                                                          {"M", 1048576.0},
+                                                          {"MiB", 1048576.0},
+                                                          {"G", 1073741824.0},
+                                                          {"GiB", 1073741824.0},
+                                                          {"T", 1099511627776.0},
+                                                          {"TiB", 1099511627776.0},
+                                                          {"KB", 1e3},
+                                                          {"MB", 1e6},
+                                                          {"GB", 1e9},
+                                                          {"TB", 1e12}};
   for (const auto& [name, bytes] : kUnits) {
     if (unit == name) return bytes;
   }

@@ -55,8 +55,8 @@ Result<double> GetNumber(const std::string& path, const toml::table& t, const ch
   if (n == nullptr) return def;
   std::optional<double> v = n->value<double>();
   if (!v || !std::isfinite(*v)) {
-    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + ValueText(*n) + "; it must be a finite number in [" + Num(lo) +
-                           ", " + Num(hi) + "]");
+    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + ValueText(*n) +
+                           "; it must be a finite number in [" + Num(lo) + ", " + Num(hi) + "]");
   }
   if (*v < lo || *v > hi) {
     return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + Num(*v) + ", outside [" + Num(lo) + ", " +
@@ -91,7 +91,8 @@ Result<bool> GetBool(const std::string& path, const toml::table& t, const char* 
   const toml::node* n = t.get(key);
   if (n == nullptr) return def;
   auto v = n->value<bool>();
-  if (!v) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + ValueText(*n) + "; it must be true or false");
+  if (!v)
+    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + ValueText(*n) + "; it must be true or false");
   return *v;
 }
 

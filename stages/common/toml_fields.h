@@ -2,11 +2,11 @@
 // its line, and every value is checked for type and range, naming file, line and key.
 #pragma once
 
+#include <toml++/toml.h>
+
 #include <cstdint>
 #include <set>
 #include <string>
-
-#include <toml++/toml.h>
 
 #include "format/status.h"
 

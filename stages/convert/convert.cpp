@@ -114,8 +114,8 @@ Result<NpyInput> OpenNpy(const std::string& path) {
 }
 
 // Converts f64 values to f32; a finite value beyond the f32 range is an error.
-Status NarrowToF32(const double* src, float* dst, uint64_t n, const std::string& path,
-                   uint64_t first_element, uint64_t cols, bool col_major, uint64_t rows) {
+Status NarrowToF32(const double* src, float* dst, uint64_t n, const std::string& path, uint64_t first_element,
+                   uint64_t cols, bool col_major, uint64_t rows) {
   for (uint64_t k = 0; k < n; ++k) {
     double v = src[k];
     if (std::isfinite(v) && std::fabs(v) > static_cast<double>(std::numeric_limits<float>::max())) {
@@ -152,8 +152,8 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
     }
     if (in.cols != 6 * o.cube_res * o.cube_res) {
       return InvalidArgument(o.input + ": has " + std::to_string(in.cols) + " columns; a cubemap with --cube-res " +
-                             std::to_string(o.cube_res) + " needs 6·R² = " +
-                             std::to_string(6 * o.cube_res * o.cube_res));
+                             std::to_string(o.cube_res) +
+                             " needs 6·R² = " + std::to_string(6 * o.cube_res * o.cube_res));
     }
     cols_basis = PixelCubemapCols(o.cube_res);
   }
@@ -192,9 +192,9 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
   // Column blocks gather strided values: map the input once for that.
   io::MappedRegion whole;
   if (o.layout == Layout::kCols && !missing.empty()) {
-    LTB_ASSIGN_OR_RETURN(whole, io::MappedRegion::Map(in.file.fd(), 0, in.header.data_offset +
-                                                                           in.rows * in.cols * in.header.itemsize,
-                                                      false));
+    LTB_ASSIGN_OR_RETURN(
+        whole,
+        io::MappedRegion::Map(in.file.fd(), 0, in.header.data_offset + in.rows * in.cols * in.header.itemsize, false));
   }
   EncodeOptions eo;
   eo.zstd = o.zstd;
@@ -208,7 +208,8 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
       uint64_t first = e.row0 * in.cols;
       uint64_t offset = in.header.data_offset + first * item;
       if (item == 4) {
-        LTB_RETURN_IF_ERROR(in.file.ReadAt(offset, MutableByteSpan(reinterpret_cast<std::byte*>(values.data()), n * 4)));
+        LTB_RETURN_IF_ERROR(
+            in.file.ReadAt(offset, MutableByteSpan(reinterpret_cast<std::byte*>(values.data()), n * 4)));
       } else {
         std::vector<double> src(n);
         LTB_RETURN_IF_ERROR(in.file.ReadAt(offset, MutableByteSpan(reinterpret_cast<std::byte*>(src.data()), n * 8)));
@@ -224,8 +225,8 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
           } else {
             double v;
             std::memcpy(&v, p, 8);
-            LTB_RETURN_IF_ERROR(NarrowToF32(&v, &values[c * in.rows + r], 1, o.input, r * in.cols + e.col0 + c,
-                                            in.cols, false, in.rows));
+            LTB_RETURN_IF_ERROR(NarrowToF32(&v, &values[c * in.rows + r], 1, o.input, r * in.cols + e.col0 + c, in.cols,
+                                            false, in.rows));
           }
         }
       }

@@ -18,11 +18,11 @@ struct ConvertOptions {
   std::string input;
   std::string output;
   int jobs = 2;
-  uint64_t mem_limit = 1ull << 30;   // bytes of buffers across all workers
+  uint64_t mem_limit = 1ull << 30;    // bytes of buffers across all workers
   uint64_t chunk_bytes = 8ull << 20;  // target size of one chunk (npy -> ltm)
   format::Layout layout = format::Layout::kRows;
-  bool zstd = false;        // try zstd per chunk, keep it where it saves >= 10%
-  bool overwrite = false;   // replace an existing output written with other parameters
+  bool zstd = false;       // try zstd per chunk, keep it where it saves >= 10%
+  bool overwrite = false;  // replace an existing output written with other parameters
   // Declares the columns a pixel-basis cubemap with faces of R×R texels (0: generic).
   uint64_t cube_res = 0;
   // Declares the rows the pixels of a W×H image, y·W + x (0: generic).

@@ -1,7 +1,6 @@
 #include "stages/cpca/cpca.h"
 
 #include <Eigen/Dense>
-
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -219,9 +218,7 @@ class Cpca {
   void set_rows_done(uint64_t v) { rows_done_ = v; }
 
  private:
-  void ReportRows(uint64_t done) const {
-    progress_.Report(done, (o_.max_iterations + 2) * pr_.n_rows, "rows");
-  }
+  void ReportRows(uint64_t done) const { progress_.Report(done, (o_.max_iterations + 2) * pr_.n_rows, "rows"); }
   const CpcaOptions& o_;
   const io::ContainerReader& in_;
   const Params& pr_;
@@ -564,7 +561,7 @@ Status WriteCheckpoint(const std::string& path, const nlohmann::json& identity, 
                        uint64_t level, uint64_t level_passes, uint64_t passes, double last_error, const Model& m,
                        const nlohmann::json& extra = nullptr, const std::vector<double>& extra_values = {}) {
   CpcaCheckpoint cp;
-  cp.header = {{"identity", identity}, {"phase", phase},       {"level", level},
+  cp.header = {{"identity", identity},         {"phase", phase},   {"level", level},
                {"level_passes", level_passes}, {"passes", passes}, {"extra", extra}};
   cp.values = ModelValues(m);
   cp.values.push_back(last_error);
@@ -605,11 +602,13 @@ Result<CpcaResult> RunCpca(const CpcaOptions& o, const Progress& progress) {
   const Metadata& meta = in.metadata();
   const ArraySpec& a = meta.matrix();
   if (CpcaModel::IsCpca(meta)) {
-    return FailedPrecondition(o.input + ": is already a cpca output; cpca takes a row-block matrix (rows.ltm from "
+    return FailedPrecondition(o.input +
+                              ": is already a cpca output; cpca takes a row-block matrix (rows.ltm from "
                               "`ltbake row-transform`, or raw.ltm from `ltbake sample`)");
   }
   if (a.layout != Layout::kRows) {
-    return FailedPrecondition(o.input + ": is stored in column blocks (layout cols); cpca streams rows: give it the "
+    return FailedPrecondition(o.input +
+                              ": is stored in column blocks (layout cols); cpca streams rows: give it the "
                               "row-block matrix (rows.ltm from `ltbake row-transform`, or raw.ltm), not the output "
                               "of transpose or column-transform");
   }
@@ -629,21 +628,21 @@ Result<CpcaResult> RunCpca(const CpcaOptions& o, const Progress& progress) {
 
   // Memory: everything but the k-means++ sample is independent of the row count.
   const uint64_t model = k * d * 8 * (1 + p);
-  const uint64_t fixed = 2 * model                          // model and the rounded copy
-                         + k * d * 8 * (1 + p)              // per-pass sums and Σ z zᵀ Q
-                         + k * (s + 1) * d * 8              // the assignment's stacked vectors
-                         + block * d * 8 * 2 + block * 24   // pass block and its ids/errors
-                         + jobs * (block * d * 8 + block * p * 8 + kSubRows * (k * (s + 1) + d) * 8)
-                         + 16 * d * 8 + (16ull << 20);      // reseed rows, output chunk buffers
+  const uint64_t fixed = 2 * model                         // model and the rounded copy
+                         + k * d * 8 * (1 + p)             // per-pass sums and Σ z zᵀ Q
+                         + k * (s + 1) * d * 8             // the assignment's stacked vectors
+                         + block * d * 8 * 2 + block * 24  // pass block and its ids/errors
+                         + jobs * (block * d * 8 + block * p * 8 + kSubRows * (k * (s + 1) + d) * 8) + 16 * d * 8 +
+                         (16ull << 20);  // reseed rows, output chunk buffers
   const uint64_t per_sample_row = d * 8 + k * 8 + 64;
   const uint64_t min_sample = std::min(n, std::max<uint64_t>(k, 256));
   if (fixed + min_sample * per_sample_row > o.mem_limit) {
     const uint64_t need = fixed + min_sample * per_sample_row;
-    return FailedPrecondition(o.input + ": cpca with K = " + std::to_string(k) + ", S = " + std::to_string(s) +
-                              " on " + std::to_string(d) + "-dimensional rows needs about " +
-                              std::to_string((need >> 20) + 1) + " MiB, more than --mem-limit (" +
-                              std::to_string(o.mem_limit >> 20) + " MiB); rerun with --mem-limit " +
-                              std::to_string((need >> 20) + 1) + "MiB, or fewer clusters or basis vectors");
+    return FailedPrecondition(o.input + ": cpca with K = " + std::to_string(k) + ", S = " + std::to_string(s) + " on " +
+                              std::to_string(d) + "-dimensional rows needs about " + std::to_string((need >> 20) + 1) +
+                              " MiB, more than --mem-limit (" + std::to_string(o.mem_limit >> 20) +
+                              " MiB); rerun with --mem-limit " + std::to_string((need >> 20) + 1) +
+                              "MiB, or fewer clusters or basis vectors");
   }
   Params pr;
   pr.k = k;
@@ -690,7 +689,8 @@ Result<CpcaResult> RunCpca(const CpcaOptions& o, const Progress& progress) {
     }
     if (!same) {
       if (!o.overwrite) {
-        return FailedPrecondition(o.output + ": exists and was not written by this cpca run (other input, "
+        return FailedPrecondition(o.output +
+                                  ": exists and was not written by this cpca run (other input, "
                                   "parameters, or not a cpca output); remove it, or rerun with --overwrite to "
                                   "replace it");
       }
@@ -788,7 +788,8 @@ Result<CpcaResult> RunCpca(const CpcaOptions& o, const Progress& progress) {
   ids.rows = n;
   ids.cols = 1;
   ids.layout = Layout::kRows;
-  ids.block = std::min(n, std::max<uint64_t>(kSubRows, (4ull << 20) / (std::max<uint64_t>(s, 1) * 4) / kSubRows * kSubRows));
+  ids.block =
+      std::min(n, std::max<uint64_t>(kSubRows, (4ull << 20) / (std::max<uint64_t>(s, 1) * 4) / kSubRows * kSubRows));
   ArraySpec wts = ids;
   wts.name = kCpcaWeightsArray;
   wts.dtype = DType::kF32;
@@ -815,8 +816,9 @@ Result<CpcaResult> RunCpca(const CpcaOptions& o, const Progress& progress) {
         {"vectors_array", kCpcaVectorsArray},
         {"id_array", kCpcaIdArray},
         {"weights_array", s > 0 ? nlohmann::json(kCpcaWeightsArray) : nlohmann::json(nullptr)},
-        {"decode", "row r = v[c·(S+1)] + Σ_i w[r,i]·v[c·(S+1)+1+i], c = cluster_id[r], v = cluster_vectors "
-                   "(docs/CPCA.md)"}}},
+        {"decode",
+         "row r = v[c·(S+1)] + Σ_i w[r,i]·v[c·(S+1)+1+i], c = cluster_id[r], v = cluster_vectors "
+         "(docs/CPCA.md)"}}},
       {"provenance", provenance}};
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;

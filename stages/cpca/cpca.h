@@ -24,9 +24,9 @@ namespace ltb::stages {
 struct CpcaOptions {
   std::string input;
   std::string output;
-  uint64_t clusters = 16;    // K
-  uint64_t basis = 8;        // S principal directions per cluster
-  uint64_t growth_step = 1;  // bases added per growth level (Sloan et al.: 1)
+  uint64_t clusters = 16;         // K
+  uint64_t basis = 8;             // S principal directions per cluster
+  uint64_t growth_step = 1;       // bases added per growth level (Sloan et al.: 1)
   uint64_t level_iterations = 2;  // passes per intermediate growth level
   uint64_t max_iterations = 30;   // cap on assignment/refit passes in total
   double tolerance = 1e-3;        // stop a level when the error improves by less (relative)
@@ -43,10 +43,10 @@ struct CpcaResult {
   uint64_t iterations = 0;        // assignment/refit passes over the data
   double relative_rms_error = 0;  // ‖X − X̂‖_F / ‖X‖_F of the stored (f32) approximation
   double squared_error = 0, squared_norm = 0;
-  uint64_t empty_clusters = 0;    // clusters without rows in the final assignment
+  uint64_t empty_clusters = 0;              // clusters without rows in the final assignment
   uint64_t model_bytes = 0, row_bytes = 0;  // stored payloads: means+bases, ids+weights
-  uint64_t memory_bytes = 0;      // the stage's estimated peak buffer memory
-  bool resumed = false;           // continued from a checkpoint or a partial output
+  uint64_t memory_bytes = 0;                // the stage's estimated peak buffer memory
+  bool resumed = false;                     // continued from a checkpoint or a partial output
   bool already_complete = false;
   uint64_t chunks_written = 0, chunks_already_committed = 0;
 };

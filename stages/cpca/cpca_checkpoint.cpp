@@ -36,8 +36,8 @@ Result<std::optional<CpcaCheckpoint>> ReadCpcaCheckpoint(const std::string& path
   LTB_ASSIGN_OR_RETURN(uint64_t size, f.Size());
   const uint64_t cap = 64 + (1ull << 20) + max_values * 8;
   if (size < 32 || size > cap) {
-    return DataLoss(path + ": checkpoint of " + std::to_string(size) + " bytes is outside 32.." +
-                    std::to_string(cap) + "; delete it to start the cpca run afresh");
+    return DataLoss(path + ": checkpoint of " + std::to_string(size) + " bytes is outside 32.." + std::to_string(cap) +
+                    "; delete it to start the cpca run afresh");
   }
   std::vector<std::byte> buf(size);
   LTB_RETURN_IF_ERROR(f.ReadAt(0, buf));

@@ -6,11 +6,10 @@
 // leaves the previous or the new checkpoint, never a torn one.
 #pragma once
 
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 #include "format/status.h"
 

@@ -30,9 +30,9 @@ Result<CpcaModel> CpcaModel::Load(const io::ContainerReader& in, uint64_t mem_li
   if (v.name != kCpcaVectorsArray || v.dtype != DType::kF32 || v.layout != Layout::kRows || m.k_ == 0 ||
       v.rows != m.k_ * (m.s_ + 1) || v.cols != m.d_) {
     return DataLoss(path + ": array 0 is \"" + v.name + "\" " + std::to_string(v.rows) + "x" + std::to_string(v.cols) +
-                    " " + DTypeName(v.dtype) + "; cpca metadata (K = " + std::to_string(m.k_) + ", S = " +
-                    std::to_string(m.s_) + ", D = " + std::to_string(m.d_) + ") needs \"" + kCpcaVectorsArray +
-                    "\" K·(S+1) x D f32 in row blocks");
+                    " " + DTypeName(v.dtype) + "; cpca metadata (K = " + std::to_string(m.k_) +
+                    ", S = " + std::to_string(m.s_) + ", D = " + std::to_string(m.d_) + ") needs \"" +
+                    kCpcaVectorsArray + "\" K·(S+1) x D f32 in row blocks");
   }
   m.id_array_ = meta.FindArray(kCpcaIdArray);
   if (m.id_array_ < 0) return DataLoss(path + ": has no \"" + std::string(kCpcaIdArray) + "\" array");

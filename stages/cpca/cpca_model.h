@@ -74,7 +74,9 @@ class CpcaRelighter {
   static Result<CpcaRelighter> Load(const std::string& path, uint64_t mem_limit);
   uint64_t rows() const { return model_.rows(); }
   const CpcaModel& model() const { return model_; }
-  uint64_t bytes() const { return ids_.size() * 4 + weights_.size() * 4 + model_.clusters() * (model_.basis() + 1) * model_.dims() * 4; }
+  uint64_t bytes() const {
+    return ids_.size() * 4 + weights_.size() * 4 + model_.clusters() * (model_.basis() + 1) * model_.dims() * 4;
+  }
   // out: rows × 3.
   void Relight(const float* lighting, float* out_rgb) const;
   // The same from a sparse set of lighting terms (columns and RGB weights).

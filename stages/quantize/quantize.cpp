@@ -146,10 +146,12 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
   LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(o.input));
   const Metadata& meta = in.metadata();
   if (meta.json.contains("quantization")) {
-    return FailedPrecondition(o.input + ": is already quantized; quantize takes the output of `ltbake column-transform`");
+    return FailedPrecondition(o.input +
+                              ": is already quantized; quantize takes the output of `ltbake column-transform`");
   }
   if (!ColumnCodec::IsColumnTransformed(meta)) {
-    return FailedPrecondition(o.input + ": is not a column-transform output; run `ltbake column-transform` first "
+    return FailedPrecondition(o.input +
+                              ": is not a column-transform output; run `ltbake column-transform` first "
                               "(after `ltbake transpose`)");
   }
   LTB_RETURN_IF_ERROR(RequireCompleteF32Matrix(in));
@@ -159,8 +161,7 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
 
   const Scaling scaling = step_mode ? Scaling::kNorm : o.level_scaling ? Scaling::kNormLevel : Scaling::kNone;
   // The codec of the input knows no quantization; the factors of this run's scaling:
-  const auto factors = QuantizationFactors(codec.filter(), codec.width(), codec.height(), codec.max_depth(),
-                                           scaling);
+  const auto factors = QuantizationFactors(codec.filter(), codec.width(), codec.height(), codec.max_depth(), scaling);
   // --error-ratio: the step from the input's totals (its column_stats), then refined on the
   // coefficients themselves (N·Δ²/12 holds only while Δ is small beside them).
   double step = 0;
@@ -195,8 +196,8 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
                               {"seed", o.seed},
                               {"scale_array", kScaleArray},
                               {"decode", "v = q / (2^(bits-1) - 1) * scale / factor (docs/COLUMN-TRANSFORM.md)"}};
-  nlohmann::json params = {{"bits", o.bits}, {"scaling", ScalingName(scaling)}, {"dither", o.dither},
-                           {"seed", o.seed}, {"zstd", o.zstd}};
+  nlohmann::json params = {
+      {"bits", o.bits}, {"scaling", ScalingName(scaling)}, {"dither", o.dither}, {"seed", o.seed}, {"zstd", o.zstd}};
   if (step_mode) {
     out_meta["quantization"]["error_ratio"] = o.error_ratio;
     out_meta["quantization"]["step"] = step;
@@ -282,8 +283,7 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
       LTB_RETURN_IF_ERROR(out.Put(0, c, BytesOf(dense), eo));
     }
     if (!out.Has(scale_array, c)) {
-      LTB_RETURN_IF_ERROR(
-          out.Put(scale_array, c, BytesOf(scales), side));
+      LTB_RETURN_IF_ERROR(out.Put(scale_array, c, BytesOf(scales), side));
     }
     written++;
     return Status::Ok();

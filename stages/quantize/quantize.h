@@ -25,7 +25,6 @@
 #include <string>
 
 #include "format/io/manifest.h"
-
 #include "format/progress.h"
 #include "format/status.h"
 
@@ -64,7 +63,8 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
 
 // The quantization of one value v (already scaled by 2^l) of a column with maximum
 // magnitude m > 0: exposed for tests.
-int32_t QuantizeValue(double v, double m, double levels, bool dither, uint64_t seed, uint64_t column, uint32_t position);
+int32_t QuantizeValue(double v, double m, double levels, bool dither, uint64_t seed, uint64_t column,
+                      uint32_t position);
 
 // The step of --error-ratio R for N kept coefficients with truncation error E and energy
 // `energy` (a lossless input, E = 0, takes E = 1e-10 · energy: RMS 1e-5 of the signal).

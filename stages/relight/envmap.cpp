@@ -1,5 +1,10 @@
 #include "stages/relight/envmap.h"
 
+#include <OpenEXR/ImfChannelList.h>
+#include <OpenEXR/ImfFrameBuffer.h>
+#include <OpenEXR/ImfHeader.h>
+#include <OpenEXR/ImfInputFile.h>
+#include <OpenEXR/ImfRgbaFile.h>
 #include <sys/mman.h>
 
 #include <algorithm>
@@ -10,16 +15,10 @@
 #include <cstdlib>
 #include <cstring>
 #include <exception>
+#include <glm/geometric.hpp>
 #include <limits>
 #include <memory>
 #include <numbers>
-
-#include <OpenEXR/ImfChannelList.h>
-#include <OpenEXR/ImfFrameBuffer.h>
-#include <OpenEXR/ImfHeader.h>
-#include <OpenEXR/ImfInputFile.h>
-#include <OpenEXR/ImfRgbaFile.h>
-#include <glm/geometric.hpp>
 
 #include "format/io/atomic_file.h"
 #include "format/io/file.h"
@@ -265,7 +264,8 @@ Result<Image> ReadHdr(const std::string& path, const std::vector<uint8_t>& buf, 
   };
   for (uint64_t y = 0; y < img.height; ++y) {
     if (y % kRowsPerPoll == 0 && o.progress.Cancelled()) {
-      return Cancelled(path + ": interrupted while decoding scanline " + std::to_string(y) + " of " + std::to_string(h));
+      return Cancelled(path + ": interrupted while decoding scanline " + std::to_string(y) + " of " +
+                       std::to_string(h));
     }
     if (pos + 4 > size) return truncated(y);
     const uint8_t* b = &buf[pos];
@@ -357,8 +357,8 @@ Result<Image> ReadExr(const std::string& path, const EnvLoadOptions& o) {
     const Imath::Box2i dw = header.dataWindow();
     const int64_t w = int64_t(dw.max.x) - dw.min.x + 1, h = int64_t(dw.max.y) - dw.min.y + 1;
     uint64_t pixels = 0;
-    const std::string window = "data window (" + std::to_string(dw.min.x) + ", " + std::to_string(dw.min.y) +
-                               ") - (" + std::to_string(dw.max.x) + ", " + std::to_string(dw.max.y) + ")";
+    const std::string window = "data window (" + std::to_string(dw.min.x) + ", " + std::to_string(dw.min.y) + ") - (" +
+                               std::to_string(dw.max.x) + ", " + std::to_string(dw.max.y) + ")";
     if (w <= 0 || h <= 0 || format::MulOverflows(uint64_t(w), uint64_t(h), &pixels) || pixels > kMaxPixels) {
       return InvalidArgument(path + ": OpenEXR " + window + " is " + std::to_string(w) + "x" + std::to_string(h) +
                              ", empty or beyond " + std::to_string(kMaxPixels) + " pixels (16384 x 16384)");
@@ -367,18 +367,27 @@ Result<Image> ReadExr(const std::string& path, const EnvLoadOptions& o) {
     // the whole window: a window patched larger than the data fails here, before the pixels
     // are allocated.
     if (!file.isComplete()) {
-      return DataLoss(path + ": OpenEXR file is incomplete: its chunks do not cover the " + window + " (" +
-                      Size(w, h) + "); the file is truncated or its data window is damaged");
+      return DataLoss(path + ": OpenEXR file is incomplete: its chunks do not cover the " + window + " (" + Size(w, h) +
+                      "); the file is truncated or its data window is damaged");
     }
     Image img;
     img.width = w;
     img.height = h;
     switch (header.compression()) {
-      case Imf::DWAA_COMPRESSION: img.compression = "DWAA"; break;
-      case Imf::DWAB_COMPRESSION: img.compression = "DWAB"; break;
-      case Imf::B44_COMPRESSION: img.compression = "B44"; break;
-      case Imf::B44A_COMPRESSION: img.compression = "B44A"; break;
-      default: break;
+      case Imf::DWAA_COMPRESSION:
+        img.compression = "DWAA";
+        break;
+      case Imf::DWAB_COMPRESSION:
+        img.compression = "DWAB";
+        break;
+      case Imf::B44_COMPRESSION:
+        img.compression = "B44";
+        break;
+      case Imf::B44A_COMPRESSION:
+        img.compression = "B44A";
+        break;
+      default:
+        break;
     }
     img.lossy = !img.compression.empty();
     const Imf::ChannelList& channels = header.channels();
@@ -491,8 +500,8 @@ Status CheckExrLayout(const std::string& path, int part, const ExrLayout& l, uin
   if (!l.has_window || !l.has_channels) return Status::Ok();  // OpenEXR refuses the header itself
   const int64_t w = int64_t(l.window[2]) - l.window[0] + 1, h = int64_t(l.window[3]) - l.window[1] + 1;
   if (w <= 0 || h <= 0) return Status::Ok();  // refused with the window's values by ReadExr
-  const std::string where = path + ": OpenEXR part " + std::to_string(part) + " (data window " +
-                            std::to_string(w) + "x" + std::to_string(h) + ", ";
+  const std::string where = path + ": OpenEXR part " + std::to_string(part) + " (data window " + std::to_string(w) +
+                            "x" + std::to_string(h) + ", ";
   // Chunks, each with an 8-byte entry in the offset table that follows the header(s).
   double chunks = 0, block = 0;
   if (l.tiled) {
@@ -518,7 +527,7 @@ Status CheckExrLayout(const std::string& path, int part, const ExrLayout& l, uin
   if (need > double(cap)) {
     const std::string unit = need > 3 * block ? "row of luminance-chroma pixels (about 32 lines of RGBA)"
                              : l.tiled        ? "tile of " + std::to_string(l.tile_x) + "x" + std::to_string(l.tile_y)
-                                              : "block of " + std::to_string(ExrLinesPerChunk(l.compression)) + " lines";
+                                       : "block of " + std::to_string(ExrLinesPerChunk(l.compression)) + " lines";
     return InvalidArgument(where + std::to_string(l.bytes_per_pixel) + " bytes per pixel): OpenEXR would need " +
                            MiB(need) + " to decode one " + unit + ", beyond " +
                            (cap == max_bytes ? "the memory limit of " + MiB(cap) + " (--mem-limit)"
@@ -545,7 +554,8 @@ Status CheckExrHeaderSizes(const std::string& path, io::File& f, uint64_t size, 
   const uint64_t cap = std::min<uint64_t>(size, uint64_t(64) << 20);  // headers are small
   std::vector<uint8_t> b(cap);
   LTB_RETURN_IF_ERROR(f.ReadAt(0, format::MutableByteSpan(reinterpret_cast<std::byte*>(b.data()), cap)));
-  if (cap < 8) return DataLoss(path + ": OpenEXR file ends inside its version field (" + std::to_string(size) + " bytes)");
+  if (cap < 8)
+    return DataLoss(path + ": OpenEXR file ends inside its version field (" + std::to_string(size) + " bytes)");
   const uint32_t version = uint32_t(b[4]) | uint32_t(b[5]) << 8 | uint32_t(b[6]) << 16 | uint32_t(b[7]) << 24;
   const bool multipart = (version & 0x1000u) != 0;
   const size_t max_name = (version & 0x400u) ? 255 : 31;
@@ -588,11 +598,26 @@ Status CheckExrHeaderSizes(const std::string& path, io::File& f, uint64_t size, 
       }
       // OpenEXR reads the types it knows by their own layout, not by the size field: a size
       // that disagrees would make its reading and this walk part ways (exr_fuzzer).
-      static const std::pair<const char*, int32_t> kFixed[] = {
-          {"box2i", 16}, {"box2f", 16}, {"int", 4}, {"float", 4}, {"double", 8}, {"v2i", 8}, {"v2f", 8},
-          {"v3i", 12}, {"v3f", 12}, {"compression", 1}, {"lineOrder", 1}, {"envmap", 1}, {"rational", 8},
-          {"timecode", 8}, {"keycode", 28}, {"tiledesc", 9}, {"m33f", 36}, {"m44f", 64}, {"chromaticities", 32},
-          {"deepImageState", 1}};
+      static const std::pair<const char*, int32_t> kFixed[] = {{"box2i", 16},
+                                                               {"box2f", 16},
+                                                               {"int", 4},
+                                                               {"float", 4},
+                                                               {"double", 8},
+                                                               {"v2i", 8},
+                                                               {"v2f", 8},
+                                                               {"v3i", 12},
+                                                               {"v3f", 12},
+                                                               {"compression", 1},
+                                                               {"lineOrder", 1},
+                                                               {"envmap", 1},
+                                                               {"rational", 8},
+                                                               {"timecode", 8},
+                                                               {"keycode", 28},
+                                                               {"tiledesc", 9},
+                                                               {"m33f", 36},
+                                                               {"m44f", 64},
+                                                               {"chromaticities", 32},
+                                                               {"deepImageState", 1}};
       for (const auto& [t, want] : kFixed) {
         if (type == t && n != want) {
           return DataLoss(path + ": OpenEXR header attribute \"" + name + "\" of type " + type + " at byte " +
@@ -661,8 +686,7 @@ Result<Image> ReadImage(const std::string& path, const EnvLoadOptions& o) {
       return ReadExr(path, o);
     }
     if (size < 2 || magic[0] != std::byte{'#'} || magic[1] != std::byte{'?'}) {
-      std::string what =
-          size == 0 ? "the file is empty" : "it has neither the OpenEXR magic (76 2f 31 01) nor \"#?\"";
+      std::string what = size == 0 ? "the file is empty" : "it has neither the OpenEXR magic (76 2f 31 01) nor \"#?\"";
       return InvalidArgument(path + ": not an OpenEXR (.exr) or Radiance (.hdr) image: " + what);
     }
   }
@@ -699,7 +723,7 @@ int CrossFace(EnvLayout layout, uint64_t col, uint64_t row) {
 glm::dvec3 AngularDirection(double u, double v) {
   const double r = std::sqrt(u * u + v * v);
   const double s = r > 0 ? std::sin(kPi * r) / r : kPi;  // sin(πr)/r → π at the centre
-  return {std::cos(kPi * r), -u * s, v * s};  // forward +X, right −Y, up +Z
+  return {std::cos(kPi * r), -u * s, v * s};             // forward +X, right −Y, up +Z
 }
 
 // The pixel (x, y) of a W×W angular map holding direction d.
@@ -808,9 +832,10 @@ std::string AcceptedLayouts(uint64_t w, uint64_t h) {
       "accepted: lat-long width = 2·height (e.g. 2048x1024), horizontal cross 4:3 (4F x 3F), vertical cross "
       "3:4 (3F x 4F), or six square face files through a {face} path (px nx py ny pz nz)";
   if (w == h) {
-    return s + ". A square map is usually an angular (light-probe) map: say so with --env-layout angular; a "
-               "mirror-ball map ltbake does not read: resample it to lat-long first (--env-layout latlong would read "
-               "either, wrongly)";
+    return s +
+           ". A square map is usually an angular (light-probe) map: say so with --env-layout angular; a "
+           "mirror-ball map ltbake does not read: resample it to lat-long first (--env-layout latlong would read "
+           "either, wrongly)";
   }
   return s + "; --env-layout latlong reads a lat-long map of any other size";
 }
@@ -826,7 +851,8 @@ Result<EnvMap> LoadFaces(const std::string& path, const EnvLoadOptions& o) {
     // Faces after the first share the memory limit with the six-face map already allocated.
     EnvLoadOptions face_options = o;
     if (f > 0 && o.max_bytes != 0) {
-      face_options.max_bytes = std::max<uint64_t>(1, o.max_bytes - std::min(o.max_bytes, env.rgb.size() * sizeof(float)));
+      face_options.max_bytes =
+          std::max<uint64_t>(1, o.max_bytes - std::min(o.max_bytes, env.rgb.size() * sizeof(float)));
     }
     LTB_ASSIGN_OR_RETURN(Image img, ReadImage(p, face_options));
     if (img.width != img.height) {
@@ -852,20 +878,25 @@ Result<EnvMap> LoadFaces(const std::string& path, const EnvLoadOptions& o) {
 
 const char* EnvLayoutName(EnvLayout layout) {
   switch (layout) {
-    case EnvLayout::kAuto: return "auto";
-    case EnvLayout::kLatLong: return "latlong";
-    case EnvLayout::kHCross: return "hcross";
-    case EnvLayout::kVCross: return "vcross";
-    case EnvLayout::kFaces: return "faces";
-    case EnvLayout::kAngular: return "angular";
+    case EnvLayout::kAuto:
+      return "auto";
+    case EnvLayout::kLatLong:
+      return "latlong";
+    case EnvLayout::kHCross:
+      return "hcross";
+    case EnvLayout::kVCross:
+      return "vcross";
+    case EnvLayout::kFaces:
+      return "faces";
+    case EnvLayout::kAngular:
+      return "angular";
   }
   return "?";
 }
 
 Result<EnvLayout> ParseEnvLayout(const std::string& name) {
-  for (EnvLayout l :
-       {EnvLayout::kAuto, EnvLayout::kLatLong, EnvLayout::kHCross, EnvLayout::kVCross, EnvLayout::kFaces,
-        EnvLayout::kAngular}) {
+  for (EnvLayout l : {EnvLayout::kAuto, EnvLayout::kLatLong, EnvLayout::kHCross, EnvLayout::kVCross, EnvLayout::kFaces,
+                      EnvLayout::kAngular}) {
     if (name == EnvLayoutName(l)) return l;
   }
   return InvalidArgument("environment layout \"" + name +
@@ -1052,8 +1083,8 @@ Result<CubemapResampler> CubemapResampler::CreateUnchecked(const EnvMap& env, ui
   // Polled every few rows of each pass (a huge source or R = 512 takes seconds).
   auto cancelled = [&](uint64_t i, const char* pass) -> Status {
     if (i % kRowsPerPoll != 0 || !progress.Cancelled()) return Status::Ok();
-    return Cancelled(env.path + ": interrupted while resampling to the R = " + std::to_string(R) + " cubemap (" +
-                     pass + ")");
+    return Cancelled(env.path + ": interrupted while resampling to the R = " + std::to_string(R) + " cubemap (" + pass +
+                     ")");
   };
   CubemapResampler rs;
   rs.r_ = R;

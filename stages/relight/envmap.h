@@ -5,13 +5,12 @@
 #pragma once
 
 #include <cstdint>
+#include <glm/vec3.hpp>
 #include <memory>
 #include <new>
 #include <string>
 #include <utility>
 #include <vector>
-
-#include <glm/vec3.hpp>
 
 #include "format/progress.h"
 #include "format/status.h"
@@ -65,8 +64,8 @@ struct EnvMap {
   // Source pixels. kFaces: F × 6F, the six F×F faces stacked top to bottom in ltbake face
   // order (+X, −X, +Y, −Y, +Z, −Z), each in the face's (s right, t down) orientation.
   uint64_t width = 0, height = 0;
-  PixelBuffer rgb;         // width·height·3, row-major, row 0 = top
-  uint64_t clamped = 0;    // values fixed by EnvLoadOptions::clamp (negative, NaN, Inf)
+  PixelBuffer rgb;       // width·height·3, row-major, row 0 = top
+  uint64_t clamped = 0;  // values fixed by EnvLoadOptions::clamp (negative, NaN, Inf)
   std::string path;
 };
 

@@ -49,7 +49,8 @@ Status WritePng(const std::string& tmp, const float* rgb, uint64_t w, uint64_t h
   const uint64_t n = w * h;
   if (exposure <= 0) {
     std::vector<float> lum(n);
-    for (uint64_t i = 0; i < n; ++i) lum[i] = 0.2126f * rgb[i * 3] + 0.7152f * rgb[i * 3 + 1] + 0.0722f * rgb[i * 3 + 2];
+    for (uint64_t i = 0; i < n; ++i)
+      lum[i] = 0.2126f * rgb[i * 3] + 0.7152f * rgb[i * 3 + 1] + 0.0722f * rgb[i * 3 + 2];
     auto k = lum.begin() + static_cast<std::ptrdiff_t>(std::min<uint64_t>(n - 1, n * 99 / 100));
     std::nth_element(lum.begin(), k, lum.end());
     exposure = *k > 0 ? 0.9 / *k : 1.0;
@@ -58,7 +59,8 @@ Status WritePng(const std::string& tmp, const float* rgb, uint64_t w, uint64_t h
   for (uint64_t i = 0; i < n * 3; ++i) {
     px[i] = static_cast<uint8_t>(std::lround(255.0 * SrgbEncode(exposure * rgb[i])));
   }
-  if (stbi_write_png(tmp.c_str(), static_cast<int>(w), static_cast<int>(h), 3, px.data(), static_cast<int>(w * 3)) == 0) {
+  if (stbi_write_png(tmp.c_str(), static_cast<int>(w), static_cast<int>(h), 3, px.data(), static_cast<int>(w * 3)) ==
+      0) {
     return IoError(tmp + ": writing the PNG failed", errno);
   }
   return Status::Ok();
@@ -87,8 +89,9 @@ Status WriteImage(const std::string& path, const float* rgb, uint64_t rows, uint
   // syncs its data through the AtomicFile's descriptor).
   LTB_ASSIGN_OR_RETURN(io::AtomicFile f, io::AtomicFile::Create(path));
   const std::string& tmp = f.temp_path();
-  LTB_RETURN_IF_ERROR(exr ? WriteExr(tmp, rgb, width, height)
-                          : png ? WritePng(tmp, rgb, width, height, options.exposure) : WriteNpy(f.file(), rgb, rows));
+  LTB_RETURN_IF_ERROR(exr   ? WriteExr(tmp, rgb, width, height)
+                      : png ? WritePng(tmp, rgb, width, height, options.exposure)
+                            : WriteNpy(f.file(), rgb, rows));
   return f.Commit();
 }
 

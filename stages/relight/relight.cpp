@@ -27,13 +27,15 @@ Result<Weighting> ParseWeighting(const std::string& name) {
 
 const char* WeightingName(Weighting w) {
   switch (w) {
-    case Weighting::kArea: return "area";
-    case Weighting::kTransport: return "transport";
-    case Weighting::kNone: return "none";
+    case Weighting::kArea:
+      return "area";
+    case Weighting::kTransport:
+      return "transport";
+    case Weighting::kNone:
+      return "none";
   }
   return "?";
 }
-
 
 namespace {
 
@@ -102,8 +104,9 @@ Status LightingBasis::SelectTerms(const float* lighting, uint64_t terms, Weighti
   out->rgb.clear();
   const uint64_t cols = area_.size();
   if (weighting == Weighting::kTransport && column_norms.size() != cols) {
-    return FailedPrecondition("--weighting transport needs the norms of the matrix's columns (relight from a "
-                              "column-block matrix: final.ltm, cols4d.ltm or cols.ltm)");
+    return FailedPrecondition(
+        "--weighting transport needs the norms of the matrix's columns (relight from a "
+        "column-block matrix: final.ltm, cols4d.ltm or cols.ltm)");
   }
   std::vector<std::pair<double, uint32_t>> cand;
   cand.reserve(cols);
@@ -141,7 +144,8 @@ Result<Relighter> Relighter::Load(const std::string& path, uint64_t mem_limit, c
     return FailedPrecondition(path + ": is incomplete; finish the stage that writes it first (rerun it to resume)");
   }
   if (a.layout != Layout::kCols) {
-    return FailedPrecondition(path + ": is stored in row blocks; the fast relighter reads column blocks (final.ltm, "
+    return FailedPrecondition(path +
+                              ": is stored in row blocks; the fast relighter reads column blocks (final.ltm, "
                               "cols4d.ltm or cols.ltm)");
   }
   Relighter r;
@@ -168,7 +172,8 @@ Result<Relighter> Relighter::Load(const std::string& path, uint64_t mem_limit, c
   r.col_ptr_.assign(a.cols + 1, 0);
   const uint64_t pixels = a.rows;
   int stats_array = -1;
-  if (codec) stats_array = meta.FindArray(meta.json["column_transform"].value("stats_array", std::string("column_stats")));
+  if (codec)
+    stats_array = meta.FindArray(meta.json["column_transform"].value("stats_array", std::string("column_stats")));
 
   for (uint64_t c = 0; c < a.ChunkCount(); ++c) {
     if (progress.Cancelled()) return Cancelled("interrupted while loading " + path);
@@ -222,10 +227,11 @@ Result<Relighter> Relighter::Load(const std::string& path, uint64_t mem_limit, c
       }
       r.col_ptr_[j + 1] = r.values_.size();
       if (r.values_.size() * 8 > mem_limit) {
-        return FailedPrecondition(path + ": its nonzeros need more than --mem-limit (" + std::to_string(mem_limit >> 20) +
-                                  " MiB) in memory (8 bytes each; " + std::to_string(r.values_.size()) +
-                                  " by column " + std::to_string(j) + " of " + std::to_string(a.cols) +
-                                  "); raise --mem-limit, compress it further, or relight the row-block matrix (streamed)");
+        return FailedPrecondition(
+            path + ": its nonzeros need more than --mem-limit (" + std::to_string(mem_limit >> 20) +
+            " MiB) in memory (8 bytes each; " + std::to_string(r.values_.size()) + " by column " + std::to_string(j) +
+            " of " + std::to_string(a.cols) +
+            "); raise --mem-limit, compress it further, or relight the row-block matrix (streamed)");
       }
       // ‖T_j‖ in the image: the column's recorded energy, else (plain columns, or depth 0
       // where coefficients are pixels) its values' energy.
@@ -262,8 +268,7 @@ void Relighter::Relight(const LightTerms& terms, float* out) {
       }
     }
     if (d > 0) {  // Eq. 8: one single-step inverse column transform, depth d -> d - 1
-      wavelet::SynthesisStep2D(col_filter_, out, width_, 3, bands_[d - 1].width, bands_[d - 1].height,
-                               scratch_.data());
+      wavelet::SynthesisStep2D(col_filter_, out, width_, 3, bands_[d - 1].width, bands_[d - 1].height, scratch_.data());
     }
   }
 }
@@ -359,8 +364,8 @@ Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t r) {
   std::vector<std::byte> raw(std::min(n * 3, per_strip) * h->itemsize);
   for (uint64_t first = 0; first < n * 3; first += per_strip) {
     const uint64_t count = std::min(per_strip, n * 3 - first);
-    LTB_RETURN_IF_ERROR(f.ReadAt(h->data_offset + first * h->itemsize,
-                                 format::MutableByteSpan(raw.data(), count * h->itemsize)));
+    LTB_RETURN_IF_ERROR(
+        f.ReadAt(h->data_offset + first * h->itemsize, format::MutableByteSpan(raw.data(), count * h->itemsize)));
     for (uint64_t k = 0; k < count; ++k) {
       double v;
       if (h->itemsize == 4) {
@@ -399,7 +404,9 @@ ImageErrors CompareImages(const float* image, const float* ref, uint64_t rows, u
       for (uint64_t x = 0; x < width; ++x)
         for (int c = 0; c < 3; ++c) {
           uint64_t i = (y * width + x) * 3 + c;
-          auto diff = [&](uint64_t j) { return (static_cast<double>(image[j]) - ref[j]) - (static_cast<double>(image[i]) - ref[i]); };
+          auto diff = [&](uint64_t j) {
+            return (static_cast<double>(image[j]) - ref[j]) - (static_cast<double>(image[i]) - ref[i]);
+          };
           auto rdiff = [&](uint64_t j) { return static_cast<double>(ref[j]) - ref[i]; };
           if (x + 1 < width) {
             double a = diff(i + 3), b = rdiff(i + 3);
@@ -426,8 +433,8 @@ Result<std::vector<uint8_t>> ReadRowMask(const io::ContainerReader& in) {
   const ArraySpec& s = meta.arrays[m];
   const uint64_t rows = meta.matrix().rows;
   if (s.dtype != DType::kU8 || s.cols != 1 || s.rows != rows || s.layout != Layout::kRows) {
-    return DataLoss(path + ": side table \"mask\" is " + std::to_string(s.rows) + " x " + std::to_string(s.cols) +
-                    " " + DTypeName(s.dtype) + ", not one u8 per row of the " + std::to_string(rows) + "-row matrix");
+    return DataLoss(path + ": side table \"mask\" is " + std::to_string(s.rows) + " x " + std::to_string(s.cols) + " " +
+                    DTypeName(s.dtype) + ", not one u8 per row of the " + std::to_string(rows) + "-row matrix");
   }
   mask.reserve(rows);
   for (uint64_t c = 0; c < s.ChunkCount(); ++c) {

@@ -51,8 +51,8 @@ class LightingBasis {
   void ToPixels(float* cubemap) const;
   // The N-term approximation of lighting already in this basis. `column_norms` (‖T_j‖)
   // is needed for Weighting::kTransport only.
-  Status SelectTerms(const float* lighting, uint64_t terms, Weighting weighting, const std::vector<double>& column_norms,
-                     LightTerms* out) const;
+  Status SelectTerms(const float* lighting, uint64_t terms, Weighting weighting,
+                     const std::vector<double>& column_norms, LightTerms* out) const;
 
  private:
   uint64_t cube_res_ = 0;
@@ -125,8 +125,8 @@ Result<std::vector<uint8_t>> ReadRowMask(const io::ContainerReader& in);
 // negative radiance (the same ringing, or an approximated lighting's negative lobes) is
 // clamped to 0. `mask` is empty or one entry per row.
 struct OutputFixes {
-  uint64_t masked_rows = 0;      // rows set to 0 by the mask (whatever they held)
-  uint64_t clamped_values = 0;   // negative values set to 0
+  uint64_t masked_rows = 0;     // rows set to 0 by the mask (whatever they held)
+  uint64_t clamped_values = 0;  // negative values set to 0
 };
 OutputFixes FinishRelitImage(const std::vector<uint8_t>& mask, bool keep_negative, std::vector<float>* image);
 

@@ -63,9 +63,10 @@ Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progre
   eo.layout = o.env_layout;
   eo.max_bytes = o.mem_limit;  // the map's pixels (and an .hdr's bytes) within --mem-limit
   eo.progress = progress;
-  const nlohmann::json terms_json = o.terms == RelightOptions::kAllTerms ? nlohmann::json("all") : nlohmann::json(o.terms);
-  nlohmann::json report = {{"matrix", o.matrix}, {"env", o.env}, {"terms", terms_json},
-                           {"weighting", WeightingName(o.weighting)}};
+  const nlohmann::json terms_json =
+      o.terms == RelightOptions::kAllTerms ? nlohmann::json("all") : nlohmann::json(o.terms);
+  nlohmann::json report = {
+      {"matrix", o.matrix}, {"env", o.env}, {"terms", terms_json}, {"weighting", WeightingName(o.weighting)}};
 
   auto t0 = Clock::now();
   LTB_ASSIGN_OR_RETURN(io::ContainerReader reader, io::ContainerReader::Open(o.matrix));
@@ -174,7 +175,7 @@ Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progre
     }
     std::sort(ms.begin(), ms.end());
     double median = ms[ms.size() / 2];
-    report["frames"] = {{"count", o.frames},   {"median_ms", median},     {"fps", 1000.0 / median},
+    report["frames"] = {{"count", o.frames},    {"median_ms", median}, {"fps", 1000.0 / median},
                         {"min_ms", ms.front()}, {"max_ms", ms.back()}, {"rotates", env.rotates()}};
   }
 

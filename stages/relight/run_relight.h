@@ -9,9 +9,8 @@
 
 #include <cstdint>
 #include <limits>
-#include <string>
-
 #include <nlohmann/json.hpp>
+#include <string>
 
 #include "format/progress.h"
 #include "format/status.h"
@@ -27,10 +26,10 @@ struct RelightOptions {
   static constexpr uint64_t kAllTerms = std::numeric_limits<uint64_t>::max();
   uint64_t terms = 100;  // ≥ 1; kAllTerms keeps every nonzero coefficient
   Weighting weighting = Weighting::kArea;
-  std::string reference;  // uncompressed matrix for the error metrics (empty: none)
-  int frames = 0;         // timing frames, the environment rotating once about +Z
-  double rotate_deg = 0;  // rotation of the environment about +Z for the written image
-  double exposure = 0;    // PNG exposure (0: automatic)
+  std::string reference;       // uncompressed matrix for the error metrics (empty: none)
+  int frames = 0;              // timing frames, the environment rotating once about +Z
+  double rotate_deg = 0;       // rotation of the environment about +Z for the written image
+  double exposure = 0;         // PNG exposure (0: automatic)
   bool keep_negative = false;  // --no-clamp-output
   EnvLayout env_layout = EnvLayout::kAuto;
   bool clamp_env = false;

@@ -122,8 +122,8 @@ void TransformRowBlockLanes(wavelet::Filter filter, uint64_t r, float* data, uin
                             uint64_t* zero_rows) {
   const uint64_t cols = 6 * r * r;
   const int depth = wavelet::MaxDepth(r, r);
-  float* lanes = scratch;                       // [column][lane]
-  float* work = scratch + cols * kLanes;        // wavelet scratch
+  float* lanes = scratch;                 // [column][lane]
+  float* work = scratch + cols * kLanes;  // wavelet scratch
   std::vector<uint64_t> batch;
   batch.reserve(kLanes);
   uint64_t next = 0;
@@ -188,10 +188,11 @@ Result<RowTransformResult> RunRowTransform(const RowTransformOptions& o, const P
   auto cube = ReadCubemapCols(meta);
   if (!cube.ok()) return cube.status().WithContext(o.input);
   if (!cube->has_value()) {
-    return FailedPrecondition(o.input + ": its columns are not declared a cubemap (basis.cols is " +
-                              meta.json.value("basis", nlohmann::json::object()).value("cols", nlohmann::json()).dump() +
-                              "); row-transform needs pixel-basis cubemap columns: produce the matrix with `ltbake sample` "
-                              "or declare it with `ltbake convert IN.npy OUT.ltm --cube-res R`");
+    return FailedPrecondition(
+        o.input + ": its columns are not declared a cubemap (basis.cols is " +
+        meta.json.value("basis", nlohmann::json::object()).value("cols", nlohmann::json()).dump() +
+        "); row-transform needs pixel-basis cubemap columns: produce the matrix with `ltbake sample` "
+        "or declare it with `ltbake convert IN.npy OUT.ltm --cube-res R`");
   }
   const CubemapCols& cc = **cube;
   if (cc.basis == "wavelet") {
@@ -202,7 +203,8 @@ Result<RowTransformResult> RunRowTransform(const RowTransformOptions& o, const P
     return FailedPrecondition(o.input + ": columns are in basis \"" + cc.basis + "\"; row-transform needs \"pixel\"");
   }
   if (a.layout != Layout::kRows) {
-    return FailedPrecondition(o.input + ": is stored in column blocks; row-transform needs row blocks — run it "
+    return FailedPrecondition(o.input +
+                              ": is stored in column blocks; row-transform needs row blocks — run it "
                               "before `ltbake transpose`, on the output of `ltbake sample`");
   }
   LTB_RETURN_IF_ERROR(RequireCompleteF32Matrix(in));
@@ -259,7 +261,8 @@ Result<RowTransformResult> RunRowTransform(const RowTransformOptions& o, const P
     // Straight from the mapped chunk into the output buffer: no copy first.
     TransformRows(o.filter, cc.cube_res, values.data(), buf.data(), chunk.extent().rows, scratch.data(), &zr);
     zero_rows += zr;
-    LTB_RETURN_IF_ERROR(out.Put(0, it.chunk, ByteSpan(reinterpret_cast<const std::byte*>(buf.data()), buf.size() * 4), eo));
+    LTB_RETURN_IF_ERROR(
+        out.Put(0, it.chunk, ByteSpan(reinterpret_cast<const std::byte*>(buf.data()), buf.size() * 4), eo));
     written++;
     return Status::Ok();
   });

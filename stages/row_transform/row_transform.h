@@ -7,7 +7,6 @@
 #include <string>
 
 #include "format/io/manifest.h"
-
 #include "format/progress.h"
 #include "format/status.h"
 #include "stages/wavelet/wavelet.h"
@@ -30,10 +29,10 @@ struct RowTransformOptions {
 struct RowTransformResult {
   uint64_t rows = 0, cube_res = 0;
   uint64_t chunks_total = 0, chunks_written = 0, chunks_already_committed = 0;
-  uint64_t zero_chunks = 0;  // all-zero input chunks, passed through without work
-  uint64_t zero_rows = 0;    // all-zero rows inside other chunks, skipped
-  uint64_t bytes_direct = 0;        // output payload bytes written with O_DIRECT
-  std::string direct_fallback;      // why direct writes were off or stopped, if asked for
+  uint64_t zero_chunks = 0;     // all-zero input chunks, passed through without work
+  uint64_t zero_rows = 0;       // all-zero rows inside other chunks, skipped
+  uint64_t bytes_direct = 0;    // output payload bytes written with O_DIRECT
+  std::string direct_fallback;  // why direct writes were off or stopped, if asked for
 };
 
 Result<RowTransformResult> RunRowTransform(const RowTransformOptions& options, const Progress& progress);

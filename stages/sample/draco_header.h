@@ -19,10 +19,10 @@ namespace ltb::sample {
 
 struct DracoCounts {
   int version_major = 0, version_minor = 0;
-  int method = 0;              // 0 sequential, 1 edgebreaker
-  uint32_t faces = 0;          // declared faces
-  uint32_t vertices = 0;       // declared points (sequential) or encoded vertices (edgebreaker)
-  uint32_t extra_vertices = 0; // edgebreaker: split symbols (and new vertices before 2.2)
+  int method = 0;               // 0 sequential, 1 edgebreaker
+  uint32_t faces = 0;           // declared faces
+  uint32_t vertices = 0;        // declared points (sequential) or encoded vertices (edgebreaker)
+  uint32_t extra_vertices = 0;  // edgebreaker: split symbols (and new vertices before 2.2)
 };
 
 // The counts, or nullopt when the bytes end or are not a mesh before the counts: libdraco

@@ -1,13 +1,13 @@
 #include "stages/sample/geometry.h"
 
+#include <draco/compression/decode.h>
+
 #include <cerrno>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
-
-#include <draco/compression/decode.h>
 #include <glm/geometric.hpp>
 #include <glm/gtc/matrix_transform.hpp>
 
@@ -38,21 +38,29 @@ Result<TriangleMesh> LoadDraco(const std::string& path) {
   if (!f) return NotFound(path + ": cannot open mesh file");
   std::vector<char> data((std::istreambuf_iterator<char>(f)), {});
   // libdraco sizes its tables by the header's counts before it decodes anything.
-  LTB_RETURN_IF_ERROR(CheckDracoCounts(
-      path, std::span(reinterpret_cast<const unsigned char*>(data.data()), data.size())));
+  LTB_RETURN_IF_ERROR(
+      CheckDracoCounts(path, std::span(reinterpret_cast<const unsigned char*>(data.data()), data.size())));
   draco::DecoderBuffer buffer;
   buffer.Init(data.data(), data.size());
   draco::Decoder decoder;
   auto decoded = decoder.DecodeMeshFromBuffer(&buffer);
-  if (!decoded.ok()) return InvalidArgument(path + ": not a readable Draco mesh: " + decoded.status().error_msg_string());
+  if (!decoded.ok())
+    return InvalidArgument(path + ": not a readable Draco mesh: " + decoded.status().error_msg_string());
   std::unique_ptr<draco::Mesh> mesh = std::move(decoded).value();
   const draco::PointAttribute* pos = mesh->GetNamedAttribute(draco::GeometryAttribute::POSITION);
   if (pos == nullptr) return InvalidArgument(path + ": Draco mesh has no position attribute");
   // Positions are numbers: a bool (or unknown) attribute type would be read through a bool
   // lvalue holding any byte (undefined behaviour, found by the fuzzer).
   switch (pos->data_type()) {
-    case draco::DT_FLOAT32: case draco::DT_FLOAT64: case draco::DT_INT8: case draco::DT_UINT8:
-    case draco::DT_INT16: case draco::DT_UINT16: case draco::DT_INT32: case draco::DT_UINT32: break;
+    case draco::DT_FLOAT32:
+    case draco::DT_FLOAT64:
+    case draco::DT_INT8:
+    case draco::DT_UINT8:
+    case draco::DT_INT16:
+    case draco::DT_UINT16:
+    case draco::DT_INT32:
+    case draco::DT_UINT32:
+      break;
     default:
       return InvalidArgument(path + ": Draco mesh position attribute has data type " +
                              std::to_string(static_cast<int>(pos->data_type())) +
@@ -110,8 +118,9 @@ Result<TriangleMesh> LoadMeshFile(const std::string& path, const Progress& progr
   Finalize(&m);
   if (m.triangles.empty()) {
     return InvalidArgument(path + ": the mesh holds no triangles" +
-                           (m.degenerate_dropped ? " (" + std::to_string(m.degenerate_dropped) + " degenerate ones dropped)"
-                                                 : std::string()));
+                           (m.degenerate_dropped
+                                ? " (" + std::to_string(m.degenerate_dropped) + " degenerate ones dropped)"
+                                : std::string()));
   }
   return r;
 }

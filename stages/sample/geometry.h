@@ -4,11 +4,10 @@
 #pragma once
 
 #include <cstdint>
-#include <string>
-#include <vector>
-
 #include <glm/mat4x4.hpp>
 #include <glm/vec3.hpp>
+#include <string>
+#include <vector>
 
 #include "format/progress.h"
 #include "format/status.h"

@@ -49,8 +49,8 @@ void AddPolygon(const std::vector<uint32_t>& f, uint64_t face, std::vector<uint6
 }
 
 std::string VertexRange(uint64_t nv) {
-  return nv == 0 ? "the file declares no vertices" : "the file declares " + std::to_string(nv) + " vertices: 0.." +
-                                                          std::to_string(nv - 1);
+  return nv == 0 ? "the file declares no vertices"
+                 : "the file declares " + std::to_string(nv) + " vertices: 0.." + std::to_string(nv - 1);
 }
 
 }  // namespace
@@ -131,7 +131,8 @@ Status MeshInput::Fill(size_t want) {
   if (buf_.size() < want) buf_.resize(std::max(want, 2 * buf_.size()));
   data_ = buf_.data();
   while (end_ < want && base_ + end_ < size_) {
-    if (progress_ != nullptr && progress_->Cancelled()) return Cancelled(name_ + ": interrupted while reading the mesh");
+    if (progress_ != nullptr && progress_->Cancelled())
+      return Cancelled(name_ + ": interrupted while reading the mesh");
     size_t room = static_cast<size_t>(std::min<uint64_t>(buf_.size() - end_, size_ - (base_ + end_)));
     ssize_t n = ::read(fd_, buf_.data() + end_, room);
     if (n < 0) {
@@ -236,9 +237,11 @@ Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress) {
   if (k.substr(0, 1) == "C") k.remove_prefix(1);
   if (k.substr(0, 1) == "N") k.remove_prefix(1);
   if (k == "4OFF" || k == "nOFF" || k == "4nOFF") {
-    return InvalidArgument(at() + ": " + Quote(kw) + ": OFF with 4-D or n-D vertices is not supported; write x y z vertices");
+    return InvalidArgument(at() + ": " + Quote(kw) +
+                           ": OFF with 4-D or n-D vertices is not supported; write x y z vertices");
   }
-  if (k != "OFF") return InvalidArgument(at() + ": expected an OFF header (\"OFF\"), found " + Quote(kw) + "; not an OFF file");
+  if (k != "OFF")
+    return InvalidArgument(at() + ": expected an OFF header (\"OFF\"), found " + Quote(kw) + "; not an OFF file");
   std::string_view tok;
   std::vector<uint64_t> counts;
   bool more = tk.Next(&tok);
@@ -255,7 +258,8 @@ Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress) {
   while (more && counts.size() < 3) {
     uint64_t v;
     if (!ParseNumber(tok, &v)) {
-      return InvalidArgument(at() + ": count " + Quote(tok) + " is not a non-negative integer (expected \"vertices faces edges\")");
+      return InvalidArgument(at() + ": count " + Quote(tok) +
+                             " is not a non-negative integer (expected \"vertices faces edges\")");
     }
     counts.push_back(v);
     more = ct.Next(&tok);
@@ -272,9 +276,8 @@ Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress) {
   uint64_t need = 0;
   if (!MulAdd(nf, 2, nv * 6, &need) || need > in.remaining() + 1) {
     return DataLoss(at() + ": the header declares " + std::to_string(nv) + " vertices and " + std::to_string(nf) +
-                    " faces, which need at least " + Bytes(need) +
-                    " bytes, but only " + std::to_string(in.remaining()) +
-                    " follow the header (truncated, or a wrong count)");
+                    " faces, which need at least " + Bytes(need) + " bytes, but only " +
+                    std::to_string(in.remaining()) + " follow the header (truncated, or a wrong count)");
   }
   TriangleMesh m;
   m.positions.resize(nv);
@@ -289,10 +292,11 @@ Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress) {
     Tokens t{line};
     float p[3];
     for (int c = 0; c < 3; ++c) {
-      if (!t.Next(&tok)) return InvalidArgument(at() + ": vertex " + std::to_string(i) + " has fewer than 3 coordinates");
+      if (!t.Next(&tok))
+        return InvalidArgument(at() + ": vertex " + std::to_string(i) + " has fewer than 3 coordinates");
       if (!ParseNumber(tok, &p[c]) || !std::isfinite(p[c])) {
-        return InvalidArgument(at() + ": vertex " + std::to_string(i) + " coordinate " + std::to_string(c + 1) + " is " +
-                               Quote(tok) + ", not a finite number; fix or remove the vertex");
+        return InvalidArgument(at() + ": vertex " + std::to_string(i) + " coordinate " + std::to_string(c + 1) +
+                               " is " + Quote(tok) + ", not a finite number; fix or remove the vertex");
       }
     }
     m.positions[i] = {p[0], p[1], p[2]};
@@ -347,11 +351,11 @@ enum class PlyType { kInt8, kUint8, kInt16, kUint16, kInt32, kUint32, kFloat32, 
 
 bool ParsePlyType(std::string_view s, PlyType* t) {
   static const std::pair<const char*, PlyType> kNames[] = {
-      {"char", PlyType::kInt8},     {"int8", PlyType::kInt8},       {"uchar", PlyType::kUint8},
-      {"uint8", PlyType::kUint8},   {"short", PlyType::kInt16},     {"int16", PlyType::kInt16},
-      {"ushort", PlyType::kUint16}, {"uint16", PlyType::kUint16},   {"int", PlyType::kInt32},
-      {"int32", PlyType::kInt32},   {"uint", PlyType::kUint32},     {"uint32", PlyType::kUint32},
-      {"float", PlyType::kFloat32}, {"float32", PlyType::kFloat32}, {"double", PlyType::kFloat64},
+      {"char", PlyType::kInt8},      {"int8", PlyType::kInt8},       {"uchar", PlyType::kUint8},
+      {"uint8", PlyType::kUint8},    {"short", PlyType::kInt16},     {"int16", PlyType::kInt16},
+      {"ushort", PlyType::kUint16},  {"uint16", PlyType::kUint16},   {"int", PlyType::kInt32},
+      {"int32", PlyType::kInt32},    {"uint", PlyType::kUint32},     {"uint32", PlyType::kUint32},
+      {"float", PlyType::kFloat32},  {"float32", PlyType::kFloat32}, {"double", PlyType::kFloat64},
       {"float64", PlyType::kFloat64}};
   for (const auto& [n, v] : kNames) {
     if (s == n) {
@@ -364,10 +368,18 @@ bool ParsePlyType(std::string_view s, PlyType* t) {
 
 size_t TypeSize(PlyType t) {
   switch (t) {
-    case PlyType::kInt8: case PlyType::kUint8: return 1;
-    case PlyType::kInt16: case PlyType::kUint16: return 2;
-    case PlyType::kInt32: case PlyType::kUint32: case PlyType::kFloat32: return 4;
-    case PlyType::kFloat64: return 8;
+    case PlyType::kInt8:
+    case PlyType::kUint8:
+      return 1;
+    case PlyType::kInt16:
+    case PlyType::kUint16:
+      return 2;
+    case PlyType::kInt32:
+    case PlyType::kUint32:
+    case PlyType::kFloat32:
+      return 4;
+    case PlyType::kFloat64:
+      return 8;
   }
   return 8;
 }
@@ -411,7 +423,9 @@ class PlyBody {
           v->d = f;
           break;
         }
-        case PlyType::kFloat64: ok = ParseNumber(tok, &v->d); break;
+        case PlyType::kFloat64:
+          ok = ParseNumber(tok, &v->d);
+          break;
         default: {
           ok = ParseNumber(tok, &v->i) && InRange(t, v->i);
           v->d = static_cast<double>(v->i);
@@ -428,14 +442,46 @@ class PlyBody {
     LTB_RETURN_IF_ERROR(in_.Read(b, n, what));
     if (format_ == 2) std::reverse(b, b + n);  // big endian; this build runs little-endian
     switch (t) {
-      case PlyType::kInt8: v->i = static_cast<int8_t>(b[0]); break;
-      case PlyType::kUint8: v->i = b[0]; break;
-      case PlyType::kInt16: { int16_t x; std::memcpy(&x, b, 2); v->i = x; break; }
-      case PlyType::kUint16: { uint16_t x; std::memcpy(&x, b, 2); v->i = x; break; }
-      case PlyType::kInt32: { int32_t x; std::memcpy(&x, b, 4); v->i = x; break; }
-      case PlyType::kUint32: { uint32_t x; std::memcpy(&x, b, 4); v->i = x; break; }
-      case PlyType::kFloat32: { float x; std::memcpy(&x, b, 4); v->d = x; return Status::Ok(); }
-      case PlyType::kFloat64: { std::memcpy(&v->d, b, 8); return Status::Ok(); }
+      case PlyType::kInt8:
+        v->i = static_cast<int8_t>(b[0]);
+        break;
+      case PlyType::kUint8:
+        v->i = b[0];
+        break;
+      case PlyType::kInt16: {
+        int16_t x;
+        std::memcpy(&x, b, 2);
+        v->i = x;
+        break;
+      }
+      case PlyType::kUint16: {
+        uint16_t x;
+        std::memcpy(&x, b, 2);
+        v->i = x;
+        break;
+      }
+      case PlyType::kInt32: {
+        int32_t x;
+        std::memcpy(&x, b, 4);
+        v->i = x;
+        break;
+      }
+      case PlyType::kUint32: {
+        uint32_t x;
+        std::memcpy(&x, b, 4);
+        v->i = x;
+        break;
+      }
+      case PlyType::kFloat32: {
+        float x;
+        std::memcpy(&x, b, 4);
+        v->d = x;
+        return Status::Ok();
+      }
+      case PlyType::kFloat64: {
+        std::memcpy(&v->d, b, 8);
+        return Status::Ok();
+      }
     }
     v->d = static_cast<double>(v->i);
     return Status::Ok();
@@ -457,19 +503,28 @@ class PlyBody {
   }
 
   std::string Where() const {
-    return format_ == 0 ? in_.name() + ":" + std::to_string(in_.line()) : in_.name() + " (byte " + std::to_string(in_.consumed()) + ")";
+    return format_ == 0 ? in_.name() + ":" + std::to_string(in_.line())
+                        : in_.name() + " (byte " + std::to_string(in_.consumed()) + ")";
   }
 
   static const char* TypeName(PlyType t) {
     switch (t) {
-      case PlyType::kInt8: return "char";
-      case PlyType::kUint8: return "uchar";
-      case PlyType::kInt16: return "short";
-      case PlyType::kUint16: return "ushort";
-      case PlyType::kInt32: return "int";
-      case PlyType::kUint32: return "uint";
-      case PlyType::kFloat32: return "float";
-      case PlyType::kFloat64: return "double";
+      case PlyType::kInt8:
+        return "char";
+      case PlyType::kUint8:
+        return "uchar";
+      case PlyType::kInt16:
+        return "short";
+      case PlyType::kUint16:
+        return "ushort";
+      case PlyType::kInt32:
+        return "int";
+      case PlyType::kUint32:
+        return "uint";
+      case PlyType::kFloat32:
+        return "float";
+      case PlyType::kFloat64:
+        return "double";
     }
     return "?";
   }
@@ -477,13 +532,20 @@ class PlyBody {
  private:
   static bool InRange(PlyType t, int64_t v) {
     switch (t) {
-      case PlyType::kInt8: return v >= -128 && v <= 127;
-      case PlyType::kUint8: return v >= 0 && v <= 255;
-      case PlyType::kInt16: return v >= -32768 && v <= 32767;
-      case PlyType::kUint16: return v >= 0 && v <= 65535;
-      case PlyType::kInt32: return v >= INT32_MIN && v <= INT32_MAX;
-      case PlyType::kUint32: return v >= 0 && v <= int64_t{UINT32_MAX};
-      default: return true;
+      case PlyType::kInt8:
+        return v >= -128 && v <= 127;
+      case PlyType::kUint8:
+        return v >= 0 && v <= 255;
+      case PlyType::kInt16:
+        return v >= -32768 && v <= 32767;
+      case PlyType::kUint16:
+        return v >= 0 && v <= 65535;
+      case PlyType::kInt32:
+        return v >= INT32_MIN && v <= INT32_MAX;
+      case PlyType::kUint32:
+        return v >= 0 && v <= int64_t{UINT32_MAX};
+      default:
+        return true;
     }
   }
 
@@ -492,7 +554,8 @@ class PlyBody {
       std::string_view line;
       LTB_ASSIGN_OR_RETURN(bool have, in_.NextLine(&line));
       if (!have) {
-        return DataLoss(in_.name() + ": the file ends before " + what + " (truncated, or a count in the header is wrong)");
+        return DataLoss(in_.name() + ": the file ends before " + what +
+                        " (truncated, or a count in the header is wrong)");
       }
       tokens_ = Tokens{line};
     }
@@ -524,9 +587,12 @@ Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress) {
     if (kw == "comment" || kw == "obj_info") continue;
     if (kw == "format") {
       t.Next(&a);
-      if (a == "ascii") format = 0;
-      else if (a == "binary_little_endian") format = 1;
-      else if (a == "binary_big_endian") format = 2;
+      if (a == "ascii")
+        format = 0;
+      else if (a == "binary_little_endian")
+        format = 1;
+      else if (a == "binary_big_endian")
+        format = 2;
       else {
         return InvalidArgument(at() + ": format " + Quote(a) +
                                " (expected ascii, binary_little_endian or binary_big_endian)");
@@ -548,15 +614,18 @@ Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress) {
       if (a == "list") {
         p.list = true;
         if (!t.Next(&b) || !t.Next(&c) || !t.Next(&d) || !ParsePlyType(b, &p.count_type) || !ParsePlyType(c, &p.type)) {
-          return InvalidArgument(at() + ": expected \"property list COUNT_TYPE ITEM_TYPE NAME\" with PLY types, found " +
-                                 Quote(line));
+          return InvalidArgument(
+              at() + ": expected \"property list COUNT_TYPE ITEM_TYPE NAME\" with PLY types, found " + Quote(line));
         }
-        if (IsFloat(p.count_type)) return InvalidArgument(at() + ": a list count must have an integer type, not " + Quote(b));
+        if (IsFloat(p.count_type))
+          return InvalidArgument(at() + ": a list count must have an integer type, not " + Quote(b));
         p.name = std::string(d);
       } else {
         if (!ParsePlyType(a, &p.type) || !t.Next(&b)) {
-          return InvalidArgument(at() + ": expected \"property TYPE NAME\" with a PLY type (char, uchar, short, ushort, "
-                                 "int, uint, float, double), found " + Quote(line));
+          return InvalidArgument(at() +
+                                 ": expected \"property TYPE NAME\" with a PLY type (char, uchar, short, ushort, "
+                                 "int, uint, float, double), found " +
+                                 Quote(line));
         }
         p.name = std::string(b);
       }
@@ -620,8 +689,7 @@ Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress) {
   if (need > in.remaining() + (format == 0 ? 1 : 0)) {
     std::string list;
     for (const PlyElement& e : elements) list += (list.empty() ? "" : ", ") + std::to_string(e.count) + " " + e.name;
-    return DataLoss(name + ": the header declares " + list + " elements, which need at least " +
-                    Bytes(need) +
+    return DataLoss(name + ": the header declares " + list + " elements, which need at least " + Bytes(need) +
                     " bytes, but only " + std::to_string(in.remaining()) +
                     " follow the header (truncated, or a wrong count)");
   }
@@ -637,12 +705,14 @@ Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress) {
     if (e.props.empty()) continue;  // nothing to read, however many it declares
     const bool is_vertex = &e == vertex, is_face = &e == face;
     for (uint64_t i = 0; i < e.count; ++i) {
-      if ((i & 0xFFFF) == 0xFFFF && progress.Cancelled()) return Cancelled(name + ": interrupted while reading the mesh");
+      if ((i & 0xFFFF) == 0xFFFF && progress.Cancelled())
+        return Cancelled(name + ": interrupted while reading the mesh");
       double xyz[3] = {0, 0, 0};
       for (const PlyProperty& p : e.props) {
         if (!p.list) {
           if (p.role >= 0 || format == 0) {
-            LTB_RETURN_IF_ERROR(body.Value(p.type, e.name + " " + std::to_string(i) + " property \"" + p.name + "\"", &v));
+            LTB_RETURN_IF_ERROR(
+                body.Value(p.type, e.name + " " + std::to_string(i) + " property \"" + p.name + "\"", &v));
             if (p.role >= 0) xyz[p.role] = v.d;
           } else {
             LTB_RETURN_IF_ERROR(in.Read(nullptr, TypeSize(p.type), e.name + " " + std::to_string(i)));
@@ -666,10 +736,12 @@ Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress) {
         }
         indices.clear();
         for (uint64_t j = 0; j < n; ++j) {
-          LTB_RETURN_IF_ERROR(body.Value(p.type, "face " + std::to_string(i) + " vertex index " + std::to_string(j), &v));
+          LTB_RETURN_IF_ERROR(
+              body.Value(p.type, "face " + std::to_string(i) + " vertex index " + std::to_string(j), &v));
           if (v.i < 0 || static_cast<uint64_t>(v.i) >= nv) {
-            return InvalidArgument(body.Where() + ": face " + std::to_string(i) + ": vertex index " + std::to_string(v.i) +
-                                   " is out of range (" + VertexRange(nv) + "); fix the face or the vertex count");
+            return InvalidArgument(body.Where() + ": face " + std::to_string(i) + ": vertex index " +
+                                   std::to_string(v.i) + " is out of range (" + VertexRange(nv) +
+                                   "); fix the face or the vertex count");
           }
           indices.push_back(static_cast<uint32_t>(v.i));
         }

@@ -1,9 +1,9 @@
 // Our own mesh readers for OFF (ASCII), PLY (ascii, binary_little_endian,
 // binary_big_endian), OBJ (obj_reader.cpp) and STL (binary and ASCII, stl_reader.cpp):
-// one pass over the bytes, memory bounded by what the file can hold (declared counts are checked against its length before anything is reserved), strict
-// (an out-of-range vertex index, a truncated body or a non-finite coordinate is an error
-// naming the file, the line or element and the value) and interruptible (every 1 MiB read
-// asks Progress::Cancelled). docs/SCENE.md "Mesh files" states what they accept.
+// one pass over the bytes, memory bounded by what the file can hold (declared counts are checked against its length
+// before anything is reserved), strict (an out-of-range vertex index, a truncated body or a non-finite coordinate is an
+// error naming the file, the line or element and the value) and interruptible (every 1 MiB read asks
+// Progress::Cancelled). docs/SCENE.md "Mesh files" states what they accept.
 #pragma once
 
 #include <cstdint>

@@ -140,8 +140,8 @@ Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress) {
                                " is malformed (expected i, i/t, i//n or i/t/n with integer i, t, n)");
       }
       if (!ParseNumber(parts[0], &v)) {
-        return InvalidArgument(at() + ": " + which() + ": vertex index " + Quote(parts[0]) +
-                               " is not an integer (in " + Quote(tok) + ")");
+        return InvalidArgument(at() + ": " + which() + ": vertex index " + Quote(parts[0]) + " is not an integer (in " +
+                               Quote(tok) + ")");
       }
       // Positive: 1-based; negative: counted back from the last vertex read so far.
       const uint64_t back = v < 0 ? uint64_t{0} - static_cast<uint64_t>(v) : 0;

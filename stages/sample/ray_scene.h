@@ -6,11 +6,10 @@
 
 #include <embree3/rtcore.h>
 
+#include <glm/vec3.hpp>
 #include <memory>
 #include <mutex>
 #include <vector>
-
-#include <glm/vec3.hpp>
 
 #include "format/progress.h"
 #include "format/status.h"

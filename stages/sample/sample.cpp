@@ -1,6 +1,5 @@
 #include "stages/sample/sample.h"
 
-
 #include <algorithm>
 #include <atomic>
 #include <bit>
@@ -8,11 +7,10 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
-#include <limits>
-#include <vector>
-
 #include <glm/geometric.hpp>
 #include <glm/trigonometric.hpp>
+#include <limits>
+#include <vector>
 
 #include "format/io/container_writer.h"
 #include "format/version.h"
@@ -28,12 +26,12 @@
 namespace ltb::stages {
 
 using namespace ltb::format;
+using sample::BuildGeometry;
+using sample::Geometry;
 using sample::Material;
 using sample::Object;
-using sample::SceneDesc;
-using sample::Geometry;
 using sample::RowPoint;
-using sample::BuildGeometry;
+using sample::SceneDesc;
 
 namespace {
 
@@ -61,7 +59,7 @@ struct Rng {
 
 struct TexelInfo {
   int face;
-  double u0, v0;  // lower corner in face coordinates
+  double u0, v0;       // lower corner in face coordinates
   glm::dvec3 a, b, c;  // the face as an affine map: FaceDirection(face, u, v) = a + u·b + v·c
   glm::dvec3 centre;
   double cos_limit;  // skip the texel when n·centre < cos_limit (wholly below the horizon)
@@ -114,7 +112,7 @@ struct Brdf {
   double diffuse;  // albedo / π
   double ks_norm;  // ks (n+2) / (2π), 0 when not glossy
   double exponent;
-  glm::dvec3 reflect;  // mirror direction of the view
+  glm::dvec3 reflect;     // mirror direction of the view
   int int_exponent = -1;  // exponent when it is a whole number up to 4096, else -1
   double Eval(const glm::dvec3& w) const {
     double f = diffuse;
@@ -525,7 +523,8 @@ Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress
   p->bounces = o.bounces.value_or(p->scene.bounces);
   p->seed = o.seed.value_or(p->scene.seed);
   if (!IsPowerOfTwo(p->r) || p->r > 1024) {
-    return InvalidArgument("cube resolution " + std::to_string(p->r) + " is not a power of two in 1..1024 (--cube-res)");
+    return InvalidArgument("cube resolution " + std::to_string(p->r) +
+                           " is not a power of two in 1..1024 (--cube-res)");
   }
   if (p->spp == 0) return InvalidArgument("--spp must be at least 1");
   LTB_ASSIGN_OR_RETURN(p->geo, BuildGeometry(p->scene, progress));
@@ -602,7 +601,10 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
       scene.mode == SceneDesc::Mode::kImage
           ? ImageRows(scene.camera.width, scene.camera.height)
           : nlohmann::json{{"kind", "vertices"}, {"count", rows}, {"objects", scene.vertex_objects}};
-  nlohmann::json params = {{"cube_res", r}, {"spp", spp}, {"bounces", bounces}, {"seed", seed},
+  nlohmann::json params = {{"cube_res", r},
+                           {"spp", spp},
+                           {"bounces", bounces},
+                           {"seed", seed},
                            {"scene", std::filesystem::path(o.scene).filename().string()},
                            {"scene_hash", geo.scene_hash}};
   nlohmann::json cols_basis = PixelCubemapCols(r);
@@ -614,8 +616,9 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
     params["row_zstd"] = o.row_zstd;
   }
   nlohmann::json meta = {
-      {"arrays", {spec("matrix", DType::kF32, cols), spec("mask", DType::kU8, 1), spec("position", DType::kF32, 3),
-                  spec("normal", DType::kF32, 3)}},
+      {"arrays",
+       {spec("matrix", DType::kF32, cols), spec("mask", DType::kU8, 1), spec("position", DType::kF32, 3),
+        spec("normal", DType::kF32, 3)}},
       {"basis", {{"rows", rows_basis}, {"cols", cols_basis}}},
       {"provenance", Provenance(stage, params, {})},
   };
@@ -648,48 +651,49 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   // Progress in rays; the total is extrapolated from the rays per row seen so far.
   const uint64_t rows_todo = std::min(rows, todo.size() * block);
   std::atomic<uint64_t> rows_done{0};
-  Status s = ParallelFor(todo, o.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
-                         [&](uint64_t chunk) -> Status {
-    uint64_t r0 = chunk * block, n = std::min(block, rows - r0);
-    thread_local RowScratch sc;
-    std::vector<float> mat(n * cols, 0.0f), pos(n * 3, 0.0f), nor(n * 3, 0.0f);
-    std::vector<uint8_t> mask(n, 0);
-    for (uint64_t i = 0; i < n; ++i) {
-      if (progress.Cancelled()) return Cancelled("interrupted; committed chunks are kept, rerun to resume");
-      uint64_t done_rows = rows_done.fetch_add(1) + 1;
-      RowPoint rp = sampler.Primary(r0 + i);
-      if (!rp.valid) continue;  // sees no geometry: an all-zero row, mask 0
-      mask[i] = 1;
-      valid++;
-      for (int k = 0; k < 3; ++k) {
-        pos[3 * i + k] = static_cast<float>(rp.p[k]);
-        nor[3 * i + k] = static_cast<float>(rp.n[k]);
-      }
-      sampler.Transport(r0 + i, rp, mat.data() + i * cols, sc, cnt);
-      uint64_t rays = cnt.rays.load();
-      uint64_t estimate = std::max(rays, static_cast<uint64_t>(static_cast<double>(rays) / done_rows * rows_todo));
-      progress.Report(rays, done_rows >= rows_todo ? rays : estimate, "rays");
-    }
-    LTB_RETURN_IF_ERROR(geo.rays->error());
-    EncodeOptions matrix_encoding;
-    if (o.row_filter) {  // fused row-transform: exactly what RunRowTransform does to this block
-      thread_local std::vector<float> scratch;
-      scratch.resize(RowBlockScratchSize(r));
-      uint64_t zero_rows = 0;
-      TransformRowBlock(*o.row_filter, r, mat.data(), n, scratch.data(), &zero_rows);
-      matrix_encoding.zstd = o.row_zstd;
-    }
-    auto bytes = [](const auto& v) {
-      return ByteSpan(reinterpret_cast<const std::byte*>(v.data()), v.size() * sizeof(v[0]));
-    };
-    const ByteSpan parts[4] = {bytes(mat), bytes(mask), bytes(pos), bytes(nor)};
-    for (uint32_t a = 0; a < 4; ++a) {
-      if (out.Has(a, chunk)) continue;
-      LTB_RETURN_IF_ERROR(out.Put(a, chunk, parts[a], a == 0 ? matrix_encoding : EncodeOptions{}));
-      written++;
-    }
-    return Status::Ok();
-  });
+  Status s = ParallelFor(
+      todo, o.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
+      [&](uint64_t chunk) -> Status {
+        uint64_t r0 = chunk * block, n = std::min(block, rows - r0);
+        thread_local RowScratch sc;
+        std::vector<float> mat(n * cols, 0.0f), pos(n * 3, 0.0f), nor(n * 3, 0.0f);
+        std::vector<uint8_t> mask(n, 0);
+        for (uint64_t i = 0; i < n; ++i) {
+          if (progress.Cancelled()) return Cancelled("interrupted; committed chunks are kept, rerun to resume");
+          uint64_t done_rows = rows_done.fetch_add(1) + 1;
+          RowPoint rp = sampler.Primary(r0 + i);
+          if (!rp.valid) continue;  // sees no geometry: an all-zero row, mask 0
+          mask[i] = 1;
+          valid++;
+          for (int k = 0; k < 3; ++k) {
+            pos[3 * i + k] = static_cast<float>(rp.p[k]);
+            nor[3 * i + k] = static_cast<float>(rp.n[k]);
+          }
+          sampler.Transport(r0 + i, rp, mat.data() + i * cols, sc, cnt);
+          uint64_t rays = cnt.rays.load();
+          uint64_t estimate = std::max(rays, static_cast<uint64_t>(static_cast<double>(rays) / done_rows * rows_todo));
+          progress.Report(rays, done_rows >= rows_todo ? rays : estimate, "rays");
+        }
+        LTB_RETURN_IF_ERROR(geo.rays->error());
+        EncodeOptions matrix_encoding;
+        if (o.row_filter) {  // fused row-transform: exactly what RunRowTransform does to this block
+          thread_local std::vector<float> scratch;
+          scratch.resize(RowBlockScratchSize(r));
+          uint64_t zero_rows = 0;
+          TransformRowBlock(*o.row_filter, r, mat.data(), n, scratch.data(), &zero_rows);
+          matrix_encoding.zstd = o.row_zstd;
+        }
+        auto bytes = [](const auto& v) {
+          return ByteSpan(reinterpret_cast<const std::byte*>(v.data()), v.size() * sizeof(v[0]));
+        };
+        const ByteSpan parts[4] = {bytes(mat), bytes(mask), bytes(pos), bytes(nor)};
+        for (uint32_t a = 0; a < 4; ++a) {
+          if (out.Has(a, chunk)) continue;
+          LTB_RETURN_IF_ERROR(out.Put(a, chunk, parts[a], a == 0 ? matrix_encoding : EncodeOptions{}));
+          written++;
+        }
+        return Status::Ok();
+      });
   result.chunks_written = written;
   result.rays = cnt.rays;
   result.texels_below_horizon = cnt.below;

@@ -8,7 +8,6 @@
 #include <string>
 
 #include "format/io/manifest.h"
-
 #include "format/progress.h"
 #include "format/status.h"
 #include "stages/wavelet/wavelet.h"
@@ -37,9 +36,9 @@ struct SampleResult {
   uint64_t rows = 0, valid_rows = 0;  // rows that see geometry (image) or all vertices
   uint32_t cube_res = 0, spp = 0, bounces = 0;
   uint64_t chunks_total = 0, chunks_written = 0, chunks_already_committed = 0;
-  uint64_t rays = 0;                  // occlusion + bounce rays traced by this run
-  uint64_t texels_below_horizon = 0;  // (row, texel) pairs skipped without tracing
-  uint64_t samples_below_horizon = 0; // samples in partly visible texels that needed no ray
+  uint64_t rays = 0;                   // occlusion + bounce rays traced by this run
+  uint64_t texels_below_horizon = 0;   // (row, texel) pairs skipped without tracing
+  uint64_t samples_below_horizon = 0;  // samples in partly visible texels that needed no ray
   uint64_t degenerate_triangles = 0;
   double seconds = 0;
 };

@@ -1,14 +1,14 @@
 #include "stages/sample/scene.h"
 
+#include <toml++/toml.h>
+
 #include <bit>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <glm/geometric.hpp>
 #include <map>
 #include <set>
-
-#include <glm/geometric.hpp>
-#include <toml++/toml.h>
 
 #include "stages/common/toml_fields.h"
 
@@ -41,14 +41,15 @@ Status CheckCamera(const std::string& path, const toml::table& cam, const Camera
   }
   const double up = glm::length(c.up);
   if (!(up > 0) || !std::isfinite(up)) {
-    return InvalidArgument(where("up") + "up is " + FormatVec3(c.up) + "; it must be a non-zero vector, not parallel to the "
+    return InvalidArgument(where("up") + "up is " + FormatVec3(c.up) +
+                           "; it must be a non-zero vector, not parallel to the "
                            "view direction (e.g. [0, 0, 1])");
   }
   const glm::dvec3 f = d / len;
   const double s = glm::length(glm::cross(f, c.up / up));  // sine of the angle between them
   if (!(s > 1e-6)) {
-    return InvalidArgument(where("up") + "up " + FormatVec3(c.up) + " is parallel to the view direction " + FormatVec3(f) +
-                           " (from eye to target); choose an up that is not");
+    return InvalidArgument(where("up") + "up " + FormatVec3(c.up) + " is parallel to the view direction " +
+                           FormatVec3(f) + " (from eye to target); choose an up that is not");
   }
   for (const auto& [key, v] : {std::pair{"eye", c.eye}, std::pair{"target", c.target}}) {
     for (int i = 0; i < 3; ++i) {
@@ -68,14 +69,16 @@ Result<glm::dvec3> GetVec3(const std::string& path, const toml::table& t, const 
   if (allow_scalar) {
     if (auto s = n->value<double>()) {
       if (!std::isfinite(*s)) {
-        return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + tomlf::ValueText(*n) + "; it must be a finite number or [x, y, z]");
+        return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + tomlf::ValueText(*n) +
+                               "; it must be a finite number or [x, y, z]");
       }
       return glm::dvec3(*s);
     }
   }
   const toml::array* a = n->as_array();
   if (a == nullptr || a->size() != 3) {
-    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be [x, y, z]" + (allow_scalar ? " or a number" : ""));
+    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be [x, y, z]" +
+                           (allow_scalar ? " or a number" : ""));
   }
   glm::dvec3 v;
   for (int i = 0; i < 3; ++i) {
@@ -83,7 +86,10 @@ Result<glm::dvec3> GetVec3(const std::string& path, const toml::table& t, const 
     if (!x) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must hold 3 numbers");
     if (!std::isfinite(*x)) {
       return InvalidArgument(Where(path, *n) + ": \"" + key + "\" element " + std::to_string(i + 1) + " is " +
-                             (std::isnan(*x) ? "nan" : *x > 0 ? "inf" : "-inf") + "; it must hold 3 finite numbers");
+                             (std::isnan(*x) ? "nan"
+                              : *x > 0       ? "inf"
+                                             : "-inf") +
+                             "; it must hold 3 finite numbers");
     }
     v[i] = *x;
   }
@@ -98,7 +104,6 @@ std::string FormatVec3(const glm::dvec3& v) {
   return b;
 }
 
-
 Result<SceneDesc> ParseScene(const std::string& path) {
   LTB_ASSIGN_OR_RETURN(toml::table root, tomlf::ParseFile(path, "scene file"));
   SceneDesc s;
@@ -108,9 +113,13 @@ Result<SceneDesc> ParseScene(const std::string& path) {
   if (const toml::table* out = root["output"].as_table()) {
     LTB_RETURN_IF_ERROR(CheckKeys(path, *out, "[output]", {"mode", "objects"}));
     LTB_ASSIGN_OR_RETURN(std::string mode, GetString(path, *out, "mode", "image"));
-    if (mode == "image") s.mode = SceneDesc::Mode::kImage;
-    else if (mode == "vertex") s.mode = SceneDesc::Mode::kVertex;
-    else return InvalidArgument(Where(path, *out->get("mode")) + ": mode is \"" + mode + "\" (expected \"image\" or \"vertex\")");
+    if (mode == "image")
+      s.mode = SceneDesc::Mode::kImage;
+    else if (mode == "vertex")
+      s.mode = SceneDesc::Mode::kVertex;
+    else
+      return InvalidArgument(Where(path, *out->get("mode")) + ": mode is \"" + mode +
+                             "\" (expected \"image\" or \"vertex\")");
     if (const toml::array* objs = (*out)["objects"].as_array()) {
       for (const auto& n : *objs) {
         auto name = n.value<std::string>();
@@ -202,7 +211,8 @@ Result<SceneDesc> ParseScene(const std::string& path) {
     }
     LTB_RETURN_IF_ERROR(CheckKeys(path, *o, "[[object]] (" + type + ") at line " + std::to_string(obj.line), keys));
     LTB_ASSIGN_OR_RETURN(obj.name, GetString(path, *o, "name", type + "@" + std::to_string(obj.line)));
-    if (!names.insert(obj.name).second) return InvalidArgument(Where(path, node) + ": object name \"" + obj.name + "\" used twice");
+    if (!names.insert(obj.name).second)
+      return InvalidArgument(Where(path, node) + ": object name \"" + obj.name + "\" used twice");
     LTB_ASSIGN_OR_RETURN(std::string mat, GetString(path, *o, "material", s.materials.front().name));
     auto mi = material_index.find(mat);
     if (mi == material_index.end() && !(material_index.empty() && mat == "default")) {
@@ -240,7 +250,8 @@ Result<SceneDesc> ParseScene(const std::string& path) {
         if (o.type == Object::Type::kMesh) s.vertex_objects.push_back(o.name);
     }
     for (const std::string& n : s.vertex_objects) {
-      if (names.count(n) == 0) return InvalidArgument(path + ": [output] objects names \"" + n + "\", which no [[object]] has");
+      if (names.count(n) == 0)
+        return InvalidArgument(path + ": [output] objects names \"" + n + "\", which no [[object]] has");
     }
     if (s.vertex_objects.empty()) return InvalidArgument(path + ": vertex mode needs [output] objects = [names]");
   }

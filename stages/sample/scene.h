@@ -4,10 +4,9 @@
 #pragma once
 
 #include <cstdint>
+#include <glm/vec3.hpp>
 #include <string>
 #include <vector>
-
-#include <glm/vec3.hpp>
 
 #include "format/status.h"
 
@@ -19,8 +18,8 @@ inline constexpr uint32_t kMaxCubeRes = 1024;
 
 struct Material {
   std::string name;
-  double albedo = 0.8;    // Lambertian reflectance, f = albedo / π
-  double ks = 0.0;        // normalised Phong lobe ks (n+2)/(2π) cos^n(r·ω); image mode only
+  double albedo = 0.8;  // Lambertian reflectance, f = albedo / π
+  double ks = 0.0;      // normalised Phong lobe ks (n+2)/(2π) cos^n(r·ω); image mode only
   double exponent = 20.0;
 };
 
@@ -32,14 +31,14 @@ struct Camera {
 
 struct Object {
   enum class Type { kPlane, kBox, kSphere, kMesh } type = Type::kPlane;
-  std::string name;        // for vertex mode and messages
-  std::string file;        // kMesh: absolute path (resolved against the scene file)
-  int material = 0;        // index into SceneDesc::materials
-  glm::dvec3 size{1, 1, 1};     // plane: size.x × size.y at z = 0; box: edge lengths
-  glm::dvec3 center{0, 0, 0};   // sphere centre, box centre
-  double radius = 0.5;          // sphere
+  std::string name;            // for vertex mode and messages
+  std::string file;            // kMesh: absolute path (resolved against the scene file)
+  int material = 0;            // index into SceneDesc::materials
+  glm::dvec3 size{1, 1, 1};    // plane: size.x × size.y at z = 0; box: edge lengths
+  glm::dvec3 center{0, 0, 0};  // sphere centre, box centre
+  double radius = 0.5;         // sphere
   glm::dvec3 translate{0, 0, 0}, rotate_degrees{0, 0, 0}, scale{1, 1, 1};
-  int line = 0;            // where it is defined, for messages
+  int line = 0;  // where it is defined, for messages
 };
 
 struct SceneDesc {

@@ -6,9 +6,8 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
-#include <limits>
-
 #include <glm/geometric.hpp>
+#include <limits>
 
 #include "format/version.h"
 #include "stages/sample/geometry.h"
@@ -59,7 +58,8 @@ Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
       if (!FloatFinite(c.x) || !FloatFinite(c.y) || !FloatFinite(c.z) || !FloatFinite(r) || !(r > 0)) {
         XXH3_freeState(st);
         return InvalidArgument(where + ": after its transform the sphere has centre " + FormatVec3(c) + " and radius " +
-                               std::to_string(r) + ", outside what single-precision ray tracing holds; reduce "
+                               std::to_string(r) +
+                               ", outside what single-precision ray tracing holds; reduce "
                                "\"scale\", \"translate\", \"center\" or \"radius\"");
       }
       LTB_RETURN_IF_ERROR(g.rays->AddSphere(c, r));

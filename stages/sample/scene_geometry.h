@@ -3,11 +3,10 @@
 #pragma once
 
 #include <cstdint>
+#include <glm/vec3.hpp>
 #include <memory>
 #include <string>
 #include <vector>
-
-#include <glm/vec3.hpp>
 
 #include "format/progress.h"
 #include "format/status.h"

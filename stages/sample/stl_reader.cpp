@@ -107,8 +107,7 @@ class StlText {
     std::string_view tok;
     LTB_ASSIGN_OR_RETURN(bool have, Next(&tok));
     if (!have) {
-      return DataLoss(in_.name() + ": the file ends " + where + ", before \"" + std::string(word) +
-                      "\" (truncated?)");
+      return DataLoss(in_.name() + ": the file ends " + where + ", before \"" + std::string(word) + "\" (truncated?)");
     }
     if (!SameWord(tok, word)) {
       return InvalidArgument(At() + ": expected \"" + std::string(word) + "\" " + where + ", found " + Quote(tok));
@@ -145,7 +144,8 @@ Result<TriangleMesh> ReadStlBinary(MeshInput& in, uint64_t n, const Progress& pr
                                  ", not a finite number; fix or remove the triangle");
         }
       }
-      if (merge.Full(m)) return InvalidArgument(name + ": more than " + std::to_string(kMaxVertices - 1) + " vertices; not supported");
+      if (merge.Full(m))
+        return InvalidArgument(name + ": more than " + std::to_string(kMaxVertices - 1) + " vertices; not supported");
       v[k] = merge.Id(p, &m);
     }
     AddTriangle(v, &m);
@@ -162,15 +162,19 @@ Result<TriangleMesh> ReadStlText(MeshInput& in, const Progress& progress) {
   VertexMerger merge;
   std::string_view tok;
   for (uint64_t facet = 0;;) {
-    if ((facet & 0xFFFF) == 0xFFFF && progress.Cancelled()) return Cancelled(name + ": interrupted while reading the mesh");
+    if ((facet & 0xFFFF) == 0xFFFF && progress.Cancelled())
+      return Cancelled(name + ": interrupted while reading the mesh");
     LTB_ASSIGN_OR_RETURN(bool have, s.Next(&tok));
-    if (!have) return DataLoss(name + ": the file ends after " + std::to_string(facet) + " facets, before \"endsolid\" (truncated?)");
+    if (!have)
+      return DataLoss(name + ": the file ends after " + std::to_string(facet) +
+                      " facets, before \"endsolid\" (truncated?)");
     if (SameWord(tok, "endsolid")) {
       s.SkipRestOfLine();
       LTB_ASSIGN_OR_RETURN(have, s.Next(&tok));
       if (!have) break;
       if (!SameWord(tok, "solid")) {
-        return InvalidArgument(s.At() + ": expected \"solid\" or the end of the file after \"endsolid\", found " + Quote(tok));
+        return InvalidArgument(s.At() + ": expected \"solid\" or the end of the file after \"endsolid\", found " +
+                               Quote(tok));
       }
       s.SkipRestOfLine();  // another solid follows
       continue;
@@ -199,7 +203,8 @@ Result<TriangleMesh> ReadStlText(MeshInput& in, const Progress& progress) {
                                  ", not a finite number; fix or remove the facet");
         }
       }
-      if (merge.Full(m)) return InvalidArgument(s.At() + ": more than " + std::to_string(kMaxVertices - 1) + " vertices; not supported");
+      if (merge.Full(m))
+        return InvalidArgument(s.At() + ": more than " + std::to_string(kMaxVertices - 1) + " vertices; not supported");
       v[k] = merge.Id(p, &m);
     }
     LTB_RETURN_IF_ERROR(s.Expect("endloop", where + " (a facet has exactly 3 vertices)"));

@@ -4,12 +4,12 @@
 
 #include <algorithm>
 #include <atomic>
+#include <condition_variable>
 #include <cstdio>
 #include <cstdlib>
-#include <memory>
-#include <condition_variable>
 #include <cstring>
 #include <deque>
+#include <memory>
 #include <mutex>
 #include <thread>
 #include <vector>
@@ -109,7 +109,8 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
   const Metadata& meta = in.metadata();
   const ArraySpec& a = meta.matrix();
   if (a.layout != Layout::kRows) {
-    return FailedPrecondition(o.input + ": is already stored in column blocks; transpose takes row blocks (the "
+    return FailedPrecondition(o.input +
+                              ": is already stored in column blocks; transpose takes row blocks (the "
                               "output of `ltbake row-transform`)");
   }
   LTB_RETURN_IF_ERROR(RequireCompleteF32Matrix(in));
@@ -130,9 +131,10 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
   if (panel_chunks == 0) {
     uint64_t need = kFixedOverhead + per_col * block;
     return InvalidArgument("--mem-limit " + std::to_string(o.mem_limit) + " bytes is too small: one output chunk of " +
-                           std::to_string(block) + " column(s) × " + std::to_string(rows) + " rows, double-buffered, "
-                           "needs at least " + std::to_string(need) + " bytes (" +
-                           std::to_string((need + (1 << 20) - 1) >> 20) + " MiB)");
+                           std::to_string(block) + " column(s) × " + std::to_string(rows) +
+                           " rows, double-buffered, "
+                           "needs at least " +
+                           std::to_string(need) + " bytes (" + std::to_string((need + (1 << 20) - 1) >> 20) + " MiB)");
   }
 
   ArraySpec out_spec = a;
@@ -169,7 +171,8 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
   // Panels: runs of consecutive missing output chunks, at most panel_chunks long.
   std::vector<Panel> panels;
   for (uint64_t c : out.Missing(0)) {
-    if (!panels.empty() && panels.back().first_chunk + panels.back().chunks == c && panels.back().chunks < panel_chunks) {
+    if (!panels.empty() && panels.back().first_chunk + panels.back().chunks == c &&
+        panels.back().chunks < panel_chunks) {
       panels.back().chunks++;
     } else {
       panels.push_back({c, 1, 0, 0});
@@ -194,7 +197,7 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
   for (int b = 0; b < (panels.size() > 1 ? 2 : 1); ++b) {
     if (!buffers[b].resize(panel_floats)) {
       return InvalidArgument("cannot allocate a panel buffer of " + std::to_string(panel_floats * 4) +
-                               " bytes; lower --mem-limit");
+                             " bytes; lower --mem-limit");
     }
   }
 
@@ -211,10 +214,10 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
       std::vector<std::byte> buf(piece);
       verify_status = ParallelFor(in_chunks, 1, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
                                   [&](uint64_t ci) -> Status {
-        LTB_RETURN_IF_ERROR(in.VerifyChunk(0, ci, buf));
-        verified += in.Find(0, ci)->header.payload_length;
-        return Status::Ok();
-      });
+                                    LTB_RETURN_IF_ERROR(in.VerifyChunk(0, ci, buf));
+                                    verified += in.Find(0, ci)->header.payload_length;
+                                    return Status::Ok();
+                                  });
       if (!verify_status.ok()) verify_failed = true;
     });
   }
@@ -260,51 +263,52 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
     }
     float* panel = buffers[slot].data();
     std::fill(panel, panel + p.cols * rows, 0.0f);
-    status = ParallelFor(in_chunks, jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
-                         [&](uint64_t ci) -> Status {
-      const IndexEntry* entry = in.Find(0, ci);
-      const io::File& in_file = in.Holder(0, ci).file();  // a manifest's chunks live in its shards
-      ChunkExtent e = a.Extent(ci);
-      thread_local std::vector<float> tile;
-      tile.resize(kTileRows * p.cols);
-      std::vector<std::byte> decoded;  // zstd chunks are decoded whole
-      const float* src = nullptr;
-      io::Chunk whole;
-      if (entry->header.encoding != static_cast<uint16_t>(Encoding::kRaw)) {  // zstd, sparse: decoded whole
-        LTB_ASSIGN_OR_RETURN(whole, in.ReadChunk(0, ci));
-        src = whole.as<float>().data();
-        bytes_read += entry->header.payload_length;
-      }
-      uint64_t payload = entry->frame_offset + kFrameHeaderSize;
-      if (src == nullptr) {
-        // Start the reads of this block's column range for every row at once, so the disk
-        // has them all queued instead of one small pread at a time (page cache, no RSS).
-        for (uint64_t r = 0; r < e.rows; ++r) {
-          ::posix_fadvise(in_file.fd(), static_cast<off_t>(payload + (r * cols + p.col0) * 4),
-                          static_cast<off_t>(p.cols * 4), POSIX_FADV_WILLNEED);
-        }
-      }
-      for (uint64_t r0 = 0; r0 < e.rows; r0 += kTileRows) {
-        uint64_t nr = std::min(kTileRows, e.rows - r0);
-        for (uint64_t r = 0; r < nr; ++r) {
-          float* dst = tile.data() + r * p.cols;
-          if (src != nullptr) {
-            std::memcpy(dst, src + (r0 + r) * cols + p.col0, p.cols * 4);
-          } else {
-            uint64_t off = payload + ((r0 + r) * cols + p.col0) * 4;
-            Status s = in_file.ReadAt(off, MutableByteSpan(reinterpret_cast<std::byte*>(dst), p.cols * 4));
-            if (!s.ok()) return s.WithContext(o.input + ": chunk " + std::to_string(ci));
-            bytes_read += p.cols * 4;
+    status = ParallelFor(
+        in_chunks, jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
+        [&](uint64_t ci) -> Status {
+          const IndexEntry* entry = in.Find(0, ci);
+          const io::File& in_file = in.Holder(0, ci).file();  // a manifest's chunks live in its shards
+          ChunkExtent e = a.Extent(ci);
+          thread_local std::vector<float> tile;
+          tile.resize(kTileRows * p.cols);
+          std::vector<std::byte> decoded;  // zstd chunks are decoded whole
+          const float* src = nullptr;
+          io::Chunk whole;
+          if (entry->header.encoding != static_cast<uint16_t>(Encoding::kRaw)) {  // zstd, sparse: decoded whole
+            LTB_ASSIGN_OR_RETURN(whole, in.ReadChunk(0, ci));
+            src = whole.as<float>().data();
+            bytes_read += entry->header.payload_length;
           }
-        }
-        // Transpose the tile into the column-major panel.
-        for (uint64_t c = 0; c < p.cols; ++c) {
-          float* col = panel + c * rows + e.row0 + r0;
-          for (uint64_t r = 0; r < nr; ++r) col[r] = tile[r * p.cols + c];
-        }
-      }
-      return Status::Ok();
-    });
+          uint64_t payload = entry->frame_offset + kFrameHeaderSize;
+          if (src == nullptr) {
+            // Start the reads of this block's column range for every row at once, so the disk
+            // has them all queued instead of one small pread at a time (page cache, no RSS).
+            for (uint64_t r = 0; r < e.rows; ++r) {
+              ::posix_fadvise(in_file.fd(), static_cast<off_t>(payload + (r * cols + p.col0) * 4),
+                              static_cast<off_t>(p.cols * 4), POSIX_FADV_WILLNEED);
+            }
+          }
+          for (uint64_t r0 = 0; r0 < e.rows; r0 += kTileRows) {
+            uint64_t nr = std::min(kTileRows, e.rows - r0);
+            for (uint64_t r = 0; r < nr; ++r) {
+              float* dst = tile.data() + r * p.cols;
+              if (src != nullptr) {
+                std::memcpy(dst, src + (r0 + r) * cols + p.col0, p.cols * 4);
+              } else {
+                uint64_t off = payload + ((r0 + r) * cols + p.col0) * 4;
+                Status s = in_file.ReadAt(off, MutableByteSpan(reinterpret_cast<std::byte*>(dst), p.cols * 4));
+                if (!s.ok()) return s.WithContext(o.input + ": chunk " + std::to_string(ci));
+                bytes_read += p.cols * 4;
+              }
+            }
+            // Transpose the tile into the column-major panel.
+            for (uint64_t c = 0; c < p.cols; ++c) {
+              float* col = panel + c * rows + e.row0 + r0;
+              for (uint64_t r = 0; r < nr; ++r) col[r] = tile[r * p.cols + c];
+            }
+          }
+          return Status::Ok();
+        });
     if (!status.ok()) break;
     queue.PushFilled(slot, p);
   }
@@ -323,7 +327,8 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
   if (!verify_status.ok() && verify_status.code() != StatusCode::kCancelled) {
     const std::string written_path = out.path();
     (void)out.Discard();  // removed before the output's lock is released
-    return verify_status.WithContext("input checksum pass (" + written_path + " removed: it may hold columns built from the "
+    return verify_status.WithContext("input checksum pass (" + written_path +
+                                     " removed: it may hold columns built from the "
                                      "damaged input); repair or regenerate the input and rerun");
   }
   LTB_RETURN_IF_ERROR(verify_status);

@@ -11,7 +11,6 @@
 #include <string>
 
 #include "format/io/manifest.h"
-
 #include "format/progress.h"
 #include "format/status.h"
 
@@ -36,17 +35,17 @@ struct TransposeOptions {
 
 struct TransposeResult {
   uint64_t rows = 0, cols = 0;
-  uint64_t block_cols = 0;         // columns per output chunk
-  uint64_t panels = 0;             // panels this run processed
-  uint64_t panel_cols = 0;         // columns per full panel
+  uint64_t block_cols = 0;  // columns per output chunk
+  uint64_t panels = 0;      // panels this run processed
+  uint64_t panel_cols = 0;  // columns per full panel
   uint64_t chunks_total = 0, chunks_written = 0, chunks_already_committed = 0;
-  uint64_t zero_chunks_out = 0;    // all-zero output chunks (stored free)
-  uint64_t bytes_read = 0;         // payload bytes read from the input by the panel passes
-  uint64_t bytes_verified = 0;     // payload bytes read by the checksum pass
-  uint64_t bytes_written = 0;      // payload bytes appended to the output
-  uint64_t bytes_direct = 0;       // ... of which written with O_DIRECT
-  uint64_t padding_bytes = 0;      // padding frames that align direct payloads
-  std::string direct_fallback;     // why direct writes were off or stopped, if asked for
+  uint64_t zero_chunks_out = 0;  // all-zero output chunks (stored free)
+  uint64_t bytes_read = 0;       // payload bytes read from the input by the panel passes
+  uint64_t bytes_verified = 0;   // payload bytes read by the checksum pass
+  uint64_t bytes_written = 0;    // payload bytes appended to the output
+  uint64_t bytes_direct = 0;     // ... of which written with O_DIRECT
+  uint64_t padding_bytes = 0;    // padding frames that align direct payloads
+  std::string direct_fallback;   // why direct writes were off or stopped, if asked for
 };
 
 Result<TransposeResult> RunTranspose(const TransposeOptions& options, const Progress& progress);

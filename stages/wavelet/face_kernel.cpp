@@ -79,8 +79,10 @@ void ColumnStepScalar(const Coefs<F>& c, const float* h, size_t w_rt, float* ll,
         a += c.lo[j] * rows[j][x];
         d += c.hi[j] * rows[j][x];
       }
-      if (x < half) ll[o * ll_stride + x] = a;
-      else dst[o * dst_stride + x] = a;
+      if (x < half)
+        ll[o * ll_stride + x] = a;
+      else
+        dst[o * dst_stride + x] = a;
       dst[(half + o) * dst_stride + x] = d;
     }
   }
@@ -127,8 +129,10 @@ inline void AccumulateRow(const VecCoefs<F>& c, const __m256* e, const __m256* o
                           __m256& d) {
   if constexpr (J < F) {
     __m256 x;
-    if constexpr (TapIsOdd(F, J)) x = Shifted<TapShift(F, J)>(od, m, nv);
-    else x = Shifted<TapShift(F, J)>(e, m, nv);
+    if constexpr (TapIsOdd(F, J))
+      x = Shifted<TapShift(F, J)>(od, m, nv);
+    else
+      x = Shifted<TapShift(F, J)>(e, m, nv);
     if constexpr (J == 0) {
       a = _mm256_mul_ps(c.lo[J], x);
       d = _mm256_mul_ps(c.hi[J], x);
@@ -208,8 +212,7 @@ void RowStep8(const VecCoefs<F>& c, const float* in, size_t in_stride, float* h)
 }
 
 template <int F, int J = 0>
-inline void AccumulateRow4(const VecCoefs<F>& c, __m256 e, __m256 e1, __m256 od, __m256 od1, __m256& a,
-                           __m256& d) {
+inline void AccumulateRow4(const VecCoefs<F>& c, __m256 e, __m256 e1, __m256 od, __m256 od1, __m256& a, __m256& d) {
   if constexpr (J < F) {
     constexpr bool kOdd = TapIsOdd(F, J), kShifted = (TapShift(F, J) & 1) != 0;
     const __m256 x = kOdd ? (kShifted ? od1 : od) : (kShifted ? e1 : e);
@@ -397,12 +400,18 @@ void FacesFor(std::span<const double> taps, size_t r, size_t count, const float*
   // One filter per tap count: the table is built once.
   static const Kernel<F> k(MakeCoefs<F>(taps));
   switch (r) {
-    case 8: return FacesT<F, 8>(k, r, count, src, dst, scratch);
-    case 16: return FacesT<F, 16>(k, r, count, src, dst, scratch);
-    case 32: return FacesT<F, 32>(k, r, count, src, dst, scratch);
-    case 64: return FacesT<F, 64>(k, r, count, src, dst, scratch);
-    case 128: return FacesT<F, 128>(k, r, count, src, dst, scratch);
-    default: return FacesT<F, 0>(k, r, count, src, dst, scratch);
+    case 8:
+      return FacesT<F, 8>(k, r, count, src, dst, scratch);
+    case 16:
+      return FacesT<F, 16>(k, r, count, src, dst, scratch);
+    case 32:
+      return FacesT<F, 32>(k, r, count, src, dst, scratch);
+    case 64:
+      return FacesT<F, 64>(k, r, count, src, dst, scratch);
+    case 128:
+      return FacesT<F, 128>(k, r, count, src, dst, scratch);
+    default:
+      return FacesT<F, 0>(k, r, count, src, dst, scratch);
   }
 }
 
@@ -413,10 +422,14 @@ bool HasFaceKernel(Filter f, size_t r) { return IsOrthonormal(f) && IsPowerOfTwo
 void ForwardFaces(Filter f, size_t r, size_t count, const float* src, float* dst, float* scratch) {
   const auto taps = OrthoLowPass(f);
   switch (taps.size()) {
-    case 2: return FacesFor<2>(taps, r, count, src, dst, scratch);
-    case 4: return FacesFor<4>(taps, r, count, src, dst, scratch);
-    case 6: return FacesFor<6>(taps, r, count, src, dst, scratch);
-    case 8: return FacesFor<8>(taps, r, count, src, dst, scratch);
+    case 2:
+      return FacesFor<2>(taps, r, count, src, dst, scratch);
+    case 4:
+      return FacesFor<4>(taps, r, count, src, dst, scratch);
+    case 6:
+      return FacesFor<6>(taps, r, count, src, dst, scratch);
+    case 8:
+      return FacesFor<8>(taps, r, count, src, dst, scratch);
   }
 }
 

@@ -13,7 +13,7 @@ namespace {
 constexpr double kHaar[] = {0.7071067811865476, 0.7071067811865476};
 constexpr double kDb2[] = {-0.12940952255126037, 0.2241438680420134, 0.8365163037378079, 0.48296291314453416};
 constexpr double kDb3[] = {0.03522629188570953, -0.08544127388202666, -0.13501102001025458,
-                           0.45987750211849154, 0.8068915093110925,  0.33267055295008263};
+                           0.45987750211849154, 0.8068915093110925,   0.33267055295008263};
 constexpr double kDb4[] = {-0.010597401785069032, 0.0328830116668852, 0.030841381835560764, -0.18703481171909309,
                            -0.027983769416859854, 0.6308807679298589, 0.7148465705529157,   0.2303778133088965};
 
@@ -31,11 +31,16 @@ struct Taps {
 
 Taps OrthoTaps(Filter f) {
   switch (f) {
-    case Filter::kHaar: return {kHaar, 2};
-    case Filter::kDb2: return {kDb2, 4};
-    case Filter::kDb3: return {kDb3, 6};
-    case Filter::kDb4: return {kDb4, 8};
-    default: return {nullptr, 0};
+    case Filter::kHaar:
+      return {kHaar, 2};
+    case Filter::kDb2:
+      return {kDb2, 4};
+    case Filter::kDb3:
+      return {kDb3, 6};
+    case Filter::kDb4:
+      return {kDb4, 8};
+    default:
+      return {nullptr, 0};
   }
 }
 
@@ -105,23 +110,31 @@ void OrthoAnalysisImpl(const double* taps, T* data, size_t n, size_t stride, siz
       }
     }
   }
-  if (stride == lanes) std::memcpy(data, scratch, n * lanes * sizeof(T));
-  else Unpack(scratch, n, stride, lanes, data);
+  if (stride == lanes)
+    std::memcpy(data, scratch, n * lanes * sizeof(T));
+  else
+    Unpack(scratch, n, stride, lanes, data);
 }
 
 template <typename T, int F>
 void OrthoAnalysisTaps(const double* taps, T* data, size_t n, size_t stride, size_t lanes, T* scratch) {
-  if (lanes == 16) OrthoAnalysisImpl<T, F, 16>(taps, data, n, stride, lanes, scratch);
-  else OrthoAnalysisImpl<T, F, 0>(taps, data, n, stride, lanes, scratch);
+  if (lanes == 16)
+    OrthoAnalysisImpl<T, F, 16>(taps, data, n, stride, lanes, scratch);
+  else
+    OrthoAnalysisImpl<T, F, 0>(taps, data, n, stride, lanes, scratch);
 }
 
 template <typename T>
 void OrthoAnalysis(Taps t, T* data, size_t n, size_t stride, size_t lanes, T* scratch) {
   switch (t.size) {
-    case 2: return OrthoAnalysisTaps<T, 2>(t.lo, data, n, stride, lanes, scratch);
-    case 4: return OrthoAnalysisTaps<T, 4>(t.lo, data, n, stride, lanes, scratch);
-    case 6: return OrthoAnalysisTaps<T, 6>(t.lo, data, n, stride, lanes, scratch);
-    case 8: return OrthoAnalysisTaps<T, 8>(t.lo, data, n, stride, lanes, scratch);
+    case 2:
+      return OrthoAnalysisTaps<T, 2>(t.lo, data, n, stride, lanes, scratch);
+    case 4:
+      return OrthoAnalysisTaps<T, 4>(t.lo, data, n, stride, lanes, scratch);
+    case 6:
+      return OrthoAnalysisTaps<T, 6>(t.lo, data, n, stride, lanes, scratch);
+    case 8:
+      return OrthoAnalysisTaps<T, 8>(t.lo, data, n, stride, lanes, scratch);
   }
 }
 
@@ -228,12 +241,18 @@ Result<Filter> ParseFilter(const std::string& name) {
 
 const char* FilterName(Filter f) {
   switch (f) {
-    case Filter::kHaar: return "haar";
-    case Filter::kDb2: return "db2";
-    case Filter::kDb3: return "db3";
-    case Filter::kDb4: return "db4";
-    case Filter::kLeGall53: return "legall53";
-    case Filter::kCdf97: return "cdf97";
+    case Filter::kHaar:
+      return "haar";
+    case Filter::kDb2:
+      return "db2";
+    case Filter::kDb3:
+      return "db3";
+    case Filter::kDb4:
+      return "db4";
+    case Filter::kLeGall53:
+      return "legall53";
+    case Filter::kCdf97:
+      return "cdf97";
   }
   return "?";
 }
@@ -278,15 +297,19 @@ Status CheckSize(Filter f, size_t width, size_t height) {
 template <typename T>
 void AnalysisStep1D(Filter f, T* data, size_t n, size_t stride, size_t lanes, T* scratch) {
   if (n < 2) return;
-  if (IsOrthonormal(f)) OrthoAnalysis(OrthoTaps(f), data, n, stride, lanes, scratch);
-  else BiorthAnalysis(f, data, n, stride, lanes, scratch);
+  if (IsOrthonormal(f))
+    OrthoAnalysis(OrthoTaps(f), data, n, stride, lanes, scratch);
+  else
+    BiorthAnalysis(f, data, n, stride, lanes, scratch);
 }
 
 template <typename T>
 void SynthesisStep1D(Filter f, T* data, size_t n, size_t stride, size_t lanes, T* scratch) {
   if (n < 2) return;
-  if (IsOrthonormal(f)) OrthoSynthesis(OrthoTaps(f), data, n, stride, lanes, scratch);
-  else BiorthSynthesis(f, data, n, stride, lanes, scratch);
+  if (IsOrthonormal(f))
+    OrthoSynthesis(OrthoTaps(f), data, n, stride, lanes, scratch);
+  else
+    BiorthSynthesis(f, data, n, stride, lanes, scratch);
 }
 
 template <typename T>
@@ -335,14 +358,14 @@ void Inverse2D(Filter f, T* data, size_t width, size_t height, size_t lanes, int
   for (int l = depth; l-- > 0;) SynthesisStep2D(f, data, width, lanes, sizes[l].width, sizes[l].height, scratch);
 }
 
-#define LTB_INSTANTIATE(T)                                                                              \
-  template void AnalysisStep1D<T>(Filter, T*, size_t, size_t, size_t, T*);                              \
-  template void SynthesisStep1D<T>(Filter, T*, size_t, size_t, size_t, T*);                             \
-  template void Forward1D<T>(Filter, T*, size_t, size_t, size_t, int, T*);                              \
-  template void Inverse1D<T>(Filter, T*, size_t, size_t, size_t, int, T*);                              \
-  template void AnalysisStep2D<T>(Filter, T*, size_t, size_t, size_t, size_t, T*);                     \
-  template void SynthesisStep2D<T>(Filter, T*, size_t, size_t, size_t, size_t, T*);                    \
-  template void Forward2D<T>(Filter, T*, size_t, size_t, size_t, int, T*);                              \
+#define LTB_INSTANTIATE(T)                                                          \
+  template void AnalysisStep1D<T>(Filter, T*, size_t, size_t, size_t, T*);          \
+  template void SynthesisStep1D<T>(Filter, T*, size_t, size_t, size_t, T*);         \
+  template void Forward1D<T>(Filter, T*, size_t, size_t, size_t, int, T*);          \
+  template void Inverse1D<T>(Filter, T*, size_t, size_t, size_t, int, T*);          \
+  template void AnalysisStep2D<T>(Filter, T*, size_t, size_t, size_t, size_t, T*);  \
+  template void SynthesisStep2D<T>(Filter, T*, size_t, size_t, size_t, size_t, T*); \
+  template void Forward2D<T>(Filter, T*, size_t, size_t, size_t, int, T*);          \
   template void Inverse2D<T>(Filter, T*, size_t, size_t, size_t, int, T*);
 LTB_INSTANTIATE(float)
 LTB_INSTANTIATE(double)

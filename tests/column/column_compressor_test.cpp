@@ -2,6 +2,8 @@
 // promises, exact round trips, numerical stress, and the quantizer's error bounds.
 // Reconstructions here are computed independently in double (wavelet::Inverse2D<double>)
 // from the kept coefficients; errors are compared with what the compressor reports.
+#include "stages/column_transform/column_compressor.h"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -9,7 +11,6 @@
 #include <random>
 
 #include "stages/column_transform/column_codec.h"
-#include "stages/column_transform/column_compressor.h"
 #include "stages/quantize/quantize.h"
 
 namespace ltb::stages {
@@ -60,7 +61,8 @@ TEST(ColumnCompressor, SmoothImageChoosesFullDepth) {
   // A wide, low bump: smooth at every scale of a 64×64 image.
   std::vector<float> img(64 * 64);
   for (int y = 0; y < 64; ++y)
-    for (int x = 0; x < 64; ++x) img[y * 64 + x] = static_cast<float>(1.0 + 0.25 * std::cos(2 * M_PI * x / 64.0) * std::cos(2 * M_PI * y / 64.0));
+    for (int x = 0; x < 64; ++x)
+      img[y * 64 + x] = static_cast<float>(1.0 + 0.25 * std::cos(2 * M_PI * x / 64.0) * std::cos(2 * M_PI * y / 64.0));
   for (Filter f : {Filter::kHaar, Filter::kDb2, Filter::kLeGall53, Filter::kCdf97}) {
     ColumnChoice c = ChooseOne(f, 64, 64, 0, Deepest(64, 64), img, 16);
     EXPECT_GE(c.depth, Deepest(64, 64) - 1) << wavelet::FilterName(f);
@@ -140,7 +142,8 @@ TEST(ColumnCompressor, KeepingEveryTermIsExactToFloatPrecision) {
       // Each f32 analysis step rounds every value once (relative ε per step, amplified by
       // at most the filter's gain, < 4 for these filters); synthesis runs in double.
       double bound = 4.0 * (d + 1) * std::numeric_limits<float>::epsilon() * maxabs * 4;
-      for (size_t p = 0; p < img.size(); ++p) ASSERT_NEAR(rec[p], img[p], bound) << wavelet::FilterName(f) << " d=" << d;
+      for (size_t p = 0; p < img.size(); ++p)
+        ASSERT_NEAR(rec[p], img[p], bound) << wavelet::FilterName(f) << " d=" << d;
     }
   }
 }
@@ -253,9 +256,9 @@ TEST(Levels, MatchTheBandStructure) {
   // 8×8 at depth 3: low band (1×1) and step-3 details are level 0, step 2 level 1, step 1 level 2.
   auto lv = ColumnCodec::ComputeLevels(8, 8, 3);
   EXPECT_EQ(lv[0], 0);
-  EXPECT_EQ(lv[1], 0);           // step-3 detail (x = 1)
-  EXPECT_EQ(lv[2 * 8 + 3], 1);   // step-2 band (x, y in 2..3)
-  EXPECT_EQ(lv[7 * 8 + 7], 2);   // finest
+  EXPECT_EQ(lv[1], 0);          // step-3 detail (x = 1)
+  EXPECT_EQ(lv[2 * 8 + 3], 1);  // step-2 band (x, y in 2..3)
+  EXPECT_EQ(lv[7 * 8 + 7], 2);  // finest
   EXPECT_EQ(lv[0 * 8 + 4], 2);
   auto flat = ColumnCodec::ComputeLevels(8, 8, 0);
   for (uint8_t l : flat) EXPECT_EQ(l, 0);

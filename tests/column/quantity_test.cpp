@@ -9,14 +9,20 @@ namespace ltb::stages {
 namespace {
 
 TEST(Quantity, ByteSizeUnitsArePowersOf1024Or1000AsWritten) {
-  const std::pair<const char*, uint64_t> cases[] = {
-      {"4096", 4096},           {"1B", 1},
-      {"64K", 65536},           {"64k", 65536},
-      {"64KiB", 65536},         {"64KB", 64000},
-      {"3M", 3u << 20},         {"3MiB", 3u << 20},
-      {"3MB", 3000000},         {"1.5G", uint64_t(3) << 29},
-      {"2GiB", uint64_t(2) << 30}, {"2GB", 2000000000},
-      {"1T", uint64_t(1) << 40}, {"1TB", 1000000000000}};
+  const std::pair<const char*, uint64_t> cases[] = {{"4096", 4096},
+                                                    {"1B", 1},
+                                                    {"64K", 65536},
+                                                    {"64k", 65536},
+                                                    {"64KiB", 65536},
+                                                    {"64KB", 64000},
+                                                    {"3M", 3u << 20},
+                                                    {"3MiB", 3u << 20},
+                                                    {"3MB", 3000000},
+                                                    {"1.5G", uint64_t(3) << 29},
+                                                    {"2GiB", uint64_t(2) << 30},
+                                                    {"2GB", 2000000000},
+                                                    {"1T", uint64_t(1) << 40},
+                                                    {"1TB", 1000000000000}};
   for (const auto& [text, bytes] : cases) {
     auto r = ParseByteSize(text);
     ASSERT_TRUE(r.ok()) << text << ": " << r.status().message();
@@ -49,13 +55,13 @@ TEST(Quantity, BudgetKindsAndNonzeros) {
     EXPECT_TRUE(b.ok()) << text;
     return b.ok() ? BudgetNonzeros(*b, 1000, 100) : 0;
   };
-  EXPECT_EQ(nz("0.02"), 2000u);     // a fraction (it has a point)
+  EXPECT_EQ(nz("0.02"), 2000u);  // a fraction (it has a point)
   EXPECT_EQ(nz("2%"), 2000u);
-  EXPECT_EQ(nz("1e-2"), 1000u);     // an exponent makes it a fraction too
-  EXPECT_EQ(nz("1500"), 1500u);     // a count
-  EXPECT_EQ(nz("8K"), 1024u);       // 8192 bytes at 8 bytes per nonzero
-  EXPECT_EQ(nz("8KB"), 1000u);      // 8000 bytes
-  EXPECT_EQ(nz("1MiB"), 100000u);   // 131,072 nonzeros: at most every element
+  EXPECT_EQ(nz("1e-2"), 1000u);    // an exponent makes it a fraction too
+  EXPECT_EQ(nz("1500"), 1500u);    // a count
+  EXPECT_EQ(nz("8K"), 1024u);      // 8192 bytes at 8 bytes per nonzero
+  EXPECT_EQ(nz("8KB"), 1000u);     // 8000 bytes
+  EXPECT_EQ(nz("1MiB"), 100000u);  // 131,072 nonzeros: at most every element
   EXPECT_EQ(nz("250000"), 100000u);
   for (const char* text : {"0", "1.5", "150%", "0%", "12Q", "", "-5", "inf", "2 %"}) {
     EXPECT_FALSE(ParseBudget(text).ok()) << text;

@@ -1,5 +1,7 @@
 // The cpca checkpoint file: round trip, and every damaged form refused (never read as a
 // model) with a message naming the file.
+#include "stages/cpca/cpca_checkpoint.h"
+
 #include <gtest/gtest.h>
 
 #include <cstdio>
@@ -8,7 +10,6 @@
 #include <iterator>
 
 #include "stages/cpca/cpca.h"
-#include "stages/cpca/cpca_checkpoint.h"
 
 namespace ltb::stages {
 namespace {

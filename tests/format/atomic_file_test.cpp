@@ -2,6 +2,7 @@
 // temporary file outlives a writer that returns (committed or not).
 #include "format/io/atomic_file.h"
 
+#include <gtest/gtest.h>
 #include <sys/stat.h>
 
 #include <cstdio>
@@ -9,8 +10,6 @@
 #include <fstream>
 #include <sstream>
 #include <string>
-
-#include <gtest/gtest.h>
 
 #include "test_util.h"
 

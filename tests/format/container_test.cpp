@@ -28,8 +28,7 @@ std::vector<float> ReadAll(const io::ContainerReader& r) {
     const auto& e = c->extent();
     for (uint64_t rr = 0; rr < e.rows; ++rr)
       for (uint64_t cc = 0; cc < e.cols; ++cc)
-        m[(e.row0 + rr) * a.cols + e.col0 + cc] =
-            a.layout == Layout::kRows ? v[rr * e.cols + cc] : v[cc * e.rows + rr];
+        m[(e.row0 + rr) * a.cols + e.col0 + cc] = a.layout == Layout::kRows ? v[rr * e.cols + cc] : v[cc * e.rows + rr];
   }
   return m;
 }
@@ -123,8 +122,7 @@ TEST(Container, MissingChunkIsReportedNotZero) {
     ASSERT_TRUE(w->Put(0, 2, test::AsBytes(zeros)).ok());
     Status s = w->Finish();
     EXPECT_EQ(s.code(), StatusCode::kFailedPrecondition);
-    EXPECT_NE(s.message().find("3 chunks missing (first: array \"matrix\" chunk 1)"), std::string::npos)
-        << s.message();
+    EXPECT_NE(s.message().find("3 chunks missing (first: array \"matrix\" chunk 1)"), std::string::npos) << s.message();
   }
   auto r = io::ContainerReader::Open(path);
   ASSERT_TRUE(r.ok());
@@ -149,14 +147,16 @@ TEST(Container, ResumeAppendsOnlyMissingChunks) {
   {
     auto w = io::ContainerWriter::Open(path, meta);
     ASSERT_TRUE(w.ok());
-    for (uint64_t i : {0, 3, 4}) ASSERT_TRUE(w->Put(0, i, test::AsBytes(test::ChunkValues(w->metadata().matrix(), m, i))).ok());
+    for (uint64_t i : {0, 3, 4})
+      ASSERT_TRUE(w->Put(0, i, test::AsBytes(test::ChunkValues(w->metadata().matrix(), m, i))).ok());
   }  // dropped without Finish: like a stopped writer
   auto w = io::ContainerWriter::Open(path, meta);
   ASSERT_TRUE(w.ok()) << w.status().message();
   EXPECT_TRUE(w->resume_info().resumed);
   EXPECT_EQ(w->resume_info().committed_chunks, 3u);
   EXPECT_EQ(w->Missing(0), (std::vector<uint64_t>{1, 2, 5}));
-  for (uint64_t i : w->Missing(0)) ASSERT_TRUE(w->Put(0, i, test::AsBytes(test::ChunkValues(w->metadata().matrix(), m, i))).ok());
+  for (uint64_t i : w->Missing(0))
+    ASSERT_TRUE(w->Put(0, i, test::AsBytes(test::ChunkValues(w->metadata().matrix(), m, i))).ok());
   ASSERT_TRUE(w->Finish().ok());
   auto r = io::ContainerReader::Open(path);
   ASSERT_TRUE(r.ok());
@@ -206,7 +206,8 @@ TEST(Container, EveryInterruptedWriteAndSealVerifiesAndResumes) {
     test::ExpectInterruptedFileIntact(path, stop);
     if (::testing::Test::HasFatalFailure()) return;
     ASSERT_TRUE(write(path, UINT64_MAX).ok()) << "resume after " << stop;
-    EXPECT_EQ(test::ReadFileBytes(path), ref_bytes) << "resume after " << stop << " differs from an uninterrupted write";
+    EXPECT_EQ(test::ReadFileBytes(path), ref_bytes)
+        << "resume after " << stop << " differs from an uninterrupted write";
   }
   // 16 chunks, 2 of 3 padded (the zero ones have no payload) + 5 sealing steps.
   EXPECT_GE(interrupted, 16 + 5);
@@ -306,7 +307,8 @@ TEST(Container, SideTablesAreChunksToo) {
   auto w = io::ContainerWriter::Open(path, meta);
   ASSERT_TRUE(w.ok()) << w.status().message();
   auto m = test::MakeMatrix(8, 24, 2);
-  for (uint64_t i = 0; i < 4; ++i) ASSERT_TRUE(w->Put(0, i, test::AsBytes(test::ChunkValues(w->metadata().matrix(), m, i))).ok());
+  for (uint64_t i = 0; i < 4; ++i)
+    ASSERT_TRUE(w->Put(0, i, test::AsBytes(test::ChunkValues(w->metadata().matrix(), m, i))).ok());
   EXPECT_EQ(w->Finish().code(), StatusCode::kFailedPrecondition);  // the depth table is missing
   std::vector<uint8_t> d(24);
   for (int i = 0; i < 24; ++i) d[i] = static_cast<uint8_t>(i % 5);

@@ -20,7 +20,8 @@ std::atomic<int64_t> g_live{0}, g_peak{0};
 
 void* Track(void* p) {
   if (p == nullptr) throw std::bad_alloc();
-  int64_t now = g_live.fetch_add(static_cast<int64_t>(malloc_usable_size(p))) + static_cast<int64_t>(malloc_usable_size(p));
+  int64_t now =
+      g_live.fetch_add(static_cast<int64_t>(malloc_usable_size(p))) + static_cast<int64_t>(malloc_usable_size(p));
   int64_t peak = g_peak.load();
   while (now > peak && !g_peak.compare_exchange_weak(peak, now)) {
   }
@@ -36,7 +37,8 @@ void Untrack(void* p) {
 void* operator new(size_t n) { return Track(std::malloc(n == 0 ? 1 : n)); }
 void* operator new[](size_t n) { return Track(std::malloc(n == 0 ? 1 : n)); }
 void* operator new(size_t n, std::align_val_t a) {
-  return Track(std::aligned_alloc(static_cast<size_t>(a), (n + static_cast<size_t>(a) - 1) / static_cast<size_t>(a) * static_cast<size_t>(a)));
+  return Track(std::aligned_alloc(static_cast<size_t>(a),
+                                  (n + static_cast<size_t>(a) - 1) / static_cast<size_t>(a) * static_cast<size_t>(a)));
 }
 void operator delete(void* p) noexcept { Untrack(p); }
 void operator delete[](void* p) noexcept { Untrack(p); }
@@ -89,9 +91,10 @@ class DamageSweep : public ::testing::Test {
     ASSERT_TRUE(w.ok());
     std::vector<float> m = test::MakeMatrix(35, 12, 11);
     for (size_t i = 7; i < 14; ++i)
-      for (size_t c = 0; c < 12; ++c) m[i * 12 + c] = 0.0f;  // chunk 1 all zero
+      for (size_t c = 0; c < 12; ++c) m[i * 12 + c] = 0.0f;                          // chunk 1 all zero
     for (size_t c = 0; c < 12 * 7; ++c) m[14 * 12 + c] = static_cast<float>(c % 3);  // chunk 2 compressible
-    for (size_t c = 0; c < 12 * 7; ++c) m[21 * 12 + c] = c % 23 == 5 ? 0.25f * static_cast<float>(c) : 0.0f;  // 3: sparse
+    for (size_t c = 0; c < 12 * 7; ++c)
+      m[21 * 12 + c] = c % 23 == 5 ? 0.25f * static_cast<float>(c) : 0.0f;                // 3: sparse
     for (size_t c = 0; c < 12 * 7; ++c) m[28 * 12 + c] = (c * c) % 11 < 4 ? 1.0f : 0.0f;  // 4: sparse, compressible
     format::EncodeOptions eo;
     eo.zstd = true;

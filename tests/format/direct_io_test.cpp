@@ -18,7 +18,6 @@ namespace {
 using format::Layout;
 using test::TempDir;
 
-
 // 49 rows of 1500 f32 (6000 bytes), 12 rows per chunk: chunks of 72,000 bytes (not a
 // multiple of 4096: a buffered tail after the direct part) and a last one of 6,000 bytes
 // (under the direct threshold). Chunk 1 is all zero (no payload), chunk 2 is passed in from
@@ -41,7 +40,8 @@ Status WriteAll(const std::string& path, const io::WriterOptions& o, io::DirectI
     Status s;
     if (i == 2) {
       const size_t bytes = (v.size() * 4 + 4095) / 4096 * 4096;
-      std::unique_ptr<float, decltype(&std::free)> aligned(static_cast<float*>(std::aligned_alloc(4096, bytes)), &std::free);
+      std::unique_ptr<float, decltype(&std::free)> aligned(static_cast<float*>(std::aligned_alloc(4096, bytes)),
+                                                           &std::free);
       std::memcpy(aligned.get(), v.data(), v.size() * 4);
       s = w->Put(0, i, format::ByteSpan(reinterpret_cast<const std::byte*>(aligned.get()), v.size() * 4));
     } else {
@@ -127,7 +127,8 @@ TEST(DirectIo, EveryInterruptedWriteVerifiesAndResumes) {
     const std::string copy = dir.File("copy" + std::to_string(stop) + ".ltm");
     std::filesystem::copy_file(path, copy);
     ASSERT_TRUE(WriteAll(path, o).ok()) << "resume after " << stop;
-    EXPECT_EQ(test::ReadFileBytes(path), ref_bytes) << "resume after " << stop << " differs from an uninterrupted write";
+    EXPECT_EQ(test::ReadFileBytes(path), ref_bytes)
+        << "resume after " << stop << " differs from an uninterrupted write";
     ASSERT_TRUE(WriteAll(copy, {}).ok()) << "buffered resume after " << stop;
     EXPECT_EQ(test::HashOf(copy), ref_hash) << "buffered resume after " << stop;
     EXPECT_TRUE(io::VerifyContainer(copy).problems.empty()) << "buffered resume after " << stop;

@@ -2,7 +2,10 @@
 // and io::FileLock keeps one writer per output: another process is refused naming the
 // holder's PID, the lock goes with its holder however it ends, and one process may take
 // its own lock twice. "Other processes" here are fork()ed children that talk over pipes.
+#include "format/io/file_lock.h"
+
 #include <fcntl.h>
+#include <gtest/gtest.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <sys/un.h>
@@ -12,12 +15,9 @@
 #include <cstring>
 #include <filesystem>
 
-#include <gtest/gtest.h>
-
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
 #include "format/io/file.h"
-#include "format/io/file_lock.h"
 #include "format/io/manifest.h"
 #include "format/io/verifier.h"
 #include "test_util.h"

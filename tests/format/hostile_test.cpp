@@ -25,24 +25,23 @@ void Put32(Bytes& b, size_t at, uint32_t v) { std::memcpy(&b[at], &v, 4); }
 void Put64(Bytes& b, size_t at, uint64_t v) { std::memcpy(&b[at], &v, 8); }
 void Seal56(Bytes& b, size_t at) { Put64(b, at + 56, XXH3_64bits(&b[at], 56)); }
 
-const std::string kMeta =
-    R"({"arrays":[{"block":2,"dtype":"f32","layout":"rows","name":"matrix","shape":[4,2]}]})";
+const std::string kMeta = R"({"arrays":[{"block":2,"dtype":"f32","layout":"rows","name":"matrix","shape":[4,2]}]})";
 
 // A file header (64 bytes) followed by the metadata, padded to 64 bytes.
 Bytes Header(uint16_t major, uint16_t minor, uint64_t required = 0, std::string meta = kMeta,
              int64_t meta_len_override = -1) {
   Bytes b(64 + (meta.size() + 63) / 64 * 64, 0);
   const unsigned char magic[8] = {0x89, 'L', 'T', 'M', '\r', '\n', 0x1a, '\n'};
-  std::memcpy(&b[0], magic, 8);                       // magic
-  Put16(b, 8, major);                                 // format major
-  Put16(b, 10, minor);                                // format minor
-  Put32(b, 12, 64);                                   // header size
-  Put64(b, 16, required);                             // required-feature flags
-  Put64(b, 24, 0);                                    // optional-feature flags
+  std::memcpy(&b[0], magic, 8);                                                      // magic
+  Put16(b, 8, major);                                                                // format major
+  Put16(b, 10, minor);                                                               // format minor
+  Put32(b, 12, 64);                                                                  // header size
+  Put64(b, 16, required);                                                            // required-feature flags
+  Put64(b, 24, 0);                                                                   // optional-feature flags
   Put64(b, 32, meta_len_override >= 0 ? uint64_t(meta_len_override) : meta.size());  // metadata length
-  Put64(b, 40, XXH3_64bits(meta.data(), meta.size()));  // metadata checksum
-  Put64(b, 48, 0);                                    // reserved
-  Seal56(b, 0);                                       // header checksum
+  Put64(b, 40, XXH3_64bits(meta.data(), meta.size()));                               // metadata checksum
+  Put64(b, 48, 0);                                                                   // reserved
+  Seal56(b, 0);                                                                      // header checksum
   std::memcpy(&b[64], meta.data(), meta.size());
   return b;
 }
@@ -53,15 +52,15 @@ void AppendFrame(Bytes& b, uint16_t type, uint16_t flags, uint32_t array, uint16
                  std::optional<uint64_t> payload_len_override = std::nullopt) {
   size_t at = b.size();
   b.resize(at + 64 + (payload.size() + 63) / 64 * 64, 0);
-  Put32(b, at + 0, 0x464D544C);                       // "LTMF"
-  Put16(b, at + 4, type);                             // frame type
-  Put16(b, at + 6, flags);                            // flags (1 = optional)
+  Put32(b, at + 0, 0x464D544C);                                     // "LTMF"
+  Put16(b, at + 4, type);                                           // frame type
+  Put16(b, at + 6, flags);                                          // flags (1 = optional)
   Put64(b, at + 8, payload_len_override.value_or(payload.size()));  // payload length
-  Put32(b, at + 16, array);                           // array id
-  Put16(b, at + 20, encoding);                        // encoding
-  Put64(b, at + 24, chunk);                           // chunk index
-  Put64(b, at + 32, decoded_length);                  // decoded length
-  Put64(b, at + 40, XXH3_64bits(payload.data(), payload.size()));  // payload checksum
+  Put32(b, at + 16, array);                                         // array id
+  Put16(b, at + 20, encoding);                                      // encoding
+  Put64(b, at + 24, chunk);                                         // chunk index
+  Put64(b, at + 32, decoded_length);                                // decoded length
+  Put64(b, at + 40, XXH3_64bits(payload.data(), payload.size()));   // payload checksum
   Seal56(b, at);
   if (!payload.empty()) std::memcpy(&b[at + 64], payload.data(), payload.size());
 }
@@ -214,7 +213,8 @@ TEST(Hostile, MetadataLengthHuge) {
 TEST(Hostile, HugeChunkCountIsNotAllocated) {
   test::TempDir dir;
   // 2^40 rows in blocks of 1: 2^40 chunks; nothing may be sized by that count.
-  std::string meta = R"({"arrays":[{"block":1,"dtype":"f32","layout":"rows","name":"matrix","shape":[1099511627776,1]}]})";
+  std::string meta =
+      R"({"arrays":[{"block":1,"dtype":"f32","layout":"rows","name":"matrix","shape":[1099511627776,1]}]})";
   Bytes b = Header(1, 0, 0, meta);
   AppendFrame(b, 1, 0, 0, 0, 123456789, Bytes(4, 1), 4);
   auto path = WriteFile(dir, b);
@@ -235,7 +235,8 @@ TEST(Hostile, HugeChunkCountIsNotAllocated) {
 
 TEST(Hostile, ShapeBeyondCaps) {
   test::TempDir dir;
-  std::string meta = R"({"arrays":[{"block":1,"dtype":"f32","layout":"rows","name":"matrix","shape":[4,99999999999999]}]})";
+  std::string meta =
+      R"({"arrays":[{"block":1,"dtype":"f32","layout":"rows","name":"matrix","shape":[4,99999999999999]}]})";
   Status s = OpenStatus(WriteFile(dir, Header(1, 0, 0, meta)));
   EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);
   EXPECT_NE(s.message().find("shape 4x99999999999999"), std::string::npos) << s.message();
@@ -321,8 +322,7 @@ TEST(Hostile, IndexCountLargerThanPayload) {
   auto r = io::ContainerReader::Open(path);
   ASSERT_TRUE(r.ok()) << r.status().message();
   ASSERT_FALSE(r->problems().empty());
-  EXPECT_NE(r->problems()[0].find("index claims 1152921504606846976 entries"), std::string::npos)
-      << r->problems()[0];
+  EXPECT_NE(r->problems()[0].find("index claims 1152921504606846976 entries"), std::string::npos) << r->problems()[0];
   auto v = io::VerifyContainer(path);
   EXPECT_FALSE(v.problems.empty());
 }
@@ -441,8 +441,8 @@ class MalformedSparse : public ::testing::TestWithParam<BadSparse> {};
 TEST_P(MalformedSparse, IsDataLossNamingChunkAndFault) {
   const BadSparse& p = GetParam();
   test::TempDir dir;
-  std::string meta = R"({"arrays":[{"block":2,"dtype":")" + p.dtype +
-                     R"(","layout":"rows","name":"matrix","shape":[4,2]}]})";
+  std::string meta =
+      R"({"arrays":[{"block":2,"dtype":")" + p.dtype + R"(","layout":"rows","name":"matrix","shape":[4,2]}]})";
   uint64_t bytes = p.dtype == "u8" ? 4 : 16;
   Bytes b = Header(1, 1, 0, meta);
   AppendFrame(b, 1, 0, 0, p.encoding, 0, p.payload, bytes);
@@ -476,7 +476,8 @@ INSTANTIATE_TEST_SUITE_P(
         BadSparse{"truncated_count", "f32", 3, {0x81}, "payload ends inside the element count"},
         BadSparse{"count_above_elements", "f32", 3, Cat({{0x05, 0, 0, 0, 0, 0}, kOne, kOne, kOne, kOne, kOne}),
                   "stores 5 elements, the chunk has 4"},
-        BadSparse{"huge_count", "f32", 3, {0xFF, 0xFF, 0xFF, 0xFF, 0x0F}, "stores 4294967295 elements, the chunk has 4"},
+        BadSparse{
+            "huge_count", "f32", 3, {0xFF, 0xFF, 0xFF, 0xFF, 0x0F}, "stores 4294967295 elements, the chunk has 4"},
         BadSparse{"varint_over_64_bits", "f32", 3,
                   Cat({{0x01, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0x02}, kOne}),
                   "varint longer than 64 bits at byte 1"},

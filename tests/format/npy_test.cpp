@@ -1,9 +1,9 @@
 // .npy header codec against headers as NumPy writes them (format 1.0 and 2.0).
+#include "format/npy.h"
+
 #include <gtest/gtest.h>
 
 #include <cstring>
-
-#include "format/npy.h"
 
 namespace ltb {
 namespace {
@@ -50,7 +50,9 @@ TEST(Npy, UnsupportedDtypeHasNoItemsize) {
 TEST(Npy, RejectsGarbage) {
   EXPECT_FALSE(format::ParseNpyHeader(Npy("{'fortran_order': False, 'shape': (2, 2), }")).ok());
   EXPECT_FALSE(format::ParseNpyHeader(Npy("{'descr': '<f4', 'fortran_order': False, 'shape': (2, x), }")).ok());
-  EXPECT_FALSE(format::ParseNpyHeader(Npy("{'descr': '<f4', 'fortran_order': False, 'shape': (99999999999999999999999, 2), }")).ok());
+  EXPECT_FALSE(
+      format::ParseNpyHeader(Npy("{'descr': '<f4', 'fortran_order': False, 'shape': (99999999999999999999999, 2), }"))
+          .ok());
   std::vector<std::byte> shortb(5);
   EXPECT_FALSE(format::ParseNpyHeader(shortb).ok());
 }
@@ -58,8 +60,8 @@ TEST(Npy, RejectsGarbage) {
 // Issue 15: the header is parsed as the Python literal NumPy reads, not searched.
 TEST(Npy, DecoyKeysInsideStringsAreNotKeys) {
   // 'shape' inside the descr string: descr is that whole string (NumPy refuses the dtype).
-  auto h = format::ParseNpyHeader(
-      Npy("{'descr': \"<f4 'shape': (1, 16)\", 'fortran_order': False, 'shape': (4, 4), }"));
+  auto h =
+      format::ParseNpyHeader(Npy("{'descr': \"<f4 'shape': (1, 16)\", 'fortran_order': False, 'shape': (4, 4), }"));
   ASSERT_TRUE(h.ok()) << h.status().message();
   EXPECT_EQ(h->descr, "<f4 'shape': (1, 16)");
   EXPECT_EQ(h->shape, (std::vector<uint64_t>{4, 4}));
@@ -92,8 +94,10 @@ TEST(Npy, ReadsPythonLiteralSyntaxAsNumpyDoes) {
       {R"({'descr': '''<f4''', 'fortran_order': False, 'shape': (1_000, +4), })", {1000, 4}, "<f4", 3},
       {R"({'descr': '<f4', 'fortran_order': False, 'shape': (), })", {}, "<f4", 1},
       {"{'descr': '<f4', 'fortran_order': False, 'shape': (7,), } \\\n", {7}, "<f4", 1},
-      {R"({'descr': [('a', '<f4'), ('b', '<i2', (2,))], 'fortran_order': False, 'shape': (5,), })", {5},
-       "[('a', '<f4'), ('b', '<i2', (2,))]", 1},
+      {R"({'descr': [('a', '<f4'), ('b', '<i2', (2,))], 'fortran_order': False, 'shape': (5,), })",
+       {5},
+       "[('a', '<f4'), ('b', '<i2', (2,))]",
+       1},
   };
   for (const Case& c : cases) {
     auto h = format::ParseNpyHeader(Npy(c.text, c.major));
@@ -135,8 +139,8 @@ TEST(Npy, RefusesWhatNumpyRefuses) {
   // NUL bytes, deep nesting, minor versions, version 4.
   const std::string nul("{'descr': '<f4', 'fortran_order': False, 'shape': (4,)}\0", 57);
   EXPECT_FALSE(format::ParseNpyHeader(Npy(nul)).ok());
-  const std::string deep = "{'descr': '<f4', 'fortran_order': False, 'shape': " + std::string(100, '(') + "4," +
-                           std::string(100, ')') + "}";
+  const std::string deep =
+      "{'descr': '<f4', 'fortran_order': False, 'shape': " + std::string(100, '(') + "4," + std::string(100, ')') + "}";
   EXPECT_FALSE(format::ParseNpyHeader(Npy(deep)).ok());
   auto minor = Npy("{'descr': '<f4', 'fortran_order': False, 'shape': (4,)}");
   minor[7] = std::byte{1};

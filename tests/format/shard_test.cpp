@@ -138,10 +138,10 @@ TEST(ShardMetadata, RefusesBadShardNumbersAndRanges) {
   EXPECT_FALSE(with([](nlohmann::json& s) { s["index"] = 3; }).ok());
   EXPECT_FALSE(with([](nlohmann::json& s) { s["count"] = 0; }).ok());
   EXPECT_FALSE(with([](nlohmann::json& s) { s["count"] = format::kMaxShards + 1; }).ok());
-  EXPECT_FALSE(with([](nlohmann::json& s) { s["chunks"][0] = {5, 4}; }).ok());    // begin > end
-  EXPECT_FALSE(with([](nlohmann::json& s) { s["chunks"][0] = {5, 11}; }).ok());   // past the 10 chunks
-  EXPECT_FALSE(with([](nlohmann::json& s) { s["chunks"][1] = {0}; }).ok());       // not [b, e]
-  EXPECT_FALSE(with([](nlohmann::json& s) { s["chunks"].erase(1); }).ok());       // one range for two arrays
+  EXPECT_FALSE(with([](nlohmann::json& s) { s["chunks"][0] = {5, 4}; }).ok());   // begin > end
+  EXPECT_FALSE(with([](nlohmann::json& s) { s["chunks"][0] = {5, 11}; }).ok());  // past the 10 chunks
+  EXPECT_FALSE(with([](nlohmann::json& s) { s["chunks"][1] = {0}; }).ok());      // not [b, e]
+  EXPECT_FALSE(with([](nlohmann::json& s) { s["chunks"].erase(1); }).ok());      // one range for two arrays
   EXPECT_FALSE(with([](nlohmann::json& s) { s["chunks"][0] = {-1, 2}; }).ok());
   EXPECT_FALSE(with([](nlohmann::json& s) { s.erase("chunks"); }).ok());
   EXPECT_FALSE(with([](nlohmann::json& s) { s = 3; }).ok());

@@ -92,8 +92,8 @@ std::vector<std::byte> RandomDense(DType dtype, uint64_t elements, double densit
   const uint64_t size = format::DTypeSize(dtype);
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> u(0, 1);
-  const uint64_t specials[] = {0x80000000u, 0x00000001u, 0x007FFFFFu, 0x7FC00001u, 0xFFFFFFFFu,
-                               0x8000000000000000ull, 0x0000000000000001ull, 0xFFull, 0x80ull};
+  const uint64_t specials[] = {0x80000000u,           0x00000001u,           0x007FFFFFu, 0x7FC00001u, 0xFFFFFFFFu,
+                               0x8000000000000000ull, 0x0000000000000001ull, 0xFFull,     0x80ull};
   std::vector<std::byte> out(elements * size);
   for (uint64_t i = 0; i < elements; ++i) {
     if (u(rng) >= density) continue;
@@ -271,7 +271,8 @@ TEST_P(SparseContainer, EveryEncodingReadsBackBitExactWithOneContentHash) {
     const char* name;
     bool zstd, sparse;
   };
-  const Mode modes[] = {{"raw", false, false}, {"zstd", true, false}, {"sparse", false, true}, {"sparse-zstd", true, true}};
+  const Mode modes[] = {
+      {"raw", false, false}, {"zstd", true, false}, {"sparse", false, true}, {"sparse-zstd", true, true}};
   std::string hashes[4];
   std::vector<format::SparseChunk> sparse_ref;
   for (int mi = 0; mi < 4; ++mi) {
@@ -322,7 +323,8 @@ TEST_P(SparseContainer, EveryEncodingReadsBackBitExactWithOneContentHash) {
       ASSERT_EQ(vals.size(), e.Elements());
       for (uint64_t rr = 0; rr < e.rows; ++rr)
         for (uint64_t cc = 0; cc < e.cols; ++cc)
-          got[(e.row0 + rr) * p.cols + e.col0 + cc] = p.layout == Layout::kRows ? vals[rr * e.cols + cc] : vals[cc * e.rows + rr];
+          got[(e.row0 + rr) * p.cols + e.col0 + cc] =
+              p.layout == Layout::kRows ? vals[rr * e.cols + cc] : vals[cc * e.rows + rr];
     }
     EXPECT_EQ(got, m);
     // Sparse reads: the same for every encoding; indices in the chunk's storage order.

@@ -1,19 +1,18 @@
 // Helpers for format tests: temporary directories and small deterministic matrices.
 #pragma once
 
+#include <gtest/gtest.h>
+
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <nlohmann/json.hpp>
 #include <random>
 #include <string>
 #include <vector>
 
-#include <nlohmann/json.hpp>
-
 #include "format/array_spec.h"
-#include <gtest/gtest.h>
-
 #include "format/io/array_summary.h"
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
@@ -60,8 +59,10 @@ std::vector<T> ChunkValues(const format::ArraySpec& spec, const std::vector<T>& 
   for (uint64_t r = 0; r < e.rows; ++r)
     for (uint64_t c = 0; c < e.cols; ++c) {
       T x = m[(e.row0 + r) * spec.cols + e.col0 + c];
-      if (spec.layout == format::Layout::kRows) v[r * e.cols + c] = x;
-      else v[c * e.rows + r] = x;
+      if (spec.layout == format::Layout::kRows)
+        v[r * e.cols + c] = x;
+      else
+        v[c * e.rows + r] = x;
     }
   return v;
 }

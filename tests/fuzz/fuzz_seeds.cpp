@@ -12,15 +12,6 @@
 //              every dtype in every encoding (raw, zero, zstd, sparse, sparse-zstd); files
 //              of a writer stopped after every few mutations (torn and unsealed).
 // usage: ltb_fuzz_seeds OUT MESH.obj
-#include <array>
-#include <cmath>
-#include <cstring>
-#include <cstdio>
-#include <filesystem>
-#include <fstream>
-#include <string>
-#include <vector>
-
 #include <ImfChannelList.h>
 #include <ImfFrameBuffer.h>
 #include <ImfHeader.h>
@@ -28,12 +19,21 @@
 #include <ImfRgbaFile.h>
 #include <ImfTiledOutputFile.h>
 #include <ImfTiledRgbaFile.h>
-#include <OpenMesh/Core/IO/MeshIO.hh>
-#include <OpenMesh/Core/Mesh/PolyMesh_ArrayKernelT.hh>
 #include <draco/compression/encode.h>
 #include <draco/mesh/triangle_soup_mesh_builder.h>
 #include <draco/point_cloud/point_cloud_builder.h>
+
+#include <OpenMesh/Core/IO/MeshIO.hh>
+#include <OpenMesh/Core/Mesh/PolyMesh_ArrayKernelT.hh>
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
 #include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
 
 #include "format/array_spec.h"
 #include "format/chunk_codec.h"
@@ -83,9 +83,12 @@ void WriteExr(const std::string& path, int w, int h, Imf::Compression comp, Imf:
     for (size_t c = 0; c < names.size(); ++c) {
       char* base;
       size_t es;
-      if (type == Imf::FLOAT) base = reinterpret_cast<char*>(f.data() + c), es = sizeof(float);
-      else if (type == Imf::HALF) base = reinterpret_cast<char*>(hf.data() + c), es = sizeof(half);
-      else base = reinterpret_cast<char*>(u.data() + c), es = sizeof(unsigned);
+      if (type == Imf::FLOAT)
+        base = reinterpret_cast<char*>(f.data() + c), es = sizeof(float);
+      else if (type == Imf::HALF)
+        base = reinterpret_cast<char*>(hf.data() + c), es = sizeof(half);
+      else
+        base = reinterpret_cast<char*>(u.data() + c), es = sizeof(unsigned);
       base -= (ptrdiff_t(y0) * w + x0) * stride * es;
       fb.insert(names[c], Imf::Slice(type, base, stride * es, stride * es * w));
     }
@@ -109,7 +112,8 @@ void WriteRgbaExr(const std::string& path, int w, int h, Imf::RgbaChannels which
   try {
     std::vector<Imf::Rgba> px(size_t(w) * h);
     for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x) px[size_t(y) * w + x] = Imf::Rgba(Value(x, y, 0, w, h), Value(x, y, 1, w, h), Value(x, y, 2, w, h), 1);
+      for (int x = 0; x < w; ++x)
+        px[size_t(y) * w + x] = Imf::Rgba(Value(x, y, 0, w, h), Value(x, y, 1, w, h), Value(x, y, 2, w, h), 1);
     if (tiled) {
       Imf::TiledRgbaOutputFile out(path.c_str(), w, h, 8, 8, Imf::ONE_LEVEL, Imf::ROUND_DOWN, which);
       out.setFrameBuffer(px.data(), 1, w);
@@ -129,9 +133,9 @@ void ExrSeeds(const std::string& dir) {
   struct {
     Imf::Compression c;
     const char* name;
-  } comps[] = {{Imf::NO_COMPRESSION, "none"}, {Imf::RLE_COMPRESSION, "rle"},     {Imf::ZIPS_COMPRESSION, "zips"},
-               {Imf::ZIP_COMPRESSION, "zip"},  {Imf::PIZ_COMPRESSION, "piz"},     {Imf::PXR24_COMPRESSION, "pxr24"},
-               {Imf::B44_COMPRESSION, "b44"},  {Imf::B44A_COMPRESSION, "b44a"},   {Imf::DWAA_COMPRESSION, "dwaa"},
+  } comps[] = {{Imf::NO_COMPRESSION, "none"},  {Imf::RLE_COMPRESSION, "rle"},   {Imf::ZIPS_COMPRESSION, "zips"},
+               {Imf::ZIP_COMPRESSION, "zip"},  {Imf::PIZ_COMPRESSION, "piz"},   {Imf::PXR24_COMPRESSION, "pxr24"},
+               {Imf::B44_COMPRESSION, "b44"},  {Imf::B44A_COMPRESSION, "b44a"}, {Imf::DWAA_COMPRESSION, "dwaa"},
                {Imf::DWAB_COMPRESSION, "dwab"}};
   for (const auto& c : comps) {
     WriteExr(dir + "/latlong-float-" + c.name + ".exr", 16, 8, c.c, Imf::FLOAT, "RGB");
@@ -260,12 +264,36 @@ std::vector<std::byte> TestChunk(ltb::format::DType dt, uint64_t elements, uint6
     double v = double((k * 37 + seed * 11) % 97) - 40.0;
     std::byte* p = out.data() + k * es;
     switch (dt) {
-      case DType::kF32: { float f = float(v) * 0.25f; std::memcpy(p, &f, 4); break; }
-      case DType::kF64: { double d = v * 0.125; std::memcpy(p, &d, 8); break; }
-      case DType::kU8: { uint8_t u = uint8_t(int(v) & 0xff); std::memcpy(p, &u, 1); break; }
-      case DType::kI32: { int32_t i = int32_t(v) * 1000; std::memcpy(p, &i, 4); break; }
-      case DType::kU32: { uint32_t u = uint32_t(std::fabs(v)) * 70000u; std::memcpy(p, &u, 4); break; }
-      case DType::kU64: { uint64_t u = uint64_t(std::fabs(v)) << 40; std::memcpy(p, &u, 8); break; }
+      case DType::kF32: {
+        float f = float(v) * 0.25f;
+        std::memcpy(p, &f, 4);
+        break;
+      }
+      case DType::kF64: {
+        double d = v * 0.125;
+        std::memcpy(p, &d, 8);
+        break;
+      }
+      case DType::kU8: {
+        uint8_t u = uint8_t(int(v) & 0xff);
+        std::memcpy(p, &u, 1);
+        break;
+      }
+      case DType::kI32: {
+        int32_t i = int32_t(v) * 1000;
+        std::memcpy(p, &i, 4);
+        break;
+      }
+      case DType::kU32: {
+        uint32_t u = uint32_t(std::fabs(v)) * 70000u;
+        std::memcpy(p, &u, 4);
+        break;
+      }
+      case DType::kU64: {
+        uint64_t u = uint64_t(std::fabs(v)) << 40;
+        std::memcpy(p, &u, 8);
+        break;
+      }
     }
   }
   return out;
@@ -300,8 +328,7 @@ void LtmSeeds(const std::string& dir) {
   ltb::io::WriterOptions direct;
   direct.direct_io = true;
   direct.direct_min_bytes = 4096;
-  nlohmann::json m = {{"arrays",
-                       {Array("matrix", "f32", 40, 32, "rows", 32), Array("mask", "u8", 40, 1, "rows", 40)}},
+  nlohmann::json m = {{"arrays", {Array("matrix", "f32", 40, 32, "rows", 32), Array("mask", "u8", 40, 1, "rows", 40)}},
                       {"basis", {{"rows", {{"kind", "generic"}}}, {"cols", {{"kind", "generic"}}}}}};
   WriteLtm(dir + "/direct-padding.ltm", m, direct, true, false, false);
   WriteLtm(dir + "/direct-padding-unsealed.ltm", m, direct, false, false, false);

@@ -18,10 +18,9 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <string>
-
-#include <cstring>
 #include <vector>
 
 #include "format/bytes.h"
@@ -148,7 +147,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const std::string path = ltb::fuzz::WriteFile("input.ltm", data, size);
   if (path.empty()) return 0;
   ReadAll(path);
-  std::vector<std::byte> fixed(reinterpret_cast<const std::byte*>(data), reinterpret_cast<const std::byte*>(data) + size);
+  std::vector<std::byte> fixed(reinterpret_cast<const std::byte*>(data),
+                               reinterpret_cast<const std::byte*>(data) + size);
   if (RepairChecksums(&fixed) && std::memcmp(fixed.data(), data, size) != 0) {
     if (ltb::fuzz::WriteFile("input.ltm", fixed.data(), fixed.size()).empty()) return 0;
     ReadAll(path);

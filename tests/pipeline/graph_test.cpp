@@ -1,11 +1,11 @@
 // The bake graph as pure logic (pipeline/graph.h): what a recipe's targets need, the fused
 // sample + row-transform step, --until and --from, one relight step per map.
+#include "pipeline/graph.h"
+
 #include <gtest/gtest.h>
 
 #include <string>
 #include <vector>
-
-#include "pipeline/graph.h"
 
 namespace ltb::pipeline {
 namespace {

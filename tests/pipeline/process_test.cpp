@@ -1,15 +1,14 @@
 // RunChild's way out of a child that will not stop: a forwarded signal it ignores is
 // followed by SIGKILL after kill_after_seconds, and deadline_seconds kills it in any case.
 // (`sh -c 'trap "" TERM; exec sleep 1000'`: the ignored SIGTERM survives the exec.)
-#include <gtest/gtest.h>
+#include "pipeline/process.h"
 
+#include <gtest/gtest.h>
 #include <unistd.h>
 
 #include <csignal>
 #include <string>
 #include <string_view>
-
-#include "pipeline/process.h"
 
 namespace ltb::pipeline {
 namespace {

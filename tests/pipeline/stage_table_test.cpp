@@ -1,13 +1,13 @@
 // The stage table against its own promises: graph order (a stage's needs come before it),
 // one output file per stage, the names recipes accept are the table's, and each stage's
 // command for the default recipe runs that stage on the outputs of the stages it needs.
+#include "pipeline/stage_table.h"
+
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <set>
 #include <string>
-
-#include "pipeline/stage_table.h"
 
 namespace ltb::pipeline {
 namespace {

@@ -6,7 +6,16 @@
 // refusal (or clamping) of NaN, negative and infinite values; clear errors for wrong sizes,
 // truncated, garbage and missing files; the .hdr reader against stb_image; a real
 // blender-data map, with the timings docs/ENVMAPS.md quotes.
+#include "stages/relight/envmap.h"
+
+#include <ImfChannelList.h>
+#include <ImfFrameBuffer.h>
+#include <ImfHeader.h>
+#include <ImfOutputFile.h>
+#include <ImfRgbaFile.h>
 #include <gtest/gtest.h>
+#include <stb_image.h>
+#include <stb_image_write.h>
 #include <sys/stat.h>
 
 #include <algorithm>
@@ -15,27 +24,18 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
-#include <memory>
 #include <filesystem>
 #include <fstream>
+#include <glm/geometric.hpp>
 #include <limits>
+#include <memory>
 #include <numbers>
 #include <random>
 #include <string>
 #include <vector>
 
-#include <ImfChannelList.h>
-#include <ImfFrameBuffer.h>
-#include <ImfHeader.h>
-#include <ImfOutputFile.h>
-#include <ImfRgbaFile.h>
-#include <glm/geometric.hpp>
-#include <stb_image.h>
-#include <stb_image_write.h>
-
 #include "format/npy.h"
 #include "stages/common/cubemap.h"
-#include "stages/relight/envmap.h"
 #include "stages/relight/relight.h"
 
 namespace ltb::stages {
@@ -402,7 +402,8 @@ TEST_F(EnvMapTest, AngularMapOfTheSameFunctionAgreesWithLatLong) {
       }
     }
   WriteExrFloat(Path("ang.exr"), W, W, ang);
-  WriteExrFloat(Path("ll.exr"), 1024, 512, LatLongOf(1024, 512, [](const glm::dvec3& d, int c) { return Smooth(d, c); }));
+  WriteExrFloat(Path("ll.exr"), 1024, 512,
+                LatLongOf(1024, 512, [](const glm::dvec3& d, int c) { return Smooth(d, c); }));
   EnvLoadOptions o;
   o.layout = EnvLayout::kAngular;
   const uint64_t r = 8;

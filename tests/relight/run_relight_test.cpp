@@ -3,8 +3,9 @@
 // term is T·L computed here in double; with N terms it is T·L_N for the N brightest texels,
 // and the report's share of the map's energy is theirs; a cancel between timing frames is
 // a Cancelled status after the image is written.
-#include <gtest/gtest.h>
+#include "stages/relight/run_relight.h"
 
+#include <gtest/gtest.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -19,7 +20,6 @@
 
 #include "format/npy.h"
 #include "stages/convert/convert.h"
-#include "stages/relight/run_relight.h"
 
 namespace ltb::stages {
 namespace {
@@ -107,7 +107,8 @@ TEST_F(RunRelightTest, NTermsAreTheBrightestTexels) {
   // The n texels of largest |rgb| (weighting none), and their share of Σ rgb².
   std::vector<double> e(kCols);
   for (uint64_t j = 0; j < kCols; ++j)
-    e[j] = double(L_[3 * j]) * L_[3 * j] + double(L_[3 * j + 1]) * L_[3 * j + 1] + double(L_[3 * j + 2]) * L_[3 * j + 2];
+    e[j] =
+        double(L_[3 * j]) * L_[3 * j] + double(L_[3 * j + 1]) * L_[3 * j + 1] + double(L_[3 * j + 2]) * L_[3 * j + 2];
   std::vector<uint64_t> order(kCols);
   std::iota(order.begin(), order.end(), 0);
   std::sort(order.begin(), order.end(), [&](uint64_t a, uint64_t b) { return e[a] > e[b]; });
@@ -119,8 +120,7 @@ TEST_F(RunRelightTest, NTermsAreTheBrightestTexels) {
   double scale = *std::max_element(want.begin(), want.end());
   for (size_t i = 0; i < want.size(); ++i) EXPECT_NEAR(got[i], want[i], 1e-5 * scale) << i;
   EXPECT_EQ(r->report["terms_used"], n);
-  EXPECT_NEAR(r->report["lighting_energy_kept"].get<double>(),
-              kept / std::accumulate(e.begin(), e.end(), 0.0), 1e-6);
+  EXPECT_NEAR(r->report["lighting_energy_kept"].get<double>(), kept / std::accumulate(e.begin(), e.end(), 0.0), 1e-6);
 }
 
 TEST_F(RunRelightTest, CancelBetweenFramesKeepsTheImage) {

@@ -1,13 +1,12 @@
 // Cubemap conventions: exact solid angles sum to 4π, directions round-trip through
 // texels, the face table matches docs/CUBEMAP.md, and the angular radius bounds the texel.
+#include "stages/common/cubemap.h"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
-#include <random>
-
 #include <glm/geometric.hpp>
-
-#include "stages/common/cubemap.h"
+#include <random>
 
 namespace ltb::cubemap {
 namespace {

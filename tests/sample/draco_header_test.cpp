@@ -4,19 +4,18 @@
 // older bitstream versions (fixed-width counts before 2.0, a new-vertex count before 2.2)
 // sit exactly at and one past the faces-per-byte limit; the 548-byte fuzzer file that
 // made libdraco take ~400 MB is refused by LoadMeshFile before libdraco sees it.
-#include <gtest/gtest.h>
+#include "stages/sample/draco_header.h"
 
+#include <draco/compression/encode.h>
+#include <draco/mesh/triangle_soup_mesh_builder.h>
+#include <draco/metadata/geometry_metadata.h>
+#include <gtest/gtest.h>
 #include <unistd.h>
 
 #include <fstream>
 #include <string>
 #include <vector>
 
-#include <draco/compression/encode.h>
-#include <draco/mesh/triangle_soup_mesh_builder.h>
-#include <draco/metadata/geometry_metadata.h>
-
-#include "stages/sample/draco_header.h"
 #include "stages/sample/geometry.h"
 
 namespace ltb::sample {
@@ -116,7 +115,9 @@ TEST(DracoHeader, TruncatedAndForeignBytesGiveNoCounts) {
 // A hand-made header of an older bitstream, padded to `size` bytes.
 Bytes OldHeader(int major, int minor, int method, uint32_t vertices, uint32_t faces, size_t size) {
   Bytes b = {'D', 'R', 'A', 'C', 'O', uint8_t(major), uint8_t(minor), 1, uint8_t(method), 0, 0};
-  auto u32 = [&](uint32_t v) { for (int i = 0; i < 4; ++i) b.push_back(uint8_t(v >> (8 * i))); };
+  auto u32 = [&](uint32_t v) {
+    for (int i = 0; i < 4; ++i) b.push_back(uint8_t(v >> (8 * i)));
+  };
   auto varint = [&](uint32_t v) {
     do {
       b.push_back(uint8_t((v & 0x7f) | (v > 0x7f ? 0x80 : 0)));
@@ -125,12 +126,18 @@ Bytes OldHeader(int major, int minor, int method, uint32_t vertices, uint32_t fa
   };
   const int version = major * 256 + minor;
   if (method == 0) {  // sequential: faces, points; fixed width before 2.2
-    if (version < 2 * 256 + 2) u32(faces), u32(vertices); else varint(faces), varint(vertices);
+    if (version < 2 * 256 + 2)
+      u32(faces), u32(vertices);
+    else
+      varint(faces), varint(vertices);
   } else {  // edgebreaker: kind, new vertices (before 2.2), vertices, faces; fixed width before 2.0
     b.push_back(0);
-    if (version < 2 * 256) u32(0), u32(vertices), u32(faces);
-    else if (version < 2 * 256 + 2) varint(0), varint(vertices), varint(faces);
-    else varint(vertices), varint(faces);
+    if (version < 2 * 256)
+      u32(0), u32(vertices), u32(faces);
+    else if (version < 2 * 256 + 2)
+      varint(0), varint(vertices), varint(faces);
+    else
+      varint(vertices), varint(faces);
   }
   b.resize(size, 0);
   return b;

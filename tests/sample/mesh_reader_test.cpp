@@ -6,26 +6,24 @@
 // lying counts, out-of-range indices and truncated bodies are errors naming the field.
 // OBJ and STL are also compared with OpenMesh, which read them before (an independent
 // reader): the same float positions and the same triangles in the same order.
+#include "stages/sample/mesh_reader.h"
+
 #include <gtest/gtest.h>
-
 #include <unistd.h>
-
-#include <array>
-#include <bit>
-#include <cstdio>
-#include <cmath>
-#include <cstring>
-#include <fstream>
-#include <string>
-#include <vector>
-
-#include <glm/geometric.hpp>
 
 #include <OpenMesh/Core/IO/MeshIO.hh>
 #include <OpenMesh/Core/Mesh/TriMesh_ArrayKernelT.hh>
+#include <array>
+#include <bit>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <glm/geometric.hpp>
+#include <string>
+#include <vector>
 
 #include "stages/sample/geometry.h"
-#include "stages/sample/mesh_reader.h"
 
 namespace ltb::sample {
 namespace {
@@ -41,7 +39,9 @@ std::string CubeOff(const std::string& header = "OFF\n8 6 12\n") {
     glm::dvec3 p = CubeVertex(v);
     s += std::to_string(int(p.x)) + " " + std::to_string(int(p.y)) + " " + std::to_string(int(p.z)) + "\n";
   }
-  for (const auto& q : kQuads) s += "4 " + std::to_string(q[0]) + " " + std::to_string(q[1]) + " " + std::to_string(q[2]) + " " + std::to_string(q[3]) + "\n";
+  for (const auto& q : kQuads)
+    s += "4 " + std::to_string(q[0]) + " " + std::to_string(q[1]) + " " + std::to_string(q[2]) + " " +
+         std::to_string(q[3]) + "\n";
   return s;
 }
 
@@ -56,7 +56,8 @@ void Put(std::string* out, T v, bool big) {
 // The cube as PLY: vertex (x y z as float, nx ny nz, a uchar colour), face (a float list
 // "texcoord" before the index list, then a short flag); count/index types as given.
 std::string CubePly(const std::string& format, const std::string& count_type, const std::string& index_type) {
-  std::string s = "ply\nformat " + format + " 1.0\ncomment the unit cube\nelement vertex 8\nproperty float x\n"
+  std::string s = "ply\nformat " + format +
+                  " 1.0\ncomment the unit cube\nelement vertex 8\nproperty float x\n"
                   "property float y\nproperty float z\nproperty double nx\nproperty double ny\nproperty double nz\n"
                   "property uchar red\nelement face 6\nproperty list uchar float texcoord\nproperty list " +
                   count_type + " " + index_type + " vertex_indices\nproperty short flags\nend_header\n";
@@ -81,12 +82,18 @@ std::string CubePly(const std::string& format, const std::string& count_type, co
     Put(&s, 0.25f, big);
     Put(&s, 0.75f, big);
     auto put_int = [&](const std::string& t, int64_t x) {
-      if (t == "uchar") Put(&s, uint8_t(x), big);
-      else if (t == "char") Put(&s, int8_t(x), big);
-      else if (t == "ushort") Put(&s, uint16_t(x), big);
-      else if (t == "short") Put(&s, int16_t(x), big);
-      else if (t == "uint") Put(&s, uint32_t(x), big);
-      else Put(&s, int32_t(x), big);
+      if (t == "uchar")
+        Put(&s, uint8_t(x), big);
+      else if (t == "char")
+        Put(&s, int8_t(x), big);
+      else if (t == "ushort")
+        Put(&s, uint16_t(x), big);
+      else if (t == "short")
+        Put(&s, int16_t(x), big);
+      else if (t == "uint")
+        Put(&s, uint32_t(x), big);
+      else
+        Put(&s, int32_t(x), big);
     };
     put_int(count_type, 4);
     for (int k = 0; k < 4; ++k) put_int(index_type, q[k]);
@@ -143,8 +150,8 @@ TEST(MeshReader, OffAcceptsCommentsCrlfCountsOnTheHeaderLineAndColours) {
 
 TEST(MeshReader, PlyCubeInEveryEncodingAndIntegerType) {
   for (const char* format : {"ascii", "binary_little_endian", "binary_big_endian"}) {
-    for (auto [ct, it] : {std::pair{"uchar", "int"}, {"ushort", "uint"}, {"char", "short"}, {"uint", "uchar"},
-                          {"int", "ushort"}}) {
+    for (auto [ct, it] :
+         {std::pair{"uchar", "int"}, {"ushort", "uint"}, {"char", "short"}, {"uint", "uchar"}, {"int", "ushort"}}) {
       SCOPED_TRACE(std::string(format) + " " + ct + " " + it);
       ExpectCube(Ply(CubePly(format, ct, it)));
     }
@@ -152,8 +159,9 @@ TEST(MeshReader, PlyCubeInEveryEncodingAndIntegerType) {
 }
 
 TEST(MeshReader, PlyDoubleCoordinatesAreRoundedToFloatOnce) {
-  std::string s = "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty double x\nproperty double y\n"
-                  "property double z\nelement face 1\nproperty list uchar int vertex_index\nend_header\n";
+  std::string s =
+      "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty double x\nproperty double y\n"
+      "property double z\nelement face 1\nproperty list uchar int vertex_index\nend_header\n";
   for (double v : {0.1, 0.0, 0.0, 1.0, 1e-3, 0.0, 0.0, 1.0, 1.0 / 3}) Put(&s, v, false);
   Put(&s, uint8_t{3}, false);
   for (int32_t i : {0, 1, 2}) Put(&s, i, false);
@@ -176,9 +184,10 @@ TEST(MeshReader, PentagonIsAFanAndDegenerateFacesAreCounted) {
 TEST(MeshReader, OutOfRangeIndexNamesTheFaceAndTheIndex) {
   ExpectError(Off("OFF\n3 2 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n3 0 1 3\n"),
               {"test.off:7", "face 1", "vertex index 3", "out of range", "0..2"});
-  std::string ply = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
-                    "element face 2\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"
-                    "3 0 1 2\n3 0 -1 2\n";
+  std::string ply =
+      "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+      "element face 2\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"
+      "3 0 1 2\n3 0 -1 2\n";
   ExpectError(Ply(ply), {"test.ply:14", "face 1", "vertex index -1", "out of range"});
   std::string bin = CubePly("binary_little_endian", "uchar", "int");
   // The last index of the last face (before its 2-byte flag) becomes 8.
@@ -192,9 +201,10 @@ TEST(MeshReader, HeadersDeclaringMoreThanTheFileHoldsAreRefusedBeforeAllocating)
   ExpectError(Off("OFF\n4000000000 1 0\n"), {"4000000000 vertices", "need at least 24000000002 bytes"});
   ExpectError(Off("OFF\n5000000000 1 0\n"), {"5000000000 vertices", "at most 4294967295"});
   ExpectError(Off("OFF\n3 18446744073709551615 0\n0 0 0\n"), {"18446744073709551615 faces", "more than 2^64"});
-  ExpectError(Ply("ply\nformat binary_little_endian 1.0\nelement vertex 1000000000\nproperty float x\nproperty float y\n"
-                  "property float z\nend_header\n"),
-              {"1000000000 vertex", "need at least 12000000000 bytes"});
+  ExpectError(
+      Ply("ply\nformat binary_little_endian 1.0\nelement vertex 1000000000\nproperty float x\nproperty float y\n"
+          "property float z\nend_header\n"),
+      {"1000000000 vertex", "need at least 12000000000 bytes"});
 }
 
 TEST(MeshReader, LyingListCountsAndTruncatedBodiesAreErrors) {
@@ -212,8 +222,9 @@ TEST(MeshReader, LyingListCountsAndTruncatedBodiesAreErrors) {
 TEST(MeshReader, NonFiniteAndMalformedValuesNameTheVertex) {
   ExpectError(Off("OFF\n3 1 0\n0 0 0\n1 nan 0\n0 1 0\n3 0 1 2\n"), {"test.off:4", "vertex 1", "\"nan\""});
   ExpectError(Off("OFF\n3 1 0\n0 0 0\n1 1e999 0\n0 1 0\n3 0 1 2\n"), {"vertex 1", "1e999"});
-  std::string s = "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
-                  "property float z\nend_header\n";
+  std::string s =
+      "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+      "property float z\nend_header\n";
   Put(&s, 0.0f, false);
   Put(&s, std::numeric_limits<float>::infinity(), false);
   Put(&s, 0.0f, false);
@@ -294,10 +305,11 @@ TEST(MeshReader, ObjCrlfLineContinuationsAndFacesBeforeTheirVertices) {
 }
 
 TEST(MeshReader, ObjPolygonIsAFanRepeatsAreRemovedAndDegenerateFacesCounted) {
-  auto r = Obj("v 0 0 0\nv 1 0 0\nv 2 1 0\nv 1 2 0\nv 0 1 0\n"
-               "f 1 2 3 4 5\n"  // a pentagon: 3 fan triangles
-               "f 1 2 2 3\n"    // a quad with a repeated corner: the triangle 1 2 3 (OpenMesh did the same)
-               "f 1 1 2\n");    // 2 distinct vertices: dropped, counted
+  auto r =
+      Obj("v 0 0 0\nv 1 0 0\nv 2 1 0\nv 1 2 0\nv 0 1 0\n"
+          "f 1 2 3 4 5\n"  // a pentagon: 3 fan triangles
+          "f 1 2 2 3\n"    // a quad with a repeated corner: the triangle 1 2 3 (OpenMesh did the same)
+          "f 1 1 2\n");    // 2 distinct vertices: dropped, counted
   ASSERT_TRUE(r.ok()) << r.status().message();
   std::vector<glm::uvec3> want = {{0, 1, 2}, {0, 2, 3}, {0, 3, 4}, {0, 1, 2}};
   EXPECT_EQ(r->triangles, want);
@@ -397,7 +409,8 @@ void ExpectStlCube(const Result<TriangleMesh>& r) {
     for (int k = 0; k < 3; ++k) {
       EXPECT_EQ(m.positions[m.triangles[i][k]], glm::dvec3(facets[i][k])) << "triangle " << i << " corner " << k;
     }
-    glm::dvec3 a = m.positions[m.triangles[i][0]], b = m.positions[m.triangles[i][1]], c = m.positions[m.triangles[i][2]];
+    glm::dvec3 a = m.positions[m.triangles[i][0]], b = m.positions[m.triangles[i][1]],
+               c = m.positions[m.triangles[i][2]];
     area += glm::length(glm::cross(b - a, c - a)) / 2;
     volume += glm::dot(a, glm::cross(b, c)) / 6;
   }
@@ -426,9 +439,10 @@ TEST(MeshReader, StlAsciiAcceptsAnyLayoutAnyCaseAndSeveralSolids) {
 }
 
 TEST(MeshReader, StlDegenerateFacetsAreCounted) {
-  std::string s = "solid d\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\nendloop\nendfacet\n"
-                  "facet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 0 -0\nendloop\nendfacet\n"
-                  "endsolid d\n";
+  std::string s =
+      "solid d\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\nendloop\nendfacet\n"
+      "facet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 0 -0\nendloop\nendfacet\n"
+      "endsolid d\n";
   auto r = Stl(s);
   ASSERT_TRUE(r.ok()) << r.status().message();
   EXPECT_EQ(r->triangles.size(), 1u);
@@ -447,7 +461,8 @@ TEST(MeshReader, StlHostileInputsAreErrorsNamingTheField) {
   ExpectError(Stl(bin.substr(0, bin.size() - 7)), {"declares 12 triangles", "the file has 677"});
   // The same, when its header starts with "solid": read as ASCII, the error says both.
   std::string sbin = CubeStlBinary("solid but binary");
-  ExpectError(Stl(sbin.substr(0, sbin.size() - 7)), {"test.stl", "before \"endsolid\"", "read as binary", "declares 12 triangles"});
+  ExpectError(Stl(sbin.substr(0, sbin.size() - 7)),
+              {"test.stl", "before \"endsolid\"", "read as binary", "declares 12 triangles"});
   ExpectError(Stl("junk"), {"too short for a binary one"});
   ExpectError(Stl(""), {"too short"});
   std::string ascii = CubeStlAscii();
@@ -583,8 +598,8 @@ std::string GridObj(int w, bool continued = true) {
     for (int i = 0; i + 1 < w; ++i) {
       int a = y * w + i + 1;  // 1-based
       int c[4] = {a, a + 1, a + w + 1, a + w};
-      std::snprintf(buf, sizeof buf, "f %d/1/1 %d %s%d//1 %d\n", c[0], c[1] - n - 1, continued && (y * w + i) % 10 == 0 ? "\\\n " : "",
-                    c[2], c[3] - n - 1);
+      std::snprintf(buf, sizeof buf, "f %d/1/1 %d %s%d//1 %d\n", c[0], c[1] - n - 1,
+                    continued && (y * w + i) % 10 == 0 ? "\\\n " : "", c[2], c[3] - n - 1);
       s += buf;
     }
   }

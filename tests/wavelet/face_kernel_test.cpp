@@ -5,6 +5,8 @@
 // by Inverse2D. Then the row-block entry points of the stage: out of place = in place =
 // per-face Forward2D, zero rows counted and written as zeros, and a row's result
 // independent of the block it is in.
+#include "stages/wavelet/face_kernel.h"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -16,7 +18,6 @@
 #include <vector>
 
 #include "stages/row_transform/row_transform.h"
-#include "stages/wavelet/face_kernel.h"
 #include "stages/wavelet/wavelet.h"
 
 namespace ltb::wavelet {

@@ -14,8 +14,10 @@ int Run(bool forward, ltb::wavelet::Filter f, int depth, size_t w, size_t h, siz
         const char* out) {
   std::vector<T> data(w * h * lanes), scratch(ltb::wavelet::ScratchSize(w, h, lanes));
   std::ifstream(in, std::ios::binary).read(reinterpret_cast<char*>(data.data()), data.size() * sizeof(T));
-  if (forward) ltb::wavelet::Forward2D(f, data.data(), w, h, lanes, depth, scratch.data());
-  else ltb::wavelet::Inverse2D(f, data.data(), w, h, lanes, depth, scratch.data());
+  if (forward)
+    ltb::wavelet::Forward2D(f, data.data(), w, h, lanes, depth, scratch.data());
+  else
+    ltb::wavelet::Inverse2D(f, data.data(), w, h, lanes, depth, scratch.data());
   std::ofstream(out, std::ios::binary).write(reinterpret_cast<const char*>(data.data()), data.size() * sizeof(T));
   return 0;
 }

@@ -2,13 +2,13 @@
 // (odd, 1×N, N×1), energy preservation for the orthonormal filters, linearity, lane
 // independence, and closed forms for the biorthogonal lifting (DC gain 1, Nyquist gain 2,
 // vanishing moments). The PyWavelets oracle is tests/wavelet/pywt_oracle_test.py.
+#include "stages/wavelet/wavelet.h"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <random>
 #include <vector>
-
-#include "stages/wavelet/wavelet.h"
 
 namespace ltb::wavelet {
 namespace {
