@@ -55,12 +55,9 @@ class ColumnTransformCommand : public Command {
   }
 
   int Run() override {
-    auto shard = ResolveShard(shard_flags_);
-    if (!shard.ok()) {
-      std::cerr << "ltbake: " << shard.status().message() << "\n";
-      return kExitUsage;
-    }
-    options_.shard = *shard;
+    StageFlags sf;
+    if (int code = ResolveStageFlags(flags_, &shard_flags_, &sf); code != kExitOk) return code;
+    options_.shard = sf.shard;
     options_.filter = *wavelet::ParseFilter(filter_);
     auto depth = stages::ParseDepthMode(depth_);
     if (!depth.ok()) return ReportUsage(depth.status());
@@ -78,10 +75,8 @@ class ColumnTransformCommand : public Command {
       options_.terms.kind = stages::TermsMode::Kind::kKeep;
       options_.terms.keep = *stages::ParseFraction(keep_);  // checked by FractionCheck
     }                                                       // else the default: --budget 5%
-    auto mem = stages::ParseByteSize(flags_.mem_limit);
-    if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
-    options_.mem_limit = *mem;
-    options_.jobs = flags_.jobs;
+    options_.mem_limit = sf.mem_limit;
+    options_.jobs = sf.jobs;
     ProgressBar bar(flags_, "column-transform");
     auto r = stages::RunColumnTransform(options_, bar.hook());
     bar.Done();

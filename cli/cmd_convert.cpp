@@ -48,11 +48,11 @@ class ConvertCommand : public Command {
   int Run() override {
     auto chunk = stages::ParseByteSize(chunk_size_);
     if (!chunk.ok()) return ReportUsage(chunk.status().WithContext("--chunk-size"));
-    auto mem = stages::ParseByteSize(flags_.mem_limit);
-    if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
+    StageFlags sf;
+    if (int code = ResolveStageFlags(flags_, nullptr, &sf); code != kExitOk) return code;
     options_.chunk_bytes = *chunk;
-    options_.mem_limit = *mem;
-    options_.jobs = flags_.jobs;
+    options_.mem_limit = sf.mem_limit;
+    options_.jobs = sf.jobs;
     options_.pixel_basis = basis_ == "pixels";
     options_.layout = layout_ == "cols" ? format::Layout::kCols : format::Layout::kRows;
     if (!image_.empty()) {
@@ -75,8 +75,8 @@ class ConvertCommand : public Command {
       stages::EnvLoadOptions env;
       env.layout = *stages::ParseEnvLayout(env_layout_);  // checked by IsMember
       env.clamp = env_clamp_;
-      env.max_bytes = *mem;       // the map's pixels (and an .hdr's bytes) within --mem-limit
-      env.progress = bar.hook();  // SIGINT/SIGTERM while loading or resampling: 130/143
+      env.max_bytes = sf.mem_limit;  // the map's pixels (and an .hdr's bytes) within --mem-limit
+      env.progress = bar.hook();     // SIGINT/SIGTERM while loading or resampling: 130/143
       uint64_t clamped = 0;
       auto lock = io::LockOutput(options_.output);  // one writer per output
       if (!lock.ok()) return ReportFailure(lock.status());

@@ -60,10 +60,10 @@ class CpcaCommand : public Command {
                 << "\n";
       return kExitUsage;
     }
-    auto mem = stages::ParseByteSize(flags_.mem_limit);
-    if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
-    options_.mem_limit = *mem;
-    options_.jobs = flags_.jobs;
+    StageFlags sf;
+    if (int code = ResolveStageFlags(flags_, nullptr, &sf); code != kExitOk) return code;
+    options_.mem_limit = sf.mem_limit;
+    options_.jobs = sf.jobs;
     ProgressBar bar(flags_, "cpca");
     auto r = stages::RunCpca(options_, bar.hook());
     bar.Done();

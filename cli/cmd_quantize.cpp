@@ -47,16 +47,13 @@ class QuantizeCommand : public Command {
   }
 
   int Run() override {
-    auto shard = ResolveShard(shard_flags_);
-    if (!shard.ok()) {
-      std::cerr << "ltbake: " << shard.status().message() << "\n";
-      return kExitUsage;
-    }
-    options_.shard = *shard;
+    StageFlags sf;
+    if (int code = ResolveStageFlags(flags_, &shard_flags_, &sf); code != kExitOk) return code;
+    options_.shard = sf.shard;
     options_.level_scaling = scaling_ == "level";
     if (bits_opt_->count() == 0 && options_.error_ratio == 0) options_.error_ratio = kDefaultErrorRatio;
     const bool step_mode = options_.error_ratio != 0;
-    options_.jobs = flags_.jobs;
+    options_.jobs = sf.jobs;
     ProgressBar bar(flags_, "quantize");
     auto r = stages::RunQuantize(options_, bar.hook());
     bar.Done();

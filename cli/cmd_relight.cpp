@@ -70,10 +70,10 @@ class RelightCommand : public Command {
     o.keep_negative = keep_negative_;
     o.clamp_env = clamp_;
     o.env_layout = *stages::ParseEnvLayout(layout_);  // checked by IsMember
-    auto mem = stages::ParseByteSize(flags_.mem_limit);
-    if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
-    o.mem_limit = *mem;
-    o.jobs = flags_.jobs;
+    StageFlags sf;
+    if (int code = ResolveStageFlags(flags_, nullptr, &sf); code != kExitOk) return code;
+    o.mem_limit = sf.mem_limit;
+    o.jobs = sf.jobs;
     ProgressBar bar(flags_, "relight");
     auto r = stages::RunRelight(o, bar.hook());
     if (!r.ok()) return ReportFailure(r.status());

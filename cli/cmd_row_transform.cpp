@@ -27,14 +27,11 @@ class RowTransformCommand : public Command {
   }
 
   int Run() override {
-    auto shard = ResolveShard(shard_flags_);
-    if (!shard.ok()) {
-      std::cerr << "ltbake: " << shard.status().message() << "\n";
-      return kExitUsage;
-    }
-    options_.shard = *shard;
+    StageFlags sf;
+    if (int code = ResolveStageFlags(flags_, &shard_flags_, &sf); code != kExitOk) return code;
+    options_.shard = sf.shard;
     options_.filter = *wavelet::ParseFilter(filter_);  // checked by IsMember
-    options_.jobs = flags_.jobs;
+    options_.jobs = sf.jobs;
     ProgressBar bar(flags_, "row-transform");
     auto r = stages::RunRowTransform(options_, bar.hook());
     bar.Done();

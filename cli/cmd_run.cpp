@@ -1,9 +1,11 @@
 // ltbake run RECIPE.toml [--workdir DIR] [--from STAGE] [--until STAGE] [--force [STAGE]] [--dry-run]
 #include <unistd.h>
 
+#include <algorithm>
 #include <climits>
 #include <cstdio>
 #include <iostream>
+#include <sstream>
 
 #include "cli/commands.h"
 #include "cli/common.h"
@@ -19,6 +21,96 @@ std::string SelfExe() {
   ssize_t n = ::readlink("/proc/self/exe", buf, sizeof buf - 1);
   if (n <= 0) return "ltbake";
   return std::string(buf, static_cast<size_t>(n));
+}
+
+using nlohmann::json;
+
+std::string HumanBytes(uint64_t b) {
+  char s[32];
+  if (b >= (1ull << 30))
+    std::snprintf(s, sizeof s, "%.2f GiB", b / double(1ull << 30));
+  else if (b >= (1ull << 20))
+    std::snprintf(s, sizeof s, "%.1f MiB", b / double(1ull << 20));
+  else if (b >= 1024)
+    std::snprintf(s, sizeof s, "%.1f KiB", b / 1024.0);
+  else
+    std::snprintf(s, sizeof s, "%llu B", static_cast<unsigned long long>(b));
+  return s;
+}
+
+std::string Pad(std::string s, size_t w) {
+  s.resize(std::max(w, s.size() + 1), ' ');  // a column wider than its field still ends in a space
+  return s;
+}
+
+// The table printed after a run: one line per step, from its run.json record.
+std::string SummaryTable(const json& stages) {
+  std::ostringstream t;
+  t << Pad("stage", 22) << Pad("action", 12) << Pad("wall", 10) << Pad("peak RSS", 11) << Pad("output", 24)
+    << Pad("size", 11) << "content_hash\n";
+  for (const auto& s : stages) {
+    char wall[32] = "-";
+    if (s.contains("wall_seconds")) std::snprintf(wall, sizeof wall, "%.2f s", s["wall_seconds"].get<double>());
+    std::string rss = s.contains("peak_rss_bytes") ? HumanBytes(s["peak_rss_bytes"].get<uint64_t>()) : "-";
+    const json& out = s.value("output", json::object());
+    std::string size = out.contains("bytes") ? HumanBytes(out["bytes"].get<uint64_t>()) : "-";
+    if (out.value("deleted", false)) size = "(deleted)";
+    std::string action = s.value("action", ""), status = s.value("status", "");
+    if (status == "interrupted" || status == "failed" || status == "running") action = status;
+    if (s.contains("nshards") && action != "skip") action += " " + std::to_string(s["nshards"].get<uint64_t>()) + "sh";
+    t << Pad(s.value("node", ""), 22) << Pad(action, 12) << Pad(wall, 10) << Pad(rss, 11)
+      << Pad(out.value("file", ""), 24) << Pad(size, 11) << out.value("content_hash", "-") << "\n";
+  }
+  return t.str();
+}
+
+// --dry-run: every step, what it would do and why, and the command of those that run.
+std::string PlanText(const pipeline::BakeOutcome& o) {
+  std::ostringstream t;
+  t << "plan for " << o.recipe_path << " in " << o.workdir << ":\n";
+  for (const auto& s : o.plan) {
+    t << "  " << Pad(s.node, 22) << Pad(s.action, 8) << s.reason << "\n";
+    if (!s.command.empty()) t << "      " << s.command << "\n";
+  }
+  return t.str();
+}
+
+// The line a step event prints (stdout), or "" for none.
+std::string StepLine(const pipeline::StepEvent& e) {
+  using Kind = pipeline::StepEvent::Kind;
+  switch (e.kind) {
+    case Kind::kSkipped:
+      return "== " + e.node + ": skipped, " + e.reason;
+    case Kind::kStarting:
+      return "== " + e.node + ": " + e.action + " (" + e.reason + ")";
+    case Kind::kImageWritten: {
+      std::string line = "wrote " + e.path;
+      const json& m = e.metrics;
+      if (m.is_object() && m.contains("error")) {
+        char b[160];
+        std::snprintf(b, sizeof b,
+                      ": error against rows.ltm rel. L2 %.4g, PSNR %.1f dB (lighting alone %.4g, matrix alone %.4g)",
+                      m["error"].value("rel_l2", 0.0), m["error"].value("psnr_db", 0.0),
+                      m.value("error_lighting_only", json::object()).value("rel_l2", 0.0),
+                      m.value("error_matrix_only", json::object()).value("rel_l2", 0.0));
+        line += b;
+      }
+      return line;
+    }
+  }
+  return std::string();
+}
+
+Ending EndingOf(pipeline::BakeEnd end) {
+  switch (end) {
+    case pipeline::BakeEnd::kOk:
+      return Ending::kOk;
+    case pipeline::BakeEnd::kFailed:
+      return Ending::kFailed;
+    case pipeline::BakeEnd::kInterrupted:
+      return Ending::kInterrupted;
+  }
+  return Ending::kFailed;
 }
 
 class RunCommand : public Command {
@@ -78,6 +170,13 @@ class RunCommand : public Command {
     options_.progress = !flags_.quiet && (flags_.progress == "always" || (flags_.progress == "auto" && ::isatty(2)));
     options_.ltbake = SelfExe();
     options_.say = [](const std::string& line) { std::cout << line << std::endl; };
+    if (!flags_.quiet) {
+      options_.on_step = [](const pipeline::StepEvent& e) {
+        std::string line = StepLine(e);
+        if (!line.empty()) std::cout << line << std::endl;
+      };
+    }
+    options_.exit_code_for = [](pipeline::BakeEnd end, int signal) { return ExitCodeFor(EndingOf(end), signal); };
     options_.stage_stdout = [](std::string_view text) {
       std::cout << text;
       std::cout.flush();
@@ -91,19 +190,22 @@ class RunCommand : public Command {
     if (!outcome.ok()) {
       Status s = outcome.status();
       std::cerr << "ltbake: error: " << s.message() << "\n";
-      if (ReceivedSignal() != 0) return ReportFailure(s);
-      return s.code() == StatusCode::kInvalidArgument ? kExitUsage : kExitFailed;
+      if (ReceivedSignal() != 0) return ExitCodeFor(Ending::kInterrupted, ReceivedSignal());
+      // A recipe that cannot be used as it is (a bad key or value, a scene that does not
+      // fit its targets) is a usage error, as a bad flag is.
+      return ExitCodeFor(s.code() == StatusCode::kInvalidArgument ? Ending::kUsage : Ending::kFailed);
     }
     if (options_.dry_run) {
-      std::cout << outcome->summary;
+      std::cout << PlanText(*outcome);
       return kExitOk;
     }
-    if (!flags_.quiet || outcome->exit_code != 0) {
-      std::cout << "\n" << outcome->summary;
+    const int code = ExitCodeFor(EndingOf(outcome->end), outcome->signal);
+    if (!flags_.quiet || code != kExitOk) {
+      std::cout << "\n" << SummaryTable(outcome->stages);
       std::cout << "run report: " << outcome->report_path << "\n";
     }
     if (!outcome->failure.empty()) std::cerr << "ltbake: error: " << outcome->failure << "\n";
-    return outcome->exit_code;
+    return code;
   }
 
  private:

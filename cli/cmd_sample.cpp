@@ -39,17 +39,14 @@ class SampleCommand : public Command {
   }
 
   int Run() override {
-    auto shard = ResolveShard(shard_flags_);
-    if (!shard.ok()) {
-      std::cerr << "ltbake: " << shard.status().message() << "\n";
-      return kExitUsage;
-    }
-    options_.shard = *shard;
+    StageFlags sf;
+    if (int code = ResolveStageFlags(flags_, &shard_flags_, &sf); code != kExitOk) return code;
+    options_.shard = sf.shard;
     if (cube_res_ >= 0) options_.cube_res = static_cast<uint32_t>(cube_res_);
     if (spp_ >= 0) options_.spp = static_cast<uint32_t>(spp_);
     if (bounces_ >= 0) options_.bounces = static_cast<uint32_t>(bounces_);
     if (seed_ >= 0) options_.seed = static_cast<uint64_t>(seed_);
-    options_.jobs = flags_.jobs;
+    options_.jobs = sf.jobs;
     if (!row_filter_.empty()) options_.row_filter = *wavelet::ParseFilter(row_filter_);  // checked by IsMember
     ProgressBar bar(flags_, "sample");
     auto r = stages::RunSample(options_, bar.hook());

@@ -26,16 +26,11 @@ class TransposeCommand : public Command {
   }
 
   int Run() override {
-    auto shard = ResolveShard(shard_flags_);
-    if (!shard.ok()) {
-      std::cerr << "ltbake: " << shard.status().message() << "\n";
-      return kExitUsage;
-    }
-    options_.shard = *shard;
-    auto mem = stages::ParseByteSize(flags_.mem_limit);
-    if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
-    options_.mem_limit = *mem;
-    options_.jobs = flags_.jobs;
+    StageFlags sf;
+    if (int code = ResolveStageFlags(flags_, &shard_flags_, &sf); code != kExitOk) return code;
+    options_.shard = sf.shard;
+    options_.mem_limit = sf.mem_limit;
+    options_.jobs = sf.jobs;
     ProgressBar bar(flags_, "transpose");
     auto r = stages::RunTranspose(options_, bar.hook());
     bar.Done();

@@ -131,10 +131,42 @@ CLI::Validator TermsCheck() {
       "N|all");
 }
 
+int ResolveStageFlags(const CommonFlags& flags, const ShardFlags* shard_flags, StageFlags* out) {
+  if (shard_flags != nullptr) {
+    auto shard = ResolveShard(*shard_flags);
+    if (!shard.ok()) return ReportUsage(shard.status());
+    out->shard = *shard;
+  }
+  auto mem = stages::ParseByteSize(flags.mem_limit);
+  if (!mem.ok()) return ReportUsage(mem.status().WithContext("--mem-limit"));
+  out->mem_limit = *mem;
+  out->jobs = flags.jobs;
+  return kExitOk;
+}
+
+int ExitCodeFor(Ending ending, int signal) {
+  switch (ending) {
+    case Ending::kOk:
+      return kExitOk;
+    case Ending::kFailed:
+      return kExitFailed;
+    case Ending::kUsage:
+      return kExitUsage;
+    case Ending::kInterrupted:
+      return signal == SIGTERM ? kExitSigterm : kExitSigint;
+  }
+  return kExitFailed;
+}
+
+Ending EndingOf(const Status& status) {
+  if (status.ok()) return Ending::kOk;
+  return status.code() == StatusCode::kCancelled || ReceivedSignal() != 0 ? Ending::kInterrupted : Ending::kFailed;
+}
+
 int ReportUsage(const Status& status) {
   std::cerr << "ltbake: usage error: " << status.message() << "\n"
             << "Run 'ltbake --help' (or 'ltbake COMMAND --help') for usage.\n";
-  return kExitUsage;
+  return ExitCodeFor(Ending::kUsage);
 }
 
 void InstallSignalHandlers() {
@@ -148,18 +180,14 @@ void InstallSignalHandlers() {
 int ReceivedSignal() { return g_signal.load(); }
 
 int ReportFailure(const Status& status) {
-  int sig = ReceivedSignal();
-  const bool interrupted = status.code() == StatusCode::kCancelled || sig != 0;
+  const Ending ending = EndingOf(status);
+  const bool interrupted = ending == Ending::kInterrupted;
   // A stage started by `ltbake run` leaves an interruption to its parent, which says what
   // stopped and how to resume the bake (one message, not two).
   const char* run_pid = std::getenv(kRunPidVariable);
   const bool child_of_run = run_pid != nullptr && std::to_string(::getpid()) != run_pid;
   if (!(interrupted && child_of_run)) std::cerr << "ltbake: error: " << status.message() << "\n";
-  if (interrupted) {
-    if (sig == SIGTERM) return 143;
-    return 130;
-  }
-  return kExitFailed;
+  return ExitCodeFor(ending, ReceivedSignal());
 }
 
 ProgressBar::ProgressBar(const CommonFlags& flags, std::string label) : label_(std::move(label)) {

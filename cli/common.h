@@ -15,9 +15,20 @@
 
 namespace ltb::cli {
 
+// The exit codes (README "CLI contract"), and the one table that maps how a command ended
+// to them: every command returns kExitOk, ReportUsage(), ReportFailure() or ExitCodeFor().
 inline constexpr int kExitOk = 0;
-inline constexpr int kExitFailed = 1;
-inline constexpr int kExitUsage = 2;
+inline constexpr int kExitFailed = 1;  // bad input, I/O, corruption, a stage of a bake failed
+inline constexpr int kExitUsage = 2;   // bad flags or values (found while parsing or after), a bad recipe
+inline constexpr int kExitSigint = 130;
+inline constexpr int kExitSigterm = 143;
+
+enum class Ending { kOk, kFailed, kUsage, kInterrupted };
+// kInterrupted: 143 after SIGTERM, 130 after SIGINT (or a cancellation without a signal).
+int ExitCodeFor(Ending ending, int signal = 0);
+// How a command that failed with `status` ended: interrupted when the status says cancelled
+// or a signal was received, failed otherwise.
+Ending EndingOf(const Status& status);
 
 struct CommonFlags {
   int jobs = 2;
@@ -41,6 +52,18 @@ void AddShardFlags(CLI::App* app, ShardFlags* flags);
 Result<io::ShardSpec> ResolveShard(const ShardFlags& flags);
 // "OUT", or "shard I of N of OUT (its file)" for the messages of a stage.
 std::string OutputName(const std::string& output, const io::ShardSpec& shard);
+
+// The flags every stage command resolves before it runs, parsed: --jobs, --mem-limit and
+// (for stages that write shards) the shard.
+struct StageFlags {
+  int jobs = 2;
+  uint64_t mem_limit = 0;
+  io::ShardSpec shard;  // the whole output unless --shard/--nshards (or Slurm's) say otherwise
+};
+// Resolves them; `shard_flags` may be null (a stage without shards). On a bad value prints
+// the usage error and returns kExitUsage, else kExitOk:
+//   if (int code = ResolveStageFlags(flags_, &shard_flags_, &sf); code != kExitOk) return code;
+int ResolveStageFlags(const CommonFlags& flags, const ShardFlags* shard_flags, StageFlags* out);
 
 // Flag validators, so a bad value is a usage error (exit 2) found while parsing, with the
 // flag and the value named ("--mem-limit: size \"0\" is ..."), before any file is opened.

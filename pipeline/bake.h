@@ -17,6 +17,28 @@
 
 namespace ltb::pipeline {
 
+// How a bake (or one of its steps) ended.
+enum class BakeEnd {
+  kOk,
+  kFailed,       // a stage failed, or its output cannot be read back
+  kInterrupted,  // SIGINT/SIGTERM: what was committed is kept, a rerun resumes
+};
+
+// A step of the bake as it happens, for the caller to show (the library does not print).
+struct StepEvent {
+  enum class Kind {
+    kSkipped,       // up to date (or not needed): not run
+    kStarting,      // about to run, resume or redo
+    kImageWritten,  // a relight step wrote its image; `metrics` is relight's JSON
+  };
+  Kind kind = Kind::kStarting;
+  std::string node;        // "sample+row-transform", "relight:sunset", ...
+  std::string action;      // "skip", "run", "resume", "redo" (pipeline/plan.h ActionName)
+  std::string reason;      // why
+  std::string path;        // kImageWritten: the image
+  nlohmann::json metrics;  // kImageWritten
+};
+
 struct BakeOptions {
   std::string recipe;
   std::string workdir;             // overrides the recipe's
@@ -32,18 +54,34 @@ struct BakeOptions {
   // shards through the engine ("local": a process pool; "slurm": job arrays), then are
   // committed. jobs, say and pending_signal are taken from these options.
   EngineOptions cluster;
-  // Where messages go (the library does not print): say() for stdout, stage output is
-  // passed on through stage_stdout()/stage_stderr().
+  // Where messages go (the library does not print): on_step() for each step's decision and
+  // result, say() for the engine's lines about shards, stage output is passed on through
+  // stage_stdout()/stage_stderr().
+  std::function<void(const StepEvent&)> on_step;
   std::function<void(const std::string&)> say;
   std::function<void(std::string_view)> stage_stdout, stage_stderr;
   std::function<int()> pending_signal;  // SIGINT/SIGTERM received (0: none)
+  // The process exit code of an ending (the CLI's table), recorded in run.json.
+  std::function<int(BakeEnd, int signal)> exit_code_for;
+};
+
+// A step of a --dry-run plan.
+struct PlannedStep {
+  std::string node;
+  std::string action;  // "run", "resume", "redo", "skip", "given"
+  std::string reason;
+  std::string command;  // the stage command, shell-quoted, for a step that runs
 };
 
 struct BakeOutcome {
-  int exit_code = 0;        // 0 ok, 1 a stage failed, 130/143 interrupted
-  std::string report_path;  // run.json (empty for --dry-run)
-  std::string summary;      // the summary table (or the plan, for --dry-run)
-  std::string failure;      // what failed, the log and the command that re-runs just that stage
+  BakeEnd end = BakeEnd::kOk;
+  int signal = 0;                 // kInterrupted: SIGINT or SIGTERM
+  std::string report_path;        // run.json (empty for --dry-run)
+  std::string recipe_path;        // the recipe, absolute
+  std::string workdir;            // the work directory, absolute
+  nlohmann::json stages;          // run.json's step records, in graph order (the summary)
+  std::vector<PlannedStep> plan;  // --dry-run: every step, decided
+  std::string failure;            // what failed, the log and the command that re-runs just that stage
 };
 
 // Errors (a bad recipe, a work directory of another bake, an input that does not exist)

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Local single-node Slurm cluster for tests (groundwork for issue 9).
+# Local single-node Slurm cluster for tests (tests/cluster, docs/cluster.md).
 #
 #   scripts/slurm_local.sh start|stop|status [--dir DIR] [--port N]
 #

@@ -1,4 +1,4 @@
-"""Hostile inputs around the .ltm container (issue 15): what is not a regular file, an
+"""Hostile inputs around the .ltm container: what is not a regular file, an
 interrupted seal read by verify, forged manifest hashes, bad flag values, and two writers
 racing for one output.
 

@@ -57,7 +57,7 @@ TEST(Npy, RejectsGarbage) {
   EXPECT_FALSE(format::ParseNpyHeader(shortb).ok());
 }
 
-// Issue 15: the header is parsed as the Python literal NumPy reads, not searched.
+// Hostile headers: the header is parsed as the Python literal NumPy reads, not searched.
 TEST(Npy, DecoyKeysInsideStringsAreNotKeys) {
   // 'shape' inside the descr string: descr is that whole string (NumPy refuses the dtype).
   auto h =

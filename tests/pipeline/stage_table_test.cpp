@@ -43,7 +43,7 @@ TEST(StageTable, DefaultCommandsReadWhatTheirNeedsMake) {
     }
     EXPECT_EQ(c.inputs.size(), s.needs.size()) << s.name;
   }
-  // The defaults of issue 16: one 5% budget, one quantization step with ratio 1.1.
+  // The recipe defaults (docs/RECIPE.md): one 5% budget, one quantization step with ratio 1.1.
   auto ct = FindStage("column-transform")->command(r, ctx).args;
   EXPECT_NE(std::find(ct.begin(), ct.end(), "--budget"), ct.end());
   auto q = FindStage("quantize")->command(r, ctx).args;
