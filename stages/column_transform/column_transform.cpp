@@ -479,7 +479,7 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
     LTB_ASSIGN_OR_RETURN(alloc, SolveBudget(o, in, plan, sel, progress, &result));
   }
 
-  ChunkJob job{o, in, out, plan, layout, sel, alloc, {}, {}};
+  ChunkJob job{.o = o, .in = in, .out = out, .plan = plan, .layout = layout, .sel = sel, .alloc = alloc};
   job.matrix_encoding.zstd = o.zstd;
   job.matrix_encoding.sparse = true;
   job.matrix_encoding.dtype = DType::kF32;

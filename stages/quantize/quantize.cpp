@@ -177,7 +177,7 @@ Result<double> FindStep(const QuantizeOptions& o, const io::ContainerReader& in,
 }
 
 // The output's metadata and where its per-column scales are.
-struct OutputLayout {
+struct QuantizeOutput {
   nlohmann::json meta;
   uint32_t scale_array = 0;
 };
@@ -185,11 +185,11 @@ struct OutputLayout {
 // The output's metadata (docs/COLUMN-TRANSFORM.md): the matrix as i32, the input's side
 // tables, a "scale" table (f64 per column, chunked like the matrix) and "quantization",
 // what ColumnCodec::FromMetadata reads back.
-Result<OutputLayout> OutputMetadata(const QuantizeOptions& o, const io::ContainerReader& in, Scaling scaling,
-                                    bool step_mode, double step) {
+Result<QuantizeOutput> OutputMetadata(const QuantizeOptions& o, const io::ContainerReader& in, Scaling scaling,
+                                      bool step_mode, double step) {
   const Metadata& meta = in.metadata();
   const ArraySpec& a = meta.matrix();
-  OutputLayout out;
+  QuantizeOutput out;
   nlohmann::json& out_meta = out.meta;
   out_meta = meta.json;
   ArraySpec m = a;
@@ -240,7 +240,7 @@ void AddError(std::atomic<uint64_t>* sum_bits, double e) {
 }
 
 // What every chunk of the quantization pass reads and writes.
-struct ChunkJob {
+struct QuantizeJob {
   const QuantizeOptions& o;
   const io::ContainerReader& in;
   io::ContainerWriter& out;
@@ -257,7 +257,7 @@ struct ChunkJob {
 
 // Quantizes chunk c (its columns one by one) and writes its matrix chunk and scales
 // unless already committed.
-Status QuantizeChunk(const ChunkJob& job, uint64_t c) {
+Status QuantizeChunk(const QuantizeJob& job, uint64_t c) {
   const QuantizeOptions& o = job.o;
   const uint64_t pixels = job.in.metadata().matrix().rows;
   const double levels = job.levels;
@@ -346,7 +346,7 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
   if (step_mode) {
     LTB_ASSIGN_OR_RETURN(step, FindStep(o, in, codec, factors, progress, &totals_in));
   }
-  LTB_ASSIGN_OR_RETURN(OutputLayout layout, OutputMetadata(o, in, scaling, step_mode, step));
+  LTB_ASSIGN_OR_RETURN(QuantizeOutput layout, OutputMetadata(o, in, scaling, step_mode, step));
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
   LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, layout.meta, wo, o.shard));
@@ -363,8 +363,16 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
   const std::vector<uint64_t> items = MissingChunks(out, layout.scale_array);
 
   std::atomic<uint64_t> qerr_bits{0};  // Σ squared quantization error (double bits, CAS-added)
-  ChunkJob job{o,          in, out, codec, factors, layout.scale_array, step_mode, step, Quantization{o.bits}.Levels(),
-               &qerr_bits, {}, {}};
+  QuantizeJob job{.o = o,
+                  .in = in,
+                  .out = out,
+                  .codec = codec,
+                  .factors = factors,
+                  .scale_array = layout.scale_array,
+                  .step_mode = step_mode,
+                  .step = step,
+                  .levels = Quantization{o.bits}.Levels(),
+                  .qerr_bits = &qerr_bits};
   job.matrix_encoding.sparse = true;
   job.matrix_encoding.dtype = DType::kI32;
   job.matrix_encoding.zstd = o.zstd;
