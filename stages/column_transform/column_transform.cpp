@@ -5,10 +5,12 @@
 #include <cctype>
 #include <cmath>
 #include <cstring>
+#include <memory>
 #include <mutex>
 
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
+#include "stages/column_transform/budget_solver.h"
 #include "stages/column_transform/column_compressor.h"
 #include "stages/common/basis.h"
 #include "stages/common/parallel_for.h"
@@ -57,44 +59,6 @@ constexpr const char* kDepthArray = "depth";
 constexpr const char* kStatsArray = "column_stats";
 constexpr uint64_t kStatsPerColumn = 3;  // energy, error, nonzeros
 
-// Per-column energy histograms of every depth, for the budget search (compact: one set of
-// flat vectors per column).
-struct ColumnCurves {
-  std::vector<uint32_t> offset;             // depths + 1 entries into the flat vectors
-  std::vector<int32_t> bin;                 // ascending within a depth
-  std::vector<uint64_t> count_at_or_above;  // Σ counts of bins >= this one
-  std::vector<double> energy_below;         // Σ energy of bins < this one
-  std::vector<double> depth_total;          // Σ energy of all bins, per depth
-};
-
-// Cost of column c at depth d for threshold bin g: dropped energy + λ · kept count.
-struct Point {
-  double cost;
-  uint64_t count;
-};
-Point Evaluate(const ColumnCurves& cc, int d, int g, double lambda) {
-  uint32_t a = cc.offset[d], b = cc.offset[d + 1];
-  auto first = std::lower_bound(cc.bin.begin() + a, cc.bin.begin() + b, g) - cc.bin.begin();
-  if (static_cast<uint32_t>(first) == b) return {cc.depth_total[d], 0};
-  return {cc.energy_below[first] + lambda * static_cast<double>(cc.count_at_or_above[first]),
-          cc.count_at_or_above[first]};
-}
-
-// The depth a column picks at threshold bin g (least cost; then fewer terms; then shallower).
-int PickDepth(const ColumnCurves& cc, int g, double lambda, uint64_t* count) {
-  int best = -1;
-  Point bp{0, 0};
-  for (int d = 0; d + 1 < static_cast<int>(cc.offset.size()); ++d) {
-    Point p = Evaluate(cc, d, g, lambda);
-    if (best < 0 || p.cost < bp.cost || (p.cost == bp.cost && p.count < bp.count)) {
-      best = d;
-      bp = p;
-    }
-  }
-  *count = bp.count;
-  return best;
-}
-
 }  // namespace
 
 uint64_t OutputBlockColumns(uint64_t rows, uint64_t cols, uint64_t nshards) {
@@ -105,15 +69,31 @@ uint64_t OutputBlockColumns(uint64_t rows, uint64_t cols, uint64_t nshards) {
 
 namespace {
 
+// The column images, the depth range, the output chunking and the jobs that fit.
 struct Plan {
   uint64_t width = 0, height = 0;
   int min_depth = 0, max_depth = 0;
   uint64_t block = 0;
+  uint64_t pixels = 0;  // rows of the matrix: width · height
+  int jobs = 0;
 };
 
-}  // namespace
+// How the columns' coefficients are selected.
+struct SelectionPlan {
+  nlohmann::json selection;  // metadata "column_transform.selection"
+  uint64_t terms = 0;        // --terms / --keep: per column
+  uint64_t budget = 0;       // --budget: for the matrix
+  bool global = false;       // --budget / --target-error: one threshold for the matrix
+};
 
-Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o, const Progress& progress) {
+// The output's metadata and where its side tables are.
+struct OutputLayout {
+  nlohmann::json meta;
+  uint32_t depth_array = 0, stats_array = 0;
+};
+
+// The input: the output of `transpose` (column blocks, complete f32), not yet transformed.
+Result<io::ContainerReader> OpenInput(const ColumnTransformOptions& o) {
   LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(o.input));
   LTB_RETURN_IF_ERROR(RefuseCpcaOutput(in, "column-transform"));
   const Metadata& meta = in.metadata();
@@ -130,15 +110,19 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
                               o.input + " -o cols.ltm` first");
   }
   LTB_RETURN_IF_ERROR(RequireCompleteF32Matrix(in));
+  return in;
+}
 
-  Plan plan;
+// The column image (width × height) and the depth range of --depth.
+Status PlanImage(const ColumnTransformOptions& o, const Metadata& meta, Plan* plan) {
+  const ArraySpec& a = meta.matrix();
   auto image = ReadImageRows(meta);
   if (image) {
-    plan.width = image->width;
-    plan.height = image->height;
+    plan->width = image->width;
+    plan->height = image->height;
   } else if (o.depth.kind == DepthMode::Kind::kNone) {
-    plan.width = a.rows;
-    plan.height = 1;
+    plan->width = a.rows;
+    plan->height = 1;
   } else {
     std::string rows_kind = meta.json.value("basis", nlohmann::json::object())
                                 .value("rows", nlohmann::json::object())
@@ -149,39 +133,44 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
         ", so its columns have no 2D image domain to transform; use `--depth none` (the 2D method), or compress it "
         "with `ltbake cpca`");
   }
-  const int deepest = wavelet::MaxDepth(plan.width, plan.height);
+  const int deepest = wavelet::MaxDepth(plan->width, plan->height);
   switch (o.depth.kind) {
     case DepthMode::Kind::kAdaptive:
-      plan.max_depth = deepest;
+      plan->max_depth = deepest;
       break;
     case DepthMode::Kind::kNone:
       break;
     case DepthMode::Kind::kFull:
-      plan.min_depth = plan.max_depth = deepest;
+      plan->min_depth = plan->max_depth = deepest;
       break;
     case DepthMode::Kind::kFixed:
       if (o.depth.fixed > deepest) {
-        return InvalidArgument("--depth " + std::to_string(o.depth.fixed) + ": a " + std::to_string(plan.width) + "x" +
-                               std::to_string(plan.height) + " image has at most " + std::to_string(deepest) +
+        return InvalidArgument("--depth " + std::to_string(o.depth.fixed) + ": a " + std::to_string(plan->width) + "x" +
+                               std::to_string(plan->height) + " image has at most " + std::to_string(deepest) +
                                " steps");
       }
-      plan.min_depth = plan.max_depth = o.depth.fixed;
+      plan->min_depth = plan->max_depth = o.depth.fixed;
       break;
   }
-  if (plan.max_depth > 0) {
-    Status s = wavelet::CheckSize(o.filter, plan.width, plan.height);
+  if (plan->max_depth > 0) {
+    Status s = wavelet::CheckSize(o.filter, plan->width, plan->height);
     if (!s.ok()) return s.WithContext(o.input + ": column images");
   }
-  if (plan.width * plan.height > UINT32_MAX) {
+  if (plan->width * plan->height > UINT32_MAX) {
     return InvalidArgument(o.input + ": columns of " + std::to_string(a.rows) + " rows exceed 2^32 coefficients");
   }
-  plan.block =
+  return Status::Ok();
+}
+
+// Columns per output chunk, and the jobs that fit in --mem-limit.
+Status PlanChunks(const ColumnTransformOptions& o, const ArraySpec& a, Plan* plan) {
+  plan->block =
       o.block_cols ? std::min<uint64_t>(o.block_cols, a.cols) : OutputBlockColumns(a.rows, a.cols, o.shard.count);
-  const uint64_t pixels = a.rows;
+  const uint64_t pixels = plan->pixels = a.rows;
   const bool ortho = wavelet::IsOrthonormal(o.filter);
-  if (plan.block > kMaxSparseElements / pixels) {  // (block · pixels could overflow)
-    return InvalidArgument("--block-cols " + std::to_string(plan.block) + ": a chunk of " + std::to_string(plan.block) +
-                           " columns of " + std::to_string(pixels) +
+  if (plan->block > kMaxSparseElements / pixels) {  // (block · pixels could overflow)
+    return InvalidArgument("--block-cols " + std::to_string(plan->block) + ": a chunk of " +
+                           std::to_string(plan->block) + " columns of " + std::to_string(pixels) +
                            " rows is over the 2^32 elements of a sparse "
                            "chunk; use at most " +
                            std::to_string(kMaxSparseElements / pixels));
@@ -189,39 +178,42 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
 
   // Memory: each job holds a compressor, one input chunk, and the output chunk dense and
   // encoded (at most as large).
-  const uint64_t per_job = ColumnCompressor::WorkingBytes(plan.width, plan.height, plan.max_depth, ortho) +
-                           a.block * pixels * 4 + 2 * plan.block * pixels * 4;
+  const uint64_t per_job = ColumnCompressor::WorkingBytes(plan->width, plan->height, plan->max_depth, ortho) +
+                           a.block * pixels * 4 + 2 * plan->block * pixels * 4;
   int jobs = std::max(1, o.jobs);
   if (per_job > o.mem_limit) {
     return FailedPrecondition("column-transform needs " + std::to_string(per_job >> 20) + " MiB per job for " +
-                              std::to_string(plan.block) + " columns of " + std::to_string(plan.width) + "x" +
-                              std::to_string(plan.height) + " per output chunk, over --mem-limit " +
+                              std::to_string(plan->block) + " columns of " + std::to_string(plan->width) + "x" +
+                              std::to_string(plan->height) + " per output chunk, over --mem-limit " +
                               std::to_string(o.mem_limit >> 20) + " MiB; raise --mem-limit" +
-                              (plan.block > 1 ? " or lower --block-cols" : ""));
+                              (plan->block > 1 ? " or lower --block-cols" : ""));
   }
-  jobs = static_cast<int>(std::min<uint64_t>(jobs, o.mem_limit / per_job));
+  plan->jobs = static_cast<int>(std::min<uint64_t>(jobs, o.mem_limit / per_job));
+  return Status::Ok();
+}
 
-  // Selection parameters and metadata.
-  nlohmann::json selection;
-  uint64_t terms = 0, budget = 0;
+// Selection parameters and metadata.
+Result<SelectionPlan> PlanSelection(const ColumnTransformOptions& o, const ArraySpec& a) {
+  const uint64_t pixels = a.rows;
+  SelectionPlan sel;
   switch (o.terms.kind) {
     case TermsMode::Kind::kTerms:
       if (o.terms.terms == 0) return InvalidArgument("--terms must be at least 1");
-      terms = o.terms.terms;
-      selection = {{"terms", terms}};
+      sel.terms = o.terms.terms;
+      sel.selection = {{"terms", sel.terms}};
       break;
     case TermsMode::Kind::kKeep:
       if (!(o.terms.keep > 0 && o.terms.keep <= 1)) {
         return InvalidArgument("--keep " + std::to_string(o.terms.keep) + ": expected a fraction in (0, 1]");
       }
-      terms = std::max<uint64_t>(1, static_cast<uint64_t>(std::ceil(o.terms.keep * static_cast<double>(pixels))));
-      selection = {{"keep", o.terms.keep}, {"terms", terms}};
+      sel.terms = std::max<uint64_t>(1, static_cast<uint64_t>(std::ceil(o.terms.keep * static_cast<double>(pixels))));
+      sel.selection = {{"keep", o.terms.keep}, {"terms", sel.terms}};
       break;
     case TermsMode::Kind::kBudget: {
       auto parsed = ParseBudget(o.terms.budget);
       if (!parsed.ok()) return parsed.status().WithContext("--budget");
-      budget = BudgetNonzeros(*parsed, a.rows, a.cols);
-      selection = {{"budget", budget}};
+      sel.budget = BudgetNonzeros(*parsed, a.rows, a.cols);
+      sel.selection = {{"budget", sel.budget}};
       break;
     }
     case TermsMode::Kind::kTargetError:
@@ -229,12 +221,24 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
         return InvalidArgument("--target-error " + std::to_string(o.terms.target_error) +
                                ": expected a relative RMS error in (0, 1), e.g. 0.02 or 2%");
       }
-      selection = {{"target_error", o.terms.target_error}};
+      sel.selection = {{"target_error", o.terms.target_error}};
       break;
   }
-  const bool global = o.terms.kind == TermsMode::Kind::kBudget || o.terms.kind == TermsMode::Kind::kTargetError;
+  sel.global = o.terms.kind == TermsMode::Kind::kBudget || o.terms.kind == TermsMode::Kind::kTargetError;
+  return sel;
+}
 
-  nlohmann::json out_meta = meta.json;
+// The output's metadata (docs/COLUMN-TRANSFORM.md): the matrix in column groups of
+// plan.block, the row side tables passed through, the per-column "depth" and
+// "column_stats" tables chunked like the matrix, and "column_transform" (what
+// ColumnCodec::FromMetadata and SummarizeColumnTransform read back).
+Result<OutputLayout> OutputMetadata(const ColumnTransformOptions& o, const io::ContainerReader& in, const Plan& plan,
+                                    const SelectionPlan& sel) {
+  const Metadata& meta = in.metadata();
+  const ArraySpec& a = meta.matrix();
+  OutputLayout out;
+  nlohmann::json& out_meta = out.meta;
+  out_meta = meta.json;
   ArraySpec out_spec = a;
   out_spec.block = plan.block;
   out_meta["arrays"][0] = out_spec.ToJson();
@@ -254,8 +258,8 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
   if (meta.FindArray(kDepthArray) >= 0 || meta.FindArray(kStatsArray) >= 0) {
     return FailedPrecondition(o.input + ": already has a \"depth\" or \"column_stats\" array");
   }
-  const uint32_t depth_array = static_cast<uint32_t>(meta.arrays.size());
-  const uint32_t stats_array = depth_array + 1;
+  out.depth_array = static_cast<uint32_t>(meta.arrays.size());
+  out.stats_array = out.depth_array + 1;
   out_meta["arrays"].push_back(depth_spec.ToJson());
   out_meta["arrays"].push_back(stats_spec.ToJson());
   out_meta["basis"]["rows"]["coefficients"] = "column_transform";
@@ -265,18 +269,191 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
                                   {"max_depth", plan.max_depth},
                                   {"image", {{"width", plan.width}, {"height", plan.height}}},
                                   {"layout", "mallat"},
-                                  {"selection", selection},
+                                  {"selection", sel.selection},
                                   {"depth_array", kDepthArray},
                                   {"stats_array", kStatsArray}};
   out_meta["provenance"] = Provenance("column-transform",
                                       {{"filter", wavelet::FilterName(o.filter)},
                                        {"depth", DepthModeName(o.depth)},
-                                       {"selection", selection},
+                                       {"selection", sel.selection},
                                        {"zstd", o.zstd}},
                                       {&in});
+  return out;
+}
+
+// Output chunks missing from any of the matrix and its two side tables (each chunk is
+// computed once and writes the arrays it lacks).
+std::vector<uint64_t> MissingChunks(const io::ContainerWriter& out, const OutputLayout& layout) {
+  std::vector<uint64_t> m0 = out.Missing(0), m1 = out.Missing(layout.depth_array), m2 = out.Missing(layout.stats_array);
+  std::vector<uint64_t> items = m0;
+  items.insert(items.end(), m1.begin(), m1.end());
+  items.insert(items.end(), m2.begin(), m2.end());
+  std::sort(items.begin(), items.end());
+  items.erase(std::unique(items.begin(), items.end()), items.end());
+  return items;
+}
+
+Result<ColumnCompressor> MakeCompressor(wavelet::Filter filter, const Plan& plan) {
+  return ColumnCompressor::Create(filter, plan.width, plan.height, plan.min_depth, plan.max_depth);
+}
+
+// One compressor per worker thread, reused across chunks (and across runs in one process
+// while the plan is the same).
+Result<ColumnCompressor*> ThreadCompressor(wavelet::Filter filter, const Plan& plan) {
+  thread_local std::unique_ptr<ColumnCompressor> comp;
+  if (!comp || comp->filter() != filter || comp->width() != plan.width || comp->height() != plan.height ||
+      comp->max_depth() != plan.max_depth || comp->min_depth() != plan.min_depth) {
+    LTB_ASSIGN_OR_RETURN(ColumnCompressor cc, MakeCompressor(filter, plan));
+    comp = std::make_unique<ColumnCompressor>(std::move(cc));
+  }
+  return comp.get();
+}
+
+// Budget: first pass over every column (the allocation is global), then a bisection on
+// the threshold bin (BudgetSolver); each column's depth follows from it. Fills the
+// result's budget, estimated_error, lambda and histogram_bytes.
+Result<BudgetAllocation> SolveBudget(const ColumnTransformOptions& o, const io::ContainerReader& in, const Plan& plan,
+                                     const SelectionPlan& sel, const Progress& progress,
+                                     ColumnTransformResult* result) {
+  const ArraySpec& a = in.metadata().matrix();
+  const uint64_t pixels = plan.pixels;
+  BudgetSolver solver(a.cols);
+  std::atomic<uint64_t> hist_bytes{0};
+  std::vector<uint64_t> all_chunks(a.ChunkCount());
+  for (uint64_t i = 0; i < all_chunks.size(); ++i) all_chunks[i] = i;
+  Progress pass1 = progress;
+  Status s = ParallelFor(all_chunks, plan.jobs, pass1, "chunks (budget pass)", [&](uint64_t c) -> Status {
+    LTB_ASSIGN_OR_RETURN(ColumnCompressor * comp, ThreadCompressor(o.filter, plan));
+    LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(0, c));
+    const ChunkExtent e = chunk.extent();
+    auto values = chunk.as<float>();
+    const int depths = comp->depths();
+    std::vector<EnergyHistogram> h(ColumnCompressor::kLanes * depths);
+    for (uint64_t k0 = 0; k0 < e.cols; k0 += ColumnCompressor::kLanes) {
+      size_t n = std::min<uint64_t>(ColumnCompressor::kLanes, e.cols - k0);
+      const float* cols[ColumnCompressor::kLanes];
+      for (size_t k = 0; k < n; ++k) cols[k] = values.data() + (k0 + k) * pixels;
+      double energy[ColumnCompressor::kLanes];
+      Status hs = comp->Histograms(cols, n, h.data(), energy);
+      if (!hs.ok()) return hs.WithContext(o.input + ": column " + std::to_string(e.col0 + k0));
+      for (size_t k = 0; k < n; ++k) {
+        uint64_t bytes = solver.AddColumn(e.col0 + k0 + k, h.data() + k * depths, depths);
+        if (hist_bytes.fetch_add(bytes) + bytes > o.mem_limit / 2) {
+          return FailedPrecondition("the --budget search needs more than half of --mem-limit (" +
+                                    std::to_string(o.mem_limit >> 20) +
+                                    " MiB) for its per-column energy histograms; raise --mem-limit or use "
+                                    "--terms / --keep");
+        }
+      }
+    }
+    return Status::Ok();
+  });
+  LTB_RETURN_IF_ERROR(s);
+  result->histogram_bytes = hist_bytes;
+  BudgetAllocation alloc = o.terms.kind == TermsMode::Kind::kTargetError
+                               ? solver.ForTargetError(o.terms.target_error, plan.min_depth)
+                               : solver.ForBudget(sel.budget, plan.min_depth);
+  result->budget = alloc.budget;
+  result->estimated_error = alloc.estimated_error;
+  result->lambda = alloc.lambda;
+  return alloc;
+}
+
+// What every output chunk of the second pass reads and writes.
+struct ChunkJob {
+  const ColumnTransformOptions& o;
+  const io::ContainerReader& in;
+  io::ContainerWriter& out;
+  const Plan& plan;
+  const OutputLayout& layout;
+  const SelectionPlan& sel;
+  const BudgetAllocation& alloc;  // empty (no depths) without a global selection
+  EncodeOptions matrix_encoding;  // sparse f32
+  EncodeOptions side_encoding;    // depth and column_stats: zstd where it saves
+};
+
+// One output chunk of columns: its matrix chunk (dense, encoded sparse), and its rows of
+// the depth and column_stats tables, each written unless already committed.
+Status PutColumnGroup(const ChunkJob& job, uint64_t c, const std::vector<float>& dense,
+                      const std::vector<uint8_t>& depths, const std::vector<double>& stats) {
+  if (!job.out.Has(0, c)) {
+    LTB_RETURN_IF_ERROR(job.out.Put(0, c, BytesOf(dense), job.matrix_encoding));
+  }
+  if (!job.out.Has(job.layout.depth_array, c)) {
+    LTB_RETURN_IF_ERROR(job.out.Put(job.layout.depth_array, c, BytesOf(depths), job.side_encoding));
+  }
+  if (!job.out.Has(job.layout.stats_array, c)) {
+    LTB_RETURN_IF_ERROR(job.out.Put(job.layout.stats_array, c, BytesOf(stats), job.side_encoding));
+  }
+  return Status::Ok();
+}
+
+// Output chunk c: columns [col0, col0 + ncols), read from the input chunks over them, each
+// column transformed to its depth and its selected coefficients kept.
+Status TransformChunk(const ChunkJob& job, uint64_t c) {
+  const ArraySpec& a = job.in.metadata().matrix();
+  const Plan& plan = job.plan;
+  const uint64_t pixels = plan.pixels;
+  LTB_ASSIGN_OR_RETURN(ColumnCompressor * comp, ThreadCompressor(job.o.filter, plan));
+  const uint64_t col0 = c * plan.block, ncols = std::min(plan.block, a.cols - col0);
+  std::vector<float> dense(ncols * pixels, 0.0f);
+  std::vector<uint8_t> depths(ncols, 0);
+  std::vector<double> stats(ncols * kStatsPerColumn, 0.0);
+  ColumnChoice choice[ColumnCompressor::kLanes];
+  Selection sel[ColumnCompressor::kLanes];
+  int override_depth[ColumnCompressor::kLanes];
+  for (uint64_t ic = col0 / a.block; ic * a.block < col0 + ncols; ++ic) {
+    LTB_ASSIGN_OR_RETURN(io::Chunk chunk, job.in.ReadChunk(0, ic));
+    const ChunkExtent e = chunk.extent();
+    auto values = chunk.as<float>();
+    const uint64_t j0 = std::max(e.col0, col0), j1 = std::min(e.col0 + e.cols, col0 + ncols);
+    for (uint64_t jb = j0; jb < j1; jb += ColumnCompressor::kLanes) {
+      size_t n = std::min<uint64_t>(ColumnCompressor::kLanes, j1 - jb);
+      const float* cols[ColumnCompressor::kLanes];
+      for (size_t k = 0; k < n; ++k) {
+        const uint64_t j = jb + k;
+        cols[k] = values.data() + (j - e.col0) * pixels;
+        if (job.alloc.depth.empty()) {
+          sel[k].kind = Selection::Kind::kTerms;
+          sel[k].terms = job.sel.terms;
+          override_depth[k] = -1;
+        } else {
+          sel[k].kind = Selection::Kind::kThreshold;
+          sel[k].threshold_bin = job.alloc.threshold_bin;
+          sel[k].terms = job.alloc.extra[j];
+          override_depth[k] = job.alloc.depth[j];
+        }
+      }
+      Status cs = comp->Choose(cols, n, sel, override_depth, choice);
+      if (!cs.ok()) return cs.WithContext(job.o.input + ": column " + std::to_string(jb));
+      for (size_t k = 0; k < n; ++k) {
+        const uint64_t m = jb + k - col0;  // column within the output chunk
+        float* out_col = dense.data() + m * pixels;
+        for (size_t i = 0; i < choice[k].index.size(); ++i) out_col[choice[k].index[i]] = choice[k].value[i];
+        depths[m] = static_cast<uint8_t>(choice[k].depth);
+        stats[m * kStatsPerColumn + 0] = choice[k].energy;
+        stats[m * kStatsPerColumn + 1] = choice[k].error;
+        stats[m * kStatsPerColumn + 2] = static_cast<double>(choice[k].index.size());
+      }
+    }
+  }
+  return PutColumnGroup(job, c, dense, depths, stats);
+}
+
+}  // namespace
+
+Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o, const Progress& progress) {
+  LTB_ASSIGN_OR_RETURN(io::ContainerReader in, OpenInput(o));
+  const Metadata& meta = in.metadata();
+  const ArraySpec& a = meta.matrix();
+  Plan plan;
+  LTB_RETURN_IF_ERROR(PlanImage(o, meta, &plan));
+  LTB_RETURN_IF_ERROR(PlanChunks(o, a, &plan));
+  LTB_ASSIGN_OR_RETURN(SelectionPlan sel, PlanSelection(o, a));
+  LTB_ASSIGN_OR_RETURN(OutputLayout layout, OutputMetadata(o, in, plan, sel));
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
-  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, out_meta, wo, o.shard));
+  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, layout.meta, wo, o.shard));
 
   ColumnTransformResult result;
   result.rows = a.rows;
@@ -285,8 +462,8 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
   result.height = plan.height;
   result.min_depth = plan.min_depth;
   result.max_depth = plan.max_depth;
-  result.jobs_used = jobs;
-  result.budget = budget;
+  result.jobs_used = plan.jobs;
+  result.budget = sel.budget;
   for (const ArraySpec& s : out.metadata().arrays) result.chunks_total += s.ChunkCount();
   result.chunks_already_committed = out.resume_info().committed_chunks;
 
@@ -294,236 +471,22 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
   for (uint32_t arr = 1; arr < meta.arrays.size(); ++arr) {
     LTB_RETURN_IF_ERROR(CopyArray(in, arr, out, &result.chunks_written));
   }
+  const std::vector<uint64_t> items = MissingChunks(out, layout);
+  LTB_RETURN_IF_ERROR(MakeCompressor(o.filter, plan).status());
 
-  std::vector<uint64_t> items;
-  {
-    std::vector<uint64_t> m0 = out.Missing(0), m1 = out.Missing(depth_array), m2 = out.Missing(stats_array);
-    items = m0;
-    items.insert(items.end(), m1.begin(), m1.end());
-    items.insert(items.end(), m2.begin(), m2.end());
-    std::sort(items.begin(), items.end());
-    items.erase(std::unique(items.begin(), items.end()), items.end());
+  BudgetAllocation alloc;  // stays empty without a global selection (or with nothing to do)
+  if (sel.global && !items.empty()) {
+    LTB_ASSIGN_OR_RETURN(alloc, SolveBudget(o, in, plan, sel, progress, &result));
   }
 
-  auto make_compressor = [&]() {
-    return ColumnCompressor::Create(o.filter, plan.width, plan.height, plan.min_depth, plan.max_depth);
-  };
-  LTB_RETURN_IF_ERROR(make_compressor().status());
-  // One compressor per worker thread, reused across chunks (and across runs in one process
-  // while the plan is the same).
-  auto thread_compressor = [&]() -> Result<ColumnCompressor*> {
-    thread_local std::unique_ptr<ColumnCompressor> comp;
-    if (!comp || comp->filter() != o.filter || comp->width() != plan.width || comp->height() != plan.height ||
-        comp->max_depth() != plan.max_depth || comp->min_depth() != plan.min_depth) {
-      LTB_ASSIGN_OR_RETURN(ColumnCompressor cc, make_compressor());
-      comp = std::make_unique<ColumnCompressor>(std::move(cc));
-    }
-    return comp.get();
-  };
-
-  // Budget: first pass over every column (the allocation is global), then a bisection on
-  // the threshold bin; each column's depth follows from it.
-  std::vector<int8_t> budget_depth;
-  std::vector<uint64_t> budget_extra;  // terms each column takes from the bin below the threshold
-  int threshold_bin = 0;
-  if (global && !items.empty()) {
-    std::vector<ColumnCurves> curves(a.cols);
-    std::atomic<uint64_t> hist_bytes{0};
-    std::vector<uint64_t> all_chunks(a.ChunkCount());
-    for (uint64_t i = 0; i < all_chunks.size(); ++i) all_chunks[i] = i;
-    Progress pass1 = progress;
-    Status s = ParallelFor(all_chunks, jobs, pass1, "chunks (budget pass)", [&](uint64_t c) -> Status {
-      LTB_ASSIGN_OR_RETURN(ColumnCompressor * comp, thread_compressor());
-      LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(0, c));
-      const ChunkExtent e = chunk.extent();
-      auto values = chunk.as<float>();
-      const int depths = comp->depths();
-      std::vector<EnergyHistogram> h(ColumnCompressor::kLanes * depths);
-      for (uint64_t k0 = 0; k0 < e.cols; k0 += ColumnCompressor::kLanes) {
-        size_t n = std::min<uint64_t>(ColumnCompressor::kLanes, e.cols - k0);
-        const float* cols[ColumnCompressor::kLanes];
-        for (size_t k = 0; k < n; ++k) cols[k] = values.data() + (k0 + k) * pixels;
-        double energy[ColumnCompressor::kLanes];
-        Status hs = comp->Histograms(cols, n, h.data(), energy);
-        if (!hs.ok()) return hs.WithContext(o.input + ": column " + std::to_string(e.col0 + k0));
-        for (size_t k = 0; k < n; ++k) {
-          ColumnCurves& cc = curves[e.col0 + k0 + k];
-          cc.offset.push_back(0);
-          for (int d = 0; d < depths; ++d) {
-            const EnergyHistogram& hd = h[k * depths + d];
-            size_t base = cc.bin.size();
-            double below = 0;
-            for (size_t i = 0; i < hd.bin.size(); ++i) {
-              cc.bin.push_back(hd.bin[i]);
-              cc.energy_below.push_back(below);
-              below += hd.energy[i];
-            }
-            cc.depth_total.push_back(below);
-            cc.count_at_or_above.resize(cc.bin.size());
-            uint64_t above = 0;
-            for (size_t i = hd.bin.size(); i-- > 0;) {
-              above += hd.count[i];
-              cc.count_at_or_above[base + i] = above;
-            }
-            cc.offset.push_back(static_cast<uint32_t>(cc.bin.size()));
-          }
-          uint64_t bytes = cc.bin.size() * (4 + 8 + 8) + cc.offset.size() * 4 + cc.depth_total.size() * 8 + 128;
-          if (hist_bytes.fetch_add(bytes) + bytes > o.mem_limit / 2) {
-            return FailedPrecondition("the --budget search needs more than half of --mem-limit (" +
-                                      std::to_string(o.mem_limit >> 20) +
-                                      " MiB) for its per-column energy histograms; raise --mem-limit or use "
-                                      "--terms / --keep");
-          }
-        }
-      }
-      return Status::Ok();
-    });
-    LTB_RETURN_IF_ERROR(s);
-    result.histogram_bytes = hist_bytes;
-    int lo = INT32_MAX, hi = INT32_MIN;
-    for (const ColumnCurves& cc : curves)
-      if (!cc.bin.empty()) {
-        lo = std::min(lo, *std::min_element(cc.bin.begin(), cc.bin.end()));
-        hi = std::max(hi, *std::max_element(cc.bin.begin(), cc.bin.end()));
-      }
-    auto total = [&](int g) {
-      double lambda = BinLowerEdge(g);
-      uint64_t sum = 0;
-      for (const ColumnCurves& cc : curves) {
-        if (cc.bin.empty()) continue;
-        uint64_t n = 0;
-        PickDepth(cc, g, lambda, &n);
-        sum += n;
-      }
-      return sum;
-    };
-    // --target-error: the relative error at threshold bin g, each column at its depth.
-    auto error_at = [&](int g) {
-      double lambda = BinLowerEdge(g), dropped = 0, energy = 0;
-      for (const ColumnCurves& cc : curves) {
-        if (cc.bin.empty()) continue;
-        uint64_t n = 0;
-        int d = PickDepth(cc, g, lambda, &n);
-        Point p = Evaluate(cc, d, g, lambda);
-        dropped += p.cost - lambda * static_cast<double>(p.count);
-        energy += cc.depth_total[d];
-      }
-      return energy > 0 ? std::sqrt(std::max(0.0, dropped) / energy) : 0.0;
-    };
-    if (lo > hi) {
-      threshold_bin = 0;  // every column is empty
-    } else if (o.terms.kind == TermsMode::Kind::kTargetError) {
-      // The largest threshold (fewest terms) within the target; bins are 1/8 octave apart.
-      const double t = o.terms.target_error;
-      if (error_at(hi + 1) <= t) {
-        threshold_bin = hi + 1;
-      } else {
-        int l = lo, h = hi + 1;  // error_at(l) ≤ t (every term kept) < error_at(h)
-        while (h - l > 1) {
-          int mid = l + (h - l) / 2;
-          (error_at(mid) <= t ? l : h) = mid;
-        }
-        threshold_bin = l;
-      }
-      budget = total(threshold_bin);  // met exactly: nothing to fill from the bin below
-      result.budget = budget;
-      result.estimated_error = error_at(threshold_bin);
-    } else if (total(lo) <= budget) {
-      threshold_bin = lo;
-    } else {
-      int l = lo, h = hi + 1;  // total(l) > budget >= total(h)
-      while (h - l > 1) {
-        int mid = l + (h - l) / 2;
-        (total(mid) <= budget ? h : l) = mid;
-      }
-      threshold_bin = h;
-    }
-    budget_depth.assign(a.cols, -1);
-    budget_extra.assign(a.cols, 0);
-    double lambda = BinLowerEdge(threshold_bin);
-    uint64_t used = 0;
-    std::vector<uint64_t> in_next_bin(a.cols, 0);  // terms of bin threshold_bin − 1 at the chosen depth
-    for (uint64_t c = 0; c < a.cols; ++c) {
-      if (curves[c].bin.empty()) continue;
-      uint64_t n = 0;
-      int d = PickDepth(curves[c], threshold_bin, lambda, &n);
-      budget_depth[c] = static_cast<int8_t>(plan.min_depth + d);
-      used += n;
-      Point below = Evaluate(curves[c], d, threshold_bin - 1, BinLowerEdge(threshold_bin - 1));
-      in_next_bin[c] = below.count - n;
-    }
-    // The bins are 1/8 octave wide, and many equal values (a lit floor) can share one: fill
-    // what is left of the budget from the next bin down, at each column's chosen depth,
-    // in column order (each extra term lowers the error by at least λ/2^(1/8)).
-    for (uint64_t c = 0; c < a.cols && used < budget; ++c) {
-      uint64_t take = std::min(in_next_bin[c], budget - used);
-      budget_extra[c] = take;
-      used += take;
-    }
-    result.lambda = lambda;
-  }
-
-  EncodeOptions eo;
-  eo.zstd = o.zstd;
-  eo.sparse = true;
-  eo.dtype = DType::kF32;
-  EncodeOptions side;  // depth and column_stats: zstd where it saves
-  side.zstd = true;
+  ChunkJob job{.o = o, .in = in, .out = out, .plan = plan, .layout = layout, .sel = sel, .alloc = alloc};
+  job.matrix_encoding.zstd = o.zstd;
+  job.matrix_encoding.sparse = true;
+  job.matrix_encoding.dtype = DType::kF32;
+  job.side_encoding.zstd = true;
   std::atomic<uint64_t> written{0};
-  Status s = ParallelFor(items, jobs, progress, "chunks", [&](uint64_t c) -> Status {
-    LTB_ASSIGN_OR_RETURN(ColumnCompressor * comp, thread_compressor());
-    // Output chunk c: columns [col0, col0 + ncols), read from the input chunks over them.
-    const uint64_t col0 = c * plan.block, ncols = std::min(plan.block, a.cols - col0);
-    std::vector<float> dense(ncols * pixels, 0.0f);
-    std::vector<uint8_t> depths(ncols, 0);
-    std::vector<double> stats(ncols * kStatsPerColumn, 0.0);
-    ColumnChoice choice[ColumnCompressor::kLanes];
-    Selection sel[ColumnCompressor::kLanes];
-    int override_depth[ColumnCompressor::kLanes];
-    for (uint64_t ic = col0 / a.block; ic * a.block < col0 + ncols; ++ic) {
-      LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(0, ic));
-      const ChunkExtent e = chunk.extent();
-      auto values = chunk.as<float>();
-      const uint64_t j0 = std::max(e.col0, col0), j1 = std::min(e.col0 + e.cols, col0 + ncols);
-      for (uint64_t jb = j0; jb < j1; jb += ColumnCompressor::kLanes) {
-        size_t n = std::min<uint64_t>(ColumnCompressor::kLanes, j1 - jb);
-        const float* cols[ColumnCompressor::kLanes];
-        for (size_t k = 0; k < n; ++k) {
-          const uint64_t j = jb + k;
-          cols[k] = values.data() + (j - e.col0) * pixels;
-          if (budget_depth.empty()) {
-            sel[k].kind = Selection::Kind::kTerms;
-            sel[k].terms = terms;
-            override_depth[k] = -1;
-          } else {
-            sel[k].kind = Selection::Kind::kThreshold;
-            sel[k].threshold_bin = threshold_bin;
-            sel[k].terms = budget_extra[j];
-            override_depth[k] = budget_depth[j];
-          }
-        }
-        Status cs = comp->Choose(cols, n, sel, override_depth, choice);
-        if (!cs.ok()) return cs.WithContext(o.input + ": column " + std::to_string(jb));
-        for (size_t k = 0; k < n; ++k) {
-          const uint64_t m = jb + k - col0;  // column within the output chunk
-          float* out_col = dense.data() + m * pixels;
-          for (size_t i = 0; i < choice[k].index.size(); ++i) out_col[choice[k].index[i]] = choice[k].value[i];
-          depths[m] = static_cast<uint8_t>(choice[k].depth);
-          stats[m * kStatsPerColumn + 0] = choice[k].energy;
-          stats[m * kStatsPerColumn + 1] = choice[k].error;
-          stats[m * kStatsPerColumn + 2] = static_cast<double>(choice[k].index.size());
-        }
-      }
-    }
-    if (!out.Has(0, c)) {
-      LTB_RETURN_IF_ERROR(out.Put(0, c, BytesOf(dense), eo));
-    }
-    if (!out.Has(depth_array, c)) {
-      LTB_RETURN_IF_ERROR(out.Put(depth_array, c, BytesOf(depths), side));
-    }
-    if (!out.Has(stats_array, c)) {
-      LTB_RETURN_IF_ERROR(out.Put(stats_array, c, BytesOf(stats), side));
-    }
+  Status s = ParallelFor(items, plan.jobs, progress, "chunks", [&](uint64_t c) -> Status {
+    LTB_RETURN_IF_ERROR(TransformChunk(job, c));
     written++;
     return Status::Ok();
   });

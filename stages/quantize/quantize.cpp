@@ -127,12 +127,10 @@ Result<double> RefineStep(const io::ContainerReader& in, const ColumnCodec& code
   return std::exp2(lo);
 }
 
-}  // namespace
-
-Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progress& progress) {
+// The options as run: --error-ratio quantizes with bits 24 and no dither.
+Result<QuantizeOptions> ResolveOptions(const QuantizeOptions& options) {
   QuantizeOptions o = options;
-  const bool step_mode = o.error_ratio != 0;
-  if (step_mode) {
+  if (o.error_ratio != 0) {
     if (!(o.error_ratio > 1.0 && o.error_ratio <= 100.0)) {
       return InvalidArgument("--error-ratio " + std::to_string(o.error_ratio) +
                              ": expected a factor in (1, 100] on the RMS error, e.g. 1.1");
@@ -143,6 +141,11 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
   if (o.bits < 2 || o.bits > 24) {
     return InvalidArgument("--bits " + std::to_string(o.bits) + ": expected 2..24 (f32 coefficients carry 24 bits)");
   }
+  return o;
+}
+
+// The input: a complete column-transform output, not yet quantized.
+Result<io::ContainerReader> OpenInput(const QuantizeOptions& o) {
   LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(o.input));
   const Metadata& meta = in.metadata();
   if (meta.json.contains("quantization")) {
@@ -155,27 +158,40 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
                               "(after `ltbake transpose`)");
   }
   LTB_RETURN_IF_ERROR(RequireCompleteF32Matrix(in));
-  LTB_ASSIGN_OR_RETURN(ColumnCodec codec, ColumnCodec::FromMetadata(meta, o.input));
-  const ArraySpec& a = meta.matrix();
-  const uint64_t pixels = a.rows;
+  return in;
+}
 
-  const Scaling scaling = step_mode ? Scaling::kNorm : o.level_scaling ? Scaling::kNormLevel : Scaling::kNone;
-  // The codec of the input knows no quantization; the factors of this run's scaling:
-  const auto factors = QuantizationFactors(codec.filter(), codec.width(), codec.height(), codec.max_depth(), scaling);
-  // --error-ratio: the step from the input's totals (its column_stats), then refined on the
-  // coefficients themselves (N·Δ²/12 holds only while Δ is small beside them).
-  double step = 0;
-  ColumnTransformResult totals_in;
-  if (step_mode) {
-    LTB_ASSIGN_OR_RETURN(totals_in, SummarizeColumnTransform(o.input));
-    step = StepForErrorRatio(o.error_ratio, totals_in.error, totals_in.energy, totals_in.nonzeros);
-    if (!(step > 0) || !std::isfinite(step)) {
-      return DataLoss(o.input + ": column_stats give no usable quantization step (error " +
-                      std::to_string(totals_in.error) + ", energy " + std::to_string(totals_in.energy) + ")");
-    }
-    LTB_ASSIGN_OR_RETURN(step, RefineStep(in, codec, factors, o.error_ratio, totals_in, step, o.jobs, progress));
+// --error-ratio: the step from the input's totals (its column_stats, returned in
+// *totals_in), then refined on the coefficients themselves (N·Δ²/12 holds only while Δ is
+// small beside them).
+Result<double> FindStep(const QuantizeOptions& o, const io::ContainerReader& in, const ColumnCodec& codec,
+                        const std::vector<std::vector<double>>& factors, const Progress& progress,
+                        ColumnTransformResult* totals_in) {
+  LTB_ASSIGN_OR_RETURN(*totals_in, SummarizeColumnTransform(o.input));
+  double step = StepForErrorRatio(o.error_ratio, totals_in->error, totals_in->energy, totals_in->nonzeros);
+  if (!(step > 0) || !std::isfinite(step)) {
+    return DataLoss(o.input + ": column_stats give no usable quantization step (error " +
+                    std::to_string(totals_in->error) + ", energy " + std::to_string(totals_in->energy) + ")");
   }
-  nlohmann::json out_meta = meta.json;
+  return RefineStep(in, codec, factors, o.error_ratio, *totals_in, step, o.jobs, progress);
+}
+
+// The output's metadata and where its per-column scales are.
+struct QuantizeOutput {
+  nlohmann::json meta;
+  uint32_t scale_array = 0;
+};
+
+// The output's metadata (docs/COLUMN-TRANSFORM.md): the matrix as i32, the input's side
+// tables, a "scale" table (f64 per column, chunked like the matrix) and "quantization",
+// what ColumnCodec::FromMetadata reads back.
+Result<QuantizeOutput> OutputMetadata(const QuantizeOptions& o, const io::ContainerReader& in, Scaling scaling,
+                                      bool step_mode, double step) {
+  const Metadata& meta = in.metadata();
+  const ArraySpec& a = meta.matrix();
+  QuantizeOutput out;
+  nlohmann::json& out_meta = out.meta;
+  out_meta = meta.json;
   ArraySpec m = a;
   m.dtype = DType::kI32;
   out_meta["arrays"][0] = m.ToJson();
@@ -187,7 +203,7 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
   scale_spec.layout = Layout::kRows;
   scale_spec.block = a.block;
   if (meta.FindArray(kScaleArray) >= 0) return FailedPrecondition(o.input + ": already has a \"scale\" array");
-  const uint32_t scale_array = static_cast<uint32_t>(meta.arrays.size());
+  out.scale_array = static_cast<uint32_t>(meta.arrays.size());
   out_meta["arrays"].push_back(scale_spec.ToJson());
   out_meta["basis"]["rows"]["coefficients"] = "column_transform, quantized";
   out_meta["quantization"] = {{"bits", o.bits},
@@ -204,9 +220,136 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
     params = {{"error_ratio", o.error_ratio}, {"zstd", o.zstd}};
   }
   out_meta["provenance"] = Provenance("quantize", params, {&in});
+  return out;
+}
+
+// Chunks missing from the matrix or the scale table (each chunk writes what it lacks).
+std::vector<uint64_t> MissingChunks(const io::ContainerWriter& out, uint32_t scale_array) {
+  std::vector<uint64_t> items = out.Missing(0);
+  for (uint64_t c : out.Missing(scale_array)) items.push_back(c);
+  std::sort(items.begin(), items.end());
+  items.erase(std::unique(items.begin(), items.end()), items.end());
+  return items;
+}
+
+// Σ squared quantization error (double bits, CAS-added).
+void AddError(std::atomic<uint64_t>* sum_bits, double e) {
+  uint64_t cur = sum_bits->load();
+  while (!sum_bits->compare_exchange_weak(cur, std::bit_cast<uint64_t>(std::bit_cast<double>(cur) + e))) {
+  }
+}
+
+// What every chunk of the quantization pass reads and writes.
+struct QuantizeJob {
+  const QuantizeOptions& o;
+  const io::ContainerReader& in;
+  io::ContainerWriter& out;
+  const ColumnCodec& codec;
+  const std::vector<std::vector<double>>& factors;  // per depth, per position
+  uint32_t scale_array = 0;
+  bool step_mode = false;
+  double step = 0;
+  double levels = 0;                 // Q
+  std::atomic<uint64_t>* qerr_bits;  // AddError
+  EncodeOptions matrix_encoding;     // sparse i32
+  EncodeOptions side_encoding;       // the per-column scales: zstd where it saves
+};
+
+// Quantizes chunk c (its columns one by one) and writes its matrix chunk and scales
+// unless already committed.
+Status QuantizeChunk(const QuantizeJob& job, uint64_t c) {
+  const QuantizeOptions& o = job.o;
+  const uint64_t pixels = job.in.metadata().matrix().rows;
+  const double levels = job.levels;
+  LTB_ASSIGN_OR_RETURN(SparseChunk sc, job.in.ReadSparse(0, c));
+  LTB_ASSIGN_OR_RETURN(io::Chunk dc, job.in.ReadChunk(static_cast<uint32_t>(job.codec.depth_array()), c));
+  auto depths = dc.as<uint8_t>();
+  auto values = sc.as<float>();
+  const ChunkExtent& e = sc.extent;
+  std::vector<int32_t> dense(e.cols * pixels, 0);
+  std::vector<double> scales(e.cols, 0.0);
+  std::vector<double> scaled;
+  size_t pos = 0;
+  for (uint64_t k = 0; k < e.cols; ++k) {
+    size_t begin = pos;
+    while (pos < sc.index.size() && sc.index[pos] < (k + 1) * pixels) ++pos;
+    if (begin == pos) continue;
+    int d = depths[k];
+    if (d > job.codec.max_depth()) {
+      return DataLoss(o.input + ": column " + std::to_string(e.col0 + k) + " has depth " + std::to_string(d));
+    }
+    const std::vector<double>& factor = job.factors[d];
+    scaled.resize(pos - begin);
+    double mx = 0;
+    for (size_t i = begin; i < pos; ++i) {
+      uint32_t p = sc.index[i] - static_cast<uint32_t>(k * pixels);
+      double v = static_cast<double>(values[i]) * factor[p];
+      scaled[i - begin] = v;
+      mx = std::max(mx, std::fabs(v));
+    }
+    if (!(mx > 0) || !std::isfinite(mx)) {
+      if (mx == 0) continue;  // only signed zeros
+      return DataLoss(o.input + ": column " + std::to_string(e.col0 + k) + " holds a non-finite coefficient");
+    }
+    if (job.step_mode) mx = job.step * levels;  // q = round(v / Δ): the same step in every column
+    scales[k] = mx;
+    double column_error = 0;
+    for (size_t i = begin; i < pos; ++i) {
+      uint32_t p = sc.index[i] - static_cast<uint32_t>(k * pixels);
+      const int32_t q = QuantizeValue(scaled[i - begin], mx, levels, o.dither, o.seed, e.col0 + k, p);
+      dense[sc.index[i]] = q;
+      const double err = static_cast<double>(q) * (mx / levels) - scaled[i - begin];
+      column_error += err * err;
+    }
+    AddError(job.qerr_bits, column_error);
+  }
+  if (!job.out.Has(0, c)) {
+    LTB_RETURN_IF_ERROR(job.out.Put(0, c, BytesOf(dense), job.matrix_encoding));
+  }
+  if (!job.out.Has(job.scale_array, c)) {
+    LTB_RETURN_IF_ERROR(job.out.Put(job.scale_array, c, BytesOf(scales), job.side_encoding));
+  }
+  return Status::Ok();
+}
+
+// Coefficients the input kept, from its side table, over the chunks `out` owns.
+Result<uint64_t> InputNonzeros(const io::ContainerReader& in, const Metadata& out_meta) {
+  const Metadata& meta = in.metadata();
+  uint64_t nonzeros = 0;
+  int stats = meta.FindArray(meta.json["column_transform"].value("stats_array", std::string("column_stats")));
+  if (stats >= 0) {
+    for (uint64_t c = 0; c < meta.arrays[stats].ChunkCount(); ++c) {
+      if (!out_meta.Owns(0, c)) continue;  // a shard: its own columns (the stats share the matrix's blocks)
+      LTB_ASSIGN_OR_RETURN(io::Chunk sc, in.ReadChunk(static_cast<uint32_t>(stats), c));
+      auto v = sc.as<double>();
+      for (size_t i = 2; i < v.size(); i += 3) nonzeros += static_cast<uint64_t>(v[i]);
+    }
+  }
+  return nonzeros;
+}
+
+}  // namespace
+
+Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progress& progress) {
+  LTB_ASSIGN_OR_RETURN(const QuantizeOptions o, ResolveOptions(options));
+  const bool step_mode = o.error_ratio != 0;
+  LTB_ASSIGN_OR_RETURN(io::ContainerReader in, OpenInput(o));
+  const Metadata& meta = in.metadata();
+  LTB_ASSIGN_OR_RETURN(ColumnCodec codec, ColumnCodec::FromMetadata(meta, o.input));
+  const ArraySpec& a = meta.matrix();
+
+  const Scaling scaling = step_mode ? Scaling::kNorm : o.level_scaling ? Scaling::kNormLevel : Scaling::kNone;
+  // The codec of the input knows no quantization; the factors of this run's scaling:
+  const auto factors = QuantizationFactors(codec.filter(), codec.width(), codec.height(), codec.max_depth(), scaling);
+  double step = 0;
+  ColumnTransformResult totals_in;
+  if (step_mode) {
+    LTB_ASSIGN_OR_RETURN(step, FindStep(o, in, codec, factors, progress, &totals_in));
+  }
+  LTB_ASSIGN_OR_RETURN(QuantizeOutput layout, OutputMetadata(o, in, scaling, step_mode, step));
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
-  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, out_meta, wo, o.shard));
+  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, layout.meta, wo, o.shard));
 
   QuantizeResult result;
   result.rows = a.rows;
@@ -217,74 +360,26 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
   for (uint32_t arr = 1; arr < meta.arrays.size(); ++arr) {
     LTB_RETURN_IF_ERROR(CopyArray(in, arr, out, &result.chunks_written));
   }
-  std::vector<uint64_t> items = out.Missing(0);
-  for (uint64_t c : out.Missing(scale_array)) items.push_back(c);
-  std::sort(items.begin(), items.end());
-  items.erase(std::unique(items.begin(), items.end()), items.end());
+  const std::vector<uint64_t> items = MissingChunks(out, layout.scale_array);
 
-  const double levels = Quantization{o.bits}.Levels();
   std::atomic<uint64_t> qerr_bits{0};  // Σ squared quantization error (double bits, CAS-added)
-  auto add_error = [&](double e) {
-    uint64_t cur = qerr_bits.load();
-    while (!qerr_bits.compare_exchange_weak(cur, std::bit_cast<uint64_t>(std::bit_cast<double>(cur) + e))) {
-    }
-  };
-  EncodeOptions eo;
-  eo.sparse = true;
-  eo.dtype = DType::kI32;
-  eo.zstd = o.zstd;
-  EncodeOptions side;  // the per-column scales: zstd where it saves
-  side.zstd = true;
+  QuantizeJob job{.o = o,
+                  .in = in,
+                  .out = out,
+                  .codec = codec,
+                  .factors = factors,
+                  .scale_array = layout.scale_array,
+                  .step_mode = step_mode,
+                  .step = step,
+                  .levels = Quantization{o.bits}.Levels(),
+                  .qerr_bits = &qerr_bits};
+  job.matrix_encoding.sparse = true;
+  job.matrix_encoding.dtype = DType::kI32;
+  job.matrix_encoding.zstd = o.zstd;
+  job.side_encoding.zstd = true;
   std::atomic<uint64_t> written{0};
   Status s = ParallelFor(items, o.jobs, progress, "chunks", [&](uint64_t c) -> Status {
-    LTB_ASSIGN_OR_RETURN(SparseChunk sc, in.ReadSparse(0, c));
-    LTB_ASSIGN_OR_RETURN(io::Chunk dc, in.ReadChunk(static_cast<uint32_t>(codec.depth_array()), c));
-    auto depths = dc.as<uint8_t>();
-    auto values = sc.as<float>();
-    const ChunkExtent& e = sc.extent;
-    std::vector<int32_t> dense(e.cols * pixels, 0);
-    std::vector<double> scales(e.cols, 0.0);
-    std::vector<double> scaled;
-    size_t pos = 0;
-    for (uint64_t k = 0; k < e.cols; ++k) {
-      size_t begin = pos;
-      while (pos < sc.index.size() && sc.index[pos] < (k + 1) * pixels) ++pos;
-      if (begin == pos) continue;
-      int d = depths[k];
-      if (d > codec.max_depth()) {
-        return DataLoss(o.input + ": column " + std::to_string(e.col0 + k) + " has depth " + std::to_string(d));
-      }
-      const std::vector<double>& factor = factors[d];
-      scaled.resize(pos - begin);
-      double mx = 0;
-      for (size_t i = begin; i < pos; ++i) {
-        uint32_t p = sc.index[i] - static_cast<uint32_t>(k * pixels);
-        double v = static_cast<double>(values[i]) * factor[p];
-        scaled[i - begin] = v;
-        mx = std::max(mx, std::fabs(v));
-      }
-      if (!(mx > 0) || !std::isfinite(mx)) {
-        if (mx == 0) continue;  // only signed zeros
-        return DataLoss(o.input + ": column " + std::to_string(e.col0 + k) + " holds a non-finite coefficient");
-      }
-      if (step_mode) mx = step * levels;  // q = round(v / Δ): the same step in every column
-      scales[k] = mx;
-      double column_error = 0;
-      for (size_t i = begin; i < pos; ++i) {
-        uint32_t p = sc.index[i] - static_cast<uint32_t>(k * pixels);
-        const int32_t q = QuantizeValue(scaled[i - begin], mx, levels, o.dither, o.seed, e.col0 + k, p);
-        dense[sc.index[i]] = q;
-        const double err = static_cast<double>(q) * (mx / levels) - scaled[i - begin];
-        column_error += err * err;
-      }
-      add_error(column_error);
-    }
-    if (!out.Has(0, c)) {
-      LTB_RETURN_IF_ERROR(out.Put(0, c, BytesOf(dense), eo));
-    }
-    if (!out.Has(scale_array, c)) {
-      LTB_RETURN_IF_ERROR(out.Put(scale_array, c, BytesOf(scales), side));
-    }
+    LTB_RETURN_IF_ERROR(QuantizeChunk(job, c));
     written++;
     return Status::Ok();
   });
@@ -301,16 +396,7 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
   LTB_ASSIGN_OR_RETURN(QuantizeResult totals, SummarizeQuantized(out.path()));
   result.nonzeros_out = totals.nonzeros_out;
   result.matrix_bytes = totals.matrix_bytes;
-  // Coefficients the input kept, from its side table.
-  int stats = meta.FindArray(meta.json["column_transform"].value("stats_array", std::string("column_stats")));
-  if (stats >= 0) {
-    for (uint64_t c = 0; c < meta.arrays[stats].ChunkCount(); ++c) {
-      if (!out_meta_parsed.Owns(0, c)) continue;  // a shard: its own columns (the stats share the matrix's blocks)
-      LTB_ASSIGN_OR_RETURN(io::Chunk sc, in.ReadChunk(static_cast<uint32_t>(stats), c));
-      auto v = sc.as<double>();
-      for (size_t i = 2; i < v.size(); i += 3) result.nonzeros_in += static_cast<uint64_t>(v[i]);
-    }
-  }
+  LTB_ASSIGN_OR_RETURN(result.nonzeros_in, InputNonzeros(in, out_meta_parsed));
   return result;
 }
 
