@@ -60,242 +60,317 @@ Result<uint64_t> ChecksumRange(const File& f, uint64_t offset, uint64_t length, 
   return h;
 }
 
-}  // namespace
+// One verification of a container file, check by check in file order: header and
+// metadata, the frame chain, each frame (chunk frames in depth), then the seal (trailer
+// and index). Each check adds what it finds to the report; those returning false found
+// damage that ends the verification.
+class Verification {
+ public:
+  explicit Verification(const std::string& path) { r_.path = path; }
+  VerifyReport Run();
 
-VerifyReport VerifyContainer(const std::string& path) {
-  if (LooksLikeManifest(path)) return VerifyManifest(path);
-  VerifyReport r;
-  r.path = path;
-  auto file = File::Open(path, File::Mode::kRead);
+ private:
+  bool ReadPreludeChecked();
+  bool ScanChain();
+  void CheckFrame(const IndexEntry& e);
+  void CheckChunkFrame(const IndexEntry& e, const std::string& where);
+  bool CheckChunkPayload(const FrameHeader& h, const ArraySpec& a, uint64_t payload_offset, const std::string& where);
+  bool CheckTrailer();
+  void CheckSeal(bool trailer_ok);
+  void CheckIndexEntries();
+
+  VerifyReport r_;
+  File file_;
+  uint64_t size_ = 0;
+  ContainerPrelude prelude_;
+  uint64_t first_ = 0;  // the first frame's offset
+  ScanResult scan_;
+  std::set<uint64_t> seen_;
+  std::vector<std::byte> buffer_;  // for positional reads of payloads
+  std::vector<IndexEntry> chunk_frames_;
+  const IndexEntry* index_frame_ = nullptr;
+  const IndexEntry* partial_index_ = nullptr;  // last frame: an index whose payload does not verify
+};
+
+// The file, its header and metadata, and the zero padding after the metadata.
+bool Verification::ReadPreludeChecked() {
+  auto file = File::Open(r_.path, File::Mode::kRead);
   if (!file.ok()) {
-    r.problems.push_back(file.status().message());
-    return r;
+    r_.problems.push_back(file.status().message());
+    return false;
   }
-  auto size_or = file->Size();
+  file_ = std::move(file).value();
+  auto size_or = file_.Size();
   if (!size_or.ok()) {
-    r.problems.push_back(size_or.status().message());
-    return r;
+    r_.problems.push_back(size_or.status().message());
+    return false;
   }
-  uint64_t size = *size_or;
-  auto prelude = ReadPrelude(*file, size);
+  size_ = *size_or;
+  auto prelude = ReadPrelude(file_, size_);
   if (!prelude.ok()) {
-    r.problems.push_back(prelude.status().message());
-    return r;
+    r_.problems.push_back(prelude.status().message());
+    return false;
   }
-  r.readable = true;
-  const Metadata& meta = prelude->metadata;
-  for (uint32_t a = 0; a < meta.arrays.size(); ++a) r.chunks_expected += meta.OwnedChunks(a);
-  uint64_t first = prelude->header.FirstFrameOffset();
+  prelude_ = std::move(prelude).value();
+  r_.readable = true;
+  const Metadata& meta = prelude_.metadata;
+  for (uint32_t a = 0; a < meta.arrays.size(); ++a) r_.chunks_expected += meta.OwnedChunks(a);
+  first_ = prelude_.header.FirstFrameOffset();
   std::string err;
-  if (first > size) {
-    r.problems.push_back("file ends at " + std::to_string(size) + " inside the metadata padding (truncated)");
-    return r;
+  if (first_ > size_) {
+    r_.problems.push_back("file ends at " + std::to_string(size_) + " inside the metadata padding (truncated)");
+    return false;
   }
-  if (!RangeIsZero(*file, kHeaderSize + prelude->header.metadata_length,
-                   first - kHeaderSize - prelude->header.metadata_length, &err)) {
-    r.problems.push_back("metadata padding: " + err);
+  if (!RangeIsZero(file_, kHeaderSize + prelude_.header.metadata_length,
+                   first_ - kHeaderSize - prelude_.header.metadata_length, &err)) {
+    r_.problems.push_back("metadata padding: " + err);
   }
+  return true;
+}
 
-  auto scan = ScanFrames(*file, first, size);
+// The frame chain, and every damaged region in it.
+bool Verification::ScanChain() {
+  auto scan = ScanFrames(file_, first_, size_);
   if (!scan.ok()) {
-    r.problems.push_back(scan.status().message());
-    return r;
+    r_.problems.push_back(scan.status().message());
+    return false;
   }
-  for (const ScanGap& g : scan->gaps) {
-    r.problems.push_back("offset " + std::to_string(g.offset) + ": " + g.reason + " (" +
-                         std::to_string(g.resume - g.offset) + " unreadable bytes; next valid frame at offset " +
-                         std::to_string(g.resume) + ")");
+  scan_ = std::move(scan).value();
+  for (const ScanGap& g : scan_.gaps) {
+    r_.problems.push_back("offset " + std::to_string(g.offset) + ": " + g.reason + " (" +
+                          std::to_string(g.resume - g.offset) + " unreadable bytes; next valid frame at offset " +
+                          std::to_string(g.resume) + ")");
   }
+  return true;
+}
 
-  std::set<uint64_t> seen;
-  std::vector<std::byte> buffer;  // for positional reads of payloads
-  std::vector<IndexEntry> chunk_frames;
-  const IndexEntry* index_frame = nullptr;
-  const IndexEntry* partial_index = nullptr;  // last frame: an index whose payload does not verify
-  for (const IndexEntry& e : scan->frames) {
-    const FrameHeader& h = e.header;
-    std::string where = "frame at offset " + std::to_string(e.frame_offset);
-    if (h.type == static_cast<uint16_t>(FrameType::kChunk) && h.array < meta.arrays.size()) {
-      where += " (array \"" + meta.arrays[h.array].name + "\" chunk " + std::to_string(h.chunk_index) + ")";
-    }
-    uint64_t payload_offset = e.frame_offset + kFrameHeaderSize;
-    uint64_t padded_end = std::min(size, e.frame_offset + h.FrameSize());
-    if (index_frame != nullptr) {
-      r.problems.push_back(where + ": frame after the index frame at offset " +
-                           std::to_string(index_frame->frame_offset));
-    }
-    if (!RangeIsZero(*file, payload_offset + h.payload_length, padded_end - payload_offset - h.payload_length, &err)) {
-      r.problems.push_back(where + ": payload padding: " + err);
-    }
-    auto sum = ChecksumRange(*file, payload_offset, h.payload_length, buffer);
-    if (!sum.ok()) {
-      r.problems.push_back(where + ": " + sum.status().message());
-      continue;
-    }
-    const uint64_t actual = *sum;
-    if (actual != h.payload_checksum && h.type == static_cast<uint16_t>(FrameType::kIndex) &&
-        &e == &scan->frames.back() && scan->chain_end == size) {
-      partial_index = &e;  // judged below, once the trailer is known: an interrupted seal, or damage
-      continue;
-    }
-    if (actual != h.payload_checksum) {
-      r.problems.push_back(where + ": payload checksum mismatch: expected=" + Hex64(h.payload_checksum) +
-                           ", actual=" + Hex64(actual));
-      continue;
-    }
-    if (h.type == static_cast<uint16_t>(FrameType::kIndex)) {
-      index_frame = &e;
-      continue;
-    }
-    if (h.type == static_cast<uint16_t>(FrameType::kPadding)) continue;  // zeros (checked by the checksum)
-    if (h.type != static_cast<uint16_t>(FrameType::kChunk)) {
-      if (h.flags & kFrameFlagOptional) {
-        r.notes.push_back(where + ": skipped optional frame of unknown type " + std::to_string(h.type));
-      } else {
-        r.problems.push_back(where + ": unknown frame type " + std::to_string(h.type) +
-                             " that is not optional (written by a newer ltbake?)");
-      }
-      continue;
-    }
-    if (h.array >= meta.arrays.size()) {
-      r.problems.push_back(where + ": array " + std::to_string(h.array) + " does not exist");
-      continue;
-    }
-    const ArraySpec& a = meta.arrays[h.array];
-    if (h.chunk_index >= a.ChunkCount()) {
-      r.problems.push_back(where + ": out of range (" + std::to_string(a.ChunkCount()) + " chunks)");
-      continue;
-    }
-    if (!meta.Owns(h.array, h.chunk_index)) {
-      r.problems.push_back(where + ": chunk " + std::to_string(h.chunk_index) + " of array \"" + a.name +
-                           "\" belongs to another shard (this is shard " + std::to_string(meta.shard->index) + " of " +
-                           std::to_string(meta.shard->count) + ")");
-      continue;
-    }
-    Status len = CheckChunkLengths(h, a.ChunkBytes(h.chunk_index));
-    if (!len.ok()) {
-      r.problems.push_back(where + ": " + len.message());
-      continue;
-    }
-    // Compressed payloads are parsed through a mapping, only once their checksum has been
-    // read back with pread (so every byte of it is on disk) and the file still covers them.
-    MappedRegion region;
-    if (h.encoding == static_cast<uint16_t>(Encoding::kZstd) ||
-        h.encoding == static_cast<uint16_t>(Encoding::kSparse) ||
-        h.encoding == static_cast<uint16_t>(Encoding::kSparseZstd)) {
-      auto now = file->Size();
-      if (!now.ok() || *now < payload_offset + h.payload_length) {
-        r.problems.push_back(where + ": the file shrank to " + (now.ok() ? std::to_string(*now) : "?") +
-                             " bytes while being verified (is a writer still working on it?)");
-        continue;
-      }
-      auto mapped = MappedRegion::Map(file->fd(), payload_offset, h.payload_length, true);
-      if (!mapped.ok()) {
-        r.problems.push_back(where + ": " + mapped.status().message());
-        continue;
-      }
-      region = std::move(mapped).value();
-    }
-    if (h.encoding == static_cast<uint16_t>(Encoding::kZstd)) {
-      auto n = ZstdDecodedSize(region.bytes(), h.decoded_length);
-      if (!n.ok() || *n != h.decoded_length) {
-        r.problems.push_back(where + ": " +
-                             (n.ok() ? "zstd payload decodes to " + std::to_string(*n) + " bytes, expected " +
-                                           std::to_string(h.decoded_length)
-                                     : n.status().message()));
-        continue;
-      }
-    }
-    if (h.encoding == static_cast<uint16_t>(Encoding::kSparse) ||
-        h.encoding == static_cast<uint16_t>(Encoding::kSparseZstd)) {
-      // Parsed as a stream (zstd through a fixed window): nothing is materialized.
-      Status s = CheckSparsePayload(static_cast<Encoding>(h.encoding), region.bytes(), a.dtype,
-                                    a.Extent(h.chunk_index).Elements());
-      if (!s.ok()) {
-        r.problems.push_back(where + ": " + s.message());
-        continue;
-      }
-    }
-    uint64_t key = (uint64_t{h.array} << 40) | h.chunk_index;
-    if (!seen.insert(key).second) {
-      r.problems.push_back(where + ": committed twice");
-      continue;
-    }
-    chunk_frames.push_back(e);
-    r.chunks_ok++;
+// Any frame: its place, its padding, its payload checksum and its type.
+void Verification::CheckFrame(const IndexEntry& e) {
+  const Metadata& meta = prelude_.metadata;
+  const FrameHeader& h = e.header;
+  std::string where = "frame at offset " + std::to_string(e.frame_offset);
+  if (h.type == static_cast<uint16_t>(FrameType::kChunk) && h.array < meta.arrays.size()) {
+    where += " (array \"" + meta.arrays[h.array].name + "\" chunk " + std::to_string(h.chunk_index) + ")";
   }
+  uint64_t payload_offset = e.frame_offset + kFrameHeaderSize;
+  uint64_t padded_end = std::min(size_, e.frame_offset + h.FrameSize());
+  std::string err;
+  if (index_frame_ != nullptr) {
+    r_.problems.push_back(where + ": frame after the index frame at offset " +
+                          std::to_string(index_frame_->frame_offset));
+  }
+  if (!RangeIsZero(file_, payload_offset + h.payload_length, padded_end - payload_offset - h.payload_length, &err)) {
+    r_.problems.push_back(where + ": payload padding: " + err);
+  }
+  auto sum = ChecksumRange(file_, payload_offset, h.payload_length, buffer_);
+  if (!sum.ok()) {
+    r_.problems.push_back(where + ": " + sum.status().message());
+    return;
+  }
+  const uint64_t actual = *sum;
+  if (actual != h.payload_checksum && h.type == static_cast<uint16_t>(FrameType::kIndex) &&
+      &e == &scan_.frames.back() && scan_.chain_end == size_) {
+    partial_index_ = &e;  // judged below, once the trailer is known: an interrupted seal, or damage
+    return;
+  }
+  if (actual != h.payload_checksum) {
+    r_.problems.push_back(where + ": payload checksum mismatch: expected=" + Hex64(h.payload_checksum) +
+                          ", actual=" + Hex64(actual));
+    return;
+  }
+  if (h.type == static_cast<uint16_t>(FrameType::kIndex)) {
+    index_frame_ = &e;
+    return;
+  }
+  if (h.type == static_cast<uint16_t>(FrameType::kPadding)) return;  // zeros (checked by the checksum)
+  if (h.type != static_cast<uint16_t>(FrameType::kChunk)) {
+    if (h.flags & kFrameFlagOptional) {
+      r_.notes.push_back(where + ": skipped optional frame of unknown type " + std::to_string(h.type));
+    } else {
+      r_.problems.push_back(where + ": unknown frame type " + std::to_string(h.type) +
+                            " that is not optional (written by a newer ltbake?)");
+    }
+    return;
+  }
+  CheckChunkFrame(e, where);
+}
 
-  // Seal: a valid trailer pointing at the index frame, whose entries match the scan.
+// A chunk frame whose checksum verified: a chunk of an array this file owns, of the right
+// lengths, with a payload that parses, committed once.
+void Verification::CheckChunkFrame(const IndexEntry& e, const std::string& where) {
+  const Metadata& meta = prelude_.metadata;
+  const FrameHeader& h = e.header;
+  if (h.array >= meta.arrays.size()) {
+    r_.problems.push_back(where + ": array " + std::to_string(h.array) + " does not exist");
+    return;
+  }
+  const ArraySpec& a = meta.arrays[h.array];
+  if (h.chunk_index >= a.ChunkCount()) {
+    r_.problems.push_back(where + ": out of range (" + std::to_string(a.ChunkCount()) + " chunks)");
+    return;
+  }
+  if (!meta.Owns(h.array, h.chunk_index)) {
+    r_.problems.push_back(where + ": chunk " + std::to_string(h.chunk_index) + " of array \"" + a.name +
+                          "\" belongs to another shard (this is shard " + std::to_string(meta.shard->index) + " of " +
+                          std::to_string(meta.shard->count) + ")");
+    return;
+  }
+  Status len = CheckChunkLengths(h, a.ChunkBytes(h.chunk_index));
+  if (!len.ok()) {
+    r_.problems.push_back(where + ": " + len.message());
+    return;
+  }
+  if (!CheckChunkPayload(h, a, e.frame_offset + kFrameHeaderSize, where)) return;
+  uint64_t key = (uint64_t{h.array} << 40) | h.chunk_index;
+  if (!seen_.insert(key).second) {
+    r_.problems.push_back(where + ": committed twice");
+    return;
+  }
+  chunk_frames_.push_back(e);
+  r_.chunks_ok++;
+}
+
+// A zstd or sparse payload parses (raw and zero payloads have nothing more to check).
+bool Verification::CheckChunkPayload(const FrameHeader& h, const ArraySpec& a, uint64_t payload_offset,
+                                     const std::string& where) {
+  // Compressed payloads are parsed through a mapping, only once their checksum has been
+  // read back with pread (so every byte of it is on disk) and the file still covers them.
+  MappedRegion region;
+  if (h.encoding == static_cast<uint16_t>(Encoding::kZstd) || h.encoding == static_cast<uint16_t>(Encoding::kSparse) ||
+      h.encoding == static_cast<uint16_t>(Encoding::kSparseZstd)) {
+    auto now = file_.Size();
+    if (!now.ok() || *now < payload_offset + h.payload_length) {
+      r_.problems.push_back(where + ": the file shrank to " + (now.ok() ? std::to_string(*now) : "?") +
+                            " bytes while being verified (is a writer still working on it?)");
+      return false;
+    }
+    auto mapped = MappedRegion::Map(file_.fd(), payload_offset, h.payload_length, true);
+    if (!mapped.ok()) {
+      r_.problems.push_back(where + ": " + mapped.status().message());
+      return false;
+    }
+    region = std::move(mapped).value();
+  }
+  if (h.encoding == static_cast<uint16_t>(Encoding::kZstd)) {
+    auto n = ZstdDecodedSize(region.bytes(), h.decoded_length);
+    if (!n.ok() || *n != h.decoded_length) {
+      r_.problems.push_back(where + ": " +
+                            (n.ok() ? "zstd payload decodes to " + std::to_string(*n) + " bytes, expected " +
+                                          std::to_string(h.decoded_length)
+                                    : n.status().message()));
+      return false;
+    }
+  }
+  if (h.encoding == static_cast<uint16_t>(Encoding::kSparse) ||
+      h.encoding == static_cast<uint16_t>(Encoding::kSparseZstd)) {
+    // Parsed as a stream (zstd through a fixed window): nothing is materialized.
+    Status s = CheckSparsePayload(static_cast<Encoding>(h.encoding), region.bytes(), a.dtype,
+                                  a.Extent(h.chunk_index).Elements());
+    if (!s.ok()) {
+      r_.problems.push_back(where + ": " + s.message());
+      return false;
+    }
+  }
+  return true;
+}
+
+// Seal: a valid trailer pointing at the index frame, whose entries match the scan. True
+// when the file ends with a valid trailer (sealed or not).
+bool Verification::CheckTrailer() {
   bool trailer_ok = false;
-  if (size >= first + kTrailerSize) {
+  if (size_ >= first_ + kTrailerSize) {
     std::array<std::byte, kTrailerSize> tb;
-    if (file->ReadAt(size - kTrailerSize, tb).ok()) {
-      auto t = DecodeTrailer(tb, size);
+    if (file_.ReadAt(size_ - kTrailerSize, tb).ok()) {
+      auto t = DecodeTrailer(tb, size_);
       if (t.ok()) {
         trailer_ok = true;
-        if (index_frame == nullptr || index_frame->frame_offset != t->index_offset) {
-          r.problems.push_back("trailer points at offset " + std::to_string(t->index_offset) +
-                               ", where there is no valid index frame");
-        } else if (scan->chain_end != size - kTrailerSize) {
-          r.problems.push_back("bytes between the index frame and the trailer at offset " +
-                               std::to_string(scan->chain_end));
+        if (index_frame_ == nullptr || index_frame_->frame_offset != t->index_offset) {
+          r_.problems.push_back("trailer points at offset " + std::to_string(t->index_offset) +
+                                ", where there is no valid index frame");
+        } else if (scan_.chain_end != size_ - kTrailerSize) {
+          r_.problems.push_back("bytes between the index frame and the trailer at offset " +
+                                std::to_string(scan_.chain_end));
         } else {
-          r.sealed = true;
+          r_.sealed = true;
         }
       }
     }
   }
+  return trailer_ok;
+}
+
+// The index frame (or its interrupted seal) and the uncommitted tail.
+void Verification::CheckSeal(bool trailer_ok) {
   // The writer zero-extends the index frame's region, writes its header, then its payload,
   // then the trailer. A file that ends with the index frame and has no trailer was being
   // sealed when its writer stopped: that is an uncommitted tail (resuming redoes the seal),
   // not damage. Bytes after the index frame that are not a valid trailer are damage.
-  bool index_is_tail = !trailer_ok && scan->chain_end == size;
-  if (partial_index != nullptr) {
+  bool index_is_tail = !trailer_ok && scan_.chain_end == size_;
+  if (partial_index_ != nullptr) {
     if (index_is_tail) {
-      r.notes.push_back("index frame at offset " + std::to_string(partial_index->frame_offset) +
-                        " is incomplete: sealing was interrupted; resuming the writer redoes it");
-      r.uncommitted_tail_bytes = size - partial_index->frame_offset;
+      r_.notes.push_back("index frame at offset " + std::to_string(partial_index_->frame_offset) +
+                         " is incomplete: sealing was interrupted; resuming the writer redoes it");
+      r_.uncommitted_tail_bytes = size_ - partial_index_->frame_offset;
     } else {
-      r.problems.push_back("frame at offset " + std::to_string(partial_index->frame_offset) +
-                           ": index payload checksum mismatch");
+      r_.problems.push_back("frame at offset " + std::to_string(partial_index_->frame_offset) +
+                            ": index payload checksum mismatch");
     }
-  } else if (index_frame != nullptr) {
+  } else if (index_frame_ != nullptr) {
     if (index_is_tail) {
-      r.notes.push_back("index frame at offset " + std::to_string(index_frame->frame_offset) +
-                        " has no trailer: sealing was interrupted; resuming the writer redoes it");
-      r.uncommitted_tail_bytes = size - index_frame->frame_offset;
+      r_.notes.push_back("index frame at offset " + std::to_string(index_frame_->frame_offset) +
+                         " has no trailer: sealing was interrupted; resuming the writer redoes it");
+      r_.uncommitted_tail_bytes = size_ - index_frame_->frame_offset;
     } else if (!trailer_ok) {
-      r.problems.push_back("index frame at offset " + std::to_string(index_frame->frame_offset) +
-                           " but no valid trailer at the end of the file (damaged or truncated)");
+      r_.problems.push_back("index frame at offset " + std::to_string(index_frame_->frame_offset) +
+                            " but no valid trailer at the end of the file (damaged or truncated)");
     }
-    // Read, not mapped (see ChecksumRange); its length is within the file (DecodeFrameHeader).
-    std::vector<std::byte> index(index_frame->header.payload_length);
-    Status read = file->ReadAt(index_frame->frame_offset + kFrameHeaderSize, index);
-    auto entries =
-        read.ok() ? DecodeIndex(index, first, index_frame->frame_offset) : Result<std::vector<IndexEntry>>(read);
-    if (!entries.ok()) {
-      r.problems.push_back("index frame at offset " + std::to_string(index_frame->frame_offset) + ": " +
-                           entries.status().message());
-    } else {
-      std::set<std::pair<uint64_t, uint64_t>> listed, scanned;
-      for (const IndexEntry& e : *entries) listed.insert({e.frame_offset, e.header.payload_checksum});
-      for (const IndexEntry& e : scan->frames)
-        if (e.header.type == static_cast<uint16_t>(FrameType::kChunk))
-          scanned.insert({e.frame_offset, e.header.payload_checksum});
-      if (listed != scanned) {
-        r.problems.push_back("index lists " + std::to_string(listed.size()) + " chunk frames, the scan found " +
-                             std::to_string(scanned.size()) + " (or at other offsets)");
-      }
+    CheckIndexEntries();
+  } else if (!r_.sealed) {
+    r_.uncommitted_tail_bytes = size_ - std::min(size_, scan_.chain_end);
+  }
+}
+
+// The index frame's entries against the chunk frames the scan found.
+void Verification::CheckIndexEntries() {
+  // Read, not mapped (see ChecksumRange); its length is within the file (DecodeFrameHeader).
+  std::vector<std::byte> index(index_frame_->header.payload_length);
+  Status read = file_.ReadAt(index_frame_->frame_offset + kFrameHeaderSize, index);
+  auto entries =
+      read.ok() ? DecodeIndex(index, first_, index_frame_->frame_offset) : Result<std::vector<IndexEntry>>(read);
+  if (!entries.ok()) {
+    r_.problems.push_back("index frame at offset " + std::to_string(index_frame_->frame_offset) + ": " +
+                          entries.status().message());
+  } else {
+    std::set<std::pair<uint64_t, uint64_t>> listed, scanned;
+    for (const IndexEntry& e : *entries) listed.insert({e.frame_offset, e.header.payload_checksum});
+    for (const IndexEntry& e : scan_.frames)
+      if (e.header.type == static_cast<uint16_t>(FrameType::kChunk))
+        scanned.insert({e.frame_offset, e.header.payload_checksum});
+    if (listed != scanned) {
+      r_.problems.push_back("index lists " + std::to_string(listed.size()) + " chunk frames, the scan found " +
+                            std::to_string(scanned.size()) + " (or at other offsets)");
     }
-  } else if (!r.sealed) {
-    r.uncommitted_tail_bytes = size - std::min(size, scan->chain_end);
   }
-  if (r.sealed && r.chunks_ok != r.chunks_expected) {
-    r.problems.push_back("sealed file has " + std::to_string(r.chunks_ok) + " intact chunks of " +
-                         std::to_string(r.chunks_expected));
+}
+
+VerifyReport Verification::Run() {
+  if (!ReadPreludeChecked()) return r_;
+  if (!ScanChain()) return r_;
+  for (const IndexEntry& e : scan_.frames) CheckFrame(e);
+  CheckSeal(CheckTrailer());
+  if (r_.sealed && r_.chunks_ok != r_.chunks_expected) {
+    r_.problems.push_back("sealed file has " + std::to_string(r_.chunks_ok) + " intact chunks of " +
+                          std::to_string(r_.chunks_expected));
   }
-  r.complete = r.sealed && r.problems.empty() && r.chunks_ok == r.chunks_expected;
-  return r;
+  r_.complete = r_.sealed && r_.problems.empty() && r_.chunks_ok == r_.chunks_expected;
+  return r_;
+}
+
+}  // namespace
+
+VerifyReport VerifyContainer(const std::string& path) {
+  if (LooksLikeManifest(path)) return VerifyManifest(path);
+  return Verification(path).Run();
 }
 
 }  // namespace ltb::io

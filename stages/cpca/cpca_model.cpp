@@ -1,11 +1,117 @@
 #include "stages/cpca/cpca_model.h"
 
+#include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstring>
+
+#include "stages/common/parallel_for.h"
 
 namespace ltb::stages {
 
 using namespace ltb::format;
+
+CpcaLayout CpcaLayout::For(uint64_t k, uint64_t s, uint64_t n, uint64_t d, uint64_t row_align) {
+  CpcaLayout l;
+  l.k = k;
+  l.s = s;
+  l.n = n;
+  l.d = d;
+  ArraySpec& vec = l.vectors;
+  vec.name = kCpcaVectorsArray;
+  vec.dtype = DType::kF32;
+  vec.rows = k * (s + 1);
+  vec.cols = d;
+  vec.layout = Layout::kRows;
+  vec.block = BlockForTargetBytes(vec.rows, d, DType::kF32, Layout::kRows, 4ull << 20);
+  ArraySpec& ids = l.ids;
+  ids.name = kCpcaIdArray;
+  ids.dtype = DType::kU32;
+  ids.rows = n;
+  ids.cols = 1;
+  ids.layout = Layout::kRows;
+  ids.block =
+      std::min(n, std::max<uint64_t>(row_align, (4ull << 20) / (std::max<uint64_t>(s, 1) * 4) / row_align * row_align));
+  ArraySpec& wts = l.weights;
+  wts = ids;
+  wts.name = kCpcaWeightsArray;
+  wts.dtype = DType::kF32;
+  wts.cols = s;
+  return l;
+}
+
+nlohmann::json CpcaOutputMetadata(const CpcaLayout& l, const CpcaFitInfo& fit, const nlohmann::json& basis,
+                                  const nlohmann::json& provenance) {
+  const uint64_t k = l.k, s = l.s, n = l.n, d = l.d;
+  nlohmann::json arrays = {l.vectors.ToJson(), l.ids.ToJson()};
+  if (s > 0) arrays.push_back(l.weights.ToJson());
+  const double final_err = fit.squared_error, final_norm = fit.squared_norm;
+  const double rel = final_norm > 0 ? std::sqrt(final_err / final_norm) : std::sqrt(final_err);
+  return {{"arrays", arrays},
+          {"basis", basis},
+          {"cpca",
+           {{"clusters", k},
+            {"basis_dim", s},
+            {"rows", n},
+            {"dims", d},
+            {"iterations", fit.iterations},
+            {"growth_levels", fit.growth_levels},
+            {"seed", fit.seed},
+            {"relative_rms_error", rel},
+            {"squared_error", final_err},
+            {"squared_norm", final_norm},
+            {"empty_clusters", fit.empty_clusters},
+            {"vectors_array", kCpcaVectorsArray},
+            {"id_array", kCpcaIdArray},
+            {"weights_array", s > 0 ? nlohmann::json(kCpcaWeightsArray) : nlohmann::json(nullptr)},
+            {"decode",
+             "row r = v[c·(S+1)] + Σ_i w[r,i]·v[c·(S+1)+1+i], c = cluster_id[r], v = cluster_vectors "
+             "(docs/CPCA.md)"}}},
+          {"provenance", provenance}};
+}
+
+Result<uint64_t> WriteCpcaVectors(io::ContainerWriter& out, const CpcaLayout& l,
+                                  const std::function<void(uint64_t c, uint64_t i, float* out)>& vector) {
+  const uint64_t s = l.s, d = l.d;
+  uint64_t written = 0;
+  for (uint64_t c : out.Missing(0)) {
+    const ChunkExtent e = l.vectors.Extent(c);
+    std::vector<float> v(e.rows * d);
+    for (uint64_t r = 0; r < e.rows; ++r) vector((e.row0 + r) / (s + 1), (e.row0 + r) % (s + 1), v.data() + r * d);
+    LTB_RETURN_IF_ERROR(out.Put(0, c, BytesOf(v)));
+    written++;
+  }
+  return written;
+}
+
+Result<uint64_t> WriteCpcaRows(io::ContainerWriter& out, const CpcaLayout& l, int jobs, const CpcaRowEncoder& encode,
+                               const std::function<void(uint64_t rows)>& done) {
+  const uint64_t s = l.s;
+  std::vector<uint64_t> row_chunks = out.Missing(1);
+  if (s > 0) {
+    for (uint64_t c : out.Missing(2)) row_chunks.push_back(c);
+    std::sort(row_chunks.begin(), row_chunks.end());
+    row_chunks.erase(std::unique(row_chunks.begin(), row_chunks.end()), row_chunks.end());
+  }
+  std::atomic<uint64_t> written{0};
+  LTB_RETURN_IF_ERROR(ParallelFor(row_chunks, jobs, Progress{}, "chunks", [&](uint64_t c) -> Status {
+    const ChunkExtent e = l.ids.Extent(c);
+    std::vector<uint32_t> id(e.rows);
+    std::vector<float> w(e.rows * s);
+    LTB_RETURN_IF_ERROR(encode(e.row0, e.rows, id.data(), w.data()));
+    if (!out.Has(1, c)) {
+      LTB_RETURN_IF_ERROR(out.Put(1, c, BytesOf(id)));
+      written++;
+    }
+    if (s > 0 && !out.Has(2, c)) {
+      LTB_RETURN_IF_ERROR(out.Put(2, c, BytesOf(w)));
+      written++;
+    }
+    done(e.rows);
+    return Status::Ok();
+  }));
+  return written.load();
+}
 
 bool CpcaModel::IsCpca(const Metadata& meta) { return meta.json.contains("cpca") && meta.json["cpca"].is_object(); }
 

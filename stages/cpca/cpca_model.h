@@ -1,6 +1,6 @@
-// Reading a `cpca` output (cpca.ltm, docs/CPCA.md): the cluster means and principal
-// directions, and per row a cluster id and S weights. Used by convert (decode), relight
-// and inspect.
+// A `cpca` output (cpca.ltm, docs/CPCA.md): the cluster means and principal directions,
+// and per row a cluster id and S weights. Reading it is used by convert (decode), relight
+// and inspect; writing it by `ltbake cpca` (stages/cpca/cpca.h), with the layout below.
 //
 // Arrays: 0 "cluster_vectors" (K·(S+1) × D f32, row k·(S+1) the mean of cluster k, rows
 // k·(S+1)+1+i its direction i), "cluster_id" (N × 1 u32) and, for S > 0, "weights"
@@ -10,12 +10,15 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
 #include <vector>
 
 #include "format/array_spec.h"
 #include "format/io/container_reader.h"
+#include "format/io/container_writer.h"
 #include "format/status.h"
 
 namespace ltb::stages {
@@ -23,6 +26,42 @@ namespace ltb::stages {
 inline constexpr const char* kCpcaVectorsArray = "cluster_vectors";
 inline constexpr const char* kCpcaIdArray = "cluster_id";
 inline constexpr const char* kCpcaWeightsArray = "weights";
+
+// The arrays of a cpca output for K clusters of S directions over N rows of D dimensions,
+// as `ltbake cpca` writes them and CpcaModel::Load checks them: the vectors in row blocks
+// of about 4 MiB; ids and weights sharing a row block of about 4 MiB of weights, a
+// multiple of row_align rows (the encoder's unit).
+struct CpcaLayout {
+  uint64_t k = 0, s = 0, n = 0, d = 0;
+  format::ArraySpec vectors, ids, weights;  // weights are stored only when S > 0
+  static CpcaLayout For(uint64_t k, uint64_t s, uint64_t n, uint64_t d, uint64_t row_align);
+};
+
+// What the "cpca" metadata block records about the fit besides the layout.
+struct CpcaFitInfo {
+  uint64_t iterations = 0;
+  std::vector<uint64_t> growth_levels;
+  uint64_t seed = 0;
+  double squared_error = 0, squared_norm = 0;  // of the stored approximation, Σ ‖x‖²
+  uint64_t empty_clusters = 0;
+};
+
+// An output's metadata: the arrays, the input's basis, the "cpca" block and provenance.
+nlohmann::json CpcaOutputMetadata(const CpcaLayout& layout, const CpcaFitInfo& fit, const nlohmann::json& basis,
+                                  const nlohmann::json& provenance);
+
+// Writes the missing chunks of cluster_vectors: vector(c, i, out) fills the D values of
+// cluster c's mean (i = 0) or of its direction i − 1. Returns the chunks written.
+Result<uint64_t> WriteCpcaVectors(io::ContainerWriter& out, const CpcaLayout& layout,
+                                  const std::function<void(uint64_t c, uint64_t i, float* out)>& vector);
+
+// Fills the ids (rows) and weights (rows × S) of rows [row0, row0 + rows).
+using CpcaRowEncoder = std::function<Status(uint64_t row0, uint64_t rows, uint32_t* ids, float* weights)>;
+// Writes the missing chunks of cluster_id and weights, `jobs` chunks at a time; a row
+// chunk missing from either array is encoded once, for both. done(rows) follows each
+// chunk's writes. Returns the chunks written.
+Result<uint64_t> WriteCpcaRows(io::ContainerWriter& out, const CpcaLayout& layout, int jobs,
+                               const CpcaRowEncoder& encode, const std::function<void(uint64_t rows)>& done);
 
 class CpcaModel {
  public:

@@ -101,10 +101,19 @@ class PanelQueue {
   bool closed_ = false, failed_ = false;
 };
 
-}  // namespace
+// What the input and --mem-limit make of a run.
+struct TransposePlan {
+  uint64_t rows = 0, cols = 0;
+  uint64_t col_bytes = 0;     // one column of the output, in bytes
+  uint64_t block = 0;         // columns per output chunk
+  int jobs = 1;               // reader threads
+  uint64_t budget = 0;        // --mem-limit less the fixed overhead
+  uint64_t panel_chunks = 0;  // output chunks per full panel
+};
 
-Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& progress) {
-  LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(o.input));
+// Checks the input (a complete f32 matrix in row blocks) and sizes the output chunks and
+// the panels within --mem-limit.
+Result<TransposePlan> PlanTranspose(const TransposeOptions& o, const io::ContainerReader& in) {
   LTB_RETURN_IF_ERROR(RefuseCpcaOutput(in, "transpose"));
   const Metadata& meta = in.metadata();
   const ArraySpec& a = meta.matrix();
@@ -114,6 +123,7 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
                               "output of `ltbake row-transform`)");
   }
   LTB_RETURN_IF_ERROR(RequireCompleteF32Matrix(in));
+  TransposePlan plan;
   const uint64_t rows = a.rows, cols = a.cols;
   const uint64_t col_bytes = rows * 4;
   const uint64_t block = std::min<uint64_t>(cols, std::max<uint64_t>(1, kMinChunkBytes / col_bytes));
@@ -136,190 +146,227 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
                            "needs at least " +
                            std::to_string(need) + " bytes (" + std::to_string((need + (1 << 20) - 1) >> 20) + " MiB)");
   }
+  plan.rows = rows;
+  plan.cols = cols;
+  plan.col_bytes = col_bytes;
+  plan.block = block;
+  plan.jobs = jobs;
+  plan.budget = budget;
+  plan.panel_chunks = panel_chunks;
+  return plan;
+}
 
-  ArraySpec out_spec = a;
-  out_spec.layout = Layout::kCols;
-  out_spec.block = block;
-  nlohmann::json out_meta = meta.json;
-  out_meta["arrays"][0] = out_spec.ToJson();
-  out_meta["provenance"] = Provenance("transpose", {{"block_cols", block}, {"zstd", o.zstd}}, {&in});
-  io::WriterOptions wo;
-  wo.overwrite_mismatch = o.overwrite;
-  wo.direct_io = o.direct_io;
-  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, out_meta, wo, o.shard));
-
-  TransposeResult result;
-  result.rows = rows;
-  result.cols = cols;
-  result.block_cols = block;
-  result.panel_cols = std::min(cols, panel_chunks * block);
-  for (const ArraySpec& s : meta.arrays) result.chunks_total += s.ChunkCount();
-  result.chunks_already_committed = out.resume_info().committed_chunks;
-
-  EncodeOptions eo;
-  eo.zstd = o.zstd;
-
-  // Side tables are copied as they are.
-  for (uint32_t arr = 1; arr < meta.arrays.size(); ++arr) {
-    for (uint64_t c : out.Missing(arr)) {
-      LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(arr, c));
-      LTB_RETURN_IF_ERROR(out.Put(arr, c, chunk.bytes(), eo));
-      result.chunks_written++;
-    }
-  }
-
-  // Panels: runs of consecutive missing output chunks, at most panel_chunks long.
+// Panels: runs of consecutive missing output chunks, at most panel_chunks long.
+std::vector<Panel> PlanPanels(const std::vector<uint64_t>& missing, const TransposePlan& plan) {
   std::vector<Panel> panels;
-  for (uint64_t c : out.Missing(0)) {
+  for (uint64_t c : missing) {
     if (!panels.empty() && panels.back().first_chunk + panels.back().chunks == c &&
-        panels.back().chunks < panel_chunks) {
+        panels.back().chunks < plan.panel_chunks) {
       panels.back().chunks++;
     } else {
       panels.push_back({c, 1, 0, 0});
     }
   }
   for (Panel& p : panels) {
-    p.col0 = p.first_chunk * block;
-    p.cols = std::min(cols, (p.first_chunk + p.chunks) * block) - p.col0;
+    p.col0 = p.first_chunk * plan.block;
+    p.cols = std::min(plan.cols, (p.first_chunk + p.chunks) * plan.block) - p.col0;
   }
-  result.panels = panels.size();
+  return panels;
+}
 
-  // Input row blocks to read: all but the all-zero ones (they leave the panel zero).
-  std::vector<uint64_t> in_chunks;
-  for (uint64_t i = 0; i < a.ChunkCount(); ++i) {
-    if (in.Find(0, i)->header.encoding != static_cast<uint16_t>(Encoding::kZero)) in_chunks.push_back(i);
-  }
+// The counters the panel passes share between their threads.
+struct PanelCounters {
+  std::atomic<uint64_t> written{0}, zero_out{0}, bytes_written{0}, bytes_read{0}, cols_done{0};
+};
 
-  const uint64_t panel_floats = result.panel_cols * rows;
-  // Page-aligned, so direct writes take each column chunk from the panel without a copy.
-  // Allocated before the checksum thread starts: a failure returns with no thread to join.
-  AlignedFloats buffers[2];
-  for (int b = 0; b < (panels.size() > 1 ? 2 : 1); ++b) {
-    if (!buffers[b].resize(panel_floats)) {
-      return InvalidArgument("cannot allocate a panel buffer of " + std::to_string(panel_floats * 4) +
-                             " bytes; lower --mem-limit");
-    }
-  }
-
-  // The checksum pass runs beside the panels (it reads the input sequentially while they
-  // read column ranges; both share the page cache). Panel filling stops if it fails, and
-  // the output, possibly built from damaged input, is removed.
-  std::atomic<bool> verify_failed{false};
-  std::atomic<uint64_t> verified{0};
-  Status verify_status;  // written by the verifier thread, read after it is joined
-  std::thread verifier;
-  if (o.verify_input && !panels.empty()) {
-    const uint64_t piece = std::clamp<uint64_t>(budget / (4 * jobs), 4096, 1 << 20);
-    verifier = std::thread([&, piece] {
+// The checksum pass: every stored input chunk's checksum, on its own thread.
+class ChecksumPass {
+ public:
+  void Start(const io::ContainerReader& in, const std::vector<uint64_t>& in_chunks, uint64_t piece,
+             const Progress& progress) {
+    thread_ = std::thread([this, &in, &in_chunks, &progress, piece] {
       std::vector<std::byte> buf(piece);
-      verify_status = ParallelFor(in_chunks, 1, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
-                                  [&](uint64_t ci) -> Status {
-                                    LTB_RETURN_IF_ERROR(in.VerifyChunk(0, ci, buf));
-                                    verified += in.Find(0, ci)->header.payload_length;
-                                    return Status::Ok();
-                                  });
-      if (!verify_status.ok()) verify_failed = true;
+      status_ = ParallelFor(in_chunks, 1, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
+                            [&](uint64_t ci) -> Status {
+                              LTB_RETURN_IF_ERROR(in.VerifyChunk(0, ci, buf));
+                              verified_ += in.Find(0, ci)->header.payload_length;
+                              return Status::Ok();
+                            });
+      if (!status_.ok()) failed_ = true;
     });
   }
+  void Join() {
+    if (thread_.joinable()) thread_.join();
+  }
+  bool failed() const { return failed_; }
+  uint64_t verified() const { return verified_; }
+  const Status& status() const { return status_; }  // once joined
 
-  PanelQueue queue;
-  std::atomic<uint64_t> written{0}, zero_out{0}, bytes_written{0}, bytes_read{0}, cols_done{0};
-  Status writer_status;  // written by the writer thread, read after it is joined
-  std::atomic<bool> writer_failed{false};
-  std::thread writer([&] {
-    size_t slot;
-    Panel p;
-    while (queue.PopFilled(&slot, &p)) {
-      for (uint64_t k = 0; k < p.chunks && writer_status.ok(); ++k) {
-        uint64_t chunk = p.first_chunk + k;
-        ChunkExtent e = out_spec.Extent(chunk);
-        const float* data = buffers[slot].data() + (e.col0 - p.col0) * rows;
-        EncodedChunk enc = EncodeChunk(ByteSpan(reinterpret_cast<const std::byte*>(data), e.cols * col_bytes), eo);
-        writer_status = out.Append(0, chunk, enc);
-        if (enc.encoding == Encoding::kZero) zero_out++;
-        bytes_written += enc.payload.size();
-        written++;
-      }
-      cols_done += p.cols;
-      progress.Report(cols_done.load(), cols, "columns");
-      queue.Release(slot);
-      if (!writer_status.ok()) {
-        writer_failed = true;
-        queue.Fail();
-        return;
-      }
-    }
-  });
+ private:
+  std::atomic<bool> failed_{false};
+  std::atomic<uint64_t> verified_{0};
+  Status status_;  // written by the verifier thread, read after it is joined
+  std::thread thread_;
+};
 
+// The writer thread: encodes and appends the column chunks of each filled panel, then
+// hands its buffer back to the readers.
+class PanelWriter {
+ public:
+  void Start(io::ContainerWriter& out, const ArraySpec& out_spec, const TransposePlan& plan, const EncodeOptions& eo,
+             const AlignedFloats* buffers, PanelQueue& queue, PanelCounters& n, const Progress& progress) {
+    thread_ = std::thread([this, &out, &out_spec, &plan, &eo, buffers, &queue, &n, &progress] {
+      size_t slot;
+      Panel p;
+      while (queue.PopFilled(&slot, &p)) {
+        for (uint64_t k = 0; k < p.chunks && status_.ok(); ++k) {
+          uint64_t chunk = p.first_chunk + k;
+          ChunkExtent e = out_spec.Extent(chunk);
+          const float* data = buffers[slot].data() + (e.col0 - p.col0) * plan.rows;
+          EncodedChunk enc =
+              EncodeChunk(ByteSpan(reinterpret_cast<const std::byte*>(data), e.cols * plan.col_bytes), eo);
+          status_ = out.Append(0, chunk, enc);
+          if (enc.encoding == Encoding::kZero) n.zero_out++;
+          n.bytes_written += enc.payload.size();
+          n.written++;
+        }
+        n.cols_done += p.cols;
+        progress.Report(n.cols_done.load(), plan.cols, "columns");
+        queue.Release(slot);
+        if (!status_.ok()) {
+          failed_ = true;
+          queue.Fail();
+          return;
+        }
+      }
+    });
+  }
+  void Join() { thread_.join(); }
+  bool failed() const { return failed_; }
+  const Status& status() const { return status_; }  // once joined
+
+ private:
+  Status status_;  // written by the writer thread, read after it is joined
+  std::atomic<bool> failed_{false};
+  std::thread thread_;
+};
+
+// What the panel passes read, and for whom.
+struct PanelSource {
+  const TransposeOptions& o;
+  const io::ContainerReader& in;
+  const TransposePlan& plan;
+  const std::vector<uint64_t>& in_chunks;  // the stored (not all-zero) input row blocks
+  const Progress& progress;
+};
+
+// Fills one panel (column-major, zeroed first) from every stored input row block, `jobs`
+// blocks at a time: each reader reads the panel's column range of each row of its block
+// into a tile, then transposes the tile into the panel.
+Status FillPanel(const PanelSource& src, const Panel& p, float* panel, PanelCounters& n) {
+  const TransposeOptions& o = src.o;
+  const io::ContainerReader& in = src.in;
+  const TransposePlan& plan = src.plan;
+  const Progress& progress = src.progress;
+  const ArraySpec& a = in.metadata().matrix();
+  const uint64_t rows = plan.rows, cols = plan.cols;
+  std::fill(panel, panel + p.cols * rows, 0.0f);
+  return ParallelFor(
+      src.in_chunks, plan.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
+      [&](uint64_t ci) -> Status {
+        const IndexEntry* entry = in.Find(0, ci);
+        const io::File& in_file = in.Holder(0, ci).file();  // a manifest's chunks live in its shards
+        ChunkExtent e = a.Extent(ci);
+        thread_local std::vector<float> tile;
+        tile.resize(kTileRows * p.cols);
+        std::vector<std::byte> decoded;  // zstd chunks are decoded whole
+        const float* src = nullptr;
+        io::Chunk whole;
+        if (entry->header.encoding != static_cast<uint16_t>(Encoding::kRaw)) {  // zstd, sparse: decoded whole
+          LTB_ASSIGN_OR_RETURN(whole, in.ReadChunk(0, ci));
+          src = whole.as<float>().data();
+          n.bytes_read += entry->header.payload_length;
+        }
+        uint64_t payload = entry->frame_offset + kFrameHeaderSize;
+        if (src == nullptr) {
+          // Start the reads of this block's column range for every row at once, so the disk
+          // has them all queued instead of one small pread at a time (page cache, no RSS).
+          for (uint64_t r = 0; r < e.rows; ++r) {
+            ::posix_fadvise(in_file.fd(), static_cast<off_t>(payload + (r * cols + p.col0) * 4),
+                            static_cast<off_t>(p.cols * 4), POSIX_FADV_WILLNEED);
+          }
+        }
+        for (uint64_t r0 = 0; r0 < e.rows; r0 += kTileRows) {
+          uint64_t nr = std::min(kTileRows, e.rows - r0);
+          for (uint64_t r = 0; r < nr; ++r) {
+            float* dst = tile.data() + r * p.cols;
+            if (src != nullptr) {
+              std::memcpy(dst, src + (r0 + r) * cols + p.col0, p.cols * 4);
+            } else {
+              uint64_t off = payload + ((r0 + r) * cols + p.col0) * 4;
+              Status s = in_file.ReadAt(off, MutableByteSpan(reinterpret_cast<std::byte*>(dst), p.cols * 4));
+              if (!s.ok()) return s.WithContext(o.input + ": chunk " + std::to_string(ci));
+              n.bytes_read += p.cols * 4;
+            }
+          }
+          // Transpose the tile into the column-major panel.
+          for (uint64_t c = 0; c < p.cols; ++c) {
+            float* col = panel + c * rows + e.row0 + r0;
+            for (uint64_t r = 0; r < nr; ++r) col[r] = tile[r * p.cols + c];
+          }
+        }
+        return Status::Ok();
+      });
+}
+
+// Fills the panels in turn, each into the buffer the writer has handed back, and hands it
+// to the writer; stops when the writer or the checksum pass failed, on cancellation, or at
+// a read error (returned).
+Status FillPanels(const PanelSource& src, const std::vector<Panel>& panels, const AlignedFloats* buffers,
+                  PanelQueue& queue, const PanelWriter& writer, const ChecksumPass& checksum, PanelCounters& n) {
   Status status;
   for (size_t pi = 0; pi < panels.size() && status.ok(); ++pi) {
     const Panel& p = panels[pi];
     size_t slot = pi % 2;
     queue.Acquire(slot);
-    if (writer_failed || verify_failed) break;
-    if (progress.Cancelled()) {
+    if (writer.failed() || checksum.failed()) break;
+    if (src.progress.Cancelled()) {
       status = Cancelled("interrupted; committed columns are kept, rerun the same command to resume");
       break;
     }
-    float* panel = buffers[slot].data();
-    std::fill(panel, panel + p.cols * rows, 0.0f);
-    status = ParallelFor(
-        in_chunks, jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
-        [&](uint64_t ci) -> Status {
-          const IndexEntry* entry = in.Find(0, ci);
-          const io::File& in_file = in.Holder(0, ci).file();  // a manifest's chunks live in its shards
-          ChunkExtent e = a.Extent(ci);
-          thread_local std::vector<float> tile;
-          tile.resize(kTileRows * p.cols);
-          std::vector<std::byte> decoded;  // zstd chunks are decoded whole
-          const float* src = nullptr;
-          io::Chunk whole;
-          if (entry->header.encoding != static_cast<uint16_t>(Encoding::kRaw)) {  // zstd, sparse: decoded whole
-            LTB_ASSIGN_OR_RETURN(whole, in.ReadChunk(0, ci));
-            src = whole.as<float>().data();
-            bytes_read += entry->header.payload_length;
-          }
-          uint64_t payload = entry->frame_offset + kFrameHeaderSize;
-          if (src == nullptr) {
-            // Start the reads of this block's column range for every row at once, so the disk
-            // has them all queued instead of one small pread at a time (page cache, no RSS).
-            for (uint64_t r = 0; r < e.rows; ++r) {
-              ::posix_fadvise(in_file.fd(), static_cast<off_t>(payload + (r * cols + p.col0) * 4),
-                              static_cast<off_t>(p.cols * 4), POSIX_FADV_WILLNEED);
-            }
-          }
-          for (uint64_t r0 = 0; r0 < e.rows; r0 += kTileRows) {
-            uint64_t nr = std::min(kTileRows, e.rows - r0);
-            for (uint64_t r = 0; r < nr; ++r) {
-              float* dst = tile.data() + r * p.cols;
-              if (src != nullptr) {
-                std::memcpy(dst, src + (r0 + r) * cols + p.col0, p.cols * 4);
-              } else {
-                uint64_t off = payload + ((r0 + r) * cols + p.col0) * 4;
-                Status s = in_file.ReadAt(off, MutableByteSpan(reinterpret_cast<std::byte*>(dst), p.cols * 4));
-                if (!s.ok()) return s.WithContext(o.input + ": chunk " + std::to_string(ci));
-                bytes_read += p.cols * 4;
-              }
-            }
-            // Transpose the tile into the column-major panel.
-            for (uint64_t c = 0; c < p.cols; ++c) {
-              float* col = panel + c * rows + e.row0 + r0;
-              for (uint64_t r = 0; r < nr; ++r) col[r] = tile[r * p.cols + c];
-            }
-          }
-          return Status::Ok();
-        });
+    status = FillPanel(src, p, buffers[slot].data(), n);
     if (!status.ok()) break;
     queue.PushFilled(slot, p);
   }
-  queue.Close();
-  writer.join();
-  if (verifier.joinable()) verifier.join();
-  result.chunks_written += written;
-  result.zero_chunks_out = zero_out;
-  result.bytes_read = bytes_read;
-  result.bytes_written = bytes_written;
-  result.bytes_verified = verified;
+  return status;
+}
+
+// Copies the side tables' missing chunks as they are; returns how many.
+Result<uint64_t> CopySideTables(const io::ContainerReader& in, io::ContainerWriter& out, const EncodeOptions& eo) {
+  uint64_t written = 0;
+  for (uint32_t arr = 1; arr < in.metadata().arrays.size(); ++arr) {
+    for (uint64_t c : out.Missing(arr)) {
+      LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(arr, c));
+      LTB_RETURN_IF_ERROR(out.Put(arr, c, chunk.bytes(), eo));
+      written++;
+    }
+  }
+  return written;
+}
+
+// Input row blocks to read: all but the all-zero ones (they leave the panel zero).
+std::vector<uint64_t> StoredInputChunks(const io::ContainerReader& in) {
+  std::vector<uint64_t> in_chunks;
+  for (uint64_t i = 0; i < in.metadata().matrix().ChunkCount(); ++i) {
+    if (in.Find(0, i)->header.encoding != static_cast<uint16_t>(Encoding::kZero)) in_chunks.push_back(i);
+  }
+  return in_chunks;
+}
+
+// Seals the output; or, when the checksum pass found the input damaged, removes it (its
+// columns may come from the damaged input) and says so.
+Result<TransposeResult> Seal(io::ContainerWriter& out, const Status& verify_status, const Status& status,
+                             const Status& writer_status, TransposeResult result) {
   const io::DirectIoStats ds = out.direct_io_stats();
   result.bytes_direct = ds.direct_bytes;
   result.padding_bytes = ds.padding_bytes;
@@ -336,6 +383,76 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
   LTB_RETURN_IF_ERROR(writer_status);
   LTB_RETURN_IF_ERROR(out.Finish());
   return result;
+}
+
+}  // namespace
+
+Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& progress) {
+  LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(o.input));
+  LTB_ASSIGN_OR_RETURN(const TransposePlan plan, PlanTranspose(o, in));
+  const Metadata& meta = in.metadata();
+  const uint64_t rows = plan.rows, cols = plan.cols, block = plan.block;
+
+  ArraySpec out_spec = meta.matrix();
+  out_spec.layout = Layout::kCols;
+  out_spec.block = block;
+  nlohmann::json out_meta = meta.json;
+  out_meta["arrays"][0] = out_spec.ToJson();
+  out_meta["provenance"] = Provenance("transpose", {{"block_cols", block}, {"zstd", o.zstd}}, {&in});
+  io::WriterOptions wo;
+  wo.overwrite_mismatch = o.overwrite;
+  wo.direct_io = o.direct_io;
+  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, out_meta, wo, o.shard));
+
+  TransposeResult result;
+  result.rows = rows;
+  result.cols = cols;
+  result.block_cols = block;
+  result.panel_cols = std::min(cols, plan.panel_chunks * block);
+  for (const ArraySpec& s : meta.arrays) result.chunks_total += s.ChunkCount();
+  result.chunks_already_committed = out.resume_info().committed_chunks;
+
+  EncodeOptions eo;
+  eo.zstd = o.zstd;
+  // Side tables are copied as they are.
+  LTB_ASSIGN_OR_RETURN(result.chunks_written, CopySideTables(in, out, eo));
+  const std::vector<Panel> panels = PlanPanels(out.Missing(0), plan);
+  result.panels = panels.size();
+  const std::vector<uint64_t> in_chunks = StoredInputChunks(in);
+
+  const uint64_t panel_floats = result.panel_cols * rows;
+  // Page-aligned, so direct writes take each column chunk from the panel without a copy.
+  // Allocated before the checksum thread starts: a failure returns with no thread to join.
+  AlignedFloats buffers[2];
+  for (int b = 0; b < (panels.size() > 1 ? 2 : 1); ++b) {
+    if (!buffers[b].resize(panel_floats)) {
+      return InvalidArgument("cannot allocate a panel buffer of " + std::to_string(panel_floats * 4) +
+                             " bytes; lower --mem-limit");
+    }
+  }
+
+  // The checksum pass runs beside the panels (it reads the input sequentially while they
+  // read column ranges; both share the page cache). Panel filling stops if it fails, and
+  // the output, possibly built from damaged input, is removed.
+  ChecksumPass checksum;
+  if (o.verify_input && !panels.empty()) {
+    checksum.Start(in, in_chunks, std::clamp<uint64_t>(plan.budget / (4 * plan.jobs), 4096, 1 << 20), progress);
+  }
+  PanelQueue queue;
+  PanelCounters counters;
+  PanelWriter writer;
+  writer.Start(out, out_spec, plan, eo, buffers, queue, counters, progress);
+  const Status status =
+      FillPanels(PanelSource{o, in, plan, in_chunks, progress}, panels, buffers, queue, writer, checksum, counters);
+  queue.Close();
+  writer.Join();
+  checksum.Join();
+  result.chunks_written += counters.written;
+  result.zero_chunks_out = counters.zero_out;
+  result.bytes_read = counters.bytes_read;
+  result.bytes_written = counters.bytes_written;
+  result.bytes_verified = checksum.verified();
+  return Seal(out, checksum.status(), status, writer.status(), std::move(result));
 }
 
 }  // namespace ltb::stages

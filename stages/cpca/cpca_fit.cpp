@@ -1,0 +1,510 @@
+#include "stages/cpca/cpca_fit.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+#include <queue>
+
+#include "stages/common/parallel_for.h"
+#include "stages/cpca/cpca_checkpoint.h"
+
+namespace ltb::stages::cpca_internal {
+
+using namespace ltb::format;
+
+uint64_t PassBlockRows(uint64_t d) {
+  uint64_t r = (8ull << 20) / (d * 8);
+  return std::max(kSubRows, r / kSubRows * kSubRows);
+}
+
+std::vector<uint64_t> Levels(uint64_t s, uint64_t step) {
+  std::vector<uint64_t> l{0};
+  while (l.back() < s) l.push_back(std::min(s, l.back() + std::max<uint64_t>(1, step)));
+  return l;
+}
+
+namespace {
+
+// Reads rows [row0, row0 + n) of the f32 row-block matrix as doubles.
+Status ReadRows(const io::ContainerReader& in, uint64_t row0, uint64_t n, double* out) {
+  const ArraySpec& a = in.metadata().matrix();
+  uint64_t r = row0;
+  while (r < row0 + n) {
+    const uint64_t c = r / a.block;
+    LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(0, c));
+    const ChunkExtent e = chunk.extent();
+    auto v = chunk.as<float>();
+    const uint64_t end = std::min(row0 + n, e.row0 + e.rows);
+    for (uint64_t i = r; i < end; ++i) {
+      const float* src = v.data() + (i - e.row0) * a.cols;
+      double* dst = out + (i - row0) * a.cols;
+      for (uint64_t j = 0; j < a.cols; ++j) {
+        if (!std::isfinite(src[j])) {
+          return InvalidArgument(in.path() + ": row " + std::to_string(i) + ", column " + std::to_string(j) + " is " +
+                                 std::to_string(src[j]) + "; cpca needs finite values");
+        }
+        dst[j] = src[j];
+      }
+    }
+    r = end;
+  }
+  return Status::Ok();
+}
+
+// Per-cluster sums of one pass, about the pass's starting mean.
+struct Accum {
+  uint64_t count = 0;
+  Eigen::VectorXd sum;  // Σ (x − mean)
+  Mat y;                // Σ (x − mean)(x − mean)ᵀ Q   (D × p)
+};
+
+// Model <-> checkpoint values: means (K·D), directions (K·D·p, column-major), then extra.
+std::vector<double> ModelValues(const Model& m) {
+  std::vector<double> v(m.mean.data(), m.mean.data() + m.mean.size());
+  for (const Mat& q : m.dir) v.insert(v.end(), q.data(), q.data() + q.size());
+  return v;
+}
+bool LoadModel(const std::vector<double>& v, uint64_t k, uint64_t d, uint64_t p, Model* m) {
+  if (v.size() < k * d * (p + 1)) return false;
+  m->k = k;
+  m->d = d;
+  m->p = p;
+  m->mean = Eigen::Map<const RowMat>(v.data(), k, d);
+  m->dir.assign(k, Mat());
+  for (uint64_t c = 0; c < k; ++c) m->dir[c] = Eigen::Map<const Mat>(v.data() + k * d + c * d * p, d, p);
+  return true;
+}
+
+Status WriteCheckpoint(const std::string& path, const nlohmann::json& identity, const std::string& phase,
+                       uint64_t level, uint64_t level_passes, uint64_t passes, double last_error, const Model& m,
+                       const nlohmann::json& extra = nullptr, const std::vector<double>& extra_values = {}) {
+  CpcaCheckpoint cp;
+  cp.header = {{"identity", identity},         {"phase", phase},   {"level", level},
+               {"level_passes", level_passes}, {"passes", passes}, {"extra", extra}};
+  cp.values = ModelValues(m);
+  cp.values.push_back(last_error);
+  cp.values.insert(cp.values.end(), extra_values.begin(), extra_values.end());
+  return WriteCpcaCheckpoint(path, cp);
+}
+
+}  // namespace
+
+// The fit's position, as the checkpoint records it.
+struct CpcaFitter::FitState {
+  std::string phase = "iterate";
+  uint64_t level = 0, level_passes = 0, passes = 0;
+  double last_error = -1;
+  double final_err = 0, final_norm = 0;  // phase "encode": the final assignment's totals
+  std::vector<uint64_t> sizes;
+};
+
+std::vector<uint64_t> CpcaFitter::SampleRows() const {
+  const uint64_t n = pr_.n_rows;
+  // The sample: all rows, or the sample_rows rows of smallest hash(seed, row).
+  std::vector<uint64_t> rows;
+  if (pr_.sample_rows >= n) {
+    rows.resize(n);
+    std::iota(rows.begin(), rows.end(), 0);
+  } else {
+    std::priority_queue<std::pair<uint64_t, uint64_t>> heap;  // (hash, row), largest on top
+    for (uint64_t r = 0; r < n; ++r) {
+      uint64_t h = SplitMix64(o_.seed ^ SplitMix64(r));
+      if (heap.size() < pr_.sample_rows) {
+        heap.push({h, r});
+      } else if (std::make_pair(h, r) < heap.top()) {
+        heap.pop();
+        heap.push({h, r});
+      }
+    }
+    while (!heap.empty()) {
+      rows.push_back(heap.top().second);
+      heap.pop();
+    }
+    std::sort(rows.begin(), rows.end());
+  }
+  return rows;
+}
+
+// Greedy k-means++ (Arthur & Vassilvitskii 2007; 2 + ln K trials per centre, as
+// scikit-learn does), from a seeded generator: the sample rows chosen as the K centres.
+std::vector<uint64_t> CpcaFitter::SeedCentres(const RowMat& x) const {
+  const uint64_t ns = static_cast<uint64_t>(x.rows()), d = pr_.d, k = pr_.k;
+  Eigen::VectorXd xx = x.rowwise().squaredNorm();
+  uint64_t state = SplitMix64(o_.seed ^ 0x6B6D65616E73ull);
+  auto next = [&] { return Unit(state = SplitMix64(state)); };
+  std::vector<uint64_t> centres;
+  centres.push_back(std::min<uint64_t>(ns - 1, static_cast<uint64_t>(next() * ns)));
+  Eigen::VectorXd dist = (x.rowwise() - x.row(centres[0])).rowwise().squaredNorm();
+  const uint64_t trials = 2 + static_cast<uint64_t>(std::log(static_cast<double>(k)));
+  while (centres.size() < k) {
+    const double total = dist.sum();
+    std::vector<uint64_t> cand;
+    for (uint64_t t = 0; t < trials; ++t) {
+      if (!(total > 0)) {
+        cand.push_back(centres.size() % ns);  // every point is a centre already
+        break;
+      }
+      double u = next() * total, acc = 0;
+      uint64_t i = 0;
+      for (; i + 1 < ns; ++i) {
+        acc += dist[i];
+        if (acc > u) break;
+      }
+      cand.push_back(i);
+    }
+    RowMat cm(cand.size(), d);
+    for (size_t t = 0; t < cand.size(); ++t) cm.row(t) = x.row(cand[t]);
+    RowMat g = x * cm.transpose();
+    double best_pot = INFINITY;
+    uint64_t best = 0;
+    Eigen::VectorXd best_dist;
+    for (size_t t = 0; t < cand.size(); ++t) {
+      Eigen::VectorXd nd(ns);
+      const double cc = xx[cand[t]];
+      for (uint64_t i = 0; i < ns; ++i) nd[i] = std::min(dist[i], std::max(0.0, xx[i] - 2 * g(i, t) + cc));
+      const double pot = nd.sum();
+      if (pot < best_pot) {
+        best_pot = pot;
+        best = cand[t];
+        best_dist = std::move(nd);
+      }
+    }
+    centres.push_back(best);
+    dist = std::move(best_dist);
+  }
+  return centres;
+}
+
+// Lloyd iterations on the sample (in memory): m's means move, id holds each sample row's
+// cluster.
+Status CpcaFitter::Lloyd(const RowMat& x, Model* m, std::vector<uint32_t>* id) const {
+  const uint64_t ns = static_cast<uint64_t>(x.rows()), d = pr_.d, k = pr_.k;
+  for (int it = 0; it < 20; ++it) {
+    if (progress_.Cancelled()) return Cancelled("interrupted during initialisation; rerun the same command");
+    RowMat g = x * m->mean.transpose();
+    Eigen::VectorXd mm = m->mean.rowwise().squaredNorm();
+    bool changed = false;
+    for (uint64_t i = 0; i < ns; ++i) {
+      double best = INFINITY;
+      uint32_t arg = 0;
+      for (uint64_t c = 0; c < k; ++c) {
+        double e = mm[c] - 2 * g(i, c);
+        if (e < best) {
+          best = e;
+          arg = static_cast<uint32_t>(c);
+        }
+      }
+      changed = changed || arg != (*id)[i];
+      (*id)[i] = arg;
+    }
+    if (!changed) break;
+    RowMat sum = RowMat::Zero(k, d);
+    std::vector<uint64_t> cnt(k, 0);
+    for (uint64_t i = 0; i < ns; ++i) {
+      sum.row((*id)[i]) += x.row(i);
+      cnt[(*id)[i]]++;
+    }
+    for (uint64_t c = 0; c < k; ++c)
+      if (cnt[c]) m->mean.row(c) = sum.row(c) / static_cast<double>(cnt[c]);
+  }
+  return Status::Ok();
+}
+
+// Directions: seeded random start, then subspace iterations on each cluster's sample rows.
+Status CpcaFitter::InitialDirections(const RowMat& x, const std::vector<uint32_t>& id, Model* m) const {
+  const uint64_t ns = static_cast<uint64_t>(x.rows()), d = pr_.d, k = pr_.k, p = pr_.p;
+  m->dir.assign(k, Mat());
+  if (p == 0) return Status::Ok();
+  std::vector<std::vector<uint64_t>> members(k);
+  for (uint64_t i = 0; i < ns; ++i) members[id[i]].push_back(i);
+  std::vector<uint64_t> clusters(k);
+  std::iota(clusters.begin(), clusters.end(), 0);
+  return ParallelFor(clusters, o_.jobs, Progress{}, "clusters", [&](uint64_t c) -> Status {
+    Mat q(d, p);
+    for (uint64_t j = 0; j < d; ++j)
+      for (uint64_t i = 0; i < p; ++i)
+        q(j, i) = 2 * Unit(SplitMix64(o_.seed ^ SplitMix64(c * 0x100000001B3ull ^ SplitMix64(j * p + i)))) - 1;
+    Eigen::HouseholderQR<Mat> qr(q);
+    q = qr.householderQ() * Mat::Identity(d, p);
+    if (!members[c].empty()) {
+      RowMat z(members[c].size(), d);
+      for (size_t i = 0; i < members[c].size(); ++i) z.row(i) = x.row(members[c][i]) - m->mean.row(c);
+      for (int step = 0; step < 4; ++step) {
+        Mat y = z.transpose() * (z * q);
+        q = NystromDirections(y, q);
+      }
+    }
+    m->dir[c] = std::move(q);
+    return Status::Ok();
+  });
+}
+
+Status CpcaFitter::Initialise(Model* m) {
+  const uint64_t d = pr_.d, k = pr_.k, p = pr_.p;
+  const std::vector<uint64_t> rows = SampleRows();
+  const uint64_t ns = rows.size();
+  RowMat x(ns, d);
+  for (uint64_t i = 0; i < ns;) {  // runs of consecutive rows
+    uint64_t j = i + 1;
+    while (j < ns && rows[j] == rows[j - 1] + 1 && j - i < 4096) ++j;
+    LTB_RETURN_IF_ERROR(ReadRows(in_, rows[i], j - i, x.data() + i * d));
+    i = j;
+  }
+  const std::vector<uint64_t> centres = SeedCentres(x);
+  m->k = k;
+  m->d = d;
+  m->p = p;
+  m->mean.resize(k, d);
+  for (uint64_t c = 0; c < k; ++c) m->mean.row(c) = x.row(centres[c]);
+  std::vector<uint32_t> id(ns, UINT32_MAX);
+  LTB_RETURN_IF_ERROR(Lloyd(x, m, &id));
+  return InitialDirections(x, id, m);
+}
+
+Result<double> CpcaFitter::Pass(Model* m, uint64_t n, uint64_t pass_index) {
+  const uint64_t d = pr_.d, k = pr_.k, p = pr_.p, nr = pr_.n_rows;
+  const uint64_t block = PassBlockRows(d);
+  Assigner assigner(*m, n, /*single=*/true);
+  std::vector<Accum> acc(k);
+  for (auto& a : acc) {
+    a.sum = Eigen::VectorXd::Zero(d);
+    a.y = Mat::Zero(d, p);
+  }
+  // The rows with the largest errors, to reseed clusters left empty.
+  const uint64_t keep = std::min<uint64_t>(k, 16);
+  std::vector<std::pair<double, uint64_t>> worst;  // (error, row), best first: larger error, then lower row
+  std::vector<std::vector<double>> worst_rows;
+  auto better = [](const std::pair<double, uint64_t>& a, const std::pair<double, uint64_t>& b) {
+    return a.first > b.first || (a.first == b.first && a.second < b.second);
+  };
+
+  std::vector<double> x(block * d), err(block);
+  std::vector<uint32_t> ids(block);
+  double total = 0;
+  for (uint64_t row0 = 0; row0 < nr; row0 += block) {
+    if (progress_.Cancelled()) {
+      return Cancelled("interrupted in pass " + std::to_string(pass_index + 1) +
+                       "; passes before it are checkpointed, rerun the same command to resume");
+    }
+    const uint64_t rows = std::min(block, nr - row0);
+    std::vector<uint64_t> subs;
+    for (uint64_t s = 0; s < rows; s += kSubRows) subs.push_back(s);
+    LTB_RETURN_IF_ERROR(ParallelFor(subs, o_.jobs, Progress{}, "rows", [&](uint64_t s) -> Status {
+      const uint64_t m_rows = std::min(kSubRows, rows - s);
+      LTB_RETURN_IF_ERROR(ReadRows(in_, row0 + s, m_rows, x.data() + s * d));
+      assigner.Assign(x.data() + s * d, m_rows, d, ids.data() + s, err.data() + s, nullptr);
+      return Status::Ok();
+    }));
+    std::vector<std::vector<uint32_t>> members(k);
+    for (uint64_t r = 0; r < rows; ++r) {
+      members[ids[r]].push_back(static_cast<uint32_t>(r));
+      total += err[r];
+      std::pair<double, uint64_t> e{err[r], row0 + r};
+      if (worst.size() < keep || better(e, worst.back())) {
+        auto pos = std::lower_bound(worst.begin(), worst.end(), e, better);
+        size_t at = pos - worst.begin();
+        worst.insert(pos, e);
+        worst_rows.insert(worst_rows.begin() + at, std::vector<double>(x.data() + r * d, x.data() + (r + 1) * d));
+        if (worst.size() > keep) {
+          worst.pop_back();
+          worst_rows.pop_back();
+        }
+      }
+    }
+    std::vector<uint64_t> busy;
+    for (uint64_t c = 0; c < k; ++c)
+      if (!members[c].empty()) busy.push_back(c);
+    LTB_RETURN_IF_ERROR(ParallelFor(busy, o_.jobs, Progress{}, "clusters", [&](uint64_t c) -> Status {
+      const auto& mem = members[c];
+      RowMat z(mem.size(), d);
+      for (size_t i = 0; i < mem.size(); ++i) {
+        z.row(i) = Eigen::Map<const Eigen::RowVectorXd>(x.data() + mem[i] * d, d) - m->mean.row(c);
+      }
+      acc[c].count += mem.size();
+      acc[c].sum += z.colwise().sum().transpose();
+      if (p > 0) {
+        Mat t = z * m->dir[c];
+        acc[c].y.noalias() += z.transpose() * t;
+      }
+      return Status::Ok();
+    }));
+    rows_done_ += rows;
+    ReportRows(rows_done_);
+  }
+
+  // Refit: means, then directions from the streamed products (corrected to the new mean:
+  // Σ(z − δ)(z − δ)ᵀ = Σ zzᵀ − count·δδᵀ, δ the mean shift).
+  size_t reseeded = 0;
+  std::vector<uint64_t> clusters(k);
+  std::iota(clusters.begin(), clusters.end(), 0);
+  std::vector<bool> reseed(k, false);
+  for (uint64_t c = 0; c < k; ++c) {
+    if (acc[c].count == 0 && reseeded < worst.size()) {
+      reseed[c] = true;
+      m->mean.row(c) = Eigen::Map<const Eigen::RowVectorXd>(worst_rows[reseeded].data(), d);
+      ++reseeded;
+    }
+  }
+  LTB_RETURN_IF_ERROR(ParallelFor(clusters, o_.jobs, Progress{}, "clusters", [&](uint64_t c) -> Status {
+    if (acc[c].count == 0) return Status::Ok();  // empty: reseeded above, or kept
+    const double cnt = static_cast<double>(acc[c].count);
+    Eigen::VectorXd delta = acc[c].sum / cnt;
+    m->mean.row(c) += delta.transpose();
+    if (p > 0) {
+      Mat y = acc[c].y - cnt * delta * (delta.transpose() * m->dir[c]);
+      m->dir[c] = NystromDirections(y, m->dir[c]);
+    }
+    return Status::Ok();
+  }));
+  return total;
+}
+
+Status CpcaFitter::Encode(const Assigner& a, const Model& rounded, uint64_t row0, uint64_t n, std::vector<double>* x,
+                          uint32_t* ids, float* weights, double* err) const {
+  const uint64_t d = pr_.d, s = pr_.s;
+  x->resize(kSubRows * d);
+  std::vector<double> e(kSubRows), w(kSubRows * std::max<uint64_t>(s, 1)), rec(d);
+  for (uint64_t s0 = 0; s0 < n; s0 += kSubRows) {
+    const uint64_t rows = std::min(kSubRows, n - s0);
+    LTB_RETURN_IF_ERROR(ReadRows(in_, row0 + s0, rows, x->data()));
+    a.Assign(x->data(), rows, d, ids + s0, e.data(), w.data());
+    for (uint64_t r = 0; r < rows; ++r) {
+      const uint32_t c = ids[s0 + r];
+      float* wf = weights + (s0 + r) * s;
+      for (uint64_t i = 0; i < s; ++i) wf[i] = static_cast<float>(w[r * s + i]);
+      // The error of exactly what a decoder computes from the stored values.
+      for (uint64_t j = 0; j < d; ++j) rec[j] = rounded.mean(c, j);
+      for (uint64_t i = 0; i < s; ++i) {
+        const double wi = wf[i];
+        const double* b = rounded.dir[c].col(i).data();
+        for (uint64_t j = 0; j < d; ++j) rec[j] += wi * b[j];
+      }
+      const double* xr = x->data() + r * d;
+      double sq = 0;
+      for (uint64_t j = 0; j < d; ++j) sq += (xr[j] - rec[j]) * (xr[j] - rec[j]);
+      err[s0 + r] = sq;
+    }
+  }
+  return Status::Ok();
+}
+
+Status CpcaFitter::Evaluate(const Model& rounded, double* err, double* norm, std::vector<uint64_t>* sizes) {
+  const uint64_t nr = pr_.n_rows, d = pr_.d;
+  const uint64_t block = PassBlockRows(d);
+  Assigner a(rounded, pr_.s);
+  std::vector<uint32_t> ids(block);
+  std::vector<float> w(block * pr_.s);
+  std::vector<double> e(block), xx(block);
+  sizes->assign(pr_.k, 0);
+  *err = 0;
+  *norm = 0;
+  for (uint64_t row0 = 0; row0 < nr; row0 += block) {
+    if (progress_.Cancelled()) return Cancelled("interrupted in the final pass; rerun the same command to resume");
+    const uint64_t rows = std::min(block, nr - row0);
+    std::vector<uint64_t> subs;
+    for (uint64_t s = 0; s < rows; s += kSubRows) subs.push_back(s);
+    LTB_RETURN_IF_ERROR(ParallelFor(subs, o_.jobs, Progress{}, "rows", [&](uint64_t s) -> Status {
+      thread_local std::vector<double> x;
+      const uint64_t m = std::min(kSubRows, rows - s);
+      LTB_RETURN_IF_ERROR(Encode(a, rounded, row0 + s, m, &x, ids.data() + s, w.data() + s * pr_.s, e.data() + s));
+      for (uint64_t r = 0; r < m; ++r) {
+        double q = 0;
+        for (uint64_t j = 0; j < d; ++j) q += x[r * d + j] * x[r * d + j];
+        xx[s + r] = q;
+      }
+      return Status::Ok();
+    }));
+    for (uint64_t r = 0; r < rows; ++r) {
+      *err += e[r];
+      *norm += xx[r];
+      (*sizes)[ids[r]]++;
+    }
+    rows_done_ += rows;
+    ReportRows(rows_done_);
+  }
+  return Status::Ok();
+}
+
+Result<bool> CpcaFitter::Resume(const std::string& cp_path, const nlohmann::json& identity, Model* m,
+                                FitState* st) const {
+  const uint64_t k = pr_.k, d = pr_.d, p = pr_.p;
+  auto cp = ReadCpcaCheckpoint(cp_path, k * d * (p + 1) + 16);
+  if (!cp.ok()) return cp.status();
+  bool loaded = false;
+  if (cp->has_value() && (**cp).header.value("identity", nlohmann::json()) == identity) {
+    const CpcaCheckpoint& c = **cp;
+    const uint64_t base = k * d * (p + 1);
+    if (LoadModel(c.values, k, d, p, m) && c.values.size() >= base + 1) {
+      st->level = c.header.value("level", uint64_t{0});
+      st->level_passes = c.header.value("level_passes", uint64_t{0});
+      st->passes = c.header.value("passes", uint64_t{0});
+      st->phase = c.header.value("phase", std::string("iterate"));
+      st->last_error = c.values[base];
+      loaded = st->level < pr_.levels.size();
+      if (st->phase == "encode") {
+        const auto& extra = c.header["extra"];
+        loaded = loaded && c.values.size() == base + 3 && extra.is_object() && extra.contains("sizes") &&
+                 extra["sizes"].is_array() && extra["sizes"].size() == k;
+        if (loaded) {
+          st->final_err = c.values[base + 1];
+          st->final_norm = c.values[base + 2];
+          st->sizes = extra["sizes"].get<std::vector<uint64_t>>();
+        }
+      }
+    }
+  }
+  return loaded;
+}
+
+// Alternate assignment and refit, growing the basis dimension level by level.
+Status CpcaFitter::Iterate(const std::string& cp_path, const nlohmann::json& identity, Model* m, FitState* st) {
+  while (st->phase == "iterate") {
+    const uint64_t dim = pr_.levels[st->level];
+    const bool last_level = st->level + 1 == pr_.levels.size();
+    LTB_ASSIGN_OR_RETURN(double e, Pass(m, dim, st->passes));
+    ++st->passes;
+    ++st->level_passes;
+    const bool converged = st->last_error >= 0 && st->last_error - e <= o_.tolerance * st->last_error;
+    st->last_error = e;
+    if (st->passes >= o_.max_iterations || (last_level && converged)) {
+      st->phase = "evaluate";
+    } else if (!last_level && (converged || st->level_passes >= o_.level_iterations)) {
+      ++st->level;
+      st->level_passes = 0;
+      st->last_error = -1;
+    }
+    LTB_RETURN_IF_ERROR(
+        WriteCheckpoint(cp_path, identity, st->phase, st->level, st->level_passes, st->passes, st->last_error, *m));
+    if (st->phase == "evaluate") break;
+  }
+  return Status::Ok();
+}
+
+Result<FitOutcome> CpcaFitter::Fit(const std::string& cp_path, const nlohmann::json& identity) {
+  Model m;
+  FitState st;
+  FitOutcome out;
+  LTB_ASSIGN_OR_RETURN(out.resumed, Resume(cp_path, identity, &m, &st));
+  if (!out.resumed) {
+    st = FitState();
+    LTB_RETURN_IF_ERROR(Initialise(&m));
+    LTB_RETURN_IF_ERROR(
+        WriteCheckpoint(cp_path, identity, st.phase, st.level, st.level_passes, st.passes, st.last_error, m));
+  }
+  rows_done_ = st.passes * pr_.n_rows;
+  LTB_RETURN_IF_ERROR(Iterate(cp_path, identity, &m, &st));
+  out.rounded = Rounded(m);
+  if (st.phase != "encode") {
+    LTB_RETURN_IF_ERROR(Evaluate(out.rounded, &st.final_err, &st.final_norm, &st.sizes));
+    st.phase = "encode";
+    LTB_RETURN_IF_ERROR(WriteCheckpoint(cp_path, identity, st.phase, st.level, st.level_passes, st.passes,
+                                        st.last_error, m, {{"sizes", st.sizes}}, {st.final_err, st.final_norm}));
+  }
+  out.passes = st.passes;
+  out.squared_error = st.final_err;
+  out.squared_norm = st.final_norm;
+  out.sizes = std::move(st.sizes);
+  return out;
+}
+
+}  // namespace ltb::stages::cpca_internal
