@@ -55,7 +55,7 @@ class Environment {
 };
 
 // The matrix as relight uses it: held in memory (Relighter), clustered PCA (CpcaRelighter,
-// per cluster) or, neither, streamed row blocks (RelightStreaming).
+// per cluster) or, for a row-block matrix (rows.ltm, raw.ltm), streamed (RelightStreaming).
 struct Matrix {
   uint64_t rows = 0;
   std::optional<Relighter> relighter;
