@@ -54,6 +54,189 @@ class Environment {
   uint64_t clamped_ = 0;
 };
 
+// The matrix as relight uses it: held in memory (Relighter), clustered PCA (CpcaRelighter,
+// per cluster) or, for a row-block matrix (rows.ltm, raw.ltm), streamed (RelightStreaming).
+struct Matrix {
+  uint64_t rows = 0;
+  std::optional<Relighter> relighter;
+  std::optional<CpcaRelighter> cpca;
+  std::vector<uint8_t> mask;  // rows that see no geometry are black in every output (FinishRelitImage)
+  uint64_t width = 0, height = 0;
+};
+
+// Loads the matrix in the form it needs; the in-memory forms report their size.
+Status LoadMatrix(const RelightOptions& o, const io::ContainerReader& reader, const Progress& progress, Matrix* m,
+                  nlohmann::json* report) {
+  const bool is_cpca = CpcaModel::IsCpca(reader.metadata());
+  const bool streaming = !is_cpca && reader.metadata().matrix().layout == format::Layout::kRows;
+  m->rows = reader.metadata().matrix().rows;
+  if (is_cpca) {  // clustered PCA: project the lighting per cluster, blend per row
+    LTB_ASSIGN_OR_RETURN(CpcaRelighter r, CpcaRelighter::Load(o.matrix, o.mem_limit));
+    m->cpca = std::move(r);
+    m->rows = m->cpca->rows();
+    (*report)["cpca"] = {{"clusters", m->cpca->model().clusters()}, {"basis", m->cpca->model().basis()}};
+    (*report)["matrix_bytes_in_memory"] = m->cpca->bytes();
+  } else if (!streaming) {
+    LTB_ASSIGN_OR_RETURN(Relighter r, Relighter::Load(o.matrix, o.mem_limit, progress));
+    m->relighter = std::move(r);
+    (*report)["nonzeros"] = m->relighter->nonzeros();
+    (*report)["matrix_bytes_in_memory"] = m->relighter->bytes();
+  }
+  LTB_ASSIGN_OR_RETURN(m->mask, ReadRowMask(reader));
+  return Status::Ok();
+}
+
+// The image the rows form (0 × 0: not an image).
+void SetImageSize(const io::ContainerReader& reader, Matrix* m) {
+  if (m->relighter) {
+    m->width = m->relighter->image_width();
+    m->height = m->relighter->image_height();
+  } else if (m->cpca) {
+    if (auto img = m->cpca->model().image()) {
+      m->width = img->first;
+      m->height = img->second;
+    }
+  } else if (auto img = ReadImageRows(reader.metadata())) {
+    m->width = img->width;
+    m->height = img->height;
+  }
+}
+
+// The frames relight renders, sharing their buffers: `cube` holds the last frame's
+// lighting in the basis, `terms` its kept terms, `image` its output, `fixes` what the
+// output policy changed in it.
+struct Frames {
+  Frames(const RelightOptions& o, const Environment& env, const LightingBasis& basis, Matrix& m,
+         const Progress& progress)
+      : o(o), env(env), basis(basis), m(m), progress(progress), image(m.rows * 3) {}
+
+  // The column norms the transport weighting needs (in-memory matrices only).
+  const std::vector<double>& norms() const {
+    static const std::vector<double> kNoNorms;
+    return m.relighter ? m.relighter->column_norms() : kNoNorms;
+  }
+
+  // The output policy (mask-0 rows black, negatives clamped unless kept).
+  OutputFixes Finish(std::vector<float>* img) const { return FinishRelitImage(m.mask, o.keep_negative, img); }
+
+  // One frame: resample, transform, select, relight.
+  Status Render(double rot, double* lighting_ms, double* relight_ms) {
+    auto a = Clock::now();
+    env.Cubemap(rot, &cube);
+    basis.ToBasis(cube.data());
+    LTB_RETURN_IF_ERROR(basis.SelectTerms(cube.data(), o.terms, o.weighting, norms(), &terms));
+    auto b = Clock::now();
+    if (m.relighter) {
+      m.relighter->Relight(terms, image.data());
+    } else if (m.cpca) {
+      m.cpca->RelightTerms(terms.column, terms.rgb, image.data());
+    } else {
+      std::vector<float> dense(cube.size(), 0.0f);
+      for (size_t k = 0; k < terms.column.size(); ++k)
+        for (int c = 0; c < 3; ++c) dense[terms.column[k] * 3 + c] = terms.rgb[k * 3 + c];
+      LTB_ASSIGN_OR_RETURN(image, RelightStreaming(o.matrix, dense.data(), o.jobs, progress));
+    }
+    fixes = Finish(&image);
+    auto c = Clock::now();
+    if (lighting_ms) *lighting_ms = Ms(a, b);
+    if (relight_ms) *relight_ms = Ms(b, c);
+    return Status::Ok();
+  }
+
+  const RelightOptions& o;
+  const Environment& env;
+  const LightingBasis& basis;
+  Matrix& m;
+  const Progress& progress;
+  std::vector<float> cube, image;
+  LightTerms terms;
+  OutputFixes fixes;
+};
+
+// What a term is in this matrix's column basis, and how much of the map it keeps.
+void ReportTerms(const LightingBasis& basis, const Frames& frames, nlohmann::json* report) {
+  double total = 0, kept = 0;  // `cube` holds the first frame's lighting in the basis
+  for (float v : frames.cube) total += static_cast<double>(v) * v;
+  for (float v : frames.terms.rgb) kept += static_cast<double>(v) * v;
+  (*report)["terms_basis"] = basis.wavelet() ? "wavelet " + std::string(wavelet::FilterName(basis.filter())) : "pixels";
+  (*report)["terms_available"] = frames.cube.size() / 3;
+  (*report)["lighting_energy_kept"] = total > 0 ? kept / total : 1.0;
+}
+
+// `o.frames` timing frames, the environment rotating once about +Z from `rotation`.
+Status TimeFrames(const RelightOptions& o, const Environment& env, double rotation, const Progress& progress,
+                  Frames* frames, nlohmann::json* report) {
+  std::vector<double> ms;
+  for (int f = 0; f < o.frames; ++f) {
+    // The timing loop runs until done or interrupted; the image above is already written.
+    if (progress.Cancelled()) {
+      return Cancelled("relight: interrupted after " + std::to_string(f) + " of " + std::to_string(o.frames) +
+                       " timing frames; " + o.output + " was written before them");
+    }
+    auto a = Clock::now();
+    LTB_RETURN_IF_ERROR(frames->Render(rotation + 2 * std::numbers::pi * f / o.frames, nullptr, nullptr));
+    ms.push_back(Ms(a, Clock::now()));
+  }
+  std::sort(ms.begin(), ms.end());
+  double median = ms[ms.size() / 2];
+  (*report)["frames"] = {{"count", o.frames},    {"median_ms", median}, {"fps", 1000.0 / median},
+                         {"min_ms", ms.front()}, {"max_ms", ms.back()}, {"rotates", env.rotates()}};
+  return Status::Ok();
+}
+
+// The errors of the written image (`first`, from `first_terms`) against the uncompressed
+// reference matrix o.reference: in all, of the lighting approximation alone, and of the
+// compressed matrix alone.
+Status MeasureErrors(const RelightOptions& o, const Environment& env, const LightingBasis& basis, Matrix& m,
+                     const Frames& frames, const std::vector<float>& first, const LightTerms& first_terms,
+                     double rotation, const Progress& progress, nlohmann::json* report) {
+  const uint64_t rows = m.rows;
+  LTB_ASSIGN_OR_RETURN(io::ContainerReader ref_reader, io::ContainerReader::Open(o.reference));
+  LTB_ASSIGN_OR_RETURN(LightingBasis ref_basis, LightingBasis::FromMetadata(ref_reader.metadata(), o.reference));
+  if (ref_basis.cube_res() != basis.cube_res() || ref_reader.metadata().matrix().rows != rows) {
+    return InvalidArgument(o.reference + ": is not the same bake as " + o.matrix + " (shape or R differ)");
+  }
+  // Exact: the full lighting in the reference's basis.
+  std::vector<float> full;
+  env.Cubemap(rotation, &full);
+  std::vector<float> full_ref = full;
+  ref_basis.ToBasis(full_ref.data());
+  LTB_ASSIGN_OR_RETURN(std::vector<float> exact, RelightStreaming(o.reference, full_ref.data(), o.jobs, progress));
+  frames.Finish(&exact);  // T·L ≥ 0: clamps f32 rounding at most
+  // Lighting alone: the kept terms, back in pixels, then into the reference's basis.
+  std::vector<float> approx(full.size(), 0.0f);
+  for (size_t k = 0; k < first_terms.column.size(); ++k)
+    for (int c = 0; c < 3; ++c) approx[first_terms.column[k] * 3 + c] = first_terms.rgb[k * 3 + c];
+  basis.ToPixels(approx.data());
+  ref_basis.ToBasis(approx.data());
+  LTB_ASSIGN_OR_RETURN(std::vector<float> light_only, RelightStreaming(o.reference, approx.data(), o.jobs, progress));
+  frames.Finish(&light_only);
+  auto metrics = [&](const std::vector<float>& img) {
+    auto e = CompareImages(img.data(), exact.data(), rows, m.width, m.height);
+    nlohmann::json j = {{"rel_l2", e.rel_l2}, {"psnr_db", e.psnr}};
+    if (e.rel_h1 >= 0) j["rel_h1"] = e.rel_h1;
+    return j;
+  };
+  (*report)["error"] = metrics(first);
+  (*report)["error_lighting_only"] = metrics(light_only);
+  // Matrix alone: every lighting term through the compressed matrix.
+  std::vector<float> all = full;
+  basis.ToBasis(all.data());
+  LightTerms every;
+  LTB_RETURN_IF_ERROR(basis.SelectTerms(all.data(), all.size() / 3, Weighting::kNone, frames.norms(), &every));
+  std::vector<float> matrix_only(rows * 3);
+  if (m.relighter) {
+    m.relighter->Relight(every, matrix_only.data());
+  } else if (m.cpca) {
+    m.cpca->Relight(all.data(), matrix_only.data());
+  } else {
+    LTB_ASSIGN_OR_RETURN(matrix_only, RelightStreaming(o.matrix, all.data(), o.jobs, progress));
+  }
+  frames.Finish(&matrix_only);
+  (*report)["error_matrix_only"] = metrics(matrix_only);
+  return Status::Ok();
+}
+
 }  // namespace
 
 Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progress) {
@@ -71,158 +254,33 @@ Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progre
   auto t0 = Clock::now();
   LTB_ASSIGN_OR_RETURN(io::ContainerReader reader, io::ContainerReader::Open(o.matrix));
   LTB_ASSIGN_OR_RETURN(LightingBasis basis, LightingBasis::FromMetadata(reader.metadata(), o.matrix));
-  const bool is_cpca = CpcaModel::IsCpca(reader.metadata());
-  const bool streaming = !is_cpca && reader.metadata().matrix().layout == format::Layout::kRows;
-  uint64_t rows = reader.metadata().matrix().rows;
-  std::optional<Relighter> relighter;
-  std::optional<CpcaRelighter> cpca;
-  if (is_cpca) {  // clustered PCA: project the lighting per cluster, blend per row
-    LTB_ASSIGN_OR_RETURN(CpcaRelighter r, CpcaRelighter::Load(o.matrix, o.mem_limit));
-    cpca = std::move(r);
-    rows = cpca->rows();
-    report["cpca"] = {{"clusters", cpca->model().clusters()}, {"basis", cpca->model().basis()}};
-    report["matrix_bytes_in_memory"] = cpca->bytes();
-  } else if (!streaming) {
-    LTB_ASSIGN_OR_RETURN(Relighter r, Relighter::Load(o.matrix, o.mem_limit, progress));
-    relighter = std::move(r);
-    report["nonzeros"] = relighter->nonzeros();
-    report["matrix_bytes_in_memory"] = relighter->bytes();
-  }
-  // Rows that see no geometry are black in every output (FinishRelitImage).
-  LTB_ASSIGN_OR_RETURN(std::vector<uint8_t> mask, ReadRowMask(reader));
-  OutputFixes fixes;
-  auto finish = [&](std::vector<float>* img) { fixes = FinishRelitImage(mask, o.keep_negative, img); };
+  Matrix m;
+  LTB_RETURN_IF_ERROR(LoadMatrix(o, reader, progress, &m, &report));
   auto t1 = Clock::now();
   LTB_ASSIGN_OR_RETURN(Environment env, Environment::Open(o.env, basis.cube_res(), eo));
   auto t2 = Clock::now();
   report["load_matrix_ms"] = Ms(t0, t1);
   report["load_env_ms"] = Ms(t1, t2);
   if (env.clamped()) report["clamped_values"] = env.clamped();
-
-  uint64_t width = 0, height = 0;
-  if (relighter) {
-    width = relighter->image_width();
-    height = relighter->image_height();
-  } else if (cpca) {
-    if (auto img = cpca->model().image()) {
-      width = img->first;
-      height = img->second;
-    }
-  } else if (auto img = ReadImageRows(reader.metadata())) {
-    width = img->width;
-    height = img->height;
-  }
-  const std::vector<double> no_norms;
-  const std::vector<double>& norms = relighter ? relighter->column_norms() : no_norms;
+  SetImageSize(reader, &m);
   const double rotation = o.rotate_deg * std::numbers::pi / 180.0;
 
-  // One frame: resample, transform, select, relight.
-  std::vector<float> cube, image(rows * 3);
-  LightTerms terms;
-  auto frame = [&](double rot, double* lighting_ms, double* relight_ms) -> Status {
-    auto a = Clock::now();
-    env.Cubemap(rot, &cube);
-    basis.ToBasis(cube.data());
-    LTB_RETURN_IF_ERROR(basis.SelectTerms(cube.data(), o.terms, o.weighting, norms, &terms));
-    auto b = Clock::now();
-    if (relighter) {
-      relighter->Relight(terms, image.data());
-    } else if (cpca) {
-      cpca->RelightTerms(terms.column, terms.rgb, image.data());
-    } else {
-      std::vector<float> dense(cube.size(), 0.0f);
-      for (size_t k = 0; k < terms.column.size(); ++k)
-        for (int c = 0; c < 3; ++c) dense[terms.column[k] * 3 + c] = terms.rgb[k * 3 + c];
-      LTB_ASSIGN_OR_RETURN(image, RelightStreaming(o.matrix, dense.data(), o.jobs, progress));
-    }
-    finish(&image);
-    auto c = Clock::now();
-    if (lighting_ms) *lighting_ms = Ms(a, b);
-    if (relight_ms) *relight_ms = Ms(b, c);
-    return Status::Ok();
-  };
+  Frames frames(o, env, basis, m, progress);
   double lighting_ms = 0, relight_ms = 0;
-  LTB_RETURN_IF_ERROR(frame(rotation, &lighting_ms, &relight_ms));
+  LTB_RETURN_IF_ERROR(frames.Render(rotation, &lighting_ms, &relight_ms));
   report["lighting_ms"] = lighting_ms;
   report["relight_ms"] = relight_ms;
-  report["terms_used"] = terms.column.size();
-  // What a term is in this matrix's column basis, and how much of the map it keeps.
-  {
-    double total = 0, kept = 0;  // `cube` holds the first frame's lighting in the basis
-    for (float v : cube) total += static_cast<double>(v) * v;
-    for (float v : terms.rgb) kept += static_cast<double>(v) * v;
-    report["terms_basis"] = basis.wavelet() ? "wavelet " + std::string(wavelet::FilterName(basis.filter())) : "pixels";
-    report["terms_available"] = cube.size() / 3;
-    report["lighting_energy_kept"] = total > 0 ? kept / total : 1.0;
-  }
-  report["output"] = {{"masked_rows", fixes.masked_rows}, {"clamped_values", nullptr}};
-  if (!o.keep_negative) report["output"]["clamped_values"] = fixes.clamped_values;
-  LTB_RETURN_IF_ERROR(WriteImage(o.output, image.data(), rows, width, height, {.exposure = o.exposure}));
-  std::vector<float> first = image;
-  LightTerms first_terms = terms;
+  report["terms_used"] = frames.terms.column.size();
+  ReportTerms(basis, frames, &report);
+  report["output"] = {{"masked_rows", frames.fixes.masked_rows}, {"clamped_values", nullptr}};
+  if (!o.keep_negative) report["output"]["clamped_values"] = frames.fixes.clamped_values;
+  LTB_RETURN_IF_ERROR(WriteImage(o.output, frames.image.data(), m.rows, m.width, m.height, {.exposure = o.exposure}));
+  std::vector<float> first = frames.image;
+  LightTerms first_terms = frames.terms;
 
-  if (o.frames > 0) {
-    std::vector<double> ms;
-    for (int f = 0; f < o.frames; ++f) {
-      // The timing loop runs until done or interrupted; the image above is already written.
-      if (progress.Cancelled()) {
-        return Cancelled("relight: interrupted after " + std::to_string(f) + " of " + std::to_string(o.frames) +
-                         " timing frames; " + o.output + " was written before them");
-      }
-      auto a = Clock::now();
-      LTB_RETURN_IF_ERROR(frame(rotation + 2 * std::numbers::pi * f / o.frames, nullptr, nullptr));
-      ms.push_back(Ms(a, Clock::now()));
-    }
-    std::sort(ms.begin(), ms.end());
-    double median = ms[ms.size() / 2];
-    report["frames"] = {{"count", o.frames},    {"median_ms", median}, {"fps", 1000.0 / median},
-                        {"min_ms", ms.front()}, {"max_ms", ms.back()}, {"rotates", env.rotates()}};
-  }
-
+  if (o.frames > 0) LTB_RETURN_IF_ERROR(TimeFrames(o, env, rotation, progress, &frames, &report));
   if (!o.reference.empty()) {
-    LTB_ASSIGN_OR_RETURN(io::ContainerReader ref_reader, io::ContainerReader::Open(o.reference));
-    LTB_ASSIGN_OR_RETURN(LightingBasis ref_basis, LightingBasis::FromMetadata(ref_reader.metadata(), o.reference));
-    if (ref_basis.cube_res() != basis.cube_res() || ref_reader.metadata().matrix().rows != rows) {
-      return InvalidArgument(o.reference + ": is not the same bake as " + o.matrix + " (shape or R differ)");
-    }
-    // Exact: the full lighting in the reference's basis.
-    std::vector<float> full;
-    env.Cubemap(rotation, &full);
-    std::vector<float> full_ref = full;
-    ref_basis.ToBasis(full_ref.data());
-    LTB_ASSIGN_OR_RETURN(std::vector<float> exact, RelightStreaming(o.reference, full_ref.data(), o.jobs, progress));
-    finish(&exact);  // T·L ≥ 0: clamps f32 rounding at most
-    // Lighting alone: the kept terms, back in pixels, then into the reference's basis.
-    std::vector<float> approx(full.size(), 0.0f);
-    for (size_t k = 0; k < first_terms.column.size(); ++k)
-      for (int c = 0; c < 3; ++c) approx[first_terms.column[k] * 3 + c] = first_terms.rgb[k * 3 + c];
-    basis.ToPixels(approx.data());
-    ref_basis.ToBasis(approx.data());
-    LTB_ASSIGN_OR_RETURN(std::vector<float> light_only, RelightStreaming(o.reference, approx.data(), o.jobs, progress));
-    finish(&light_only);
-    auto metrics = [&](const std::vector<float>& img) {
-      auto e = CompareImages(img.data(), exact.data(), rows, width, height);
-      nlohmann::json j = {{"rel_l2", e.rel_l2}, {"psnr_db", e.psnr}};
-      if (e.rel_h1 >= 0) j["rel_h1"] = e.rel_h1;
-      return j;
-    };
-    report["error"] = metrics(first);
-    report["error_lighting_only"] = metrics(light_only);
-    // Matrix alone: every lighting term through the compressed matrix.
-    std::vector<float> all = full;
-    basis.ToBasis(all.data());
-    LightTerms every;
-    LTB_RETURN_IF_ERROR(basis.SelectTerms(all.data(), all.size() / 3, Weighting::kNone, norms, &every));
-    std::vector<float> matrix_only(rows * 3);
-    if (relighter) {
-      relighter->Relight(every, matrix_only.data());
-    } else if (cpca) {
-      cpca->Relight(all.data(), matrix_only.data());
-    } else {
-      LTB_ASSIGN_OR_RETURN(matrix_only, RelightStreaming(o.matrix, all.data(), o.jobs, progress));
-    }
-    finish(&matrix_only);
-    report["error_matrix_only"] = metrics(matrix_only);
+    LTB_RETURN_IF_ERROR(MeasureErrors(o, env, basis, m, frames, first, first_terms, rotation, progress, &report));
   }
   return RelightResult{std::move(report)};
 }

@@ -222,7 +222,15 @@ Result<bool> NextContent(MeshInput& in, std::string_view* line) {
 
 }  // namespace
 
-Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress) {
+namespace {
+
+// The header keyword and the counts line: the vertex and face counts, checked against the
+// bytes that follow before anything is reserved.
+struct OffCounts {
+  uint64_t nv = 0, nf = 0;
+};
+
+Result<OffCounts> ReadOffHeader(MeshInput& in) {
   const std::string& name = in.name();
   auto at = [&] { return name + ":" + std::to_string(in.line()); };
   std::string_view line;
@@ -279,9 +287,14 @@ Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress) {
                     " faces, which need at least " + Bytes(need) + " bytes, but only " +
                     std::to_string(in.remaining()) + " follow the header (truncated, or a wrong count)");
   }
-  TriangleMesh m;
-  m.positions.resize(nv);
-  m.triangles.reserve(nf);
+  return OffCounts{nv, nf};
+}
+
+// The nv vertex lines into m->positions (sized).
+Status ReadOffVertices(MeshInput& in, uint64_t nv, const Progress& progress, TriangleMesh* m) {
+  const std::string& name = in.name();
+  auto at = [&] { return name + ":" + std::to_string(in.line()); };
+  std::string_view line, tok;
   for (uint64_t i = 0; i < nv; ++i) {
     if ((i & 0xFFFF) == 0xFFFF && progress.Cancelled()) return Cancelled(name + ": interrupted while reading the mesh");
     LTB_ASSIGN_OR_RETURN(bool ok, NextContent(in, &line));
@@ -299,8 +312,16 @@ Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress) {
                                " is " + Quote(tok) + ", not a finite number; fix or remove the vertex");
       }
     }
-    m.positions[i] = {p[0], p[1], p[2]};
+    m->positions[i] = {p[0], p[1], p[2]};
   }
+  return Status::Ok();
+}
+
+// The nf face lines, each polygon fanned into m->triangles (or counted as degenerate).
+Status ReadOffFaces(MeshInput& in, uint64_t nv, uint64_t nf, const Progress& progress, TriangleMesh* m) {
+  const std::string& name = in.name();
+  auto at = [&] { return name + ":" + std::to_string(in.line()); };
+  std::string_view line, tok;
   std::vector<uint32_t> face;
   std::vector<uint64_t> stamp;
   for (uint64_t f = 0; f < nf; ++f) {
@@ -338,8 +359,20 @@ Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress) {
       }
       face.push_back(static_cast<uint32_t>(v));
     }
-    AddPolygon(face, f, &stamp, &m);
+    AddPolygon(face, f, &stamp, m);
   }
+  return Status::Ok();
+}
+
+}  // namespace
+
+Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress) {
+  LTB_ASSIGN_OR_RETURN(const OffCounts counts, ReadOffHeader(in));
+  TriangleMesh m;
+  m.positions.resize(counts.nv);
+  m.triangles.reserve(counts.nf);
+  LTB_RETURN_IF_ERROR(ReadOffVertices(in, counts.nv, progress, &m));
+  LTB_RETURN_IF_ERROR(ReadOffFaces(in, counts.nv, counts.nf, progress, &m));
   return m;
 }
 
@@ -569,14 +602,24 @@ class PlyBody {
 
 }  // namespace
 
-Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress) {
+namespace {
+
+// What the header declares: the body's format (0 ascii, 1 binary little endian, 2 binary
+// big endian) and the elements with their properties, in file order.
+struct PlyHeader {
+  int format = -1;
+  std::vector<PlyElement> elements;
+};
+
+Result<PlyHeader> ReadPlyHeader(MeshInput& in) {
   const std::string& name = in.name();
   auto at = [&] { return name + ":" + std::to_string(in.line()); };
   std::string_view line;
   LTB_ASSIGN_OR_RETURN(bool have, in.NextLine(&line));
   if (!have || line != "ply") return InvalidArgument(name + ": does not start with \"ply\"; not a PLY file");
-  int format = -1;
-  std::vector<PlyElement> elements;
+  PlyHeader h;
+  int& format = h.format;
+  std::vector<PlyElement>& elements = h.elements;
   for (;;) {
     LTB_ASSIGN_OR_RETURN(have, in.NextLine(&line));
     if (!have) return DataLoss(name + ": the header has no \"end_header\" line (truncated?)");
@@ -636,8 +679,16 @@ Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress) {
     }
   }
   if (format < 0) return InvalidArgument(name + ": the header has no \"format\" line");
+  return h;
+}
 
-  // Which element holds what, and the least bytes each needs.
+// Which element holds what (the first "vertex" with x, y, z; the first "face" with its
+// index list), marked in the properties' roles, and the least bytes the elements need,
+// checked against what follows the header.
+Status ResolvePlyElements(MeshInput& in, PlyHeader* h, PlyElement** vertex_out, PlyElement** face_out) {
+  const std::string& name = in.name();
+  const int format = h->format;
+  std::vector<PlyElement>& elements = h->elements;
   PlyElement* vertex = nullptr;
   PlyElement* face = nullptr;
   uint64_t need = 0;
@@ -693,15 +744,23 @@ Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress) {
                     " bytes, but only " + std::to_string(in.remaining()) +
                     " follow the header (truncated, or a wrong count)");
   }
+  *vertex_out = vertex;
+  *face_out = face;
+  return Status::Ok();
+}
 
-  TriangleMesh m;
-  m.positions.resize(nv);
-  if (face != nullptr) m.triangles.reserve(face->count);
+// The body: every element's items in file order; the vertex positions into m->positions
+// (sized), the face polygons fanned into m->triangles, everything else skipped.
+Status ReadPlyBody(MeshInput& in, const PlyHeader& h, const PlyElement* vertex, const PlyElement* face,
+                   const Progress& progress, TriangleMesh* m) {
+  const std::string& name = in.name();
+  const int format = h.format;
+  const uint64_t nv = vertex->count;
   PlyBody body(in, format);
   std::vector<uint32_t> indices;
   std::vector<uint64_t> stamp;
   PlyValue v;
-  for (const PlyElement& e : elements) {
+  for (const PlyElement& e : h.elements) {
     if (e.props.empty()) continue;  // nothing to read, however many it declares
     const bool is_vertex = &e == vertex, is_face = &e == face;
     for (uint64_t i = 0; i < e.count; ++i) {
@@ -754,13 +813,27 @@ Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress) {
                                    std::string(1, static_cast<char>('x' + c)) + " is " + std::to_string(xyz[c]) +
                                    ", not a finite number; fix or remove the vertex");
           }
-          m.positions[i][c] = f;
+          m->positions[i][c] = f;
         }
       } else if (is_face) {
-        AddPolygon(indices, i, &stamp, &m);
+        AddPolygon(indices, i, &stamp, m);
       }
     }
   }
+  return Status::Ok();
+}
+
+}  // namespace
+
+Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress) {
+  LTB_ASSIGN_OR_RETURN(PlyHeader h, ReadPlyHeader(in));
+  PlyElement* vertex = nullptr;
+  PlyElement* face = nullptr;
+  LTB_RETURN_IF_ERROR(ResolvePlyElements(in, &h, &vertex, &face));
+  TriangleMesh m;
+  m.positions.resize(vertex->count);
+  if (face != nullptr) m.triangles.reserve(face->count);
+  LTB_RETURN_IF_ERROR(ReadPlyBody(in, h, vertex, face, progress, &m));
   return m;
 }
 

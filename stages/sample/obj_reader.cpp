@@ -47,6 +47,142 @@ void RemoveRepeats(std::vector<uint32_t>* f, uint64_t face, std::vector<uint64_t
   f->resize(out);
 }
 
+// "file:line" of a statement, for messages (built only when one is needed).
+struct ObjWhere {
+  const std::string& name;
+  uint64_t line_no;
+  std::string operator()() const { return name + ":" + std::to_string(line_no); }
+};
+
+// The next statement into *line: a comment runs from '#' to the end of the line; a '\'
+// ending what is left joins the next line to this statement (held in *joined). *line_no:
+// the statement's first line. false at the end of the file.
+Result<bool> NextStatement(MeshInput& in, std::string* joined, std::string_view* line, uint64_t* line_no) {
+  LTB_ASSIGN_OR_RETURN(bool have, in.NextLine(line));
+  if (!have) return false;
+  *line_no = in.line();
+  const ObjWhere at{in.name(), *line_no};
+  auto strip = [](std::string_view l) {
+    size_t hash = l.find('#');
+    return TrimEnd(hash == std::string_view::npos ? l : l.substr(0, hash));
+  };
+  *line = strip(*line);
+  if (!line->empty() && line->back() == '\\') {
+    joined->assign(line->substr(0, line->size() - 1));
+    for (;;) {
+      LTB_ASSIGN_OR_RETURN(have, in.NextLine(line));
+      if (!have) break;
+      *line = strip(*line);
+      const bool more = !line->empty() && line->back() == '\\';
+      if (more) line->remove_suffix(1);
+      if (joined->size() + line->size() + 1 > kMaxLine) {
+        return InvalidArgument(at() + ": statement continued ('\\') past " + std::to_string(kMaxLine >> 20) +
+                               " MiB; not an OBJ file?");
+      }
+      *joined += ' ';
+      *joined += *line;
+      if (!more) break;
+    }
+    *line = *joined;
+  }
+  return true;
+}
+
+// A `v x y z [w]` statement (after the keyword) appended to m->positions.
+Status ParseVertex(Tokens& t, const ObjWhere& at, TriangleMesh* m) {
+  std::string_view tok;
+  if (m->positions.size() >= kMaxVertices) {
+    return InvalidArgument(at() + ": more than " + std::to_string(kMaxVertices) + " vertices; not supported");
+  }
+  float p[3];
+  for (int c = 0; c < 3; ++c) {
+    if (!t.Next(&tok)) {
+      return InvalidArgument(at() + ": vertex " + std::to_string(m->positions.size() + 1) +
+                             " has fewer than 3 coordinates (expected \"v x y z [w]\")");
+    }
+    if (!ParseNumber(tok, &p[c]) || !std::isfinite(p[c])) {
+      return InvalidArgument(at() + ": vertex coordinate " + std::to_string(c + 1) + " is " + Quote(tok) +
+                             ", not a finite number (vertex " + std::to_string(m->positions.size() + 1) +
+                             "); fix or remove the vertex");
+    }
+  }
+  m->positions.push_back({p[0], p[1], p[2]});  // a w (or colour) after x y z is ignored
+  return Status::Ok();
+}
+
+// The largest index that named a vertex not yet defined where it was used (1-based),
+// and where it first appeared: it must be defined by the end of the file.
+struct ForwardRef {
+  uint64_t index = 0, line = 0, face = 0;
+  std::string token;
+};
+
+// The vertex references of an `f` statement (after the keyword), face number `faces`,
+// as 0-based indices into *face; nv vertices are defined so far.
+Status ParseFace(Tokens& t, const ObjWhere& at, const MeshInput& in, uint64_t faces, uint64_t nv, ForwardRef* forward,
+                 std::vector<uint32_t>* face) {
+  std::string_view tok;
+  auto which = [&] { return "face " + std::to_string(faces); };
+  face->clear();
+  while (t.Next(&tok)) {
+    // i, i/t, i//n or i/t/n: only i is used; t and n, when present, must be integers.
+    std::string_view parts[3];
+    size_t used = 0;
+    bool too_many = false;
+    for (std::string_view rest = tok;;) {
+      if (used == 3) {
+        too_many = true;
+        break;
+      }
+      const size_t slash = rest.find('/');
+      parts[used++] = rest.substr(0, slash);
+      if (slash == std::string_view::npos) break;
+      rest.remove_prefix(slash + 1);
+    }
+    int64_t v = 0, unused = 0;
+    if (too_many || parts[0].empty() || (!parts[1].empty() && !ParseNumber(parts[1], &unused)) ||
+        (!parts[2].empty() && !ParseNumber(parts[2], &unused))) {
+      return InvalidArgument(at() + ": " + which() + ": vertex reference " + Quote(tok) +
+                             " is malformed (expected i, i/t, i//n or i/t/n with integer i, t, n)");
+    }
+    if (!ParseNumber(parts[0], &v)) {
+      return InvalidArgument(at() + ": " + which() + ": vertex index " + Quote(parts[0]) + " is not an integer (in " +
+                             Quote(tok) + ")");
+    }
+    // Positive: 1-based; negative: counted back from the last vertex read so far.
+    const uint64_t back = v < 0 ? uint64_t{0} - static_cast<uint64_t>(v) : 0;
+    if (v == 0 || (v < 0 && back > nv)) {
+      return InvalidArgument(at() + ": " + which() + ": vertex index " + Quote(parts[0]) + " is out of range (" +
+                             std::to_string(nv) + " vertices so far: 1.." + std::to_string(nv) + ", or -1..-" +
+                             std::to_string(nv) + " counting back; 0 is never valid); fix the face");
+    }
+    uint64_t index = v < 0 ? nv - back : static_cast<uint64_t>(v) - 1;
+    if (index >= nv) {
+      // A forward reference: the rest of the file must be able to hold the vertices
+      // up to it, else it can never become valid (and it would cost memory).
+      const uint64_t could = nv + in.remaining() / kMinVertexLine + 1;
+      if (index >= could || index >= kMaxVertices) {
+        return InvalidArgument(at() + ": " + which() + ": vertex index " + Quote(parts[0]) + " is out of range (" +
+                               std::to_string(nv) + " vertices so far, and the " + std::to_string(in.remaining()) +
+                               " bytes left in the file cannot define " + std::to_string(index + 1 - nv) +
+                               " more); fix the face");
+      }
+      if (index + 1 > forward->index) {
+        forward->index = index + 1;
+        forward->line = at.line_no;
+        forward->face = faces;
+        forward->token = std::string(parts[0]);
+      }
+    }
+    face->push_back(static_cast<uint32_t>(index));
+  }
+  if (face->size() < 3) {
+    return InvalidArgument(at() + ": " + which() + " lists " + std::to_string(face->size()) +
+                           " vertices; a face needs at least 3");
+  }
+  return Status::Ok();
+}
+
 }  // namespace
 
 Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress) {
@@ -56,124 +192,23 @@ Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress) {
   std::vector<uint32_t> face;
   std::vector<uint64_t> stamp;
   uint64_t faces = 0;
-  // The largest index that named a vertex not yet defined where it was used (1-based),
-  // and where it first appeared: it must be defined by the end of the file.
-  uint64_t forward = 0, forward_line = 0, forward_face = 0;
-  std::string forward_token;
+  ForwardRef forward;
   for (uint64_t n = 0;; ++n) {
     if ((n & 0xFFFF) == 0xFFFF && progress.Cancelled()) return Cancelled(name + ": interrupted while reading the mesh");
     std::string_view line;
-    LTB_ASSIGN_OR_RETURN(bool have, in.NextLine(&line));
+    uint64_t line_no = 0;
+    LTB_ASSIGN_OR_RETURN(bool have, NextStatement(in, &joined, &line, &line_no));
     if (!have) break;
-    const uint64_t line_no = in.line();
-    auto at = [&] { return name + ":" + std::to_string(line_no); };
-    // A comment runs from '#' to the end of the line; a '\' ending what is left joins
-    // the next line to this statement.
-    auto strip = [](std::string_view l) {
-      size_t hash = l.find('#');
-      return TrimEnd(hash == std::string_view::npos ? l : l.substr(0, hash));
-    };
-    line = strip(line);
-    if (!line.empty() && line.back() == '\\') {
-      joined.assign(line.substr(0, line.size() - 1));
-      for (;;) {
-        LTB_ASSIGN_OR_RETURN(have, in.NextLine(&line));
-        if (!have) break;
-        line = strip(line);
-        const bool more = !line.empty() && line.back() == '\\';
-        if (more) line.remove_suffix(1);
-        if (joined.size() + line.size() + 1 > kMaxLine) {
-          return InvalidArgument(at() + ": statement continued ('\\') past " + std::to_string(kMaxLine >> 20) +
-                                 " MiB; not an OBJ file?");
-        }
-        joined += ' ';
-        joined += line;
-        if (!more) break;
-      }
-      line = joined;
-    }
+    const ObjWhere at{name, line_no};
     Tokens t{line};
-    std::string_view kw, tok;
+    std::string_view kw;
     if (!t.Next(&kw)) continue;
     if (kw == "v") {
-      if (m.positions.size() >= kMaxVertices) {
-        return InvalidArgument(at() + ": more than " + std::to_string(kMaxVertices) + " vertices; not supported");
-      }
-      float p[3];
-      for (int c = 0; c < 3; ++c) {
-        if (!t.Next(&tok)) {
-          return InvalidArgument(at() + ": vertex " + std::to_string(m.positions.size() + 1) +
-                                 " has fewer than 3 coordinates (expected \"v x y z [w]\")");
-        }
-        if (!ParseNumber(tok, &p[c]) || !std::isfinite(p[c])) {
-          return InvalidArgument(at() + ": vertex coordinate " + std::to_string(c + 1) + " is " + Quote(tok) +
-                                 ", not a finite number (vertex " + std::to_string(m.positions.size() + 1) +
-                                 "); fix or remove the vertex");
-        }
-      }
-      m.positions.push_back({p[0], p[1], p[2]});  // a w (or colour) after x y z is ignored
+      LTB_RETURN_IF_ERROR(ParseVertex(t, at, &m));
       continue;
     }
     if (kw != "f") continue;  // vt, vn, vp, l, p, o, g, s, usemtl, mtllib, ...: not geometry we trace
-    const uint64_t nv = m.positions.size();
-    auto which = [&] { return "face " + std::to_string(faces); };
-    face.clear();
-    while (t.Next(&tok)) {
-      // i, i/t, i//n or i/t/n: only i is used; t and n, when present, must be integers.
-      std::string_view parts[3];
-      size_t used = 0;
-      bool too_many = false;
-      for (std::string_view rest = tok;;) {
-        if (used == 3) {
-          too_many = true;
-          break;
-        }
-        const size_t slash = rest.find('/');
-        parts[used++] = rest.substr(0, slash);
-        if (slash == std::string_view::npos) break;
-        rest.remove_prefix(slash + 1);
-      }
-      int64_t v = 0, unused = 0;
-      if (too_many || parts[0].empty() || (!parts[1].empty() && !ParseNumber(parts[1], &unused)) ||
-          (!parts[2].empty() && !ParseNumber(parts[2], &unused))) {
-        return InvalidArgument(at() + ": " + which() + ": vertex reference " + Quote(tok) +
-                               " is malformed (expected i, i/t, i//n or i/t/n with integer i, t, n)");
-      }
-      if (!ParseNumber(parts[0], &v)) {
-        return InvalidArgument(at() + ": " + which() + ": vertex index " + Quote(parts[0]) + " is not an integer (in " +
-                               Quote(tok) + ")");
-      }
-      // Positive: 1-based; negative: counted back from the last vertex read so far.
-      const uint64_t back = v < 0 ? uint64_t{0} - static_cast<uint64_t>(v) : 0;
-      if (v == 0 || (v < 0 && back > nv)) {
-        return InvalidArgument(at() + ": " + which() + ": vertex index " + Quote(parts[0]) + " is out of range (" +
-                               std::to_string(nv) + " vertices so far: 1.." + std::to_string(nv) + ", or -1..-" +
-                               std::to_string(nv) + " counting back; 0 is never valid); fix the face");
-      }
-      uint64_t index = v < 0 ? nv - back : static_cast<uint64_t>(v) - 1;
-      if (index >= nv) {
-        // A forward reference: the rest of the file must be able to hold the vertices
-        // up to it, else it can never become valid (and it would cost memory).
-        const uint64_t could = nv + in.remaining() / kMinVertexLine + 1;
-        if (index >= could || index >= kMaxVertices) {
-          return InvalidArgument(at() + ": " + which() + ": vertex index " + Quote(parts[0]) + " is out of range (" +
-                                 std::to_string(nv) + " vertices so far, and the " + std::to_string(in.remaining()) +
-                                 " bytes left in the file cannot define " + std::to_string(index + 1 - nv) +
-                                 " more); fix the face");
-        }
-        if (index + 1 > forward) {
-          forward = index + 1;
-          forward_line = line_no;
-          forward_face = faces;
-          forward_token = std::string(parts[0]);
-        }
-      }
-      face.push_back(static_cast<uint32_t>(index));
-    }
-    if (face.size() < 3) {
-      return InvalidArgument(at() + ": " + which() + " lists " + std::to_string(face.size()) +
-                             " vertices; a face needs at least 3");
-    }
+    LTB_RETURN_IF_ERROR(ParseFace(t, at, in, faces, m.positions.size(), &forward, &face));
     RemoveRepeats(&face, faces, &stamp);
     if (face.size() < 3) {
       m.degenerate_dropped++;  // fewer than 3 distinct vertices
@@ -182,10 +217,10 @@ Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress) {
     }
     faces++;
   }
-  if (forward > m.positions.size()) {
+  if (forward.index > m.positions.size()) {
     const uint64_t nv = m.positions.size();
-    return InvalidArgument(name + ":" + std::to_string(forward_line) + ": face " + std::to_string(forward_face) +
-                           ": vertex index " + Quote(forward_token) + " is out of range (the file has " +
+    return InvalidArgument(name + ":" + std::to_string(forward.line) + ": face " + std::to_string(forward.face) +
+                           ": vertex index " + Quote(forward.token) + " is out of range (the file has " +
                            std::to_string(nv) + " vertices: 1.." + std::to_string(nv) + "); fix the face");
   }
   return m;

@@ -104,19 +104,17 @@ std::string FormatVec3(const glm::dvec3& v) {
   return b;
 }
 
-Result<SceneDesc> ParseScene(const std::string& path) {
-  LTB_ASSIGN_OR_RETURN(toml::table root, tomlf::ParseFile(path, "scene file"));
-  SceneDesc s;
-  s.path = path;
-  LTB_RETURN_IF_ERROR(CheckKeys(path, root, "the scene", {"output", "camera", "sampling", "material", "object"}));
+namespace {
 
+// [output]: the mode and, for vertex mode, the objects whose vertices are rows.
+Status ParseOutput(const std::string& path, const toml::table& root, SceneDesc* s) {
   if (const toml::table* out = root["output"].as_table()) {
     LTB_RETURN_IF_ERROR(CheckKeys(path, *out, "[output]", {"mode", "objects"}));
     LTB_ASSIGN_OR_RETURN(std::string mode, GetString(path, *out, "mode", "image"));
     if (mode == "image")
-      s.mode = SceneDesc::Mode::kImage;
+      s->mode = SceneDesc::Mode::kImage;
     else if (mode == "vertex")
-      s.mode = SceneDesc::Mode::kVertex;
+      s->mode = SceneDesc::Mode::kVertex;
     else
       return InvalidArgument(Where(path, *out->get("mode")) + ": mode is \"" + mode +
                              "\" (expected \"image\" or \"vertex\")");
@@ -124,40 +122,56 @@ Result<SceneDesc> ParseScene(const std::string& path) {
       for (const auto& n : *objs) {
         auto name = n.value<std::string>();
         if (!name) return InvalidArgument(Where(path, n) + ": [output] objects must be a list of object names");
-        s.vertex_objects.push_back(*name);
+        s->vertex_objects.push_back(*name);
       }
     }
   }
+  return Status::Ok();
+}
+
+// [camera] (required in image mode).
+Status ParseCamera(const std::string& path, const toml::table& root, SceneDesc* s) {
   if (const toml::table* cam = root["camera"].as_table()) {
     LTB_RETURN_IF_ERROR(CheckKeys(path, *cam, "[camera]", {"eye", "target", "up", "fov", "width", "height"}));
-    LTB_ASSIGN_OR_RETURN(s.camera.eye, GetVec3(path, *cam, "eye", s.camera.eye));
-    LTB_ASSIGN_OR_RETURN(s.camera.target, GetVec3(path, *cam, "target", s.camera.target));
-    LTB_ASSIGN_OR_RETURN(s.camera.up, GetVec3(path, *cam, "up", s.camera.up));
-    LTB_ASSIGN_OR_RETURN(s.camera.fov_degrees, GetNumber(path, *cam, "fov", s.camera.fov_degrees, 1.0, 179.0));
-    LTB_ASSIGN_OR_RETURN(uint64_t w, GetUnsigned(path, *cam, "width", s.camera.width, 1, 1 << 16));
-    LTB_ASSIGN_OR_RETURN(uint64_t h, GetUnsigned(path, *cam, "height", s.camera.height, 1, 1 << 16));
-    s.camera.width = static_cast<uint32_t>(w);
-    s.camera.height = static_cast<uint32_t>(h);
-    LTB_RETURN_IF_ERROR(CheckCamera(path, *cam, s.camera));
-  } else if (s.mode == SceneDesc::Mode::kImage) {
+    LTB_ASSIGN_OR_RETURN(s->camera.eye, GetVec3(path, *cam, "eye", s->camera.eye));
+    LTB_ASSIGN_OR_RETURN(s->camera.target, GetVec3(path, *cam, "target", s->camera.target));
+    LTB_ASSIGN_OR_RETURN(s->camera.up, GetVec3(path, *cam, "up", s->camera.up));
+    LTB_ASSIGN_OR_RETURN(s->camera.fov_degrees, GetNumber(path, *cam, "fov", s->camera.fov_degrees, 1.0, 179.0));
+    LTB_ASSIGN_OR_RETURN(uint64_t w, GetUnsigned(path, *cam, "width", s->camera.width, 1, 1 << 16));
+    LTB_ASSIGN_OR_RETURN(uint64_t h, GetUnsigned(path, *cam, "height", s->camera.height, 1, 1 << 16));
+    s->camera.width = static_cast<uint32_t>(w);
+    s->camera.height = static_cast<uint32_t>(h);
+    LTB_RETURN_IF_ERROR(CheckCamera(path, *cam, s->camera));
+  } else if (s->mode == SceneDesc::Mode::kImage) {
     return InvalidArgument(path + ": image mode needs a [camera] table");
   }
+  return Status::Ok();
+}
+
+// [sampling]: the defaults the command line overrides.
+Status ParseSampling(const std::string& path, const toml::table& root, SceneDesc* s) {
   if (const toml::table* smp = root["sampling"].as_table()) {
     LTB_RETURN_IF_ERROR(CheckKeys(path, *smp, "[sampling]", {"cube_res", "spp", "bounces", "seed"}));
-    LTB_ASSIGN_OR_RETURN(uint64_t r, GetUnsigned(path, *smp, "cube_res", s.cube_res, 1, kMaxCubeRes));
+    LTB_ASSIGN_OR_RETURN(uint64_t r, GetUnsigned(path, *smp, "cube_res", s->cube_res, 1, kMaxCubeRes));
     if (!std::has_single_bit(r)) {
       return InvalidArgument(Where(path, *smp->get("cube_res")) + ": \"cube_res\" is " + std::to_string(r) +
                              ", which is not a power of two (the wavelets need 2^k: e.g. 8, 16, 32, 64)");
     }
-    LTB_ASSIGN_OR_RETURN(uint64_t spp, GetUnsigned(path, *smp, "spp", s.spp, 1, 1 << 16));
-    LTB_ASSIGN_OR_RETURN(uint64_t b, GetUnsigned(path, *smp, "bounces", s.bounces, 0, 16));
-    LTB_ASSIGN_OR_RETURN(s.seed, GetUnsigned(path, *smp, "seed", s.seed, 0, uint64_t{1} << 62));
-    s.cube_res = static_cast<uint32_t>(r);
-    s.spp = static_cast<uint32_t>(spp);
-    s.bounces = static_cast<uint32_t>(b);
+    LTB_ASSIGN_OR_RETURN(uint64_t spp, GetUnsigned(path, *smp, "spp", s->spp, 1, 1 << 16));
+    LTB_ASSIGN_OR_RETURN(uint64_t b, GetUnsigned(path, *smp, "bounces", s->bounces, 0, 16));
+    LTB_ASSIGN_OR_RETURN(s->seed, GetUnsigned(path, *smp, "seed", s->seed, 0, uint64_t{1} << 62));
+    s->cube_res = static_cast<uint32_t>(r);
+    s->spp = static_cast<uint32_t>(spp);
+    s->bounces = static_cast<uint32_t>(b);
   }
+  return Status::Ok();
+}
 
-  std::map<std::string, int> material_index;
+// [[material]] entries (a "default" one when there are none); *index: name -> index of
+// the materials defined.
+Status ParseMaterials(const std::string& path, const toml::table& root, SceneDesc* s,
+                      std::map<std::string, int>* index) {
+  std::map<std::string, int>& material_index = *index;
   if (const toml::array* mats = root["material"].as_array()) {
     for (const auto& node : *mats) {
       const toml::table* m = node.as_table();
@@ -174,87 +188,116 @@ Result<SceneDesc> ParseScene(const std::string& path) {
         return InvalidArgument(Where(path, node) + ": material \"" + mat.name + "\" has albedo + ks = " +
                                std::to_string(mat.albedo + mat.ks) + " > 1 (it would create energy)");
       }
-      if (!material_index.emplace(mat.name, static_cast<int>(s.materials.size())).second) {
+      if (!material_index.emplace(mat.name, static_cast<int>(s->materials.size())).second) {
         return InvalidArgument(Where(path, node) + ": material \"" + mat.name + "\" defined twice");
       }
-      s.materials.push_back(mat);
+      s->materials.push_back(mat);
     }
   }
-  if (s.materials.empty()) s.materials.push_back(Material{"default"});
+  if (s->materials.empty()) s->materials.push_back(Material{"default"});
+  return Status::Ok();
+}
+
+// One [[object]] entry; `names` holds the names used so far, `base` the scene's folder
+// (mesh files are resolved against it).
+Result<Object> ParseObject(const std::string& path, const toml::node& node, const SceneDesc& s,
+                           const std::map<std::string, int>& material_index, const std::filesystem::path& base,
+                           std::set<std::string>* names) {
+  const toml::table* o = node.as_table();
+  if (o == nullptr) return InvalidArgument(Where(path, node) + ": [[object]] entries must be tables");
+  Object obj;
+  obj.line = static_cast<int>(node.source().begin.line);
+  LTB_ASSIGN_OR_RETURN(std::string type, GetString(path, *o, "type", ""));
+  std::set<std::string> keys{"type", "name", "material", "translate", "rotate", "scale"};
+  if (type == "plane") {
+    obj.type = Object::Type::kPlane;
+    keys.insert("size");
+  } else if (type == "box") {
+    obj.type = Object::Type::kBox;
+    keys.insert({"size", "center"});
+  } else if (type == "sphere") {
+    obj.type = Object::Type::kSphere;
+    keys.insert({"center", "radius"});
+  } else if (type == "mesh") {
+    obj.type = Object::Type::kMesh;
+    keys.insert("file");
+  } else {
+    return InvalidArgument(Where(path, node) + ": [[object]] type is \"" + type +
+                           "\" (expected plane, box, sphere or mesh)");
+  }
+  LTB_RETURN_IF_ERROR(CheckKeys(path, *o, "[[object]] (" + type + ") at line " + std::to_string(obj.line), keys));
+  LTB_ASSIGN_OR_RETURN(obj.name, GetString(path, *o, "name", type + "@" + std::to_string(obj.line)));
+  if (!names->insert(obj.name).second)
+    return InvalidArgument(Where(path, node) + ": object name \"" + obj.name + "\" used twice");
+  LTB_ASSIGN_OR_RETURN(std::string mat, GetString(path, *o, "material", s.materials.front().name));
+  auto mi = material_index.find(mat);
+  if (mi == material_index.end() && !(material_index.empty() && mat == "default")) {
+    return InvalidArgument(Where(path, node) + ": object \"" + obj.name + "\" uses material \"" + mat +
+                           "\", which no [[material]] defines");
+  }
+  obj.material = mi == material_index.end() ? 0 : mi->second;
+  glm::dvec3 def_size = obj.type == Object::Type::kPlane ? glm::dvec3(2, 2, 0) : glm::dvec3(1, 1, 1);
+  if (obj.type == Object::Type::kPlane && o->contains("size")) {
+    const toml::array* a = (*o)["size"].as_array();
+    if (a == nullptr || a->size() != 2 || !(*a)[0].value<double>() || !(*a)[1].value<double>() ||
+        !std::isfinite(*(*a)[0].value<double>()) || !std::isfinite(*(*a)[1].value<double>())) {
+      return InvalidArgument(Where(path, *o->get("size")) + ": plane \"size\" must be [x, y], two finite numbers");
+    }
+    obj.size = {*(*a)[0].value<double>(), *(*a)[1].value<double>(), 0};
+  } else {
+    LTB_ASSIGN_OR_RETURN(obj.size, GetVec3(path, *o, "size", def_size));
+  }
+  LTB_ASSIGN_OR_RETURN(obj.center, GetVec3(path, *o, "center", obj.center));
+  LTB_ASSIGN_OR_RETURN(obj.radius, GetNumber(path, *o, "radius", obj.radius, 1e-9, 1e9));
+  LTB_ASSIGN_OR_RETURN(obj.translate, GetVec3(path, *o, "translate", obj.translate));
+  LTB_ASSIGN_OR_RETURN(obj.rotate_degrees, GetVec3(path, *o, "rotate", obj.rotate_degrees));
+  LTB_ASSIGN_OR_RETURN(obj.scale, GetVec3(path, *o, "scale", obj.scale, /*allow_scalar=*/true));
+  if (obj.type == Object::Type::kMesh) {
+    LTB_ASSIGN_OR_RETURN(std::string file, GetString(path, *o, "file", ""));
+    if (file.empty()) return InvalidArgument(Where(path, node) + ": mesh object \"" + obj.name + "\" needs \"file\"");
+    std::filesystem::path f(file);
+    obj.file = (f.is_absolute() ? f : base / f).lexically_normal().string();
+  }
+  return obj;
+}
+
+// Vertex mode: the objects whose vertices are rows (every mesh when [output] names none)
+// must exist.
+Status CheckVertexObjects(const std::string& path, const std::set<std::string>& names, SceneDesc* s) {
+  if (s->vertex_objects.empty()) {
+    for (const Object& o : s->objects)
+      if (o.type == Object::Type::kMesh) s->vertex_objects.push_back(o.name);
+  }
+  for (const std::string& n : s->vertex_objects) {
+    if (names.count(n) == 0)
+      return InvalidArgument(path + ": [output] objects names \"" + n + "\", which no [[object]] has");
+  }
+  if (s->vertex_objects.empty()) return InvalidArgument(path + ": vertex mode needs [output] objects = [names]");
+  return Status::Ok();
+}
+
+}  // namespace
+
+Result<SceneDesc> ParseScene(const std::string& path) {
+  LTB_ASSIGN_OR_RETURN(toml::table root, tomlf::ParseFile(path, "scene file"));
+  SceneDesc s;
+  s.path = path;
+  LTB_RETURN_IF_ERROR(CheckKeys(path, root, "the scene", {"output", "camera", "sampling", "material", "object"}));
+  LTB_RETURN_IF_ERROR(ParseOutput(path, root, &s));
+  LTB_RETURN_IF_ERROR(ParseCamera(path, root, &s));
+  LTB_RETURN_IF_ERROR(ParseSampling(path, root, &s));
+  std::map<std::string, int> material_index;
+  LTB_RETURN_IF_ERROR(ParseMaterials(path, root, &s, &material_index));
 
   const toml::array* objs = root["object"].as_array();
   if (objs == nullptr || objs->empty()) return InvalidArgument(path + ": the scene has no [[object]]");
   std::filesystem::path base = std::filesystem::path(path).parent_path();
   std::set<std::string> names;
   for (const auto& node : *objs) {
-    const toml::table* o = node.as_table();
-    if (o == nullptr) return InvalidArgument(Where(path, node) + ": [[object]] entries must be tables");
-    Object obj;
-    obj.line = static_cast<int>(node.source().begin.line);
-    LTB_ASSIGN_OR_RETURN(std::string type, GetString(path, *o, "type", ""));
-    std::set<std::string> keys{"type", "name", "material", "translate", "rotate", "scale"};
-    if (type == "plane") {
-      obj.type = Object::Type::kPlane;
-      keys.insert("size");
-    } else if (type == "box") {
-      obj.type = Object::Type::kBox;
-      keys.insert({"size", "center"});
-    } else if (type == "sphere") {
-      obj.type = Object::Type::kSphere;
-      keys.insert({"center", "radius"});
-    } else if (type == "mesh") {
-      obj.type = Object::Type::kMesh;
-      keys.insert("file");
-    } else {
-      return InvalidArgument(Where(path, node) + ": [[object]] type is \"" + type +
-                             "\" (expected plane, box, sphere or mesh)");
-    }
-    LTB_RETURN_IF_ERROR(CheckKeys(path, *o, "[[object]] (" + type + ") at line " + std::to_string(obj.line), keys));
-    LTB_ASSIGN_OR_RETURN(obj.name, GetString(path, *o, "name", type + "@" + std::to_string(obj.line)));
-    if (!names.insert(obj.name).second)
-      return InvalidArgument(Where(path, node) + ": object name \"" + obj.name + "\" used twice");
-    LTB_ASSIGN_OR_RETURN(std::string mat, GetString(path, *o, "material", s.materials.front().name));
-    auto mi = material_index.find(mat);
-    if (mi == material_index.end() && !(material_index.empty() && mat == "default")) {
-      return InvalidArgument(Where(path, node) + ": object \"" + obj.name + "\" uses material \"" + mat +
-                             "\", which no [[material]] defines");
-    }
-    obj.material = mi == material_index.end() ? 0 : mi->second;
-    glm::dvec3 def_size = obj.type == Object::Type::kPlane ? glm::dvec3(2, 2, 0) : glm::dvec3(1, 1, 1);
-    if (obj.type == Object::Type::kPlane && o->contains("size")) {
-      const toml::array* a = (*o)["size"].as_array();
-      if (a == nullptr || a->size() != 2 || !(*a)[0].value<double>() || !(*a)[1].value<double>() ||
-          !std::isfinite(*(*a)[0].value<double>()) || !std::isfinite(*(*a)[1].value<double>())) {
-        return InvalidArgument(Where(path, *o->get("size")) + ": plane \"size\" must be [x, y], two finite numbers");
-      }
-      obj.size = {*(*a)[0].value<double>(), *(*a)[1].value<double>(), 0};
-    } else {
-      LTB_ASSIGN_OR_RETURN(obj.size, GetVec3(path, *o, "size", def_size));
-    }
-    LTB_ASSIGN_OR_RETURN(obj.center, GetVec3(path, *o, "center", obj.center));
-    LTB_ASSIGN_OR_RETURN(obj.radius, GetNumber(path, *o, "radius", obj.radius, 1e-9, 1e9));
-    LTB_ASSIGN_OR_RETURN(obj.translate, GetVec3(path, *o, "translate", obj.translate));
-    LTB_ASSIGN_OR_RETURN(obj.rotate_degrees, GetVec3(path, *o, "rotate", obj.rotate_degrees));
-    LTB_ASSIGN_OR_RETURN(obj.scale, GetVec3(path, *o, "scale", obj.scale, /*allow_scalar=*/true));
-    if (obj.type == Object::Type::kMesh) {
-      LTB_ASSIGN_OR_RETURN(std::string file, GetString(path, *o, "file", ""));
-      if (file.empty()) return InvalidArgument(Where(path, node) + ": mesh object \"" + obj.name + "\" needs \"file\"");
-      std::filesystem::path f(file);
-      obj.file = (f.is_absolute() ? f : base / f).lexically_normal().string();
-    }
+    LTB_ASSIGN_OR_RETURN(Object obj, ParseObject(path, node, s, material_index, base, &names));
     s.objects.push_back(obj);
   }
-  if (s.mode == SceneDesc::Mode::kVertex) {
-    if (s.vertex_objects.empty()) {
-      for (const Object& o : s.objects)
-        if (o.type == Object::Type::kMesh) s.vertex_objects.push_back(o.name);
-    }
-    for (const std::string& n : s.vertex_objects) {
-      if (names.count(n) == 0)
-        return InvalidArgument(path + ": [output] objects names \"" + n + "\", which no [[object]] has");
-    }
-    if (s.vertex_objects.empty()) return InvalidArgument(path + ": vertex mode needs [output] objects = [names]");
-  }
+  if (s.mode == SceneDesc::Mode::kVertex) LTB_RETURN_IF_ERROR(CheckVertexObjects(path, names, &s));
   return s;
 }
 

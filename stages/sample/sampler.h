@@ -1,0 +1,113 @@
+// Internal to the sample stage (stages/sample/sample.h is its public header): the Monte
+// Carlo estimator of one row of the transport matrix T (docs/SAMPLE.md) — the primary hit,
+// the stratified occlusion rays per cubemap texel, traced in batches, and the indirect
+// paths. RunSample and TraceBare (sample.cpp) drive it over rows.
+#pragma once
+
+#include <atomic>
+#include <cstddef>
+#include <cstdint>
+#include <glm/vec3.hpp>
+#include <vector>
+
+#include "stages/sample/geometry.h"
+#include "stages/sample/ray_scene.h"
+#include "stages/sample/scene.h"
+#include "stages/sample/scene_geometry.h"
+
+namespace ltb::sample {
+
+struct TexelInfo {
+  int face;
+  double u0, v0;       // lower corner in face coordinates
+  glm::dvec3 a, b, c;  // the face as an affine map: FaceDirection(face, u, v) = a + u·b + v·c
+  glm::dvec3 centre;
+  double cos_limit;  // skip the texel when n·centre < cos_limit (wholly below the horizon)
+};
+
+struct Brdf {
+  double diffuse;  // albedo / π
+  double ks_norm;  // ks (n+2) / (2π), 0 when not glossy
+  double exponent;
+  glm::dvec3 reflect;     // mirror direction of the view
+  int int_exponent = -1;  // exponent when it is a whole number up to 4096, else -1
+  double Eval(const glm::dvec3& w) const;
+};
+
+struct RowScratch {
+  // Per-slot arrays of one batch: the texel's lower corner and random stream origin,
+  // then w·cos and the glossy lobe of each sample.
+  std::vector<double> u0, v0, wc, gl, pw;
+  std::vector<uint64_t> s0;
+  std::vector<uint8_t> above;  // per texel of a run: 1 when not wholly below the horizon
+  // One batch: texel[m] owns ray slots [m·spp, (m+1)·spp), a slot per sample in stratum
+  // order; a sample below the horizon keeps its slot as an inactive ray of value 0.
+  RayBatch batch;
+  std::vector<uint32_t> texel;
+  std::vector<double> ray_value;
+  size_t n = 0;       // slots in use
+  size_t active = 0;  // rays traced (slots above the horizon)
+  std::vector<double> sum_value;
+};
+
+struct Counters {
+  std::atomic<uint64_t> rays{0}, below{0}, samples_below{0};
+};
+
+class Sampler {
+ public:
+  Sampler(const SceneDesc& s, const Geometry& g, uint32_t r, uint32_t spp, uint32_t bounces, uint64_t seed);
+
+  RowPoint Primary(uint64_t row) const;
+
+  // Texels per batch of rays: about kBatchRays rays, so a batch stays in L2 cache between
+  // being generated and being traced.
+  uint64_t TexelsPerBatch() const;
+
+  Brdf MakeBrdf(const RowPoint& rp) const;
+
+  // The occlusion rays of texels [c0, c1) of one row (a valid point) into sc, with each
+  // ray's value w·f·cos; texels wholly below the horizon get none.
+  void GenerateRays(uint64_t row, const RowPoint& rp, const Brdf& brdf, uint64_t c0, uint64_t c1, RowScratch& sc,
+                    uint64_t* below, uint64_t* samples_below) const;
+
+  // Sums of the unoccluded rays' values into acc, per texel in stratum order (the order
+  // the values were generated in, so the sums do not depend on the batching).
+  void Accumulate(const RowScratch& sc, std::vector<double>& acc) const;
+
+  // One row of T (6R² values) for a valid point.
+  void Transport(uint64_t row, const RowPoint& rp, float* out, RowScratch& sc, Counters& cnt) const;
+
+  glm::dvec3 Origin(const RowPoint& rp) const { return rp.p + rp.n * g_.epsilon; }
+  const RayScene& rays() const { return *g_.rays; }
+
+ private:
+  // kSpp: spp_ when known at compile time (the common 4), else 0.
+  template <uint32_t kSpp>
+  void GenerateRaysT(uint64_t row, const RowPoint& rp, const Brdf& brdf, uint64_t c0, uint64_t c1, RowScratch& sc,
+                     uint64_t* below, uint64_t* samples_below) const;
+  template <uint32_t kSpp, bool kGlossy>
+  void DirectionsT(size_t n0, size_t n1, double na, double nb, double nc, const TexelInfo& t, const Brdf& brdf,
+                   RowScratch& sc) const;
+  template <uint32_t kSpp>
+  void AccumulateT(const RowScratch& sc, std::vector<double>& acc) const;
+  uint64_t Indirect(uint64_t row, const RowPoint& rp, const Brdf& brdf, const glm::dvec3& origin,
+                    std::vector<double>& acc) const;
+
+  const SceneDesc& s_;
+  const Geometry& g_;
+  uint32_t r_, spp_, bounces_;
+  uint64_t seed_;
+  std::vector<TexelInfo> texels_;
+  uint32_t kx_ = 1, ky_ = 1;
+  // The texel table's fields the ray generator reads, as arrays it can vectorise over.
+  std::vector<double> u0_, v0_, centre_x_, centre_y_, centre_z_, cos_limit_;
+  std::vector<double> stratum_x_, stratum_y_;  // stratum column and row of the sample in batch slot k
+
+  // The (row, texel) stream's counter origin, as Rng(seed, row, texel) sets it.
+  uint64_t StreamStart(uint64_t row, uint64_t c) const {
+    return seed_ ^ (row * 0x9E3779B97F4A7C15ull) ^ (c * 0xC2B2AE3D27D4EB4Full);
+  }
+};
+
+}  // namespace ltb::sample
