@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Per-core (--jobs 1) rates of every bake stage on this machine, for the on-paper cluster
-# scaling estimate in docs/cluster.md (issue 9). Prints a markdown report on stdout;
+# scaling estimate in docs/cluster.md. Prints a markdown report on stdout;
 # progress goes to stderr.
 #
 #   bash bench/cluster_rates.sh [BUILD_DIR] > bench/results/cluster_rates.md
@@ -188,7 +188,7 @@ def e(x, d=2): return f"{x:.{d}e}".replace("e+0", "e").replace("e+", "e").replac
 def gb(x): return f"{x / 1e9:.3f} GB"
 
 E = os.environ
-print("# Per-core stage rates for the cluster estimate (issue 9)\n")
+print("# Per-core stage rates for the cluster estimate\n")
 print(f"`bash bench/cluster_rates.sh {E['BUILD_REL']}` (REPS={E['REPS']}); source: the script's header. "
       "Every stage is the real `ltbake` CLI with `--jobs 1`; medians of the repetitions, (min–max). "
       "**Per-core rate = work / CPU seconds** (user + sys of the whole process, all its threads, "

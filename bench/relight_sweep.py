@@ -1,4 +1,4 @@
-"""Run time against error (issue 6): bake each scene once, compress it with every method and
+"""Run time against error: bake each scene once, compress it with every method and
 several parameters, relight under several environment maps, and record size, relight
 time and error against the exact relighting from the uncompressed matrix.
 

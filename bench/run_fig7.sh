@@ -3,7 +3,7 @@
 # against nonzeros for 2D (`--depth none`, Ng et al. 2003), naive full 4D (`--depth full`),
 # adaptive 4D (`--depth adaptive`), all with `--terms N` per column, and the global
 # rate-distortion budget (`--depth adaptive --budget K`, K = the nonzeros of the adaptive
-# --terms runs). Issue 5 benchmark; results in bench/results/column_transform_fig7*.md.
+# --terms runs). Results in bench/results/column_transform_fig7*.md.
 #
 #   bash bench/run_fig7.sh [BUILD_DIR=build]
 #

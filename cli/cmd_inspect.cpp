@@ -33,6 +33,78 @@ std::string HumanBytes(uint64_t b) {
 
 json NumberOrNull(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
 
+// Per array: its chunks expected, committed and missing, by encoding, and their stored bytes.
+json ChunkCounts(const io::ContainerReader& reader, uint32_t i) {
+  const uint64_t expected = reader.metadata().OwnedChunks(i);  // a shard file: the chunks it owns
+  json chunks = {{"expected", expected},
+                 {"committed", reader.committed(i)},
+                 {"missing", expected - std::min(expected, reader.committed(i))}};
+  uint64_t by_enc[5] = {0, 0, 0, 0, 0}, stored = 0;
+  for (const auto& e : reader.chunk_frames()) {
+    if (e.header.array != i) continue;
+    if (e.header.encoding < 5) by_enc[e.header.encoding]++;  // the reader refuses unknown encodings
+    stored += e.header.payload_length;
+  }
+  chunks["raw"] = by_enc[0];
+  chunks["zero"] = by_enc[1];
+  chunks["zstd"] = by_enc[2];
+  if (by_enc[3] + by_enc[4] > 0) {
+    chunks["sparse"] = by_enc[3];
+    chunks["sparse_zstd"] = by_enc[4];
+  }
+  chunks["stored_bytes"] = stored;
+  return chunks;
+}
+
+// An array's content_hash and value statistics.
+void AddContent(const io::ArraySummary& summary, json& j) {
+  const io::ArrayStats& s = summary.stats;
+  j["content_hash"] = summary.content_hash.empty() ? json(nullptr) : json(summary.content_hash);
+  uint64_t finite = s.count - s.nan - s.inf;
+  j["stats"] = {{"count", s.count},
+                {"min", NumberOrNull(finite ? s.min : NAN)},
+                {"max", NumberOrNull(finite ? s.max : NAN)},
+                {"mean", NumberOrNull(finite ? s.sum / static_cast<double>(finite) : NAN)},
+                {"nan_count", s.nan},
+                {"inf_count", s.inf},
+                {"nonzero_fraction", s.count ? static_cast<double>(s.nonzero) / static_cast<double>(s.count) : 0.0}};
+}
+
+// Bytes on disk: payloads of the matrix and of the side tables, and the container's own
+// bytes (header, metadata, frame headers, padding, index, trailer; a manifest's text).
+json OnDisk(const io::ContainerReader& reader, const json& arrays) {
+  uint64_t total = reader.file_size(), matrix = 0, side = 0;
+  if (reader.is_manifest()) {
+    for (const auto& sh : reader.shards()) total += sh->file_size();
+  }
+  for (const json& a : arrays) {
+    (a["name"] == reader.metadata().arrays[0].name ? matrix : side) += a["chunks"]["stored_bytes"].get<uint64_t>();
+  }
+  const uint64_t overhead = total - std::min(total, matrix + side);
+  return {{"total_bytes", total},
+          {"matrix_bytes", matrix},
+          {"side_table_bytes", side},
+          {"overhead_bytes", overhead},
+          {"overhead_fraction", total ? static_cast<double>(overhead) / static_cast<double>(total) : 0.0}};
+}
+
+// --chunks: every committed chunk frame.
+json ChunkList(const io::ContainerReader& reader) {
+  const Metadata& meta = reader.metadata();
+  json list = json::array();
+  for (const auto& e : reader.chunk_frames()) {
+    list.push_back({{"array", meta.arrays[e.header.array].name},
+                    {"index", e.header.chunk_index},
+                    {"offset", e.frame_offset},
+                    {"file", reader.Holder(e.header.array, e.header.chunk_index).path()},
+                    {"encoding", EncodingName(static_cast<Encoding>(e.header.encoding))},
+                    {"stored_bytes", e.header.payload_length},
+                    {"decoded_bytes", e.header.decoded_length},
+                    {"checksum", Hex64(e.header.payload_checksum)}});
+  }
+  return list;
+}
+
 class InspectCommand : public Command {
  public:
   explicit InspectCommand(CLI::App* parent) {
@@ -74,69 +146,37 @@ class InspectCommand : public Command {
     for (uint32_t i = 0; i < meta.arrays.size(); ++i) {
       const ArraySpec& a = meta.arrays[i];
       json j = a.ToJson();
-      const uint64_t expected = meta.OwnedChunks(i);  // a shard file: the chunks it owns
-      json chunks = {{"expected", expected},
-                     {"committed", reader.committed(i)},
-                     {"missing", expected - std::min(expected, reader.committed(i))}};
-      uint64_t by_enc[5] = {0, 0, 0, 0, 0}, stored = 0;
-      for (const auto& e : reader.chunk_frames()) {
-        if (e.header.array != i) continue;
-        if (e.header.encoding < 5) by_enc[e.header.encoding]++;  // the reader refuses unknown encodings
-        stored += e.header.payload_length;
-      }
-      chunks["raw"] = by_enc[0];
-      chunks["zero"] = by_enc[1];
-      chunks["zstd"] = by_enc[2];
-      if (by_enc[3] + by_enc[4] > 0) {
-        chunks["sparse"] = by_enc[3];
-        chunks["sparse_zstd"] = by_enc[4];
-      }
-      chunks["stored_bytes"] = stored;
-      j["chunks"] = chunks;
+      j["chunks"] = ChunkCounts(reader, i);
       if (!no_content_) {
         ProgressBar bar(flags_, "inspect " + a.name);
         auto summary = io::SummarizeArray(reader, i, flags_.jobs, bar.hook());
         bar.Done();
         if (!summary.ok()) return ReportFailure(summary.status());
-        const io::ArrayStats& s = summary->stats;
-        j["content_hash"] = summary->content_hash.empty() ? json(nullptr) : json(summary->content_hash);
-        uint64_t finite = s.count - s.nan - s.inf;
-        j["stats"] = {
-            {"count", s.count},
-            {"min", NumberOrNull(finite ? s.min : NAN)},
-            {"max", NumberOrNull(finite ? s.max : NAN)},
-            {"mean", NumberOrNull(finite ? s.sum / static_cast<double>(finite) : NAN)},
-            {"nan_count", s.nan},
-            {"inf_count", s.inf},
-            {"nonzero_fraction", s.count ? static_cast<double>(s.nonzero) / static_cast<double>(s.count) : 0.0}};
+        AddContent(*summary, j);
       }
       out["arrays"].push_back(j);
     }
-    // Bytes on disk: payloads of the matrix and of the side tables, and the container's own
-    // bytes (header, metadata, frame headers, padding, index, trailer; a manifest's text).
-    {
-      uint64_t total = reader.file_size(), matrix = 0, side = 0;
-      if (reader.is_manifest()) {
-        for (const auto& sh : reader.shards()) total += sh->file_size();
-      }
-      for (const json& a : out["arrays"]) {
-        (a["name"] == meta.arrays[0].name ? matrix : side) += a["chunks"]["stored_bytes"].get<uint64_t>();
-      }
-      const uint64_t overhead = total - std::min(total, matrix + side);
-      out["on_disk"] = {
-          {"total_bytes", total},
-          {"matrix_bytes", matrix},
-          {"side_table_bytes", side},
-          {"overhead_bytes", overhead},
-          {"overhead_fraction", total ? static_cast<double>(overhead) / static_cast<double>(total) : 0.0}};
-    }
+    out["on_disk"] = OnDisk(reader, out["arrays"]);
     // The matrix (array 0) at top level, as DESIGN.md lists the keys.
     const json& m = out["arrays"][0];
     for (const char* k : {"shape", "dtype", "layout", "block", "chunks", "content_hash", "stats"}) {
       if (m.contains(k)) out[k] = m[k];
     }
-    // Column-transform / quantize outputs: chosen depths, error, bytes per nonzero.
-    if (meta.json.contains("column_transform") && reader.complete()) {
+    AddStageSummaries(meta, reader.complete(), out);
+    if (chunks_) out["chunk_list"] = ChunkList(reader);
+    if (json_) {
+      std::cout << out.dump(2) << "\n";
+    } else {
+      PrintText(out);
+    }
+    return kExitOk;
+  }
+
+ private:
+  // Column-transform / quantize outputs: chosen depths, error, bytes per nonzero; cpca
+  // outputs: clusters, basis dimension, passes, error (docs/CPCA.md).
+  void AddStageSummaries(const Metadata& meta, bool complete, json& out) const {
+    if (meta.json.contains("column_transform") && complete) {
       auto ct = stages::SummarizeColumnTransform(path_);
       if (ct.ok()) {
         json c = meta.json["column_transform"];
@@ -157,30 +197,9 @@ class InspectCommand : public Command {
         }
       }
     }
-    // cpca outputs: clusters, basis dimension, passes, error (docs/CPCA.md).
     if (meta.json.contains("cpca") && meta.json["cpca"].is_object()) out["cpca"] = meta.json["cpca"];
-    if (chunks_) {
-      out["chunk_list"] = json::array();
-      for (const auto& e : reader.chunk_frames()) {
-        out["chunk_list"].push_back({{"array", meta.arrays[e.header.array].name},
-                                     {"index", e.header.chunk_index},
-                                     {"offset", e.frame_offset},
-                                     {"file", reader.Holder(e.header.array, e.header.chunk_index).path()},
-                                     {"encoding", EncodingName(static_cast<Encoding>(e.header.encoding))},
-                                     {"stored_bytes", e.header.payload_length},
-                                     {"decoded_bytes", e.header.decoded_length},
-                                     {"checksum", Hex64(e.header.payload_checksum)}});
-      }
-    }
-    if (json_) {
-      std::cout << out.dump(2) << "\n";
-    } else {
-      PrintText(out);
-    }
-    return kExitOk;
   }
 
- private:
   void PrintText(const json& out) {
     std::cout << path_ << ": .ltm format " << out["format_version"].get<std::string>() << ", "
               << HumanBytes(out["file_bytes"]) << ", " << (out["complete"].get<bool>() ? "complete" : "INCOMPLETE")

@@ -11,7 +11,7 @@
 //
 // Output chunks are column groups (OutputBlockColumns): each frame and index entry costs
 // ~170 bytes, and one chunk per column in the matrix and its three side tables was ~4 MB
-// of a 6 MB file at 128², R = 32 (issue 16).
+// of a 6 MB file at 128², R = 32.
 #pragma once
 
 #include <cstdint>

@@ -323,7 +323,7 @@ with tempfile.TemporaryDirectory() as d:
              expect=2)
     check("--target-error" in p_.stderr or "--budget" in p_.stderr, f"--target-error with --budget: {p_.stderr}")
 
-    # 9. Column-group chunks (issue 16): any --block-cols stores the same matrix and side
+    # 9. Column-group chunks: any --block-cols stores the same matrix and side
     # tables; the default groups columns, so the container's own bytes (frame headers,
     # index) are a small part of the file; inspect's on-disk parts add up to the file.
     hashes, disk = {}, {}

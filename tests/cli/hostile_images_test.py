@@ -1,4 +1,4 @@
-"""Hostile inputs for the image and .npy readers (issue 15): small hand-made .hdr, .exr and
+"""Hostile inputs for the image and .npy readers: small hand-made .hdr, .exr and
 .npy files driven through `ltbake convert` and `ltbake relight`, each failing with exit 1
 (2 for a bad command line), a message naming the file and the field, within a time bound
 and a peak-memory bound (tests/cli/hostile.py); SIGTERM/SIGINT during `relight --frames`.
@@ -154,7 +154,7 @@ with tempfile.TemporaryDirectory() as d:
         check(not os.path.exists(out + ".partial"), f"{what or path}: a failed convert left {out}.partial")
         return code, err
 
-    # Width × height wraps around 2^64 (to 4 and to 0): the heap overflow of issue 15.
+    # Width × height wraps around 2^64 (to 4 and to 0): the heap overflow a hostile-input sweep found (docs/FUZZING.md).
     for w, h in [(2**62 + 1, 4), (2**33, 2**31), (2**63, 2)]:
         f = hdr(p(f"wrap_{w}_{h}.hdr"), f"-Y {h} +X {w}", rle_scanline(8) * 4)
         convert_env(f, [f, "resolution line", str(w), "beyond"], what=f"hdr {w} x {h} (wraps)")
@@ -324,7 +324,7 @@ with tempfile.TemporaryDirectory() as d:
         check(not os.path.exists(out), f"{what or header}: a failed convert left {out}")
         return code, err
 
-    # The decoy of issue 15: 'shape' inside another key's string (NumPy refuses the file).
+    # A decoy: 'shape' inside another key's string (NumPy refuses the file).
     convert_npy("decoy1.npy", "{'descr': \"<f4 'shape': (1, 16), \", 'fortran_order': False, 'shape': (4, 4), }",
                 names=["dtype", "<f4 'shape': (1, 16)"], what="npy decoy 'shape' inside descr")
     convert_npy("decoy2.npy", "{'descr': '<f4', 'x': \"'shape': (1, 16)\", 'fortran_order': False, 'shape': (4, 4), }",

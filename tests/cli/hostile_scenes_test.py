@@ -1,4 +1,4 @@
-"""Hostile scenes, meshes and recipes (issue 15): small hand-made files, each failing with
+"""Hostile scenes, meshes and recipes: small hand-made files, each failing with
 exit 1 (bad input) or 2 (bad command line), a message naming the file, the field and the
 value, within a time and a peak-memory bound (tests/cli/hostile.py). Also: mesh parsing
 is linear (the ratio of two sizes in the same run, never an absolute time) and a signal

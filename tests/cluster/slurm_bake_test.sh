@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 9 cluster test: a sharded bake through a real single-node Slurm cluster.
+# Cluster test: a sharded bake through a real single-node Slurm cluster.
 #
 #   1. the reference: the same recipe run locally, unsharded;
 #   2. `ltbake run --engine slurm --shards 4 --retries 0`; while the sample step's job

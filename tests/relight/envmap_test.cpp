@@ -643,7 +643,7 @@ TEST_F(EnvMapTest, ClearErrorsForBadFiles) {
   expect_error(Path("z.exr"), {}, StatusCode::kInvalidArgument, {Path("z.exr"), "channels Z", "R, G and B"});
 }
 
-// Issue 15: sizes from hostile files. Each is refused before anything of the declared size
+// Sizes from hostile files. Each is refused before anything of the declared size
 // is allocated (under ASan, the wrapping size was a heap overflow in the .hdr reader).
 TEST_F(EnvMapTest, HostileSizesAreRefusedBeforeAllocating) {
   auto expect_error = [](const std::string& path, EnvLoadOptions o, std::vector<std::string> parts) {
