@@ -10,6 +10,7 @@
 #include <fstream>
 #include <glm/geometric.hpp>
 #include <glm/gtc/matrix_transform.hpp>
+#include <glm/matrix.hpp>
 
 #include "stages/sample/draco_header.h"
 #include "stages/sample/mesh_reader.h"
@@ -33,7 +34,66 @@ Status CheckFinite(const std::string& path, const TriangleMesh& m) {
   return Status::Ok();
 }
 
-Result<TriangleMesh> LoadDraco(const std::string& path) {
+// normals = "file": every vertex has a finite, non-zero stored normal; made unit length.
+Status CheckFileNormals(const std::string& path, TriangleMesh* m) {
+  if (m->file_normals.size() != m->positions.size()) {
+    return InvalidArgument(path +
+                           ": normals = \"file\", but the file stores no vertex normals (PLY: vertex "
+                           "properties nx ny nz; OBJ: vn referenced by f v//vn; Draco: a NORMAL attribute; OFF: "
+                           "NOFF); use normals = \"smooth\" or \"auto\"");
+  }
+  for (size_t i = 0; i < m->file_normals.size(); ++i) {
+    glm::dvec3& n = m->file_normals[i];
+    const double len = glm::length(n);
+    if (!std::isfinite(len) || !(len > 0)) {
+      return InvalidArgument(path + ": normals = \"file\": vertex " + std::to_string(i) + " has normal " +
+                             FormatVec3(n) + (std::isfinite(len) ? ", which is zero" : ", which is not finite") +
+                             " (or none); fix the file or use normals = \"smooth\"");
+    }
+    n /= len;
+  }
+  return Status::Ok();
+}
+
+// An attribute read as numbers: a bool (or unknown) attribute type would be read through a
+// bool lvalue holding any byte (undefined behaviour, found by the fuzzer).
+bool IsNumeric(draco::DataType t) {
+  switch (t) {
+    case draco::DT_FLOAT32:
+    case draco::DT_FLOAT64:
+    case draco::DT_INT8:
+    case draco::DT_UINT8:
+    case draco::DT_INT16:
+    case draco::DT_UINT16:
+    case draco::DT_INT32:
+    case draco::DT_UINT32:
+      return true;
+    default:
+      return false;
+  }
+}
+
+// Draco's NORMAL attribute, per point (the points are the vertices ltbake uses).
+Status ReadDracoNormals(const std::string& path, const draco::Mesh& mesh, TriangleMesh* out) {
+  const draco::PointAttribute* nrm = mesh.GetNamedAttribute(draco::GeometryAttribute::NORMAL);
+  if (nrm == nullptr) return Status::Ok();  // CheckFileNormals reports it
+  if (!IsNumeric(nrm->data_type()) || nrm->num_components() < 3) {
+    return InvalidArgument(path + ": Draco NORMAL attribute has data type " +
+                           std::to_string(static_cast<int>(nrm->data_type())) + " and " +
+                           std::to_string(int(nrm->num_components())) + " components; 3 numbers are needed");
+  }
+  out->file_normals.resize(mesh.num_points());
+  for (draco::PointIndex i(0); i < mesh.num_points(); ++i) {
+    float v[3] = {0, 0, 0};
+    if (!nrm->ConvertValue<float>(nrm->mapped_index(i), 3, v)) {
+      return InvalidArgument(path + ": cannot read the normal of point " + std::to_string(i.value()));
+    }
+    out->file_normals[i.value()] = {v[0], v[1], v[2]};
+  }
+  return Status::Ok();
+}
+
+Result<TriangleMesh> LoadDraco(const std::string& path, bool file_normals) {
   std::ifstream f(path, std::ios::binary);
   if (!f) return NotFound(path + ": cannot open mesh file");
   std::vector<char> data((std::istreambuf_iterator<char>(f)), {});
@@ -49,22 +109,10 @@ Result<TriangleMesh> LoadDraco(const std::string& path) {
   std::unique_ptr<draco::Mesh> mesh = std::move(decoded).value();
   const draco::PointAttribute* pos = mesh->GetNamedAttribute(draco::GeometryAttribute::POSITION);
   if (pos == nullptr) return InvalidArgument(path + ": Draco mesh has no position attribute");
-  // Positions are numbers: a bool (or unknown) attribute type would be read through a bool
-  // lvalue holding any byte (undefined behaviour, found by the fuzzer).
-  switch (pos->data_type()) {
-    case draco::DT_FLOAT32:
-    case draco::DT_FLOAT64:
-    case draco::DT_INT8:
-    case draco::DT_UINT8:
-    case draco::DT_INT16:
-    case draco::DT_UINT16:
-    case draco::DT_INT32:
-    case draco::DT_UINT32:
-      break;
-    default:
-      return InvalidArgument(path + ": Draco mesh position attribute has data type " +
-                             std::to_string(static_cast<int>(pos->data_type())) +
-                             "; positions must be float or integer (re-encode the mesh with draco_encoder)");
+  if (!IsNumeric(pos->data_type())) {
+    return InvalidArgument(path + ": Draco mesh position attribute has data type " +
+                           std::to_string(static_cast<int>(pos->data_type())) +
+                           "; positions must be float or integer (re-encode the mesh with draco_encoder)");
   }
   if (pos->num_components() < 3) {
     return InvalidArgument(path + ": Draco mesh positions have " + std::to_string(int(pos->num_components())) +
@@ -83,29 +131,35 @@ Result<TriangleMesh> LoadDraco(const std::string& path) {
     const auto& face = mesh->face(fi);
     out.triangles.push_back({face[0].value(), face[1].value(), face[2].value()});
   }
+  if (file_normals) LTB_RETURN_IF_ERROR(ReadDracoNormals(path, *mesh, &out));
   return out;
 }
 
 }  // namespace
 
-Result<TriangleMesh> LoadMeshFile(const std::string& path, const Progress& progress) {
+Result<TriangleMesh> LoadMeshFile(const std::string& path, const Progress& progress, bool file_normals) {
   std::string ext = Lower(std::filesystem::path(path).extension().string());
   // Opening refuses a directory, FIFO or device by name (and never blocks on a FIFO).
   LTB_ASSIGN_OR_RETURN(MeshInput in, MeshInput::Open(path, &progress));
   Result<TriangleMesh> r = InvalidArgument(path + ": unknown mesh format " +
                                            (ext.empty() ? std::string("(no extension)") : "\"" + ext + "\"") +
                                            "; supported: .obj, .ply, .off, .stl, .drc");
+  if (ext == ".stl" && file_normals) {
+    return InvalidArgument(path +
+                           ": normals = \"file\": STL stores only facet normals, no vertex normals; use "
+                           "normals = \"flat\" (image mode) or \"smooth\"");
+  }
   if (ext == ".off") {
-    r = ReadOff(in, progress);
+    r = ReadOff(in, progress, file_normals);
   } else if (ext == ".ply") {
-    r = ReadPly(in, progress);
+    r = ReadPly(in, progress, file_normals);
   } else if (ext == ".obj") {
-    r = ReadObj(in, progress);
+    r = ReadObj(in, progress, file_normals);
   } else if (ext == ".stl") {
     r = ReadStl(in, progress);
   } else if (ext == ".drc") {
     try {
-      r = LoadDraco(path);
+      r = LoadDraco(path, file_normals);
     } catch (const std::bad_alloc&) {
       return InvalidArgument(path + ": reading the mesh ran out of memory (a corrupt count in the file?)");
     } catch (const std::exception& e) {
@@ -115,6 +169,7 @@ Result<TriangleMesh> LoadMeshFile(const std::string& path, const Progress& progr
   if (!r.ok()) return r;
   TriangleMesh& m = *r;
   LTB_RETURN_IF_ERROR(CheckFinite(path, m));
+  if (file_normals) LTB_RETURN_IF_ERROR(CheckFileNormals(path, &m));
   Finalize(&m);
   if (m.triangles.empty()) {
     return InvalidArgument(path + ": the mesh holds no triangles" +
@@ -171,6 +226,19 @@ void ApplyTransform(const glm::dmat4& m, TriangleMesh* mesh) {
   // A mirroring transform flips the winding; keep outward normals outward.
   if (glm::determinant(glm::dmat3(m)) < 0) {
     for (auto& t : mesh->triangles) std::swap(t[1], t[2]);
+  }
+  if (!mesh->file_normals.empty()) {
+    // Normals are covectors: n' ∝ (M⁻¹)ᵀ n. A singular M (a zero scale) leaves no
+    // triangles, which the caller reports; the normals are then left as they are.
+    const glm::dmat3 a(m);
+    if (glm::determinant(a) != 0) {
+      const glm::dmat3 it = glm::transpose(glm::inverse(a));
+      for (auto& n : mesh->file_normals) {
+        const glm::dvec3 t = it * n;
+        const double len = glm::length(t);
+        if (len > 0 && std::isfinite(len)) n = t / len;
+      }
+    }
   }
   Finalize(mesh);
 }

@@ -19,19 +19,28 @@ struct TriangleMesh {
   std::vector<glm::dvec3> positions;
   std::vector<glm::uvec3> triangles;
   std::vector<glm::dvec3> normals;  // per vertex, unit (area-weighted face normals)
+  // Per vertex, the normals the file stores (normals = "file"); empty unless the reader was
+  // asked for them. LoadMeshFile leaves them unit length; ApplyTransform transforms them.
+  std::vector<glm::dvec3> file_normals;
   uint64_t degenerate_dropped = 0;  // zero-area or repeated-vertex faces removed
 };
 
 // Loads a mesh file; polygons are triangulated. Fails naming the file and the reason when
 // it is not a regular file, cannot be read, holds no triangles, has a non-finite vertex or
-// a face with an out-of-range vertex index; Cancelled when `progress` asks to stop.
-Result<TriangleMesh> LoadMeshFile(const std::string& path, const Progress& progress = Progress{});
+// a face with an out-of-range vertex index; Cancelled when `progress` asks to stop. With
+// `file_normals`, also the per-vertex normals the file stores (docs/SCENE.md "Normals"):
+// a format that stores none (STL), a file without them, or a vertex whose normal is
+// missing, zero or not finite is an error naming the file (and the vertex).
+Result<TriangleMesh> LoadMeshFile(const std::string& path, const Progress& progress = Progress{},
+                                  bool file_normals = false);
 
 TriangleMesh MakePlane(const glm::dvec3& size);  // size.x × size.y at z = 0, normal +z
 TriangleMesh MakeBox(const glm::dvec3& size, const glm::dvec3& center);
 
 // Scale, rotate (degrees about x, then y, then z), translate.
 glm::dmat4 ObjectTransform(const Object& o);
+// Positions by m; file normals by the inverse transpose of m's 3×3 part, renormalised (so
+// they stay perpendicular to the surface under a non-uniform scale); then Finalize.
 void ApplyTransform(const glm::dmat4& m, TriangleMesh* mesh);
 // Drops zero-area triangles (counting them) and recomputes vertex normals.
 void Finalize(TriangleMesh* mesh);

@@ -228,6 +228,7 @@ namespace {
 // bytes that follow before anything is reserved.
 struct OffCounts {
   uint64_t nv = 0, nf = 0;
+  bool normals = false;  // NOFF: nx ny nz follow x y z on every vertex line
 };
 
 Result<OffCounts> ReadOffHeader(MeshInput& in) {
@@ -243,7 +244,8 @@ Result<OffCounts> ReadOffHeader(MeshInput& in) {
   std::string_view k = kw;
   if (k.substr(0, 2) == "ST") k.remove_prefix(2);
   if (k.substr(0, 1) == "C") k.remove_prefix(1);
-  if (k.substr(0, 1) == "N") k.remove_prefix(1);
+  const bool normals = k.substr(0, 1) == "N";
+  if (normals) k.remove_prefix(1);
   if (k == "4OFF" || k == "nOFF" || k == "4nOFF") {
     return InvalidArgument(at() + ": " + Quote(kw) +
                            ": OFF with 4-D or n-D vertices is not supported; write x y z vertices");
@@ -287,10 +289,11 @@ Result<OffCounts> ReadOffHeader(MeshInput& in) {
                     " faces, which need at least " + Bytes(need) + " bytes, but only " +
                     std::to_string(in.remaining()) + " follow the header (truncated, or a wrong count)");
   }
-  return OffCounts{nv, nf};
+  return OffCounts{nv, nf, normals};
 }
 
-// The nv vertex lines into m->positions (sized).
+// The nv vertex lines into m->positions (sized), and their normals into m->file_normals
+// when it is sized (NOFF, and asked for).
 Status ReadOffVertices(MeshInput& in, uint64_t nv, const Progress& progress, TriangleMesh* m) {
   const std::string& name = in.name();
   auto at = [&] { return name + ":" + std::to_string(in.line()); };
@@ -313,6 +316,17 @@ Status ReadOffVertices(MeshInput& in, uint64_t nv, const Progress& progress, Tri
       }
     }
     m->positions[i] = {p[0], p[1], p[2]};
+    if (m->file_normals.empty()) continue;
+    float n[3];
+    for (int c = 0; c < 3; ++c) {
+      tok = {};
+      if (!t.Next(&tok) || !ParseNumber(tok, &n[c])) {
+        return InvalidArgument(at() + ": vertex " + std::to_string(i) + " normal component " + std::to_string(c + 1) +
+                               " is " + (tok.empty() ? std::string("missing") : Quote(tok)) +
+                               " (NOFF: x y z nx ny nz on every vertex line)");
+      }
+    }
+    m->file_normals[i] = {n[0], n[1], n[2]};
   }
   return Status::Ok();
 }
@@ -366,10 +380,11 @@ Status ReadOffFaces(MeshInput& in, uint64_t nv, uint64_t nf, const Progress& pro
 
 }  // namespace
 
-Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress) {
+Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress, bool normals) {
   LTB_ASSIGN_OR_RETURN(const OffCounts counts, ReadOffHeader(in));
   TriangleMesh m;
   m.positions.resize(counts.nv);
+  if (normals && counts.normals) m.file_normals.resize(counts.nv);
   m.triangles.reserve(counts.nf);
   LTB_RETURN_IF_ERROR(ReadOffVertices(in, counts.nv, progress, &m));
   LTB_RETURN_IF_ERROR(ReadOffFaces(in, counts.nv, counts.nf, progress, &m));
@@ -424,7 +439,7 @@ struct PlyProperty {
   PlyType type = PlyType::kFloat32;  // a list's item type
   bool list = false;
   PlyType count_type = PlyType::kUint8;
-  int role = -1;  // vertex: 0..2 = x, y, z; face: 3 = the vertex index list
+  int role = -1;  // vertex: 0..2 = x, y, z, 4..6 = nx, ny, nz (when asked for); face: 3 = the vertex index list
 };
 
 struct PlyElement {
@@ -682,10 +697,10 @@ Result<PlyHeader> ReadPlyHeader(MeshInput& in) {
   return h;
 }
 
-// Which element holds what (the first "vertex" with x, y, z; the first "face" with its
-// index list), marked in the properties' roles, and the least bytes the elements need,
-// checked against what follows the header.
-Status ResolvePlyElements(MeshInput& in, PlyHeader* h, PlyElement** vertex_out, PlyElement** face_out) {
+// Which element holds what (the first "vertex" with x, y, z, and nx, ny, nz when `normals`
+// asks for them; the first "face" with its index list), marked in the properties' roles,
+// and the least bytes the elements need, checked against what follows the header.
+Status ResolvePlyElements(MeshInput& in, bool normals, PlyHeader* h, PlyElement** vertex_out, PlyElement** face_out) {
   const std::string& name = in.name();
   const int format = h->format;
   std::vector<PlyElement>& elements = h->elements;
@@ -697,6 +712,7 @@ Status ResolvePlyElements(MeshInput& in, PlyHeader* h, PlyElement** vertex_out, 
       vertex = &e;
       for (PlyProperty& p : e.props) {
         if (!p.list && (p.name == "x" || p.name == "y" || p.name == "z")) p.role = p.name[0] - 'x';
+        if (normals && !p.list && (p.name == "nx" || p.name == "ny" || p.name == "nz")) p.role = 4 + p.name[1] - 'x';
       }
     } else if (e.name == "face" && face == nullptr) {
       face = &e;
@@ -750,7 +766,8 @@ Status ResolvePlyElements(MeshInput& in, PlyHeader* h, PlyElement** vertex_out, 
 }
 
 // The body: every element's items in file order; the vertex positions into m->positions
-// (sized), the face polygons fanned into m->triangles, everything else skipped.
+// (sized), their normals into m->file_normals when it is sized, the face polygons fanned
+// into m->triangles, everything else skipped.
 Status ReadPlyBody(MeshInput& in, const PlyHeader& h, const PlyElement* vertex, const PlyElement* face,
                    const Progress& progress, TriangleMesh* m) {
   const std::string& name = in.name();
@@ -766,7 +783,7 @@ Status ReadPlyBody(MeshInput& in, const PlyHeader& h, const PlyElement* vertex, 
     for (uint64_t i = 0; i < e.count; ++i) {
       if ((i & 0xFFFF) == 0xFFFF && progress.Cancelled())
         return Cancelled(name + ": interrupted while reading the mesh");
-      double xyz[3] = {0, 0, 0};
+      double xyz[7] = {0, 0, 0, 0, 0, 0, 0};  // by role: x y z, -, nx ny nz
       for (const PlyProperty& p : e.props) {
         if (!p.list) {
           if (p.role >= 0 || format == 0) {
@@ -815,6 +832,7 @@ Status ReadPlyBody(MeshInput& in, const PlyHeader& h, const PlyElement* vertex, 
           }
           m->positions[i][c] = f;
         }
+        if (!m->file_normals.empty()) m->file_normals[i] = {xyz[4], xyz[5], xyz[6]};
       } else if (is_face) {
         AddPolygon(indices, i, &stamp, m);
       }
@@ -825,13 +843,16 @@ Status ReadPlyBody(MeshInput& in, const PlyHeader& h, const PlyElement* vertex, 
 
 }  // namespace
 
-Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress) {
+Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress, bool normals) {
   LTB_ASSIGN_OR_RETURN(PlyHeader h, ReadPlyHeader(in));
   PlyElement* vertex = nullptr;
   PlyElement* face = nullptr;
-  LTB_RETURN_IF_ERROR(ResolvePlyElements(in, &h, &vertex, &face));
+  LTB_RETURN_IF_ERROR(ResolvePlyElements(in, normals, &h, &vertex, &face));
   TriangleMesh m;
   m.positions.resize(vertex->count);
+  int roles = 0;  // nx, ny, nz found: all three or no normals
+  for (const PlyProperty& p : vertex->props) roles += p.role >= 4;
+  if (roles == 3) m.file_normals.resize(vertex->count);
   if (face != nullptr) m.triangles.reserve(face->count);
   LTB_RETURN_IF_ERROR(ReadPlyBody(in, h, vertex, face, progress, &m));
   return m;

@@ -62,16 +62,22 @@ class MeshInput {
 // Vertex positions as float (as the file stores them, or rounded from double), polygons
 // fan-triangulated (v0, vi, vi+1) in file order. Faces with fewer than 3 vertices or a
 // repeated vertex are dropped and counted in degenerate_dropped. Vertices keep their file
-// order and ids (vertex mode rows). The mesh is not yet Finalized.
-Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress);
-Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress);
+// order and ids (vertex mode rows). The mesh is not yet Finalized. With `normals`, the
+// normals the file stores go into file_normals, as stored (not normalised): OFF when the
+// header is NOFF (nx ny nz after x y z), PLY the vertex properties nx ny nz; left empty
+// when the file has none (LoadMeshFile reports that). Without, they are not kept.
+Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress, bool normals = false);
+Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress, bool normals = false);
 // OBJ: `v x y z [w]` and `f` with i, i/t, i//n or i/t/n references (1-based, or negative
 // counting back from the last vertex read); every other statement is skipped. A repeated
 // vertex is removed from a face (keeping the first), as OpenMesh did; a face left with
 // fewer than 3 is dropped and counted. A face with fewer than 3 references, an index 0 or
 // out of range, or a malformed reference is an error naming the line, the face and the
-// value.
-Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress);
+// value. With `normals`, `vn` statements are kept and each vertex gets the sum of the
+// distinct normals its face references name (i//n, i/t/n), each normalised first; a
+// normal index must name a `vn` defined before the face (or count back from the last);
+// a vertex no reference gives a normal keeps (0, 0, 0), which LoadMeshFile reports.
+Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress, bool normals = false);
 // STL, binary (84 + 50·n bytes exactly) or ASCII (starting with "solid"). Vertices with
 // equal coordinates are merged in order of first appearance; a triangle whose corners
 // merge is dropped and counted.

@@ -5,6 +5,8 @@
 // "Mesh files" states the rules.
 #include <algorithm>
 #include <cmath>
+#include <glm/geometric.hpp>
+#include <glm/vec3.hpp>
 #include <limits>
 #include <string>
 #include <vector>
@@ -117,13 +119,49 @@ struct ForwardRef {
   std::string token;
 };
 
+// A `vn x y z` statement (after the keyword) appended to *normals.
+Status ParseNormal(Tokens& t, const ObjWhere& at, std::vector<glm::vec3>* normals) {
+  std::string_view tok;
+  if (normals->size() >= kMaxVertices) {
+    return InvalidArgument(at() + ": more than " + std::to_string(kMaxVertices) + " normals; not supported");
+  }
+  float n[3];
+  for (int c = 0; c < 3; ++c) {
+    if (!t.Next(&tok) || !ParseNumber(tok, &n[c])) {
+      return InvalidArgument(at() + ": normal " + std::to_string(normals->size() + 1) + " component " +
+                             std::to_string(c + 1) + " is " + (tok.empty() ? std::string("missing") : Quote(tok)) +
+                             " (expected \"vn x y z\")");
+    }
+  }
+  normals->push_back({n[0], n[1], n[2]});
+  return Status::Ok();
+}
+
+// The normal of a face's vertex reference (the n of i//n or i/t/n), as a 0-based index
+// into the nn normals defined so far; UINT32_MAX when the reference names none.
+Result<uint32_t> NormalIndex(std::string_view part, std::string_view tok, const ObjWhere& at, uint64_t faces,
+                             uint64_t nn) {
+  if (part.empty()) return std::numeric_limits<uint32_t>::max();
+  int64_t k = 0;
+  ParseNumber(part, &k);  // checked to be an integer by the caller
+  const uint64_t back = k < 0 ? uint64_t{0} - static_cast<uint64_t>(k) : 0;
+  if (k == 0 || (k < 0 && back > nn) || (k > 0 && static_cast<uint64_t>(k) > nn)) {
+    return InvalidArgument(at() + ": face " + std::to_string(faces) + ": normal index " + Quote(part) + " (in " +
+                           Quote(tok) + ") is out of range (" + std::to_string(nn) +
+                           " vn so far; a normal must be defined before the face that uses it)");
+  }
+  return static_cast<uint32_t>(k < 0 ? nn - back : static_cast<uint64_t>(k) - 1);
+}
+
 // The vertex references of an `f` statement (after the keyword), face number `faces`,
-// as 0-based indices into *face; nv vertices are defined so far.
+// as 0-based indices into *face; nv vertices are defined so far. With `normal_refs`, the
+// normal index of each reference (NormalIndex) into it; nn normals are defined so far.
 Status ParseFace(Tokens& t, const ObjWhere& at, const MeshInput& in, uint64_t faces, uint64_t nv, ForwardRef* forward,
-                 std::vector<uint32_t>* face) {
+                 std::vector<uint32_t>* face, uint64_t nn = 0, std::vector<uint32_t>* normal_refs = nullptr) {
   std::string_view tok;
   auto which = [&] { return "face " + std::to_string(faces); };
   face->clear();
+  if (normal_refs != nullptr) normal_refs->clear();
   while (t.Next(&tok)) {
     // i, i/t, i//n or i/t/n: only i is used; t and n, when present, must be integers.
     std::string_view parts[3];
@@ -175,6 +213,10 @@ Status ParseFace(Tokens& t, const ObjWhere& at, const MeshInput& in, uint64_t fa
       }
     }
     face->push_back(static_cast<uint32_t>(index));
+    if (normal_refs != nullptr) {
+      LTB_ASSIGN_OR_RETURN(uint32_t k, NormalIndex(parts[2], tok, at, faces, nn));
+      normal_refs->push_back(k);
+    }
   }
   if (face->size() < 3) {
     return InvalidArgument(at() + ": " + which() + " lists " + std::to_string(face->size()) +
@@ -183,11 +225,47 @@ Status ParseFace(Tokens& t, const ObjWhere& at, const MeshInput& in, uint64_t fa
   return Status::Ok();
 }
 
+// normals = "file": each vertex's distinct normal indices, summed (normalised) at the end.
+// A vertex's first index is kept per vertex; only a second, different one costs an entry
+// in `extra` (sorted and deduplicated at the end), so memory stays bounded by the file.
+struct ObjNormals {
+  std::vector<glm::vec3> vn;
+  std::vector<uint32_t> refs;   // per reference of the current face
+  std::vector<uint32_t> first;  // per vertex, UINT32_MAX: none yet
+  std::vector<std::pair<uint32_t, uint32_t>> extra;
+
+  void Add(const std::vector<uint32_t>& face) {
+    for (size_t j = 0; j < face.size(); ++j) {
+      const uint32_t v = face[j], k = refs[j];
+      if (k == std::numeric_limits<uint32_t>::max()) continue;
+      if (first.size() <= v) first.resize(size_t{v} + 1, std::numeric_limits<uint32_t>::max());
+      if (first[v] == std::numeric_limits<uint32_t>::max())
+        first[v] = k;
+      else if (first[v] != k)
+        extra.emplace_back(v, k);
+    }
+  }
+  void Sum(TriangleMesh* m) {
+    m->file_normals.assign(m->positions.size(), glm::dvec3(0));
+    auto add = [&](uint32_t v, uint32_t k) {
+      const glm::dvec3 n(vn[k]);
+      const double len = glm::length(n);
+      m->file_normals[v] += len > 0 ? n / len : n;  // a zero or non-finite one is reported by LoadMeshFile
+    };
+    for (size_t v = 0; v < first.size() && v < m->positions.size(); ++v)
+      if (first[v] != std::numeric_limits<uint32_t>::max()) add(static_cast<uint32_t>(v), first[v]);
+    std::sort(extra.begin(), extra.end());
+    extra.erase(std::unique(extra.begin(), extra.end()), extra.end());
+    for (const auto& [v, k] : extra) add(v, k);
+  }
+};
+
 }  // namespace
 
-Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress) {
+Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress, bool normals) {
   const std::string& name = in.name();
   TriangleMesh m;
+  ObjNormals nrm;
   std::string joined;  // a statement continued over lines ('\' at a line's end)
   std::vector<uint32_t> face;
   std::vector<uint64_t> stamp;
@@ -207,8 +285,14 @@ Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress) {
       LTB_RETURN_IF_ERROR(ParseVertex(t, at, &m));
       continue;
     }
+    if (normals && kw == "vn") {
+      LTB_RETURN_IF_ERROR(ParseNormal(t, at, &nrm.vn));
+      continue;
+    }
     if (kw != "f") continue;  // vt, vn, vp, l, p, o, g, s, usemtl, mtllib, ...: not geometry we trace
-    LTB_RETURN_IF_ERROR(ParseFace(t, at, in, faces, m.positions.size(), &forward, &face));
+    LTB_RETURN_IF_ERROR(
+        ParseFace(t, at, in, faces, m.positions.size(), &forward, &face, nrm.vn.size(), normals ? &nrm.refs : nullptr));
+    if (normals) nrm.Add(face);  // before repeats are removed: every reference names a normal
     RemoveRepeats(&face, faces, &stamp);
     if (face.size() < 3) {
       m.degenerate_dropped++;  // fewer than 3 distinct vertices
@@ -223,6 +307,7 @@ Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress) {
                            ": vertex index " + Quote(forward.token) + " is out of range (the file has " +
                            std::to_string(nv) + " vertices: 1.." + std::to_string(nv) + "); fix the face");
   }
+  if (normals && !nrm.vn.empty()) nrm.Sum(&m);
   return m;
 }
 

@@ -127,6 +127,9 @@ Hit RayScene::Intersect(const glm::dvec3& o, const glm::dvec3& d) const {
   double len = glm::length(n);
   h.normal = len > 0 ? n / len : glm::dvec3(0, 0, 1);
   h.geom_id = rh.hit.geomID;
+  h.prim_id = rh.hit.primID;
+  h.u = rh.hit.u;
+  h.v = rh.hit.v;
   return h;
 }
 

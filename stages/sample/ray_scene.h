@@ -22,6 +22,8 @@ struct Hit {
   double t = 0;
   glm::dvec3 normal{0, 0, 1};  // unit geometric normal as Embree reports it (not oriented)
   unsigned geom_id = 0;
+  unsigned prim_id = 0;  // the triangle within the geometry
+  double u = 0, v = 0;   // barycentrics: the hit is (1−u−v)·p0 + u·p1 + v·p2
 };
 
 // A batch of occlusion rays in structure-of-arrays form, as rtcOccludedNp reads it. The

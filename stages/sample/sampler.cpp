@@ -167,7 +167,8 @@ RowPoint Sampler::Primary(uint64_t row) const {
   if (!h.hit) return rp;
   rp.valid = true;
   rp.p = c.eye + d * h.t;
-  rp.n = glm::dot(h.normal, d) > 0 ? -h.normal : h.normal;  // facing the camera
+  const glm::dvec3 n = g_.ShadingNormal(h);  // the geometric normal unless the object has vertex normals
+  rp.n = glm::dot(n, d) > 0 ? -n : n;        // facing the camera
   rp.wo = -d;
   rp.material = g_.geom_material[h.geom_id];
   return rp;

@@ -198,6 +198,33 @@ Status ParseMaterials(const std::string& path, const toml::table& root, SceneDes
   return Status::Ok();
 }
 
+// An object's "normals": "auto" (the default) for every object; "file", "smooth" and
+// "flat" for meshes, "flat" in image mode only.
+Result<Object::Normals> ParseNormals(const std::string& path, const toml::table& o, const Object& obj,
+                                     const std::string& type, SceneDesc::Mode mode) {
+  LTB_ASSIGN_OR_RETURN(std::string v, GetString(path, o, "normals", "auto"));
+  if (v == "auto") return Object::Normals::kAuto;
+  const std::string where = Where(path, *o.get("normals")) + ": object \"" + obj.name + "\": normals is \"" + v + "\"";
+  if (obj.type != Object::Type::kMesh) {
+    return InvalidArgument(where + "; a " + type + " takes only \"auto\" (\"file\", \"smooth\" and \"flat\" are for " +
+                           "type = \"mesh\")");
+  }
+  Object::Normals n;
+  if (v == "file") {
+    n = Object::Normals::kFile;
+  } else if (v == "smooth") {
+    n = Object::Normals::kSmooth;
+  } else if (v == "flat") {
+    n = Object::Normals::kFlat;
+  } else {
+    return InvalidArgument(where + " (expected \"auto\", \"file\", \"smooth\" or \"flat\")");
+  }
+  if (n == Object::Normals::kFlat && mode == SceneDesc::Mode::kVertex) {
+    return InvalidArgument(where + ": vertex mode has no single flat normal per vertex; use \"smooth\" or \"file\"");
+  }
+  return n;
+}
+
 // One [[object]] entry; `names` holds the names used so far, `base` the scene's folder
 // (mesh files are resolved against it).
 Result<Object> ParseObject(const std::string& path, const toml::node& node, const SceneDesc& s,
@@ -208,7 +235,7 @@ Result<Object> ParseObject(const std::string& path, const toml::node& node, cons
   Object obj;
   obj.line = static_cast<int>(node.source().begin.line);
   LTB_ASSIGN_OR_RETURN(std::string type, GetString(path, *o, "type", ""));
-  std::set<std::string> keys{"type", "name", "material", "translate", "rotate", "scale"};
+  std::set<std::string> keys{"type", "name", "material", "translate", "rotate", "scale", "normals"};
   if (type == "plane") {
     obj.type = Object::Type::kPlane;
     keys.insert("size");
@@ -252,6 +279,7 @@ Result<Object> ParseObject(const std::string& path, const toml::node& node, cons
   LTB_ASSIGN_OR_RETURN(obj.translate, GetVec3(path, *o, "translate", obj.translate));
   LTB_ASSIGN_OR_RETURN(obj.rotate_degrees, GetVec3(path, *o, "rotate", obj.rotate_degrees));
   LTB_ASSIGN_OR_RETURN(obj.scale, GetVec3(path, *o, "scale", obj.scale, /*allow_scalar=*/true));
+  LTB_ASSIGN_OR_RETURN(obj.normals, ParseNormals(path, *o, obj, type, s.mode));
   if (obj.type == Object::Type::kMesh) {
     LTB_ASSIGN_OR_RETURN(std::string file, GetString(path, *o, "file", ""));
     if (file.empty()) return InvalidArgument(Where(path, node) + ": mesh object \"" + obj.name + "\" needs \"file\"");

@@ -38,6 +38,11 @@ struct Object {
   glm::dvec3 center{0, 0, 0};  // sphere centre, box centre
   double radius = 0.5;         // sphere
   glm::dvec3 translate{0, 0, 0}, rotate_degrees{0, 0, 0}, scale{1, 1, 1};
+  // The shading normal (docs/SCENE.md "Normals"). kAuto: flat (the face's) in image mode,
+  // smooth (area-weighted vertex normals) in vertex mode; kSmooth: those vertex normals,
+  // interpolated at an image-mode hit; kFlat: the face's (image mode only); kFile: the
+  // mesh file's per-vertex normals, interpolated at an image-mode hit.
+  enum class Normals { kAuto, kFile, kSmooth, kFlat } normals = Normals::kAuto;
   int line = 0;  // where it is defined, for messages
 };
 

@@ -36,7 +36,41 @@ namespace {
 
 bool FloatFinite(double x) { return std::isfinite(static_cast<float>(x)); }
 
+bool IsRowObject(const SceneDesc& s, const Object& o) {
+  return s.mode == SceneDesc::Mode::kVertex &&
+         std::find(s.vertex_objects.begin(), s.vertex_objects.end(), o.name) != s.vertex_objects.end();
+}
+
+// The object's normals after its transform: its vertex rows (vertex mode: the file's
+// normals for normals = "file", else the area-weighted ones) and its shading normals
+// (image mode, "smooth" or "file"; an empty entry otherwise).
+void AddNormals(const SceneDesc& s, const Object& o, TriangleMesh& mesh, Geometry* g) {
+  const bool file = o.normals == Object::Normals::kFile;
+  const std::vector<glm::dvec3>& n = file ? mesh.file_normals : mesh.normals;
+  if (IsRowObject(s, o)) {
+    for (size_t i = 0; i < mesh.positions.size(); ++i) {
+      g->vertex_rows.push_back({true, mesh.positions[i], n[i], n[i], o.material});
+    }
+  }
+  ShadingNormals sh;
+  if (s.mode == SceneDesc::Mode::kImage && (file || o.normals == Object::Normals::kSmooth)) {
+    sh.triangles = mesh.triangles;
+    sh.normals = n;
+  }
+  g->shading.push_back(std::move(sh));
+}
+
 }  // namespace
+
+glm::dvec3 Geometry::ShadingNormal(const Hit& h) const {
+  if (h.geom_id >= shading.size() || shading[h.geom_id].normals.empty()) return h.normal;
+  const ShadingNormals& sh = shading[h.geom_id];
+  if (h.prim_id >= sh.triangles.size()) return h.normal;
+  const glm::uvec3& t = sh.triangles[h.prim_id];
+  const glm::dvec3 n = (1 - h.u - h.v) * sh.normals[t[0]] + h.u * sh.normals[t[1]] + h.v * sh.normals[t[2]];
+  const double len = glm::length(n);
+  return len > 0 && std::isfinite(len) ? n / len : h.normal;
+}
 
 Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
   Geometry g;
@@ -65,10 +99,11 @@ Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
       LTB_RETURN_IF_ERROR(g.rays->AddSphere(c, r));
       lo = glm::min(lo, c - r);
       hi = glm::max(hi, c + r);
+      g.shading.emplace_back();  // a sphere's normal is its exact geometric one
     } else {
       sample::TriangleMesh mesh;
       if (o.type == Object::Type::kMesh) {
-        auto loaded = sample::LoadMeshFile(o.file, progress);
+        auto loaded = sample::LoadMeshFile(o.file, progress, o.normals == Object::Normals::kFile);
         if (!loaded.ok()) {
           XXH3_freeState(st);
           return loaded.status().WithContext(where);
@@ -100,12 +135,7 @@ Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
         lo = glm::min(lo, p);
         hi = glm::max(hi, p);
       }
-      if (s.mode == SceneDesc::Mode::kVertex &&
-          std::find(s.vertex_objects.begin(), s.vertex_objects.end(), o.name) != s.vertex_objects.end()) {
-        for (size_t i = 0; i < mesh.positions.size(); ++i) {
-          g.vertex_rows.push_back({true, mesh.positions[i], mesh.normals[i], mesh.normals[i], o.material});
-        }
-      }
+      AddNormals(s, o, mesh, &g);
     }
     g.geom_material.push_back(o.material);
   }

@@ -23,13 +23,27 @@ struct RowPoint {
   int material = 0;
 };
 
+// Per-vertex shading normals of one mesh (image mode, normals = "smooth" or "file"): the
+// triangles as Embree holds them (primitive id -> vertex ids) and a unit normal per vertex.
+struct ShadingNormals {
+  std::vector<glm::uvec3> triangles;
+  std::vector<glm::dvec3> normals;
+};
+
 struct Geometry {
   std::unique_ptr<RayScene> rays;
   std::vector<int> geom_material;  // Embree geometry id -> material
+  // Embree geometry id -> shading normals; an empty entry (or none): the geometric normal.
+  std::vector<ShadingNormals> shading;
   std::vector<RowPoint> vertex_rows;
   double epsilon = 1e-4;
   uint64_t degenerate = 0;
   std::string scene_hash;
+
+  // The unit shading normal at a hit, not oriented: the vertex normals interpolated with the
+  // hit's barycentrics, normalize((1−u−v)·n0 + u·n1 + v·n2), for a geometry that has them;
+  // else (or when they cancel) the geometric normal.
+  glm::dvec3 ShadingNormal(const Hit& h) const;
 };
 
 // Loads every object of the scene into one committed Embree scene. Every object's

@@ -15,6 +15,16 @@ by more than t = b·sqrt(n·ln(2/δ)/2) with probability below δ, and the mean 
    moments and resumed.
 4. Bad input: each a clear message naming the file/line/value, exit 1 or 2, and no output
    that claims to be complete.
+5. normals = "file" (docs/SCENE.md "Normals"): vertex mode, an isolated triangle whose
+   vertices carry file normals tilted 30° from its geometric +z: each row follows its
+   file normal. The oracle is the row's first moment M = Σ_j T_j ω_j (texel centres ω_j),
+   whose expectation Σ_j ω_j (albedo/π)∫_texel max(0, n·ω) dω is integrated finely in
+   NumPy (scripts/cubemap.py's face parametrisation). A stratum's estimate is
+   (h²/spp)(albedo/π)·g at a jittered point, g = w·max(0, n·ω) with |∇g| <= 3 in face
+   coordinates, so it varies by at most c = (h²/spp)(albedo/π)·3·√2·h/√spp over its
+   stratum; Hoeffding over the n = 6R²·spp strata bounds each component of M by
+   c·sqrt(n·ln(2/δ)/2). Image mode: a plane mesh with tilted file normals gives another T
+   than "flat", and "smooth" on a plane gives exactly the T of "flat".
 
 usage: sample_test.py PATH_TO_LTBAKE
 """
@@ -28,6 +38,8 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "scripts"))
+import cubemap  # noqa: E402
 from ltbtest import LTBAKE, check, failures, finish, kill_storm, run, side_table  # noqa: E402
 
 DELTA = 1e-9
@@ -184,5 +196,114 @@ material = "m"
     bad("r6.toml", base, "--cube-res: \"6\" is not a power of two in 1..1024", expect=2, extra=("--cube-res", "6"))
     bad("albedo.toml", base.replace(f"albedo = {albedo}", "albedo = 1.5"), "\"albedo\" is 1.5, outside [0, 1]")
     bad("mat.toml", base.replace('material = "m"', 'material = "steel"'), "uses material \"steel\", which no [[material]] defines")
+
+    # 5. normals = "file".
+    def ply_with_normals(path, pos, nrm, faces):
+        with open(path, "w") as f:
+            f.write(f"ply\nformat ascii 1.0\nelement vertex {len(pos)}\nproperty double x\nproperty double y\n"
+                    "property double z\nproperty double nx\nproperty double ny\nproperty double nz\n"
+                    f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n")
+            for p, n in zip(pos, nrm):
+                f.write(" ".join(repr(float(x)) for x in (*p, *n)) + "\n")
+            for t in faces:
+                f.write(f"3 {t[0]} {t[1]} {t[2]}\n")
+
+    def moment_oracle(n, R, albedo, sub=32):
+        """Σ_j ω_j (albedo/π)∫_texel max(0, n·ω) dω, midpoint rule on sub² points per texel."""
+        m = np.zeros(3)
+        k = (np.arange(R * sub) + 0.5) * 2.0 / (R * sub) - 1.0
+        u, v = np.meshgrid(k, k)
+        w = (1.0 + u * u + v * v) ** -1.5 * (2.0 / (R * sub)) ** 2
+        centres = cubemap.texel_directions(R).reshape(6, R, R, 3)
+        for face in range(6):
+            x, y, z = cubemap.face_direction(face, u, v)
+            dn = np.stack([x, y, z], axis=-1)
+            dn /= np.linalg.norm(dn, axis=-1, keepdims=True)
+            g = albedo / math.pi * np.maximum(0.0, dn @ n) * w
+            per_texel = g.reshape(R, sub, R, sub).sum(axis=(1, 3))  # [t, s]
+            m += (per_texel[..., None] * centres[face]).sum(axis=(0, 1))
+        return m
+
+    Rn, sppn = 16, 16
+    h = 2.0 / Rn
+    c_stratum = h * h / sppn * albedo / math.pi * 3.0 * math.sqrt(2.0) * h / math.sqrt(sppn)
+    t_m = c_stratum * math.sqrt(6 * Rn * Rn * sppn * math.log(2 / DELTA) / 2)
+    tri = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, math.sqrt(3) / 2, 0.0]])
+    centroid = tri.mean(axis=0)
+    tilt = math.radians(30)
+    # Each vertex's normal leans away from the triangle: no ray above its horizon can hit
+    # the triangle itself, so the row sees the whole hemisphere around the file normal.
+    file_n = []
+    for p in tri:
+        dh = (centroid - p) / np.linalg.norm(centroid - p)
+        file_n.append(-math.sin(tilt) * dh + math.cos(tilt) * np.array([0.0, 0.0, 1.0]))
+    ply_with_normals(os.path.join(d, "tri.ply"), tri, file_n, [(0, 1, 2)])
+    vscene = f"""[output]
+mode = "vertex"
+objects = ["tri"]
+[sampling]
+cube_res = {Rn}
+spp = {sppn}
+[[material]]
+name = "m"
+albedo = {albedo}
+[[object]]
+type = "mesh"
+name = "tri"
+file = "tri.ply"
+material = "m"
+"""
+    dirs = cubemap.texel_directions(Rn)
+    geo = np.array([0.0, 0.0, 1.0])
+    for mode in ("file", "smooth"):
+        sv = scene(d, f"tri-{mode}.toml", vscene + f'normals = "{mode}"\n')
+        ov = os.path.join(d, f"tri-{mode}.ltm")
+        run("sample", sv, "-o", ov)
+        Tv = load(d, ov)
+        check(Tv.shape == (3, 6 * Rn * Rn), f"normals {mode}: T is {Tv.shape}")
+        for i in range(3):
+            want_n = file_n[i] if mode == "file" else geo
+            other_n = geo if mode == "file" else file_n[i]
+            got = Tv[i] @ dirs
+            want = moment_oracle(want_n, Rn, albedo)
+            other = moment_oracle(other_n, Rn, albedo)
+            err = np.abs(got - want).max()
+            print(f"normals {mode}: row {i} moment {np.round(got, 4)}, oracle {np.round(want, 4)} "
+                  f"(error {err:.2e}, bound {t_m:.2e}); the other normal's oracle is "
+                  f"{np.abs(other - want).max():.3f} away")
+            check(err <= t_m, f"normals {mode}: row {i} moment off by {err:.3g} > {t_m:.3g}")
+            check(np.abs(other - want).max() > 2 * t_m, f"normals {mode}: the oracle cannot tell the normals apart")
+            check(abs(Tv[i].sum() - albedo) <= t_row, f"normals {mode}: row {i} sums to {Tv[i].sum():.4f}")
+
+    # Image mode: a plane mesh (z = 0) whose file normals lean 30° towards +x.
+    quad = [[-50.0, -50.0, 0.0], [50.0, -50.0, 0.0], [50.0, 50.0, 0.0], [-50.0, 50.0, 0.0]]
+    lean = [math.sin(tilt), 0.0, math.cos(tilt)]
+    ply_with_normals(os.path.join(d, "quad.ply"), quad, [lean] * 4, [(0, 1, 2), (0, 2, 3)])
+    img = {}
+    for mode in ("auto", "flat", "smooth", "file"):
+        si = scene(d, f"quad-{mode}.toml", base.replace('type = "plane"\nsize = [100.0, 100.0]',
+                                                         f'type = "mesh"\nfile = "quad.ply"\nnormals = "{mode}"'))
+        oi = os.path.join(d, f"quad-{mode}.ltm")
+        run("sample", si, "-o", oi)
+        img[mode] = load(d, oi)
+    check(np.array_equal(img["auto"], img["flat"]), "image mode: normals auto and flat differ on a plane")
+    check(np.array_equal(img["smooth"], img["flat"]), "image mode: normals smooth and flat differ on a plane")
+    rel = np.linalg.norm(img["file"] - img["flat"]) / np.linalg.norm(img["flat"])
+    mx_file = (img["file"] @ cubemap.texel_directions(R))[:, 0].mean()
+    mx_flat = (img["flat"] @ cubemap.texel_directions(R))[:, 0].mean()
+    print(f"image mode: file vs flat relative L2 {rel:.3f}; mean moment x {mx_file:.4f} (file), {mx_flat:.4f} (flat)")
+    check(rel > 0.1, f"image mode: file normals barely change T (relative L2 {rel:.3g})")
+    # Leaning towards +x, the rows see more of the +x sky; flat rows are symmetric.
+    check(mx_file > 0.05 and abs(mx_flat) < 0.02, f"image mode: moments {mx_file:.4f} (file), {mx_flat:.4f} (flat)")
+
+    # Bad normals values and files without normals.
+    bad("normals.toml", base + '[[object]]\ntype = "mesh"\nfile = "quad.ply"\nnormals = "phong"\n',
+        'normals is "phong" (expected "auto", "file", "smooth" or "flat")')
+    bad("nonormals.toml", base + '[[object]]\ntype = "mesh"\nfile = "nan.obj"\nnormals = "file"\n',
+        "nan.obj:2: vertex coordinate 3 is \"nan\"")
+    with open(os.path.join(d, "plain.obj"), "w") as f:
+        f.write("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    bad("plainobj.toml", base + '[[object]]\ntype = "mesh"\nfile = "plain.obj"\nnormals = "file"\n',
+        'plain.obj: normals = "file", but the file stores no vertex normals')
 
 finish()
