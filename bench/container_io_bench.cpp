@@ -41,6 +41,7 @@
 #include "format/chunk_codec.h"
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
+#include "stages/common/quantity.h"
 
 namespace {
 
@@ -100,21 +101,11 @@ std::pair<long, long> RssKiB() {
   return {hwm, rss};
 }
 
+// Sizes as every ltbake size flag reads them (stages/common/quantity.h).
 uint64_t ParseBytes(const std::string& s) {
-  char* end = nullptr;
-  double v = std::strtod(s.c_str(), &end);
-  std::string unit = end ? end : "";
-  uint64_t mul = 1;
-  if (unit == "K" || unit == "KiB")
-    mul = 1ull << 10;
-  else if (unit == "M" || unit == "MiB")
-    mul = 1ull << 20;
-  else if (unit == "G" || unit == "GiB")
-    mul = 1ull << 30;
-  else if (!unit.empty())
-    Die("bad size '" + s + "' (use a number with an optional K, M or G suffix)");
-  if (!(v > 0)) Die("bad size '" + s + "'");
-  return static_cast<uint64_t>(v * static_cast<double>(mul));
+  auto bytes = ltb::stages::ParseByteSize(s);
+  if (!bytes.ok()) Die(bytes.status().message());
+  return *bytes;
 }
 
 struct Args {

@@ -18,19 +18,6 @@ namespace {
 using namespace ltb::format;
 using nlohmann::json;
 
-std::string HumanBytes(uint64_t b) {
-  const char* units[] = {"B", "KiB", "MiB", "GiB", "TiB"};
-  double v = static_cast<double>(b);
-  int u = 0;
-  while (v >= 1024 && u < 4) {
-    v /= 1024;
-    ++u;
-  }
-  char buf[32];
-  std::snprintf(buf, sizeof buf, u == 0 ? "%.0f %s" : "%.1f %s", v, units[u]);
-  return buf;
-}
-
 json NumberOrNull(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
 
 // Per array: its chunks expected, committed and missing, by encoding, and their stored bytes.

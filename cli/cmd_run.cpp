@@ -25,19 +25,6 @@ std::string SelfExe() {
 
 using nlohmann::json;
 
-std::string HumanBytes(uint64_t b) {
-  char s[32];
-  if (b >= (1ull << 30))
-    std::snprintf(s, sizeof s, "%.2f GiB", b / double(1ull << 30));
-  else if (b >= (1ull << 20))
-    std::snprintf(s, sizeof s, "%.1f MiB", b / double(1ull << 20));
-  else if (b >= 1024)
-    std::snprintf(s, sizeof s, "%.1f KiB", b / 1024.0);
-  else
-    std::snprintf(s, sizeof s, "%llu B", static_cast<unsigned long long>(b));
-  return s;
-}
-
 std::string Pad(std::string s, size_t w) {
   s.resize(std::max(w, s.size() + 1), ' ');  // a column wider than its field still ends in a space
   return s;

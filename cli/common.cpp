@@ -103,6 +103,19 @@ bool ParseCount(const std::string& text, uint64_t max, uint64_t* value) {
 
 }  // namespace
 
+std::string HumanBytes(uint64_t b) {
+  char s[32];
+  if (b >= (1ull << 30))
+    std::snprintf(s, sizeof s, "%.2f GiB", b / double(1ull << 30));
+  else if (b >= (1ull << 20))
+    std::snprintf(s, sizeof s, "%.1f MiB", b / double(1ull << 20));
+  else if (b >= 1024)
+    std::snprintf(s, sizeof s, "%.1f KiB", b / 1024.0);
+  else
+    std::snprintf(s, sizeof s, "%llu B", static_cast<unsigned long long>(b));
+  return s;
+}
+
 CLI::Validator SizeCheck() { return ParsedCheck(stages::ParseByteSize, "SIZE"); }
 CLI::Validator FractionCheck() { return ParsedCheck(stages::ParseFraction, "FRACTION"); }
 CLI::Validator BudgetCheck() { return ParsedCheck(stages::ParseBudget, "BUDGET"); }

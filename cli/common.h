@@ -65,6 +65,9 @@ struct StageFlags {
 //   if (int code = ResolveStageFlags(flags_, &shard_flags_, &sf); code != kExitOk) return code;
 int ResolveStageFlags(const CommonFlags& flags, const ShardFlags* shard_flags, StageFlags* out);
 
+// "812 B", "3.4 KiB", "71.2 MiB", "1.25 GiB": sizes as the commands print them.
+std::string HumanBytes(uint64_t bytes);
+
 // Flag validators, so a bad value is a usage error (exit 2) found while parsing, with the
 // flag and the value named ("--mem-limit: size \"0\" is ..."), before any file is opened.
 // A size, as stages::ParseByteSize takes it ("1GiB", "512M", "4096").

@@ -49,7 +49,7 @@ std::string PlyAscii(bool normals) {
 }
 
 template <typename T>
-void Put(std::string* out, T v, bool big) {
+void PutBinary(std::string* out, T v, bool big) {
   char b[sizeof(T)];
   std::memcpy(b, &v, sizeof(T));
   if (big) std::reverse(b, b + sizeof(T));
@@ -63,12 +63,12 @@ std::string PlyBinary(bool big) {
                   "property uchar flag\nproperty double nx\nproperty double ny\nproperty double nz\n"
                   "element face 1\nproperty list uchar int vertex_indices\nend_header\n";
   for (int i = 0; i < 3; ++i) {
-    for (int c = 0; c < 3; ++c) Put(&s, static_cast<float>(kPos[i][c]), big);
-    Put(&s, uint8_t{7}, big);
-    for (int c = 0; c < 3; ++c) Put(&s, kNrm[i][c], big);
+    for (int c = 0; c < 3; ++c) PutBinary(&s, static_cast<float>(kPos[i][c]), big);
+    PutBinary(&s, uint8_t{7}, big);
+    for (int c = 0; c < 3; ++c) PutBinary(&s, kNrm[i][c], big);
   }
-  Put(&s, uint8_t{3}, big);
-  for (int32_t k = 0; k < 3; ++k) Put(&s, k, big);
+  PutBinary(&s, uint8_t{3}, big);
+  for (int32_t k = 0; k < 3; ++k) PutBinary(&s, k, big);
   return s;
 }
 
