@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# The house style (.clang-format) holds for every C++ file in the repository: lists the files
-# clang-format would change and fails if there are any. Fix with:
+# The house style (.clang-format) holds for every C++ file in the repository: one
+# clang-format run over all of them lists what it would change and fails if anything.
+# Fix with:
 #   git ls-files '*.cpp' '*.h' | xargs clang-format -i
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -12,16 +13,10 @@ if ! git rev-parse --is-inside-work-tree >/dev/null 2>&1; then
   echo "not a git checkout: nothing to check" >&2
   exit 77
 fi
-bad=0
-while IFS= read -r f; do
-  [ -f "$f" ] || continue
-  if ! clang-format --dry-run -Werror "$f" >/dev/null 2>&1; then
-    echo "not in the house style: $f" >&2
-    bad=$((bad + 1))
-  fi
-done < <(git ls-files '*.cpp' '*.h')
-if [ "$bad" -ne 0 ]; then
-  echo "$bad file(s) differ from .clang-format; run: git ls-files '*.cpp' '*.h' | xargs clang-format -i" >&2
+mapfile -t files < <(git ls-files '*.cpp' '*.h')
+if ! out=$(clang-format --dry-run -Werror "${files[@]}" 2>&1); then
+  echo "$out" | grep -o '^[^:]*\.\(cpp\|h\):' | sort -u | sed 's/:$//; s/^/not in the house style: /' >&2
+  echo "run: git ls-files '*.cpp' '*.h' | xargs clang-format -i" >&2
   exit 1
 fi
-echo "every C++ file is in the house style"
+echo "every C++ file (${#files[@]}) is in the house style"
