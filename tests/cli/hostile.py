@@ -21,6 +21,9 @@ from ltbtest import check
 
 SANITIZED = os.environ.get("LTB_SANITIZED", "") not in ("", "0")
 BASE_MIB = 64
+# The CPU time (user + system) of the last run_hostile child: for comparing the cost of two
+# inputs in one run, which other processes on the machine barely disturb (wall time they do).
+last_cpu_seconds = 0.0
 
 
 def run_hostile(args, names=(), expect=(1,), time_limit=60.0, extra_mib=0.0, what=None, cwd=None):
@@ -52,6 +55,8 @@ def run_hostile(args, names=(), expect=(1,), time_limit=60.0, extra_mib=0.0, wha
         time.sleep(0.01)
     p.returncode = os.waitstatus_to_exitcode(status)
     elapsed = time.monotonic() - start
+    global last_cpu_seconds
+    last_cpu_seconds = rusage.ru_utime + rusage.ru_stime
     t1.join()
     t2.join()
     stderr = err[0].decode(errors="replace") if err else ""
