@@ -82,9 +82,10 @@ class Bake {
   io::FileLock lock_;
   int from_ = -1;  // StageIndex of --from; -1: none
   Graph g_;
-  std::map<std::string, json> previous_;     // node -> its entry in the last run.json
-  std::set<std::string> ours_;               // files earlier runs of this recipe made
-  std::map<std::string, FileHash> hash_of_;  // work file -> content_hash, as known this run
+  std::map<std::string, json> previous_;                 // node -> its entry in the last run.json
+  std::set<std::string> ours_;                           // files earlier runs of this recipe made
+  std::map<std::string, FileHash> hash_of_;              // work file -> content_hash, as known this run
+  mutable std::map<std::string, std::string> env_hash_;  // environment map -> its bytes' hash
   json entries_ = json::array();
   json report_;
   std::set<std::string> forced_;
@@ -129,8 +130,13 @@ json Bake::InputsOf(const Node& n, const std::map<std::string, FileHash>& hashes
     in[f] = it == hashes.end() ? std::string() : it->second.ForRecord();
   }
   if (n.image) {
-    auto h = HashFileBytes(n.env);
-    in["env"] = h.ok() ? *h : std::string("unreadable");
+    // Hashed once per run: every planning round and the step itself ask again.
+    auto it = env_hash_.find(n.env);
+    if (it == env_hash_.end()) {
+      auto h = HashFileBytes(n.env);
+      it = env_hash_.emplace(n.env, h.ok() ? *h : std::string("unreadable")).first;
+    }
+    in["env"] = it->second;
   }
   return in;
 }

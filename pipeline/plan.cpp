@@ -119,11 +119,15 @@ Plan PlanSteps(const PlanInput& in) {
   const Graph& g = *in.graph;
   Plan plan;
   plan.steps.resize(g.nodes.size());
+  // What is on disk does not change while planning: looked at once per step (an image
+  // output is hashed to look at it).
+  plan.outputs.reserve(g.nodes.size());
+  for (const Node& n : g.nodes) plan.outputs.push_back(in.inspect(n));
   for (int round = 0; round <= static_cast<int>(g.nodes.size()); ++round) {
     std::map<std::string, FileHash> hashes = in.hashes;
     for (size_t i = 0; i < g.nodes.size(); ++i) {
       const Node& n = g.nodes[i];
-      OutputState out = in.inspect(n);
+      const OutputState& out = plan.outputs[i];
       auto rec = in.previous->find(n.name);
       if (in.before_from(n)) {
         plan.steps[i] = {Action::kGiven, "before --from " + in.from};
@@ -151,7 +155,7 @@ Plan PlanSteps(const PlanInput& in) {
         for (size_t u = 0; u < i; ++u) {
           const Node& up = g.nodes[u];
           if (up.output != f || plan.steps[u].runs() || in.before_from(up) || plan.needed_by.count(up.name)) continue;
-          if (in.inspect(up).complete) continue;
+          if (plan.outputs[u].complete) continue;
           plan.needed_by[up.name] = g.nodes[i].name + " needs it";
           changed = true;
         }
@@ -168,7 +172,7 @@ Status CheckGivenInputs(const Graph& g, const Plan& plan, const PlanInput& in, c
     if (!plan.steps[i].runs()) continue;
     for (const auto& f : g.nodes[i].inputs) {
       for (size_t u = 0; u < g.nodes.size(); ++u) {
-        if (g.nodes[u].output == f && in.before_from(g.nodes[u]) && !in.inspect(g.nodes[u]).complete) {
+        if (g.nodes[u].output == f && in.before_from(g.nodes[u]) && !plan.outputs[u].complete) {
           return FailedPrecondition("--from " + from + ": " + g.nodes[i].name + " reads " + path_of(f) +
                                     ", which does not exist or is incomplete (" + g.nodes[u].name +
                                     " makes it); run without --from, or --from " + g.nodes[u].stages.front());

@@ -86,6 +86,7 @@ struct PlanInput {
 struct Plan {
   std::vector<Decision> steps;                   // one per graph node
   std::map<std::string, std::string> needed_by;  // node -> why its output must exist
+  std::vector<OutputState> outputs;              // what was on disk at each step's output
 };
 
 // Decides every step, then makes sure the files the running steps read will exist (an
