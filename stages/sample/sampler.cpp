@@ -404,9 +404,15 @@ uint64_t Sampler::Indirect(uint64_t row, const RowPoint& rp, const Brdf& brdf, c
     if (!hit.hit) continue;  // escaped directly: that is the direct term
     for (uint32_t b = 0; b < bounces_; ++b) {
       glm::dvec3 y = o + d * hit.t;
-      glm::dvec3 ny = glm::dot(hit.normal, d) > 0 ? -hit.normal : hit.normal;
+      // The hit's shading normal (the geometric one unless the object has vertex normals),
+      // turned to the side of the surface the path arrived from (by the geometric normal).
+      const glm::dvec3 facing = glm::dot(hit.normal, d) > 0 ? -hit.normal : hit.normal;
+      const glm::dvec3 ns = g_.ShadingNormal(hit);
+      const glm::dvec3 ny = glm::dot(ns, facing) < 0 ? -ns : ns;
       beta *= s_.materials[g_.geom_material[hit.geom_id]].albedo;
       d = CosineSample(ny, rng);
+      // A tilted shading normal can send the path into the surface: it is absorbed there.
+      if (ns != hit.normal && glm::dot(d, facing) <= 0) break;
       o = y + ny * g_.epsilon;
       hit = g_.rays->Intersect(o, d);
       ++rays;

@@ -42,8 +42,9 @@ bool IsRowObject(const SceneDesc& s, const Object& o) {
 }
 
 // The object's normals after its transform: its vertex rows (vertex mode: the file's
-// normals for normals = "file", else the area-weighted ones) and its shading normals
-// (image mode, "smooth" or "file"; an empty entry otherwise).
+// normals for normals = "file", else the area-weighted ones) and its shading normals at
+// hits (primary hits in image mode, bounce hits in both modes) for "smooth" or "file"; an
+// empty entry otherwise (the geometric normal).
 void AddNormals(const SceneDesc& s, const Object& o, TriangleMesh& mesh, Geometry* g) {
   const bool file = o.normals == Object::Normals::kFile;
   const std::vector<glm::dvec3>& n = file ? mesh.file_normals : mesh.normals;
@@ -53,7 +54,7 @@ void AddNormals(const SceneDesc& s, const Object& o, TriangleMesh& mesh, Geometr
     }
   }
   ShadingNormals sh;
-  if (s.mode == SceneDesc::Mode::kImage && (file || o.normals == Object::Normals::kSmooth)) {
+  if (file || o.normals == Object::Normals::kSmooth) {
     sh.triangles = mesh.triangles;
     sh.normals = n;
   }

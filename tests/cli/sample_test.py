@@ -25,6 +25,8 @@ by more than t = b·sqrt(n·ln(2/δ)/2) with probability below δ, and the mean 
    stratum; Hoeffding over the n = 6R²·spp strata bounds each component of M by
    c·sqrt(n·ln(2/δ)/2). Image mode: a plane mesh with tilted file normals gives another T
    than "flat", and "smooth" on a plane gives exactly the T of "flat".
+6. Bounces follow the shading normal of the surface they hit: the light a floor receives
+   by one bounce off a wall with file normals against a closed-form escape probability.
 
 usage: sample_test.py PATH_TO_LTBAKE
 """
@@ -305,5 +307,79 @@ material = "m"
         f.write("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     bad("plainobj.toml", base + '[[object]]\ntype = "mesh"\nfile = "plain.obj"\nnormals = "file"\n',
         'plain.obj: normals = "file", but the file stores no vertex normals')
+
+    # 6. Bounces follow the shading normal. A floor (albedo af) seen from above and a wall
+    # (a mesh, albedo aw) at x = 1, both far larger than the view: half of each floor row's
+    # cosine-weighted paths hit the wall, and with one bounce a path escapes when its new
+    # direction d, cosine-weighted about the wall's shading normal n, has d_z > 0 (else it
+    # meets the floor) and d_x < 0 (else it meets the wall). The indirect part of a row
+    # (bounces 1 minus bounces 0: the direct part is the same estimate) sums to
+    # af·aw·(1/2)·P(n), P integrated in NumPy: 1/2 for the geometric normal -x, 0.683 for a
+    # file normal leaning 30° up. A row is the mean over its paths of af·aw (escaped) or 0,
+    # so by Hoeffding the mean over N paths of all rows is within af·aw·sqrt(ln(2/δ)/(2N)); the floor's and
+    # wall's finite sizes bias it by less than 1e-3·af·aw (paths passing over the wall or
+    # escaping past the floor's edge), added to the bound.
+    af, aw, Rb, sppb = 0.9, 0.8, 8, 16
+
+    def escape_oracle(n, steps=3000):
+        n = np.asarray(n, float)
+        t = np.cross(n, [0.0, 1.0, 0.0])
+        t /= np.linalg.norm(t)
+        b = np.cross(n, t)
+        u = (np.arange(steps) + 0.5) / steps
+        phi = 2 * math.pi * (np.arange(steps) + 0.5) / steps
+        st, ct = np.sqrt(u)[:, None, None], np.sqrt(1 - u)[:, None, None]
+        dd = st * (np.cos(phi)[None, :, None] * t + np.sin(phi)[None, :, None] * b) + ct * n
+        return float(np.mean((dd[..., 2] > 0) & (dd[..., 0] < 0)))
+
+    wall = [[1.0, -2000.0, -1.0], [1.0, 2000.0, -1.0], [1.0, 2000.0, 400.0], [1.0, -2000.0, 400.0]]
+    up30 = [-math.cos(tilt), 0.0, math.sin(tilt)]
+    ply_with_normals(os.path.join(d, "wall.ply"), wall, [up30] * 4, [(0, 1, 2), (0, 2, 3)])
+    rows_b = 64
+    n_paths = rows_b * max(1, sppb * 6 * Rb * Rb // 2)
+    t_b = af * aw * (math.sqrt(math.log(2 / DELTA) / (2 * n_paths)) + 1e-3)
+    for mode, n_wall in (("auto", [-1.0, 0.0, 0.0]), ("file", up30)):
+        want = af * aw * 0.5 * escape_oracle(n_wall)
+        other = af * aw * 0.5 * escape_oracle(up30 if mode == "auto" else [-1.0, 0.0, 0.0])
+        sums = []
+        for bounces in (0, 1):
+            sb = scene(d, f"wall-{mode}-{bounces}.toml", f"""
+[camera]
+eye = [0.0, 0.0, 5.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov = 10.0
+width = 8
+height = 8
+[sampling]
+cube_res = {Rb}
+spp = {sppb}
+bounces = {bounces}
+[[material]]
+name = "floor"
+albedo = {af}
+[[material]]
+name = "wall"
+albedo = {aw}
+[[object]]
+type = "plane"
+size = [4000.0, 4000.0]
+material = "floor"
+[[object]]
+type = "mesh"
+file = "wall.ply"
+normals = "{mode}"
+material = "wall"
+""")
+            ob = os.path.join(d, f"wall-{mode}-{bounces}.ltm")
+            run("sample", sb, "-o", ob)
+            sums.append(load(d, ob).sum(axis=1))
+        indirect = sums[1] - sums[0]
+        got = float(indirect.mean())
+        print(f"bounces, wall normals {mode}: mean indirect row sum {got:.5f}, oracle {want:.5f} "
+              f"(bound {t_b:.5f}); the other normal's oracle {other:.5f}")
+        check(len(indirect) == rows_b, f"bounces: {len(indirect)} rows")
+        check(abs(got - want) <= t_b, f"bounces, wall normals {mode}: indirect {got:.5f}, expected {want:.5f} +- {t_b:.5f}")
+        check(abs(other - want) > 2 * t_b, "bounces: the oracle cannot tell the normals apart")
 
 finish()
