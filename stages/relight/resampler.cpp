@@ -54,7 +54,7 @@ std::vector<std::vector<Overlap>> Overlaps(uint64_t n_src, uint64_t n_dst) {
   return out;
 }
 
-// A zeroed table of `count` doubles. Resample reads ~50·R² scattered places of it per frame:
+// A zeroed table of `count` doubles. Resample reads ~150·R² places of it per frame:
 // on 2 MB pages (transparent huge pages, where the kernel grants them) the TLB covers the
 // whole table, about 20% faster per frame than 4 KB pages. Shared: copies of a resampler
 // share the (immutable) table.

@@ -24,13 +24,14 @@ struct EnvMap;  // stages/relight/envmap.h
 // edge (a great-circle arc) into pieces, one or more per working row it crosses. Resample(α)
 // integrates the working grid rotated by α about +Z over each texel by Green's theorem:
 // ∫∫_texel L dω = ∮ S dz (S a row's prefix function, z = cos θ) along the texel's edges, each
-// piece exact up to a cubic Hermite fit of the edge's shape (docs/ENVMAPS.md: below 1e-7 of a
+// piece exact up to a cubic Hermite fit of the edge's shape (docs/ENVMAPS.md: within 1e-5 of a
 // working pixel per column the piece crosses). Any α, no granularity; a rotation by
 // k·2π/working_width() is exactly a shift of the working grid by k columns. Cost per frame:
-// O(pieces) ≈ 60·R² at R = 32, independent of the source size.
+// O(pieces + the columns they cross) ≈ 150·R² at R = 32, independent of the source size.
 class CubemapResampler {
  public:
-  // Largest cubemap the resampler builds (its tables grow as R²: ~50 M intervals at 512).
+  // Largest cubemap the resampler builds (its tables grow as R²: 381 MB peak for a 1024 × 512
+  // map at 512).
   static constexpr uint64_t kMaxCubeRes = 512;
 
   // cube_res: 1..512. `progress` is polled for cancellation (a Cancelled status).
