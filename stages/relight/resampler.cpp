@@ -442,8 +442,9 @@ Result<CubemapResampler> CubemapResampler::CreateUnchecked(const EnvMap& env, ui
 // Pieces: every texel edge (the great-circle arc between two neighbouring grid corners of a
 // face; an edge on a cube edge once) cut where it crosses a working row's boundary or the
 // seam, then halved until the cubic Hermite K of each piece is within kPieceTolerance of a
-// working pixel's area (1 column × the row's height in z) of the exact K half-way along it. And the seam terms: the
-// texels the seam meridian passes through, per row.
+// working pixel's area (1 column × the row's height in z; at most a pixel of a 32R × 16R grid)
+// of the exact K half-way along it. And the seam terms: the texels the seam meridian passes
+// through, per row.
 Status CubemapResampler::BuildPieces(const std::string& path, const Progress& progress, std::vector<double>* dsum) {
   constexpr double kPieceTolerance = 1e-5;
   const uint64_t R = r_, ww = ww_, hw = hw_;
@@ -478,7 +479,11 @@ Status CubemapResampler::BuildPieces(const std::string& path, const Progress& pr
                       uint32_t up, uint32_t down, int depth) -> void {
     const double w = c1 - c0;
     if (!(w > 0)) return;
-    const double dz = z1 - z0, kw = arc.K(c0, z1, w), pixel = zrow[J] - zrow[J + 1];
+    const double dz = z1 - z0, kw = arc.K(c0, z1, w);
+    // The area the tolerance is a fraction of: a working pixel, or a pixel of a 32R × 16R grid
+    // where that is smaller (a source coarser than the cubemap): texels are ≥ 5 of those across.
+    const double pixel =
+        std::min(1.0, wwd / (32.0 * double(R))) * std::min(zrow[J] - zrow[J + 1], kPi / (16.0 * double(R)));
     if (depth < 40 && w > 0.5 * kPieceTolerance) {
       // The Hermite error, t²(w − t)²/24 times the fourth derivative of K, peaks mid-way.
       if (std::abs(arc.K(c0, z1, 0.5 * w) - HermiteK(dz, w, kw, 0.5 * w)) > kPieceTolerance * pixel) {
