@@ -1,5 +1,5 @@
 // CubemapResampler (resampler.h): the source reduced to a working lat-long grid held as
-// prefix sums, the latitude bands' column intervals per texel, and Resample.
+// prefix sums, the texel edges cut into pieces per working row, and Resample.
 #include "stages/relight/resampler.h"
 
 #include <sys/mman.h>
@@ -54,7 +54,7 @@ std::vector<std::vector<Overlap>> Overlaps(uint64_t n_src, uint64_t n_dst) {
   return out;
 }
 
-// A zeroed table of `count` doubles. Resample reads ~50·R² scattered places of it per frame:
+// A zeroed table of `count` doubles. Resample reads ~150·R² places of it per frame:
 // on 2 MB pages (transparent huge pages, where the kernel grants them) the TLB covers the
 // whole table, about 20% faster per frame than 4 KB pages. Shared: copies of a resampler
 // share the (immutable) table.
@@ -120,10 +120,10 @@ Status PollCancel(const Progress& progress, const std::string& path, uint64_t R,
   return Cancelled(path + ": interrupted while resampling to the R = " + std::to_string(R) + " cubemap (" + pass + ")");
 }
 
-// The source reduced to the working lat-long grid: hw × ww × 3 values (`work`), `sub`
-// latitude bands per working row, and the source's power (Σ radiance × solid angle).
+// The source reduced to the working lat-long grid: hw × ww × 3 values (`work`), and the
+// source's power (Σ radiance × solid angle).
 struct WorkingGrid {
-  uint64_t hw = 0, ww = 0, sub = 1;
+  uint64_t hw = 0, ww = 0;
   uint64_t target_rows = 0, target_cols = 0;
   double power[3] = {0, 0, 0};
   std::vector<double> work;
@@ -132,14 +132,13 @@ struct WorkingGrid {
 // A lat-long source: a separable exact area average.
 Status LatLongToWorking(const EnvMap& env, uint64_t R, const Progress& progress, WorkingGrid* g) {
   const uint64_t W = env.width, H = env.height;
-  // Rows: whole groups of source rows when that lands at or above the target (bands then
-  // never split a source row), sub-bands of each source row when the source is coarser.
+  // Rows: whole groups of source rows when that lands at or above the target; a source with
+  // fewer rows keeps them (each piece of a texel edge is exact over a row of any height).
   if (H >= g->target_rows) {
     g->hw = H / GroupFor(H, g->target_rows);
     if (g->hw > 4 * g->target_rows) g->hw = g->target_rows;  // no usable divisor: fractional rows
   } else {
     g->hw = H;
-    g->sub *= (g->target_rows + H - 1) / H;
   }
   if (W >= g->target_cols) {
     g->ww = W / GroupFor(W, g->target_cols);
@@ -266,16 +265,17 @@ Status AngularToWorking(const EnvMap& env, uint64_t R, const Progress& progress,
 
 // The working grid of any layout.
 Result<WorkingGrid> BuildWorkingGrid(const EnvMap& env, uint64_t R, const Progress& progress) {
-  // Working grid targets: 16R rows of 180°/16R (about a fifth of the smallest texel's side,
-  // 0.94/R rad at the cube corners), 32R columns (as wide as rows are high at the equator);
-  // both halved (with more bands per row) while the prefix tables would pass 2^22 pixels.
+  // Working grid targets: 16R rows (about a fifth of the smallest texel's side, 0.94/R rad at
+  // the cube corners; for a lat-long source at least 512, so that a 1024 × 512 map keeps its
+  // pixels, and the texel averages stay exact, at every R), twice as many columns (as wide as
+  // rows are high at the equator); both halved while the prefix table would pass 2^22 pixels
+  // (100 MB).
   WorkingGrid g;
-  g.target_rows = 16 * R;
-  g.target_cols = 32 * R;
+  g.target_rows = env.layout == EnvLayout::kLatLong ? std::max<uint64_t>(16 * R, 512) : 16 * R;
+  g.target_cols = 2 * g.target_rows;
   while (g.target_rows * g.target_cols > (1ull << 22) && g.target_rows > 1) {
     g.target_rows /= 2;
     g.target_cols /= 2;
-    g.sub *= 2;
   }
   if (env.layout == EnvLayout::kLatLong) {
     LTB_RETURN_IF_ERROR(LatLongToWorking(env, R, progress, &g));
@@ -305,48 +305,96 @@ Result<std::shared_ptr<double[]>> PrefixSums(const std::string& path, const Work
   return table;
 }
 
-// The column intervals where the circle at height z (radius rho) crosses each texel of the
-// R-cubemap, over ww working columns: (start column, texel), ascending; never empty. Sampled
-// every 1/64 of a face width, each change of texel located by bisection to 1e-11 of the
-// circle.
-void BandMarks(double z, double rho, uint64_t R, uint64_t ww, std::vector<std::pair<double, uint32_t>>* marks_out) {
-  std::vector<std::pair<double, uint32_t>>& marks = *marks_out;
-  const uint64_t samples = 64 * R;
-  const double eps = 1e-11 * ww;
-  auto texel_at = [&](double col) {
-    const double phi = kPi - 2.0 * kPi * col / ww;
-    return uint32_t(cubemap::Column(
-        cubemap::DirectionToTexel({rho * std::cos(phi), rho * std::sin(phi), z}, uint32_t(R)), uint32_t(R)));
-  };
-  marks.clear();
-  // Bisects (lo, hi) where the texel changes from tlo to thi; a third texel in between
-  // splits the search.
-  auto bisect = [&](auto&& self, double lo, uint32_t tlo, double hi, uint32_t thi) -> void {
-    while (hi - lo > eps) {
-      const double mid = 0.5 * (lo + hi);
-      const uint32_t tm = texel_at(mid);
-      if (tm == tlo) {
-        lo = mid;
-      } else if (tm == thi) {
-        hi = mid;
-      } else {
-        self(self, lo, tlo, mid, tm);
-        lo = mid;
-        tlo = tm;
-      }
-    }
-    marks.push_back({0.5 * (lo + hi), thi});
-  };
-  const uint32_t t0 = texel_at(0.0);
-  uint32_t prev = t0;
-  for (uint64_t s = 1; s <= samples; ++s) {
-    const double c = s == samples ? double(ww) : double(ww) * s / samples;
-    const uint32_t t = s == samples ? t0 : texel_at(c);
-    if (t != prev) bisect(bisect, double(ww) * (s - 1) / samples, prev, c, t);
-    prev = t;
+// The seam: working column where pieces of texel edges are cut, so that each lies in
+// [kSeamColumn, kSeamColumn + ww). Not a multiple of a column's fraction that any meridian
+// texel edge takes (those are at φ multiples of 90° and at φ = ±atan(v) of side-face lines).
+constexpr double kSeamColumn = 0.30901699437494745;
+
+// 8-point Gauss–Legendre nodes and weights on [−1, 1] (the positive half).
+constexpr double kGaussX[4] = {0.1834346424956498, 0.5255324099163290, 0.7966664774136267, 0.9602898564975363};
+constexpr double kGaussW[4] = {0.3626837833783620, 0.3137066458778873, 0.2223810344533745, 0.1012285362903763};
+
+// A texel edge that is not along a meridian: the great circle n·d = 0 (n.z != 0) meets the
+// meridian of working column c (φ = π − 2πc/ww) in one point, at height
+// z(c) = q/√(1 + q²), q = z/ρ = −(n.x cos φ + n.y sin φ)/n.z.
+struct ArcOverColumns {
+  glm::dvec3 n;
+  double ww;
+  double Z(double c) const {
+    const double phi = kPi - 2.0 * kPi * c / ww;
+    const double q = -(n.x * std::cos(phi) + n.y * std::sin(phi)) / n.z;
+    return q / std::sqrt(1.0 + q * q);
   }
-  if (marks.empty()) marks.push_back({0.0, t0});
+  double Slope(double c) const {  // dz/dc
+    const double phi = kPi - 2.0 * kPi * c / ww;
+    const double q = -(n.x * std::cos(phi) + n.y * std::sin(phi)) / n.z;
+    const double dq = (n.x * std::sin(phi) - n.y * std::cos(phi)) / n.z;
+    return dq * (-2.0 * kPi / ww) / ((1.0 + q * q) * std::sqrt(1.0 + q * q));
+  }
+  // ∫_0^t (z_end − z(c0 + τ)) dτ by 8-point Gauss–Legendre (z is smooth, and the pieces are
+  // a small part of its scale: halving a piece shrinks this error by 2^16).
+  double K(double c0, double z_end, double t) const {
+    double sum = 0;
+    const double h = 0.5 * t, mid = c0 + h;
+    for (int i = 0; i < 4; ++i) sum += kGaussW[i] * (Z(mid - h * kGaussX[i]) + Z(mid + h * kGaussX[i]));
+    return t * z_end - h * sum;
+  }
+  // The column in [a, b] where z = target, z monotone on [a, b] from za to zb (target between):
+  // Newton steps kept inside a shrinking bracket.
+  double Solve(double a, double za, double b, double zb, double target) const {
+    const bool rising = zb > za;
+    double lo = a, hi = b;
+    double c = a + (b - a) * (target - za) / (zb - za);
+    if (!(c > lo && c < hi)) c = 0.5 * (lo + hi);
+    for (int it = 0; it < 100; ++it) {
+      const double f = Z(c) - target;
+      if (f == 0) return c;
+      if ((f < 0) == rising) {
+        lo = c;
+      } else {
+        hi = c;
+      }
+      if (hi - lo <= 1e-13 * std::max(1.0, std::abs(c))) break;
+      const double d = Slope(c);
+      double next = d != 0 ? c - f / d : 0.5 * (lo + hi);
+      if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
+      if (std::abs(next - c) <= 1e-15 * std::max(1.0, std::abs(c))) return next;
+      c = next;
+    }
+    return 0.5 * (lo + hi);
+  }
+};
+
+// The cubic Hermite K of a piece (resampler.h): K(0) = 0, K'(0) = dz, K(w) = kw, K'(w) = 0.
+inline double HermiteK(double dz, double w, double kw, double t) {
+  const double x = t / w;
+  return dz * w * x * (1.0 - x) * (1.0 - x) + kw * x * x * (3.0 - 2.0 * x);
 }
+
+// Row J of the working grid holds z in [zrow[J + 1], zrow[J]].
+uint64_t RowHolding(const std::vector<double>& zrow, double z) {
+  uint64_t lo = 0, hi = zrow.size() - 1;
+  while (hi - lo > 1) {
+    const uint64_t mid = (lo + hi) / 2;
+    if (zrow[mid] >= z) {
+      lo = mid;
+    } else {
+      hi = mid;
+    }
+  }
+  return lo;
+}
+
+// Working column of a direction, in [0, ww).
+double ColumnOf(const glm::dvec3& d, double ww) {
+  double c = (kPi - std::atan2(d.y, d.x)) / (2.0 * kPi) * ww;
+  if (c >= ww) c -= ww;
+  if (c < 0) c += ww;
+  return c;
+}
+
+// c + k·ww closest to `near`.
+double LiftNear(double c, double near, double ww) { return c + ww * std::round((near - c) / ww); }
 
 }  // namespace
 
@@ -386,38 +434,219 @@ Result<CubemapResampler> CubemapResampler::CreateUnchecked(const EnvMap& env, ui
   grid.work = {};
 
   std::vector<double> dsum(n, 0.0);
-  LTB_RETURN_IF_ERROR(rs.BuildBands(grid.sub, env.path, progress, &dsum));
+  LTB_RETURN_IF_ERROR(rs.BuildPieces(env.path, progress, &dsum));
   rs.Normalise(dsum);
   return rs;
 }
 
-// Bands: `sub` per working row. In each, the column intervals where the circle of the
-// band's mean z (its area centroid) crosses each texel (BandMarks).
-Status CubemapResampler::BuildBands(uint64_t sub, const std::string& path, const Progress& progress,
-                                    std::vector<double>* dsum) {
+// Pieces: every texel edge (the great-circle arc between two neighbouring grid corners of a
+// face; an edge on a cube edge once) cut where it crosses a working row's boundary or the
+// seam, then halved until the cubic Hermite K of each piece is within kPieceTolerance of a
+// working pixel's area (1 column × the row's height in z; at most a pixel of a 32R × 16R grid)
+// of the exact K half-way along it. And the seam terms: the texels the seam meridian passes
+// through, per row.
+Status CubemapResampler::BuildPieces(const std::string& path, const Progress& progress, std::vector<double>* dsum) {
+  constexpr double kPieceTolerance = 1e-5;
   const uint64_t R = r_, ww = ww_, hw = hw_;
-  std::vector<std::pair<double, uint32_t>> marks;
-  for (uint64_t J = 0; J < hw; ++J) {
-    LTB_RETURN_IF_ERROR(PollCancel(progress, path, R, J, "latitude bands"));
-    for (uint64_t q = 0; q < sub; ++q) {
-      const double ta = kPi * double(J * sub + q) / double(hw * sub),
-                   tb = kPi * double(J * sub + q + 1) / double(hw * sub);
-      Band band;
-      band.row = uint32_t(J);
-      band.weight = CosDiff(ta, tb) * 2.0 * kPi / ww;
-      const double z = 0.5 * (std::cos(ta) + std::cos(tb)), rho = std::sqrt(std::max(0.0, 1.0 - z * z));
-      BandMarks(z, rho, R, ww, &marks);
-      band.first_run = run_start_.size();
-      band.run_count = marks.size();
-      for (size_t i = 0; i < marks.size(); ++i) {
-        run_start_.push_back(marks[i].first);
-        run_texel_.push_back(marks[i].second);
-        const double end = i + 1 < marks.size() ? marks[i + 1].first : marks[0].first + ww;
-        (*dsum)[marks[i].second] += band.weight * (end - marks[i].first);
+  const double wwd = double(ww), scale = 2.0 * kPi / wwd;
+  const uint32_t r32 = uint32_t(R);
+  // Row boundaries in z, exactly antisymmetric (the equator exactly 0 when it is one).
+  std::vector<double> zrow(hw + 1);
+  for (uint64_t J = 0; J <= hw; ++J) zrow[J] = std::cos(kPi * double(J) / double(hw));
+  for (uint64_t J = 0; 2 * J <= hw; ++J) zrow[hw - J] = -zrow[J];
+  zrow[0] = 1.0;
+  zrow[hw] = -1.0;
+  if (hw % 2 == 0) zrow[hw / 2] = 0.0;
+
+  std::vector<Piece> pieces;
+  std::vector<uint32_t> piece_row;
+  auto emit = [&](uint64_t J, double c, double w, double dz, double kw, uint32_t up, uint32_t down) {
+    c -= wwd * std::floor((c - kSeamColumn) / wwd);
+    if (c >= kSeamColumn + wwd) c -= wwd;
+    Piece p;
+    p.c = c;
+    p.dz = dz * scale;
+    p.w = float(w);
+    p.kw = float(kw * scale);
+    p.up = up;
+    p.down = down;
+    pieces.push_back(p);
+    piece_row.push_back(uint32_t(J));
+  };
+  // A piece of a non-meridian edge from (c0, z0) to (c1, z1) inside row J, halved while its
+  // Hermite K is off by more than the tolerance.
+  auto emit_arc = [&](auto&& self, const ArcOverColumns& arc, uint64_t J, double c0, double z0, double c1, double z1,
+                      uint32_t up, uint32_t down, int depth) -> void {
+    const double w = c1 - c0;
+    if (!(w > 0)) return;
+    const double dz = z1 - z0, kw = arc.K(c0, z1, w);
+    // The area the tolerance is a fraction of: a working pixel, or a pixel of a 32R × 16R grid
+    // where that is smaller (a source coarser than the cubemap): texels are ≥ 5 of those across.
+    const double pixel =
+        std::min(1.0, wwd / (32.0 * double(R))) * std::min(zrow[J] - zrow[J + 1], kPi / (16.0 * double(R)));
+    if (depth < 40 && w > 0.5 * kPieceTolerance) {
+      // The Hermite error, t²(w − t)²/24 times the fourth derivative of K, peaks mid-way.
+      if (std::abs(arc.K(c0, z1, 0.5 * w) - HermiteK(dz, w, kw, 0.5 * w)) > kPieceTolerance * pixel) {
+        const double cm = 0.5 * (c0 + c1), zm = arc.Z(cm);
+        self(self, arc, J, c0, z0, cm, zm, up, down, depth + 1);
+        self(self, arc, J, cm, zm, c1, z1, up, down, depth + 1);
+        return;
       }
-      bands_.push_back(band);
     }
+    emit(J, c0, w, dz, kw, up, down);
+  };
+  // The row boundaries strictly between z values a and b, in the order met from a to b.
+  std::vector<uint64_t> crossed;
+  auto boundaries_between = [&](double a, double b) {
+    crossed.clear();
+    const double lo = std::min(a, b), hi = std::max(a, b);
+    for (uint64_t J = RowHolding(zrow, hi); J <= hw && J <= RowHolding(zrow, lo) + 1; ++J) {
+      if (zrow[J] > lo && zrow[J] < hi) crossed.push_back(J);
+    }
+    if (b > a) std::reverse(crossed.begin(), crossed.end());
+  };
+
+  std::vector<std::pair<double, double>> marks;  // (column, z) where an edge is cut
+  struct SeamCrossing {
+    double z;
+    uint32_t below, above;
+  };
+  std::vector<SeamCrossing> seam_crossings;  // where edges cross the seam meridian
+  for (int f = 0; f < 6; ++f)
+    for (int family = 0; family < 2; ++family)
+      for (uint64_t k = 0; k <= R; ++k) {
+        LTB_RETURN_IF_ERROR(PollCancel(progress, path, R, (uint64_t(f) * 2 + family) * (R + 1) + k, "texel edges"));
+        const double fixed = -1.0 + 2.0 * double(k) / double(R);
+        for (uint64_t e = 0; e < R; ++e) {
+          const double a = -1.0 + 2.0 * double(e) / double(R), b = -1.0 + 2.0 * double(e + 1) / double(R);
+          const glm::dvec3 fa = family == 0 ? cubemap::FaceDirection(f, fixed, a) : cubemap::FaceDirection(f, a, fixed);
+          const glm::dvec3 fb = family == 0 ? cubemap::FaceDirection(f, fixed, b) : cubemap::FaceDirection(f, b, fixed);
+          const glm::dvec3 A = glm::normalize(fa), B = glm::normalize(fb), M = glm::normalize(A + B);
+          const glm::dvec3 normal = glm::cross(fa, fb);
+          const bool meridian = std::abs(normal.z) <= 1e-12 * glm::length(normal);
+          // The texels on either side: above and below it, or left and right of a meridian
+          // piece (left: larger φ, smaller column), probed 1e-7 rad away.
+          glm::dvec3 p_up, p_down;
+          if (meridian) {
+            const double ce = std::cos(1e-7), se = std::sin(1e-7);
+            p_up = {M.x * ce - M.y * se, M.x * se + M.y * ce, M.z};
+            p_down = {M.x * ce + M.y * se, -M.x * se + M.y * ce, M.z};
+          } else {
+            const double phi = std::atan2(M.y, M.x);
+            for (int side = 0; side < 2; ++side) {
+              const double z = std::clamp(M.z + (side == 0 ? 1e-7 : -1e-7), -1.0, 1.0);
+              const double rho = std::sqrt(std::max(0.0, 1.0 - z * z));
+              (side == 0 ? p_up : p_down) = {rho * std::cos(phi), rho * std::sin(phi), z};
+            }
+          }
+          const uint32_t up = uint32_t(cubemap::Column(cubemap::DirectionToTexel(p_up, r32), r32));
+          const uint32_t down = uint32_t(cubemap::Column(cubemap::DirectionToTexel(p_down, r32), r32));
+          if (up == down) continue;
+          // An edge on a cube edge is met from both faces: kept from the lower face index.
+          const uint64_t other = up / (R * R) != uint64_t(f) ? up / (R * R) : down / (R * R);
+          if (other < uint64_t(f)) continue;
+          if (meridian) {
+            const double c = ColumnOf(M, wwd), zlo = std::min(A.z, B.z), zhi = std::max(A.z, B.z);
+            boundaries_between(zlo, zhi);
+            double z0 = zlo;
+            for (size_t i = 0; i <= crossed.size(); ++i) {
+              const double z1 = i < crossed.size() ? zrow[crossed[i]] : zhi;
+              if (z1 > z0) emit(RowHolding(zrow, 0.5 * (z0 + z1)), c, 0.0, z1 - z0, 0.0, up, down);
+              z0 = z1;
+            }
+            continue;
+          }
+          const ArcOverColumns arc{glm::normalize(normal), wwd};
+          double c_a = ColumnOf(A, wwd), z_a = A.z;
+          double c_b = LiftNear(ColumnOf(B, wwd), LiftNear(ColumnOf(M, wwd), c_a, wwd), wwd), z_b = B.z;
+          if (c_a > c_b) {
+            std::swap(c_a, c_b);
+            std::swap(z_a, z_b);
+          }
+          marks.clear();
+          marks.push_back({c_a, z_a});
+          auto cut_rows = [&](double c0, double z0, double c1, double z1) {
+            boundaries_between(z0, z1);
+            for (uint64_t J : crossed) marks.push_back({arc.Solve(c0, z0, c1, z1, zrow[J]), zrow[J]});
+          };
+          // z along the arc has at most one extremum inside (dz/dc = 0 at φ = atan2(n.y, n.x) or
+          // opposite); z is monotone on either side of it.
+          double apex = c_a;
+          const double phi_star = std::atan2(arc.n.y, arc.n.x);
+          for (double candidate :
+               {(kPi - phi_star) / (2.0 * kPi) * wwd, (kPi - phi_star) / (2.0 * kPi) * wwd + 0.5 * wwd}) {
+            const double c = LiftNear(candidate, 0.5 * (c_a + c_b), wwd);
+            if (c > c_a && c < c_b) apex = c;
+          }
+          if (apex > c_a) {
+            const double z_apex = arc.Z(apex);
+            cut_rows(c_a, z_a, apex, z_apex);
+            cut_rows(apex, z_apex, c_b, z_b);
+          } else {
+            cut_rows(c_a, z_a, c_b, z_b);
+          }
+          marks.push_back({c_b, z_b});
+          for (double s = kSeamColumn + wwd * std::ceil((c_a - kSeamColumn) / wwd); s < c_b; s += wwd) {
+            if (!(s > c_a)) continue;
+            marks.push_back({s, arc.Z(s)});
+            seam_crossings.push_back({arc.Z(s), down, up});
+          }
+          std::stable_sort(marks.begin(), marks.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
+          for (size_t i = 0; i + 1 < marks.size(); ++i) {
+            const double c0 = marks[i].first, c1 = marks[i + 1].first;
+            if (!(c1 > c0)) continue;
+            const uint64_t J = RowHolding(zrow, arc.Z(0.5 * (c0 + c1)));
+            emit_arc(emit_arc, arc, J, c0, marks[i].second, c1, marks[i + 1].second, up, down, 0);
+          }
+        }
+      }
+
+  // Seam terms: walking up the seam meridian from the south pole, the texel changes where an
+  // edge crosses it (from the texel below that edge to the one above), split at row boundaries.
+  std::sort(seam_crossings.begin(), seam_crossings.end(),
+            [](const SeamCrossing& x, const SeamCrossing& y) { return x.z < y.z; });
+  uint32_t current = 0;
+  if (seam_crossings.empty()) {
+    const double phi = kPi - 2.0 * kPi * kSeamColumn / wwd;
+    current = uint32_t(
+        cubemap::Column(cubemap::DirectionToTexel({1e-9 * std::cos(phi), 1e-9 * std::sin(phi), -1.0}, r32), r32));
+  } else {
+    current = seam_crossings[0].below;
   }
+  size_t next = 0;
+  for (uint64_t J = hw; J-- > 0;) {
+    double z0 = zrow[J + 1];
+    const double z1 = zrow[J];
+    for (; next < seam_crossings.size() && seam_crossings[next].z < z1; ++next) {
+      const double z = std::max(z0, seam_crossings[next].z);
+      if (z > z0) seam_.push_back({uint32_t(J), current, (z - z0) * scale});
+      z0 = z;
+      current = seam_crossings[next].above;
+    }
+    if (z1 > z0) seam_.push_back({uint32_t(J), current, (z1 - z0) * scale});
+  }
+
+  // By row, then column (Resample reads each row's prefix sums in order).
+  std::vector<uint64_t> order(pieces.size());
+  for (uint64_t i = 0; i < order.size(); ++i) order[i] = i;
+  std::sort(order.begin(), order.end(), [&](uint64_t x, uint64_t y) {
+    return piece_row[x] != piece_row[y] ? piece_row[x] < piece_row[y] : pieces[x].c < pieces[y].c;
+  });
+  pieces_.resize(pieces.size());
+  row_first_.assign(hw + 1, 0);
+  for (uint64_t i = 0; i < order.size(); ++i) {
+    pieces_[i] = pieces[order[i]];
+    ++row_first_[piece_row[order[i]] + 1];
+  }
+  for (uint64_t J = 0; J < hw; ++J) row_first_[J + 1] += row_first_[J];
+  // Each texel's solid angle as the pieces see it: the same sums over a map of ones, whose
+  // prefix function is S(x) = x (x = c at rotation 0; the seam terms see the row total ww).
+  for (const Piece& p : pieces_) {
+    const double v = p.dz * p.c + double(p.kw);
+    (*dsum)[p.up] += v;
+    (*dsum)[p.down] -= v;
+  }
+  for (const SeamTerm& s : seam_) (*dsum)[s.texel] += s.weight * wwd;
   return Status::Ok();
 }
 
@@ -446,51 +675,74 @@ inline void Load(const double* p, Vec4* v) { std::memcpy(v, p, sizeof *v); }
 void CubemapResampler::Resample(double rotation, float* out) const {
   const uint64_t n = 6 * r_ * r_, ww = ww_;
   const double wwd = double(ww);
-  thread_local std::vector<Vec4> acc;
-  acc.assign(n, Vec4{0, 0, 0, 0});
+  thread_local std::vector<Vec4> scratch;
+  scratch.assign(n, Vec4{0, 0, 0, 0});
+  Vec4* const acc = scratch.data();
   // The rotated map at working column c is the source at c + shift (docs/ENVMAPS.md).
   double turns = rotation / (2.0 * kPi);
   turns -= std::floor(turns);
   double shift = turns * wwd;
   if (!(shift >= 0.0 && shift < wwd)) shift = 0.0;
   const size_t stride = (ww + 1) * 3;
-  for (const Band& b : bands_) {
-    const double* P = prefix_.get() + b.row * stride;
+  const int64_t last = int64_t(ww) - 1;
+  for (uint64_t J = 0; J < hw_; ++J) {
+    const double* P = prefix_.get() + J * stride;
     Vec4 total;
     Load(P + ww * 3, &total);
-    const double* start = &run_start_[b.first_run];
-    const uint32_t* texel = &run_texel_[b.first_run];
-    const uint64_t count = b.run_count;
-    // ∫_0^x of the row at x = start[k] + shift, extended periodically: the starts that pass
-    // ww wrap (and gain one row total). Lane 3 is the next column's R: ignored.
-    auto eval = [&](double x, const Vec4& wrap, Vec4* q) {
-      const int64_t i = std::min<int64_t>(int64_t(x), int64_t(ww) - 1);
+    const Piece* piece = pieces_.data() + row_first_[J];
+    const Piece* end = pieces_.data() + row_first_[J + 1];
+    for (; piece != end; ++piece) {
+      // S at the piece's start x = c + shift (∫_0^x of the row, extended periodically: each
+      // pass of ww adds the row total), then Σ L·ΔK over the columns it crosses. Lane 3 is
+      // the next column's R: ignored.
+      double x = piece->c + shift;
+      Vec4 wrap = {0, 0, 0, 0};
+      while (x >= wwd) {
+        x -= wwd;
+        wrap += total;
+      }
+      const int64_t i = std::min<int64_t>(int64_t(x), last);
       const double f = x - double(i);
       Vec4 p0, p1;
       Load(P + 3 * i, &p0);
       Load(P + 3 * i + 3, &p1);
-      *q = p0 + f * (p1 - p0) + wrap;
-    };
-    const Vec4 zero = {0, 0, 0, 0};
-    Vec4 first, prev, next;
-    if (start[0] + shift >= wwd) {
-      eval(start[0] + shift - wwd, total, &first);
-    } else {
-      eval(start[0] + shift, zero, &first);
+      const Vec4 li = p1 - p0;
+      Vec4 v = piece->dz * (p0 + f * li + wrap);
+      const double w = piece->w, kw = piece->kw, t1 = 1.0 - f;
+      if (t1 >= w) {
+        v += kw * li;
+      } else {
+        // K(t) = t·(dz + t·(a2 + t·a3)), the Hermite cubic (HermiteK) in powers of t.
+        const double dz = piece->dz, inv = 1.0 / w, dzw = dz * w;
+        const double a3 = (dzw - 2.0 * kw) * inv * inv * inv, a2 = (3.0 * kw - 2.0 * dzw) * inv * inv;
+        double k_prev = t1 * (dz + t1 * (a2 + t1 * a3));
+        v += k_prev * li;
+        int64_t j = i + 2;
+        Vec4 q0 = p1, q1;
+        for (double t = t1 + 1.0;; t += 1.0, ++j) {
+          if (j > int64_t(ww)) {  // past the row's end: on from column 0
+            j -= int64_t(ww);
+            Load(P, &q0);
+          }
+          Load(P + 3 * j, &q1);
+          if (t >= w) {
+            v += (kw - k_prev) * (q1 - q0);
+            break;
+          }
+          const double k_next = t * (dz + t * (a2 + t * a3));
+          v += (k_next - k_prev) * (q1 - q0);
+          k_prev = k_next;
+          q0 = q1;
+        }
+      }
+      acc[piece->up] += v;
+      acc[piece->down] -= v;
     }
-    prev = first;
-    uint64_t k = 0;
-    for (; k + 1 < count && start[k + 1] + shift < wwd; ++k) {
-      eval(start[k + 1] + shift, zero, &next);
-      acc[texel[k]] += b.weight * (next - prev);
-      prev = next;
-    }
-    for (; k + 1 < count; ++k) {
-      eval(start[k + 1] + shift - wwd, total, &next);
-      acc[texel[k]] += b.weight * (next - prev);
-      prev = next;
-    }
-    acc[texel[count - 1]] += b.weight * (first + total - prev);
+  }
+  for (const SeamTerm& s : seam_) {
+    Vec4 total;
+    Load(prefix_.get() + s.row * stride + ww * 3, &total);
+    acc[s.texel] += s.weight * total;
   }
   for (const EmptyTexel& e : empty_) {
     double x = e.column + shift;
