@@ -103,7 +103,7 @@ TEST(Version, RefusesNewerMajorNamingBothVersions) {
   Status s = OpenStatus(path);
   EXPECT_EQ(s.code(), StatusCode::kUnimplemented);
   EXPECT_NE(s.message().find("format 2.3"), std::string::npos) << s.message();
-  EXPECT_NE(s.message().find("reads up to 1.1"), std::string::npos) << s.message();  // 1.1: sparse chunks
+  EXPECT_NE(s.message().find("reads up to 1.2"), std::string::npos) << s.message();  // 1.2: coded chunks
   EXPECT_NE(s.message().find("upgrade ltbake"), std::string::npos) << s.message();
 }
 
@@ -134,24 +134,25 @@ TEST(Version, MinorIsInformationalEncodingsAreCheckedPerChunk) {
 }
 
 TEST(Version, RefusesUnknownEncodingAsNewer) {
-  // What a 1.0 reader does with a sparse chunk, this build does with encoding 5: the file
-  // opens, that chunk is refused (reported, never read as data), the others read.
+  // What a 1.0 reader does with a sparse chunk (and a 1.1 reader with a coded one), this
+  // build does with encoding 6: the file opens, that chunk is refused (reported, never
+  // read as data), the others read.
   test::TempDir dir;
   Bytes b = Header(1, 9);
-  AppendFrame(b, 1, 0, 0, 5, 0, {0x01, 0x02, 0x03}, 16);
+  AppendFrame(b, 1, 0, 0, 6, 0, {0x01, 0x02, 0x03}, 16);
   AppendFrame(b, 1, 0, 0, 0, 1, RawChunk(5), 16);
   auto path = WriteFile(dir, b);
   auto r = io::ContainerReader::Open(path);
   ASSERT_TRUE(r.ok()) << r.status().message();
   EXPECT_EQ(r->committed(0), 1u);
   ASSERT_EQ(r->problems().size(), 1u);
-  EXPECT_NE(r->problems()[0].find("unknown chunk encoding 5 (written by a newer ltbake?)"), std::string::npos)
+  EXPECT_NE(r->problems()[0].find("unknown chunk encoding 6 (written by a newer ltbake?)"), std::string::npos)
       << r->problems()[0];
   EXPECT_EQ(r->ReadChunk(0, 0).status().code(), StatusCode::kNotFound);
   EXPECT_TRUE(r->ReadChunk(0, 1).ok());
   auto v = io::VerifyContainer(path);
   ASSERT_FALSE(v.problems.empty());
-  EXPECT_NE(v.problems[0].find("unknown chunk encoding 5"), std::string::npos) << v.problems[0];
+  EXPECT_NE(v.problems[0].find("unknown chunk encoding 6"), std::string::npos) << v.problems[0];
 }
 
 TEST(Version, RefusesUnknownRequiredFeature) {
