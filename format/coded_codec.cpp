@@ -222,87 +222,10 @@ class CodedLines {
   // is null, and each decoded nonzero value v at position p is stored at out[p] (when out
   // is not null; the other positions of out are not written).
   Status Line(const std::byte* in, std::byte* out) {
-    // The buffers of line t−2 become line t's; clear what that line set.
-    std::swap(cur_, prev_);
-    Clear(cur_);
-    uint8_t* const cur = state_[cur_].data();
-    const uint8_t* const prev = state_[prev_].data();
-    uint8_t* const bcur = block_[cur_].data();
-    const uint8_t* const bprev = block_[prev_].data();
-    CodedContexts& m = *contexts_;
-
-    unsigned want = 0;
-    if constexpr (Coder::kEncode) want = AnyNonzero(in, 0, length_);
-    if (coder_->Bit(m.line[flag_[prev_]], want) == 0) return Status::Ok();
-    flag_[cur_] = 1;
-    bool any_block = false;
-    for (uint64_t by = 0; by < blocks_y_; ++by) {
-      const uint64_t y0 = by << kBlockShift, y1 = std::min(y0 + kBlockSide, height_);
-      for (uint64_t bx = 0; bx < blocks_x_; ++bx) {
-        const uint64_t x0 = bx << kBlockShift, x1 = std::min(x0 + kBlockSide, width_);
-        if (y0 * width_ + x0 >= length_) break;  // this block and the rest of the row are past the line's end
-        const uint64_t b = by * blocks_x_ + bx;
-        const unsigned left = bx > 0 ? bcur[b - 1] : 0, up = by > 0 ? bcur[b - blocks_x_] : 0;
-        const unsigned level = std::min<unsigned>(std::bit_width(std::max(bx, by)), kBlockLevels - 1);
-        if constexpr (Coder::kEncode) want = BlockNonzero(in, x0, x1, y0, y1);
-        if (coder_->Bit(m.block[level][bprev[b]][left + up], want) == 0) continue;
-        bcur[b] = 1;
-        any_block = true;
-        bool any_position = false;
-        for (uint64_t y = y0; y < y1; ++y) {
-          const uint64_t row = y * width_;
-          if (row + x0 >= length_) break;
-          const uint64_t xe = std::min(x1, length_ - row);
-          for (uint64_t x = x0; x < xe; ++x) {
-            const uint64_t p = row + x;
-            const uint8_t sl = x > 0 ? cur[p - 1] : 0;
-            const uint8_t su = y > 0 ? cur[p - width_] : 0;
-            const uint8_t sul = x > 0 && y > 0 ? cur[p - width_ - 1] : 0;
-            const unsigned near = std::min<unsigned>((sl != 0) + (su != 0) + (sul != 0), 2);
-            const unsigned parent = cur[(y >> 1) * width_ + (x >> 1)] != 0;
-            const unsigned pm = StateMagnitude(prev[p]);
-            const unsigned level = std::min<unsigned>(std::bit_width(std::max(x, y)), kSigLevels - 1);
-            int32_t v = 0;
-            if constexpr (Coder::kEncode) {
-              v = LoadI32(in + 4 * p);
-              want = v != 0;
-            }
-            if (coder_->Bit(m.sig[level][near][parent][std::min(pm, 2u)], want) == 0) continue;
-            any_position = true;
-            // Magnitude: |v| = 2^k + suffix, k in unary (contexts by level and the
-            // neighbourhood), then the k suffix bits from the top (contexts by k and bit).
-            const unsigned bucket = MagnitudeBucket(StateMagnitude(sl) + StateMagnitude(su) + 2 * pm);
-            BitModel* prefix = m.prefix[std::min(level, kMagLevels - 1)][bucket];
-            const uint32_t a = AbsoluteValue(v);
-            const unsigned k_want = Coder::kEncode ? static_cast<unsigned>(std::bit_width(a)) - 1 : 0;
-            unsigned k = 0;
-            while (k < kMaxExponent &&
-                   coder_->Bit(prefix[std::min(k, kPrefixContexts - 1)], k_want > k ? 1u : 0u) != 0) {
-              ++k;
-            }
-            uint64_t mag = 1;
-            for (unsigned i = 0; i < k; ++i) {
-              mag = (mag << 1) | coder_->Bit(m.suffix[k][i], (a >> (k - 1 - i)) & 1u);
-            }
-            const unsigned negative = coder_->Bit(m.sign[StateSign(prev[p])][StateSign(sl)], v < 0 ? 1u : 0u);
-            if (mag > (uint64_t{1} << 31) || (mag == (uint64_t{1} << 31) && negative == 0)) {
-              return DataLoss("coded payload: a value at position " + std::to_string(p) + " does not fit i32");
-            }
-            cur[p] = static_cast<uint8_t>(std::min<uint64_t>(mag, 127) | (negative ? kNegativeBit : 0));
-            if (out != nullptr) {
-              const int32_t value =
-                  negative ? static_cast<int32_t>(0u - static_cast<uint32_t>(mag)) : static_cast<int32_t>(mag);
-              std::memcpy(out + 4 * p, &value, sizeof value);
-            }
-          }
-        }
-        if (!any_position) {
-          return DataLoss("coded payload: a block flagged nonzero holds no nonzero value (damaged)");
-        }
-      }
-    }
-    if (!any_block) return DataLoss("coded payload: a line flagged nonzero holds no nonzero block (damaged)");
-    return Status::Ok();
+    Coder coder = *coder_;  // a local copy, which the stores to the line buffers cannot alias
+    Status s = CodeLine(coder, in, out);
+    *coder_ = coder;
+    return s;
   }
 
   // Calls f(p) for the nonzero positions of the line just coded, in increasing order.
@@ -325,6 +248,89 @@ class CodedLines {
   }
 
  private:
+  Status CodeLine(Coder& coder, const std::byte* in, std::byte* out) {
+    // The buffers of line t−2 become line t's; clear what that line set.
+    std::swap(cur_, prev_);
+    Clear(cur_);
+    uint8_t* const cur = state_[cur_].data();
+    const uint8_t* const prev = state_[prev_].data();
+    uint8_t* const bcur = block_[cur_].data();
+    const uint8_t* const bprev = block_[prev_].data();
+    CodedContexts& m = *contexts_;
+
+    unsigned want = 0;
+    if constexpr (Coder::kEncode) want = AnyNonzero(in, 0, length_);
+    if (coder.Bit(m.line[flag_[prev_]], want) == 0) return Status::Ok();
+    flag_[cur_] = 1;
+    bool any_block = false;
+    for (uint64_t by = 0; by < blocks_y_; ++by) {
+      const uint64_t y0 = by << kBlockShift, y1 = std::min(y0 + kBlockSide, height_);
+      for (uint64_t bx = 0; bx < blocks_x_; ++bx) {
+        const uint64_t x0 = bx << kBlockShift, x1 = std::min(x0 + kBlockSide, width_);
+        if (y0 * width_ + x0 >= length_) break;  // this block and the rest of the row are past the line's end
+        const uint64_t b = by * blocks_x_ + bx;
+        const unsigned left = bx > 0 ? bcur[b - 1] : 0, up = by > 0 ? bcur[b - blocks_x_] : 0;
+        const unsigned level = std::min<unsigned>(std::bit_width(std::max(bx, by)), kBlockLevels - 1);
+        if constexpr (Coder::kEncode) want = BlockNonzero(in, x0, x1, y0, y1);
+        if (coder.Bit(m.block[level][bprev[b]][left + up], want) == 0) continue;
+        bcur[b] = 1;
+        any_block = true;
+        bool any_position = false;
+        for (uint64_t y = y0; y < y1; ++y) {
+          const uint64_t row = y * width_;
+          if (row + x0 >= length_) break;
+          const uint64_t xe = std::min(x1, length_ - row);
+          for (uint64_t x = x0; x < xe; ++x) {
+            const uint64_t p = row + x;
+            const uint8_t sl = x > 0 ? cur[p - 1] : 0;
+            const uint8_t su = y > 0 ? cur[p - width_] : 0;
+            const uint8_t sul = x > 0 && y > 0 ? cur[p - width_ - 1] : 0;
+            const unsigned near = std::min<unsigned>((sl != 0) + (su != 0) + (sul != 0), 2);
+            const unsigned parent = cur[(y >> 1) * width_ + (x >> 1)] != 0;
+            const unsigned pm = StateMagnitude(prev[p]);
+            const unsigned level = std::min<unsigned>(std::bit_width(std::max(x, y)), kSigLevels - 1);
+            int32_t v = 0;
+            if constexpr (Coder::kEncode) {
+              v = LoadI32(in + 4 * p);
+              want = v != 0;
+            }
+            if (coder.Bit(m.sig[level][near][parent][std::min(pm, 2u)], want) == 0) continue;
+            any_position = true;
+            // Magnitude: |v| = 2^k + suffix, k in unary (contexts by level and the
+            // neighbourhood), then the k suffix bits from the top (contexts by k and bit).
+            const unsigned bucket = MagnitudeBucket(StateMagnitude(sl) + StateMagnitude(su) + 2 * pm);
+            BitModel* prefix = m.prefix[std::min(level, kMagLevels - 1)][bucket];
+            const uint32_t a = AbsoluteValue(v);
+            const unsigned k_want = Coder::kEncode ? static_cast<unsigned>(std::bit_width(a)) - 1 : 0;
+            unsigned k = 0;
+            while (k < kMaxExponent && coder.Bit(prefix[std::min(k, kPrefixContexts - 1)], k_want > k ? 1u : 0u) != 0) {
+              ++k;
+            }
+            uint64_t mag = 1;
+            for (unsigned i = 0; i < k; ++i) {
+              mag = (mag << 1) | coder.Bit(m.suffix[k][i], (a >> (k - 1 - i)) & 1u);
+            }
+            const unsigned negative = coder.Bit(m.sign[StateSign(prev[p])][StateSign(sl)], v < 0 ? 1u : 0u);
+            if (mag > (uint64_t{1} << 31) || (mag == (uint64_t{1} << 31) && negative == 0)) {
+              return DataLoss("coded payload: a value at position " + std::to_string(p) + " does not fit i32");
+            }
+            cur[p] = static_cast<uint8_t>(std::min<uint64_t>(mag, 127) | (negative ? kNegativeBit : 0));
+            if (out != nullptr) {
+              const int32_t value =
+                  negative ? static_cast<int32_t>(0u - static_cast<uint32_t>(mag)) : static_cast<int32_t>(mag);
+              std::memcpy(out + 4 * p, &value, sizeof value);
+            }
+          }
+        }
+        if (!any_position) {
+          return DataLoss("coded payload: a block flagged nonzero holds no nonzero value (damaged)");
+        }
+      }
+    }
+    if (!any_block) return DataLoss("coded payload: a line flagged nonzero holds no nonzero block (damaged)");
+    return Status::Ok();
+  }
+
   static unsigned AnyNonzero(const std::byte* in, uint64_t begin, uint64_t end) {
     for (uint64_t p = begin; p < end; ++p)
       if (LoadI32(in + 4 * p) != 0) return 1;
@@ -478,19 +484,21 @@ Status DecodeCodedPayload(ByteSpan payload, uint64_t line_length, uint64_t eleme
   out->index.clear();
   out->values.clear();
   Status s = CheckCodedShape(line_length, elements);
-  std::vector<std::byte> line;  // one line of values, written where nonzero
   if (s.ok()) {
-    line.resize(4 * line_length);
+    std::vector<int32_t> line(line_length);  // one line of values, written where nonzero
+    std::vector<int32_t> values;             // grows with what is decoded, never from a claim
     s = DecodeCodedLines(
-        payload, line_length, elements, [&](uint64_t) { return line.data(); },
+        payload, line_length, elements, [&](uint64_t) { return reinterpret_cast<std::byte*>(line.data()); },
         [&](uint64_t t, const auto& lines) {
           lines.ForEachNonzero([&](uint64_t p) {
             out->index.push_back(static_cast<uint32_t>(t * line_length + p));
-            const size_t at = out->values.size();
-            out->values.resize(at + 4);
-            std::memcpy(out->values.data() + at, line.data() + 4 * p, 4);
+            values.push_back(line[p]);
           });
         });
+    if (s.ok()) {
+      out->values.resize(values.size() * 4);
+      if (!values.empty()) std::memcpy(out->values.data(), values.data(), out->values.size());
+    }
   }
   if (!s.ok()) {
     out->index.clear();
