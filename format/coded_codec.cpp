@@ -157,6 +157,8 @@ class CodedBitReader {
 
 constexpr unsigned kBlockShift = 3;  // blocks of 8 × 8 positions
 constexpr uint64_t kBlockSide = uint64_t{1} << kBlockShift;
+constexpr unsigned kQuadShift = 2;  // each made of 2 × 2 quads of 4 × 4 positions
+constexpr uint64_t kQuadSide = uint64_t{1} << kQuadShift;
 constexpr unsigned kBlockLevels = 8;
 constexpr unsigned kSigLevels = 10;
 constexpr unsigned kMagLevels = 7;
@@ -167,6 +169,7 @@ constexpr unsigned kMaxExponent = 31;  // |v| <= 2^31
 struct CodedContexts {
   BitModel line[2];
   BitModel block[kBlockLevels][2][3];
+  BitModel quad[kBlockLevels][2][3];
   BitModel sig[kSigLevels][3][2][3];
   BitModel prefix[kMagLevels][kMagBuckets][kPrefixContexts];
   BitModel suffix[kMaxExponent + 1][kMaxExponent];
@@ -211,10 +214,13 @@ class CodedLines {
         height_((line_length + width - 1) / width),
         blocks_x_((width + kBlockSide - 1) >> kBlockShift),
         blocks_y_((height_ + kBlockSide - 1) >> kBlockShift),
+        quads_x_((width + kQuadSide - 1) >> kQuadShift),
+        quads_y_((height_ + kQuadSide - 1) >> kQuadShift),
         contexts_(std::make_unique<CodedContexts>()) {
     for (int i = 0; i < 2; ++i) {
       state_[i].assign(length_, 0);
       block_[i].assign(blocks_x_ * blocks_y_, 0);
+      quad_[i].assign(quads_x_ * quads_y_, 0);
     }
   }
 
@@ -233,14 +239,14 @@ class CodedLines {
   void ForEachNonzero(F&& f) const {
     if (flag_[cur_] == 0) return;
     const uint8_t* const cur = state_[cur_].data();
-    const uint8_t* const bcur = block_[cur_].data();
+    const uint8_t* const qcur = quad_[cur_].data();
     for (uint64_t y = 0; y < height_; ++y) {
-      const uint64_t by = y >> kBlockShift, row = y * width_;
-      for (uint64_t bx = 0; bx < blocks_x_; ++bx) {
-        if (bcur[by * blocks_x_ + bx] == 0) continue;
-        const uint64_t x0 = bx << kBlockShift;
+      const uint64_t qy = y >> kQuadShift, row = y * width_;
+      for (uint64_t qx = 0; qx < quads_x_; ++qx) {
+        if (qcur[qy * quads_x_ + qx] == 0) continue;
+        const uint64_t x0 = qx << kQuadShift;
         if (row + x0 >= length_) break;
-        const uint64_t xe = std::min({x0 + kBlockSide, width_, length_ - row});
+        const uint64_t xe = std::min({x0 + kQuadSide, width_, length_ - row});
         for (uint64_t x = x0; x < xe; ++x)
           if (cur[row + x] != 0) f(row + x);
       }
@@ -256,6 +262,8 @@ class CodedLines {
     const uint8_t* const prev = state_[prev_].data();
     uint8_t* const bcur = block_[cur_].data();
     const uint8_t* const bprev = block_[prev_].data();
+    uint8_t* const qcur = quad_[cur_].data();
+    const uint8_t* const qprev = quad_[prev_].data();
     CodedContexts& m = *contexts_;
 
     unsigned want = 0;
@@ -275,59 +283,86 @@ class CodedLines {
         if (coder.Bit(m.block[level][bprev[b]][left + up], want) == 0) continue;
         bcur[b] = 1;
         any_block = true;
-        bool any_position = false;
-        for (uint64_t y = y0; y < y1; ++y) {
-          const uint64_t row = y * width_;
-          if (row + x0 >= length_) break;
-          const uint64_t xe = std::min(x1, length_ - row);
-          for (uint64_t x = x0; x < xe; ++x) {
-            const uint64_t p = row + x;
-            const uint8_t sl = x > 0 ? cur[p - 1] : 0;
-            const uint8_t su = y > 0 ? cur[p - width_] : 0;
-            const uint8_t sul = x > 0 && y > 0 ? cur[p - width_ - 1] : 0;
-            const unsigned near = std::min<unsigned>((sl != 0) + (su != 0) + (sul != 0), 2);
-            const unsigned parent = cur[(y >> 1) * width_ + (x >> 1)] != 0;
-            const unsigned pm = StateMagnitude(prev[p]);
-            const unsigned level = std::min<unsigned>(std::bit_width(std::max(x, y)), kSigLevels - 1);
-            int32_t v = 0;
-            if constexpr (Coder::kEncode) {
-              v = LoadI32(in + 4 * p);
-              want = v != 0;
-            }
-            if (coder.Bit(m.sig[level][near][parent][std::min(pm, 2u)], want) == 0) continue;
-            any_position = true;
-            // Magnitude: |v| = 2^k + suffix, k in unary (contexts by level and the
-            // neighbourhood), then the k suffix bits from the top (contexts by k and bit).
-            const unsigned bucket = MagnitudeBucket(StateMagnitude(sl) + StateMagnitude(su) + 2 * pm);
-            BitModel* prefix = m.prefix[std::min(level, kMagLevels - 1)][bucket];
-            const uint32_t a = AbsoluteValue(v);
-            const unsigned k_want = Coder::kEncode ? static_cast<unsigned>(std::bit_width(a)) - 1 : 0;
-            unsigned k = 0;
-            while (k < kMaxExponent && coder.Bit(prefix[std::min(k, kPrefixContexts - 1)], k_want > k ? 1u : 0u) != 0) {
-              ++k;
-            }
-            uint64_t mag = 1;
-            for (unsigned i = 0; i < k; ++i) {
-              mag = (mag << 1) | coder.Bit(m.suffix[k][i], (a >> (k - 1 - i)) & 1u);
-            }
-            const unsigned negative = coder.Bit(m.sign[StateSign(prev[p])][StateSign(sl)], v < 0 ? 1u : 0u);
-            if (mag > (uint64_t{1} << 31) || (mag == (uint64_t{1} << 31) && negative == 0)) {
-              return DataLoss("coded payload: a value at position " + std::to_string(p) + " does not fit i32");
-            }
-            cur[p] = static_cast<uint8_t>(std::min<uint64_t>(mag, 127) | (negative ? kNegativeBit : 0));
-            if (out != nullptr) {
-              const int32_t value =
-                  negative ? static_cast<int32_t>(0u - static_cast<uint32_t>(mag)) : static_cast<int32_t>(mag);
-              std::memcpy(out + 4 * p, &value, sizeof value);
-            }
+        bool any_quad = false;
+        for (uint64_t qy = y0 >> kQuadShift; qy < (y1 + kQuadSide - 1) >> kQuadShift; ++qy) {
+          const uint64_t qy0 = qy << kQuadShift, qy1 = std::min(qy0 + kQuadSide, y1);
+          for (uint64_t qx = x0 >> kQuadShift; qx < (x1 + kQuadSide - 1) >> kQuadShift; ++qx) {
+            const uint64_t qx0 = qx << kQuadShift, qx1 = std::min(qx0 + kQuadSide, x1);
+            if (qy0 * width_ + qx0 >= length_) break;  // past the line's end
+            const uint64_t q = qy * quads_x_ + qx;
+            const unsigned qleft = qx > 0 ? qcur[q - 1] : 0, qup = qy > 0 ? qcur[q - quads_x_] : 0;
+            const unsigned qlevel = std::min<unsigned>(std::bit_width(std::max(qx, qy)), kBlockLevels - 1);
+            if constexpr (Coder::kEncode) want = BlockNonzero(in, qx0, qx1, qy0, qy1);
+            if (coder.Bit(m.quad[qlevel][qprev[q]][qleft + qup], want) == 0) continue;
+            qcur[q] = 1;
+            any_quad = true;
+            LTB_RETURN_IF_ERROR(CodeQuad(coder, in, out, qx0, qx1, qy0, qy1));
           }
         }
-        if (!any_position) {
-          return DataLoss("coded payload: a block flagged nonzero holds no nonzero value (damaged)");
+        if (!any_quad) {
+          return DataLoss("coded payload: a block flagged nonzero holds no nonzero quad (damaged)");
         }
       }
     }
     if (!any_block) return DataLoss("coded payload: a line flagged nonzero holds no nonzero block (damaged)");
+    return Status::Ok();
+  }
+
+  // The positions of one quad flagged nonzero, row by row.
+  Status CodeQuad(Coder& coder, const std::byte* in, std::byte* out, uint64_t x0, uint64_t x1, uint64_t y0,
+                  uint64_t y1) {
+    uint8_t* const cur = state_[cur_].data();
+    const uint8_t* const prev = state_[prev_].data();
+    CodedContexts& m = *contexts_;
+    unsigned want = 0;
+    bool any_position = false;
+    for (uint64_t y = y0; y < y1; ++y) {
+      const uint64_t row = y * width_;
+      if (row + x0 >= length_) break;
+      const uint64_t xe = std::min(x1, length_ - row);
+      for (uint64_t x = x0; x < xe; ++x) {
+        const uint64_t p = row + x;
+        const uint8_t sl = x > 0 ? cur[p - 1] : 0;
+        const uint8_t su = y > 0 ? cur[p - width_] : 0;
+        const uint8_t sul = x > 0 && y > 0 ? cur[p - width_ - 1] : 0;
+        const unsigned near = std::min<unsigned>((sl != 0) + (su != 0) + (sul != 0), 2);
+        const unsigned parent = cur[(y >> 1) * width_ + (x >> 1)] != 0;
+        const unsigned pm = StateMagnitude(prev[p]);
+        const unsigned level = std::min<unsigned>(std::bit_width(std::max(x, y)), kSigLevels - 1);
+        int32_t v = 0;
+        if constexpr (Coder::kEncode) {
+          v = LoadI32(in + 4 * p);
+          want = v != 0;
+        }
+        if (coder.Bit(m.sig[level][near][parent][std::min(pm, 2u)], want) == 0) continue;
+        any_position = true;
+        // Magnitude: |v| = 2^k + suffix, k in unary (contexts by level and the
+        // neighbourhood), then the k suffix bits from the top (contexts by k and bit).
+        const unsigned bucket = MagnitudeBucket(StateMagnitude(sl) + StateMagnitude(su) + 2 * pm);
+        BitModel* prefix = m.prefix[std::min(level, kMagLevels - 1)][bucket];
+        const uint32_t a = AbsoluteValue(v);
+        const unsigned k_want = Coder::kEncode ? static_cast<unsigned>(std::bit_width(a)) - 1 : 0;
+        unsigned k = 0;
+        while (k < kMaxExponent && coder.Bit(prefix[std::min(k, kPrefixContexts - 1)], k_want > k ? 1u : 0u) != 0) {
+          ++k;
+        }
+        uint64_t mag = 1;
+        for (unsigned i = 0; i < k; ++i) {
+          mag = (mag << 1) | coder.Bit(m.suffix[k][i], (a >> (k - 1 - i)) & 1u);
+        }
+        const unsigned negative = coder.Bit(m.sign[StateSign(prev[p])][StateSign(sl)], v < 0 ? 1u : 0u);
+        if (mag > (uint64_t{1} << 31) || (mag == (uint64_t{1} << 31) && negative == 0)) {
+          return DataLoss("coded payload: a value at position " + std::to_string(p) + " does not fit i32");
+        }
+        cur[p] = static_cast<uint8_t>(std::min<uint64_t>(mag, 127) | (negative ? kNegativeBit : 0));
+        if (out != nullptr) {
+          const int32_t value =
+              negative ? static_cast<int32_t>(0u - static_cast<uint32_t>(mag)) : static_cast<int32_t>(mag);
+          std::memcpy(out + 4 * p, &value, sizeof value);
+        }
+      }
+    }
+    if (!any_position) return DataLoss("coded payload: a quad flagged nonzero holds no nonzero value (damaged)");
     return Status::Ok();
   }
 
@@ -362,14 +397,16 @@ class CodedLines {
       }
     }
     std::memset(blocks, 0, block_[i].size());
+    std::memset(quad_[i].data(), 0, quad_[i].size());
     flag_[i] = 0;
   }
 
   Coder* coder_;
-  const uint64_t length_, width_, height_, blocks_x_, blocks_y_;
+  const uint64_t length_, width_, height_, blocks_x_, blocks_y_, quads_x_, quads_y_;
   std::unique_ptr<CodedContexts> contexts_;
   std::vector<uint8_t> state_[2];  // per position of a line: see StateMagnitude
   std::vector<uint8_t> block_[2];  // per block: 1 when it holds a nonzero
+  std::vector<uint8_t> quad_[2];   // per quad: 1 when it holds a nonzero
   uint8_t flag_[2] = {0, 0};       // per buffer: its line holds a nonzero
   int cur_ = 1, prev_ = 0;         // swapped at the start of every line
 };
