@@ -9,8 +9,8 @@
 //   OUT/ltm/   containers written by ltbake's own writer where the stages would need large
 //              inputs: payloads written with O_DIRECT behind padding frames (the stages do
 //              that only for chunks of 64 KiB and more; here from 4 KiB), sealed and not;
-//              every dtype in every encoding (raw, zero, zstd, sparse, sparse-zstd, and
-//              sparse-coded for i32, also on wavelet-like columns); files
+//              every dtype in every encoding (raw, zero, zstd, sparse, sparse-zstd), and
+//              sparse-coded wavelet-like i32 columns; files
 //              of a writer stopped after every few mutations (torn and unsealed).
 // usage: ltb_fuzz_seeds OUT MESH.obj
 #include <ImfChannelList.h>
@@ -303,7 +303,7 @@ std::vector<std::byte> TestChunk(ltb::format::DType dt, uint64_t elements, uint6
 // Writes a container with the writer; `stop` < UINT64_MAX stops it after that many file
 // mutations (as a writer killed there), `seal` false leaves it unsealed.
 void WriteLtm(const std::string& path, const nlohmann::json& meta, const ltb::io::WriterOptions& wo, bool seal,
-              bool sparse_data, bool zstd, bool coded = false) {
+              bool sparse_data, bool zstd) {
   std::filesystem::remove(path);
   auto w = ltb::io::ContainerWriter::Open(path, meta, wo);
   if (!w.ok()) return Fail(path + ": " + w.status().ToString());
@@ -315,8 +315,6 @@ void WriteLtm(const std::string& path, const nlohmann::json& meta, const ltb::io
       eo.zstd = zstd;
       eo.sparse = true;
       eo.dtype = spec.dtype;
-      eo.coded = coded;  // i32 arrays only; lines 4 wide
-      eo.coded_width = 4;
       const bool zero = sparse_data && c == 1;  // one all-zero chunk per array
       std::vector<std::byte> data = TestChunk(spec.dtype, spec.Extent(c).Elements(), c + a, sparse_data);
       if (zero) std::fill(data.begin(), data.end(), std::byte{0});
@@ -371,7 +369,6 @@ void LtmSeeds(const std::string& dir) {
   WriteLtm(dir + "/dtypes-sparse.ltm", all, plain, true, true, false);
   WriteLtm(dir + "/dtypes-sparse-zstd.ltm", all, plain, true, true, true);
   WriteLtm(dir + "/dtypes-dense-zstd.ltm", all, plain, true, false, true);
-  WriteLtm(dir + "/dtypes-coded.ltm", all, plain, true, true, true, true);
   CodedColumnsSeed(dir + "/coded-columns.ltm");
   for (uint64_t stop : {2, 5, 9, 14, 20}) {
     ltb::io::WriterOptions torn;
