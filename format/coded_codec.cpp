@@ -164,7 +164,8 @@ constexpr unsigned kSigLevels = 10;
 constexpr unsigned kMagLevels = 7;
 constexpr unsigned kMagBuckets = 9;
 constexpr unsigned kPrefixContexts = 16;
-constexpr unsigned kMaxExponent = 31;  // |v| <= 2^31
+constexpr unsigned kMaxExponent = 31;                               // |v| <= 2^31
+constexpr uint64_t kSigLevelEnd = uint64_t{1} << (kSigLevels - 1);  // bw of this and above: kSigLevels − 1
 
 struct CodedContexts {
   BitModel line[2];
@@ -217,6 +218,9 @@ class CodedLines {
         quads_x_((width + kQuadSide - 1) >> kQuadShift),
         quads_y_((height_ + kQuadSide - 1) >> kQuadShift),
         contexts_(std::make_unique<CodedContexts>()) {
+    for (uint64_t v = 0; v <= kSigLevelEnd; ++v) {
+      sig_level_[v] = static_cast<uint8_t>(std::min<unsigned>(std::bit_width(v), kSigLevels - 1));
+    }
     for (int i = 0; i < 2; ++i) {
       state_[i].assign(length_, 0);
       block_[i].assign(blocks_x_ * blocks_y_, 0);
@@ -234,22 +238,35 @@ class CodedLines {
     return s;
   }
 
-  // Calls f(p) for the nonzero positions of the line just coded, in increasing order.
+  // Calls f(p) for the nonzero positions of the line just coded, in increasing order: row
+  // by row through the nonzero blocks of each block row, and their nonzero quads.
   template <typename F>
   void ForEachNonzero(F&& f) const {
     if (flag_[cur_] == 0) return;
     const uint8_t* const cur = state_[cur_].data();
     const uint8_t* const qcur = quad_[cur_].data();
-    for (uint64_t y = 0; y < height_; ++y) {
-      const uint64_t qy = y >> kQuadShift, row = y * width_;
-      for (uint64_t qx = 0; qx < quads_x_; ++qx) {
-        if (qcur[qy * quads_x_ + qx] == 0) continue;
-        const uint64_t x0 = qx << kQuadShift;
-        if (row + x0 >= length_) break;
-        const uint64_t xe = std::min({x0 + kQuadSide, width_, length_ - row});
-        for (uint64_t x = x0; x < xe; ++x)
-          if (cur[row + x] != 0) f(row + x);
+    const std::vector<uint64_t>& blocks = nonzero_blocks_;
+    for (size_t first = 0; first < blocks.size();) {
+      const uint64_t by = blocks[first] / blocks_x_;
+      size_t end = first;
+      while (end < blocks.size() && blocks[end] / blocks_x_ == by) ++end;
+      const uint64_t y1 = std::min((by + 1) << kBlockShift, height_);
+      for (uint64_t y = by << kBlockShift; y < y1; ++y) {
+        const uint64_t row = y * width_, qrow = (y >> kQuadShift) * quads_x_;
+        if (row >= length_) return;
+        for (size_t i = first; i < end; ++i) {
+          const uint64_t qx0 = (blocks[i] % blocks_x_) << (kBlockShift - kQuadShift);
+          for (uint64_t qx = qx0; qx < std::min(qx0 + 2, quads_x_); ++qx) {
+            if (qcur[qrow + qx] == 0) continue;
+            const uint64_t x0 = qx << kQuadShift;
+            if (row + x0 >= length_) break;
+            const uint64_t xe = std::min({x0 + kQuadSide, width_, length_ - row});
+            for (uint64_t x = x0; x < xe; ++x)
+              if (cur[row + x] != 0) f(row + x);
+          }
+        }
       }
+      first = end;
     }
   }
 
@@ -258,6 +275,7 @@ class CodedLines {
     // The buffers of line t−2 become line t's; clear what that line set.
     std::swap(cur_, prev_);
     Clear(cur_);
+    nonzero_blocks_.clear();
     uint8_t* const cur = state_[cur_].data();
     const uint8_t* const prev = state_[prev_].data();
     uint8_t* const bcur = block_[cur_].data();
@@ -282,6 +300,7 @@ class CodedLines {
         if constexpr (Coder::kEncode) want = BlockNonzero(in, x0, x1, y0, y1);
         if (coder.Bit(m.block[level][bprev[b]][left + up], want) == 0) continue;
         bcur[b] = 1;
+        nonzero_blocks_.push_back(b);
         any_block = true;
         bool any_quad = false;
         for (uint64_t qy = y0 >> kQuadShift; qy < (y1 + kQuadSide - 1) >> kQuadShift; ++qy) {
@@ -320,15 +339,18 @@ class CodedLines {
       const uint64_t row = y * width_;
       if (row + x0 >= length_) break;
       const uint64_t xe = std::min(x1, length_ - row);
+      const uint8_t* const parents = cur + (y >> 1) * width_;
+      const unsigned level_y = sig_level_[std::min<uint64_t>(y, kSigLevelEnd)];
       for (uint64_t x = x0; x < xe; ++x) {
         const uint64_t p = row + x;
         const uint8_t sl = x > 0 ? cur[p - 1] : 0;
         const uint8_t su = y > 0 ? cur[p - width_] : 0;
         const uint8_t sul = x > 0 && y > 0 ? cur[p - width_ - 1] : 0;
         const unsigned near = std::min<unsigned>((sl != 0) + (su != 0) + (sul != 0), 2);
-        const unsigned parent = cur[(y >> 1) * width_ + (x >> 1)] != 0;
+        const unsigned parent = parents[x >> 1] != 0;
         const unsigned pm = StateMagnitude(prev[p]);
-        const unsigned level = std::min<unsigned>(std::bit_width(std::max(x, y)), kSigLevels - 1);
+        // min(bw(max(x, y)), 9) = max of the two clipped bit widths
+        const unsigned level = std::max<unsigned>(sig_level_[std::min<uint64_t>(x, kSigLevelEnd)], level_y);
         int32_t v = 0;
         if constexpr (Coder::kEncode) {
           v = LoadI32(in + 4 * p);
@@ -404,11 +426,13 @@ class CodedLines {
   Coder* coder_;
   const uint64_t length_, width_, height_, blocks_x_, blocks_y_, quads_x_, quads_y_;
   std::unique_ptr<CodedContexts> contexts_;
-  std::vector<uint8_t> state_[2];  // per position of a line: see StateMagnitude
-  std::vector<uint8_t> block_[2];  // per block: 1 when it holds a nonzero
-  std::vector<uint8_t> quad_[2];   // per quad: 1 when it holds a nonzero
-  uint8_t flag_[2] = {0, 0};       // per buffer: its line holds a nonzero
-  int cur_ = 1, prev_ = 0;         // swapped at the start of every line
+  std::vector<uint8_t> state_[2];         // per position of a line: see StateMagnitude
+  std::vector<uint8_t> block_[2];         // per block: 1 when it holds a nonzero
+  std::vector<uint8_t> quad_[2];          // per quad: 1 when it holds a nonzero
+  std::vector<uint64_t> nonzero_blocks_;  // of the current line, in coding order
+  uint8_t sig_level_[kSigLevelEnd + 1];   // min(bw(v), kSigLevels − 1)
+  uint8_t flag_[2] = {0, 0};              // per buffer: its line holds a nonzero
+  int cur_ = 1, prev_ = 0;                // swapped at the start of every line
 };
 
 void PutCodedVarint(std::vector<std::byte>& out, uint64_t v) {
