@@ -26,18 +26,19 @@ json ChunkCounts(const io::ContainerReader& reader, uint32_t i) {
   json chunks = {{"expected", expected},
                  {"committed", reader.committed(i)},
                  {"missing", expected - std::min(expected, reader.committed(i))}};
-  uint64_t by_enc[5] = {0, 0, 0, 0, 0}, stored = 0;
+  uint64_t by_enc[6] = {0, 0, 0, 0, 0, 0}, stored = 0;
   for (const auto& e : reader.chunk_frames()) {
     if (e.header.array != i) continue;
-    if (e.header.encoding < 5) by_enc[e.header.encoding]++;  // the reader refuses unknown encodings
+    if (e.header.encoding < 6) by_enc[e.header.encoding]++;  // the reader refuses unknown encodings
     stored += e.header.payload_length;
   }
   chunks["raw"] = by_enc[0];
   chunks["zero"] = by_enc[1];
   chunks["zstd"] = by_enc[2];
-  if (by_enc[3] + by_enc[4] > 0) {
+  if (by_enc[3] + by_enc[4] + by_enc[5] > 0) {
     chunks["sparse"] = by_enc[3];
     chunks["sparse_zstd"] = by_enc[4];
+    chunks["sparse_coded"] = by_enc[5];
   }
   chunks["stored_bytes"] = stored;
   return chunks;
@@ -214,7 +215,8 @@ class InspectCommand : public Command {
                 << a["dtype"].get<std::string>() << ", layout " << a["layout"].get<std::string>() << " (block "
                 << a["block"] << "), chunks " << c["committed"] << "/" << c["expected"] << " (raw " << c["raw"]
                 << ", zero " << c["zero"] << ", zstd " << c["zstd"]
-                << (c.contains("sparse") ? ", sparse " + c["sparse"].dump() + ", sparse+zstd " + c["sparse_zstd"].dump()
+                << (c.contains("sparse") ? ", sparse " + c["sparse"].dump() + ", sparse+zstd " +
+                                               c["sparse_zstd"].dump() + ", sparse-coded " + c["sparse_coded"].dump()
                                          : std::string())
                 << "), stored " << HumanBytes(c["stored_bytes"]) << "\n";
       if (a.contains("content_hash")) {

@@ -346,13 +346,14 @@ Status DecodeSparseToDense(ByteSpan payload, bool zstd, DType dtype, MutableByte
   return ParseSparse(payload, zstd, dtype, dense_out.size() / size, &sink);
 }
 
-// With options.sparse: the smallest of raw, zstd, sparse and sparse+zstd (those enabled)
-// that saves min_saving over raw; on equal sizes the earlier in that order.
+// With options.sparse: the smallest of raw, zstd, sparse, sparse+zstd and coded (those
+// enabled) that saves min_saving over raw; on equal sizes the earlier in that order.
 // (All-zero chunks are handled by EncodeChunk before it calls this.)
 EncodedChunk EncodeWithSparse(ByteSpan data, const EncodeOptions& options) {
   EncodedChunk c;
   c.decoded_length = data.size();
   c.dtype = options.dtype;
+  c.line_length = options.line_length;
   const double limit = (1.0 - options.min_saving) * static_cast<double>(data.size());
   Encoding best = Encoding::kRaw;
   size_t best_size = data.size();
@@ -371,6 +372,12 @@ EncodedChunk EncodeWithSparse(ByteSpan data, const EncodeOptions& options) {
   if (options.zstd) sparse_zstd = CompressZstd(sparse, options.zstd_level);
   consider(Encoding::kSparse, std::move(sparse));
   if (sparse_zstd) consider(Encoding::kSparseZstd, std::move(*sparse_zstd));
+  if (options.coded && options.dtype == DType::kI32 && options.line_length > 0 &&
+      options.coded_width <= options.line_length) {
+    std::vector<std::byte> coded = EncodeCodedPayload(
+        data, options.line_length, options.coded_width == 0 ? options.line_length : options.coded_width);
+    if (!coded.empty()) consider(Encoding::kCoded, std::move(coded));
+  }
   c.encoding = best;
   if (best == Encoding::kRaw) {
     c.owned.clear();
@@ -466,6 +473,9 @@ Status CheckChunkLengths(const FrameHeader& h, uint64_t expected_bytes) {
     case Encoding::kSparseZstd:
       if (h.payload_length == 0) return DataLoss("sparse-zstd chunk with an empty payload");
       break;
+    case Encoding::kCoded:
+      if (h.payload_length == 0) return DataLoss("sparse-coded chunk with an empty payload");
+      break;
   }
   return Status::Ok();
 }
@@ -517,6 +527,18 @@ Status CheckSparsePayload(Encoding encoding, ByteSpan payload, DType dtype, uint
   }
   NullSink sink;
   return ParseSparse(payload, encoding == Encoding::kSparseZstd, dtype, elements, &sink);
+}
+
+Status CheckCodedChunkShape(DType dtype, uint64_t line_length, uint64_t elements) {
+  if (dtype != DType::kI32) {
+    return DataLoss(std::string("a sparse-coded chunk in a ") + DTypeName(dtype) + " array (coded chunks are i32)");
+  }
+  if (line_length == 0 || line_length > kMaxCodedLine) {
+    return DataLoss("a sparse-coded chunk with lines of " + std::to_string(line_length) + " elements (at most " +
+                    std::to_string(kMaxCodedLine) + ")");
+  }
+  if (elements > kMaxSparseElements) return DataLoss(ElementsTooMany(elements));
+  return Status::Ok();
 }
 
 Status SparseFromDense(ByteSpan dense, DType dtype, SparseChunk* out) {

@@ -1,4 +1,5 @@
-// Chunk payload encodings: raw, all-zero (no payload), zstd, sparse and sparse+zstd.
+// Chunk payload encodings: raw, all-zero (no payload), zstd, sparse, sparse+zstd and coded
+// sparse (format/coded_codec.h).
 // Pure byte-span codecs. Byte layouts: docs/FORMAT.md "Frames".
 #pragma once
 
@@ -8,6 +9,7 @@
 
 #include "format/array_spec.h"
 #include "format/bytes.h"
+#include "format/coded_codec.h"
 #include "format/layout.h"
 #include "format/status.h"
 
@@ -22,13 +24,21 @@ struct EncodeOptions {
   // at least min_saving over raw is kept. Needs `dtype`, the chunk's element type.
   bool sparse = false;
   DType dtype = DType::kF32;
+  // With sparse and dtype i32, also try kCoded (format 1.2) with images `coded_width` wide
+  // (0: one image row per line). It needs the chunk's line length: ContainerWriter::Put
+  // sets `line_length` from the array (the rows of a `cols` chunk, the columns of a `rows`
+  // chunk); EncodeChunk skips kCoded when it is 0, or when coded_width is above it.
+  bool coded = false;
+  uint64_t coded_width = 0;
+  uint64_t line_length = 0;
 };
 
 struct EncodedChunk {
   Encoding encoding = Encoding::kRaw;
   uint64_t decoded_length = 0;
   DType dtype = DType::kF32;     // EncodeOptions::dtype; the sparse payloads depend on it
-  std::vector<std::byte> owned;  // encoded bytes (kZstd, kSparse, kSparseZstd)
+  uint64_t line_length = 0;      // EncodeOptions::line_length; a kCoded payload depends on it
+  std::vector<std::byte> owned;  // encoded bytes (kZstd, kSparse, kSparseZstd, kCoded)
   ByteSpan payload;              // what is stored: owned, the caller's data (kRaw), or empty
   uint64_t checksum = 0;         // XXH3-64 of payload
 };
@@ -62,6 +72,17 @@ Status CheckChunkLengths(const FrameHeader& h, uint64_t expected_bytes);
 
 // Sparse indices are 32-bit: the sparse encodings hold chunks of at most this many elements.
 inline constexpr uint64_t kMaxSparseElements = 0xFFFFFFFFull;
+
+// The line length of a kCoded chunk: its rows in a `cols` array (one line per column), its
+// columns in a `rows` array (one line per row).
+inline uint64_t CodedLineLength(Layout layout, const ChunkExtent& e) {
+  return layout == Layout::kCols ? e.rows : e.cols;
+}
+
+// Whether a chunk of this dtype and shape may be kCoded: i32, lines of at most
+// kMaxCodedLine elements, at most kMaxSparseElements elements. kDataLoss naming what is
+// wrong otherwise (readers check it before allocating anything for the chunk).
+Status CheckCodedChunkShape(DType dtype, uint64_t line_length, uint64_t elements);
 
 // The stored (nonzero) elements of one chunk.
 struct SparseChunk {

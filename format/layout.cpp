@@ -31,11 +31,13 @@ const char* EncodingName(Encoding e) {
       return "sparse";
     case Encoding::kSparseZstd:
       return "sparse-zstd";
+    case Encoding::kCoded:
+      return "sparse-coded";
   }
   return "unknown";
 }
 
-bool IsKnownEncoding(uint16_t e) { return e <= static_cast<uint16_t>(Encoding::kSparseZstd); }
+bool IsKnownEncoding(uint16_t e) { return e <= static_cast<uint16_t>(Encoding::kCoded); }
 
 // File header, 64 bytes:
 //   0 magic[8]  8 major u16  10 minor u16  12 header_size u32  16 required_features u64

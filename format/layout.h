@@ -28,8 +28,9 @@ inline constexpr uint64_t kDirectAlignment = 4096;
 inline constexpr uint16_t kFrameFlagOptional = 1;  // readers skip unknown optional frames
 
 // Chunk payload encodings (docs/FORMAT.md "Frames"). kSparse and kSparseZstd arrived in
-// format 1.1 (kMinorSparse); a 1.0 reader refuses them as unknown encodings.
-enum class Encoding : uint16_t { kRaw = 0, kZero = 1, kZstd = 2, kSparse = 3, kSparseZstd = 4 };
+// format 1.1 (kMinorSparse), kCoded (i32 chunks only) in 1.2 (kMinorCoded); an older reader
+// refuses them as unknown encodings.
+enum class Encoding : uint16_t { kRaw = 0, kZero = 1, kZstd = 2, kSparse = 3, kSparseZstd = 4, kCoded = 5 };
 const char* EncodingName(Encoding e);
 bool IsKnownEncoding(uint16_t e);
 

@@ -257,18 +257,25 @@ Result<Chunk> ContainerReader::ReadChunk(uint32_t array, uint64_t chunk, const R
     }
     case Encoding::kZstd:
     case Encoding::kSparse:
-    case Encoding::kSparseZstd: {
+    case Encoding::kSparseZstd:
+    case Encoding::kCoded: {
+      // Refused before the dense buffer is allocated.
       if (c.encoding_ != Encoding::kZstd && c.extent_.Elements() > kMaxSparseElements) {
-        // Refused before the dense buffer is allocated.
         return DataLoss(where + ": a chunk of " + std::to_string(c.extent_.Elements()) +
                         " elements cannot be sparse (at most " + std::to_string(kMaxSparseElements) + ")");
+      }
+      if (c.encoding_ == Encoding::kCoded) {
+        Status s = CheckCodedChunkShape(a.dtype, CodedLineLength(a.layout, c.extent_), c.extent_.Elements());
+        if (!s.ok()) return s.WithContext(where);
       }
       // Decoded payloads are always checked: decoding damaged bytes could mislead.
       LTB_ASSIGN_OR_RETURN(MappedRegion region, MapPayload(*e, where, options.sequential, true));
       c.owned_.resize(h.decoded_length);  // checked against the metadata's chunk size at open
       Status s = c.encoding_ == Encoding::kZstd     ? DecodeZstd(region.bytes(), c.owned_)
                  : c.encoding_ == Encoding::kSparse ? DecodeSparseInto(region.bytes(), a.dtype, c.owned_)
-                                                    : DecodeSparseZstdInto(region.bytes(), a.dtype, c.owned_);
+                 : c.encoding_ == Encoding::kSparseZstd
+                     ? DecodeSparseZstdInto(region.bytes(), a.dtype, c.owned_)
+                     : DecodeCodedInto(region.bytes(), CodedLineLength(a.layout, c.extent_), c.owned_);
       if (!s.ok()) return s.WithContext(where);
       return c;
     }
@@ -295,6 +302,16 @@ Result<SparseChunk> ContainerReader::ReadSparse(uint32_t array, uint64_t chunk, 
     LTB_ASSIGN_OR_RETURN(MappedRegion region, MapPayload(*e, where, options.sequential, true));
     Status s = encoding == Encoding::kSparse ? DecodeSparsePayload(region.bytes(), a.dtype, elements, &out)
                                              : DecodeSparseZstdPayload(region.bytes(), a.dtype, elements, &out);
+    if (!s.ok()) return s.WithContext(where);
+    return out;
+  }
+  if (encoding == Encoding::kCoded) {
+    if (Status s = CheckCodedChunkShape(a.dtype, CodedLineLength(a.layout, out.extent), elements); !s.ok()) {
+      return s.WithContext(where);
+    }
+    Readahead(e, options);
+    LTB_ASSIGN_OR_RETURN(MappedRegion region, MapPayload(*e, where, options.sequential, true));
+    Status s = DecodeCodedPayload(region.bytes(), CodedLineLength(a.layout, out.extent), elements, &out);
     if (!s.ok()) return s.WithContext(where);
     return out;
   }
@@ -349,6 +366,7 @@ Result<EncodedChunk> ContainerReader::ReadEncoded(uint32_t array, uint64_t chunk
   out.encoding = static_cast<Encoding>(e->header.encoding);
   out.decoded_length = e->header.decoded_length;
   out.dtype = metadata_.arrays[array].dtype;
+  out.line_length = CodedLineLength(metadata_.arrays[array].layout, metadata_.arrays[array].Extent(chunk));
   out.checksum = e->header.payload_checksum;
   if (e->header.payload_length > 0) {
     LTB_ASSIGN_OR_RETURN(MappedRegion region, MapPayload(*e, where, true, true));

@@ -244,7 +244,18 @@ Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChun
                            std::to_string(encoded.decoded_length) + " bytes, expected " +
                            std::to_string(a.ChunkBytes(chunk)));
   }
-  if (encoded.encoding == Encoding::kSparse || encoded.encoding == Encoding::kSparseZstd) {
+  if (encoded.encoding == Encoding::kCoded) {
+    // A coded payload is read back as i32 lines of the array's line length.
+    const uint64_t line = CodedLineLength(a.layout, a.Extent(chunk));
+    if (encoded.dtype != DType::kI32 || a.dtype != DType::kI32 || encoded.line_length != line) {
+      return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name +
+                             "\" was coded as " + DTypeName(encoded.dtype) + " lines of " +
+                             std::to_string(encoded.line_length) + ", the array is " + DTypeName(a.dtype) +
+                             " with lines of " + std::to_string(line));
+    }
+  }
+  if (encoded.encoding == Encoding::kSparse || encoded.encoding == Encoding::kSparseZstd ||
+      encoded.encoding == Encoding::kCoded) {
     // A sparse payload is read back with the array's dtype and 32-bit indices.
     if (encoded.dtype != a.dtype) {
       return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name +
@@ -400,6 +411,7 @@ Status ContainerWriter::Put(uint32_t array, uint64_t chunk, ByteSpan data, const
   }
   EncodeOptions eo = options;
   eo.dtype = a.dtype;  // the sparse payload depends on the element type: always the array's
+  if (chunk < a.ChunkCount()) eo.line_length = CodedLineLength(a.layout, a.Extent(chunk));  // and kCoded on the line
   EncodedChunk c = EncodeChunk(data, eo);
   return Append(array, chunk, c);
 }

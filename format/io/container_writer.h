@@ -87,8 +87,9 @@ class ContainerWriter {
   // format::kMaxSparseElements elements (kInvalidArgument otherwise).
   Status Append(uint32_t array, uint64_t chunk, const format::EncodedChunk& encoded);
   // Encodes and appends `data` (the chunk in the array's layout and dtype). With
-  // options.sparse the array's dtype is used whatever options.dtype says, and a chunk of
-  // more than format::kMaxSparseElements elements is refused (kInvalidArgument).
+  // options.sparse the array's dtype is used whatever options.dtype says, the line length
+  // of kCoded (options.coded) is the array's, and a chunk of more than
+  // format::kMaxSparseElements elements is refused (kInvalidArgument).
   Status Put(uint32_t array, uint64_t chunk, format::ByteSpan data, const format::EncodeOptions& options = {});
 
   // Seals the file (index + trailer + fdatasync). Fails, naming the first missing chunk,

@@ -230,14 +230,15 @@ void Verification::CheckChunkFrame(const IndexEntry& e, const std::string& where
   r_.chunks_ok++;
 }
 
-// A zstd or sparse payload parses (raw and zero payloads have nothing more to check).
+// A zstd, sparse or coded payload parses (raw and zero payloads have nothing more to check).
 bool Verification::CheckChunkPayload(const FrameHeader& h, const ArraySpec& a, uint64_t payload_offset,
                                      const std::string& where) {
   // Compressed payloads are parsed through a mapping, only once their checksum has been
   // read back with pread (so every byte of it is on disk) and the file still covers them.
   MappedRegion region;
   if (h.encoding == static_cast<uint16_t>(Encoding::kZstd) || h.encoding == static_cast<uint16_t>(Encoding::kSparse) ||
-      h.encoding == static_cast<uint16_t>(Encoding::kSparseZstd)) {
+      h.encoding == static_cast<uint16_t>(Encoding::kSparseZstd) ||
+      h.encoding == static_cast<uint16_t>(Encoding::kCoded)) {
     auto now = file_.Size();
     if (!now.ok() || *now < payload_offset + h.payload_length) {
       r_.problems.push_back(where + ": the file shrank to " + (now.ok() ? std::to_string(*now) : "?") +
@@ -266,6 +267,16 @@ bool Verification::CheckChunkPayload(const FrameHeader& h, const ArraySpec& a, u
     // Parsed as a stream (zstd through a fixed window): nothing is materialized.
     Status s = CheckSparsePayload(static_cast<Encoding>(h.encoding), region.bytes(), a.dtype,
                                   a.Extent(h.chunk_index).Elements());
+    if (!s.ok()) {
+      r_.problems.push_back(where + ": " + s.message());
+      return false;
+    }
+  }
+  if (h.encoding == static_cast<uint16_t>(Encoding::kCoded)) {
+    // Decoded with two lines of state; nothing is materialized.
+    const ChunkExtent extent = a.Extent(h.chunk_index);
+    Status s = CheckCodedChunkShape(a.dtype, CodedLineLength(a.layout, extent), extent.Elements());
+    if (s.ok()) s = CheckCodedPayload(region.bytes(), CodedLineLength(a.layout, extent), extent.Elements());
     if (!s.ok()) {
       r_.problems.push_back(where + ": " + s.message());
       return false;

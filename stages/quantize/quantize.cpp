@@ -376,6 +376,9 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
   job.matrix_encoding.sparse = true;
   job.matrix_encoding.dtype = DType::kI32;
   job.matrix_encoding.zstd = o.zstd;
+  // Also the coded encoding (format 1.2), its contexts shaped by the column image.
+  job.matrix_encoding.coded = true;
+  job.matrix_encoding.coded_width = codec.width();
   job.side_encoding.zstd = true;
   std::atomic<uint64_t> written{0};
   Status s = ParallelFor(items, o.jobs, progress, "chunks", [&](uint64_t c) -> Status {

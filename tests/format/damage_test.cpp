@@ -78,7 +78,8 @@ class DamageSweep : public ::testing::Test {
  protected:
   void SetUp() override {
     good_ = dir_.File("good.ltm");
-    // Row blocks with raw, all-zero, zstd, sparse and sparse+zstd chunks, plus a side table.
+    // Row blocks with raw, all-zero, zstd, sparse and sparse+zstd chunks, a side table, and
+    // an i32 table in one sparse-coded chunk (lines of 16, 4 wide).
     format::ArraySpec mask;
     mask.name = "mask";
     mask.dtype = format::DType::kU8;
@@ -87,6 +88,14 @@ class DamageSweep : public ::testing::Test {
     mask.block = 35;
     auto meta = test::MatrixMetadata(35, 12, format::Layout::kRows, 7);
     meta["arrays"].push_back(mask.ToJson());
+    format::ArraySpec codes;
+    codes.name = "codes";
+    codes.dtype = format::DType::kI32;
+    codes.rows = 16;
+    codes.cols = 3;
+    codes.layout = format::Layout::kCols;
+    codes.block = 3;
+    meta["arrays"].push_back(codes.ToJson());
     auto w = io::ContainerWriter::Open(good_, meta);
     ASSERT_TRUE(w.ok());
     std::vector<float> m = test::MakeMatrix(35, 12, 11);
@@ -104,13 +113,20 @@ class DamageSweep : public ::testing::Test {
     }
     std::vector<uint8_t> mk(35, 1);
     ASSERT_TRUE(w->Put(1, 0, format::ByteSpan(reinterpret_cast<const std::byte*>(mk.data()), mk.size())).ok());
+    std::vector<int32_t> cv(48, 0);
+    for (int i : {0, 1, 5, 16, 17, 21, 26, 33, 40, 47}) cv[i] = (i % 3 == 0 ? -1 : 1) * (1 + i % 5);
+    format::EncodeOptions co;
+    co.sparse = true;
+    co.coded = true;
+    co.coded_width = 4;
+    ASSERT_TRUE(w->Put(2, 0, test::AsBytes(cv), co).ok());
     ASSERT_TRUE(w->Finish().ok());
     bytes_ = test::ReadFileBytes(good_);
     auto r = io::ContainerReader::Open(good_);
     ASSERT_TRUE(r.ok());
-    int encodings[5] = {0, 0, 0, 0, 0};
+    int encodings[6] = {0, 0, 0, 0, 0, 0};
     for (const auto& e : r->chunk_frames()) encodings[e.header.encoding]++;
-    for (int e = 0; e < 5; ++e) ASSERT_GT(encodings[e], 0) << format::EncodingName(static_cast<format::Encoding>(e));
+    for (int e = 0; e < 6; ++e) ASSERT_GT(encodings[e], 0) << format::EncodingName(static_cast<format::Encoding>(e));
   }
 
   test::TempDir dir_;

@@ -1,6 +1,7 @@
 // Hand-built headers and frames (laid out field by field from docs/FORMAT.md, hashed with
 // xxHash directly, not with the code under test): version refusal, feature flags,
-// hostile sizes and offsets, unknown optional and required sections.
+// hostile sizes and offsets, unknown optional and required sections, malformed sparse and
+// coded payloads.
 #include <gtest/gtest.h>
 #include <xxhash.h>
 
@@ -103,7 +104,7 @@ TEST(Version, RefusesNewerMajorNamingBothVersions) {
   Status s = OpenStatus(path);
   EXPECT_EQ(s.code(), StatusCode::kUnimplemented);
   EXPECT_NE(s.message().find("format 2.3"), std::string::npos) << s.message();
-  EXPECT_NE(s.message().find("reads up to 1.1"), std::string::npos) << s.message();  // 1.1: sparse chunks
+  EXPECT_NE(s.message().find("reads up to 1.2"), std::string::npos) << s.message();  // 1.2: coded chunks
   EXPECT_NE(s.message().find("upgrade ltbake"), std::string::npos) << s.message();
 }
 
@@ -134,24 +135,25 @@ TEST(Version, MinorIsInformationalEncodingsAreCheckedPerChunk) {
 }
 
 TEST(Version, RefusesUnknownEncodingAsNewer) {
-  // What a 1.0 reader does with a sparse chunk, this build does with encoding 5: the file
-  // opens, that chunk is refused (reported, never read as data), the others read.
+  // What a 1.0 reader does with a sparse chunk (and a 1.1 reader with a coded one), this
+  // build does with encoding 6: the file opens, that chunk is refused (reported, never
+  // read as data), the others read.
   test::TempDir dir;
   Bytes b = Header(1, 9);
-  AppendFrame(b, 1, 0, 0, 5, 0, {0x01, 0x02, 0x03}, 16);
+  AppendFrame(b, 1, 0, 0, 6, 0, {0x01, 0x02, 0x03}, 16);
   AppendFrame(b, 1, 0, 0, 0, 1, RawChunk(5), 16);
   auto path = WriteFile(dir, b);
   auto r = io::ContainerReader::Open(path);
   ASSERT_TRUE(r.ok()) << r.status().message();
   EXPECT_EQ(r->committed(0), 1u);
   ASSERT_EQ(r->problems().size(), 1u);
-  EXPECT_NE(r->problems()[0].find("unknown chunk encoding 5 (written by a newer ltbake?)"), std::string::npos)
+  EXPECT_NE(r->problems()[0].find("unknown chunk encoding 6 (written by a newer ltbake?)"), std::string::npos)
       << r->problems()[0];
   EXPECT_EQ(r->ReadChunk(0, 0).status().code(), StatusCode::kNotFound);
   EXPECT_TRUE(r->ReadChunk(0, 1).ok());
   auto v = io::VerifyContainer(path);
   ASSERT_FALSE(v.problems.empty());
-  EXPECT_NE(v.problems[0].find("unknown chunk encoding 5"), std::string::npos) << v.problems[0];
+  EXPECT_NE(v.problems[0].find("unknown chunk encoding 6"), std::string::npos) << v.problems[0];
 }
 
 TEST(Version, RefusesUnknownRequiredFeature) {
@@ -539,6 +541,132 @@ TEST(Sparse, OversizedSparseChunkIsRefusedBeforeAllocating) {
   auto v = io::VerifyContainer(path);
   ASSERT_EQ(v.problems.size(), 1u);
   EXPECT_NE(v.problems[0].find("cannot be sparse"), std::string::npos) << v.problems[0];
+}
+
+// ---- Coded sparse payloads (encoding 5, format 1.2) in hand-built frames ----
+
+// An i32 column array of 8 x 2, one column per chunk (lines of L = 8).
+const std::string kCodedMeta =
+    R"({"arrays":[{"block":1,"dtype":"i32","layout":"cols","name":"matrix","shape":[8,2]}]})";
+const std::vector<int32_t> kCodedColumn = {0, 3, 0, 0, -1, 0, 0, 2};
+
+Bytes CodedPayload(const std::vector<int32_t>& v, uint64_t line, uint64_t width) {
+  auto p = format::EncodeCodedPayload(format::ByteSpan(reinterpret_cast<const std::byte*>(v.data()), 4 * v.size()),
+                                      line, width);
+  auto u = reinterpret_cast<const unsigned char*>(p.data());
+  return Bytes(u, u + p.size());
+}
+
+TEST(Coded, HandBuiltChunkReads) {
+  test::TempDir dir;
+  Bytes payload = CodedPayload(kCodedColumn, 8, 4);
+  ASSERT_EQ(payload[0], 1);  // model
+  ASSERT_EQ(payload[1], 4);  // W
+  Bytes b = Header(1, 2, 0, kCodedMeta);
+  AppendFrame(b, 1, 0, 0, 5, 0, payload, 32);
+  AppendFrame(b, 1, 0, 0, 1, 1, {}, 32);
+  auto path = WriteFile(dir, b);
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_TRUE(r->complete());
+  auto c = r->ReadChunk(0, 0);
+  ASSERT_TRUE(c.ok()) << c.status().message();
+  EXPECT_EQ(std::vector<int32_t>(c->as<int32_t>().begin(), c->as<int32_t>().end()), kCodedColumn);
+  auto s = r->ReadSparse(0, 0);
+  ASSERT_TRUE(s.ok()) << s.status().message();
+  EXPECT_EQ(s->index, std::vector<uint32_t>({1, 4, 7}));
+  auto v = io::VerifyContainer(path);
+  EXPECT_TRUE(v.problems.empty()) << v.problems.front();
+  EXPECT_EQ(v.chunks_ok, 2u);
+}
+
+struct BadCoded {
+  const char* name;
+  std::string meta;
+  Bytes payload;
+  const char* expect;
+};
+
+class MalformedCoded : public ::testing::TestWithParam<BadCoded> {};
+
+// Chunk 0 holds the malformed payload (checksums valid), chunk 1 is all zero.
+TEST_P(MalformedCoded, IsDataLossNamingChunkAndFault) {
+  const BadCoded& p = GetParam();
+  test::TempDir dir;
+  Bytes b = Header(1, 2, 0, p.meta);
+  AppendFrame(b, 1, 0, 0, 5, 0, p.payload, 32);
+  AppendFrame(b, 1, 0, 0, 1, 1, {}, 32);
+  auto path = WriteFile(dir, b);
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_TRUE(r->complete());
+  for (int sparse = 0; sparse < 2; ++sparse) {
+    Status s = sparse ? r->ReadSparse(0, 0).status() : r->ReadChunk(0, 0).status();
+    EXPECT_EQ(s.code(), StatusCode::kDataLoss) << s.message();
+    EXPECT_NE(s.message().find("chunk 0"), std::string::npos) << s.message();
+    EXPECT_NE(s.message().find(p.expect), std::string::npos) << s.message();
+  }
+  EXPECT_TRUE(r->ReadChunk(0, 1).ok());
+  auto v = io::VerifyContainer(path);
+  EXPECT_EQ(v.chunks_ok, 1u);
+  ASSERT_EQ(v.problems.size(), 1u);
+  EXPECT_NE(v.problems[0].find(p.expect), std::string::npos) << v.problems[0];
+}
+
+Bytes With(Bytes b, size_t at, unsigned char v) {
+  b[at] = v;
+  return b;
+}
+
+const Bytes kCodedGood = CodedPayload(kCodedColumn, 8, 4);
+
+INSTANTIATE_TEST_SUITE_P(
+    Payloads, MalformedCoded,
+    ::testing::Values(
+        BadCoded{"unknown_model", kCodedMeta, With(kCodedGood, 0, 2), "unknown model 2"},
+        BadCoded{"width_zero", kCodedMeta, With(kCodedGood, 1, 0), "image width 0 is not in 1..8"},
+        BadCoded{"width_above_line", kCodedMeta, With(kCodedGood, 1, 9), "image width 9 is not in 1..8"},
+        BadCoded{"width_truncated", kCodedMeta, {0x01, 0x84}, "ends inside the image width"},
+        BadCoded{"coder_too_short", kCodedMeta, {0x01, 0x04, 0x00, 0x00}, "the coder's bytes end after 2 bytes"},
+        BadCoded{"coder_first_byte", kCodedMeta, With(kCodedGood, 2, 7), "the coder's first byte is not 0"},
+        BadCoded{"truncated", kCodedMeta, DropLast(kCodedGood, 1), "truncated"},
+        BadCoded{"trailing_byte", kCodedMeta, Cat({kCodedGood, {0x00}}), "1 trailing bytes"},
+        // The same bytes in an f32 array, and in an i32 array whose lines are rows of 2.
+        BadCoded{"f32_array", R"({"arrays":[{"block":1,"dtype":"f32","layout":"cols","name":"matrix","shape":[8,2]}]})",
+                 kCodedGood, "a sparse-coded chunk in a f32 array"},
+        BadCoded{"rows_of_two",
+                 R"({"arrays":[{"block":4,"dtype":"i32","layout":"rows","name":"matrix","shape":[8,2]}]})", kCodedGood,
+                 "image width 4 is not in 1..2"}),
+    [](const ::testing::TestParamInfo<BadCoded>& info) { return std::string(info.param.name); });
+
+TEST(Coded, LineLongerThanTheFormatAllowsIsRefusedBeforeAllocating) {
+  // One i32 column of 2^24 + 1 rows (64 MiB) claimed coded: refused from the metadata alone.
+  test::TempDir dir;
+  std::string meta = R"({"arrays":[{"block":1,"dtype":"i32","layout":"cols","name":"matrix","shape":[16777217,1]}]})";
+  Bytes b = Header(1, 2, 0, meta);
+  AppendFrame(b, 1, 0, 0, 5, 0, kCodedGood, uint64_t{4} * 16777217);
+  auto path = WriteFile(dir, b);
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  for (int sparse = 0; sparse < 2; ++sparse) {
+    Status s = sparse ? r->ReadSparse(0, 0).status() : r->ReadChunk(0, 0).status();
+    EXPECT_EQ(s.code(), StatusCode::kDataLoss);
+    EXPECT_NE(s.message().find("with lines of 16777217 elements (at most 16777216)"), std::string::npos) << s.message();
+  }
+  auto v = io::VerifyContainer(path);
+  ASSERT_EQ(v.problems.size(), 1u);
+  EXPECT_NE(v.problems[0].find("lines of 16777217"), std::string::npos) << v.problems[0];
+}
+
+TEST(Coded, EmptyPayloadIsNotCommitted) {
+  test::TempDir dir;
+  Bytes b = Header(1, 2, 0, kCodedMeta);
+  AppendFrame(b, 1, 0, 0, 5, 0, {}, 32);
+  auto r = io::ContainerReader::Open(WriteFile(dir, b));
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_EQ(r->committed(0), 0u);
+  ASSERT_EQ(r->problems().size(), 1u);
+  EXPECT_NE(r->problems()[0].find("sparse-coded chunk with an empty payload"), std::string::npos) << r->problems()[0];
 }
 
 }  // namespace

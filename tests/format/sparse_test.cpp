@@ -297,7 +297,7 @@ TEST_P(SparseContainer, EveryEncodingReadsBackBitExactWithOneContentHash) {
     EXPECT_TRUE(v.problems.empty()) << v.problems.front();
     auto r = io::ContainerReader::Open(path);
     ASSERT_TRUE(r.ok()) << r.status().message();
-    EXPECT_EQ(r->header().minor, format::kMinorSparse);
+    EXPECT_EQ(r->header().minor, format::kFormatMinor);
     const format::ArraySpec& a = r->metadata().matrix();
     int by_encoding[5] = {0, 0, 0, 0, 0};
     for (const auto& e : r->chunk_frames()) by_encoding[e.header.encoding]++;

@@ -9,7 +9,8 @@
 //   OUT/ltm/   containers written by ltbake's own writer where the stages would need large
 //              inputs: payloads written with O_DIRECT behind padding frames (the stages do
 //              that only for chunks of 64 KiB and more; here from 4 KiB), sealed and not;
-//              every dtype in every encoding (raw, zero, zstd, sparse, sparse-zstd); files
+//              every dtype in every encoding (raw, zero, zstd, sparse, sparse-zstd), and
+//              sparse-coded wavelet-like i32 columns; files
 //              of a writer stopped after every few mutations (torn and unsealed).
 // usage: ltb_fuzz_seeds OUT MESH.obj
 #include <ImfChannelList.h>
@@ -323,6 +324,31 @@ void WriteLtm(const std::string& path, const nlohmann::json& meta, const ltb::io
   if (seal) (void)w->Finish();
 }
 
+// An i32 `cols` matrix of 8 x 8 image columns like quantize's: few nonzeros, denser and
+// larger near the corner, neighbouring columns alike; stored sparse-coded.
+void CodedColumnsSeed(const std::string& path) {
+  std::filesystem::remove(path);
+  nlohmann::json meta = {{"arrays", {Array("matrix", "i32", 64, 24, "cols", 8)}}};
+  auto w = ltb::io::ContainerWriter::Open(path, meta);
+  if (!w.ok()) return Fail(path + ": " + w.status().ToString());
+  ltb::format::EncodeOptions eo;
+  eo.sparse = true;
+  eo.zstd = true;
+  eo.coded = true;
+  eo.coded_width = 8;
+  for (uint64_t c = 0; c < 3; ++c) {
+    std::vector<int32_t> v(64 * 8, 0);
+    for (uint64_t k = 0; k < 8; ++k)
+      for (uint64_t p = 0; p < 64; ++p) {
+        const uint64_t x = p % 8, y = p / 8, h = (p * 131 + (k / 2) * 7 + c * 3) % 29;
+        if (h < 12 / (1 + x + y)) v[k * 64 + p] = int32_t((h % 2 ? -1 : 1) * int64_t(1 + h * (8 - x)));
+      }
+    ltb::Status s = w->Put(0, c, ltb::format::ByteSpan(reinterpret_cast<const std::byte*>(v.data()), 4 * v.size()), eo);
+    if (!s.ok()) return Fail(path + ": " + s.ToString());
+  }
+  if (ltb::Status s = w->Finish(); !s.ok()) Fail(path + ": " + s.ToString());
+}
+
 void LtmSeeds(const std::string& dir) {
   fs::create_directories(dir);
   ltb::io::WriterOptions direct;
@@ -343,6 +369,7 @@ void LtmSeeds(const std::string& dir) {
   WriteLtm(dir + "/dtypes-sparse.ltm", all, plain, true, true, false);
   WriteLtm(dir + "/dtypes-sparse-zstd.ltm", all, plain, true, true, true);
   WriteLtm(dir + "/dtypes-dense-zstd.ltm", all, plain, true, false, true);
+  CodedColumnsSeed(dir + "/coded-columns.ltm");
   for (uint64_t stop : {2, 5, 9, 14, 20}) {
     ltb::io::WriterOptions torn;
     torn.stop_after_mutations = stop;
