@@ -276,8 +276,6 @@ class CodedLines {
     std::swap(cur_, prev_);
     Clear(cur_);
     nonzero_blocks_.clear();
-    uint8_t* const cur = state_[cur_].data();
-    const uint8_t* const prev = state_[prev_].data();
     uint8_t* const bcur = block_[cur_].data();
     const uint8_t* const bprev = block_[prev_].data();
     uint8_t* const qcur = quad_[cur_].data();
