@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "format/array_spec.h"
+#include "format/chunk_codec.h"
 #include "format/progress.h"
 #include "format/status.h"
 #include "stages/wavelet/wavelet.h"
@@ -27,6 +28,8 @@ class ContainerReader;
 }  // namespace ltb::io
 
 namespace ltb::stages {
+
+class ColumnCodec;  // stages/column_transform/column_codec.h
 
 enum class Weighting { kArea, kTransport, kNone };
 Result<Weighting> ParseWeighting(const std::string& name);
@@ -67,7 +70,8 @@ class Relighter {
   // final.ltm / cols4d.ltm (any depth mode), or an uncompressed column-block container
   // (cols.ltm: every column at depth 0). Needs cubemap columns (basis.cols).
   // Fails (naming the sizes) when the sparse matrix would take more than `mem_limit` bytes.
-  static Result<Relighter> Load(const std::string& path, uint64_t mem_limit, const Progress& progress);
+  // Decodes `jobs` chunks at a time in parallel; the result does not depend on `jobs`.
+  static Result<Relighter> Load(const std::string& path, uint64_t mem_limit, const Progress& progress, int jobs = 1);
 
   uint64_t rows() const { return rows_; }
   const LightingBasis& basis() const { return basis_; }
@@ -81,6 +85,15 @@ class Relighter {
   void Relight(const LightTerms& terms, float* out_rgb);
 
  private:
+  // One chunk of the matrix as read, with its columns' side tables.
+  struct LoadedChunk {
+    format::SparseChunk sc;
+    std::vector<uint8_t> depths;
+    std::vector<double> scales, energy;  // energy < 0: not recorded
+  };
+  // Appends a chunk's columns (dequantized) to the in-memory matrix.
+  Status AppendChunk(const std::string& path, const ColumnCodec* codec, uint64_t mem_limit, const LoadedChunk& d);
+
   uint64_t rows_ = 0, cols_ = 0;
   uint64_t width_ = 0, height_ = 0;
   LightingBasis basis_;

@@ -77,7 +77,7 @@ Status LoadMatrix(const RelightOptions& o, const io::ContainerReader& reader, co
     (*report)["cpca"] = {{"clusters", m->cpca->model().clusters()}, {"basis", m->cpca->model().basis()}};
     (*report)["matrix_bytes_in_memory"] = m->cpca->bytes();
   } else if (!streaming) {
-    LTB_ASSIGN_OR_RETURN(Relighter r, Relighter::Load(o.matrix, o.mem_limit, progress));
+    LTB_ASSIGN_OR_RETURN(Relighter r, Relighter::Load(o.matrix, o.mem_limit, progress, o.jobs));
     m->relighter = std::move(r);
     (*report)["nonzeros"] = m->relighter->nonzeros();
     (*report)["matrix_bytes_in_memory"] = m->relighter->bytes();
