@@ -24,7 +24,7 @@ PACKAGES=(
   libbenchmark-dev                 # micro-benchmarks
   libstb-dev                       # Radiance .hdr reading
   blender-data                     # CC0 environment maps (DWAB .exr, studiolights/world; scripts/find_envmaps.sh)
-  clang libclang-rt-14-dev         # libFuzzer target (LTB_BUILD_FUZZERS)
+  clang libclang-rt-14-dev         # the sanitizer tree (make asan) and the libFuzzer targets (LTB_BUILD_FUZZERS)
   clang-format                     # the house style (.clang-format; tests/format_check.sh)
   python3 python3-numpy python3-pywt python3-h5py python3-matplotlib python3-xxhash python3-sklearn  # oracles, baselines, plots
   nodejs                           # converting the sample meshes (npm is checked below)
