@@ -58,7 +58,8 @@ test-fast: build
 # The sanitizer tree builds only what its tests run (-O1, line tables only: fast to build,
 # still symbolised reports), with clang (ASAN_CC/ASAN_CXX; installed by setup.sh for the
 # fuzzers too): its sanitizer tree builds and runs faster than g++'s (tests/README.md). The
-# release tree stays g++, so the suite sees both compilers.
+# release tree stays g++, so the suite sees both compilers. A tree configured before keeps
+# its compiler (CMake reads CC/CXX only when it first configures): remove it to switch.
 ASAN_CC     ?= clang
 ASAN_CXX    ?= clang++
 ASAN_TARGETS ?= ltbake ltb_format_tests ltb_damage_tests ltb_column_tests ltb_envmap_tests ltb_cpca_tests \
