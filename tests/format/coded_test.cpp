@@ -288,21 +288,14 @@ TEST(CodedContainer, RoundTripsInBothLayoutsWithVerifyAndOneContentHash) {
     std::string hash[2];
     for (int coded = 0; coded < 2; ++coded) {
       const std::string path = dir.File(std::string(format::LayoutName(layout)) + std::to_string(coded) + ".ltm");
-      {
-        auto w = io::ContainerWriter::Open(path, I32Meta(rows, cols, layout, block));
-        ASSERT_TRUE(w.ok()) << w.status().message();
-        format::EncodeOptions eo;
-        eo.sparse = true;
-        eo.zstd = true;
-        eo.coded = coded == 1;
-        eo.coded_width = layout == Layout::kCols ? 6 : 5;
-        eo.min_saving = -1e9;  // keep a candidate even where it saves nothing
-        for (uint64_t i = 0; i < w->metadata().matrix().ChunkCount(); ++i) {
-          auto v = test::ChunkValues(w->metadata().matrix(), m, i);
-          ASSERT_TRUE(w->Put(0, i, test::AsBytes(v), eo).ok());
-        }
-        ASSERT_TRUE(w->Finish().ok());
-      }
+      format::EncodeOptions eo;
+      eo.sparse = true;
+      eo.zstd = true;
+      eo.coded = coded == 1;
+      eo.coded_width = layout == Layout::kCols ? 6 : 5;
+      eo.min_saving = -1e9;  // keep a candidate even where it saves nothing
+      Status written = test::WriteValues(path, I32Meta(rows, cols, layout, block), m, eo);
+      ASSERT_TRUE(written.ok()) << written.message();
       auto v = io::VerifyContainer(path);
       EXPECT_TRUE(v.complete);
       EXPECT_TRUE(v.problems.empty()) << v.problems.front();

@@ -279,19 +279,12 @@ TEST_P(SparseContainer, EveryEncodingReadsBackBitExactWithOneContentHash) {
     const Mode& mode = modes[mi];
     SCOPED_TRACE(mode.name);
     std::string path = dir.File(std::string(mode.name) + ".ltm");
-    {
-      auto w = io::ContainerWriter::Open(path, Meta(p.dtype, p.rows, p.cols, p.layout, p.block));
-      ASSERT_TRUE(w.ok()) << w.status().message();
-      format::EncodeOptions eo;
-      eo.zstd = mode.zstd;
-      eo.sparse = mode.sparse;
-      eo.dtype = p.dtype;
-      for (uint64_t i = 0; i < w->metadata().matrix().ChunkCount(); ++i) {
-        auto v = test::ChunkValues(w->metadata().matrix(), m, i);
-        ASSERT_TRUE(w->Put(0, i, test::AsBytes(v), eo).ok());
-      }
-      ASSERT_TRUE(w->Finish().ok());
-    }
+    format::EncodeOptions eo;
+    eo.zstd = mode.zstd;
+    eo.sparse = mode.sparse;
+    eo.dtype = p.dtype;
+    Status written = test::WriteValues(path, Meta(p.dtype, p.rows, p.cols, p.layout, p.block), m, eo);
+    ASSERT_TRUE(written.ok()) << written.message();
     auto v = io::VerifyContainer(path);
     EXPECT_TRUE(v.complete);
     EXPECT_TRUE(v.problems.empty()) << v.problems.front();

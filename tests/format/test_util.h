@@ -82,20 +82,27 @@ format::ByteSpan AsBytes(const std::vector<T>& v) {
   return {reinterpret_cast<const std::byte*>(v.data()), v.size() * sizeof(T)};
 }
 
+// Writes a complete container whose matrix (array 0, described by `metadata`) holds `m`
+// (row-major), every chunk encoded with `eo`.
+template <typename T>
+Status WriteValues(const std::string& path, const nlohmann::json& metadata, const std::vector<T>& m,
+                   const format::EncodeOptions& eo) {
+  auto w = io::ContainerWriter::Open(path, metadata);
+  if (!w.ok()) return w.status();
+  for (uint64_t i = 0; i < w->metadata().matrix().ChunkCount(); ++i) {
+    auto v = ChunkValues(w->metadata().matrix(), m, i);
+    Status s = w->Put(0, i, AsBytes(v), eo);
+    if (!s.ok()) return s;
+  }
+  return w->Finish();
+}
+
 // Writes a complete container of MakeMatrix(rows, cols, seed).
 inline void WriteMatrix(const std::string& path, uint64_t rows, uint64_t cols, format::Layout layout, uint64_t block,
                         uint32_t seed, bool zstd) {
-  auto w = io::ContainerWriter::Open(path, MatrixMetadata(rows, cols, layout, block));
-  if (!w.ok()) throw std::runtime_error(w.status().message());
-  auto m = MakeMatrix(rows, cols, seed);
   format::EncodeOptions eo;
   eo.zstd = zstd;
-  for (uint64_t i = 0; i < w->metadata().matrix().ChunkCount(); ++i) {
-    auto v = ChunkValues(w->metadata().matrix(), m, i);
-    auto s = w->Put(0, i, AsBytes(v), eo);
-    if (!s.ok()) throw std::runtime_error(s.message());
-  }
-  auto s = w->Finish();
+  Status s = WriteValues(path, MatrixMetadata(rows, cols, layout, block), MakeMatrix(rows, cols, seed), eo);
   if (!s.ok()) throw std::runtime_error(s.message());
 }
 
