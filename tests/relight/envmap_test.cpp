@@ -347,6 +347,16 @@ class LatLongTexelOracle {
 // A w × h lat-long map: a random background in [0.5, 1.5], and six pixels holding as much
 // power as all the rest, at directions on texel edges and corners of the R = 8 and R = 32
 // cubemaps.
+// An in-memory lat-long EnvMap of `px` (w·h·3), named `name` in messages.
+EnvMap LatLongEnv(int w, int h, const Pixels& px, const char* name) {
+  EnvMap env;
+  env.width = w;
+  env.height = h;
+  env.path = name;
+  env.rgb.assign(px.begin(), px.end());
+  return env;
+}
+
 Pixels PeakyMap(int w, int h) {
   Pixels px(size_t(w) * h * 3);
   std::mt19937 rng(17);
@@ -639,11 +649,7 @@ TEST_F(EnvMapTest, PeakyMapTexelsMatchAnExactOracle) {
   const int w = 1024, h = 512;
   Pixels px = PeakyMap(w, h);
   LatLongTexelOracle oracle(w, h, px);
-  EnvMap env;
-  env.width = w;
-  env.height = h;
-  env.path = "peaky";
-  env.rgb.assign(px.begin(), px.end());
+  EnvMap env = LatLongEnv(w, h, px, "peaky");
   std::optional<CubemapResampler> rs;
   for (auto [r, rotation] : {std::pair{8, 0.0}, {8, 0.1234}, {32, 0.0}, {32, 0.7071}}) {
     if (!rs || rs->cube_res() != uint64_t(r)) {
@@ -690,11 +696,7 @@ TEST_F(EnvMapTest, DISABLED_RandomBlocksAgainstTheOracle) {
     for (int x = 0; x < w; ++x)
       for (int c = 0; c < 3; ++c) px[(size_t(y) * w + x) * 3 + c] = blocks[(size_t(y / 8) * (w / 8) + x / 8) * 3 + c];
   LatLongTexelOracle oracle(w, h, px);
-  EnvMap env;
-  env.width = w;
-  env.height = h;
-  env.path = "blocks";
-  env.rgb.assign(px.begin(), px.end());
+  EnvMap env = LatLongEnv(w, h, px, "blocks");
   auto rs = CubemapResampler::Create(env, r);
   ASSERT_TRUE(rs.ok()) << rs.status().ToString();
   for (double rotation : {0.0, 0.3}) {
