@@ -31,4 +31,7 @@ class ContentHasher {
   uint64_t sum_ = 0;
 };
 
+// The content_hash sum of one chunk's decoded bytes (what AddChunk adds).
+uint64_t ChunkHashSum(const ArraySpec& spec, const ChunkExtent& extent, ByteSpan decoded);
+
 }  // namespace ltb::format

@@ -234,4 +234,28 @@ Result<std::vector<IndexEntry>> DecodeIndex(ByteSpan payload, uint64_t first_fra
   return entries;
 }
 
+std::vector<std::byte> EncodeContentHashRecord(const std::vector<uint64_t>& sums) {
+  std::vector<std::byte> out(8 + 8 * sums.size());
+  StoreU32(out.data(), kContentHashRecordVersion);
+  StoreU32(out.data() + 4, static_cast<uint32_t>(sums.size()));
+  for (size_t i = 0; i < sums.size(); ++i) StoreU64(out.data() + 8 + 8 * i, sums[i]);
+  return out;
+}
+
+Result<std::vector<uint64_t>> DecodeContentHashRecord(ByteSpan payload, size_t arrays) {
+  if (payload.size() < 8) return DataLoss("content-hash record shorter than its 8-byte head");
+  const uint32_t version = LoadU32(payload.data()), count = LoadU32(payload.data() + 4);
+  if (version != kContentHashRecordVersion) {
+    return DataLoss("content-hash record version " + std::to_string(version) + " (this build knows " +
+                    std::to_string(kContentHashRecordVersion) + ")");
+  }
+  if (count != arrays || payload.size() != 8 + 8 * uint64_t{count}) {
+    return DataLoss("content-hash record lists " + std::to_string(count) + " arrays in " +
+                    std::to_string(payload.size()) + " bytes; the metadata has " + std::to_string(arrays));
+  }
+  std::vector<uint64_t> sums(count);
+  for (size_t i = 0; i < count; ++i) sums[i] = LoadU64(payload.data() + 8 + 8 * i);
+  return sums;
+}
+
 }  // namespace ltb::format

@@ -22,8 +22,10 @@ inline constexpr uint32_t kFrameMagic = 0x464D544C;        // "LTMF"
 inline constexpr std::array<unsigned char, 8> kTrailerMagic = {'L', 'T', 'M', 'T', 'R', 'A', 'I', 'L'};
 
 // kPadding (written with the optional flag, so every 1.x reader skips it): zeros that put
-// the next frame's payload on a kDirectAlignment boundary for direct I/O.
-enum class FrameType : uint16_t { kChunk = 1, kIndex = 2, kPadding = 3 };
+// the next frame's payload on a kDirectAlignment boundary for direct I/O. kContentHash
+// (optional too): the writer's record of every array's content_hash sum, written at
+// sealing directly before the index frame.
+enum class FrameType : uint16_t { kChunk = 1, kIndex = 2, kPadding = 3, kContentHash = 4 };
 inline constexpr uint64_t kDirectAlignment = 4096;
 inline constexpr uint16_t kFrameFlagOptional = 1;  // readers skip unknown optional frames
 
@@ -86,5 +88,15 @@ struct IndexEntry {
 std::vector<std::byte> EncodeIndex(const std::vector<IndexEntry>& entries);
 // Every entry's frame must lie inside [first_frame_offset, file_size).
 Result<std::vector<IndexEntry>> DecodeIndex(ByteSpan payload, uint64_t first_frame_offset, uint64_t file_size);
+
+// Content-hash frame payload: u32 version (1), u32 count (= the metadata's arrays), then
+// count × u64 content_hash sum (ContentHasher::sum) of each array in metadata order.
+inline constexpr uint32_t kContentHashRecordVersion = 1;
+std::vector<std::byte> EncodeContentHashRecord(const std::vector<uint64_t>& sums);
+// Fails unless the payload is exactly a version-1 record of `arrays` sums.
+Result<std::vector<uint64_t>> DecodeContentHashRecord(ByteSpan payload, size_t arrays);
+// The size of a file's content-hash frame: it ends where the index frame starts, so a
+// reader of a sealed file finds it at index_offset − ContentHashFrameSize(arrays).
+inline uint64_t ContentHashFrameSize(size_t arrays) { return kFrameHeaderSize + AlignUp(8 + 8 * arrays, kAlignment); }
 
 }  // namespace ltb::format

@@ -7,6 +7,7 @@
 #include <tuple>
 
 #include "format/chunk_codec.h"
+#include "format/content_hash.h"
 #include "format/io/frame_scan.h"
 #include "format/io/manifest.h"
 
@@ -96,7 +97,48 @@ Status ContainerReader::LoadFromIndex(uint64_t index_offset) {
   LTB_ASSIGN_OR_RETURN(std::vector<IndexEntry> entries, DecodeIndex(payload, header_.FirstFrameOffset(), index_offset));
   for (const IndexEntry& e : entries) AddFrame(e);
   scan_end_ = index_offset;
+  LoadContentHashRecord(index_offset);
   return Status::Ok();
+}
+
+// The content-hash frame ends where the index frame starts. Anything else there (a file
+// written before the frame existed, damage) leaves the record empty: readers then compute
+// content_hash from the chunks, as before.
+void ContainerReader::LoadContentHashRecord(uint64_t index_offset) {
+  const uint64_t size = ContentHashFrameSize(metadata_.arrays.size());
+  if (index_offset < header_.FirstFrameOffset() + size) return;
+  const uint64_t at = index_offset - size;
+  std::array<std::byte, kFrameHeaderSize> hb;
+  if (!file_.ReadAt(at, hb).ok()) return;
+  auto h = DecodeFrameHeader(hb, at, file_size_);
+  if (!h.ok() || h->type != static_cast<uint16_t>(FrameType::kContentHash) || h->FrameSize() != size) return;
+  std::vector<std::byte> payload(h->payload_length);  // at most 8 + 8·255 bytes (FrameSize checked)
+  if (!file_.ReadAt(at + kFrameHeaderSize, payload).ok() || Checksum(payload) != h->payload_checksum) return;
+  auto sums = DecodeContentHashRecord(payload, metadata_.arrays.size());
+  if (sums.ok()) recorded_sums_ = std::move(sums).value();
+}
+
+std::optional<uint64_t> ContainerReader::RecordedHashSum(uint32_t array) const {
+  if (array >= metadata_.arrays.size()) return std::nullopt;
+  if (!parts_.empty()) {
+    uint64_t sum = 0;
+    for (const auto& p : parts_) {
+      auto s = p->RecordedHashSum(array);
+      if (!s) return std::nullopt;
+      sum += *s;
+    }
+    return sum;
+  }
+  if (!sealed_ || recorded_sums_.empty()) return std::nullopt;
+  return recorded_sums_[array];
+}
+
+std::string ContainerReader::RecordedContentHash(uint32_t array) const {
+  auto sum = RecordedHashSum(array);
+  if (!sum) return "";
+  ContentHasher h;
+  h.AddSum(*sum);
+  return h.Finish(metadata_.arrays[array]);
 }
 
 Status ContainerReader::LoadByScan() {

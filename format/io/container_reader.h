@@ -7,6 +7,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -73,6 +74,14 @@ class ContainerReader {
   bool complete() const;
   uint64_t committed(uint32_t array) const { return committed_.at(array); }
 
+  // The content_hash sum the writer recorded for `array` when it sealed the file (its
+  // content-hash frame), or nothing: the file is not sealed, was written before the frame
+  // existed (2026-11-26), or its record is damaged. A manifest: the sum of its shards'
+  // records, when every shard has one. Trusted as written; `verify` recomputes it.
+  std::optional<uint64_t> RecordedHashSum(uint32_t array) const;
+  // RecordedHashSum as a content_hash (16 hex digits), or "" when there is none.
+  std::string RecordedContentHash(uint32_t array) const;
+
   // The frame of a committed chunk, or nullptr when it is missing.
   const format::IndexEntry* Find(uint32_t array, uint64_t chunk) const;
   // Chunk frames in file order (a manifest: each shard's, shard after shard; offsets are
@@ -107,6 +116,7 @@ class ContainerReader {
   Status LoadFromIndex(uint64_t index_offset);
   Status LoadByScan();
   Status LoadManifest();  // in manifest.cpp
+  void LoadContentHashRecord(uint64_t index_offset);
   // A manifest's shard holding the chunk, or nullptr (a container, or a missing chunk).
   const ContainerReader* PartOf(uint32_t array, uint64_t chunk) const;
   // A shard's error, prefixed with "MANIFEST: shard I of N".
@@ -133,6 +143,7 @@ class ContainerReader {
   std::vector<std::string> problems_;
   std::vector<std::shared_ptr<const ContainerReader>> parts_;  // a manifest's shards
   std::vector<uint32_t> frame_part_;                           // per chunk_frames_ slot
+  std::vector<uint64_t> recorded_sums_;                        // the content-hash frame's, or empty
 };
 
 // A fingerprint of what the file holds: its metadata and every committed chunk's

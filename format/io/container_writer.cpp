@@ -8,6 +8,8 @@
 #include <cstring>
 #include <tuple>
 
+#include "format/coded_codec.h"
+#include "format/content_hash.h"
 #include "format/io/atomic_file.h"
 #include "format/io/container_reader.h"
 #include "format/io/frame_scan.h"
@@ -33,6 +35,8 @@ ContainerWriter& ContainerWriter::operator=(ContainerWriter&& o) noexcept {
     mutations_ = o.mutations_;
     frames_ = std::move(o.frames_);
     committed_ = std::move(o.committed_);
+    hash_sums_ = std::move(o.hash_sums_);
+    hashed_ = std::move(o.hashed_);
     direct_ = std::move(o.direct_);
     bounce_ = std::move(o.bounce_);
     direct_stats_ = std::move(o.direct_stats_);
@@ -116,6 +120,7 @@ Result<ContainerWriter> ContainerWriter::Open(const std::string& path, const nlo
   ContainerWriter w;
   w.options_ = options;
   w.metadata_ = std::move(parsed).value();
+  w.hash_sums_.assign(w.metadata_.arrays.size(), 0);
   // Before anything at path is opened: a second writer stops here.
   LTB_ASSIGN_OR_RETURN(w.lock_, LockOutput(path));
 
@@ -170,6 +175,9 @@ Status ContainerWriter::Resume(uint64_t file_size) {
       saw_index = true;
       break;  // frames after an index are not expected; the seal is redone below
     }
+    // A content-hash frame is written only when sealing: one before the end of the log is
+    // from an interrupted seal, and is cut off with it (sealing writes it again).
+    if (e.header.type == static_cast<uint16_t>(FrameType::kContentHash)) continue;
     end = e.frame_offset + e.header.FrameSize();
     if (e.header.type != static_cast<uint16_t>(FrameType::kChunk)) continue;
     const FrameHeader& h = e.header;
@@ -225,7 +233,8 @@ std::vector<uint64_t> ContainerWriter::Missing(uint32_t array) const {
   return out;
 }
 
-Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChunk& encoded) {
+Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChunk& encoded,
+                               std::optional<uint64_t> hash_sum) {
   if (array >= metadata_.arrays.size()) return InvalidArgument(path() + ": no array " + std::to_string(array));
   const ArraySpec& a = metadata_.arrays[array];
   if (chunk >= a.ChunkCount()) {
@@ -266,6 +275,26 @@ Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChun
       return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name + "\" has " +
                              std::to_string(a.Extent(chunk).Elements()) +
                              " elements, more than a sparse chunk holds (" + std::to_string(kMaxSparseElements) + ")");
+    }
+  }
+  if (!hash_sum) {
+    // Decoded here, outside the lock, as a reader would decode it.
+    if (encoded.encoding == Encoding::kZero) {
+      hash_sum = 0;
+    } else if (encoded.encoding == Encoding::kRaw) {
+      hash_sum = ChunkHashSum(a, a.Extent(chunk), encoded.payload);
+    } else {
+      std::vector<std::byte> dense(encoded.decoded_length);
+      Status d = encoded.encoding == Encoding::kZstd     ? DecodeZstd(encoded.payload, dense)
+                 : encoded.encoding == Encoding::kSparse ? DecodeSparseInto(encoded.payload, a.dtype, dense)
+                 : encoded.encoding == Encoding::kSparseZstd
+                     ? DecodeSparseZstdInto(encoded.payload, a.dtype, dense)
+                     : DecodeCodedInto(encoded.payload, CodedLineLength(a.layout, a.Extent(chunk)), dense);
+      if (!d.ok()) {
+        return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name +
+                               "\" does not decode: " + d.message());
+      }
+      hash_sum = ChunkHashSum(a, a.Extent(chunk), dense);
     }
   }
   FrameHeader h;
@@ -317,6 +346,8 @@ Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChun
   end_ = offset + h.FrameSize();
   frames_.push_back({offset, h});
   committed_.insert(Key(array, chunk));
+  hash_sums_[array] += *hash_sum;
+  hashed_.insert(Key(array, chunk));
   return Status::Ok();
 }
 
@@ -399,11 +430,15 @@ Status ContainerWriter::WritePayload(uint64_t offset, ByteSpan payload, bool dir
 }
 
 Status ContainerWriter::Put(uint32_t array, uint64_t chunk, ByteSpan data, const EncodeOptions& options) {
-  if (!options.sparse || array >= metadata_.arrays.size()) {
-    EncodedChunk c = EncodeChunk(data, options);
-    return Append(array, chunk, c);
-  }
+  if (array >= metadata_.arrays.size()) return InvalidArgument(path() + ": no array " + std::to_string(array));
   const ArraySpec& a = metadata_.arrays[array];
+  // The sum is taken from the bytes in hand (Append checks the chunk and its length).
+  std::optional<uint64_t> sum;
+  if (chunk < a.ChunkCount() && data.size() == a.ChunkBytes(chunk)) sum = ChunkHashSum(a, a.Extent(chunk), data);
+  if (!options.sparse) {
+    EncodedChunk c = EncodeChunk(data, options);
+    return Append(array, chunk, c, sum);
+  }
   if (chunk < a.ChunkCount() && a.Extent(chunk).Elements() > kMaxSparseElements) {
     return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name + "\" has " +
                            std::to_string(a.Extent(chunk).Elements()) + " elements, more than a sparse chunk holds (" +
@@ -413,7 +448,7 @@ Status ContainerWriter::Put(uint32_t array, uint64_t chunk, ByteSpan data, const
   eo.dtype = a.dtype;  // the sparse payload depends on the element type: always the array's
   if (chunk < a.ChunkCount()) eo.line_length = CodedLineLength(a.layout, a.Extent(chunk));  // and kCoded on the line
   EncodedChunk c = EncodeChunk(data, eo);
-  return Append(array, chunk, c);
+  return Append(array, chunk, c, sum);
 }
 
 Status ContainerWriter::Discard() {
@@ -424,6 +459,21 @@ Status ContainerWriter::Discard() {
   if (!p.empty() && std::remove(p.c_str()) != 0 && errno != ENOENT && s.ok()) s = IoError(p + ": remove", errno);
   *this = ContainerWriter();
   return s;
+}
+
+Status ContainerWriter::HashResumedChunks() {
+  if (hashed_.size() == committed_.size()) return Status::Ok();
+  LTB_ASSIGN_OR_RETURN(ContainerReader reader, ContainerReader::Open(path()));
+  for (const IndexEntry& e : frames_) {
+    const uint32_t array = e.header.array;
+    const uint64_t chunk = e.header.chunk_index;
+    if (hashed_.count(Key(array, chunk)) != 0) continue;
+    auto c = reader.ReadChunk(array, chunk);
+    if (!c.ok()) return c.status().WithContext("hashing a chunk committed before this writer resumed");
+    hash_sums_[array] += ChunkHashSum(metadata_.arrays[array], c->extent(), c->bytes());
+    hashed_.insert(Key(array, chunk));
+  }
+  return Status::Ok();
 }
 
 Status ContainerWriter::Finish() {
@@ -441,13 +491,22 @@ Status ContainerWriter::Finish() {
     return FailedPrecondition(path() + ": cannot seal: " + std::to_string(missing) +
                               " chunks missing (first: " + first + ")");
   }
+  LTB_RETURN_IF_ERROR(HashResumedChunks());
+  std::vector<std::byte> record = EncodeContentHashRecord(hash_sums_);
+  FrameHeader rh;
+  rh.type = static_cast<uint16_t>(FrameType::kContentHash);
+  rh.flags = kFrameFlagOptional;
+  rh.payload_length = record.size();
+  rh.decoded_length = record.size();
+  rh.payload_checksum = Checksum(record);
+  const uint64_t record_offset = end_;
   std::vector<std::byte> index = EncodeIndex(frames_);
   FrameHeader h;
   h.type = static_cast<uint16_t>(FrameType::kIndex);
   h.payload_length = index.size();
   h.decoded_length = index.size();
   h.payload_checksum = Checksum(index);
-  uint64_t index_offset = end_;
+  uint64_t index_offset = record_offset + rh.FrameSize();  // == + ContentHashFrameSize(arrays)
   uint64_t trailer_offset = index_offset + h.FrameSize();
   Trailer t;
   t.index_offset = index_offset;
@@ -457,8 +516,14 @@ Status ContainerWriter::Finish() {
   // uncommitted tail) or an index frame whose declared length covers the partial payload.
   // The payload holds copies of chunk frame headers; written before its own header, those
   // copies would read as frames to a scanner.
+  // The content-hash frame goes first, payload before header like a chunk; a writer
+  // killed after it leaves an optional frame that resuming cuts off (see Resume).
   LTB_RETURN_IF_ERROR(CountMutation());
   LTB_RETURN_IF_ERROR(file_.Truncate(trailer_offset));
+  LTB_RETURN_IF_ERROR(CountMutation());
+  LTB_RETURN_IF_ERROR(file_.WriteAt(record_offset + kFrameHeaderSize, record));
+  LTB_RETURN_IF_ERROR(CountMutation());
+  LTB_RETURN_IF_ERROR(file_.WriteAt(record_offset, EncodeFrameHeader(rh)));
   LTB_RETURN_IF_ERROR(CountMutation());
   LTB_RETURN_IF_ERROR(file_.WriteAt(index_offset, EncodeFrameHeader(h)));
   LTB_RETURN_IF_ERROR(CountMutation());

@@ -7,6 +7,12 @@
 // appends only what is missing. Finish() checks every chunk is present and seals the file
 // with an index and a trailer.
 //
+// content_hash: the writer sums every chunk's content_hash contribution as it is appended
+// (the sum does not depend on the order of commits) and records the sums in a
+// content-hash frame when it seals (docs/FORMAT.md), so readers get an output's
+// content_hash without reading it back. Chunks committed by an earlier, interrupted
+// writer are read back and hashed once, when the resumed file is sealed.
+//
 // One writer per file: Open takes the output's lock (LockOutput) before it opens or
 // creates anything, and the writer holds it until it is destroyed; a second writer of the
 // same path (another process) fails with "PATH is in use by PID N" and touches nothing.
@@ -16,6 +22,7 @@
 #include <memory>
 #include <mutex>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <unordered_set>
 #include <vector>
@@ -84,15 +91,18 @@ class ContainerWriter {
 
   // Appends one encoded chunk. Thread-safe; encode outside, in parallel, then append.
   // A sparse-encoded chunk must have been encoded with the array's dtype and have at most
-  // format::kMaxSparseElements elements (kInvalidArgument otherwise).
-  Status Append(uint32_t array, uint64_t chunk, const format::EncodedChunk& encoded);
+  // format::kMaxSparseElements elements (kInvalidArgument otherwise). `hash_sum` is the
+  // chunk's content_hash sum (format::ChunkHashSum of its decoded bytes) when the caller
+  // has it; without it the writer decodes the chunk to compute it.
+  Status Append(uint32_t array, uint64_t chunk, const format::EncodedChunk& encoded,
+                std::optional<uint64_t> hash_sum = std::nullopt);
   // Encodes and appends `data` (the chunk in the array's layout and dtype). With
   // options.sparse the array's dtype is used whatever options.dtype says, the line length
   // of kCoded (options.coded) is the array's, and a chunk of more than
   // format::kMaxSparseElements elements is refused (kInvalidArgument).
   Status Put(uint32_t array, uint64_t chunk, format::ByteSpan data, const format::EncodeOptions& options = {});
 
-  // Seals the file (index + trailer + fdatasync). Fails, naming the first missing chunk,
+  // Seals the file (content-hash frame + index + trailer + fdatasync). Fails, naming the first missing chunk,
   // when a chunk is missing. A no-op on an already sealed file.
   Status Finish();
 
@@ -109,6 +119,9 @@ class ContainerWriter {
   Status AppendPadding(uint64_t frame_offset);
   Status WritePayload(uint64_t offset, format::ByteSpan payload, bool direct);
   static uint64_t Key(uint32_t array, uint64_t chunk) { return (uint64_t{array} << 40) | chunk; }
+  // Adds the sums of committed chunks this writer did not append (found on resume),
+  // reading them back; called with mu_ held.
+  Status HashResumedChunks();
 
   FileLock lock_;  // first: released after the file is closed
   File file_;
@@ -122,7 +135,9 @@ class ContainerWriter {
   uint64_t mutations_ = 0;
   std::vector<format::IndexEntry> frames_;
   std::unordered_set<uint64_t> committed_;
-  File direct_;  // the same file opened with O_DIRECT (options_.direct_io), else closed
+  std::vector<uint64_t> hash_sums_;      // per array: Σ content_hash sums of the chunks in hashed_
+  std::unordered_set<uint64_t> hashed_;  // chunks this writer hashed (not those found on resume)
+  File direct_;                          // the same file opened with O_DIRECT (options_.direct_io), else closed
   struct FreeDeleter {
     void operator()(std::byte* p) const;
   };

@@ -85,7 +85,7 @@ Result<ManifestInfo> ReadManifest(const std::string& path);
 
 // verify for a manifest: the manifest's own checks plus VerifyContainer of every shard, each
 // problem prefixed with the shard it is in.
-VerifyReport VerifyManifest(const std::string& path);
+VerifyReport VerifyManifest(const std::string& path, int threads = 1);
 
 struct MergeResult {
   uint64_t chunks = 0;

@@ -6,6 +6,8 @@
 
 #include "format/array_spec.h"
 #include "format/chunk_codec.h"
+#include "format/content_hash.h"
+#include "format/io/array_summary.h"
 #include "format/io/container_reader.h"
 #include "format/io/frame_scan.h"
 #include "format/io/manifest.h"
@@ -66,7 +68,7 @@ Result<uint64_t> ChecksumRange(const File& f, uint64_t offset, uint64_t length, 
 // damage that ends the verification.
 class Verification {
  public:
-  explicit Verification(const std::string& path) { r_.path = path; }
+  Verification(const std::string& path, int threads) : threads_(threads) { r_.path = path; }
   VerifyReport Run();
 
  private:
@@ -78,8 +80,11 @@ class Verification {
   bool CheckTrailer();
   void CheckSeal(bool trailer_ok);
   void CheckIndexEntries();
+  void CheckContentHashes();
 
   VerifyReport r_;
+  int threads_ = 1;
+  std::vector<uint64_t> recorded_sums_;  // the last valid content-hash frame's
   File file_;
   uint64_t size_ = 0;
   ContainerPrelude prelude_;
@@ -183,6 +188,18 @@ void Verification::CheckFrame(const IndexEntry& e) {
     return;
   }
   if (h.type == static_cast<uint16_t>(FrameType::kPadding)) return;  // zeros (checked by the checksum)
+  if (h.type == static_cast<uint16_t>(FrameType::kContentHash)) {
+    std::vector<std::byte> payload(h.payload_length);  // within the file (DecodeFrameHeader)
+    Status read = file_.ReadAt(payload_offset, payload);
+    auto sums = read.ok() ? DecodeContentHashRecord(payload, prelude_.metadata.arrays.size())
+                          : Result<std::vector<uint64_t>>(read);
+    if (!sums.ok()) {
+      r_.problems.push_back(where + ": content-hash frame: " + sums.status().message());
+    } else {
+      recorded_sums_ = std::move(sums).value();
+    }
+    return;
+  }
   if (h.type != static_cast<uint16_t>(FrameType::kChunk)) {
     if (h.flags & kFrameFlagOptional) {
       r_.notes.push_back(where + ": skipped optional frame of unknown type " + std::to_string(h.type));
@@ -374,14 +391,56 @@ VerifyReport Verification::Run() {
                           std::to_string(r_.chunks_expected));
   }
   r_.complete = r_.sealed && r_.problems.empty() && r_.chunks_ok == r_.chunks_expected;
+  if (r_.complete) CheckContentHashes();
+  r_.complete = r_.complete && r_.problems.empty();
   return r_;
+}
+
+// Every array's content_hash from its decoded chunks, against the writer's record.
+void Verification::CheckContentHashes() {
+  const Metadata& meta = prelude_.metadata;
+  r_.content_hash.assign(meta.arrays.size(), "");
+  r_.recorded_content_hash.assign(meta.arrays.size(), "");
+  r_.hash_sum.assign(meta.arrays.size(), 0);
+  auto reader = ContainerReader::Open(r_.path);
+  if (!reader.ok()) {
+    r_.problems.push_back("cannot reopen to recompute content_hash: " + reader.status().message());
+    return;
+  }
+  for (uint32_t a = 0; a < meta.arrays.size(); ++a) {
+    const ArraySpec& spec = meta.arrays[a];
+    if (!recorded_sums_.empty()) {
+      ContentHasher rec;
+      rec.AddSum(recorded_sums_[a]);
+      r_.recorded_content_hash[a] = rec.Finish(spec);
+    }
+    if (spec.ChunkBytes(0) > kVerifyHashChunkBytes) {
+      r_.notes.push_back("array \"" + spec.name + "\": content_hash not recomputed (chunks of " +
+                         std::to_string(spec.ChunkBytes(0)) + " bytes, over verify's " +
+                         std::to_string(kVerifyHashChunkBytes) + "-byte limit per chunk)");
+      continue;
+    }
+    auto summary = SummarizeArray(*reader, a, threads_);
+    if (!summary.ok()) {
+      r_.problems.push_back("array \"" + spec.name +
+                            "\": cannot recompute content_hash: " + summary.status().message());
+      continue;
+    }
+    r_.content_hash[a] = summary->content_hash;
+    r_.hash_sum[a] = summary->hash_sum;
+    if (!r_.recorded_content_hash[a].empty() && r_.recorded_content_hash[a] != summary->content_hash) {
+      r_.problems.push_back("array \"" + spec.name + "\": the writer recorded content_hash " +
+                            r_.recorded_content_hash[a] + ", but the chunks hash to " + summary->content_hash +
+                            " (the content-hash frame is wrong; rewrite the file)");
+    }
+  }
 }
 
 }  // namespace
 
-VerifyReport VerifyContainer(const std::string& path) {
-  if (LooksLikeManifest(path)) return VerifyManifest(path);
-  return Verification(path).Run();
+VerifyReport VerifyContainer(const std::string& path, int threads) {
+  if (LooksLikeManifest(path)) return VerifyManifest(path, threads);
+  return Verification(path, threads).Run();
 }
 
 }  // namespace ltb::io

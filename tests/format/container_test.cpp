@@ -3,12 +3,15 @@
 #include <gtest/gtest.h>
 
 #include <cstring>
+#include <fstream>
 
+#include "format/chunk_codec.h"
 #include "format/content_hash.h"
 #include "format/io/array_summary.h"
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
 #include "format/io/verifier.h"
+#include "format/layout.h"
 #include "test_util.h"
 
 namespace ltb {
@@ -320,6 +323,122 @@ TEST(Container, SideTablesAreChunksToo) {
   auto c = r->ReadChunk(1, 0);
   ASSERT_TRUE(c.ok());
   EXPECT_EQ(0, std::memcmp(c->bytes().data(), d.data(), d.size()));
+}
+
+// The writer records every array's content_hash when it seals: whatever way the chunks
+// came (Put raw, zstd or sparse; Append with the caller's sum or without one), the record
+// equals what a reader computes from the decoded chunks, and verify agrees.
+TEST(Container, WriterRecordsTheContentHashOfEveryArray) {
+  TempDir dir;
+  const std::string path = dir.File("hashed.ltm");
+  format::ArraySpec m, side;
+  m.name = "matrix";
+  m.rows = 40;
+  m.cols = 9;
+  m.layout = Layout::kRows;
+  m.block = 4;
+  side.name = "side";
+  side.dtype = format::DType::kU32;
+  side.rows = 7;
+  side.cols = 13;
+  side.layout = Layout::kCols;
+  side.block = 3;
+  nlohmann::json meta = {{"arrays", {m.ToJson(), side.ToJson()}}};
+  auto values = test::MakeMatrix(m.rows, m.cols, 4);
+  for (size_t i = 0; i < values.size(); i += 3) values[i] = 0.0f;  // sparse enough for the sparse encodings
+  std::vector<uint32_t> table(side.rows * side.cols);
+  for (size_t i = 0; i < table.size(); ++i) table[i] = static_cast<uint32_t>(i * 2654435761u % 97);
+  {
+    auto w = io::ContainerWriter::Open(path, meta);
+    ASSERT_TRUE(w.ok()) << w.status().message();
+    for (uint64_t i = 0; i < m.ChunkCount(); ++i) {
+      auto v = test::ChunkValues(m, values, i);
+      format::EncodeOptions eo;
+      eo.zstd = i % 2 == 0;
+      eo.sparse = i % 3 == 0;
+      if (i % 4 == 1) {
+        // Encoded outside, appended without a sum: the writer decodes it to hash it.
+        ASSERT_TRUE(w->Append(0, i, format::EncodeChunk(test::AsBytes(v), eo)).ok());
+      } else {
+        ASSERT_TRUE(w->Put(0, i, test::AsBytes(v), eo).ok());
+      }
+    }
+    for (uint64_t i = 0; i < side.ChunkCount(); ++i) {
+      auto v = test::ChunkValues(side, table, i);
+      const auto sum = format::ChunkHashSum(side, side.Extent(i), test::AsBytes(v));
+      ASSERT_TRUE(w->Append(1, i, format::EncodeChunk(test::AsBytes(v), {}), sum).ok());
+    }
+    ASSERT_TRUE(w->Finish().ok());
+  }
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  io::VerifyReport v = io::VerifyContainer(path, 2);
+  EXPECT_TRUE(v.complete);
+  EXPECT_TRUE(v.problems.empty()) << v.problems.front();
+  for (uint32_t a = 0; a < 2; ++a) {
+    auto s = io::SummarizeArray(*r, a, 1);
+    ASSERT_TRUE(s.ok()) << s.status().message();
+    EXPECT_FALSE(s->content_hash.empty());
+    EXPECT_EQ(r->RecordedContentHash(a), s->content_hash) << "array " << a;
+    EXPECT_EQ(r->RecordedHashSum(a), s->hash_sum) << "array " << a;
+    EXPECT_EQ(v.content_hash.at(a), s->content_hash) << "array " << a;
+    EXPECT_EQ(v.recorded_content_hash.at(a), s->content_hash) << "array " << a;
+  }
+}
+
+// A record that does not match the chunks is a problem for verify (readers trust it, so
+// verify is where a wrong one is caught); a damaged record is ignored by readers.
+TEST(Container, VerifyRecomputesTheRecordedContentHash) {
+  TempDir dir;
+  const std::string path = dir.File("record.ltm");
+  test::WriteMatrix(path, 12, 5, Layout::kRows, 4, 3, false);
+  const std::string truth = test::HashOf(path);
+  auto r = io::ContainerReader::Open(path);
+  ASSERT_TRUE(r.ok());
+  ASSERT_EQ(r->RecordedContentHash(0), truth);
+  // The record sits just before the index frame, whose offset the trailer gives.
+  std::vector<char> bytes = test::ReadFileBytes(path);
+  uint64_t index_offset = 0;
+  std::memcpy(&index_offset, bytes.data() + bytes.size() - 64 + 8, 8);
+  const uint64_t at = index_offset - format::ContentHashFrameSize(1);
+  auto rewrite = [&](const std::vector<char>& b) {
+    std::ofstream(path, std::ios::binary | std::ios::trunc).write(b.data(), static_cast<std::streamsize>(b.size()));
+  };
+  {
+    // A wrong sum under a valid checksum.
+    std::vector<char> b = bytes;
+    b[at + 64 + 8] ^= 1;
+    auto h = format::DecodeFrameHeader(format::ByteSpan(reinterpret_cast<const std::byte*>(b.data() + at), 64), at,
+                                       b.size());
+    ASSERT_TRUE(h.ok()) << h.status().message();
+    EXPECT_EQ(h->type, static_cast<uint16_t>(format::FrameType::kContentHash));
+    h->payload_checksum =
+        format::Checksum(format::ByteSpan(reinterpret_cast<const std::byte*>(b.data() + at + 64), 16));
+    auto hb = format::EncodeFrameHeader(*h);
+    std::memcpy(b.data() + at, hb.data(), hb.size());
+    rewrite(b);
+    auto wrong = io::ContainerReader::Open(path);
+    ASSERT_TRUE(wrong.ok());
+    EXPECT_NE(wrong->RecordedContentHash(0), truth);
+    EXPECT_FALSE(wrong->RecordedContentHash(0).empty());
+    io::VerifyReport v = io::VerifyContainer(path);
+    EXPECT_FALSE(v.complete);
+    ASSERT_EQ(v.problems.size(), 1u);
+    EXPECT_NE(v.problems[0].find("recorded content_hash " + wrong->RecordedContentHash(0)), std::string::npos)
+        << v.problems[0];
+    EXPECT_NE(v.problems[0].find(truth), std::string::npos) << v.problems[0];
+  }
+  {
+    // A damaged record (checksum mismatch): readers fall back to reading the chunks.
+    std::vector<char> b = bytes;
+    b[at + 64 + 9] ^= 1;
+    rewrite(b);
+    auto damaged = io::ContainerReader::Open(path);
+    ASSERT_TRUE(damaged.ok());
+    EXPECT_EQ(damaged->RecordedContentHash(0), "");
+    EXPECT_EQ(test::HashOf(path), truth);
+    EXPECT_FALSE(io::VerifyContainer(path).problems.empty());
+  }
 }
 
 }  // namespace
