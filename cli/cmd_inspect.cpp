@@ -100,7 +100,8 @@ class InspectCommand : public Command {
     app->add_option("FILE", path_, "the .ltm file")->required();
     app->add_flag("--json", json_, "print one JSON object (stable keys, for scripts)");
     app->add_flag("--chunks", chunks_, "list every committed chunk frame");
-    app->add_flag("--no-content", no_content_, "skip reading chunk payloads (no content_hash or stats)");
+    app->add_flag("--no-content", no_content_,
+                  "skip reading chunk payloads: no stats, and content_hash only as its writer recorded it");
     AddCommonFlags(app, &flags_);
   }
 
@@ -135,12 +136,20 @@ class InspectCommand : public Command {
       const ArraySpec& a = meta.arrays[i];
       json j = a.ToJson();
       j["chunks"] = ChunkCounts(reader, i);
+      // What the writer recorded while writing; with content read, checked against it.
+      const std::string recorded = reader.RecordedContentHash(i);
+      if (!recorded.empty()) j["content_hash"] = recorded;
       if (!no_content_) {
         ProgressBar bar(flags_, "inspect " + a.name);
         auto summary = io::SummarizeArray(reader, i, flags_.jobs, bar.hook());
         bar.Done();
         if (!summary.ok()) return ReportFailure(summary.status());
         AddContent(*summary, j);
+        if (!recorded.empty() && recorded != summary->content_hash) {
+          j["recorded_content_hash"] = recorded;
+          out["problems"].push_back("array \"" + a.name + "\": the writer recorded content_hash " + recorded +
+                                    ", but the chunks hash to " + summary->content_hash + " (run ltbake verify)");
+        }
       }
       out["arrays"].push_back(j);
     }
@@ -207,7 +216,7 @@ class InspectCommand : public Command {
       std::snprintf(pct, sizeof pct, "%.1f%%", 100 * d["overhead_fraction"].get<double>());
       std::cout << "  on disk: " << HumanBytes(d["total_bytes"]) << " = matrix " << HumanBytes(d["matrix_bytes"])
                 << " + side tables " << HumanBytes(d["side_table_bytes"]) << " + container "
-                << HumanBytes(d["overhead_bytes"]) << " (" << pct << ": headers, index, padding)\n";
+                << HumanBytes(d["overhead_bytes"]) << " (" << pct << ": headers, index, content hashes, padding)\n";
     }
     for (const json& a : out["arrays"]) {
       const json& c = a["chunks"];

@@ -25,7 +25,7 @@ class VerifyCommand : public Command {
     bool all_good = true;
     nlohmann::json list = nlohmann::json::array();
     for (const std::string& path : paths_) {
-      io::VerifyReport r = io::VerifyContainer(path);
+      io::VerifyReport r = io::VerifyContainer(path, flags_.jobs);
       bool incomplete = r.readable && r.problems.empty() && !r.complete;
       bool good = r.problems.empty() && (r.complete || (incomplete && allow_incomplete_));
       all_good = all_good && good;
@@ -38,6 +38,8 @@ class VerifyCommand : public Command {
                         {"chunks_expected", r.chunks_expected},
                         {"chunks_ok", r.chunks_ok},
                         {"uncommitted_tail_bytes", r.uncommitted_tail_bytes},
+                        {"content_hash", r.content_hash},
+                        {"recorded_content_hash", r.recorded_content_hash},
                         {"problems", r.problems},
                         {"notes", r.notes}});
         continue;

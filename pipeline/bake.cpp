@@ -117,6 +117,8 @@ std::vector<std::string> Bake::Command(const Node& n, bool overwrite) const {
 Result<std::string> Bake::ContentHashOf(const Node& n, const std::string& path) const {
   if (n.image) return HashFileBytes(path);
   LTB_ASSIGN_OR_RETURN(io::ContainerReader reader, io::ContainerReader::Open(path));
+  // The stage's writer recorded it while writing (a manifest: its shards' writers did).
+  if (std::string recorded = reader.RecordedContentHash(0); !recorded.empty()) return recorded;
   LTB_ASSIGN_OR_RETURN(io::ArraySummary s, io::SummarizeArray(reader, 0, o_.jobs));
   if (s.content_hash.empty()) return FailedPrecondition(path + ": is incomplete");
   return s.content_hash;
@@ -323,8 +325,7 @@ Status Bake::GivenStep(const Node& n) {
   }
   entry["action"] = "given";
   entry["reason"] = "before --from " + o_.from;
-  entry.erase("wall_seconds");
-  entry.erase("peak_rss_bytes");
+  for (const char* k : {"wall_seconds", "cpu_seconds", "disk_bytes", "peak_rss_bytes"}) entry.erase(k);
   entry["output"] = {{"file", n.output},
                      {"path", out_path},
                      {"bytes", out.bytes},
@@ -348,6 +349,8 @@ StepEnd Bake::RunChildStep(const Node& n, const std::vector<std::string>& cmd, c
     return {BakeEnd::kFailed, 0, "stage " + n.name + " could not be started: " + child.status().message(), {}};
   }
   e["wall_seconds"] = child->wall_seconds;
+  e["cpu_seconds"] = {{"user", child->user_seconds}, {"system", child->system_seconds}};
+  e["disk_bytes"] = {{"read", child->disk_read_bytes}, {"written", child->disk_write_bytes}};
   e["peak_rss_bytes"] = child->peak_rss_bytes;
   e["exit_code"] = child->exit_code;
   if (n.image) {
@@ -442,8 +445,7 @@ Result<StepEnd> Bake::RunStep(size_t i, const Plan& plan) {
     json entry = *rec;
     entry["action"] = "skip";
     entry["reason"] = d.reason;
-    entry.erase("wall_seconds");
-    entry.erase("peak_rss_bytes");
+    for (const char* k : {"wall_seconds", "cpu_seconds", "disk_bytes", "peak_rss_bytes"}) entry.erase(k);
     hash_of_[n.output] = FileHash::Known(RecordOutput(*rec).value("content_hash", ""));
     entries_.push_back(entry);
     return StepEnd{};

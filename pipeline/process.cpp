@@ -190,6 +190,10 @@ Result<ChildResult> RunChild(const std::vector<std::string>& argv, const ChildIo
   if (err_line.rfind("ltbake: error: ", 0) == 0) result.errors.push_back(err_line.substr(15));
   result.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   result.peak_rss_bytes = static_cast<uint64_t>(ru.ru_maxrss) * 1024;
+  result.user_seconds = static_cast<double>(ru.ru_utime.tv_sec) + 1e-6 * static_cast<double>(ru.ru_utime.tv_usec);
+  result.system_seconds = static_cast<double>(ru.ru_stime.tv_sec) + 1e-6 * static_cast<double>(ru.ru_stime.tv_usec);
+  result.disk_read_bytes = static_cast<uint64_t>(ru.ru_inblock) * 512;
+  result.disk_write_bytes = static_cast<uint64_t>(ru.ru_oublock) * 512;
   if (WIFEXITED(status)) result.exit_code = WEXITSTATUS(status);
   if (WIFSIGNALED(status)) result.term_signal = WTERMSIG(status);
   return result;

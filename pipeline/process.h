@@ -1,6 +1,6 @@
 // Runs one stage as a child process (`ltbake <stage> ...`): its stdout and stderr are
 // passed on and appended to a log, a pending SIGINT/SIGTERM is forwarded to it, and its
-// wall time, peak RSS and exit status are measured (wait4). The child dies with its parent
+// wall time, CPU time, block I/O, peak RSS and exit status are measured (wait4). The child dies with its parent
 // (PR_SET_PDEATHSIG), so a bake killed with SIGKILL leaves no stage running on its own.
 #pragma once
 
@@ -19,6 +19,9 @@ struct ChildResult {
   int term_signal = 0;  // when a signal killed it
   double wall_seconds = 0;
   uint64_t peak_rss_bytes = 0;
+  double user_seconds = 0, system_seconds = 0;  // CPU time of the child (and its waited-for children)
+  uint64_t disk_read_bytes = 0,
+           disk_write_bytes = 0;    // block I/O (ru_inblock/ru_oublock × 512): page-cache hits are not counted
   std::string stdout_text;          // everything it printed on stdout
   std::vector<std::string> errors;  // its "ltbake: error: ..." lines (stderr)
 };

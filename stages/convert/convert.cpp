@@ -12,6 +12,7 @@
 #include <thread>
 #include <vector>
 
+#include "format/content_hash.h"
 #include "format/io/atomic_file.h"
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
@@ -231,10 +232,11 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
         }
       }
     }
-    EncodedChunk enc = EncodeChunk(ByteSpan(reinterpret_cast<const std::byte*>(values.data()), n * 4), eo);
+    const ByteSpan bytes(reinterpret_cast<const std::byte*>(values.data()), n * 4);
+    EncodedChunk enc = EncodeChunk(bytes, eo);
     if (enc.encoding == Encoding::kZero) zeros++;
     if (enc.encoding == Encoding::kZstd) zstds++;
-    LTB_RETURN_IF_ERROR(writer.Append(0, chunk, enc));
+    LTB_RETURN_IF_ERROR(writer.Append(0, chunk, enc, ChunkHashSum(writer.metadata().arrays[0], e, bytes)));
     written++;
     return Status::Ok();
   });

@@ -242,7 +242,7 @@ Result<RowTransformResult> RunRowTransform(const RowTransformOptions& o, const P
       z.encoding = Encoding::kZero;
       z.decoded_length = entry->header.decoded_length;
       z.checksum = Checksum({});
-      LTB_RETURN_IF_ERROR(out.Append(it.array, it.chunk, z));
+      LTB_RETURN_IF_ERROR(out.Append(it.array, it.chunk, z, 0));  // zeros add nothing to content_hash
       if (it.array == 0) zero_chunks++;
       written++;
       return Status::Ok();

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "format/chunk_codec.h"
+#include "format/content_hash.h"
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
 #include "format/io/file.h"
@@ -223,9 +224,9 @@ class PanelWriter {
           uint64_t chunk = p.first_chunk + k;
           ChunkExtent e = out_spec.Extent(chunk);
           const float* data = buffers[slot].data() + (e.col0 - p.col0) * plan.rows;
-          EncodedChunk enc =
-              EncodeChunk(ByteSpan(reinterpret_cast<const std::byte*>(data), e.cols * plan.col_bytes), eo);
-          status_ = out.Append(0, chunk, enc);
+          const ByteSpan bytes(reinterpret_cast<const std::byte*>(data), e.cols * plan.col_bytes);
+          EncodedChunk enc = EncodeChunk(bytes, eo);
+          status_ = out.Append(0, chunk, enc, ChunkHashSum(out_spec, e, bytes));
           if (enc.encoding == Encoding::kZero) n.zero_out++;
           n.bytes_written += enc.payload.size();
           n.written++;
