@@ -75,14 +75,29 @@ uint64_t HashColumnRun(const U* v, uint64_t n, const uint64_t* keys, uint64_t cp
   return sum;
 }
 
+// RowKey(row0 + r) for r < n, kept per thread: column-major chunks hold whole columns of
+// the same rows, chunk after chunk, so the keys are computed once, not once per chunk.
+const uint64_t* RowKeys(uint64_t row0, uint64_t n) {
+  struct Cache {
+    uint64_t row0 = 0;
+    std::vector<uint64_t> keys;
+  };
+  thread_local Cache cache;
+  if (cache.row0 != row0 || cache.keys.size() != n) {
+    cache.keys.resize(n);
+    for (uint64_t r = 0; r < n; ++r) cache.keys[r] = RowKey(row0 + r);
+    cache.row0 = row0;
+  }
+  return cache.keys.data();
+}
+
 template <typename U>
 uint64_t HashColMajor(const U* data, uint64_t row0, uint64_t rows, uint64_t col0, uint64_t cols) {
-  constexpr uint64_t kTile = 4096, kBlock = 64;
-  std::array<uint64_t, kTile> keys;
+  constexpr uint64_t kTile = uint64_t{1} << 20, kBlock = 64;  // at most 8 MiB of cached keys
   uint64_t sum = 0;
   for (uint64_t t0 = 0; t0 < rows; t0 += kTile) {
     uint64_t tn = std::min(kTile, rows - t0);
-    for (uint64_t r = 0; r < tn; ++r) keys[r] = RowKey(row0 + t0 + r);
+    const uint64_t* keys = RowKeys(row0 + t0, tn);
     for (uint64_t c = 0; c < cols; ++c) {
       const U* col = data + c * rows + t0;
       uint64_t cpart = (col0 + c) * kK2;
@@ -90,7 +105,7 @@ uint64_t HashColMajor(const U* data, uint64_t row0, uint64_t rows, uint64_t col0
         const uint64_t m = std::min(kBlock, tn - b);
         U any = 0;
         for (uint64_t k = 0; k < m; ++k) any |= col[b + k];
-        if (any != 0) sum += HashColumnRun(col + b, m, keys.data() + b, cpart);
+        if (any != 0) sum += HashColumnRun(col + b, m, keys + b, cpart);
       }
     }
   }
