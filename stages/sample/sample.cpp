@@ -1,5 +1,7 @@
 #include "stages/sample/sample.h"
 
+#include <time.h>
+
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -69,10 +71,18 @@ Result<BareTraceResult> TraceBare(const SampleOptions& o) {
   std::vector<uint64_t> blocks;
   const uint64_t block = 64;
   for (uint64_t r0 = 0; r0 < p->rows; r0 += block) blocks.push_back(r0);
-  std::atomic<uint64_t> rays{0}, nanos{0};
+  std::atomic<uint64_t> rays{0}, nanos{0}, cpu_nanos{0};
+  auto thread_cpu_ns = [] {
+    timespec t{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+    return static_cast<uint64_t>(t.tv_sec) * 1000000000ull + static_cast<uint64_t>(t.tv_nsec);
+  };
   auto t0 = std::chrono::steady_clock::now();
   LTB_RETURN_IF_ERROR(ParallelFor(blocks, o.jobs, Progress{}, "rows", [&](uint64_t r0) -> Status {
     thread_local RowScratch sc;
+    const uint64_t item_cpu0 = thread_cpu_ns();
+    const auto item_wall0 = std::chrono::steady_clock::now();
+    uint64_t item_embree_ns = 0;
     for (uint64_t row = r0; row < std::min(p->rows, r0 + block); ++row) {
       RowPoint rp = sampler.Primary(row);
       if (!rp.valid) continue;
@@ -83,16 +93,22 @@ Result<BareTraceResult> TraceBare(const SampleOptions& o) {
         sampler.GenerateRays(row, rp, brdf, c0, std::min(cols, c0 + step), sc, &below, &samples_below);
         auto a = std::chrono::steady_clock::now();
         sampler.rays().Occluded(sc.batch, sc.n);
-        nanos += static_cast<uint64_t>(
+        item_embree_ns += static_cast<uint64_t>(
             std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - a).count());
         rays += sc.active;
       }
     }
+    const double item_cpu = static_cast<double>(thread_cpu_ns() - item_cpu0);
+    const double item_wall = static_cast<double>(
+        std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - item_wall0).count());
+    nanos += item_embree_ns;
+    if (item_wall > 0) cpu_nanos += static_cast<uint64_t>(item_cpu * static_cast<double>(item_embree_ns) / item_wall);
     return Status::Ok();
   }));
   BareTraceResult out;
   out.rays = rays;
   out.trace_thread_seconds = static_cast<double>(nanos.load()) * 1e-9;
+  out.trace_cpu_seconds = static_cast<double>(cpu_nanos.load()) * 1e-9;
   out.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return out;
 }

@@ -64,10 +64,14 @@ Result<SampleResult> RunSample(const SampleOptions& options, const Progress& pro
 // Benchmark baseline: builds the same scene and generates exactly the occlusion rays
 // RunSample traces (direct term), in the same batches and the same Embree call
 // (rtcOccludedNp, coherent), but only traces them: no transport bookkeeping, no
-// output. trace_thread_seconds sums the time threads spent inside Embree.
+// output. trace_thread_seconds sums the (wall) time threads spent inside Embree;
+// trace_cpu_seconds estimates the CPU time of those calls, robust to the threads being
+// preempted by other processes: each work item's thread CPU time times the share of its
+// wall time spent inside Embree (a per-call CPU clock costs ~20% of the calls themselves).
 struct BareTraceResult {
   uint64_t rays = 0;
   double trace_thread_seconds = 0;
+  double trace_cpu_seconds = 0;
   double wall_seconds = 0;
 };
 Result<BareTraceResult> TraceBare(const SampleOptions& options);
