@@ -86,8 +86,8 @@ bench-transpose: bench-build
 
 bench-sample: bench-build
 	mkdir -p bench/out
-	$(BUILD)/bench/ltb_sample_bench samples/medium.toml bench/out --cube-res 32 --reps 3
-	$(BUILD)/bench/ltb_sample_bench samples/medium.toml bench/out --cube-res 64 --reps 1
+	$(BUILD)/bench/ltb_sample_bench samples/medium.toml bench/out --cube-res 32 --reps 5
+	$(BUILD)/bench/ltb_sample_bench samples/medium.toml bench/out --cube-res 64 --reps 3
 
 # libFuzzer targets for every reader (docs/FUZZING.md), built in build-fuzz/ with the
 # libraries instrumented (ASan + UBSan + coverage); each runs FUZZ_SECONDS in turn, one at a

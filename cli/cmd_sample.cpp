@@ -34,6 +34,8 @@ class SampleCommand : public Command {
         ->check(CLI::IsMember({"haar", "db1", "db2", "db3", "db4"}));
     app->add_flag("--row-zstd", options_.row_zstd, "with --row-transform: zstd-compress the matrix chunks");
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
+    app->add_flag("!--no-direct-io", options_.direct_io,
+                  "write the output through the page cache instead of with O_DIRECT");
     AddCommonFlags(app, &flags_);
     AddShardFlags(app, &shard_flags_);
   }
@@ -47,11 +49,15 @@ class SampleCommand : public Command {
     if (bounces_ >= 0) options_.bounces = static_cast<uint32_t>(bounces_);
     if (seed_ >= 0) options_.seed = static_cast<uint64_t>(seed_);
     options_.jobs = sf.jobs;
+    options_.mem_limit = sf.mem_limit;  // bounds the queue of chunks waiting to be written
     if (!row_filter_.empty()) options_.row_filter = *wavelet::ParseFilter(row_filter_);  // checked by IsMember
     ProgressBar bar(flags_, "sample");
     auto r = stages::RunSample(options_, bar.hook());
     bar.Done();
     if (!r.ok()) return ReportFailure(r.status());
+    if (!r->direct_fallback.empty() && !flags_.quiet) {
+      std::cerr << "ltbake: note: " << r->direct_fallback << "; the output was written through the page cache\n";
+    }
     if (!flags_.quiet) {
       char rate[64];
       std::snprintf(rate, sizeof rate, "%.3g", r->seconds > 0 ? r->rays / r->seconds : 0.0);

@@ -1,11 +1,17 @@
 #include "stages/sample/sample.h"
 
+#include <time.h>
+
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cstdlib>
 #include <filesystem>
+#include <memory>
+#include <mutex>
 #include <vector>
 
+#include "format/io/async_chunk_writer.h"
 #include "format/io/container_writer.h"
 #include "format/version.h"
 #include "stages/common/basis.h"
@@ -65,10 +71,18 @@ Result<BareTraceResult> TraceBare(const SampleOptions& o) {
   std::vector<uint64_t> blocks;
   const uint64_t block = 64;
   for (uint64_t r0 = 0; r0 < p->rows; r0 += block) blocks.push_back(r0);
-  std::atomic<uint64_t> rays{0}, nanos{0};
+  std::atomic<uint64_t> rays{0}, nanos{0}, cpu_nanos{0};
+  auto thread_cpu_ns = [] {
+    timespec t{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+    return static_cast<uint64_t>(t.tv_sec) * 1000000000ull + static_cast<uint64_t>(t.tv_nsec);
+  };
   auto t0 = std::chrono::steady_clock::now();
   LTB_RETURN_IF_ERROR(ParallelFor(blocks, o.jobs, Progress{}, "rows", [&](uint64_t r0) -> Status {
     thread_local RowScratch sc;
+    const uint64_t item_cpu0 = thread_cpu_ns();
+    const auto item_wall0 = std::chrono::steady_clock::now();
+    uint64_t item_embree_ns = 0;
     for (uint64_t row = r0; row < std::min(p->rows, r0 + block); ++row) {
       RowPoint rp = sampler.Primary(row);
       if (!rp.valid) continue;
@@ -79,16 +93,22 @@ Result<BareTraceResult> TraceBare(const SampleOptions& o) {
         sampler.GenerateRays(row, rp, brdf, c0, std::min(cols, c0 + step), sc, &below, &samples_below);
         auto a = std::chrono::steady_clock::now();
         sampler.rays().Occluded(sc.batch, sc.n);
-        nanos += static_cast<uint64_t>(
+        item_embree_ns += static_cast<uint64_t>(
             std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - a).count());
         rays += sc.active;
       }
     }
+    const double item_cpu = static_cast<double>(thread_cpu_ns() - item_cpu0);
+    const double item_wall = static_cast<double>(
+        std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - item_wall0).count());
+    nanos += item_embree_ns;
+    if (item_wall > 0) cpu_nanos += static_cast<uint64_t>(item_cpu * static_cast<double>(item_embree_ns) / item_wall);
     return Status::Ok();
   }));
   BareTraceResult out;
   out.rays = rays;
   out.trace_thread_seconds = static_cast<double>(nanos.load()) * 1e-9;
+  out.trace_cpu_seconds = static_cast<double>(cpu_nanos.load()) * 1e-9;
   out.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return out;
 }
@@ -164,14 +184,67 @@ std::vector<uint64_t> MissingBlocks(io::ContainerWriter& out) {
   return todo;
 }
 
-// Samples row blocks into the output, one chunk of each array per block, from any number
-// of threads; counts what it did. Progress in rays; the total is extrapolated from the
-// rays per row seen so far.
+// One row block's output: the matrix, 4096-byte aligned so O_DIRECT writes it without a
+// staging copy, and the side tables.
+struct BlockBuffers {
+  struct Free {
+    void operator()(float* p) const { std::free(p); }
+  };
+  std::unique_ptr<float, Free> mat;
+  uint64_t mat_floats = 0;  // allocated
+  std::vector<float> pos, nor;
+  std::vector<uint8_t> mask;
+};
+
+// Block buffers come back here once their chunks are written, so the next block reuses
+// memory that is already mapped instead of faulting in fresh pages. Holds at most as many
+// buffers as were in use at once (tracing threads + write queue).
+class BufferPool {
+ public:
+  // A buffer for `rows` rows of `cols` values, returned to the pool when the last
+  // shared_ptr to it goes. nullptr when memory runs out.
+  std::shared_ptr<BlockBuffers> Get(uint64_t rows, uint64_t cols) {
+    std::unique_ptr<BlockBuffers> b;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      if (!free_.empty()) {
+        b = std::move(free_.back());
+        free_.pop_back();
+      }
+    }
+    if (!b) b = std::make_unique<BlockBuffers>();
+    const uint64_t floats = rows * cols;
+    if (b->mat_floats < floats) {
+      const uint64_t bytes = (floats * sizeof(float) + kDirectAlign - 1) / kDirectAlign * kDirectAlign;
+      b->mat.reset(static_cast<float*>(std::aligned_alloc(kDirectAlign, bytes)));
+      if (!b->mat) return nullptr;
+      b->mat_floats = floats;
+    }
+    b->pos.assign(rows * 3, 0.0f);
+    b->nor.assign(rows * 3, 0.0f);
+    b->mask.assign(rows, 0);
+    return std::shared_ptr<BlockBuffers>(b.release(), [this](BlockBuffers* p) {
+      std::lock_guard<std::mutex> lock(mu_);
+      free_.emplace_back(p);
+    });
+  }
+
+ private:
+  static constexpr uint64_t kDirectAlign = 4096;
+  std::mutex mu_;
+  std::vector<std::unique_ptr<BlockBuffers>> free_;
+};
+
+// Samples row blocks, one chunk of each array per block, from any number of threads, and
+// hands the chunks to the writer thread; counts what it did. Progress in rays; the total
+// is extrapolated from the rays per row seen so far.
 struct BlockSampler {
   const SampleOptions& o;
   const Prepared& p;
   const Sampler& sampler;
   io::ContainerWriter& out;
+  io::AsyncChunkWriter& writer;
+  BufferPool& pool;
   const Progress& progress;
   uint64_t block, rows_todo;
   Counters cnt;
@@ -181,20 +254,29 @@ struct BlockSampler {
     const uint64_t rows = p.rows, cols = 6ull * p.r * p.r;
     uint64_t r0 = chunk * block, n = std::min(block, rows - r0);
     thread_local RowScratch sc;
-    std::vector<float> mat(n * cols, 0.0f), pos(n * 3, 0.0f), nor(n * 3, 0.0f);
-    std::vector<uint8_t> mask(n, 0);
+    std::shared_ptr<BlockBuffers> buf = pool.Get(n, cols);
+    if (!buf) {
+      return Internal("out of memory for a block of " + std::to_string(n) + " rows x " + std::to_string(cols) +
+                      " values");
+    }
+    float* mat = buf->mat.get();
+    float* pos = buf->pos.data();
+    float* nor = buf->nor.data();
     for (uint64_t i = 0; i < n; ++i) {
       if (progress.Cancelled()) return Cancelled("interrupted; committed chunks are kept, rerun to resume");
       uint64_t done_rows = rows_done.fetch_add(1) + 1;
       RowPoint rp = sampler.Primary(r0 + i);
-      if (!rp.valid) continue;  // sees no geometry: an all-zero row, mask 0
-      mask[i] = 1;
+      if (!rp.valid) {  // sees no geometry: an all-zero row, mask 0
+        std::fill_n(mat + i * cols, cols, 0.0f);
+        continue;
+      }
+      buf->mask[i] = 1;
       valid++;
       for (int k = 0; k < 3; ++k) {
         pos[3 * i + k] = static_cast<float>(rp.p[k]);
         nor[3 * i + k] = static_cast<float>(rp.n[k]);
       }
-      sampler.Transport(r0 + i, rp, mat.data() + i * cols, sc, cnt);
+      sampler.Transport(r0 + i, rp, mat + i * cols, sc, cnt);
       uint64_t rays = cnt.rays.load();
       uint64_t estimate = std::max(rays, static_cast<uint64_t>(static_cast<double>(rays) / done_rows * rows_todo));
       progress.Report(rays, done_rows >= rows_todo ? rays : estimate, "rays");
@@ -205,16 +287,17 @@ struct BlockSampler {
       thread_local std::vector<float> scratch;
       scratch.resize(RowBlockScratchSize(p.r));
       uint64_t zero_rows = 0;
-      TransformRowBlock(*o.row_filter, p.r, mat.data(), n, scratch.data(), &zero_rows);
+      TransformRowBlock(*o.row_filter, p.r, mat, n, scratch.data(), &zero_rows);
       matrix_encoding.zstd = o.row_zstd;
     }
-    auto bytes = [](const auto& v) {
-      return ByteSpan(reinterpret_cast<const std::byte*>(v.data()), v.size() * sizeof(v[0]));
+    auto bytes = [](const auto* v, uint64_t count) {
+      return ByteSpan(reinterpret_cast<const std::byte*>(v), count * sizeof(v[0]));
     };
-    const ByteSpan parts[4] = {bytes(mat), bytes(mask), bytes(pos), bytes(nor)};
+    const ByteSpan parts[4] = {bytes(mat, n * cols), bytes(buf->mask.data(), n), bytes(pos, n * 3), bytes(nor, n * 3)};
     for (uint32_t a = 0; a < 4; ++a) {
       if (out.Has(a, chunk)) continue;
-      LTB_RETURN_IF_ERROR(out.Put(a, chunk, parts[a], a == 0 ? matrix_encoding : EncodeOptions{}));
+      // The writer thread encodes and writes; buf goes back to the pool after the last part.
+      LTB_RETURN_IF_ERROR(writer.Submit(a, chunk, parts[a], buf, a == 0 ? matrix_encoding : EncodeOptions{}));
       written++;
     }
     return Status::Ok();
@@ -232,6 +315,7 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   const uint64_t block = BlockRows(o, rows, 6ull * r * r);
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
+  wo.direct_io = o.direct_io;
   LTB_ASSIGN_OR_RETURN(io::ContainerWriter out,
                        io::OpenStageOutput(o.output, SampleMetadata(o, *prep, block), wo, o.shard));
 
@@ -247,9 +331,23 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
 
   const std::vector<uint64_t> todo = MissingBlocks(out);
   Sampler sampler(prep->scene, geo, r, prep->spp, prep->bounces, prep->seed);
-  BlockSampler bs{o, *prep, sampler, out, progress, block, std::min(rows, todo.size() * block)};
+  // The tracing threads hand their chunks to one writer thread through a bounded queue (a
+  // quarter of --mem-limit, at most kMaxWriteQueueBytes); the pool outlives the writer,
+  // which returns the buffers to it.
+  BufferPool pool;
+  const uint64_t queue_bytes = o.mem_limit > 0 ? std::min(o.mem_limit / 4, kMaxWriteQueueBytes) : kMaxWriteQueueBytes;
+  io::AsyncChunkWriter writer(out, queue_bytes);
+  BlockSampler bs{o, *prep, sampler, out, writer, pool, progress, block, std::min(rows, todo.size() * block)};
   Status s = ParallelFor(todo, o.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
                          [&](uint64_t chunk) -> Status { return bs.Run(chunk); });
+  // Also after a failure or an interrupt: the chunks already queued are written and commit.
+  Status closed = writer.Close();
+  if (s.ok()) s = closed;
+  const io::DirectIoStats ds = out.direct_io_stats();
+  result.bytes_direct = ds.direct_bytes;
+  result.direct_fallback = ds.fallback_reason;
+  result.write_queue_bytes = writer.capacity_bytes();
+  result.write_queue_waits = writer.submit_waits();
   result.chunks_written = bs.written;
   result.rays = bs.cnt.rays;
   result.texels_below_horizon = bs.cnt.below;

@@ -23,6 +23,13 @@ struct SampleOptions {
   uint64_t chunk_rows = 0;  // rows per chunk; 0 picks ~2 MiB chunks
   int jobs = 2;
   bool overwrite = false;
+  // Memory budget (--mem-limit) for the chunks waiting to be written; 0: no budget given.
+  // The queue between the tracing threads and the writer thread holds at most a quarter of
+  // it, capped at kMaxWriteQueueBytes, and at least one chunk.
+  uint64_t mem_limit = 0;
+  // Write the matrix chunks with O_DIRECT (io::WriterOptions::direct_io), from one writer
+  // thread that encodes and writes while the tracing threads keep tracing.
+  bool direct_io = true;
   // Fused sample + row-transform (`ltbake run` when the raw matrix is not kept): each row
   // block is wavelet-transformed before it is written, so no raw file exists. The output
   // is the row-transform's output: same content_hash, same basis metadata.
@@ -40,8 +47,14 @@ struct SampleResult {
   uint64_t texels_below_horizon = 0;   // (row, texel) pairs skipped without tracing
   uint64_t samples_below_horizon = 0;  // samples in partly visible texels that needed no ray
   uint64_t degenerate_triangles = 0;
+  uint64_t bytes_direct = 0;       // payload bytes written with O_DIRECT
+  std::string direct_fallback;     // why direct writes were off or stopped, if asked for
+  uint64_t write_queue_bytes = 0;  // the write queue's bound
+  uint64_t write_queue_waits = 0;  // times a tracing thread waited for room in it
   double seconds = 0;
 };
+
+inline constexpr uint64_t kMaxWriteQueueBytes = 64ull << 20;
 
 // XXH3 of the scene file and every mesh file it names: the scene part of sample's key.
 Result<std::string> SceneHash(const std::string& scene_path);
@@ -51,10 +64,14 @@ Result<SampleResult> RunSample(const SampleOptions& options, const Progress& pro
 // Benchmark baseline: builds the same scene and generates exactly the occlusion rays
 // RunSample traces (direct term), in the same batches and the same Embree call
 // (rtcOccludedNp, coherent), but only traces them: no transport bookkeeping, no
-// output. trace_thread_seconds sums the time threads spent inside Embree.
+// output. trace_thread_seconds sums the (wall) time threads spent inside Embree;
+// trace_cpu_seconds estimates the CPU time of those calls, robust to the threads being
+// preempted by other processes: each work item's thread CPU time times the share of its
+// wall time spent inside Embree (a per-call CPU clock costs ~20% of the calls themselves).
 struct BareTraceResult {
   uint64_t rays = 0;
   double trace_thread_seconds = 0;
+  double trace_cpu_seconds = 0;
   double wall_seconds = 0;
 };
 Result<BareTraceResult> TraceBare(const SampleOptions& options);
