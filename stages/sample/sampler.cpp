@@ -3,17 +3,12 @@
 #include <algorithm>
 #include <bit>
 #include <cmath>
-#include <cstdint>
 #include <cstring>
 #include <glm/geometric.hpp>
 #include <glm/trigonometric.hpp>
 #include <limits>
 
 #include "stages/common/cubemap.h"
-
-#ifdef __AVX__
-#include <immintrin.h>
-#endif
 
 namespace ltb::sample {
 
@@ -246,12 +241,10 @@ void Sampler::GenerateRaysT(uint64_t row, const RowPoint& rp, const Brdf& brdf, 
     const double* __restrict tu0 = u0_.data();
     const double* __restrict tv0 = v0_.data();
     for (uint64_t c = f0; c < f1; ++c) {
-      if constexpr (kSpp != 4) {  // spp 4: Directions4T reads the texel's corner and stream itself
-        const uint64_t s0 = stream_row ^ (c * 0xC2B2AE3D27D4EB4Full);  // StreamStart(row, c)
-        Splat<kSpp>(lu + n, tu0[c], spp);
-        Splat<kSpp>(lv + n, tv0[c], spp);
-        Splat<kSpp>(ls + n, s0, spp);
-      }
+      const uint64_t s0 = stream_row ^ (c * 0xC2B2AE3D27D4EB4Full);  // StreamStart(row, c)
+      Splat<kSpp>(lu + n, tu0[c], spp);
+      Splat<kSpp>(lv + n, tv0[c], spp);
+      Splat<kSpp>(ls + n, s0, spp);
       texel[m] = static_cast<uint32_t>(c);
       const uint64_t a = up[c - f0];
       m += a;
@@ -265,13 +258,7 @@ void Sampler::GenerateRaysT(uint64_t row, const RowPoint& rp, const Brdf& brdf, 
     // Pass 2, vectorised across all slots of the run (DirectionsT).
     const TexelInfo& t = texels_[f0];
     const double na = glm::dot(rp.n, t.a), nb = glm::dot(rp.n, t.b), nc = glm::dot(rp.n, t.c);
-    if constexpr (kSpp == 4) {
-      if (glossy) {
-        Directions4T<true>(n0, n, stream_row, na, nb, nc, t, brdf, sc);
-      } else {
-        Directions4T<false>(n0, n, stream_row, na, nb, nc, t, brdf, sc);
-      }
-    } else if (glossy) {
+    if (glossy) {
       DirectionsT<kSpp, true>(n0, n, na, nb, nc, t, brdf, sc);
     } else {
       DirectionsT<kSpp, false>(n0, n, na, nb, nc, t, brdf, sc);
@@ -350,74 +337,6 @@ void Sampler::DirectionsT(size_t n0, size_t n1, double na, double nb, double nc,
     } else {
       // Unconditional (the value of an inactive slot is never read), so it if-converts.
       val[k] = w * diffuse;
-    }
-  }
-}
-
-namespace {
-typedef double D4 __attribute__((vector_size(32)));
-typedef float F4 __attribute__((vector_size(16)));
-typedef uint64_t U4 __attribute__((vector_size(32)));
-
-inline D4 Sqrt4(D4 x) {
-#ifdef __AVX__
-  return reinterpret_cast<D4>(_mm256_sqrt_pd(reinterpret_cast<__m256d>(x)));
-#else
-  return D4{std::sqrt(x[0]), std::sqrt(x[1]), std::sqrt(x[2]), std::sqrt(x[3])};
-#endif
-}
-}  // namespace
-
-// DirectionsT for spp 4, one texel (its 4 samples) per 4-lane vector: the texel's corner and
-// random stream origin are read once per texel instead of being spread over its slots by
-// pass 1. The same operations in the same order on each lane as DirectionsT, so the same
-// bits (IEEE operations, no contraction).
-template <bool kGlossy>
-void Sampler::Directions4T(size_t n0, size_t n1, uint64_t stream_row, double na, double nb, double nc,
-                           const TexelInfo& t, const Brdf& brdf, RowScratch& sc) const {
-  const double h = 2.0 / r_, hx = h / kx_, hy = h / ky_;
-  const double ax = t.a.x, ay = t.a.y, az = t.a.z, bx = t.b.x, by = t.b.y, bz = t.b.z;
-  const double cx = t.c.x, cy = t.c.y, cz = t.c.z;
-  const double rfx = brdf.reflect.x, rfy = brdf.reflect.y, rfz = brdf.reflect.z, diffuse = brdf.diffuse;
-  const D4 stx = {stratum_x_[0], stratum_x_[1], stratum_x_[2], stratum_x_[3]};
-  const D4 sty = {stratum_y_[0], stratum_y_[1], stratum_y_[2], stratum_y_[3]};
-  const U4 draw = {2 * kGolden, 3 * kGolden, 4 * kGolden, 5 * kGolden};  // ((k % spp) + 2)·G
-  constexpr double kInf = std::numeric_limits<double>::infinity();
-  const D4 pos_inf = {kInf, kInf, kInf, kInf}, neg_inf = -pos_inf, zero = {0, 0, 0, 0};
-  const uint32_t* __restrict texel = sc.texel.data();
-  const double* __restrict tu0 = u0_.data();
-  const double* __restrict tv0 = v0_.data();
-  for (size_t k = n0; k < n1; k += 4) {
-    const uint64_t c = texel[k / 4];
-    U4 z = (stream_row ^ (c * 0xC2B2AE3D27D4EB4Full)) + draw;  // StreamStart(row, c) + ...
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-    z = z ^ (z >> 31);
-    const D4 ju = reinterpret_cast<D4>(0x3FF0000000000000ull | ((z >> 40) << 28)) - 1.0;
-    const D4 jv = reinterpret_cast<D4>(0x3FF0000000000000ull | (((z >> 16) & 0xFFFFFFull) << 28)) - 1.0;
-    const D4 u = tu0[c] + (stx + ju) * hx;
-    const D4 v = tv0[c] + (sty + jv) * hy;
-    const D4 inv = 1.0 / Sqrt4(1.0 + u * u + v * v);
-    const D4 cosn = na + u * nb + v * nc;
-    const D4 dx = (ax + u * bx + v * cx) * inv;
-    const D4 dy = (ay + u * by + v * cy) * inv;
-    const D4 dz = (az + u * bz + v * cz) * inv;
-    const D4 w = inv * inv * inv * (cosn * inv);
-    const F4 fx = __builtin_convertvector(dx, F4), fy = __builtin_convertvector(dy, F4);
-    const F4 fz = __builtin_convertvector(dz, F4);
-    const F4 tf = __builtin_convertvector(cosn > 0 ? pos_inf : neg_inf, F4);
-    std::memcpy(sc.batch.dir_x.data() + k, &fx, sizeof fx);
-    std::memcpy(sc.batch.dir_y.data() + k, &fy, sizeof fy);
-    std::memcpy(sc.batch.dir_z.data() + k, &fz, sizeof fz);
-    std::memcpy(sc.batch.tfar.data() + k, &tf, sizeof tf);
-    if constexpr (kGlossy) {
-      const D4 x = rfx * dx + rfy * dy + rfz * dz;
-      const D4 pw = zero < x ? x : zero;  // std::max(0.0, x)
-      std::memcpy(sc.wc.data() + k, &w, sizeof w);
-      std::memcpy(sc.pw.data() + k, &pw, sizeof pw);
-    } else {
-      const D4 val = w * diffuse;
-      std::memcpy(sc.ray_value.data() + k, &val, sizeof val);
     }
   }
 }

@@ -89,9 +89,6 @@ class Sampler {
   template <uint32_t kSpp, bool kGlossy>
   void DirectionsT(size_t n0, size_t n1, double na, double nb, double nc, const TexelInfo& t, const Brdf& brdf,
                    RowScratch& sc) const;
-  template <bool kGlossy>
-  void Directions4T(size_t n0, size_t n1, uint64_t stream_row, double na, double nb, double nc, const TexelInfo& t,
-                    const Brdf& brdf, RowScratch& sc) const;
   template <uint32_t kSpp>
   void AccumulateT(const RowScratch& sc, std::vector<double>& acc) const;
   uint64_t Indirect(uint64_t row, const RowPoint& rp, const Brdf& brdf, const glm::dvec3& origin,
