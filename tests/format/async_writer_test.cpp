@@ -18,12 +18,12 @@ namespace {
 using format::Layout;
 using test::TempDir;
 
-constexpr uint64_t kRows = 64, kCols = 32, kBlock = 2;  // 32 chunks of 256 bytes
+constexpr uint64_t kAsyncRows = 64, kAsyncCols = 32, kAsyncBlock = 2;  // 32 chunks of 256 bytes
 
-// Submits the chunks `todo` of MakeMatrix(kRows, kCols, 3) from two threads, each
+// Submits the chunks `todo` of MakeMatrix(kAsyncRows, kAsyncCols, 3) from two threads, each
 // in its own shuffled order; returns the first Submit failure, else Close's status.
 Status WriteAsync(io::ContainerWriter& w, std::vector<uint64_t> todo, uint64_t capacity, uint64_t* peak = nullptr) {
-  const auto m = test::MakeMatrix(kRows, kCols, 3);
+  const auto m = test::MakeMatrix(kAsyncRows, kAsyncCols, 3);
   io::AsyncChunkWriter async(w, capacity);
   std::vector<Status> st(2);
   std::vector<std::thread> threads;
@@ -45,22 +45,22 @@ Status WriteAsync(io::ContainerWriter& w, std::vector<uint64_t> todo, uint64_t c
   for (auto& th : threads) th.join();
   Status closed = async.Close();
   if (peak) *peak = async.peak_queued_bytes();
-  EXPECT_LE(async.peak_queued_bytes(), std::max<uint64_t>(capacity, kBlock * kCols * 4));
+  EXPECT_LE(async.peak_queued_bytes(), std::max<uint64_t>(capacity, kAsyncBlock * kAsyncCols * 4));
   for (const Status& s : st)
     if (!s.ok()) return s;
   return closed;
 }
 
 std::vector<uint64_t> AllChunks() {
-  std::vector<uint64_t> v(kRows / kBlock);
+  std::vector<uint64_t> v(kAsyncRows / kAsyncBlock);
   for (uint64_t i = 0; i < v.size(); ++i) v[i] = i;
   return v;
 }
 
 TEST(AsyncChunkWriter, CommitsEveryChunkInAnyOrderWithinTheBound) {
   TempDir dir;
-  const auto meta = test::MatrixMetadata(kRows, kCols, Layout::kRows, kBlock);
-  test::WriteMatrix(dir.File("ref.ltm"), kRows, kCols, Layout::kRows, kBlock, 3, false);
+  const auto meta = test::MatrixMetadata(kAsyncRows, kAsyncCols, Layout::kRows, kAsyncBlock);
+  test::WriteMatrix(dir.File("ref.ltm"), kAsyncRows, kAsyncCols, Layout::kRows, kAsyncBlock, 3, false);
   for (uint64_t capacity : {uint64_t{0}, uint64_t{3 * 256}, uint64_t{1} << 20}) {
     const std::string path = dir.File("async" + std::to_string(capacity) + ".ltm");
     auto w = io::ContainerWriter::Open(path, meta);
@@ -79,7 +79,7 @@ TEST(AsyncChunkWriter, CommitsEveryChunkInAnyOrderWithinTheBound) {
 TEST(AsyncChunkWriter, FirstWriteErrorReachesSubmitAndCloseAndARerunResumes) {
   TempDir dir;
   const std::string path = dir.File("fail.ltm");
-  const auto meta = test::MatrixMetadata(kRows, kCols, Layout::kRows, kBlock);
+  const auto meta = test::MatrixMetadata(kAsyncRows, kAsyncCols, Layout::kRows, kAsyncBlock);
   {
     io::WriterOptions o;
     o.stop_after_mutations = 21;  // two mutations per chunk (payload, header): fails in chunk 11
@@ -88,11 +88,11 @@ TEST(AsyncChunkWriter, FirstWriteErrorReachesSubmitAndCloseAndARerunResumes) {
     Status s = WriteAsync(*w, AllChunks(), 4 * 256);
     EXPECT_EQ(s.code(), StatusCode::kInternal);
     EXPECT_NE(s.message().find("stopped after 21 writes"), std::string::npos) << s.message();
-    EXPECT_EQ(w->Missing(0).size(), kRows / kBlock - 10) << "the chunks committed before the failure stay";
+    EXPECT_EQ(w->Missing(0).size(), kAsyncRows / kAsyncBlock - 10) << "the chunks committed before the failure stay";
     // A closed writer refuses more chunks, with the error that stopped it.
     io::AsyncChunkWriter closed(*w, 0);
     ASSERT_TRUE(closed.Close().ok());
-    auto v = std::make_shared<std::vector<float>>(kBlock * kCols, 1.0f);
+    auto v = std::make_shared<std::vector<float>>(kAsyncBlock * kAsyncCols, 1.0f);
     Status late = closed.Submit(0, w->Missing(0).front(), test::AsBytes(*v), v);
     EXPECT_EQ(late.code(), StatusCode::kFailedPrecondition);
     EXPECT_NE(late.message().find("closed"), std::string::npos) << late.message();
@@ -103,7 +103,7 @@ TEST(AsyncChunkWriter, FirstWriteErrorReachesSubmitAndCloseAndARerunResumes) {
   Status s = WriteAsync(*w, w->Missing(0), 4 * 256);
   ASSERT_TRUE(s.ok()) << s.message();
   ASSERT_TRUE(w->Finish().ok());
-  test::WriteMatrix(dir.File("ref.ltm"), kRows, kCols, Layout::kRows, kBlock, 3, false);
+  test::WriteMatrix(dir.File("ref.ltm"), kAsyncRows, kAsyncCols, Layout::kRows, kAsyncBlock, 3, false);
   EXPECT_EQ(test::HashOf(path), test::HashOf(dir.File("ref.ltm")));
 }
 
