@@ -7,6 +7,10 @@
 #include <functional>
 #include <string>
 
+#if defined(__AVX2__)
+#include <immintrin.h>
+#endif
+
 #include "stages/column_transform/column_codec.h"
 
 namespace ltb::stages {
@@ -66,6 +70,8 @@ Result<ColumnCompressor> ColumnCompressor::Create(wavelet::Filter filter, uint64
   c.bins_.resize(c.pixels_);
   c.keys_.resize(c.pixels_ * kLanes);
   c.key_hist_.resize(kKeyBins * kLanes);
+  c.cand_.reserve(c.pixels_);
+  if (max_depth > 0) c.saved_.resize(kLanes * c.bands_[1].width * c.bands_[1].height);
   c.weights_.resize(max_depth + 1);
   if (!c.orthonormal_ && max_depth > 0) {
     c.work_.resize(c.pixels_ * kLanes);
@@ -83,7 +89,8 @@ uint64_t ColumnCompressor::WorkingBytes(uint64_t width, uint64_t height, int max
   uint64_t b = p * kLanes * 4 * 3      // coefficients, wavelet scratch, selection keys
                + p * (8 + 4 + 4)       // weighted energies, bins, candidates
                + p * kLanes * (4 + 4)  // kept positions and values per lane (worst case)
-               + p * kLanes * 4;       // the caller's output chunk
+               + p * kLanes * 4        // the caller's output chunk
+               + p * kLanes;           // saved low bands (a quarter of the image, 4 bytes)
   if (!orthonormal) b += p * kLanes * 4 + p * (8 + 4) * static_cast<uint64_t>(max_depth + 1);
   return b;
 }
@@ -117,7 +124,9 @@ Status ColumnCompressor::Load(const float* const* columns, size_t n, double* ene
 void ColumnCompressor::UpdateKeys(size_t lane, int depth) {
   uint32_t* keys = keys_.data() + lane * pixels_;
   uint32_t* hist = key_hist_.data() + lane * kKeyBins;
+  uint64_t& zeros = key_zeros_[lane];
   const float* rw = !orthonormal_ && depth > 0 ? root_weights_.data() + depth * pixels_ : nullptr;
+  if (key_depth_[lane] == depth) return;
   auto key = [&](uint64_t p) {
     float k = std::fabs(coeffs_[p * kLanes + lane]);
     if (rw) k *= rw[p];
@@ -132,28 +141,76 @@ void ColumnCompressor::UpdateKeys(size_t lane, int depth) {
       for (uint64_t x = 0; x < band.width; ++x) {
         uint64_t p = y * width_ + x;
         hist[keys[p] >> kKeyShift]--;
+        zeros -= keys[p] == 0;
         keys[p] = key(p);
         hist[keys[p] >> kKeyShift]++;
+        zeros += keys[p] == 0;
       }
   } else {
     std::fill(hist, hist + kKeyBins, 0u);
+    zeros = 0;
     for (uint64_t p = 0; p < pixels_; ++p) {
       keys[p] = key(p);
       hist[keys[p] >> kKeyShift]++;
+      zeros += keys[p] == 0;
     }
   }
   key_depth_[lane] = depth;
+}
+
+void ColumnCompressor::UpdateKeysGroup(int depth, const bool* lanes) {
+  // UpdateKeys for several lanes in one pass over the coefficients ([pixel][lane]): the
+  // keys of a pixel's eight lanes are computed together, then each lane's histogram.
+  const float* rw = !orthonormal_ && depth > 0 ? root_weights_.data() + depth * pixels_ : nullptr;
+  for (int incremental = 1; incremental >= 0; --incremental) {
+    size_t lane[kLanes], m = 0;
+    for (size_t k = 0; k < kLanes; ++k) {
+      if (!lanes[k] || key_depth_[k] == depth) continue;
+      const bool inc = depth > 0 && key_depth_[k] == depth - 1;
+      if (inc == (incremental == 1)) lane[m++] = k;
+    }
+    if (m == 0) continue;
+    const uint64_t rw_w = incremental ? bands_[depth - 1].width : width_;
+    const uint64_t rw_h = incremental ? bands_[depth - 1].height : height_;
+    for (size_t i = 0; i < m; ++i) {
+      if (!incremental) {
+        std::fill(key_hist_.begin() + lane[i] * kKeyBins, key_hist_.begin() + (lane[i] + 1) * kKeyBins, 0u);
+        key_zeros_[lane[i]] = 0;
+      }
+    }
+    for (uint64_t y = 0; y < rw_h; ++y)
+      for (uint64_t x = 0; x < rw_w; ++x) {
+        const uint64_t p = y * width_ + x;
+        alignas(32) float a[kLanes];
+        const float* c = coeffs_.data() + p * kLanes;
+        const float r = rw ? rw[p] : 1.0f;
+        for (size_t k = 0; k < kLanes; ++k) a[k] = std::fabs(c[k]);
+        if (rw)
+          for (size_t k = 0; k < kLanes; ++k) a[k] *= r;
+        uint32_t bits[kLanes];
+        std::memcpy(bits, a, sizeof(bits));
+        for (size_t i = 0; i < m; ++i) {
+          const size_t k = lane[i];
+          uint32_t* keys = keys_.data() + k * pixels_;
+          uint32_t* hist = key_hist_.data() + k * kKeyBins;
+          if (incremental) {
+            hist[keys[p] >> kKeyShift]--;
+            key_zeros_[k] -= keys[p] == 0;
+          }
+          keys[p] = bits[k];
+          hist[bits[k] >> kKeyShift]++;
+          key_zeros_[k] += bits[k] == 0;
+        }
+      }
+    for (size_t i = 0; i < m; ++i) key_depth_[lane[i]] = depth;
+  }
 }
 
 void ColumnCompressor::SelectTerms(size_t lane, int depth, uint64_t terms, std::vector<uint32_t>* kept) {
   UpdateKeys(lane, depth);
   const uint32_t* keys = keys_.data() + lane * pixels_;
   const uint32_t* hist = key_hist_.data() + lane * kKeyBins;
-  // Positive keys: all but the zeros, which sit in bin 0.
-  uint64_t zeros = 0;
-  if (hist[0] > 0)
-    for (uint64_t p = 0; p < pixels_; ++p) zeros += keys[p] == 0;
-  const uint64_t positive = pixels_ - zeros;
+  const uint64_t positive = pixels_ - key_zeros_[lane];
   const uint64_t n = std::min<uint64_t>(terms, positive);
   if (n == 0) return;
   if (n == positive) {
@@ -165,9 +222,7 @@ void ColumnCompressor::SelectTerms(size_t lane, int depth, uint64_t terms, std::
   uint64_t above = 0;
   size_t b = kKeyBins - 1;
   while (above + hist[b] < n) above += hist[b--];
-  cand_.clear();
-  for (uint64_t p = 0; p < pixels_; ++p)
-    if ((keys[p] >> kKeyShift) == b && keys[p] != 0) cand_.push_back(keys[p]);
+  Candidates(keys, static_cast<uint32_t>(b));
   const uint64_t r = n - above;  // 1 <= r <= cand_.size()
   std::nth_element(cand_.begin(), cand_.begin() + static_cast<std::ptrdiff_t>(r - 1), cand_.end(), std::greater<>());
   const uint32_t t = cand_[r - 1];
@@ -235,24 +290,203 @@ void ColumnCompressor::Select(size_t lane, int depth, const Selection& sel, doub
   }
 }
 
-void ColumnCompressor::Errors(int depth, const std::vector<uint32_t>* kept, const bool* active, double* error) {
-  // Biorthogonal: reconstruct the dropped part and measure it in pixels.
-  std::copy(coeffs_.begin(), coeffs_.end(), work_.begin());
-  for (size_t k = 0; k < kLanes; ++k)
-    if (active[k])
-      for (uint32_t p : kept[k]) work_[p * kLanes + k] = 0.0f;
-  for (int l = depth; l-- > 0;) {
-    wavelet::SynthesisStep2D(filter_, work_.data(), width_, kLanes, bands_[l].width, bands_[l].height, scratch_.data());
-  }
-  for (size_t k = 0; k < kLanes; ++k) {
-    if (!active[k]) continue;
-    double e = 0;
-    for (uint64_t p = 0; p < pixels_; ++p) {
-      double v = work_[p * kLanes + k];
-      e += v * v;
+void ColumnCompressor::Candidates(const uint32_t* keys, uint32_t bin) {
+  // The positive keys of one histogram bin, in position order. Few keys match, so the
+  // scan compares eight at a time and only touches the matches.
+  cand_.clear();
+  uint64_t p = 0;
+#if defined(__AVX2__)
+  const __m256i want = _mm256_set1_epi32(static_cast<int32_t>(bin));
+  const __m256i zero = _mm256_setzero_si256();
+  for (; p + 8 <= pixels_; p += 8) {
+    __m256i k = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(keys + p));
+    __m256i hit =
+        _mm256_andnot_si256(_mm256_cmpeq_epi32(k, zero), _mm256_cmpeq_epi32(_mm256_srli_epi32(k, kKeyShift), want));
+    unsigned m = static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(hit)));
+    while (m) {
+      cand_.push_back(keys[p + static_cast<unsigned>(__builtin_ctz(m))]);
+      m &= m - 1;
     }
-    error[k] = e;
   }
+#endif
+  for (; p < pixels_; ++p)
+    if ((keys[p] >> kKeyShift) == bin && keys[p] != 0) cand_.push_back(keys[p]);
+}
+
+bool ColumnCompressor::CutTerms(size_t lane, int depth, const Selection& sel, double energy, Cut* cut) {
+  if (reference_path_ || sel.kind != Selection::Kind::kTerms) return false;
+  UpdateKeys(lane, depth);
+  const uint32_t* keys = keys_.data() + lane * pixels_;
+  const uint32_t* hist = key_hist_.data() + lane * kKeyBins;
+  const uint64_t positive = pixels_ - key_zeros_[lane];
+  const uint64_t n = std::min<uint64_t>(sel.terms, positive);
+  *cut = Cut{};
+  if (n == 0) {  // nothing to keep
+    cut->t = INT32_MAX;
+    return true;
+  }
+  uint32_t t;           // the smallest kept key
+  if (n == positive) {  // every nonzero: keys > 0
+    t = UINT32_MAX;
+    for (uint64_t p = 0; p < pixels_; ++p) t = std::min(t, keys[p] == 0 ? UINT32_MAX : keys[p]);
+    cut->t = 0;
+  } else {
+    // As SelectTerms: the bin of the n-th largest key, then selection within it.
+    uint64_t above = 0;
+    size_t b = kKeyBins - 1;
+    while (above + hist[b] < n) above += hist[b--];
+    Candidates(keys, static_cast<uint32_t>(b));
+    const uint64_t r = n - above;
+    std::nth_element(cand_.begin(), cand_.begin() + static_cast<std::ptrdiff_t>(r - 1), cand_.end(), std::greater<>());
+    t = cand_[r - 1];
+    for (uint32_t k : cand_) above += k > t;
+    cut->t = t;
+    cut->ties = n - above;
+  }
+  cut->n = n;
+  // Select's trim drops kept terms with c²·‖ψ̃‖² <= trim; the smallest kept key is t.
+  // Unweighted the key is |c|, so the test is exact; weighted, key² is c²‖ψ̃‖² to a few
+  // float roundings, so a margin of 2^-18 (and a normal t) decides it safely.
+  const double trim = kExactRelativeEnergy * energy / static_cast<double>(n);
+  float tf;
+  std::memcpy(&tf, &t, 4);
+  const double m = static_cast<double>(tf) * static_cast<double>(tf);
+  const bool weighted = !orthonormal_ && depth > 0;
+  if (!weighted) return m > trim;
+  return tf >= 0x1p-100f && m * (1.0 - 0x1p-18) > trim;
+}
+
+void ColumnCompressor::CutPass(int depth, const Cut* cut, bool weighted, double* error) {
+  const float* rw = !orthonormal_ && depth > 0 ? root_weights_.data() + depth * pixels_ : nullptr;
+  alignas(32) int32_t t[kLanes];
+  alignas(32) int32_t tied[kLanes];  // −1 while lane k still keeps keys equal to t[k]
+  uint64_t ties[kLanes];
+  for (size_t k = 0; k < kLanes; ++k) {
+    t[k] = static_cast<int32_t>(cut[k].t);
+    ties[k] = cut[k].ties;
+    tied[k] = ties[k] > 0 ? -1 : 0;
+  }
+  const float* c = coeffs_.data();
+  float* work = work_.data();
+  uint64_t p = 0;
+#if defined(__AVX2__)
+  static_assert(kLanes == 8);
+  const __m256i tv = _mm256_load_si256(reinterpret_cast<const __m256i*>(t));
+  __m256i tiedv = _mm256_load_si256(reinterpret_cast<const __m256i*>(tied));
+  const __m256 abs_mask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
+  __m256d acc0 = _mm256_setzero_pd(), acc1 = _mm256_setzero_pd();
+  for (; p < pixels_; ++p) {
+    const __m256 v = _mm256_loadu_ps(c + p * kLanes);
+    __m256 a = _mm256_and_ps(v, abs_mask);
+    if (rw) a = _mm256_mul_ps(a, _mm256_set1_ps(rw[p]));
+    const __m256i key = _mm256_castps_si256(a);
+    __m256i kept = _mm256_cmpgt_epi32(key, tv);
+    const __m256i eq = _mm256_and_si256(_mm256_cmpeq_epi32(key, tv), tiedv);
+    if (!_mm256_testz_si256(eq, eq)) {  // keys equal to a threshold: the first `ties` are kept
+      alignas(32) int32_t take[kLanes] = {};
+      unsigned m = static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(eq)));
+      while (m) {
+        unsigned k = static_cast<unsigned>(__builtin_ctz(m));
+        take[k] = -1;
+        if (--ties[k] == 0) tied[k] = 0;
+        m &= m - 1;
+      }
+      kept = _mm256_or_si256(kept, _mm256_load_si256(reinterpret_cast<const __m256i*>(take)));
+      tiedv = _mm256_load_si256(reinterpret_cast<const __m256i*>(tied));
+    }
+    if (weighted) {
+      _mm256_storeu_ps(work + p * kLanes, _mm256_andnot_ps(_mm256_castsi256_ps(kept), v));
+    } else {
+      const __m256d d0 = _mm256_cvtps_pd(_mm256_castps256_ps128(v));
+      const __m256d d1 = _mm256_cvtps_pd(_mm256_extractf128_ps(v, 1));
+      const __m256d k0 = _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm256_castsi256_si128(kept)));
+      const __m256d k1 = _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm256_extracti128_si256(kept, 1)));
+      // Adding +0 for a kept term leaves the sum as it is: the per-lane sums are the
+      // scalar loop's, in the same order.
+      acc0 = _mm256_add_pd(acc0, _mm256_andnot_pd(k0, _mm256_mul_pd(d0, d0)));
+      acc1 = _mm256_add_pd(acc1, _mm256_andnot_pd(k1, _mm256_mul_pd(d1, d1)));
+    }
+  }
+  if (!weighted) {
+    _mm256_storeu_pd(error, acc0);
+    _mm256_storeu_pd(error + 4, acc1);
+  }
+#else
+  double acc[kLanes] = {};
+  for (; p < pixels_; ++p) {
+    for (size_t k = 0; k < kLanes; ++k) {
+      const float v = c[p * kLanes + k];
+      float a = std::fabs(v);
+      if (rw) a *= rw[p];
+      uint32_t key;
+      std::memcpy(&key, &a, 4);
+      const uint32_t tk = static_cast<uint32_t>(t[k]);
+      const bool kept = key > tk || (key == tk && ties[k] > 0 && ties[k]--);
+      if (weighted) {
+        work[p * kLanes + k] = kept ? 0.0f : v;
+      } else if (!kept) {
+        const double dv = v;
+        acc[k] += dv * dv;
+      }
+    }
+  }
+  if (!weighted) std::copy(acc, acc + kLanes, error);
+#endif
+}
+
+void ColumnCompressor::WorkEnergies(double* error) {
+  const float* w = work_.data();
+  uint64_t p = 0;
+#if defined(__AVX2__)
+  __m256d acc0 = _mm256_setzero_pd(), acc1 = _mm256_setzero_pd();
+  for (; p < pixels_; ++p) {
+    const __m256 v = _mm256_loadu_ps(w + p * kLanes);
+    const __m256d d0 = _mm256_cvtps_pd(_mm256_castps256_ps128(v));
+    const __m256d d1 = _mm256_cvtps_pd(_mm256_extractf128_ps(v, 1));
+    acc0 = _mm256_add_pd(acc0, _mm256_mul_pd(d0, d0));
+    acc1 = _mm256_add_pd(acc1, _mm256_mul_pd(d1, d1));
+  }
+  _mm256_storeu_pd(error, acc0);
+  _mm256_storeu_pd(error + 4, acc1);
+#else
+  double acc[kLanes] = {};
+  for (; p < pixels_; ++p)
+    for (size_t k = 0; k < kLanes; ++k) {
+      const double v = w[p * kLanes + k];
+      acc[k] += v * v;
+    }
+  std::copy(acc, acc + kLanes, error);
+#endif
+}
+
+void ColumnCompressor::MaterializeCut(size_t lane, int depth, const Cut& cut, const float* column, ColumnChoice* out) {
+  out->index.clear();
+  out->value.clear();
+  out->index.reserve(cut.n);
+  out->value.reserve(cut.n);
+  const float* rw = !orthonormal_ && depth > 0 ? root_weights_.data() + depth * pixels_ : nullptr;
+  const wavelet::BandSize& lo = bands_[depth];
+  const float* low = saved_.data() + lane * (saved_.size() / kLanes);
+  uint64_t ties = cut.ties;
+  for (uint64_t y = 0; y < height_; ++y)
+    for (uint64_t x = 0; x < width_; ++x) {
+      const uint64_t p = y * width_ + x;
+      float c;
+      if (depth == 0)
+        c = column[p];
+      else if (x < lo.width && y < lo.height)
+        c = low[y * lo.width + x];
+      else
+        c = coeffs_[p * kLanes + lane];
+      float a = std::fabs(c);
+      if (rw) a *= rw[p];
+      uint32_t key;
+      std::memcpy(&key, &a, 4);
+      if (key > cut.t || (key == cut.t && ties > 0 && ties--)) {
+        out->index.push_back(static_cast<uint32_t>(p));
+        out->value.push_back(c);
+      }
+    }
 }
 
 Status ColumnCompressor::Choose(const float* const* columns, size_t n, const Selection* selection,
@@ -274,6 +508,10 @@ Status ColumnCompressor::Choose(const float* const* columns, size_t n, const Sel
   if (first > last) return Status::Ok();  // every column is empty
   std::vector<uint32_t> kept[kLanes];
   bool have[kLanes] = {};
+  bool deferred[kLanes] = {};  // the best so far is a cut (built at the end)
+  Cut best_cut[kLanes];
+  uint64_t best_count[kLanes] = {};
+  const uint64_t saved_stride = saved_.size() / kLanes;
   std::fill(std::begin(key_depth_), std::end(key_depth_), -1);  // new columns: no keys yet
   for (int d = 0; d < first; ++d) {
     wavelet::AnalysisStep2D(filter_, coeffs_.data(), width_, kLanes, bands_[d].width, bands_[d].height,
@@ -284,26 +522,62 @@ Status ColumnCompressor::Choose(const float* const* columns, size_t n, const Sel
       wavelet::AnalysisStep2D(filter_, coeffs_.data(), width_, kLanes, bands_[d - 1].width, bands_[d - 1].height,
                               scratch_.data());
     }
-    bool active[kLanes] = {};
+    const bool weighted = !orthonormal_ && d > 0;
+    bool active[kLanes] = {}, fast[kLanes] = {};
     double error[kLanes] = {};
-    bool reconstruct = false;
+    Cut cut[kLanes], pass[kLanes];
+    for (Cut& c : pass) c.t = INT32_MAX;  // keeps nothing: the lane passes through whole
+    bool any_fast = false, reconstruct = false;
     for (size_t k = 0; k < n; ++k) {
       if (!live[k]) continue;
       if (depth_override && depth_override[k] >= 0 ? depth_override[k] != d : d < min_depth_) continue;
       active[k] = true;
-      Select(k, d, selection[k], energy[k], &kept[k], &error[k]);
-      reconstruct |= error[k] < 0;
     }
-    if (reconstruct) Errors(d, kept, active, error);
+    bool ranked[kLanes] = {};  // lanes whose selection ranks by keys
+    for (size_t k = 0; k < n; ++k) ranked[k] = active[k] && selection[k].kind == Selection::Kind::kTerms;
+    UpdateKeysGroup(d, ranked);
+    for (size_t k = 0; k < n; ++k) {
+      if (!active[k]) continue;
+      fast[k] = CutTerms(k, d, selection[k], energy[k], &cut[k]);
+      if (fast[k]) {
+        pass[k] = cut[k];
+        any_fast = true;
+      } else {
+        Select(k, d, selection[k], energy[k], &kept[k], &error[k]);
+        reconstruct |= error[k] < 0;
+      }
+    }
+    if (weighted && (any_fast || reconstruct)) {
+      // Biorthogonal: reconstruct the dropped part of every active lane and measure it
+      // in pixels (lanes on the explicit path drop all but their kept list).
+      CutPass(d, pass, true, nullptr);
+      for (size_t k = 0; k < kLanes; ++k)
+        if (active[k] && !fast[k])
+          for (uint32_t p : kept[k]) work_[p * kLanes + k] = 0.0f;
+      for (int l = d; l-- > 0;) {
+        wavelet::SynthesisStep2D(filter_, work_.data(), width_, kLanes, bands_[l].width, bands_[l].height,
+                                 scratch_.data());
+      }
+      double e[kLanes];
+      WorkEnergies(e);
+      for (size_t k = 0; k < kLanes; ++k)
+        if (active[k]) error[k] = e[k];
+    } else if (any_fast) {
+      double e[kLanes];
+      CutPass(d, pass, false, e);
+      for (size_t k = 0; k < kLanes; ++k)
+        if (fast[k]) error[k] = e[k];
+    }
     for (size_t k = 0; k < n; ++k) {
       if (!active[k]) continue;
       ColumnChoice& best = out[k];
+      const uint64_t count = fast[k] ? cut[k].n : kept[k].size();
       double tol = kExactRelativeEnergy * energy[k];
       bool take;
       if (!have[k]) {
         take = true;
       } else if (error[k] <= tol && best.error <= tol) {
-        take = kept[k].size() < best.index.size();  // both exact: fewer nonzeros; a tie keeps the shallower
+        take = count < best_count[k];  // both exact: fewer nonzeros; a tie keeps the shallower
       } else {
         take = error[k] < best.error;
       }
@@ -311,11 +585,25 @@ Status ColumnCompressor::Choose(const float* const* columns, size_t n, const Sel
       have[k] = true;
       best.depth = d;
       best.error = error[k];
-      best.index = kept[k];
-      best.value.resize(kept[k].size());
-      for (size_t i = 0; i < kept[k].size(); ++i) best.value[i] = coeffs_[kept[k][i] * kLanes + k];
+      best_count[k] = count;
+      deferred[k] = fast[k];
+      if (fast[k]) {
+        best_cut[k] = cut[k];
+        if (d > 0) {  // keep this depth's low band: deeper steps overwrite it
+          const wavelet::BandSize& lo = bands_[d];
+          float* dst = saved_.data() + k * saved_stride;
+          for (uint64_t y = 0; y < lo.height; ++y)
+            for (uint64_t x = 0; x < lo.width; ++x) dst[y * lo.width + x] = coeffs_[(y * width_ + x) * kLanes + k];
+        }
+      } else {
+        best.index = kept[k];
+        best.value.resize(kept[k].size());
+        for (size_t i = 0; i < kept[k].size(); ++i) best.value[i] = coeffs_[kept[k][i] * kLanes + k];
+      }
     }
   }
+  for (size_t k = 0; k < n; ++k)
+    if (deferred[k]) MaterializeCut(k, out[k].depth, best_cut[k], columns[k], &out[k]);
   return Status::Ok();
 }
 
