@@ -166,17 +166,57 @@ void ColumnCompressor::UpdateKeysGroup(int depth, const bool* lanes) {
     size_t lane[kLanes], m = 0;
     for (size_t k = 0; k < kLanes; ++k) {
       if (!lanes[k] || key_depth_[k] == depth) continue;
-      const bool inc = depth > 0 && key_depth_[k] == depth - 1;
+      // From depth 0 the whole image changes: a rebuild is cheaper than an update.
+      const bool inc = depth > 1 && key_depth_[k] == depth - 1;
       if (inc == (incremental == 1)) lane[m++] = k;
     }
     if (m == 0) continue;
     const uint64_t rw_w = incremental ? bands_[depth - 1].width : width_;
     const uint64_t rw_h = incremental ? bands_[depth - 1].height : height_;
+    const uint64_t sub_w = bands_[depth].width, sub_h = bands_[depth].height;  // the next region
     for (size_t i = 0; i < m; ++i) {
+      region_[lane[i]].now = region_[lane[i]].next = RegionStats{};
       if (!incremental) {
         std::fill(key_hist_.begin() + lane[i] * kKeyBins, key_hist_.begin() + (lane[i] + 1) * kKeyBins, 0u);
         key_zeros_[lane[i]] = 0;
       }
+    }
+    if (!incremental) {
+      // Keys of every pixel, then each lane's histogram over its contiguous keys, then
+      // the next region's statistics (only an update from depth ≥ 1 uses them).
+      for (uint64_t p = 0; p < pixels_; ++p) {
+        alignas(32) float a[kLanes];
+        const float* c = coeffs_.data() + p * kLanes;
+        for (size_t k = 0; k < kLanes; ++k) a[k] = std::fabs(c[k]);
+        if (rw)
+          for (size_t k = 0; k < kLanes; ++k) a[k] *= rw[p];
+        uint32_t bits[kLanes];
+        std::memcpy(bits, a, sizeof(bits));
+        for (size_t i = 0; i < m; ++i) keys_[lane[i] * pixels_ + p] = bits[lane[i]];
+      }
+      for (size_t i = 0; i < m; ++i) {
+        const size_t k = lane[i];
+        const uint32_t* keys = keys_.data() + k * pixels_;
+        uint32_t* hist = key_hist_.data() + k * kKeyBins;
+        uint64_t zeros = 0;
+        for (uint64_t p = 0; p < pixels_; ++p) {
+          hist[keys[p] >> kKeyShift]++;
+          zeros += keys[p] == 0;
+        }
+        key_zeros_[k] = zeros;
+        RegionTrack& r = region_[k];
+        if (depth > 0) {
+          for (uint64_t y = 0; y < sub_h; ++y)
+            for (uint64_t x = 0; x < sub_w; ++x) {
+              const uint64_t p = y * width_ + x;
+              r.next.Add(coeffs_[p * kLanes + k] == 0.0f ? 0u : 1u, keys[p]);
+            }
+        }
+        r.before = RegionStats{0, 0};  // unknown
+        r.saved = r.next;
+        key_depth_[k] = depth;
+      }
+      continue;
     }
     for (uint64_t y = 0; y < rw_h; ++y)
       for (uint64_t x = 0; x < rw_w; ++x) {
@@ -185,24 +225,31 @@ void ColumnCompressor::UpdateKeysGroup(int depth, const bool* lanes) {
         const float* c = coeffs_.data() + p * kLanes;
         const float r = rw ? rw[p] : 1.0f;
         for (size_t k = 0; k < kLanes; ++k) a[k] = std::fabs(c[k]);
+        uint32_t abs_bits[kLanes], bits[kLanes];
+        std::memcpy(abs_bits, a, sizeof(abs_bits));
         if (rw)
           for (size_t k = 0; k < kLanes; ++k) a[k] *= r;
-        uint32_t bits[kLanes];
         std::memcpy(bits, a, sizeof(bits));
+        const bool sub = x < sub_w && y < sub_h;
         for (size_t i = 0; i < m; ++i) {
           const size_t k = lane[i];
           uint32_t* keys = keys_.data() + k * pixels_;
           uint32_t* hist = key_hist_.data() + k * kKeyBins;
-          if (incremental) {
-            hist[keys[p] >> kKeyShift]--;
-            key_zeros_[k] -= keys[p] == 0;
-          }
+          hist[keys[p] >> kKeyShift]--;
+          key_zeros_[k] -= keys[p] == 0;
+          region_[k].now.Add(abs_bits[k], bits[k]);
+          if (sub) region_[k].next.Add(abs_bits[k], bits[k]);
           keys[p] = bits[k];
           hist[bits[k] >> kKeyShift]++;
           key_zeros_[k] += bits[k] == 0;
         }
       }
-    for (size_t i = 0; i < m; ++i) key_depth_[lane[i]] = depth;
+    for (size_t i = 0; i < m; ++i) {
+      RegionTrack& r = region_[lane[i]];
+      r.before = r.saved;
+      r.saved = r.next;
+      key_depth_[lane[i]] = depth;
+    }
   }
 }
 
@@ -512,6 +559,10 @@ Status ColumnCompressor::Choose(const float* const* columns, size_t n, const Sel
   Cut best_cut[kLanes];
   uint64_t best_count[kLanes] = {};
   const uint64_t saved_stride = saved_.size() / kLanes;
+  // The previous depth's cut and error, while the lane was on the cut path.
+  bool prev_fast[kLanes] = {};
+  Cut prev_cut[kLanes];
+  double prev_error[kLanes] = {};
   std::fill(std::begin(key_depth_), std::end(key_depth_), -1);  // new columns: no keys yet
   for (int d = 0; d < first; ++d) {
     wavelet::AnalysisStep2D(filter_, coeffs_.data(), width_, kLanes, bands_[d].width, bands_[d].height,
@@ -536,8 +587,25 @@ Status ColumnCompressor::Choose(const float* const* columns, size_t n, const Sel
     bool ranked[kLanes] = {};  // lanes whose selection ranks by keys
     for (size_t k = 0; k < n; ++k) ranked[k] = active[k] && selection[k].kind == Selection::Kind::kTerms;
     UpdateKeysGroup(d, ranked);
+    bool same[kLanes] = {};  // the same kept set and error as depth d − 1
     for (size_t k = 0; k < n; ++k) {
       if (!active[k]) continue;
+      // Going from d − 1 to d changes only the old low band. If it holds as many exact
+      // zeros before as after, and every other key there, before and after, is above the
+      // previous cut's threshold t > 0, its nonzeros are kept both times: the n-th largest
+      // key, the ties and the kept terms elsewhere are unchanged, the dropped part is the
+      // same values at the same positions (and signed zeros in the region, which change
+      // no nonzero sum), and so is its error. Equal error and count never win over the
+      // best, which was compared with depth d − 1 already.
+      if (d >= 2 && prev_fast[k] && key_depth_[k] == d && !reference_path_ &&
+          selection[k].kind == Selection::Kind::kTerms && prev_cut[k].t > 0 &&
+          region_[k].before.zeros == region_[k].now.zeros && region_[k].before.min_key > prev_cut[k].t &&
+          region_[k].now.min_key > prev_cut[k].t) {
+        same[k] = fast[k] = true;
+        cut[k] = prev_cut[k];
+        error[k] = prev_error[k];
+        continue;
+      }
       fast[k] = CutTerms(k, d, selection[k], energy[k], &cut[k]);
       if (fast[k]) {
         pass[k] = cut[k];
@@ -561,12 +629,17 @@ Status ColumnCompressor::Choose(const float* const* columns, size_t n, const Sel
       double e[kLanes];
       WorkEnergies(e);
       for (size_t k = 0; k < kLanes; ++k)
-        if (active[k]) error[k] = e[k];
+        if (active[k] && !same[k]) error[k] = e[k];
     } else if (any_fast) {
       double e[kLanes];
       CutPass(d, pass, false, e);
       for (size_t k = 0; k < kLanes; ++k)
-        if (fast[k]) error[k] = e[k];
+        if (fast[k] && !same[k]) error[k] = e[k];
+    }
+    for (size_t k = 0; k < kLanes; ++k) {
+      prev_fast[k] = active[k] && fast[k];
+      prev_cut[k] = cut[k];
+      prev_error[k] = error[k];
     }
     for (size_t k = 0; k < n; ++k) {
       if (!active[k]) continue;

@@ -20,6 +20,7 @@
 // has the numerical guarantees.
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <vector>
 
@@ -149,8 +150,25 @@ class ColumnCompressor {
   std::vector<uint32_t> key_hist_;   // [lane][bin]
   int key_depth_[kLanes] = {};       // depth the lane's keys describe (−1: none)
   uint64_t key_zeros_[kLanes] = {};  // keys equal to 0 per lane
-  std::vector<uint32_t> cand_;       // keys in the threshold bin
-  std::vector<float> saved_;         // [lane][low band of the best depth so far]
+  // The region an incremental UpdateKeys changes (the previous low band): its exact-zero
+  // coefficients and the smallest key of the others, before and after the update.
+  struct RegionStats {
+    uint64_t zeros = 0;
+    uint32_t min_key = UINT32_MAX;
+    void Add(uint32_t abs_bits, uint32_t key) {
+      if (abs_bits == 0)
+        zeros++;
+      else
+        min_key = std::min(min_key, key);
+    }
+  };
+  struct RegionTrack {
+    RegionStats before, now;  // of the last update (before: min_key 0 when unknown)
+    RegionStats next, saved;  // the next region (this depth's low band), as this update left it
+  };
+  RegionTrack region_[kLanes];
+  std::vector<uint32_t> cand_;  // keys in the threshold bin
+  std::vector<float> saved_;    // [lane][low band of the best depth so far]
   bool reference_path_ = false;
   std::vector<uint64_t> hist_count_;
   std::vector<double> hist_energy_;
