@@ -506,34 +506,81 @@ void ColumnCompressor::WorkEnergies(double* error) {
 #endif
 }
 
-void ColumnCompressor::MaterializeCut(size_t lane, int depth, const Cut& cut, const float* column, ColumnChoice* out) {
+namespace {
+
+// Calls hit(i, key) for every i < n with key = keys[i] & mask >= t (t <= INT32_MAX), in
+// order. Keys are float bits of non-negative values (< 2^31).
+template <typename F>
+void ScanAtLeast(const uint32_t* keys, uint64_t n, uint32_t t, uint32_t mask, F&& hit) {
+  auto at = [&](uint64_t i) {  // (keys may be float storage)
+    uint32_t v;
+    std::memcpy(&v, reinterpret_cast<const char*>(keys) + 4 * i, 4);
+    return v & mask;
+  };
+  uint64_t i = 0;
+#if defined(__AVX2__)
+  const __m256i tv = _mm256_set1_epi32(static_cast<int32_t>(t));
+  const __m256i mv = _mm256_set1_epi32(static_cast<int32_t>(mask));
+  for (; i + 8 <= n; i += 8) {
+    const __m256i k = _mm256_and_si256(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(keys + i)), mv);
+    unsigned m = ~static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(tv, k)))) & 0xffu;
+    while (m) {
+      const unsigned j = static_cast<unsigned>(__builtin_ctz(m));
+      hit(i + j, at(i + j));
+      m &= m - 1;
+    }
+  }
+#endif
+  for (; i < n; ++i)
+    if (at(i) >= t) hit(i, at(i));
+}
+
+}  // namespace
+
+void ColumnCompressor::MaterializeCut(size_t lane, int depth, const Cut& cut, const float* column,
+                                      ColumnChoice* out) {
   out->index.clear();
   out->value.clear();
   out->index.reserve(cut.n);
   out->value.reserve(cut.n);
-  const float* rw = !orthonormal_ && depth > 0 ? root_weights_.data() + depth * pixels_ : nullptr;
+  uint64_t ties = cut.ties;
+  auto take = [&](uint64_t p, uint32_t key, float c) {
+    if (key > cut.t || (key == cut.t && ties > 0 && ties--)) {
+      out->index.push_back(static_cast<uint32_t>(p));
+      out->value.push_back(c);
+    }
+  };
+  if (depth == 0) {  // the pixels themselves: key |c|
+    const uint32_t* bits = reinterpret_cast<const uint32_t*>(column);
+    ScanAtLeast(bits, pixels_, cut.t, 0x7fffffffu, [&](uint64_t p, uint32_t key) { take(p, key, column[p]); });
+    return;
+  }
+  // Outside this depth's low band, coefficients and keys are as they were at this depth
+  // (later steps change only the low band); inside, the saved low band.
+  const float* rw = !orthonormal_ ? root_weights_.data() + depth * pixels_ : nullptr;
   const wavelet::BandSize& lo = bands_[depth];
   const float* low = saved_.data() + lane * (saved_.size() / kLanes);
-  uint64_t ties = cut.ties;
-  for (uint64_t y = 0; y < height_; ++y)
-    for (uint64_t x = 0; x < width_; ++x) {
-      const uint64_t p = y * width_ + x;
-      float c;
-      if (depth == 0)
-        c = column[p];
-      else if (x < lo.width && y < lo.height)
-        c = low[y * lo.width + x];
-      else
-        c = coeffs_[p * kLanes + lane];
-      float a = std::fabs(c);
-      if (rw) a *= rw[p];
-      uint32_t key;
-      std::memcpy(&key, &a, 4);
-      if (key > cut.t || (key == cut.t && ties > 0 && ties--)) {
-        out->index.push_back(static_cast<uint32_t>(p));
-        out->value.push_back(c);
+  const uint32_t* keys = keys_.data() + lane * pixels_;
+  for (uint64_t y = 0; y < height_; ++y) {
+    uint64_t x0 = 0;
+    if (y < lo.height) {
+      for (uint64_t x = 0; x < lo.width; ++x) {
+        const uint64_t p = y * width_ + x;
+        const float c = low[y * lo.width + x];
+        float a = std::fabs(c);
+        if (rw) a *= rw[p];
+        uint32_t key;
+        std::memcpy(&key, &a, 4);
+        take(p, key, c);
       }
+      x0 = lo.width;
     }
+    const uint64_t row = y * width_;
+    ScanAtLeast(keys + row + x0, width_ - x0, cut.t, 0xffffffffu, [&](uint64_t i, uint32_t key) {
+      const uint64_t p = row + x0 + i;
+      take(p, key, coeffs_[p * kLanes + lane]);
+    });
+  }
 }
 
 Status ColumnCompressor::Choose(const float* const* columns, size_t n, const Selection* selection,
