@@ -70,6 +70,7 @@ Result<ColumnCompressor> ColumnCompressor::Create(wavelet::Filter filter, uint64
   c.bins_.resize(c.pixels_);
   c.keys_.resize(c.pixels_ * kLanes);
   c.key_hist_.resize(kKeyBins * kLanes);
+  c.sub_hist_.resize(kKeyBins * 4);
   c.cand_.reserve(c.pixels_);
   if (max_depth > 0) c.saved_.resize(kLanes * c.bands_[1].width * c.bands_[1].height);
   c.weights_.resize(max_depth + 1);
@@ -198,11 +199,26 @@ void ColumnCompressor::UpdateKeysGroup(int depth, const bool* lanes) {
         const size_t k = lane[i];
         const uint32_t* keys = keys_.data() + k * pixels_;
         uint32_t* hist = key_hist_.data() + k * kKeyBins;
-        uint64_t zeros = 0;
-        for (uint64_t p = 0; p < pixels_; ++p) {
-          hist[keys[p] >> kKeyShift]++;
+        // Four histograms, summed: neighbouring keys often share a bin, and one counter
+        // incremented back to back waits on its own store.
+        std::fill(sub_hist_.begin(), sub_hist_.end(), 0u);
+        uint32_t* h0 = sub_hist_.data();
+        uint32_t* h1 = h0 + kKeyBins;
+        uint32_t* h2 = h1 + kKeyBins;
+        uint32_t* h3 = h2 + kKeyBins;
+        uint64_t zeros = 0, p = 0;
+        for (; p + 4 <= pixels_; p += 4) {
+          h0[keys[p] >> kKeyShift]++;
+          h1[keys[p + 1] >> kKeyShift]++;
+          h2[keys[p + 2] >> kKeyShift]++;
+          h3[keys[p + 3] >> kKeyShift]++;
+          zeros += (keys[p] == 0) + (keys[p + 1] == 0) + (keys[p + 2] == 0) + (keys[p + 3] == 0);
+        }
+        for (; p < pixels_; ++p) {
+          h0[keys[p] >> kKeyShift]++;
           zeros += keys[p] == 0;
         }
+        for (size_t b = 0; b < kKeyBins; ++b) hist[b] = h0[b] + h1[b] + h2[b] + h3[b];
         key_zeros_[k] = zeros;
         RegionTrack& r = region_[k];
         if (depth > 0) {
@@ -375,7 +391,18 @@ bool ColumnCompressor::CutTerms(size_t lane, int depth, const Selection& sel, do
   uint32_t t;           // the smallest kept key
   if (n == positive) {  // every nonzero: keys > 0
     t = UINT32_MAX;
-    for (uint64_t p = 0; p < pixels_; ++p) t = std::min(t, keys[p] == 0 ? UINT32_MAX : keys[p]);
+    uint64_t p = 0;
+#if defined(__AVX2__)
+    __m256i mv = _mm256_set1_epi32(-1);
+    for (; p + 8 <= pixels_; p += 8) {
+      const __m256i k = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(keys + p));
+      mv = _mm256_min_epu32(mv, _mm256_or_si256(k, _mm256_cmpeq_epi32(k, _mm256_setzero_si256())));
+    }
+    alignas(32) uint32_t lanes[8];
+    _mm256_store_si256(reinterpret_cast<__m256i*>(lanes), mv);
+    for (uint32_t v : lanes) t = std::min(t, v);
+#endif
+    for (; p < pixels_; ++p) t = std::min(t, keys[p] == 0 ? UINT32_MAX : keys[p]);
     cut->t = 0;
   } else {
     // As SelectTerms: the bin of the n-th largest key, then selection within it.

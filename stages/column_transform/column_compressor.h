@@ -148,6 +148,7 @@ class ColumnCompressor {
   std::vector<float> root_weights_;  // per depth ‖ψ̃‖, flattened (biorthogonal only)
   std::vector<uint32_t> keys_;       // [lane][pixel] float bits of |c|·‖ψ̃‖
   std::vector<uint32_t> key_hist_;   // [lane][bin]
+  std::vector<uint32_t> sub_hist_;   // four partial histograms of one lane
   int key_depth_[kLanes] = {};       // depth the lane's keys describe (−1: none)
   uint64_t key_zeros_[kLanes] = {};  // keys equal to 0 per lane
   // The region an incremental UpdateKeys changes (the previous low band): its exact-zero
