@@ -185,7 +185,14 @@ void ColumnCompressor::UpdateKeysGroup(int depth, const bool* lanes) {
     if (!incremental) {
       // Keys of every pixel, then each lane's histogram over its contiguous keys, then
       // the next region's statistics (only an update from depth ≥ 1 uses them).
-      for (uint64_t p = 0; p < pixels_; ++p) {
+      if (depth == 0 && columns_) {  // the pixels: each lane's key is |x|, read contiguously
+        for (size_t i = 0; i < m; ++i) {
+          uint32_t* keys = keys_.data() + lane[i] * pixels_;
+          std::memcpy(keys, columns_[lane[i]], pixels_ * 4);
+          for (uint64_t p = 0; p < pixels_; ++p) keys[p] &= 0x7fffffffu;
+        }
+      }
+      for (uint64_t p = 0; p < pixels_ && !(depth == 0 && columns_); ++p) {
         alignas(32) float a[kLanes];
         const float* c = coeffs_.data() + p * kLanes;
         for (size_t k = 0; k < kLanes; ++k) a[k] = std::fabs(c[k]);
@@ -564,8 +571,7 @@ void ScanAtLeast(const uint32_t* keys, uint64_t n, uint32_t t, uint32_t mask, F&
 
 }  // namespace
 
-void ColumnCompressor::MaterializeCut(size_t lane, int depth, const Cut& cut, const float* column,
-                                      ColumnChoice* out) {
+void ColumnCompressor::MaterializeCut(size_t lane, int depth, const Cut& cut, const float* column, ColumnChoice* out) {
   out->index.clear();
   out->value.clear();
   out->index.reserve(cut.n);
@@ -638,6 +644,7 @@ Status ColumnCompressor::Choose(const float* const* columns, size_t n, const Sel
   Cut prev_cut[kLanes];
   double prev_error[kLanes] = {};
   std::fill(std::begin(key_depth_), std::end(key_depth_), -1);  // new columns: no keys yet
+  columns_ = columns;
   for (int d = 0; d < first; ++d) {
     wavelet::AnalysisStep2D(filter_, coeffs_.data(), width_, kLanes, bands_[d].width, bands_[d].height,
                             scratch_.data());
@@ -749,6 +756,7 @@ Status ColumnCompressor::Choose(const float* const* columns, size_t n, const Sel
       }
     }
   }
+  columns_ = nullptr;
   for (size_t k = 0; k < n; ++k)
     if (deferred[k]) MaterializeCut(k, out[k].depth, best_cut[k], columns[k], &out[k]);
   return Status::Ok();

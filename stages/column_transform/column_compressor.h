@@ -145,12 +145,13 @@ class ColumnCompressor {
   std::vector<int32_t> bins_;
   static constexpr int kKeyShift = 20;  // histogram of the key's top 11 bits (sign is 0)
   static constexpr size_t kKeyBins = size_t{1} << (31 - kKeyShift);
-  std::vector<float> root_weights_;  // per depth ‖ψ̃‖, flattened (biorthogonal only)
-  std::vector<uint32_t> keys_;       // [lane][pixel] float bits of |c|·‖ψ̃‖
-  std::vector<uint32_t> key_hist_;   // [lane][bin]
-  std::vector<uint32_t> sub_hist_;   // four partial histograms of one lane
-  int key_depth_[kLanes] = {};       // depth the lane's keys describe (−1: none)
-  uint64_t key_zeros_[kLanes] = {};  // keys equal to 0 per lane
+  std::vector<float> root_weights_;        // per depth ‖ψ̃‖, flattened (biorthogonal only)
+  std::vector<uint32_t> keys_;             // [lane][pixel] float bits of |c|·‖ψ̃‖
+  std::vector<uint32_t> key_hist_;         // [lane][bin]
+  std::vector<uint32_t> sub_hist_;         // four partial histograms of one lane
+  const float* const* columns_ = nullptr;  // during Choose: the columns (depth-0 keys)
+  int key_depth_[kLanes] = {};             // depth the lane's keys describe (−1: none)
+  uint64_t key_zeros_[kLanes] = {};        // keys equal to 0 per lane
   // The region an incremental UpdateKeys changes (the previous low band): its exact-zero
   // coefficients and the smallest key of the others, before and after the update.
   struct RegionStats {
