@@ -241,11 +241,23 @@ void ColumnCompressor::UpdateKeysGroup(int depth, const bool* lanes) {
       }
       continue;
     }
+    // Locals, so that the histogram stores do not make the compiler reload members.
+    uint32_t* keys_of[kLanes];
+    uint32_t* hist_of[kLanes];
+    uint64_t zeros_of[kLanes];
+    RegionStats now_of[kLanes], next_of[kLanes];
+    for (size_t i = 0; i < m; ++i) {
+      keys_of[i] = keys_.data() + lane[i] * pixels_;
+      hist_of[i] = key_hist_.data() + lane[i] * kKeyBins;
+      zeros_of[i] = key_zeros_[lane[i]];
+    }
+    const float* coeffs = coeffs_.data();
+    const uint64_t width = width_;
     for (uint64_t y = 0; y < rw_h; ++y)
       for (uint64_t x = 0; x < rw_w; ++x) {
-        const uint64_t p = y * width_ + x;
+        const uint64_t p = y * width + x;
         alignas(32) float a[kLanes];
-        const float* c = coeffs_.data() + p * kLanes;
+        const float* c = coeffs + p * kLanes;
         const float r = rw ? rw[p] : 1.0f;
         for (size_t k = 0; k < kLanes; ++k) a[k] = std::fabs(c[k]);
         uint32_t abs_bits[kLanes], bits[kLanes];
@@ -256,21 +268,23 @@ void ColumnCompressor::UpdateKeysGroup(int depth, const bool* lanes) {
         const bool sub = x < sub_w && y < sub_h;
         for (size_t i = 0; i < m; ++i) {
           const size_t k = lane[i];
-          uint32_t* keys = keys_.data() + k * pixels_;
-          uint32_t* hist = key_hist_.data() + k * kKeyBins;
-          hist[keys[p] >> kKeyShift]--;
-          key_zeros_[k] -= keys[p] == 0;
-          region_[k].now.Add(abs_bits[k], bits[k]);
-          if (sub) region_[k].next.Add(abs_bits[k], bits[k]);
+          uint32_t* keys = keys_of[i];
+          uint32_t* hist = hist_of[i];
+          const uint32_t old_key = keys[p];
+          hist[old_key >> kKeyShift]--;
+          zeros_of[i] += (bits[k] == 0) - static_cast<uint64_t>(old_key == 0);
+          now_of[i].Add(abs_bits[k], bits[k]);
+          if (sub) next_of[i].Add(abs_bits[k], bits[k]);
           keys[p] = bits[k];
           hist[bits[k] >> kKeyShift]++;
-          key_zeros_[k] += bits[k] == 0;
         }
       }
     for (size_t i = 0; i < m; ++i) {
       RegionTrack& r = region_[lane[i]];
+      key_zeros_[lane[i]] = zeros_of[i];
+      r.now = now_of[i];
       r.before = r.saved;
-      r.saved = r.next;
+      r.saved = next_of[i];
       key_depth_[lane[i]] = depth;
     }
   }
