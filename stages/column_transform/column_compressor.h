@@ -12,10 +12,15 @@
 // reconstructed dropped part. Energies and errors are accumulated in double.
 //
 // No full sort: the N-th largest is found by selection (linear time), and every extra
-// depth is one more analysis step on the low band. docs/COLUMN-TRANSFORM.md has the
-// numerical guarantees.
+// depth is one more analysis step on the low band. For `terms` selections the kept set of
+// a depth is a cut (a key threshold and a count of ties); the error is measured in one
+// pass over the eight lanes together, and the kept list is built once, for the chosen
+// depth, from a copy of that depth's low band. Every sum runs in the same order as a
+// per-column loop would, so results do not depend on the path. docs/COLUMN-TRANSFORM.md
+// has the numerical guarantees.
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <vector>
 
@@ -88,6 +93,10 @@ class ColumnCompressor {
   int depths() const { return max_depth_ - min_depth_ + 1; }
   uint64_t width() const { return width_; }
   uint64_t height() const { return height_; }
+  // Tests and benchmarks: examine every depth the pre-issue-23 way (a full selection and,
+  // for biorthogonal filters, a reconstruction per column and depth). Same results.
+  void SetReferencePath(bool on) { reference_path_ = on; }
+
   // Bytes of working memory one compressor uses (for --mem-limit).
   static uint64_t WorkingBytes(uint64_t width, uint64_t height, int max_depth, bool orthonormal);
 
@@ -102,8 +111,26 @@ class ColumnCompressor {
   // changes only the coefficients of the old low band.
   void SelectTerms(size_t lane, int depth, uint64_t terms, std::vector<uint32_t>* kept);
   void UpdateKeys(size_t lane, int depth);
-  // Image-domain error of dropping everything but `kept[k]` at `depth` (biorthogonal, depth > 0).
-  void Errors(int depth, const std::vector<uint32_t>* kept, const bool* live, double* error);
+  void UpdateKeysGroup(int depth, const bool* lanes);  // UpdateKeys for lanes[k], in one pass
+  // The kept set of a kTerms selection as a cut: keys > t, and the first `ties` keys
+  // equal to t in position order (n kept in all). False when that set needs the
+  // explicit path (other selections, or kept terms the rounding-residue trim may drop).
+  struct Cut {
+    uint32_t t = 0;
+    uint64_t ties = 0, n = 0;
+  };
+  bool CutTerms(size_t lane, int depth, const Selection& sel, double energy, Cut* cut);
+  // One pass over the eight lanes at `depth`: lane k keeps what cut[k] keeps (t =
+  // INT32_MAX keeps nothing). Unweighted: the dropped energy per lane into error[k];
+  // weighted: the dropped part into work_.
+  void CutPass(int depth, const Cut* cut, bool weighted, double* error);
+  // Σ v² per lane of work_, in position order.
+  void WorkEnergies(double* error);
+  // The kept list of a cut at `depth`, from the saved low band of that depth (depth 0:
+  // the column itself) and the finer bands, which later steps leave alone.
+  void MaterializeCut(size_t lane, int depth, const Cut& cut, const float* column, ColumnChoice* out);
+  // The positive keys of histogram bin `bin` into cand_.
+  void Candidates(const uint32_t* keys, uint32_t bin);
 
   wavelet::Filter filter_ = wavelet::Filter::kLeGall53;
   bool orthonormal_ = false;
@@ -118,11 +145,33 @@ class ColumnCompressor {
   std::vector<int32_t> bins_;
   static constexpr int kKeyShift = 20;  // histogram of the key's top 11 bits (sign is 0)
   static constexpr size_t kKeyBins = size_t{1} << (31 - kKeyShift);
-  std::vector<float> root_weights_;  // per depth ‖ψ̃‖, flattened (biorthogonal only)
-  std::vector<uint32_t> keys_;       // [lane][pixel] float bits of |c|·‖ψ̃‖
-  std::vector<uint32_t> key_hist_;   // [lane][bin]
-  int key_depth_[kLanes] = {};       // depth the lane's keys describe (−1: none)
-  std::vector<uint32_t> cand_;       // keys in the threshold bin
+  std::vector<float> root_weights_;        // per depth ‖ψ̃‖, flattened (biorthogonal only)
+  std::vector<uint32_t> keys_;             // [lane][pixel] float bits of |c|·‖ψ̃‖
+  std::vector<uint32_t> key_hist_;         // [lane][bin]
+  std::vector<uint32_t> sub_hist_;         // four partial histograms of one lane
+  const float* const* columns_ = nullptr;  // during Choose: the columns (depth-0 keys)
+  int key_depth_[kLanes] = {};             // depth the lane's keys describe (−1: none)
+  uint64_t key_zeros_[kLanes] = {};        // keys equal to 0 per lane
+  // The region an incremental UpdateKeys changes (the previous low band): its exact-zero
+  // coefficients and the smallest key of the others, before and after the update.
+  struct RegionStats {
+    uint64_t zeros = 0;
+    uint32_t min_key = UINT32_MAX;
+    void Add(uint32_t abs_bits, uint32_t key) {
+      if (abs_bits == 0)
+        zeros++;
+      else
+        min_key = std::min(min_key, key);
+    }
+  };
+  struct RegionTrack {
+    RegionStats before, now;  // of the last update (before: min_key 0 when unknown)
+    RegionStats next, saved;  // the next region (this depth's low band), as this update left it
+  };
+  RegionTrack region_[kLanes];
+  std::vector<uint32_t> cand_;  // keys in the threshold bin
+  std::vector<float> saved_;    // [lane][low band of the best depth so far]
+  bool reference_path_ = false;
   std::vector<uint64_t> hist_count_;
   std::vector<double> hist_energy_;
 };

@@ -5,6 +5,7 @@
 #include <cctype>
 #include <cmath>
 #include <cstring>
+#include <deque>
 #include <memory>
 #include <mutex>
 
@@ -176,10 +177,10 @@ Status PlanChunks(const ColumnTransformOptions& o, const ArraySpec& a, Plan* pla
                            std::to_string(kMaxSparseElements / pixels));
   }
 
-  // Memory: each job holds a compressor, one input chunk, and the output chunk dense and
-  // encoded (at most as large).
+  // Memory: each job holds a compressor, one input chunk (and the columns of one lane
+  // group from earlier chunks), and the output chunk dense and encoded (at most as large).
   const uint64_t per_job = ColumnCompressor::WorkingBytes(plan->width, plan->height, plan->max_depth, ortho) +
-                           a.block * pixels * 4 + 2 * plan->block * pixels * 4;
+                           (a.block + ColumnCompressor::kLanes) * pixels * 4 + 2 * plan->block * pixels * 4;
   int jobs = std::max(1, o.jobs);
   if (per_job > o.mem_limit) {
     return FailedPrecondition("column-transform needs " + std::to_string(per_job >> 20) + " MiB per job for " +
@@ -389,8 +390,12 @@ Status PutColumnGroup(const ChunkJob& job, uint64_t c, const std::vector<float>&
 }
 
 // Output chunk c: columns [col0, col0 + ncols), read from the input chunks over them, each
-// column transformed to its depth and its selected coefficients kept.
+// column transformed to its depth and its selected coefficients kept. Columns go to the
+// compressor eight at a time whatever the input chunking (large columns come one per
+// input chunk): a group may span input chunks of fewer than eight columns, which stay
+// alive until it is done.
 Status TransformChunk(const ChunkJob& job, uint64_t c) {
+  constexpr size_t kLanes = ColumnCompressor::kLanes;
   const ArraySpec& a = job.in.metadata().matrix();
   const Plan& plan = job.plan;
   const uint64_t pixels = plan.pixels;
@@ -399,44 +404,57 @@ Status TransformChunk(const ChunkJob& job, uint64_t c) {
   std::vector<float> dense(ncols * pixels, 0.0f);
   std::vector<uint8_t> depths(ncols, 0);
   std::vector<double> stats(ncols * kStatsPerColumn, 0.0);
-  ColumnChoice choice[ColumnCompressor::kLanes];
-  Selection sel[ColumnCompressor::kLanes];
-  int override_depth[ColumnCompressor::kLanes];
-  for (uint64_t ic = col0 / a.block; ic * a.block < col0 + ncols; ++ic) {
-    LTB_ASSIGN_OR_RETURN(io::Chunk chunk, job.in.ReadChunk(0, ic));
-    const ChunkExtent e = chunk.extent();
-    auto values = chunk.as<float>();
-    const uint64_t j0 = std::max(e.col0, col0), j1 = std::min(e.col0 + e.cols, col0 + ncols);
-    for (uint64_t jb = j0; jb < j1; jb += ColumnCompressor::kLanes) {
-      size_t n = std::min<uint64_t>(ColumnCompressor::kLanes, j1 - jb);
-      const float* cols[ColumnCompressor::kLanes];
-      for (size_t k = 0; k < n; ++k) {
-        const uint64_t j = jb + k;
-        cols[k] = values.data() + (j - e.col0) * pixels;
-        if (job.alloc.depth.empty()) {
-          sel[k].kind = Selection::Kind::kTerms;
-          sel[k].terms = job.sel.terms;
-          override_depth[k] = -1;
-        } else {
-          sel[k].kind = Selection::Kind::kThreshold;
-          sel[k].threshold_bin = job.alloc.threshold_bin;
-          sel[k].terms = job.alloc.extra[j];
-          override_depth[k] = job.alloc.depth[j];
-        }
-      }
-      Status cs = comp->Choose(cols, n, sel, override_depth, choice);
-      if (!cs.ok()) return cs.WithContext(job.o.input + ": column " + std::to_string(jb));
-      for (size_t k = 0; k < n; ++k) {
-        const uint64_t m = jb + k - col0;  // column within the output chunk
-        float* out_col = dense.data() + m * pixels;
-        for (size_t i = 0; i < choice[k].index.size(); ++i) out_col[choice[k].index[i]] = choice[k].value[i];
-        depths[m] = static_cast<uint8_t>(choice[k].depth);
-        stats[m * kStatsPerColumn + 0] = choice[k].energy;
-        stats[m * kStatsPerColumn + 1] = choice[k].error;
-        stats[m * kStatsPerColumn + 2] = static_cast<double>(choice[k].index.size());
+  ColumnChoice choice[kLanes];
+  Selection sel[kLanes];
+  int override_depth[kLanes];
+  const float* cols[kLanes];
+  uint64_t first_j = 0;  // matrix column of cols[0]
+  size_t pending = 0;
+  std::deque<io::Chunk> held;  // input chunks the pending columns point into
+  auto flush = [&]() -> Status {
+    for (size_t k = 0; k < pending; ++k) {
+      const uint64_t j = first_j + k;
+      if (job.alloc.depth.empty()) {
+        sel[k].kind = Selection::Kind::kTerms;
+        sel[k].terms = job.sel.terms;
+        override_depth[k] = -1;
+      } else {
+        sel[k].kind = Selection::Kind::kThreshold;
+        sel[k].threshold_bin = job.alloc.threshold_bin;
+        sel[k].terms = job.alloc.extra[j];
+        override_depth[k] = job.alloc.depth[j];
       }
     }
+    Status cs = comp->Choose(cols, pending, sel, override_depth, choice);
+    if (!cs.ok()) return cs.WithContext(job.o.input + ": column " + std::to_string(first_j));
+    for (size_t k = 0; k < pending; ++k) {
+      const uint64_t m = first_j + k - col0;  // column within the output chunk
+      float* out_col = dense.data() + m * pixels;
+      for (size_t i = 0; i < choice[k].index.size(); ++i) out_col[choice[k].index[i]] = choice[k].value[i];
+      depths[m] = static_cast<uint8_t>(choice[k].depth);
+      stats[m * kStatsPerColumn + 0] = choice[k].energy;
+      stats[m * kStatsPerColumn + 1] = choice[k].error;
+      stats[m * kStatsPerColumn + 2] = static_cast<double>(choice[k].index.size());
+    }
+    pending = 0;
+    while (held.size() > 1) held.pop_front();  // the current chunk may hold the next group
+    return Status::Ok();
+  };
+  for (uint64_t ic = col0 / a.block; ic * a.block < col0 + ncols; ++ic) {
+    // Input chunks of a lane group or more finish their groups (memory: one such chunk).
+    if (a.block >= kLanes && pending > 0) LTB_RETURN_IF_ERROR(flush());
+    LTB_ASSIGN_OR_RETURN(io::Chunk chunk, job.in.ReadChunk(0, ic));
+    held.push_back(std::move(chunk));
+    const ChunkExtent e = held.back().extent();
+    auto values = held.back().as<float>();
+    const uint64_t j0 = std::max(e.col0, col0), j1 = std::min(e.col0 + e.cols, col0 + ncols);
+    for (uint64_t j = j0; j < j1; ++j) {
+      if (pending == 0) first_j = j;
+      cols[pending++] = values.data() + (j - e.col0) * pixels;
+      if (pending == kLanes) LTB_RETURN_IF_ERROR(flush());
+    }
   }
+  if (pending > 0) LTB_RETURN_IF_ERROR(flush());
   return PutColumnGroup(job, c, dense, depths, stats);
 }
 

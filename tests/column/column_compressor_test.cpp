@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <random>
 
@@ -233,6 +234,98 @@ TEST(ColumnCompressor, LanesAreIndependent) {
       EXPECT_EQ(alone.index, together[i].index);
       EXPECT_EQ(alone.value, together[i].value);
       EXPECT_EQ(alone.error, together[i].error);
+    }
+  }
+}
+
+// Columns of several kinds for the path comparison below: the test image, sparse
+// columns (fewer nonzeros than terms at some depths), values on a coarse grid (many equal
+// keys: ties at the threshold), a constant (exact at full depth: the rounding-residue
+// trim), a smooth ramp plus a blob (coarse bands kept whole at deep depths), a pixel on
+// fine checkerboards (exact zeros in the coarse bands), zeros.
+std::vector<float> PathTestColumn(uint64_t w, uint64_t h, uint32_t kind, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  std::vector<float> img(w * h, 0.0f);
+  switch (kind % 7) {
+    case 0:
+      return TestImage(w, h, seed);
+    case 1:
+      for (int i = 0; i < 6; ++i) img[rng() % img.size()] = u(rng);
+      return img;
+    case 2:
+      for (float& v : img) v = std::round(u(rng) * 3.0f) * 0.25f;
+      return img;
+    case 3:
+      std::fill(img.begin(), img.end(), 0.375f);
+      return img;
+    case 4:
+      for (uint64_t y = 0; y < h; ++y)
+        for (uint64_t x = 0; x < w; ++x) {
+          float dx = float(x) - 0.3f * float(w), dy = float(y) - 0.6f * float(h);
+          img[y * w + x] = 0.01f * float(x + 2 * y) + 2.0f * std::exp(-(dx * dx + dy * dy) / 9.0f);
+        }
+      return img;
+    case 5:
+      // A bright 4×4 block and, in the right half, 2×2 checkerboards: for Haar these are
+      // pure finest-level HH, so the coarse low bands hold exact zeros, and depth 2 packs
+      // the block's four depth-1 coefficients into one.
+      for (uint64_t y = 0; y < 4; ++y)
+        for (uint64_t x = 0; x < 4; ++x) img[y * w + x] = 10.0f;
+      for (uint64_t y = 0; y + 1 < h; y += 2)
+        for (uint64_t x = w / 2; x + 1 < w; x += 2) {
+          float s = 0.001f * (1.0f + u(rng));
+          img[y * w + x] = img[(y + 1) * w + x + 1] = s;
+          img[y * w + x + 1] = img[(y + 1) * w + x] = -s;
+        }
+      return img;
+    default:
+      return img;  // all zero
+  }
+}
+
+TEST(ColumnCompressor, CutPathEqualsTheExplicitPathBitForBit) {
+  // The depth search builds kept sets as cuts and measures errors in one pass over the
+  // lanes; SetReferencePath(true) selects and reconstructs every column and depth
+  // explicitly. Both must give the same depth, kept terms, values and error (bit for
+  // bit), for every filter, depth range and term count, columns eight to a call.
+  struct Size {
+    uint64_t w, h;
+  };
+  for (Filter f : kAll) {
+    const bool ortho = wavelet::IsOrthonormal(f);
+    for (Size sz : {Size{16, 16}, Size{32, 8}, Size{24, 20}}) {
+      if (ortho && sz.w == 24) continue;
+      const int deepest = Deepest(sz.w, sz.h);
+      for (auto [dmin, dmax] : {std::pair{0, deepest}, std::pair{2, deepest - 1}, std::pair{deepest, deepest}}) {
+        auto fast = ColumnCompressor::Create(f, sz.w, sz.h, dmin, dmax);
+        auto ref = ColumnCompressor::Create(f, sz.w, sz.h, dmin, dmax);
+        ASSERT_TRUE(fast.ok() && ref.ok());
+        ref->SetReferencePath(true);
+        for (uint64_t terms : {1u, 7u, 40u, 300u}) {
+          std::vector<std::vector<float>> imgs;
+          const float* cols[8];
+          Selection sel[8];
+          for (uint32_t k = 0; k < 8; ++k) {
+            imgs.push_back(PathTestColumn(sz.w, sz.h, k + static_cast<uint32_t>(terms), 31 * k + 5));
+            sel[k].terms = terms;
+          }
+          for (uint32_t k = 0; k < 8; ++k) cols[k] = imgs[k].data();
+          ColumnChoice a[8], b[8];
+          ASSERT_TRUE(fast->Choose(cols, 8, sel, nullptr, a).ok());
+          ASSERT_TRUE(ref->Choose(cols, 8, sel, nullptr, b).ok());
+          for (int k = 0; k < 8; ++k) {
+            SCOPED_TRACE(std::string(wavelet::FilterName(f)) + " " + std::to_string(sz.w) + "x" + std::to_string(sz.h) +
+                         " depths " + std::to_string(dmin) + ".." + std::to_string(dmax) + " terms " +
+                         std::to_string(terms) + " column " + std::to_string(k));
+            EXPECT_EQ(a[k].depth, b[k].depth);
+            EXPECT_EQ(a[k].index, b[k].index);
+            EXPECT_EQ(a[k].value, b[k].value);
+            EXPECT_EQ(std::memcmp(&a[k].error, &b[k].error, sizeof(double)), 0) << a[k].error << " " << b[k].error;
+            EXPECT_EQ(a[k].energy, b[k].energy);
+          }
+        }
+      }
     }
   }
 }
