@@ -86,6 +86,9 @@ Result<File> File::Open(const std::string& path, Mode mode, bool inherit) {
     case Mode::kWriteDirect:
       flags |= O_WRONLY | O_DIRECT;
       break;
+    case Mode::kReadDirect:
+      flags |= O_RDONLY | O_DIRECT;
+      break;
   }
   int fd;
   do {

@@ -15,8 +15,9 @@ class File {
  public:
   // kCreate: read-write, created when missing (lock files). kWriteDirect: an existing file,
   // write-only with O_DIRECT (writes bypass the page cache; offsets, lengths and buffers
-  // must be aligned to the device's block size).
-  enum class Mode { kRead, kReadWrite, kCreate, kCreateExclusive, kWriteDirect };
+  // must be aligned to the device's block size). kReadDirect: read-only with O_DIRECT (the
+  // same alignment rules; reads bypass, and do not evict, the page cache).
+  enum class Mode { kRead, kReadWrite, kCreate, kCreateExclusive, kWriteDirect, kReadDirect };
 
   File() = default;
   ~File();
