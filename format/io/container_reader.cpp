@@ -236,14 +236,21 @@ Result<const IndexEntry*> ContainerReader::Locate(uint32_t array, uint64_t chunk
 
 void ContainerReader::Readahead(const IndexEntry* e, const ReadOptions& options) const {
   if (!options.sequential || options.readahead_chunks == 0) return;
-  // chunk_frames_ is in file order; ask the kernel for the frames that follow.
-  size_t slot = static_cast<size_t>(e - chunk_frames_.data());
-  size_t last = std::min(chunk_frames_.size() - 1, slot + options.readahead_chunks);
-  if (last > slot) {
-    uint64_t from = chunk_frames_[slot + 1].frame_offset;
-    uint64_t to = chunk_frames_[last].frame_offset + chunk_frames_[last].header.FrameSize();
-    ::posix_fadvise(file_.fd(), static_cast<off_t>(from), static_cast<off_t>(std::min(to, file_size_) - from),
+  // chunk_frames_ is in file order; ask the kernel for the next frames of the same array.
+  // Only those: stages interleave arrays in the file (sample writes a row block's matrix
+  // chunk beside its side-table chunks), and reading a side table in order must not pull
+  // the matrix chunks between its frames into the page cache (at R = 64 that read the
+  // whole 4.6 GB matrix before transpose started, to be evicted again in a 2 GiB cgroup).
+  constexpr size_t kScan = 64;  // frames looked at beyond this one
+  const size_t slot = static_cast<size_t>(e - chunk_frames_.data());
+  size_t found = 0;
+  for (size_t k = slot + 1; k < chunk_frames_.size() && k <= slot + kScan && found < options.readahead_chunks; ++k) {
+    const IndexEntry& next = chunk_frames_[k];
+    if (next.header.array != e->header.array) continue;
+    const uint64_t to = std::min(next.frame_offset + next.header.FrameSize(), file_size_);
+    ::posix_fadvise(file_.fd(), static_cast<off_t>(next.frame_offset), static_cast<off_t>(to - next.frame_offset),
                     POSIX_FADV_WILLNEED);
+    ++found;
   }
 }
 
