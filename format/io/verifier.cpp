@@ -189,12 +189,18 @@ void Verification::CheckFrame(const IndexEntry& e) {
   }
   if (h.type == static_cast<uint16_t>(FrameType::kPadding)) return;  // zeros (checked by the checksum)
   if (h.type == static_cast<uint16_t>(FrameType::kContentHash)) {
-    std::vector<std::byte> payload(h.payload_length);  // within the file (DecodeFrameHeader)
-    Status read = file_.ReadAt(payload_offset, payload);
-    auto sums = read.ok() ? DecodeContentHashRecord(payload, prelude_.metadata.arrays.size())
-                          : Result<std::vector<uint64_t>>(read);
+    // Its size follows from the metadata; a claim of any other size is not read (nor allocated).
+    const size_t arrays = prelude_.metadata.arrays.size();
+    Result<std::vector<uint64_t>> sums =
+        DataLoss("content-hash frame of " + std::to_string(h.payload_length) + " bytes; " + std::to_string(arrays) +
+                 " arrays take " + std::to_string(8 + 8 * arrays));
+    if (h.payload_length == 8 + 8 * arrays) {
+      std::vector<std::byte> payload(h.payload_length);
+      Status read = file_.ReadAt(payload_offset, payload);
+      sums = read.ok() ? DecodeContentHashRecord(payload, arrays) : Result<std::vector<uint64_t>>(read);
+    }
     if (!sums.ok()) {
-      r_.problems.push_back(where + ": content-hash frame: " + sums.status().message());
+      r_.problems.push_back(where + ": " + sums.status().message());
     } else {
       recorded_sums_ = std::move(sums).value();
     }

@@ -429,6 +429,26 @@ TEST(Container, VerifyRecomputesTheRecordedContentHash) {
     EXPECT_NE(v.problems[0].find(truth), std::string::npos) << v.problems[0];
   }
   {
+    // A record of the wrong size (valid checksum): refused by size, not read or allocated.
+    std::vector<char> b = bytes;
+    auto h = format::DecodeFrameHeader(format::ByteSpan(reinterpret_cast<const std::byte*>(b.data() + at), 64), at,
+                                       b.size());
+    ASSERT_TRUE(h.ok()) << h.status().message();
+    h->payload_length = h->decoded_length = 24;  // the frame's zero padding makes up the rest
+    h->payload_checksum =
+        format::Checksum(format::ByteSpan(reinterpret_cast<const std::byte*>(b.data() + at + 64), 24));
+    auto hb = format::EncodeFrameHeader(*h);
+    std::memcpy(b.data() + at, hb.data(), hb.size());
+    rewrite(b);
+    auto odd = io::ContainerReader::Open(path);
+    ASSERT_TRUE(odd.ok());
+    EXPECT_EQ(odd->RecordedContentHash(0), "");
+    io::VerifyReport v = io::VerifyContainer(path);
+    ASSERT_FALSE(v.problems.empty());
+    EXPECT_NE(v.problems[0].find("content-hash frame of 24 bytes; 1 arrays take 16"), std::string::npos)
+        << v.problems[0];
+  }
+  {
     // A damaged record (checksum mismatch): readers fall back to reading the chunks.
     std::vector<char> b = bytes;
     b[at + 64 + 9] ^= 1;
