@@ -1,6 +1,6 @@
 // Encodes and appends chunks to a ContainerWriter on one background thread, so the threads
-// that produce chunks (the sample stage's ray tracers) do not wait for encoding, checksums
-// or write syscalls.
+// that produce chunks (the sample stage's ray tracers) do not wait for encoding, checksums,
+// content hashes or write syscalls.
 //
 // Bounded: Submit blocks while the queued chunks hold capacity_bytes or more (a chunk is
 // always admitted into an empty queue, whatever its size), so memory stays at most
