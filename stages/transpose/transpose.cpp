@@ -14,6 +14,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <thread>
 #include <vector>
 
@@ -490,15 +491,14 @@ Result<TransposeResult> RunTranspose(const TransposeOptions& o, const Progress& 
     }
   }
 
-  // With more than one panel, each reads short, strided segments of every row: the
-  // kernel's readahead would read several times the segment around each (2.7x the input
-  // was measured at R = 64 in 2 GiB), so it is turned off for the input; the panels'
+  // With more than one panel, each reads short, strided segments of every row, which the
+  // kernel's readahead has no use for: it is turned off for the input (a precaution; this
+  // kernel showed no readahead excess on such reads, docs/TRANSPOSE.md), and the panels'
   // WILLNEED hints still queue exactly their segments.
   if (panels.size() > 1) {
-    for (uint64_t ci : in_chunks) {
-      const int fd = in.Holder(0, ci).file().fd();
-      ::posix_fadvise(fd, 0, 0, POSIX_FADV_RANDOM);
-    }
+    std::set<int> fds;  // one per holder file (a manifest's shards)
+    for (uint64_t ci : in_chunks) fds.insert(in.Holder(0, ci).file().fd());
+    for (int fd : fds) ::posix_fadvise(fd, 0, 0, POSIX_FADV_RANDOM);
   }
   // The checksum pass runs beside the panels (it reads the input sequentially while they
   // read column ranges; both share the page cache). Panel filling stops if it fails, and

@@ -404,18 +404,23 @@ TEST(Container, VerifyRecomputesTheRecordedContentHash) {
   auto rewrite = [&](const std::vector<char>& b) {
     std::ofstream(path, std::ios::binary | std::ios::trunc).write(b.data(), static_cast<std::streamsize>(b.size()));
   };
+  // Gives the record frame in `b` a payload of `length` bytes under a valid checksum.
+  auto reseal = [&](std::vector<char>& b, uint64_t length) {
+    auto h = format::DecodeFrameHeader(format::ByteSpan(reinterpret_cast<const std::byte*>(b.data() + at), 64), at,
+                                       b.size());
+    if (!h.ok() || h->type != static_cast<uint16_t>(format::FrameType::kContentHash)) return false;
+    h->payload_length = h->decoded_length = length;
+    h->payload_checksum =
+        format::Checksum(format::ByteSpan(reinterpret_cast<const std::byte*>(b.data() + at + 64), length));
+    auto hb = format::EncodeFrameHeader(*h);
+    std::memcpy(b.data() + at, hb.data(), hb.size());
+    return true;
+  };
   {
     // A wrong sum under a valid checksum.
     std::vector<char> b = bytes;
     b[at + 64 + 8] ^= 1;
-    auto h = format::DecodeFrameHeader(format::ByteSpan(reinterpret_cast<const std::byte*>(b.data() + at), 64), at,
-                                       b.size());
-    ASSERT_TRUE(h.ok()) << h.status().message();
-    EXPECT_EQ(h->type, static_cast<uint16_t>(format::FrameType::kContentHash));
-    h->payload_checksum =
-        format::Checksum(format::ByteSpan(reinterpret_cast<const std::byte*>(b.data() + at + 64), 16));
-    auto hb = format::EncodeFrameHeader(*h);
-    std::memcpy(b.data() + at, hb.data(), hb.size());
+    ASSERT_TRUE(reseal(b, 16));
     rewrite(b);
     auto wrong = io::ContainerReader::Open(path);
     ASSERT_TRUE(wrong.ok());
@@ -431,14 +436,7 @@ TEST(Container, VerifyRecomputesTheRecordedContentHash) {
   {
     // A record of the wrong size (valid checksum): refused by size, not read or allocated.
     std::vector<char> b = bytes;
-    auto h = format::DecodeFrameHeader(format::ByteSpan(reinterpret_cast<const std::byte*>(b.data() + at), 64), at,
-                                       b.size());
-    ASSERT_TRUE(h.ok()) << h.status().message();
-    h->payload_length = h->decoded_length = 24;  // the frame's zero padding makes up the rest
-    h->payload_checksum =
-        format::Checksum(format::ByteSpan(reinterpret_cast<const std::byte*>(b.data() + at + 64), 24));
-    auto hb = format::EncodeFrameHeader(*h);
-    std::memcpy(b.data() + at, hb.data(), hb.size());
+    ASSERT_TRUE(reseal(b, 24));  // the frame's zero padding makes up the rest
     rewrite(b);
     auto odd = io::ContainerReader::Open(path);
     ASSERT_TRUE(odd.ok());
