@@ -7,91 +7,13 @@
 
 #include "cli/commands.h"
 #include "cli/common.h"
-#include "format/io/array_summary.h"
-#include "format/io/container_reader.h"
-#include "stages/column_transform/column_transform.h"
-#include "stages/quantize/quantize.h"
+#include "stages/inspect/inspect.h"
 
 namespace ltb::cli {
 namespace {
 
 using namespace ltb::format;
 using nlohmann::json;
-
-json NumberOrNull(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
-
-// Per array: its chunks expected, committed and missing, by encoding, and their stored bytes.
-json ChunkCounts(const io::ContainerReader& reader, uint32_t i) {
-  const uint64_t expected = reader.metadata().OwnedChunks(i);  // a shard file: the chunks it owns
-  json chunks = {{"expected", expected},
-                 {"committed", reader.committed(i)},
-                 {"missing", expected - std::min(expected, reader.committed(i))}};
-  uint64_t by_enc[6] = {0, 0, 0, 0, 0, 0}, stored = 0;
-  for (const auto& e : reader.chunk_frames()) {
-    if (e.header.array != i) continue;
-    if (e.header.encoding < 6) by_enc[e.header.encoding]++;  // the reader refuses unknown encodings
-    stored += e.header.payload_length;
-  }
-  chunks["raw"] = by_enc[0];
-  chunks["zero"] = by_enc[1];
-  chunks["zstd"] = by_enc[2];
-  if (by_enc[3] + by_enc[4] + by_enc[5] > 0) {
-    chunks["sparse"] = by_enc[3];
-    chunks["sparse_zstd"] = by_enc[4];
-    chunks["sparse_coded"] = by_enc[5];
-  }
-  chunks["stored_bytes"] = stored;
-  return chunks;
-}
-
-// An array's content_hash and value statistics.
-void AddContent(const io::ArraySummary& summary, json& j) {
-  const io::ArrayStats& s = summary.stats;
-  j["content_hash"] = summary.content_hash.empty() ? json(nullptr) : json(summary.content_hash);
-  uint64_t finite = s.count - s.nan - s.inf;
-  j["stats"] = {{"count", s.count},
-                {"min", NumberOrNull(finite ? s.min : NAN)},
-                {"max", NumberOrNull(finite ? s.max : NAN)},
-                {"mean", NumberOrNull(finite ? s.sum / static_cast<double>(finite) : NAN)},
-                {"nan_count", s.nan},
-                {"inf_count", s.inf},
-                {"nonzero_fraction", s.count ? static_cast<double>(s.nonzero) / static_cast<double>(s.count) : 0.0}};
-}
-
-// Bytes on disk: payloads of the matrix and of the side tables, and the container's own
-// bytes (header, metadata, frame headers, padding, index, trailer; a manifest's text).
-json OnDisk(const io::ContainerReader& reader, const json& arrays) {
-  uint64_t total = reader.file_size(), matrix = 0, side = 0;
-  if (reader.is_manifest()) {
-    for (const auto& sh : reader.shards()) total += sh->file_size();
-  }
-  for (const json& a : arrays) {
-    (a["name"] == reader.metadata().arrays[0].name ? matrix : side) += a["chunks"]["stored_bytes"].get<uint64_t>();
-  }
-  const uint64_t overhead = total - std::min(total, matrix + side);
-  return {{"total_bytes", total},
-          {"matrix_bytes", matrix},
-          {"side_table_bytes", side},
-          {"overhead_bytes", overhead},
-          {"overhead_fraction", total ? static_cast<double>(overhead) / static_cast<double>(total) : 0.0}};
-}
-
-// --chunks: every committed chunk frame.
-json ChunkList(const io::ContainerReader& reader) {
-  const Metadata& meta = reader.metadata();
-  json list = json::array();
-  for (const auto& e : reader.chunk_frames()) {
-    list.push_back({{"array", meta.arrays[e.header.array].name},
-                    {"index", e.header.chunk_index},
-                    {"offset", e.frame_offset},
-                    {"file", reader.Holder(e.header.array, e.header.chunk_index).path()},
-                    {"encoding", EncodingName(static_cast<Encoding>(e.header.encoding))},
-                    {"stored_bytes", e.header.payload_length},
-                    {"decoded_bytes", e.header.decoded_length},
-                    {"checksum", Hex64(e.header.payload_checksum)}});
-  }
-  return list;
-}
 
 class InspectCommand : public Command {
  public:
@@ -106,61 +28,15 @@ class InspectCommand : public Command {
   }
 
   int Run() override {
-    auto reader_or = io::ContainerReader::Open(path_);
-    if (!reader_or.ok()) return ReportFailure(reader_or.status());
-    const io::ContainerReader& reader = *reader_or;
-    const Metadata& meta = reader.metadata();
-
-    json out;
-    out["file"] = path_;
-    out["file_bytes"] = reader.file_size();
-    out["format_version"] = std::to_string(reader.header().major) + "." + std::to_string(reader.header().minor);
-    out["sealed"] = reader.sealed();
-    out["complete"] = reader.complete();
-    out["uncommitted_tail_bytes"] = reader.uncommitted_tail_bytes();
-    out["problems"] = reader.problems();
-    if (reader.is_manifest()) {  // a stage manifest: one matrix in shard files
-      json shards = json::array();
-      for (const auto& s : reader.shards()) shards.push_back({{"file", s->path()}, {"bytes", s->file_size()}});
-      out["manifest"] = {{"nshards", reader.shards().size()}, {"shards", shards}};
-    }
-    if (meta.shard) {  // one shard file of a stage's output
-      json ranges = json::array();
-      for (const auto& [b, e] : meta.shard->chunks) ranges.push_back({b, e});
-      out["shard"] = {{"index", meta.shard->index}, {"count", meta.shard->count}, {"chunks", ranges}};
-    }
-    out["basis"] = meta.json.value("basis", json(nullptr));
-    out["provenance"] = meta.json.value("provenance", json(nullptr));
-    out["arrays"] = json::array();
-    for (uint32_t i = 0; i < meta.arrays.size(); ++i) {
-      const ArraySpec& a = meta.arrays[i];
-      json j = a.ToJson();
-      j["chunks"] = ChunkCounts(reader, i);
-      // What the writer recorded while writing; with content read, checked against it.
-      const std::string recorded = reader.RecordedContentHash(i);
-      if (!recorded.empty()) j["content_hash"] = recorded;
-      if (!no_content_) {
-        ProgressBar bar(flags_, "inspect " + a.name);
-        auto summary = io::SummarizeArray(reader, i, flags_.jobs, bar.hook());
-        bar.Done();
-        if (!summary.ok()) return ReportFailure(summary.status());
-        AddContent(*summary, j);
-        if (!recorded.empty() && recorded != summary->content_hash) {
-          j["recorded_content_hash"] = recorded;
-          out["problems"].push_back("array \"" + a.name + "\": the writer recorded content_hash " + recorded +
-                                    ", but the chunks hash to " + summary->content_hash + " (run ltbake verify)");
-        }
-      }
-      out["arrays"].push_back(j);
-    }
-    out["on_disk"] = OnDisk(reader, out["arrays"]);
-    // The matrix (array 0) at top level, as DESIGN.md lists the keys.
-    const json& m = out["arrays"][0];
-    for (const char* k : {"shape", "dtype", "layout", "block", "chunks", "content_hash", "stats"}) {
-      if (m.contains(k)) out[k] = m[k];
-    }
-    AddStageSummaries(meta, reader.complete(), out);
-    if (chunks_) out["chunk_list"] = ChunkList(reader);
+    stages::InspectOptions o;
+    o.content = !no_content_;
+    o.chunk_list = chunks_;
+    o.jobs = flags_.jobs;
+    ProgressBar bar(flags_, "inspect");
+    auto out_or = stages::InspectContainer(path_, o, bar.hook());
+    bar.Done();
+    if (!out_or.ok()) return ReportFailure(out_or.status());
+    const json& out = *out_or;
     if (json_) {
       std::cout << out.dump(2) << "\n";
     } else {
@@ -170,33 +46,6 @@ class InspectCommand : public Command {
   }
 
  private:
-  // Column-transform / quantize outputs: chosen depths, error, bytes per nonzero; cpca
-  // outputs: clusters, basis dimension, passes, error (docs/CPCA.md).
-  void AddStageSummaries(const Metadata& meta, bool complete, json& out) const {
-    if (meta.json.contains("column_transform") && complete) {
-      auto ct = stages::SummarizeColumnTransform(path_);
-      if (ct.ok()) {
-        json c = meta.json["column_transform"];
-        c["depth_histogram"] = ct->depth_histogram;
-        c["empty_columns"] = ct->empty_columns;
-        c["nonzeros_kept"] = ct->nonzeros;
-        c["relative_rms_error"] = ct->energy > 0 ? std::sqrt(ct->error / ct->energy) : 0.0;
-        out["column_transform"] = c;
-      }
-      if (meta.json.contains("quantization")) {
-        auto q = stages::SummarizeQuantized(path_);
-        if (q.ok()) {
-          json qj = meta.json["quantization"];
-          qj["nonzeros"] = q->nonzeros_out;
-          qj["matrix_bytes"] = q->matrix_bytes;
-          qj["bytes_per_nonzero"] = q->BytesPerNonzero();
-          out["quantization"] = qj;
-        }
-      }
-    }
-    if (meta.json.contains("cpca") && meta.json["cpca"].is_object()) out["cpca"] = meta.json["cpca"];
-  }
-
   void PrintText(const json& out) {
     std::cout << path_ << ": .ltm format " << out["format_version"].get<std::string>() << ", "
               << HumanBytes(out["file_bytes"]) << ", " << (out["complete"].get<bool>() ? "complete" : "INCOMPLETE")

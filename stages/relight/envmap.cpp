@@ -242,8 +242,8 @@ void DirectionToLatLong(const glm::dvec3& d, double* u, double* v) {
   *v = std::acos(std::clamp(d.z / len, -1.0, 1.0)) / kPi;
 }
 
-Status ConvertEnvToNpy(const std::string& in, const std::string& out, uint64_t cube_res, const EnvLoadOptions& options,
-                       uint64_t* clamped) {
+Result<std::vector<float>> EnvToCubemap(const std::string& in, uint64_t cube_res, const EnvLoadOptions& options,
+                                        uint64_t* clamped) {
   if (cube_res == 0) {
     return InvalidArgument("convert " + in + ": an environment map needs --cube-res R (the cubemap's face size)");
   }
@@ -251,15 +251,21 @@ Status ConvertEnvToNpy(const std::string& in, const std::string& out, uint64_t c
     return InvalidArgument("--cube-res " + std::to_string(cube_res) + " is not a power of two up to " +
                            std::to_string(CubemapResampler::kMaxCubeRes));
   }
-  if (!EndsWithNoCase(out, ".npy")) {
-    return InvalidArgument("convert " + in + " " + out + ": an environment map converts to a .npy cubemap");
-  }
   LTB_ASSIGN_OR_RETURN(EnvMap env, LoadEnvMap(in, options));
   if (clamped != nullptr) *clamped = env.clamped;
   LTB_ASSIGN_OR_RETURN(CubemapResampler rs, CubemapResampler::Create(env, cube_res, options.progress));
-  const uint64_t texels = 6 * cube_res * cube_res;
-  std::vector<float> cube(texels * 3);
+  std::vector<float> cube(6 * cube_res * cube_res * 3);
   rs.Resample(0.0, cube.data());
+  return cube;
+}
+
+Status ConvertEnvToNpy(const std::string& in, const std::string& out, uint64_t cube_res, const EnvLoadOptions& options,
+                       uint64_t* clamped) {
+  if (!EndsWithNoCase(out, ".npy")) {
+    return InvalidArgument("convert " + in + " " + out + ": an environment map converts to a .npy cubemap");
+  }
+  LTB_ASSIGN_OR_RETURN(std::vector<float> cube, EnvToCubemap(in, cube_res, options, clamped));
+  const uint64_t texels = 6 * cube_res * cube_res;
   std::vector<std::byte> header = format::EncodeNpyHeader("<f4", {texels, 3});
   // Written beside the output and renamed: OUT never holds a partial cubemap.
   LTB_ASSIGN_OR_RETURN(io::AtomicFile f, io::AtomicFile::Create(out));

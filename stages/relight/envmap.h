@@ -92,6 +92,9 @@ void DirectionToLatLong(const glm::dvec3& d, double* u, double* v);
 // and writes its R-cubemap (rotation 0) as a 6R² × 3 float32 .npy, written beside OUT and
 // renamed into place. R must be a power of two up to 512 (as for a matrix's cube columns).
 // `clamped` (optional) receives EnvMap::clamped.
+// The R-cubemap of ENV (rotation 0) in memory, 6R² × 3 floats: what ConvertEnvToNpy writes.
+Result<std::vector<float>> EnvToCubemap(const std::string& in, uint64_t cube_res, const EnvLoadOptions& options,
+                                        uint64_t* clamped = nullptr);
 Status ConvertEnvToNpy(const std::string& in, const std::string& out, uint64_t cube_res, const EnvLoadOptions& options,
                        uint64_t* clamped = nullptr);
 // True for paths ConvertEnvToNpy reads: .exr, .hdr, .pic, .rgbe (any case) or "{face}".

@@ -274,7 +274,9 @@ Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progre
   ReportTerms(basis, frames, &report);
   report["output"] = {{"masked_rows", frames.fixes.masked_rows}, {"clamped_values", nullptr}};
   if (!o.keep_negative) report["output"]["clamped_values"] = frames.fixes.clamped_values;
-  LTB_RETURN_IF_ERROR(WriteImage(o.output, frames.image.data(), m.rows, m.width, m.height, {.exposure = o.exposure}));
+  if (!o.output.empty()) {
+    LTB_RETURN_IF_ERROR(WriteImage(o.output, frames.image.data(), m.rows, m.width, m.height, {.exposure = o.exposure}));
+  }
   std::vector<float> first = frames.image;
   LightTerms first_terms = frames.terms;
 
@@ -282,7 +284,9 @@ Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progre
   if (!o.reference.empty()) {
     LTB_RETURN_IF_ERROR(MeasureErrors(o, env, basis, m, frames, first, first_terms, rotation, progress, &report));
   }
-  return RelightResult{std::move(report)};
+  RelightResult result{std::move(report), {}};
+  if (o.return_image) result.image = std::move(first);
+  return result;
 }
 
 }  // namespace ltb::stages

@@ -11,6 +11,7 @@
 #include <limits>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <vector>
 
 #include "format/progress.h"
 #include "format/status.h"
@@ -22,7 +23,7 @@ namespace ltb::stages {
 struct RelightOptions {
   std::string matrix;
   std::string env;     // .exr / .hdr (EnvLoadOptions) or a 6R² × 3 cubemap .npy
-  std::string output;  // .exr, .png or .npy
+  std::string output;  // .exr, .png or .npy; empty: none written (return_image)
   static constexpr uint64_t kAllTerms = std::numeric_limits<uint64_t>::max();
   uint64_t terms = 100;  // ≥ 1; kAllTerms keeps every nonzero coefficient
   Weighting weighting = Weighting::kArea;
@@ -35,6 +36,9 @@ struct RelightOptions {
   bool clamp_env = false;
   uint64_t mem_limit = 1ull << 30;
   int jobs = 2;
+  // RelightResult::image holds the image written (for the Python module): the values a
+  // .npy output holds, bit for bit.
+  bool return_image = false;
 };
 
 // The report `--json` prints (docs/RELIGHT.md lists its keys): matrix, env, terms,
@@ -43,6 +47,7 @@ struct RelightOptions {
 // error / error_lighting_only / error_matrix_only.
 struct RelightResult {
   nlohmann::json report;
+  std::vector<float> image;  // rows × 3, with RelightOptions::return_image
 };
 
 // Cancelled (progress.Cancelled()) between timing frames, after the image is written.

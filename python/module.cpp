@@ -1,0 +1,511 @@
+// The `_ltbake` extension behind `import ltbake` (docs/PYTHON.md): thin bindings over the
+// same libraries the CLI uses (format/, stages/), so there is one implementation of the
+// format. The Python package (python/ltbake/__init__.py) builds the user-facing API on it.
+//
+// Arrays: a raw chunk comes back as a read-only NumPy view on the container's memory map
+// (no copy; the view keeps the mapping alive); other encodings are decoded into a buffer
+// the array owns. Every call that reads, decodes, verifies or relights releases the GIL.
+// Errors: a failed Status becomes ltbake.FormatError, ltbake.IntegrityError or an OSError
+// carrying the Status message (file, chunk, value).
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+#include <sys/mman.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cstring>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <unordered_set>
+#include <vector>
+
+#include "format/chunk_codec.h"
+#include "format/content_hash.h"
+#include "format/io/container_reader.h"
+#include "format/io/container_writer.h"
+#include "format/io/verifier.h"
+#include "format/version.h"
+#include "stages/common/basis.h"
+#include "stages/convert/convert.h"
+#include "stages/inspect/inspect.h"
+#include "stages/relight/envmap.h"
+#include "stages/relight/run_relight.h"
+
+namespace py = pybind11;
+
+namespace ltb::python {
+namespace {
+
+// The exception classes, created when the module loads.
+PyObject* g_error = nullptr;            // ltbake.Error
+PyObject* g_format_error = nullptr;     // ltbake.FormatError (also a ValueError)
+PyObject* g_integrity_error = nullptr;  // ltbake.IntegrityError
+
+// A failed Status on its way to Python; `missing_is_damage`: kNotFound names a chunk that
+// was never committed (an incomplete file), not a path.
+struct StatusError {
+  Status status;
+  bool missing_is_damage = false;
+};
+
+[[noreturn]] void Throw(const Status& s, bool missing_is_damage = false) { throw StatusError{s, missing_is_damage}; }
+
+template <typename T>
+T Take(Result<T>&& r, bool missing_is_damage = false) {
+  if (!r.ok()) Throw(r.status(), missing_is_damage);
+  return std::move(r).value();
+}
+
+void Translate(const StatusError& e) {
+  const std::string& m = e.status.message();
+  switch (e.status.code()) {
+    case StatusCode::kDataLoss:
+      PyErr_SetString(g_integrity_error, m.c_str());
+      return;
+    case StatusCode::kNotFound:
+      PyErr_SetString(e.missing_is_damage ? g_integrity_error : PyExc_FileNotFoundError, m.c_str());
+      return;
+    case StatusCode::kIo:
+      PyErr_SetString(PyExc_OSError, m.c_str());
+      return;
+    case StatusCode::kCancelled:
+      PyErr_SetString(PyExc_KeyboardInterrupt, m.c_str());
+      return;
+    case StatusCode::kInternal:
+      PyErr_SetString(g_error, m.c_str());
+      return;
+    default:  // invalid argument, failed precondition, unimplemented (a newer format)
+      PyErr_SetString(g_format_error, m.c_str());
+      return;
+  }
+}
+
+py::dtype DTypeOf(format::DType t) {
+  switch (t) {
+    case format::DType::kF32:
+      return py::dtype::of<float>();
+    case format::DType::kF64:
+      return py::dtype::of<double>();
+    case format::DType::kU8:
+      return py::dtype::of<uint8_t>();
+    case format::DType::kI32:
+      return py::dtype::of<int32_t>();
+    case format::DType::kU32:
+      return py::dtype::of<uint32_t>();
+    case format::DType::kU64:
+      return py::dtype::of<uint64_t>();
+  }
+  return py::dtype::of<float>();
+}
+
+// A read-only array over memory `owner` keeps alive (a capsule is the array's base).
+template <typename Owner>
+py::array ArrayOver(std::unique_ptr<Owner> owner, const void* data, py::dtype dtype, std::vector<py::ssize_t> shape) {
+  py::capsule base(owner.get(), [](void* p) { delete static_cast<Owner*>(p); });
+  owner.release();
+  py::array a(dtype, shape, {}, data, base);
+  py::detail::array_proxy(a.ptr())->flags &= ~py::detail::npy_api::NPY_ARRAY_WRITEABLE_;
+  return a;
+}
+
+// madvise(MADV_WILLNEED) over [p, p + n): starts the reads of those pages at once, so a
+// gather that touches many small pieces of a cold file waits for the disk in parallel.
+void Prefetch(const std::byte* p, uint64_t n) {
+  static const uintptr_t page = static_cast<uintptr_t>(sysconf(_SC_PAGESIZE));
+  uintptr_t b = reinterpret_cast<uintptr_t>(p) & ~(page - 1);
+  uintptr_t e = reinterpret_cast<uintptr_t>(p) + n;
+  if (n > 0) (void)madvise(reinterpret_cast<void*>(b), e - b, MADV_WILLNEED);
+}
+
+// One open container or manifest. Chunks are checksum-verified the first time a read
+// touches them (when `checksums`), never again.
+class Reader {
+ public:
+  Reader(const std::string& path, bool checksums) : checksums_(checksums) {
+    auto r = [&] {
+      py::gil_scoped_release nogil;
+      return io::ContainerReader::Open(path);
+    }();
+    reader_ = std::make_shared<io::ContainerReader>(Take(std::move(r)));
+  }
+
+  const io::ContainerReader& reader() const { return *reader_; }
+
+  // The chunk in its stored layout: rows layout (rows of the chunk, cols), cols layout
+  // (cols of the chunk, rows). Returns (array, zero_copy).
+  py::tuple ReadChunk(uint32_t array, uint64_t chunk) {
+    const format::ArraySpec& spec = CheckArray(array);
+    if (chunk >= spec.ChunkCount()) {
+      throw py::index_error("chunk " + std::to_string(chunk) + " of array \"" + spec.name + "\" is out of range (" +
+                            std::to_string(spec.ChunkCount()) + " chunks)");
+    }
+    auto c = std::make_unique<io::Chunk>();
+    const io::ReadOptions o = Options(array, chunk, false);
+    Result<io::Chunk> r = InvalidArgument("");
+    {
+      py::gil_scoped_release nogil;
+      r = reader_->ReadChunk(array, chunk, o);
+    }
+    if (!r.ok() && o.verify_checksum) Forget(array, chunk);
+    *c = Take(std::move(r), true);
+    const format::ChunkExtent& e = c->extent();
+    const bool rows = spec.layout == format::Layout::kRows;
+    const bool mapped = c->encoding() == format::Encoding::kRaw;
+    const void* data = c->bytes().data();
+    std::vector<py::ssize_t> shape = {static_cast<py::ssize_t>(rows ? e.rows : e.cols),
+                                      static_cast<py::ssize_t>(rows ? e.cols : e.rows)};
+    return py::make_tuple(ArrayOver(std::move(c), data, DTypeOf(spec.dtype), shape), mapped);
+  }
+
+  // Rows [r0, r1) × columns [c0, c1) of an array, gathered from every chunk they touch
+  // into a new C-order array, `jobs` chunks at a time. The pieces a raw chunk contributes
+  // are prefetched (MADV_WILLNEED) before they are copied.
+  py::array ReadRegion(uint32_t array, uint64_t r0, uint64_t r1, uint64_t c0, uint64_t c1, int jobs) {
+    const format::ArraySpec& spec = CheckArray(array);
+    if (r0 > r1 || r1 > spec.rows || c0 > c1 || c1 > spec.cols) throw py::index_error("region out of range");
+    const uint64_t nr = r1 - r0, nc = c1 - c0, item = format::DTypeSize(spec.dtype);
+    py::array out(DTypeOf(spec.dtype),
+                  std::vector<py::ssize_t>{static_cast<py::ssize_t>(nr), static_cast<py::ssize_t>(nc)});
+    if (nr == 0 || nc == 0) return out;
+    std::byte* dst = static_cast<std::byte*>(out.mutable_data());
+    const bool rows = spec.layout == format::Layout::kRows;
+    const uint64_t lo = rows ? r0 : c0, hi = rows ? r1 : c1;
+    const uint64_t k0 = lo / spec.block, k1 = (hi - 1) / spec.block + 1;
+    Status failed;
+    {
+      py::gil_scoped_release nogil;
+      std::atomic<uint64_t> next{k0};
+      std::mutex mu;
+      auto work = [&] {
+        for (uint64_t k = next++; k < k1; k = next++) {
+          Status s = CopyFromChunk(array, spec, k, r0, r1, c0, c1, item, dst);
+          if (!s.ok()) {
+            std::lock_guard<std::mutex> lock(mu);
+            if (failed.ok()) failed = s;
+            next = k1;
+          }
+        }
+      };
+      const int n = static_cast<int>(std::clamp<uint64_t>(static_cast<uint64_t>(std::max(1, jobs)), 1, k1 - k0));
+      std::vector<std::thread> threads;
+      for (int t = 1; t < n; ++t) threads.emplace_back(work);
+      work();
+      for (auto& t : threads) t.join();
+    }
+    if (!failed.ok()) Throw(failed, true);
+    return out;
+  }
+
+  bool checksums() const { return checksums_; }
+
+ private:
+  const format::ArraySpec& CheckArray(uint32_t array) const {
+    const auto& arrays = reader_->metadata().arrays;
+    if (array >= arrays.size()) throw py::index_error("array " + std::to_string(array) + " out of range");
+    return arrays[array];
+  }
+
+  // Verify a chunk's checksum on its first read only.
+  io::ReadOptions Options(uint32_t array, uint64_t chunk, bool sequential) {
+    io::ReadOptions o;
+    o.sequential = sequential;
+    o.verify_checksum = false;
+    if (checksums_) {
+      std::lock_guard<std::mutex> lock(mu_);
+      o.verify_checksum = verified_.insert((uint64_t{array} << 40) | chunk).second;
+    }
+    return o;
+  }
+
+  Status CopyFromChunk(uint32_t array, const format::ArraySpec& spec, uint64_t k, uint64_t r0, uint64_t r1, uint64_t c0,
+                       uint64_t c1, uint64_t item, std::byte* dst) {
+    io::ReadOptions o = Options(array, k, false);
+    auto c = reader_->ReadChunk(array, k, o);
+    if (!c.ok()) {
+      if (o.verify_checksum) Forget(array, k);
+      return c.status();
+    }
+    const format::ChunkExtent& e = c->extent();
+    const std::byte* src = c->bytes().data();
+    const uint64_t nc = c1 - c0;
+    const bool raw = c->encoding() == format::Encoding::kRaw && !o.verify_checksum;
+    if (spec.layout == format::Layout::kRows) {
+      const uint64_t a = std::max(r0, e.row0), b = std::min(r1, e.row0 + e.rows);
+      if (raw) {
+        for (uint64_t r = a; r < b; ++r) Prefetch(src + ((r - e.row0) * e.cols + c0) * item, nc * item);
+      }
+      for (uint64_t r = a; r < b; ++r) {
+        std::memcpy(dst + (r - r0) * nc * item, src + ((r - e.row0) * e.cols + c0) * item, nc * item);
+      }
+    } else {
+      const uint64_t a = std::max(c0, e.col0), b = std::min(c1, e.col0 + e.cols), nr = r1 - r0;
+      if (raw) {
+        for (uint64_t col = a; col < b; ++col) Prefetch(src + ((col - e.col0) * e.rows + r0) * item, nr * item);
+      }
+      for (uint64_t col = a; col < b; ++col) {
+        const std::byte* s = src + ((col - e.col0) * e.rows + r0) * item;
+        std::byte* d = dst + (col - c0) * item;
+        for (uint64_t r = 0; r < nr; ++r) std::memcpy(d + r * nc * item, s + r * item, item);
+      }
+    }
+    return Status::Ok();
+  }
+
+  void Forget(uint32_t array, uint64_t chunk) {
+    std::lock_guard<std::mutex> lock(mu_);
+    verified_.erase((uint64_t{array} << 40) | chunk);
+  }
+
+  std::shared_ptr<io::ContainerReader> reader_;
+  bool checksums_;
+  std::mutex mu_;
+  std::unordered_set<uint64_t> verified_;
+};
+
+// Appends chunks to a new (or resumed) container; Python slices the data into chunks.
+class Writer {
+ public:
+  Writer(const std::string& path, const std::string& metadata_json, bool overwrite) {
+    nlohmann::json meta = nlohmann::json::parse(metadata_json, nullptr, false);
+    if (meta.is_discarded()) Throw(InvalidArgument(path + ": metadata is not valid JSON"));
+    io::WriterOptions wo;
+    wo.overwrite_mismatch = overwrite;
+    auto w = [&] {
+      py::gil_scoped_release nogil;
+      return io::ContainerWriter::Open(path, meta, wo);
+    }();
+    writer_ = Take(std::move(w));
+  }
+
+  bool Has(uint32_t array, uint64_t chunk) const { return writer_.Has(array, chunk); }
+
+  // `data`: the chunk's values in the array's layout and dtype, C-contiguous.
+  void Put(uint32_t array, uint64_t chunk, py::array data, bool zstd) {
+    const auto& arrays = writer_.metadata().arrays;
+    if (array >= arrays.size()) throw py::index_error("array out of range");
+    const format::ArraySpec& spec = arrays[array];
+    if (chunk >= spec.ChunkCount()) throw py::index_error("chunk out of range");
+    if (!(data.flags() & py::array::c_style) || !data.dtype().is(DTypeOf(spec.dtype))) {
+      Throw(InvalidArgument("chunk data must be C-contiguous " + std::string(format::DTypeName(spec.dtype))));
+    }
+    const uint64_t bytes = static_cast<uint64_t>(data.nbytes());
+    if (bytes != spec.ChunkBytes(chunk)) {
+      Throw(InvalidArgument("chunk " + std::to_string(chunk) + " of \"" + spec.name + "\" holds " +
+                            std::to_string(spec.ChunkBytes(chunk)) + " bytes, got " + std::to_string(bytes)));
+    }
+    format::EncodeOptions eo;
+    eo.zstd = zstd;
+    Status s;
+    {
+      py::gil_scoped_release nogil;
+      s = writer_.Put(array, chunk, format::ByteSpan(static_cast<const std::byte*>(data.data()), bytes), eo);
+    }
+    if (!s.ok()) Throw(s);
+  }
+
+  void Finish() {
+    Status s;
+    {
+      py::gil_scoped_release nogil;
+      s = writer_.Finish();
+    }
+    if (!s.ok()) Throw(s);
+  }
+
+ private:
+  io::ContainerWriter writer_;
+};
+
+py::dict VerifyReport(const std::string& path, int jobs) {
+  io::VerifyReport r;
+  {
+    py::gil_scoped_release nogil;
+    r = io::VerifyContainer(path, jobs);
+  }
+  py::dict d;
+  d["file"] = r.path;
+  d["readable"] = r.readable;
+  d["sealed"] = r.sealed;
+  d["complete"] = r.complete;
+  d["chunks_expected"] = r.chunks_expected;
+  d["chunks_ok"] = r.chunks_ok;
+  d["uncommitted_tail_bytes"] = r.uncommitted_tail_bytes;
+  d["content_hash"] = r.content_hash;
+  d["recorded_content_hash"] = r.recorded_content_hash;
+  d["problems"] = r.problems;
+  d["notes"] = r.notes;
+  return d;
+}
+
+std::string Inspect(const std::string& path, bool content, bool chunk_list, int jobs) {
+  stages::InspectOptions o;
+  o.content = content;
+  o.chunk_list = chunk_list;
+  o.jobs = jobs;
+  Result<nlohmann::json> r = InvalidArgument("");
+  {
+    py::gil_scoped_release nogil;
+    r = stages::InspectContainer(path, o, Progress{});
+  }
+  return Take(std::move(r)).dump();
+}
+
+py::array FloatArray(std::vector<float> v, std::vector<py::ssize_t> shape) {
+  auto owner = std::make_unique<std::vector<float>>(std::move(v));
+  const void* data = owner->data();
+  py::array a = ArrayOver(std::move(owner), data, py::dtype::of<float>(), std::move(shape));
+  return a;
+}
+
+py::tuple Relight(const std::string& matrix, const std::string& env, uint64_t terms, const std::string& weighting,
+                  double rotate_deg, bool clamp_env, bool keep_negative, int jobs, uint64_t mem_limit) {
+  stages::RelightOptions o;
+  o.matrix = matrix;
+  o.env = env;
+  o.terms = terms == 0 ? stages::RelightOptions::kAllTerms : terms;
+  o.weighting = Take(stages::ParseWeighting(weighting));
+  o.rotate_deg = rotate_deg;
+  o.clamp_env = clamp_env;
+  o.keep_negative = keep_negative;
+  o.jobs = jobs;
+  o.mem_limit = mem_limit;
+  o.return_image = true;
+  Result<stages::RelightResult> r = InvalidArgument("");
+  {
+    py::gil_scoped_release nogil;
+    r = stages::RunRelight(o, Progress{});
+  }
+  stages::RelightResult res = Take(std::move(r));
+  const py::ssize_t rows = static_cast<py::ssize_t>(res.image.size() / 3);
+  return py::make_tuple(FloatArray(std::move(res.image), {rows, 3}), res.report.dump());
+}
+
+py::array Envmap(const std::string& path, uint64_t cube_res, bool clamp, uint64_t max_bytes) {
+  stages::EnvLoadOptions o;
+  o.clamp = clamp;
+  o.max_bytes = max_bytes;
+  Result<std::vector<float>> r = InvalidArgument("");
+  {
+    py::gil_scoped_release nogil;
+    r = stages::EnvToCubemap(path, cube_res, o);
+  }
+  std::vector<float> cube = Take(std::move(r));
+  const py::ssize_t texels = static_cast<py::ssize_t>(cube.size() / 3);
+  return FloatArray(std::move(cube), {texels, 3});
+}
+
+void Convert(const std::string& input, const std::string& output, bool pixel_basis, int jobs, uint64_t mem_limit) {
+  stages::ConvertOptions o;
+  o.input = input;
+  o.output = output;
+  o.pixel_basis = pixel_basis;
+  o.jobs = jobs;
+  o.mem_limit = mem_limit;
+  Result<stages::ConvertResult> r = InvalidArgument("");
+  {
+    py::gil_scoped_release nogil;
+    r = stages::RunConvert(o, Progress{});
+  }
+  (void)Take(std::move(r));
+}
+
+PyObject* NewException(py::module_& m, const char* name, PyObject* bases, const char* doc) {
+  PyObject* e = PyErr_NewExceptionWithDoc((std::string("ltbake.") + name).c_str(), doc, bases, nullptr);
+  if (e == nullptr) throw py::error_already_set();
+  m.add_object(name, py::handle(e));
+  return e;
+}
+
+}  // namespace
+}  // namespace ltb::python
+
+using namespace ltb;          // NOLINT
+using namespace ltb::python;  // NOLINT
+
+PYBIND11_MODULE(_ltbake, m) {
+  m.doc() = "ltbake's container and relighting libraries (use the `ltbake` package, docs/PYTHON.md)";
+  g_error = NewException(m, "Error", PyExc_Exception, "Base of ltbake's errors.");
+  {
+    py::tuple bases = py::make_tuple(py::handle(g_error), py::handle(PyExc_ValueError));
+    g_format_error = NewException(m, "FormatError", bases.ptr(),
+                                  "A file that is not what it claims, a newer format, or a bad argument.");
+  }
+  g_integrity_error = NewException(m, "IntegrityError", g_error,
+                                   "Damage: a checksum mismatch, a truncated structure, a missing chunk.");
+  py::register_exception_translator([](std::exception_ptr p) {
+    try {
+      if (p) std::rethrow_exception(p);
+    } catch (const StatusError& e) {
+      Translate(e);
+    }
+  });
+  m.attr("tool_version") = std::string(kToolVersion);
+
+  py::class_<Reader>(m, "Reader")
+      .def(py::init<const std::string&, bool>(), py::arg("path"), py::arg("checksums") = true)
+      .def_property_readonly("path", [](const Reader& r) { return r.reader().path(); })
+      .def_property_readonly("metadata_json", [](const Reader& r) { return r.reader().metadata().json.dump(); })
+      .def_property_readonly("file_size", [](const Reader& r) { return r.reader().file_size(); })
+      .def_property_readonly("sealed", [](const Reader& r) { return r.reader().sealed(); })
+      .def_property_readonly("complete", [](const Reader& r) { return r.reader().complete(); })
+      .def_property_readonly("problems", [](const Reader& r) { return r.reader().problems(); })
+      .def_property_readonly("checksums", &Reader::checksums)
+      .def_property_readonly("format_version",
+                             [](const Reader& r) {
+                               return std::to_string(r.reader().header().major) + "." +
+                                      std::to_string(r.reader().header().minor);
+                             })
+      .def_property_readonly("shards",
+                             [](const Reader& r) {
+                               std::vector<std::string> s;
+                               for (const auto& p : r.reader().shards()) s.push_back(p->path());
+                               return s;
+                             })
+      .def("committed", [](const Reader& r, uint32_t a) { return r.reader().committed(a); })
+      .def("recorded_content_hash", [](const Reader& r, uint32_t a) { return r.reader().RecordedContentHash(a); })
+      .def("chunk_frames",
+           [](const Reader& r) {
+             py::list out;
+             for (const auto& e : r.reader().chunk_frames()) {
+               out.append(py::make_tuple(e.header.array, e.header.chunk_index,
+                                         format::EncodingName(static_cast<format::Encoding>(e.header.encoding)),
+                                         e.header.payload_length, e.header.decoded_length, e.frame_offset,
+                                         r.reader().Holder(e.header.array, e.header.chunk_index).path()));
+             }
+             return out;
+           })
+      .def("read_chunk", &Reader::ReadChunk, py::arg("array"), py::arg("chunk"))
+      .def("read_region", &Reader::ReadRegion, py::arg("array"), py::arg("r0"), py::arg("r1"), py::arg("c0"),
+           py::arg("c1"), py::arg("jobs") = 2);
+
+  py::class_<Writer>(m, "Writer")
+      .def(py::init<const std::string&, const std::string&, bool>(), py::arg("path"), py::arg("metadata_json"),
+           py::arg("overwrite") = false)
+      .def("has", &Writer::Has)
+      .def("put", &Writer::Put, py::arg("array"), py::arg("chunk"), py::arg("data"), py::arg("zstd") = false)
+      .def("finish", &Writer::Finish);
+
+  m.def("block_for_target_bytes", [](uint64_t rows, uint64_t cols, const std::string& layout, uint64_t target) {
+    return format::BlockForTargetBytes(rows, cols, format::DType::kF32,
+                                       layout == "cols" ? format::Layout::kCols : format::Layout::kRows, target);
+  });
+  // The "basis" entry of an axis, as the stages write it: "generic", "cubemap" (a = R),
+  // "image" (a = W, b = H).
+  m.def("axis_basis_json", [](const std::string& kind, uint64_t a, uint64_t b) {
+    if (kind == "cubemap") return stages::PixelCubemapCols(a).dump();
+    if (kind == "image") return stages::ImageRows(a, b).dump();
+    return stages::GenericAxis().dump();
+  });
+  m.def("verify_report", &VerifyReport, py::arg("path"), py::arg("jobs") = 2);
+  m.def("inspect_json", &Inspect, py::arg("path"), py::arg("content") = true, py::arg("chunk_list") = false,
+        py::arg("jobs") = 2);
+  m.def("relight", &Relight, py::arg("matrix"), py::arg("env"), py::arg("terms"), py::arg("weighting"),
+        py::arg("rotate_deg"), py::arg("clamp_env"), py::arg("keep_negative"), py::arg("jobs"), py::arg("mem_limit"));
+  m.def("envmap", &Envmap, py::arg("path"), py::arg("cube_res"), py::arg("clamp"), py::arg("max_bytes"));
+  m.def("convert", &Convert, py::arg("input"), py::arg("output"), py::arg("pixel_basis"), py::arg("jobs"),
+        py::arg("mem_limit"));
+}

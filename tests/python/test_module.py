@@ -1,0 +1,271 @@
+"""`import ltbake` against the ltbake command on the same files (docs/PYTHON.md)."""
+import json
+import os
+import shutil
+import subprocess
+import tracemalloc
+
+import numpy as np
+import pytest
+
+import ltbake
+from conftest import LTBAKE, Q, REPO, cli, cli_inspect, cli_npy, ltbtest
+
+
+def bits(a):
+    """Bit patterns, so equality is exact (NaN and -0.0 included)."""
+    a = np.ascontiguousarray(a)
+    return a.view({4: np.uint32, 8: np.uint64, 1: np.uint8}[a.dtype.itemsize])
+
+
+# --- reading: every kind the stages write, against `ltbake convert` -------------------------
+def test_dense_kinds_read_like_convert(bake, dense):
+    rng = np.random.default_rng(1)
+    for name, path in dense.items():
+        ref = cli_npy(path, bake["dir"])
+        with ltbake.open(path) as c:
+            assert c.shape == ref.shape and c.dtype == np.float32, name
+            assert np.array_equal(bits(c.read(force=True)), bits(ref)), f"{name}: whole matrix"
+            assert np.array_equal(bits(c[:, :]), bits(ref)), name
+            for _ in range(6):
+                i0, i1 = sorted(rng.integers(0, ref.shape[0], 2))
+                j0, j1 = sorted(rng.integers(0, ref.shape[1], 2))
+                i, j = int(rng.integers(0, ref.shape[0])), int(rng.integers(0, ref.shape[1]))
+                assert np.array_equal(bits(c[i0:i1 + 1, :]), bits(ref[i0:i1 + 1, :])), f"{name} rows {i0}:{i1 + 1}"
+                assert np.array_equal(bits(c[:, j0:j1 + 1]), bits(ref[:, j0:j1 + 1])), f"{name} cols {j0}:{j1 + 1}"
+                assert np.array_equal(bits(c[i]), bits(ref[i])), f"{name} row {i}"
+                assert np.array_equal(bits(c[:, j]), bits(ref[:, j])), f"{name} col {j}"
+                assert bits(c[i, j]) == bits(ref[i, j])
+                assert np.array_equal(bits(c[i0:i1 + 1, j0:j1 + 1]), bits(ref[i0:i1 + 1, j0:j1 + 1]))
+                assert np.array_equal(bits(c[-1]), bits(ref[-1]))
+            assert np.array_equal(bits(c[::7, 3:50:5]), bits(ref[::7, 3:50:5])), name
+            assert np.array_equal(bits(c[::-3, ::-11]), bits(ref[::-3, ::-11])), name
+            assert c[5:5, :].shape == (0, ref.shape[1])
+            # Streaming: the chunks put back together are the matrix.
+            out = np.zeros_like(ref)
+            for rng_, block in c.iter_chunks():
+                if c.layout == "rows":
+                    out[rng_.start:rng_.stop] = block
+                else:
+                    out[:, rng_.start:rng_.stop] = block
+            assert np.array_equal(bits(out), bits(ref)), f"{name}: iter_chunks"
+            with pytest.raises(IndexError):
+                c[ref.shape[0], 0]
+            with pytest.raises(TypeError):
+                c[[1, 2], :]
+
+
+def test_metadata_matches_inspect(dense, bake):
+    for name, path in list(dense.items()) + [(k, bake["P"](k + ".ltm")) for k in ["cols4d", "final", "cpca"]]:
+        info = cli_inspect(path, "--chunks")
+        c = ltbake.open(path)
+        assert [c.shape[0], c.shape[1]] == info["shape"], name
+        assert c.layout == info["layout"] and c.block == info["block"], name
+        assert c.dtype == np.dtype({"f32": "<f4", "u8": "u1", "i32": "<i4", "u32": "<u4"}[info["dtype"]])
+        assert c.basis == info["basis"] and c.provenance == info["provenance"], name
+        assert c.content_hash == info["content_hash"], name
+        assert c.complete and info["complete"], name
+        assert c.file_bytes == info["file_bytes"], name
+        assert [a["name"] for a in info["arrays"]] == list(c.arrays), name
+        for a in info["arrays"]:
+            assert c.arrays[a["name"]].content_hash == a["content_hash"], (name, a["name"])
+        listed = [(x["array"], x["index"], x["encoding"], x["stored_bytes"]) for x in info["chunk_list"]]
+        assert [(x.array, x.index, x.encoding, x.stored_bytes) for x in c.chunks] == listed, name
+        assert ltbake.inspect(path) == cli_inspect(path), name  # same JSON as the command
+        assert ltbake.inspect(path, content=False, chunks=True) == cli_inspect(path, "--no-content", "--chunks")
+    assert len(ltbake.open(dense["sh"]).shards) == 2
+    assert "ltbake.Container" in repr(ltbake.open(dense["raw"]))
+
+
+def test_side_tables_against_the_file_bytes(bake):
+    path = bake["P"]("raw.ltm")
+    c = ltbake.open(path)
+    tables = [n for n in c.arrays if n != "matrix"]
+    assert tables, "raw.ltm has side tables"
+    for name in tables:
+        a = c.arrays[name]
+        if a.layout != "rows" or a.dtype not in (np.float32, np.uint8):
+            continue
+        ref = ltbtest.side_table(path, name)  # raw bytes at the offsets inspect lists; zstd via the zstd tool
+        assert np.array_equal(bits(a.read(force=True)), bits(ref)), name
+
+
+def test_transformed_outputs_decode_like_convert(bake):
+    P = bake["P"]
+    for name in ["cols4d", "final", "cpca", "rows"]:
+        c = ltbake.open(P(name + ".ltm"))
+        for extra, basis in [((), None), (("--basis", "pixels"), "pixels")]:
+            ref = cli_npy(P(name + ".ltm"), bake["dir"], *extra)
+            got = c.decode(basis=basis)
+            assert np.array_equal(bits(got), bits(ref)), f"{name} decode(basis={basis})"
+    # The decoded pixel basis of the row-transformed matrix is the sampled matrix.
+    raw = cli_npy(P("raw.ltm"), bake["dir"])
+    assert np.allclose(ltbake.open(P("rows.ltm")).decode(basis="pixels"), raw, rtol=1e-4, atol=1e-6)
+
+
+# --- writing: the same content_hash as `ltbake convert` of the same values ------------------
+def test_write_round_trips(bake, dense, tmp_path):
+    for name, path in dense.items():
+        c = ltbake.open(path)
+        values = c.read(force=True)
+        for layout in ["rows", "cols"]:
+            for zstd in [False, True]:
+                out = str(tmp_path / f"{name}-{layout}-{zstd}.ltm")
+                ltbake.write(out, values, layout=layout, chunk_size=16 << 10, zstd=zstd)
+                cli("verify", out)
+                assert ltbake.verify(out) == []
+                assert cli_inspect(out)["content_hash"] == c.content_hash, (name, layout, zstd)
+                assert cli_inspect(out)["layout"] == layout
+                assert np.array_equal(bits(ltbake.open(out).read(force=True)), bits(values))
+    # From an iterator of uneven blocks, as row blocks and as column blocks; float64 input.
+    ref = cli_npy(dense["raw"], bake["dir"])
+    np.save(tmp_path / "ref.npy", ref)
+    cli("convert", tmp_path / "ref.npy", tmp_path / "conv.ltm", *Q)
+    want = cli_inspect(tmp_path / "conv.ltm")["content_hash"]
+    cuts = [0, 1, 100, 101, 600, ref.shape[0]]
+    it = (ref[a:b].astype(np.float64) for a, b in zip(cuts, cuts[1:]))
+    ltbake.write(tmp_path / "it.ltm", it, shape=ref.shape, chunk_size=8 << 10)
+    assert cli_inspect(tmp_path / "it.ltm")["content_hash"] == want
+    ccuts = [0, 7, 8, 200, ref.shape[1]]
+    it = (ref[:, a:b] for a, b in zip(ccuts, ccuts[1:]))
+    ltbake.write(tmp_path / "itc.ltm", it, shape=ref.shape, layout="cols", chunk_size=8 << 10, cube_res=8,
+                 metadata={"note": "from python"})
+    info = cli_inspect(tmp_path / "itc.ltm")
+    assert info["content_hash"] == want and info["basis"]["cols"]["cube_res"] == 8
+    assert ltbake.open(tmp_path / "itc.ltm").metadata["note"] == "from python"
+    # Bad input: a clear error and no complete-looking file.
+    with pytest.raises(ltbake.FormatError, match="beyond the float32 range"):
+        bad = ref.astype(np.float64)
+        bad[3, 4] = 1e300
+        ltbake.write(tmp_path / "bad.ltm", bad)
+    with pytest.raises(ltbake.FormatError, match="the shape says"):
+        ltbake.write(tmp_path / "short.ltm", iter([ref[:10]]), shape=ref.shape)
+    assert ltbake.verify(tmp_path / "short.ltm") != []
+    with pytest.raises(ltbake.FormatError, match="ltbake's own"):
+        ltbake.write(tmp_path / "m.ltm", ref, metadata={"arrays": []})
+
+
+# --- zero copy, guards, errors ---------------------------------------------------------
+def test_raw_slices_are_read_only_views_on_the_mapping(bake):
+    for path, key in [(bake["P"]("raw.ltm"), (slice(0, 256), slice(None))),
+                      (bake["P"]("colsconv.ltm"), (slice(None), slice(0, 2)))]:
+        c = ltbake.open(path, checksums=False)
+        c[key]  # warm: the module's own first-use allocations are not the array's
+        tracemalloc.start()
+        v = c[key]
+        _, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        assert v.nbytes >= 2048 and peak < v.nbytes // 2, f"{path}: {peak} bytes allocated for a {v.nbytes}-byte view"
+        assert not v.flags.writeable and not v.flags.owndata
+        base = v
+        while isinstance(base, np.ndarray):
+            base = base.base
+        assert type(base).__name__ == "PyCapsule", f"{path}: the view's base is {type(base)}"
+        with pytest.raises(ValueError):
+            v[0, 0] = 1.0
+        assert ltbake.open(path).chunks[0].encoding == "raw"
+
+
+def test_reads_beyond_max_bytes_need_force(bake):
+    c = ltbake.open(bake["P"]("raw.ltm"), max_bytes=1000)
+    with pytest.raises(ltbake.TooLargeError, match=r"takes 15360 bytes"):
+        c[0:10, :]
+    assert c.read((slice(0, 10), slice(None)), force=True).shape == (10, 384)
+    assert c[0, 0:250].shape == (250,)
+
+
+def test_errors_are_exceptions_with_the_commands_messages(bake, tmp_path):
+    with pytest.raises(FileNotFoundError):
+        ltbake.open(tmp_path / "nope.ltm")
+    (tmp_path / "text.ltm").write_text("not a container\n" * 10)
+    with pytest.raises(ltbake.FormatError):
+        ltbake.open(tmp_path / "text.ltm")
+    assert issubclass(ltbake.FormatError, ValueError) and issubclass(ltbake.IntegrityError, ltbake.Error)
+    # A damaged raw chunk: the read names the chunk; verify lists it like the command.
+    src = bake["P"]("zstd.ltm")
+    dam = str(tmp_path / "dam.ltm")
+    shutil.copy(src, dam)
+    frame = next(x for x in ltbake.open(src).chunks if x.array == "matrix" and x.index >= 2 and x.stored_bytes > 64)
+    k = frame.index
+    with open(dam, "r+b") as f:
+        f.seek(frame.offset + 64 + frame.stored_bytes // 2)
+        b = f.read(1)
+        f.seek(-1, 1)
+        f.write(bytes([b[0] ^ 0x10]))
+    c = ltbake.open(dam)
+    with pytest.raises(ltbake.IntegrityError, match=f"chunk {k}"):
+        c.read(force=True)
+    c[0:k * c.block, :]  # the chunks before it still read
+    problems = ltbake.verify(dam)
+    cli_problems = json.loads(cli("verify", "--json", dam, expect=1).stdout)[0]["problems"]
+    assert problems == cli_problems and any(f"chunk {k}" in p for p in problems)
+    # Truncated: the chunks past the cut are missing, which is damage, not zeros.
+    size = os.path.getsize(src)
+    cut = str(tmp_path / "cut.ltm")
+    with open(src, "rb") as f, open(cut, "wb") as g:
+        g.write(f.read(frame.offset + 10))
+    c = ltbake.open(cut)
+    assert not c.complete
+    with pytest.raises(ltbake.IntegrityError, match=f"chunk {k}"):
+        c[:, :]
+    assert "incomplete" in ltbake.verify(cut)[0] and ltbake.verify(cut, allow_incomplete=True) == []
+    assert size > frame.offset
+
+
+def test_damage_sweep_never_crashes_and_never_returns_wrong_values(bake, tmp_path):
+    """Every damaged copy of a small container (byte flips across the whole file,
+    truncations) opens and reads through the module without crashing the interpreter,
+    and a read that succeeds returns the original values."""
+    src = bake["P"]("zstd.ltm")
+    data = open(src, "rb").read()
+    good = ltbake.open(src).read(force=True)
+    scale = float(os.environ.get("LTB_TEST_SCALE", "1") or 1)
+    step = max(1, int(len(data) / max(50, 600 * scale)))
+    damaged = [(f"flip@{i}", data[:i] + bytes([data[i] ^ 0x5A]) + data[i + 1:]) for i in range(0, len(data), step)]
+    damaged += [(f"cut@{n}", data[:n]) for n in range(0, len(data), max(1, step * 3))]
+    outcomes = {"ok": 0, "error": 0}
+    path = str(tmp_path / "d.ltm")
+    for what, blob in damaged:
+        with open(path, "wb") as f:
+            f.write(blob)
+        try:
+            c = ltbake.open(path)
+            got = c.read(force=True)
+            for name, a in c.arrays.items():
+                a.read(force=True)
+        except (ltbake.Error, OSError):
+            outcomes["error"] += 1
+            continue
+        assert got.shape == good.shape and np.array_equal(bits(got), bits(good)), f"{what}: wrong values, no error"
+        outcomes["ok"] += 1
+    assert outcomes["error"] > len(damaged) // 4, outcomes
+
+
+# --- relighting and environment maps, against the command ------------------------------------
+def test_relight_equals_the_commands_npy(bake, tmp_path):
+    P = bake["P"]
+    for name, terms in [("final", 40), ("rows", 64), ("cpca", 30), ("raw", "all"), ("sh", 100)]:
+        out = str(tmp_path / f"{name}.npy")
+        cli("relight", P(name + ".ltm"), "--env", bake["env"], "-o", out, "--terms", terms, *Q)
+        img, report = ltbake.relight(P(name + ".ltm"), bake["env"], terms=terms, report=True)
+        assert img.shape == (1024, 3) and img.dtype == np.float32
+        assert np.array_equal(bits(img), bits(np.load(out))), name
+        assert report["terms"] == terms
+    with pytest.raises(ltbake.FormatError):
+        ltbake.relight(P("final.ltm"), bake["env"], weighting="sideways")
+    with pytest.raises(ValueError):
+        ltbake.relight(P("final.ltm"), bake["env"], terms=0)
+
+
+def test_envmap_equals_convert(tmp_path):
+    envdir = subprocess.run(["bash", os.path.join(REPO, "scripts", "find_envmaps.sh")], capture_output=True,
+                            text=True).stdout.strip()
+    exr = os.path.join(envdir, "forest.exr")
+    if not os.path.exists(exr):
+        pytest.skip("no Blender environment maps (blender-data)")
+    out = str(tmp_path / "forest.npy")
+    cli("convert", exr, out, "--cube-res", 16, "--clamp", *Q)
+    cube = ltbake.envmap(exr, 16, clamp=True)
+    assert cube.shape == (6 * 16 * 16, 3) and np.array_equal(bits(cube), bits(np.load(out)))
+    with pytest.raises(ltbake.FormatError, match="power of two"):
+        ltbake.envmap(exr, 12)
