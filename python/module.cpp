@@ -20,6 +20,7 @@
 #include <mutex>
 #include <string>
 #include <thread>
+#include <unordered_map>
 #include <unordered_set>
 #include <vector>
 
@@ -27,7 +28,9 @@
 #include "format/content_hash.h"
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
+#include "format/io/mapped_region.h"
 #include "format/io/verifier.h"
+#include "format/layout.h"
 #include "format/version.h"
 #include "stages/common/basis.h"
 #include "stages/convert/convert.h"
@@ -112,17 +115,49 @@ py::array ArrayOver(std::unique_ptr<Owner> owner, const void* data, py::dtype dt
   return a;
 }
 
-// madvise(MADV_WILLNEED) over [p, p + n): starts the reads of those pages at once, so a
-// gather that touches many small pieces of a cold file waits for the disk in parallel.
-void Prefetch(const std::byte* p, uint64_t n) {
-  static const uintptr_t page = static_cast<uintptr_t>(sysconf(_SC_PAGESIZE));
-  uintptr_t b = reinterpret_cast<uintptr_t>(p) & ~(page - 1);
-  uintptr_t e = reinterpret_cast<uintptr_t>(p) + n;
-  if (n > 0) (void)madvise(reinterpret_cast<void*>(b), e - b, MADV_WILLNEED);
-}
+// Starts the reads of the pages of [p, p + n) that are not in the page cache
+// (MADV_WILLNEED), so a gather that touches many small pieces of a cold file waits for the
+// disk in parallel; pages already cached cost one mincore() for the whole range.
+class Prefetcher {
+ public:
+  // One call per chunk: which pages of [lo, hi) are resident.
+  void Survey(const std::byte* lo, const std::byte* hi) {
+    base_ = PageDown(lo);
+    const uintptr_t n = (reinterpret_cast<uintptr_t>(hi) - base_ + page_ - 1) / page_;
+    resident_.assign(n, 0);
+    if (n == 0 || ::mincore(reinterpret_cast<void*>(base_), n * page_, resident_.data()) != 0) {
+      resident_.assign(n, 0);  // unknown: ask for everything
+    }
+  }
+  void Want(const std::byte* p, uint64_t n) {
+    const uintptr_t e = reinterpret_cast<uintptr_t>(p) + n;
+    uintptr_t q = PageDown(p);
+    while (q < e) {
+      if (Resident(q)) {
+        q += page_;
+        continue;
+      }
+      const uintptr_t run = q;
+      while (q < e && !Resident(q)) q += page_;
+      (void)::madvise(reinterpret_cast<void*>(run), q - run, MADV_WILLNEED);
+    }
+  }
 
-// One open container or manifest. Chunks are checksum-verified the first time a read
-// touches them (when `checksums`), never again.
+ private:
+  uintptr_t PageDown(const std::byte* p) const { return reinterpret_cast<uintptr_t>(p) & ~(page_ - 1); }
+  bool Resident(uintptr_t q) const {
+    const uintptr_t k = (q - base_) / page_;
+    return k < resident_.size() && (resident_[k] & 1) != 0;
+  }
+  const uintptr_t page_ = static_cast<uintptr_t>(::sysconf(_SC_PAGESIZE));
+  uintptr_t base_ = 0;
+  std::vector<unsigned char> resident_;
+};
+
+// One open container or manifest. Raw chunks are served from one read-only mapping of
+// each file, made on first use (as np.load(mmap_mode="r") maps a .npy): a read costs no
+// system call. Chunks are checksum-verified the first time a read touches them (when
+// `checksums`), never again.
 class Reader {
  public:
   Reader(const std::string& path, bool checksums) : checksums_(checksums) {
@@ -143,27 +178,29 @@ class Reader {
       throw py::index_error("chunk " + std::to_string(chunk) + " of array \"" + spec.name + "\" is out of range (" +
                             std::to_string(spec.ChunkCount()) + " chunks)");
     }
-    auto c = std::make_unique<io::Chunk>();
-    const io::ReadOptions o = Options(array, chunk, false);
-    Result<io::Chunk> r = InvalidArgument("");
-    {
-      py::gil_scoped_release nogil;
-      r = reader_->ReadChunk(array, chunk, o);
-    }
-    if (!r.ok() && o.verify_checksum) Forget(array, chunk);
-    *c = Take(std::move(r), true);
-    const format::ChunkExtent& e = c->extent();
     const bool rows = spec.layout == format::Layout::kRows;
-    const bool mapped = c->encoding() == format::Encoding::kRaw;
-    const void* data = c->bytes().data();
+    const format::ChunkExtent e = spec.Extent(chunk);
     std::vector<py::ssize_t> shape = {static_cast<py::ssize_t>(rows ? e.rows : e.cols),
                                       static_cast<py::ssize_t>(rows ? e.cols : e.rows)};
-    return py::make_tuple(ArrayOver(std::move(c), data, DTypeOf(spec.dtype), shape), mapped);
+    Raw raw;
+    auto decoded = std::make_unique<io::Chunk>();
+    Status s;
+    {
+      py::gil_scoped_release nogil;
+      s = Load(array, chunk, &raw, decoded.get());
+    }
+    if (!s.ok()) Throw(s, true);
+    if (raw.data != nullptr) {
+      auto owner = std::make_unique<std::shared_ptr<const io::MappedRegion>>(std::move(raw.map));
+      return py::make_tuple(ArrayOver(std::move(owner), raw.data, DTypeOf(spec.dtype), shape), true);
+    }
+    const void* data = decoded->bytes().data();
+    return py::make_tuple(ArrayOver(std::move(decoded), data, DTypeOf(spec.dtype), shape), false);
   }
 
   // Rows [r0, r1) × columns [c0, c1) of an array, gathered from every chunk they touch
   // into a new C-order array, `jobs` chunks at a time. The pieces a raw chunk contributes
-  // are prefetched (MADV_WILLNEED) before they are copied.
+  // are prefetched before they are copied.
   py::array ReadRegion(uint32_t array, uint64_t r0, uint64_t r1, uint64_t c0, uint64_t c1, int jobs) {
     const format::ArraySpec& spec = CheckArray(array);
     if (r0 > r1 || r1 > spec.rows || c0 > c1 || c1 > spec.cols) throw py::index_error("region out of range");
@@ -203,67 +240,106 @@ class Reader {
   bool checksums() const { return checksums_; }
 
  private:
+  // A raw chunk's payload inside its file's mapping (data == nullptr for other encodings).
+  struct Raw {
+    std::shared_ptr<const io::MappedRegion> map;
+    const std::byte* data = nullptr;
+  };
+
   const format::ArraySpec& CheckArray(uint32_t array) const {
     const auto& arrays = reader_->metadata().arrays;
     if (array >= arrays.size()) throw py::index_error("array " + std::to_string(array) + " out of range");
     return arrays[array];
   }
 
-  // Verify a chunk's checksum on its first read only.
-  io::ReadOptions Options(uint32_t array, uint64_t chunk, bool sequential) {
-    io::ReadOptions o;
-    o.sequential = sequential;
-    o.verify_checksum = false;
-    if (checksums_) {
-      std::lock_guard<std::mutex> lock(mu_);
-      o.verify_checksum = verified_.insert((uint64_t{array} << 40) | chunk).second;
+  // A raw chunk: its bytes in the mapping of the file holding it (verified on first use);
+  // any other encoding: decoded into `decoded`.
+  Status Load(uint32_t array, uint64_t chunk, Raw* raw, io::Chunk* decoded) {
+    const format::IndexEntry* e = reader_->Find(array, chunk);
+    if (e == nullptr || e->header.encoding != static_cast<uint16_t>(format::Encoding::kRaw)) {
+      io::ReadOptions o;
+      o.sequential = false;
+      auto c = reader_->ReadChunk(array, chunk, o);  // names the missing chunk; decodes verify anyway
+      if (!c.ok()) return c.status();
+      *decoded = std::move(c).value();
+      return Status::Ok();
     }
-    return o;
+    if (checksums_ && !Verified(array, chunk)) {
+      io::ReadOptions o;
+      o.sequential = false;
+      auto c = reader_->ReadChunk(array, chunk, o);  // maps and checks the payload
+      if (!c.ok()) return c.status();
+      MarkVerified(array, chunk);
+    }
+    const io::ContainerReader& holder = reader_->Holder(array, chunk);
+    std::shared_ptr<const io::MappedRegion> map;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      auto& slot = maps_[&holder];
+      if (slot == nullptr) {
+        // The reader checked every frame against the size it found, so the mapping covers it.
+        auto m = io::MappedRegion::Map(holder.file().fd(), 0, holder.file_size(), false);
+        if (!m.ok()) return m.status().WithContext(holder.path());
+        slot = std::make_shared<const io::MappedRegion>(std::move(m).value());
+      }
+      map = slot;
+    }
+    raw->data = map->bytes().data() + e->frame_offset + format::kFrameHeaderSize;
+    raw->map = std::move(map);
+    return Status::Ok();
+  }
+
+  bool Verified(uint32_t array, uint64_t chunk) {
+    std::lock_guard<std::mutex> lock(mu_);
+    return verified_.count((uint64_t{array} << 40) | chunk) != 0;
+  }
+  void MarkVerified(uint32_t array, uint64_t chunk) {
+    std::lock_guard<std::mutex> lock(mu_);
+    verified_.insert((uint64_t{array} << 40) | chunk);
   }
 
   Status CopyFromChunk(uint32_t array, const format::ArraySpec& spec, uint64_t k, uint64_t r0, uint64_t r1, uint64_t c0,
                        uint64_t c1, uint64_t item, std::byte* dst) {
-    io::ReadOptions o = Options(array, k, false);
-    auto c = reader_->ReadChunk(array, k, o);
-    if (!c.ok()) {
-      if (o.verify_checksum) Forget(array, k);
-      return c.status();
-    }
-    const format::ChunkExtent& e = c->extent();
-    const std::byte* src = c->bytes().data();
+    Raw raw;
+    io::Chunk decoded;
+    LTB_RETURN_IF_ERROR(Load(array, k, &raw, &decoded));
+    const format::ChunkExtent e = spec.Extent(k);
+    const std::byte* src = raw.data != nullptr ? raw.data : decoded.bytes().data();
     const uint64_t nc = c1 - c0;
-    const bool raw = c->encoding() == format::Encoding::kRaw && !o.verify_checksum;
+    Prefetcher pf;
     if (spec.layout == format::Layout::kRows) {
       const uint64_t a = std::max(r0, e.row0), b = std::min(r1, e.row0 + e.rows);
-      if (raw) {
-        for (uint64_t r = a; r < b; ++r) Prefetch(src + ((r - e.row0) * e.cols + c0) * item, nc * item);
+      auto at = [&](uint64_t r) { return src + ((r - e.row0) * e.cols + c0) * item; };
+      if (raw.data != nullptr) {
+        pf.Survey(at(a), at(b - 1) + nc * item);
+        for (uint64_t r = a; r < b; ++r) pf.Want(at(r), nc * item);
       }
-      for (uint64_t r = a; r < b; ++r) {
-        std::memcpy(dst + (r - r0) * nc * item, src + ((r - e.row0) * e.cols + c0) * item, nc * item);
-      }
+      for (uint64_t r = a; r < b; ++r) std::memcpy(dst + (r - r0) * nc * item, at(r), nc * item);
     } else {
       const uint64_t a = std::max(c0, e.col0), b = std::min(c1, e.col0 + e.cols), nr = r1 - r0;
-      if (raw) {
-        for (uint64_t col = a; col < b; ++col) Prefetch(src + ((col - e.col0) * e.rows + r0) * item, nr * item);
+      auto at = [&](uint64_t col) { return src + ((col - e.col0) * e.rows + r0) * item; };
+      if (raw.data != nullptr) {
+        pf.Survey(at(a), at(b - 1) + nr * item);
+        for (uint64_t col = a; col < b; ++col) pf.Want(at(col), nr * item);
       }
       for (uint64_t col = a; col < b; ++col) {
-        const std::byte* s = src + ((col - e.col0) * e.rows + r0) * item;
+        const std::byte* s = at(col);
         std::byte* d = dst + (col - c0) * item;
-        for (uint64_t r = 0; r < nr; ++r) std::memcpy(d + r * nc * item, s + r * item, item);
+        if (item == 4) {
+          for (uint64_t r = 0; r < nr; ++r) std::memcpy(d + r * nc * 4, s + r * 4, 4);
+        } else {
+          for (uint64_t r = 0; r < nr; ++r) std::memcpy(d + r * nc * item, s + r * item, item);
+        }
       }
     }
     return Status::Ok();
-  }
-
-  void Forget(uint32_t array, uint64_t chunk) {
-    std::lock_guard<std::mutex> lock(mu_);
-    verified_.erase((uint64_t{array} << 40) | chunk);
   }
 
   std::shared_ptr<io::ContainerReader> reader_;
   bool checksums_;
   std::mutex mu_;
   std::unordered_set<uint64_t> verified_;
+  std::unordered_map<const io::ContainerReader*, std::shared_ptr<const io::MappedRegion>> maps_;
 };
 
 // Appends chunks to a new (or resumed) container; Python slices the data into chunks.
