@@ -57,14 +57,31 @@ def _axis(index, n, what):
     raise TypeError(f"{what}s are indexed by an integer or a slice, not {type(index).__name__}")
 
 
+class _Core:
+    """What a container's arrays share: the reader (its mappings) and the read options.
+    Arrays hold this, not the Container, so no reference cycle keeps a mapping alive."""
+
+    def __init__(self, path, checksums, max_bytes, jobs):
+        self.path = path
+        self.max_bytes = int(max_bytes)
+        self.jobs = int(jobs)
+        self._reader = _ltbake.Reader(path, bool(checksums))
+
+    @property
+    def reader(self):
+        if self._reader is None:
+            raise ValueError(f"{self.path}: the container is closed")
+        return self._reader
+
+
 class Array:
     """One array of a container: the matrix (array 0) or a side table.
 
     ``a[i0:i1, :]`` and ``a[:, j0:j1]`` (and integers, and slices with steps) read values;
     ``a.iter_chunks()`` streams the array chunk by chunk."""
 
-    def __init__(self, container, index, spec):
-        self._c = container
+    def __init__(self, core, index, spec):
+        self._c = core
         self.index = index
         self.name = spec["name"]
         self.shape = (int(spec["shape"][0]), int(spec["shape"][1]))
@@ -86,7 +103,7 @@ class Array:
     def content_hash(self):
         """The content_hash its writer recorded (16 hex digits), computed when there is no
         record (an older or unsealed file: reads every chunk), None when incomplete."""
-        h = self._c._reader.recorded_content_hash(self.index)
+        h = self._c.reader.recorded_content_hash(self.index)
         if h:
             return h
         info = inspect(self._c.path, jobs=self._c.jobs)
@@ -100,7 +117,7 @@ class Array:
     def chunk(self, k):
         """Chunk k as (rows, cols) of the matrix: a read-only view on the memory map for a
         raw chunk (transposed for the cols layout), decoded otherwise."""
-        arr, _ = self._c._reader.read_chunk(self.index, k)
+        arr, _ = self._c.reader.read_chunk(self.index, k)
         return arr if self.layout == "rows" else arr.T
 
     def iter_chunks(self):
@@ -149,7 +166,7 @@ class Array:
         lo, hi = (r0, r1) if self.layout == "rows" else (c0, c1)
         k = lo // self.block
         if (hi - 1) // self.block == k:  # one chunk: a view on it
-            arr, mapped = self._c._reader.read_chunk(self.index, k)
+            arr, mapped = self._c.reader.read_chunk(self.index, k)
             base = k * self.block
             if self.layout == "rows":
                 view = arr[r0 - base:r1 - base, c0:c1]
@@ -157,7 +174,7 @@ class Array:
                 view = arr.T[r0:r1, c0 - base:c1 - base]
             # A small part of a decoded chunk is copied, so it does not keep the chunk alive.
             return view if mapped or 2 * view.nbytes >= arr.nbytes else view.copy()
-        return self._c._reader.read_region(self.index, r0, r1, c0, c1, self._c.jobs)
+        return self._c.reader.read_region(self.index, r0, r1, c0, c1, self._c.jobs)
 
     def __repr__(self):
         return (f"<ltbake.Array \"{self.name}\" {self.shape[0]} x {self.shape[1]} {self.dtype}, "
@@ -174,29 +191,28 @@ class Container(Array):
 
     def __init__(self, path, checksums=True, max_bytes=MAX_BYTES, jobs=2):
         self.path = _os.fspath(path)
-        self.max_bytes = int(max_bytes)
-        self.jobs = int(jobs)
-        self._reader = _ltbake.Reader(self.path, bool(checksums))
-        self.metadata = _json.loads(self._reader.metadata_json)
+        core = _Core(self.path, checksums, max_bytes, jobs)
+        self.metadata = _json.loads(core.reader.metadata_json)
         specs = self.metadata["arrays"]
-        super().__init__(self, 0, specs[0])
-        self.arrays = {s["name"]: (self if i == 0 else Array(self, i, s)) for i, s in enumerate(specs)}
+        super().__init__(core, 0, specs[0])
+        #: Every array by name, the matrix included (as an Array of its own).
+        self.arrays = {s["name"]: Array(core, i, s) for i, s in enumerate(specs)}
 
     basis = property(lambda self: self.metadata.get("basis"), doc="what rows and columns are")
     provenance = property(lambda self: self.metadata.get("provenance"), doc="stage, tool, parameters, inputs")
-    complete = property(lambda self: self._reader.complete, doc="every chunk of every array committed")
-    sealed = property(lambda self: self._reader.sealed, doc="the writer finished the file")
-    format_version = property(lambda self: self._reader.format_version)
-    file_bytes = property(lambda self: self._reader.file_size, doc="bytes on disk (a manifest: with its shards)")
-    shards = property(lambda self: self._reader.shards, doc="a manifest's shard files (else empty)")
-    problems = property(lambda self: self._reader.problems, doc="damage found while opening")
+    complete = property(lambda self: self._c.reader.complete, doc="every chunk of every array committed")
+    sealed = property(lambda self: self._c.reader.sealed, doc="the writer finished the file")
+    format_version = property(lambda self: self._c.reader.format_version)
+    file_bytes = property(lambda self: self._c.reader.file_size, doc="bytes on disk (a manifest: with its shards)")
+    shards = property(lambda self: self._c.reader.shards, doc="a manifest's shard files (else empty)")
+    problems = property(lambda self: self._c.reader.problems, doc="damage found while opening")
 
     @property
     def chunks(self):
         """Every committed chunk frame, as ChunkInfo, in file order."""
         names = [s["name"] for s in self.metadata["arrays"]]
         return [ChunkInfo(names[a], i, enc, stored, decoded, off, f)
-                for a, i, enc, stored, decoded, off, f in self._reader.chunk_frames()]
+                for a, i, enc, stored, decoded, off, f in self._c.reader.chunk_frames()]
 
     def decode(self, basis=None, path=None, jobs=None, mem_limit=1 << 30):
         """The matrix as ``ltbake convert FILE OUT.npy [--basis pixels]`` writes it: column-
@@ -212,7 +228,7 @@ class Container(Array):
             _os.close(fd)
             _os.unlink(path)
         try:
-            _ltbake.convert(self.path, _os.fspath(path), basis == "pixels", jobs or self.jobs, mem_limit)
+            _ltbake.convert(self.path, _os.fspath(path), basis == "pixels", jobs or self._c.jobs, mem_limit)
             out = _np.load(path, mmap_mode="r")
         finally:
             if temp and _os.path.exists(path):
@@ -220,8 +236,9 @@ class Container(Array):
         return out
 
     def close(self):
-        """Drops the reader; arrays already returned stay valid (they hold their mapping)."""
-        self._reader = None
+        """Drops the reader and its mappings once no array read from it is left (each array
+        returned holds the mapping it views); reading afterwards raises ValueError."""
+        self._c._reader = None
 
     def __enter__(self):
         return self
@@ -231,7 +248,7 @@ class Container(Array):
         return False
 
     def __repr__(self):
-        state = "complete" if self._reader is not None and self.complete else "incomplete"
+        state = "closed" if self._c._reader is None else "complete" if self.complete else "incomplete"
         return (f"<ltbake.Container '{self.path}': {self.shape[0]} x {self.shape[1]} {self.dtype}, "
                 f"layout {self.layout} (block {self.block}), {len(self.arrays)} array(s), {state}>")
 

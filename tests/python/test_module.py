@@ -77,6 +77,37 @@ def test_metadata_matches_inspect(dense, bake):
     assert "ltbake.Container" in repr(ltbake.open(dense["raw"]))
 
 
+def test_a_dropped_container_unmaps_its_file(dense):
+    """No reference cycle keeps a container's mapping alive: once the container and the
+    arrays read from it are gone, the file is no longer mapped (so its pages can leave the
+    page cache), and close() stops reads while the views already returned stay valid."""
+    import gc
+    path = os.path.realpath(dense["raw"])
+
+    def mapped():
+        with open("/proc/self/maps") as f:
+            return any(line.rstrip().endswith(path) for line in f)
+
+    gc.disable()
+    try:
+        c = ltbake.open(path)
+        v = c[0:4]
+        assert mapped()
+        del c
+        assert mapped(), "the view holds the mapping"
+        total = float(v.sum())
+        del v
+        assert not mapped(), "a container and its views, dropped, still map the file"
+    finally:
+        gc.enable()
+    c = ltbake.open(path)
+    v = c[0:4]
+    c.close()
+    with pytest.raises(ValueError, match="closed"):
+        c[0:4]
+    assert float(v.sum()) == total and "closed" in repr(c)
+
+
 def test_side_tables_against_the_file_bytes(bake):
     path = bake["P"]("raw.ltm")
     c = ltbake.open(path)
