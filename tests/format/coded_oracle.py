@@ -16,7 +16,7 @@ import tempfile
 
 import numpy as np
 
-HELPER = sys.argv[1]
+HELPER = sys.argv[1] if __name__ == "__main__" else None  # importable: tests/python uses decode()
 
 
 class Damage(Exception):
@@ -248,4 +248,5 @@ def main():
         sys.exit(1)
 
 
-main()
+if __name__ == "__main__":
+    main()

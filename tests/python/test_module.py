@@ -121,6 +121,36 @@ def test_side_tables_against_the_file_bytes(bake):
         assert np.array_equal(bits(a.read(force=True)), bits(ref)), name
 
 
+def test_sparse_and_direct_written_chunks(bake, tmp_path):
+    """The stored chunks of the other kinds, against independent readings of the bytes."""
+    P = bake["P"]
+    # raw.ltm was written with O_DIRECT: its matrix payloads sit on 4096-byte boundaries,
+    # behind padding frames (docs/FORMAT.md); the module reads them like any other.
+    raw = ltbake.open(P("raw.ltm"))
+    assert all((x.offset + 64) % 4096 == 0 for x in raw.chunks if x.array == "matrix")
+    # final.ltm: coded sparse chunks (encoding 5), decoded by the pure-Python decoder of
+    # docs/FORMAT.md (tests/format/coded_oracle.py), which shares no code with the module.
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("coded_oracle", os.path.join(REPO, "tests", "format",
+                                                                             "coded_oracle.py"))
+    oracle = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(oracle)
+    final = ltbake.open(P("final.ltm"))
+    data = open(P("final.ltm"), "rb").read()
+    coded = [x for x in final.chunks if x.array == "matrix" and x.encoding == "sparse-coded"]
+    assert coded, "final.ltm has coded chunks"
+    for x in coded:
+        payload = data[x.offset + 64:x.offset + 64 + x.stored_bytes]
+        want = np.asarray(oracle.decode(payload, x.decoded_bytes // 4, final.shape[0]), np.int32)
+        got = final.chunk(x.index)  # (rows, columns of the chunk)
+        assert np.array_equal(got.T.reshape(-1), want), f"final.ltm chunk {x.index}"
+    # cols4d.ltm: sparse+zstd chunks; their values written back give the recorded hash.
+    cols4d = ltbake.open(P("cols4d.ltm"))
+    assert {x.encoding for x in cols4d.chunks if x.array == "matrix"} <= {"sparse", "sparse-zstd", "zero"}
+    ltbake.write(tmp_path / "c4.ltm", cols4d.read(force=True), layout="cols")
+    assert cli_inspect(tmp_path / "c4.ltm")["content_hash"] == cols4d.content_hash
+
+
 def test_transformed_outputs_decode_like_convert(bake):
     P = bake["P"]
     for name in ["cols4d", "final", "cpca", "rows"]:
