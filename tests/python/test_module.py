@@ -330,3 +330,18 @@ def test_envmap_equals_convert(tmp_path):
     assert cube.shape == (6 * 16 * 16, 3) and np.array_equal(bits(cube), bits(np.load(out)))
     with pytest.raises(ltbake.FormatError, match="power of two"):
         ltbake.envmap(exr, 12)
+
+
+def test_cmake_install_puts_an_importable_package_in_dist_packages(tmp_path):
+    """`cmake --install BUILD --component python --prefix P` installs the package where
+    Debian's Python looks for it under P (lib/python3.X/dist-packages), and it imports."""
+    build = os.environ.get("LTB_BUILD_DIR", os.path.join(REPO, "build"))
+    prefix = tmp_path / "prefix"
+    subprocess.run(["cmake", "--install", build, "--component", "python", "--prefix", str(prefix)], check=True,
+                   capture_output=True)
+    found = sorted(prefix.glob("lib/python3*/dist-packages/ltbake/__init__.py"))
+    assert found, f"nothing installed under {prefix}/lib/python3*/dist-packages"
+    site = str(found[0].parent.parent)
+    out = subprocess.run(["/usr/bin/python3", "-c", "import ltbake, sys; print(ltbake.__file__, ltbake.__version__)"],
+                         env={**os.environ, "PYTHONPATH": site}, capture_output=True, text=True, check=True).stdout
+    assert out.startswith(site)
