@@ -166,7 +166,7 @@ class Array:
         lo, hi = (r0, r1) if self.layout == "rows" else (c0, c1)
         k = lo // self.block
         if (hi - 1) // self.block == k:  # one chunk: a view on it
-            arr, mapped = self._c.reader.read_chunk(self.index, k)
+            arr, mapped = self._c.reader.read_chunk(self.index, k, r0, r1, c0, c1)  # prefetches that part
             base = k * self.block
             if self.layout == "rows":
                 view = arr[r0 - base:r1 - base, c0:c1]
