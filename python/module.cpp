@@ -18,6 +18,7 @@
 #include <cstring>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <unordered_map>
@@ -61,6 +62,28 @@ template <typename T>
 T Take(Result<T>&& r, bool missing_is_damage = false) {
   if (!r.ok()) Throw(r.status(), missing_is_damage);
   return std::move(r).value();
+}
+
+// Runs f (returning a Result) without the GIL; its value, or its Status raised.
+template <typename F>
+auto WithoutGil(F&& f, bool missing_is_damage = false) {
+  std::optional<decltype(f())> r;
+  {
+    py::gil_scoped_release nogil;
+    r.emplace(f());
+  }
+  return Take(std::move(*r), missing_is_damage);
+}
+
+// Runs f (returning a Status) without the GIL; raises a failure.
+template <typename F>
+void CheckWithoutGil(F&& f, bool missing_is_damage = false) {
+  Status s;
+  {
+    py::gil_scoped_release nogil;
+    s = f();
+  }
+  if (!s.ok()) Throw(s, missing_is_damage);
 }
 
 void Translate(const StatusError& e) {
@@ -133,11 +156,7 @@ void Prefetch(const std::byte* p, uint64_t n) {
 class Reader {
  public:
   Reader(const std::string& path, bool checksums) : checksums_(checksums) {
-    auto r = [&] {
-      py::gil_scoped_release nogil;
-      return io::ContainerReader::Open(path);
-    }();
-    reader_ = std::make_shared<io::ContainerReader>(Take(std::move(r)));
+    reader_ = std::make_shared<io::ContainerReader>(WithoutGil([&] { return io::ContainerReader::Open(path); }));
   }
 
   const io::ContainerReader& reader() const { return *reader_; }
@@ -158,12 +177,7 @@ class Reader {
                                       static_cast<py::ssize_t>(rows ? e.cols : e.rows)};
     Raw raw;
     auto decoded = std::make_unique<io::Chunk>();
-    Status s;
-    {
-      py::gil_scoped_release nogil;
-      s = Load(array, chunk, &raw, decoded.get());
-    }
-    if (!s.ok()) Throw(s, true);
+    CheckWithoutGil([&] { return Load(array, chunk, &raw, decoded.get()); }, true);
     if (raw.data != nullptr) {
       if (r0 < r1 && c0 < c1) PrefetchRegion(spec, chunk, raw.data, r0, r1, c0, c1, !FirstTouch(array, chunk));
       auto owner = std::make_unique<std::shared_ptr<const io::MappedRegion>>(std::move(raw.map));
@@ -345,11 +359,7 @@ class Writer {
     if (meta.is_discarded()) Throw(InvalidArgument(path + ": metadata is not valid JSON"));
     io::WriterOptions wo;
     wo.overwrite_mismatch = overwrite;
-    auto w = [&] {
-      py::gil_scoped_release nogil;
-      return io::ContainerWriter::Open(path, meta, wo);
-    }();
-    writer_ = Take(std::move(w));
+    writer_ = WithoutGil([&] { return io::ContainerWriter::Open(path, meta, wo); });
   }
 
   bool Has(uint32_t array, uint64_t chunk) const { return writer_.Has(array, chunk); }
@@ -370,21 +380,12 @@ class Writer {
     }
     format::EncodeOptions eo;
     eo.zstd = zstd;
-    Status s;
-    {
-      py::gil_scoped_release nogil;
-      s = writer_.Put(array, chunk, format::ByteSpan(static_cast<const std::byte*>(data.data()), bytes), eo);
-    }
-    if (!s.ok()) Throw(s);
+    const format::ByteSpan span(static_cast<const std::byte*>(data.data()), bytes);
+    CheckWithoutGil([&] { return writer_.Put(array, chunk, span, eo); });
   }
 
   void Finish() {
-    Status s;
-    {
-      py::gil_scoped_release nogil;
-      s = writer_.Finish();
-    }
-    if (!s.ok()) Throw(s);
+    CheckWithoutGil([&] { return writer_.Finish(); });
   }
 
  private:
@@ -417,19 +418,13 @@ std::string Inspect(const std::string& path, bool content, bool chunk_list, int 
   o.content = content;
   o.chunk_list = chunk_list;
   o.jobs = jobs;
-  Result<nlohmann::json> r = InvalidArgument("");
-  {
-    py::gil_scoped_release nogil;
-    r = stages::InspectContainer(path, o, Progress{});
-  }
-  return Take(std::move(r)).dump();
+  return WithoutGil([&] { return stages::InspectContainer(path, o, Progress{}); }).dump();
 }
 
 py::array FloatArray(std::vector<float> v, std::vector<py::ssize_t> shape) {
   auto owner = std::make_unique<std::vector<float>>(std::move(v));
   const void* data = owner->data();
-  py::array a = ArrayOver(std::move(owner), data, py::dtype::of<float>(), std::move(shape));
-  return a;
+  return ArrayOver(std::move(owner), data, py::dtype::of<float>(), std::move(shape));
 }
 
 py::tuple Relight(const std::string& matrix, const std::string& env, uint64_t terms, const std::string& weighting,
@@ -445,12 +440,7 @@ py::tuple Relight(const std::string& matrix, const std::string& env, uint64_t te
   o.jobs = jobs;
   o.mem_limit = mem_limit;
   o.return_image = true;
-  Result<stages::RelightResult> r = InvalidArgument("");
-  {
-    py::gil_scoped_release nogil;
-    r = stages::RunRelight(o, Progress{});
-  }
-  stages::RelightResult res = Take(std::move(r));
+  stages::RelightResult res = WithoutGil([&] { return stages::RunRelight(o, Progress{}); });
   const py::ssize_t rows = static_cast<py::ssize_t>(res.image.size() / 3);
   return py::make_tuple(FloatArray(std::move(res.image), {rows, 3}), res.report.dump());
 }
@@ -459,12 +449,7 @@ py::array Envmap(const std::string& path, uint64_t cube_res, bool clamp, uint64_
   stages::EnvLoadOptions o;
   o.clamp = clamp;
   o.max_bytes = max_bytes;
-  Result<std::vector<float>> r = InvalidArgument("");
-  {
-    py::gil_scoped_release nogil;
-    r = stages::EnvToCubemap(path, cube_res, o);
-  }
-  std::vector<float> cube = Take(std::move(r));
+  std::vector<float> cube = WithoutGil([&] { return stages::EnvToCubemap(path, cube_res, o); });
   const py::ssize_t texels = static_cast<py::ssize_t>(cube.size() / 3);
   return FloatArray(std::move(cube), {texels, 3});
 }
@@ -476,12 +461,7 @@ void Convert(const std::string& input, const std::string& output, bool pixel_bas
   o.pixel_basis = pixel_basis;
   o.jobs = jobs;
   o.mem_limit = mem_limit;
-  Result<stages::ConvertResult> r = InvalidArgument("");
-  {
-    py::gil_scoped_release nogil;
-    r = stages::RunConvert(o, Progress{});
-  }
-  (void)Take(std::move(r));
+  (void)WithoutGil([&] { return stages::RunConvert(o, Progress{}); });
 }
 
 PyObject* NewException(py::module_& m, const char* name, PyObject* bases, const char* doc) {
