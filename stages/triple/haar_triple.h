@@ -1,0 +1,92 @@
+// Triple product integrals in the 2D Haar basis (Ng, Ramamoorthi, Hanrahan 2004, §4.5 and
+// §5; docs/TRIPLE.md): ∫ L·V·ρ over a square domain from the Haar coefficients of the three
+// functions, exactly in time linear in the number of coefficients (parent sums by dynamic
+// programming, §5.2), or estimated from non-linear approximations of L and ρ in time
+// proportional to the terms kept (lazy parent sums, §5.3). The relighting path of issue 22
+// evaluates it per vertex and cube face; this is the math, with no files.
+//
+// The basis, on the unit square [0,1]² (the paper's Eq. 17–18): the scaling function Φ = 1,
+// and at level l = 0 .. log2(R) − 1, square (i, j) (x offset i, y offset j, 0 ≤ i, j < 2^l),
+// three wavelets Ψ_M^{lij}(x, y) = 2^l Ψ_M(2^l x − i, 2^l y − j), orthonormal, with the mother
+// wavelets (qx, qy = the half of the unit square in x and y, 0 or 1):
+//   Ψ_01 = +1 in the upper half (qy = 1), −1 in the lower (vertical differencing);
+//   Ψ_10 = +1 in the right half (qx = 1), −1 in the left (horizontal differencing);
+//   Ψ_11 = Ψ_01 · Ψ_10 (diagonal).
+// A face of R × R pixels (R a power of two, pixel (x, y) at x + y·R, y growing with the
+// coordinate y) is the piecewise-constant function with those values.
+//
+// Coefficient layout (HaarFace::c, R² values): c[0] the scaling coefficient; the wavelets of
+// square (l, i, j) at 1 + 3·s + k, s = SquareIndex(l, i, j) = (4^l − 1)/3 + j·2^l + i, and
+// k = 0, 1, 2 for the types 01, 10, 11.
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+namespace ltb::triple {
+
+// Mother wavelet types, in coefficient order.
+enum class HaarType : uint8_t { k01 = 0, k10 = 1, k11 = 2 };
+
+// +1 or −1: the sign of the mother wavelet of `type` in quadrant (qx, qy).
+inline int SignOfQuadrant(int type, int qx, int qy) {
+  const int sy = qy != 0 ? 1 : -1, sx = qx != 0 ? 1 : -1;
+  return type == 0 ? sy : type == 1 ? sx : sx * sy;
+}
+
+inline uint64_t SquareIndex(int level, uint64_t i, uint64_t j) {
+  return ((uint64_t{1} << (2 * level)) - 1) / 3 + (j << level) + i;
+}
+
+// One basis function: the scaling function (level = −1), or wavelet `type` of square
+// (level, i, j).
+struct HaarBasis {
+  int level = -1;
+  uint64_t i = 0, j = 0;
+  int type = 0;
+};
+// The basis function of coefficient index `index` (< R²) of a face of side R.
+HaarBasis BasisOf(uint64_t index);
+// Its coefficient index.
+uint64_t IndexOf(const HaarBasis& b);
+
+// The tripling coefficient C_uvw = ∫ Ψ_u Ψ_v Ψ_w over the unit square, from the Haar
+// tripling coefficient theorem (§4.5.2): 1 for three scaling functions; 2^l for three
+// different types in one square of level l; ±2^l for two identical wavelets and a third
+// function — the scaling function (l = 0, +1) or a wavelet of a strictly coarser square
+// containing theirs (its level l, the sign of its type in the quadrant holding them); else 0.
+double TriplingCoefficient(const HaarBasis& u, const HaarBasis& v, const HaarBasis& w);
+
+// The Haar coefficients of a face (R × R values, R a power of two ≤ 2^15).
+struct HaarFace {
+  uint64_t res = 0;       // R
+  std::vector<double> c;  // R² coefficients (layout above)
+  static HaarFace Forward(std::span<const double> pixels, uint64_t res);
+  // The pixel values back (for tests and previews).
+  std::vector<double> Inverse() const;
+};
+
+// ∫ L·V·ρ over the unit square in the pixel basis: Σ_p L_p V_p ρ_p / R² (the reference).
+double PixelTripleProduct(std::span<const double> l, std::span<const double> v, std::span<const double> rho);
+
+// The exact integral from the three faces' coefficients, O(R²): case 1, case 2 per square
+// and case 3 per wavelet with parent sums filled by dynamic programming (§5.2).
+double LinearTripleProduct(const HaarFace& l, const HaarFace& v, const HaarFace& rho);
+
+// The indices of the `n` largest coefficients by magnitude (the scaling coefficient always
+// among them when n ≥ 1), ascending: a non-linear approximation.
+std::vector<uint32_t> LargestTerms(const HaarFace& f, uint64_t n);
+
+// The estimate of §5.3 from the non-linear approximations `l_terms` of L and `rho_terms`
+// of ρ (coefficient indices, any order; ρ's scaling coefficient is always used; V, and L
+// inside the case-2 terms and the parent sums, exact):
+// case 1, case 2 over the squares of ρ's terms, case 3 over ρ's wavelets (with V's and L's
+// parent sums) and over L's wavelets (with ρ's parent sum). Parent sums are computed lazily,
+// only for the squares asked for. With every index in both lists it equals
+// LinearTripleProduct up to rounding. This version allocates O(R²) scratch per call (the
+// arithmetic is proportional to the terms); a per-vertex renderer keeps it between calls.
+double SublinearTripleProduct(const HaarFace& l, const HaarFace& v, const HaarFace& rho,
+                              std::span<const uint32_t> l_terms, std::span<const uint32_t> rho_terms);
+
+}  // namespace ltb::triple
