@@ -219,6 +219,21 @@ with tempfile.TemporaryDirectory() as d:
         except (OSError, ValueError):
             return 0
 
+    def wait_stopped(pid, deadline):
+        """Until every thread of `pid` is stopped (SIGSTOP is delivered asynchronously: a
+        thread in the middle of a write finishes that write first), or the process is gone."""
+        while time.monotonic() < deadline:
+            try:
+                states = []
+                for t in os.listdir(f"/proc/{pid}/task"):
+                    with open(f"/proc/{pid}/task/{t}/stat") as f:
+                        states.append(f.read().rsplit(")", 1)[1].split()[0])
+            except OSError:
+                return
+            if states and all(st in ("T", "t", "Z", "X") for st in states):
+                return
+            time.sleep(0.0005)
+
     def race(label, make_args, out_arg, digest=content_hash, written=lambda o: o):
         """Writer A, stopped once it holds the lock of the file it writes (`written(OUT)`);
         writer B of the same file must be refused naming A's PID and touch nothing; A then
@@ -238,6 +253,7 @@ with tempfile.TemporaryDirectory() as d:
             while lock_pid(out) != a.pid and a.poll() is None and time.monotonic() < deadline:
                 time.sleep(0.0005)
             a.send_signal(signal.SIGSTOP)
+            wait_stopped(a.pid, time.monotonic() + 30)
             if a.poll() is not None or lock_pid(out) != a.pid:  # finished before it was caught: again
                 a.send_signal(signal.SIGCONT)
                 a.wait()
