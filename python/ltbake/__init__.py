@@ -151,9 +151,20 @@ class Array:
         else:
             lo_r, hi_r = min(rows[0], rows[-1]), max(rows[0], rows[-1]) + 1
             lo_c, hi_c = min(cols[0], cols[-1]), max(cols[0], cols[-1]) + 1
-            out = self._region(lo_r, hi_r, lo_c, hi_c)
-            if rs != 1 or cs != 1:
-                out = out[_np.asarray(rows) - lo_r][:, _np.asarray(cols) - lo_c]
+            span = (hi_r - lo_r) * (hi_c - lo_c) * self.dtype.itemsize
+            if (rs == 1 and cs == 1) or span <= max(size, self._c.max_bytes):
+                out = self._region(lo_r, hi_r, lo_c, hi_c)
+                if rs != 1 or cs != 1:
+                    out = out[_np.asarray(rows) - lo_r][:, _np.asarray(cols) - lo_c]
+            else:  # a sparse selection of a large span: line by line, never the whole span
+                out = _np.empty((len(rows), len(cols)), self.dtype)
+                csel, rsel = _np.asarray(cols) - lo_c, _np.asarray(rows) - lo_r
+                if rs != 1 or hi_r - lo_r > hi_c - lo_c:
+                    for n, r in enumerate(rows):
+                        out[n] = self._region(r, r + 1, lo_c, hi_c)[0][csel]
+                else:
+                    for n, c in enumerate(cols):
+                        out[:, n] = self._region(lo_r, hi_r, c, c + 1)[:, 0][rsel]
         if rint and cint:
             return out[0, 0]
         if rint:

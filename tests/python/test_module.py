@@ -233,6 +233,11 @@ def test_reads_beyond_max_bytes_need_force(bake):
         c[0:10, :]
     assert c.read((slice(0, 10), slice(None)), force=True).shape == (10, 384)
     assert c[0, 0:250].shape == (250,)
+    # A strided selection within the guard is read line by line, not through its whole span.
+    ref = ltbake.open(bake["P"]("raw.ltm")).read(force=True)
+    assert np.array_equal(c[::300, ::97], ref[::300, ::97])
+    assert np.array_equal(c[5:900:400, 3], ref[5:900:400, 3])
+    assert np.array_equal(c[7, ::-150], ref[7, ::-150])
 
 
 def test_errors_are_exceptions_with_the_commands_messages(bake, tmp_path):
