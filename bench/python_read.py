@@ -143,7 +143,7 @@ def main():
                         obj = opener()
                         if cache == "warm":
                             float(np.sum(fn(obj, idx), dtype=np.float64))
-                        t, _ = timed(lambda: float(np.sum(fn(obj, idx), dtype=np.float64)))
+                        t, _ = timed(lambda o=obj, x=idx: float(np.sum(fn(o, x), dtype=np.float64)))
                         ms.append(t)
                         del obj
                     results[(name, what, cache)] = statistics.median(ms)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import ltbake
-from conftest import LTBAKE, Q, REPO, cli, cli_inspect, cli_npy, ltbtest
+from conftest import Q, REPO, cli, cli_inspect, cli_npy, ltbtest
 
 
 def bits(a):
