@@ -79,7 +79,10 @@ class InspectCommand : public Command {
                 << "), stored " << HumanBytes(c["stored_bytes"]) << "\n";
       if (a.contains("content_hash")) {
         std::cout << "    content_hash: "
-                  << (a["content_hash"].is_null() ? "(incomplete)" : a["content_hash"].get<std::string>()) << "\n";
+                  << (a["content_hash"].is_null() ? "(incomplete)" : a["content_hash"].get<std::string>())
+                  << (a.contains("stats") ? "" : " (as its writer recorded it)") << "\n";
+      }
+      if (a.contains("stats")) {  // not with --no-content
         const json& s = a["stats"];
         auto num = [](const json& v) {
           if (v.is_null()) return std::string("-");

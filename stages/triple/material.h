@@ -17,6 +17,7 @@
 #include <glm/vec3.hpp>
 #include <string>
 
+#include "format/progress.h"
 #include "format/status.h"
 #include "stages/triple/haar_triple.h"
 
@@ -42,5 +43,35 @@ CubeFaces CubeFunctionFaces(const double* values, uint64_t res);
 
 // B = Σ over the six faces of LinearTripleProduct(L, V, ρ̃).
 double CubeTripleProduct(const CubeFaces& l, const CubeFaces& v, const CubeFaces& rho);
+
+}  // namespace ltb::triple
+
+namespace ltb::triple {
+
+// `ltbake material --brdf B -o mat.ltm --cube-res R` (docs/TRIPLE.md "The material field"):
+// ρ̃ tabulated for every sampled direction — the texel centres of a cube of faces S × S: the
+// normals n for Lambert, the reflection vectors ω_r for Phong — one row each, its 6R²
+// columns the Haar coefficients of the six faces (face f's at f·R² + the HaarFace layout),
+// non-linearly approximated: the largest coefficients holding `energy` of the row's Σc²
+// are kept, the rest are zero. Rows layout, sparse(+zstd) chunks; resumable like a stage.
+struct MaterialOptions {
+  std::string output;
+  Brdf brdf;
+  uint64_t cube_res = 32;    // R, the lighting's cubemap
+  uint64_t samples_res = 0;  // S; 0: 8 for Lambert, 32 for Phong
+  double energy = 0.99;      // kept fraction of each row's energy (0, 1]
+  int jobs = 2;
+  bool overwrite = false;
+};
+
+struct MaterialResult {
+  uint64_t rows = 0, cols = 0, samples_res = 0;
+  uint64_t terms_kept = 0;       // nonzero coefficients stored
+  double worst_energy_kept = 1;  // the smallest kept fraction over rows (≥ energy)
+  uint64_t chunks_written = 0, chunks_already_committed = 0;
+  uint64_t file_bytes = 0;
+};
+
+Result<MaterialResult> RunMaterial(const MaterialOptions& options, const Progress& progress);
 
 }  // namespace ltb::triple

@@ -52,6 +52,9 @@ with tempfile.TemporaryDirectory() as d:
     run("cpca", rows, "-o", P("cpca.ltm"), "--clusters", 2, "--basis", 2, *Q)
     for f in [raw, rows, cols, cols4d, budget, final, P("cpca.ltm"), P("fused.ltm")]:
         run("verify", f)
+        # Text mode without content: the recorded hash, no stats (it crashed on a missing key).
+        check(info(f)["content_hash"] in run("inspect", "--no-content", f).stdout,
+              f"inspect --no-content {f} does not show the recorded content_hash")
     ri = info(raw)
     check(ri["shape"] == [32 * 32, 6 * 8 * 8], f"raw.ltm shape {ri['shape']}, expected [1024, 384]")
     check(info(rows)["content_hash"] == info(P("fused.ltm"))["content_hash"],

@@ -7,10 +7,12 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <numbers>
 #include <random>
 #include <vector>
 
+#include "format/io/container_reader.h"
 #include "stages/common/cubemap.h"
 
 namespace ltb::triple {
@@ -84,6 +86,66 @@ TEST(TripleMaterial, CubeTripleProductEqualsTheTexelSum) {
   const double haar = CubeTripleProduct(CubeFunctionFaces(light.data(), res), CubeFunctionFaces(vis.data(), res),
                                         MaterialFaces(phong, rdir, res));
   EXPECT_NEAR(haar, direct, 1e-12 * direct);
+}
+
+// The material field file: one row per sampled direction (texel centres of the samples
+// cube), holding that direction's Haar coefficients with exactly the smallest ones zeroed
+// (the kept ones at least `energy` of Σc², dropping the smallest kept one would fall below),
+// stored sparse; a rerun with the same parameters finds it complete.
+TEST(TripleMaterial, MaterialFieldFileHoldsTheApproximatedRows) {
+  MaterialOptions o;
+  o.output = ::testing::TempDir() + "/ltb_material_test.ltm";
+  std::remove(o.output.c_str());
+  o.brdf = Brdf{Brdf::Kind::kPhong, 32, 1};
+  o.cube_res = 16;
+  o.samples_res = 2;
+  o.energy = 0.99;
+  auto r = RunMaterial(o, Progress{});
+  ASSERT_TRUE(r.ok()) << r.status().ToString();
+  EXPECT_EQ(r->rows, 24u);
+  EXPECT_EQ(r->cols, 6u * 16 * 16);
+  EXPECT_GE(r->worst_energy_kept, 0.99);
+  auto reader = io::ContainerReader::Open(o.output);
+  ASSERT_TRUE(reader.ok()) << reader.status().ToString();
+  ASSERT_TRUE(reader->complete());
+  EXPECT_EQ(reader->metadata().json["basis"]["cols"]["basis"], "haar-squares");
+  uint64_t nonzero = 0;
+  for (uint64_t k = 0; k < reader->metadata().matrix().ChunkCount(); ++k) {
+    auto chunk = reader->ReadChunk(0, k);
+    ASSERT_TRUE(chunk.ok()) << chunk.status().ToString();
+    EXPECT_NE(chunk->encoding(), format::Encoding::kRaw) << "chunk " << k << " is not stored sparse";
+    const auto values = chunk->as<float>();
+    for (uint64_t rr = 0; rr < chunk->extent().rows; ++rr) {
+      const uint64_t row = chunk->extent().row0 + rr;
+      const glm::dvec3 dir = cubemap::TexelCenter(cubemap::ColumnToTexel(row, 2), 2);
+      const CubeFaces faces = MaterialFaces(o.brdf, dir, 16);
+      double total = 0, kept = 0, smallest_kept = INFINITY, largest_dropped = 0;
+      for (int f = 0; f < 6; ++f) {
+        for (uint64_t i = 0; i < 256; ++i) {
+          const double c = faces[f].c[i];
+          const float stored = values[rr * r->cols + f * 256 + i];
+          total += c * c;
+          if (stored != 0) {
+            EXPECT_EQ(stored, static_cast<float>(c)) << "row " << row << " face " << f << " coefficient " << i;
+            kept += c * c;
+            smallest_kept = std::min(smallest_kept, c * c);
+            ++nonzero;
+          } else {
+            largest_dropped = std::max(largest_dropped, c * c);
+          }
+        }
+      }
+      EXPECT_GE(kept, 0.99 * total) << "row " << row;
+      EXPECT_LT(kept - smallest_kept, 0.99 * total) << "row " << row << ": more kept than needed";
+      EXPECT_LE(largest_dropped, smallest_kept) << "row " << row << ": a larger coefficient was dropped";
+    }
+  }
+  EXPECT_EQ(nonzero, r->terms_kept);
+  EXPECT_LT(nonzero, r->rows * r->cols / 4) << "phong:32 at 99% energy should keep a small fraction";
+  auto again = RunMaterial(o, Progress{});
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(again->chunks_written, 0u);
+  std::remove(o.output.c_str());
 }
 
 }  // namespace
