@@ -1,6 +1,4 @@
 // ltbake inspect FILE [--json] [--chunks] [--no-content]
-#include <algorithm>
-#include <cmath>
 #include <cstdio>
 #include <iostream>
 #include <nlohmann/json.hpp>
@@ -12,7 +10,6 @@
 namespace ltb::cli {
 namespace {
 
-using namespace ltb::format;
 using nlohmann::json;
 
 class InspectCommand : public Command {

@@ -1,17 +1,14 @@
 #include "stages/triple/haar_triple.h"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <numeric>
 
 namespace ltb::triple {
 namespace {
 
-int Log2(uint64_t r) {
-  int n = 0;
-  while ((uint64_t{1} << n) < r) ++n;
-  return n;
-}
+int Log2(uint64_t r) { return std::countr_zero(r); }  // R is a power of two
 
 // Σ_M X[s, M]·sign(M, q) over the three wavelets of square s, for child quadrant q.
 double SignedSum(const double* w, int qx, int qy) {

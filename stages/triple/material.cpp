@@ -7,6 +7,7 @@
 #include <numbers>
 #include <vector>
 
+#include "format/bits.h"
 #include "format/io/container_writer.h"
 #include "format/io/file.h"
 #include "format/version.h"
@@ -107,7 +108,10 @@ double MaterialRow(const Brdf& brdf, const glm::dvec3& dir, uint64_t res, double
   for (double v : c) total += v * v;
   double sum = 0;
   uint64_t m = 0;
-  while (m < n && (total == 0 ? false : sum < energy * total)) sum += c[order[m]] * c[order[m++]];
+  while (m < n && total > 0 && sum < energy * total) {
+    const double v = c[order[m++]];
+    sum += v * v;
+  }
   std::fill(out, out + n, 0.0f);
   for (uint64_t k = 0; k < m; ++k) out[order[k]] = static_cast<float>(c[order[k]]);
   *kept += m;
@@ -118,7 +122,7 @@ double MaterialRow(const Brdf& brdf, const glm::dvec3& dir, uint64_t res, double
 
 Result<MaterialResult> RunMaterial(const MaterialOptions& o, const Progress& progress) {
   const uint64_t res = o.cube_res;
-  if (res == 0 || (res & (res - 1)) != 0 || res > 512) {
+  if (!IsPowerOfTwo(res) || res > 512) {
     return InvalidArgument("--cube-res " + std::to_string(res) + " is not a power of two up to 512");
   }
   const uint64_t sres = o.samples_res != 0 ? o.samples_res : o.brdf.kind == Brdf::Kind::kLambert ? 8 : 32;
