@@ -201,7 +201,10 @@ class Reader {
     const bool rows = spec.layout == format::Layout::kRows;
     const uint64_t lo = rows ? r0 : c0, hi = rows ? r1 : c1;
     const uint64_t k0 = lo / spec.block, k1 = (hi - 1) / spec.block + 1;
+    // The error raised is the first failing chunk's, whichever thread met a failure first:
+    // chunks are claimed in order, so every chunk below a failing one is read to the end.
     Status failed;
+    uint64_t failed_chunk = k1;
     {
       py::gil_scoped_release nogil;
       std::atomic<uint64_t> next{k0};
@@ -211,7 +214,10 @@ class Reader {
           Status s = CopyFromChunk(array, spec, k, r0, r1, c0, c1, item, dst);
           if (!s.ok()) {
             std::lock_guard<std::mutex> lock(mu);
-            if (failed.ok()) failed = s;
+            if (k < failed_chunk) {
+              failed = s;
+              failed_chunk = k;
+            }
             next = k1;
           }
         }
