@@ -1,9 +1,16 @@
 // ltbake relight MATRIX --env ENV -o IMAGE [--terms N] [--weighting area|transport|none]
 //                      [--reference RAW.ltm] [--frames N] [--rotate DEG] [--json]
+// ltbake relight VIS.ltm --material MAT.ltm... --eye X,Y,Z --env ENV -o IMAGE [--method M]
+//                      (the triple-product path, docs/TRIPLE.md)
+#include <cmath>
+#include <cstdio>
+#include <glm/vec3.hpp>
 #include <iomanip>
 #include <iostream>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <tuple>
+#include <vector>
 
 #include "cli/commands.h"
 #include "cli/common.h"
@@ -11,6 +18,7 @@
 #include "stages/relight/envmap.h"
 #include "stages/relight/relight.h"
 #include "stages/relight/run_relight.h"
+#include "stages/triple/render.h"
 
 namespace ltb::cli {
 namespace {
@@ -52,10 +60,119 @@ class RelightCommand : public Command {
                   "keep negative radiance in the relit image (by default clamped to 0: compression ringing)");
     app->add_option("--exposure", exposure_, "PNG exposure (0: automatic)")->default_val(0.0);
     app->add_flag("--json", json_, "print timings and metrics as JSON");
+    // The triple-product path (MATRIX is a visibility field, sample --visibility).
+    app->add_option("--material", materials_,
+                    "triple-product path: a material field (ltbake material); one Lambert field and one Phong field "
+                    "per exponent the scene's materials use (repeat the flag)");
+    app->add_option("--eye", eye_, "triple-product path: the camera position X,Y,Z");
+    app->add_option("--target", target_, "triple-product path: the point looked at X,Y,Z")->default_val("0,0,0");
+    app->add_option("--up", up_, "triple-product path: the camera's up X,Y,Z")->default_val("0,0,1");
+    app->add_option("--fov", fov_, "triple-product path: vertical field of view in degrees")->default_val(40.0);
+    app->add_option("--size", size_, "triple-product path: image WIDTHxHEIGHT")->default_val("256x256");
+    app->add_option("--method", method_,
+                    "triple-product path: sublinear (kept terms only), linear (every coefficient) or pixel (the "
+                    "exact pixel-basis reference; --terms keeps the brightest texels)")
+        ->default_val("sublinear")
+        ->check(CLI::IsMember({"sublinear", "linear", "pixel"}));
+    app->add_option("--brdf-terms", brdf_terms_text_,
+                    "triple-product path: wavelet terms kept of each sampled BRDF row (largest first), N or all")
+        ->default_val("all")
+        ->check(TermsCheck());
+    app->add_option("--orbit", orbit_,
+                    "triple-product path: DEG:FRAMES, the eye turning DEG a frame about +Z through the target; -o is "
+                    "then a pattern with one %d");
+    app->add_option("--scene", scene_, "triple-product path: the scene, when not where the visibility field says");
+    app->add_option("--vertex-output", vertex_output_,
+                    "triple-product path: every vertex's radiance (rows x 3 .npy), from the first eye");
     AddCommonFlags(app, &flags_);
   }
 
+  bool Triple() const { return !materials_.empty() || !eye_.empty() || method_ != "sublinear"; }
+
+  // "X,Y,Z" -> vector; false when it is not three finite numbers.
+  static bool ParseVec3(const std::string& text, glm::dvec3* out) {
+    double v[3];
+    size_t pos = 0;
+    for (int k = 0; k < 3; ++k) {
+      const size_t end = k < 2 ? text.find(',', pos) : text.size();
+      if (end == std::string::npos) return false;
+      const std::string part = text.substr(pos, end - pos);
+      char* stop = nullptr;
+      v[k] = std::strtod(part.c_str(), &stop);
+      if (part.empty() || *stop != '\0' || !std::isfinite(v[k])) return false;
+      pos = end + 1;
+    }
+    *out = glm::dvec3(v[0], v[1], v[2]);
+    return true;
+  }
+
+  int RunTriple() {
+    triple::RenderOptions o;
+    o.visibility = matrix_;
+    o.materials = materials_;
+    o.scene = scene_;
+    o.env = env_;
+    o.env_layout = *stages::ParseEnvLayout(layout_);  // checked by IsMember
+    o.clamp_env = clamp_;
+    o.rotate_deg = rotate_deg_;
+    o.output = output_;
+    o.vertex_output = vertex_output_;
+    o.exposure = exposure_;
+    o.fov_degrees = fov_;
+    o.method = *triple::ParseTripleMethod(method_);  // checked by IsMember
+    o.light_terms = terms_text_ == "all" ? triple::RenderOptions::kAll : std::stoull(terms_text_);
+    o.brdf_terms = brdf_terms_text_ == "all" ? triple::RenderOptions::kAll : std::stoull(brdf_terms_text_);
+    if (eye_.empty()) return ReportUsage(InvalidArgument("the triple-product path (--material, --method) needs --eye X,Y,Z"));
+    for (auto [text, dst, name] : {std::tuple{&eye_, &o.eye, "--eye"}, std::tuple{&target_, &o.target, "--target"},
+                                   std::tuple{&up_, &o.up, "--up"}}) {
+      if (!ParseVec3(*text, dst)) return ReportUsage(InvalidArgument(std::string(name) + " " + *text + ": expected X,Y,Z"));
+    }
+    unsigned w = 0, h = 0;
+    char tail = 0;
+    if (std::sscanf(size_.c_str(), "%ux%u%c", &w, &h, &tail) != 2) {
+      return ReportUsage(InvalidArgument("--size " + size_ + ": expected WIDTHxHEIGHT, e.g. 512x384"));
+    }
+    o.width = w;
+    o.height = h;
+    if (!orbit_.empty()) {
+      double deg = 0;
+      unsigned n = 0;
+      if (std::sscanf(orbit_.c_str(), "%lf:%u%c", &deg, &n, &tail) != 2 || n == 0 || !std::isfinite(deg)) {
+        return ReportUsage(InvalidArgument("--orbit " + orbit_ + ": expected DEG:FRAMES, e.g. 10:36"));
+      }
+      o.orbit_deg = deg;
+      o.orbit_frames = n;
+    }
+    if (frames_ > 0 || !reference_.empty() || weighting_ != "area") {
+      return ReportUsage(InvalidArgument("--frames, --reference and --weighting belong to the matrix path, not the triple-product one"));
+    }
+    StageFlags sf;
+    if (int code = ResolveStageFlags(flags_, nullptr, &sf); code != kExitOk) return code;
+    o.mem_limit = sf.mem_limit;
+    o.jobs = sf.jobs;
+    ProgressBar bar(flags_, "relight");
+    auto r = triple::RunTripleRender(o, bar.hook());
+    if (!r.ok()) return ReportFailure(r.status());
+    bar.Done();
+    const nlohmann::json& report = r->report;
+    if (json_) {
+      std::cout << report.dump(2) << "\n";
+    } else if (!flags_.quiet) {
+      const nlohmann::json& f = report["frames"];
+      std::cout << "wrote " << output_;
+      if (!f.empty()) {
+        std::cout << " (" << f.size() << (f.size() == 1 ? " frame" : " frames") << "): " << method_ << ", "
+                  << report["light_terms_used"].get<uint64_t>() << " lighting terms; frame 0: "
+                  << f[0]["visible_vertices"].get<uint64_t>() << " visible vertices relit in " << std::setprecision(3)
+                  << f[0]["relight_ms"].get<double>() << " ms";
+      }
+      std::cout << "\n";
+    }
+    return kExitOk;
+  }
+
   int Run() override {
+    if (Triple()) return RunTriple();
     stages::RelightOptions o;
     o.matrix = matrix_;
     o.env = env_;
@@ -119,6 +236,10 @@ class RelightCommand : public Command {
  private:
   std::string matrix_, env_, output_, weighting_ = "area", reference_, layout_ = "auto";
   std::string terms_text_ = "100";
+  std::vector<std::string> materials_;
+  std::string eye_, target_ = "0,0,0", up_ = "0,0,1", size_ = "256x256", method_ = "sublinear",
+                    brdf_terms_text_ = "all", orbit_, scene_, vertex_output_;
+  double fov_ = 40;
   int frames_ = 0;
   double rotate_deg_ = 0, exposure_ = 0;
   bool clamp_ = false, json_ = false, keep_negative_ = false;

@@ -33,6 +33,9 @@ class SampleCommand : public Command {
                     "written (the output equals `ltbake row-transform` of the raw matrix; no raw file)")
         ->check(CLI::IsMember({"haar", "db1", "db2", "db3", "db4"}));
     app->add_flag("--row-zstd", options_.row_zstd, "with --row-transform: zstd-compress the matrix chunks");
+    app->add_flag("--visibility", options_.visibility,
+                  "vertex mode: bake the visibility field V(x, w) of the triple-product path (docs/TRIPLE.md), "
+                  "Haar per face, sparse, instead of T");
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     app->add_flag("!--no-direct-io", options_.direct_io,
                   "write the output through the page cache instead of with O_DIRECT");
@@ -65,6 +68,7 @@ class SampleCommand : public Command {
                 << 6ull * r->cube_res * r->cube_res << " texels (R = " << r->cube_res << ", spp " << r->spp
                 << ", bounces " << r->bounces << ")";
       if (!row_filter_.empty()) std::cout << ", row-transformed (" << row_filter_ << ")";
+      if (options_.visibility) std::cout << ", visibility field (Haar, sparse)";
       if (r->chunks_already_committed)
         std::cout << ", resumed (" << r->chunks_already_committed << " chunks were committed)";
       std::cout << "\n  rows that see geometry: " << r->valid_rows << " (the rest are all-zero rows, mask 0)"

@@ -67,6 +67,11 @@ Result<LightingBasis> LightingBasis::FromMetadata(const Metadata& meta, const st
   if (!cube->has_value()) {
     return FailedPrecondition(path + ": its columns are not declared a cubemap; relight needs the lights of a bake");
   }
+  if ((*cube)->basis != "pixel" && (*cube)->basis != "wavelet") {
+    return FailedPrecondition(path + ": its columns are in basis \"" + (*cube)->basis +
+                              "\" (a visibility or material field of the triple-product path); relight a visibility "
+                              "field with --material and --eye (docs/TRIPLE.md)");
+  }
   LightingBasis b;
   b.cube_res_ = (*cube)->cube_res;
   b.wavelet_ = (*cube)->basis == "wavelet";

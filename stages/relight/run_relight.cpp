@@ -10,6 +10,7 @@
 #include "format/io/container_reader.h"
 #include "stages/common/basis.h"
 #include "stages/cpca/cpca_model.h"
+#include "stages/relight/environment.h"
 #include "stages/relight/image_io.h"
 
 namespace ltb::stages {
@@ -17,42 +18,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 double Ms(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
-
-// The lighting: a resampled environment map (rotatable) or a ready cubemap from .npy.
-class Environment {
- public:
-  static Result<Environment> Open(const std::string& path, uint64_t cube_res, const EnvLoadOptions& o) {
-    Environment e;
-    e.cube_res_ = cube_res;
-    if (path.ends_with(".npy")) {
-      LTB_ASSIGN_OR_RETURN(std::vector<float> m, ReadCubemapNpy(path, cube_res));
-      e.fixed_ = std::move(m);
-      return e;
-    }
-    LTB_ASSIGN_OR_RETURN(EnvMap map, LoadEnvMap(path, o));
-    e.clamped_ = map.clamped;
-    LTB_ASSIGN_OR_RETURN(CubemapResampler r, CubemapResampler::Create(map, cube_res, o.progress));
-    e.resampler_ = std::make_unique<CubemapResampler>(std::move(r));
-    return e;
-  }
-  // 6R² × 3 radiance for a rotation about +Z (a .npy cubemap cannot rotate).
-  void Cubemap(double rotation, std::vector<float>* out) const {
-    out->resize(6 * cube_res_ * cube_res_ * 3);
-    if (resampler_) {
-      resampler_->Resample(rotation, out->data());
-    } else {
-      std::copy(fixed_.begin(), fixed_.end(), out->begin());
-    }
-  }
-  bool rotates() const { return resampler_ != nullptr; }
-  uint64_t clamped() const { return clamped_; }
-
- private:
-  uint64_t cube_res_ = 0;
-  std::vector<float> fixed_;
-  std::unique_ptr<CubemapResampler> resampler_;
-  uint64_t clamped_ = 0;
-};
 
 // The matrix as relight uses it: held in memory (Relighter), clustered PCA (CpcaRelighter,
 // per cluster) or, for a row-block matrix (rows.ltm, raw.ltm), streamed (RelightStreaming).

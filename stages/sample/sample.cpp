@@ -22,6 +22,7 @@
 #include "stages/sample/sampler.h"
 #include "stages/sample/scene.h"
 #include "stages/sample/scene_geometry.h"
+#include "stages/triple/haar_triple.h"
 
 namespace ltb::stages {
 
@@ -57,6 +58,19 @@ Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress
                            " is not a power of two in 1..1024 (--cube-res)");
   }
   if (p->spp == 0) return InvalidArgument("--spp must be at least 1");
+  if (o.visibility) {
+    if (p->scene.mode != SceneDesc::Mode::kVertex) {
+      return InvalidArgument(o.scene +
+                             ": --visibility bakes a field per vertex; the scene has a camera (image mode). Give it "
+                             "an [output] table with mode = \"vertices\" (docs/SCENE.md)");
+    }
+    if (o.bounces.value_or(0) > 0) {
+      return InvalidArgument("--visibility traces direct visibility only; --bounces " +
+                             std::to_string(*o.bounces) + " does not apply (leave it out)");
+    }
+    if (o.row_filter) return InvalidArgument("--visibility cannot be fused with a row-transform");
+    p->bounces = 0;  // the scene's [sampling] bounces do not apply to visibility
+  }
   LTB_ASSIGN_OR_RETURN(p->geo, BuildGeometry(p->scene, progress));
   p->rows = p->scene.mode == SceneDesc::Mode::kImage ? uint64_t{p->scene.camera.width} * p->scene.camera.height
                                                      : p->geo.vertex_rows.size();
@@ -156,19 +170,29 @@ nlohmann::json SampleMetadata(const SampleOptions& o, const Prepared& p, uint64_
                            {"scene_hash", p.geo.scene_hash}};
   nlohmann::json cols_basis = PixelCubemapCols(r);
   std::string stage = "sample";
+  nlohmann::json extra = nlohmann::json::object();
+  if (o.visibility) {
+    cols_basis = {{"kind", "cubemap"}, {"cube_res", r}, {"basis", "haar-squares"}, {"quantity", "visibility"}};
+    params["visibility"] = true;
+    // Where the renderer finds the geometry for its primary rays (relight --material).
+    extra["visibility"] = {{"scene", std::filesystem::absolute(o.scene).lexically_normal().string()},
+                           {"scene_hash", p.geo.scene_hash}};
+  }
   if (o.row_filter) {
     cols_basis = WaveletCubemapCols(r, wavelet::FilterName(*o.row_filter));
     stage = "sample+row-transform";
     params["row_filter"] = wavelet::FilterName(*o.row_filter);
     params["row_zstd"] = o.row_zstd;
   }
-  return {
+  nlohmann::json meta = {
       {"arrays",
        {spec("matrix", DType::kF32, cols), spec("mask", DType::kU8, 1), spec("position", DType::kF32, 3),
         spec("normal", DType::kF32, 3)}},
       {"basis", {{"rows", rows_basis}, {"cols", cols_basis}}},
       {"provenance", Provenance(stage, params, {})},
   };
+  meta.update(extra);
+  return meta;
 }
 
 // Row blocks with any array missing (a shard: among the blocks it owns; the four arrays
@@ -290,6 +314,11 @@ struct BlockSampler {
       TransformRowBlock(*o.row_filter, p.r, mat, n, scratch.data(), &zero_rows);
       matrix_encoding.zstd = o.row_zstd;
     }
+    if (o.visibility) {  // each row's V, Haar-transformed per face; stored sparse
+      triple::HaarRowsInPlace(mat, n, p.r);
+      matrix_encoding.sparse = true;
+      matrix_encoding.zstd = true;
+    }
     auto bytes = [](const auto* v, uint64_t count) {
       return ByteSpan(reinterpret_cast<const std::byte*>(v), count * sizeof(v[0]));
     };
@@ -331,6 +360,7 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
 
   const std::vector<uint64_t> todo = MissingBlocks(out);
   Sampler sampler(prep->scene, geo, r, prep->spp, prep->bounces, prep->seed);
+  sampler.SetVisibility(o.visibility);
   // The tracing threads hand their chunks to one writer thread through a bounded queue (a
   // quarter of --mem-limit, at most kMaxWriteQueueBytes); the pool outlives the writer,
   // which returns the buffers to it.

@@ -35,6 +35,11 @@ struct SampleOptions {
   // is the row-transform's output: same content_hash, same basis metadata.
   std::optional<wavelet::Filter> row_filter;
   bool row_zstd = false;  // zstd for the transformed matrix chunks (row-transform --zstd)
+  // The visibility field of the triple-product path (docs/TRIPLE.md) instead of T: vertex
+  // mode only, no bounces, no fused row-transform; each row is V(x, ω) per texel (the
+  // fraction of the texel's solid angle above the horizon and unoccluded), Haar-transformed
+  // per face in the layout of stages/triple/haar_triple.h and stored sparse + zstd.
+  bool visibility = false;
   // Write shard `index` of `count` (io::ShardPath(output, ...)) instead of the whole output.
   io::ShardSpec shard;
 };

@@ -259,9 +259,11 @@ void Sampler::GenerateRaysT(uint64_t row, const RowPoint& rp, const Brdf& brdf, 
     const TexelInfo& t = texels_[f0];
     const double na = glm::dot(rp.n, t.a), nb = glm::dot(rp.n, t.b), nc = glm::dot(rp.n, t.c);
     if (glossy) {
-      DirectionsT<kSpp, true>(n0, n, na, nb, nc, t, brdf, sc);
+      DirectionsT<kSpp, kGlossy>(n0, n, na, nb, nc, t, brdf, sc);
+    } else if (visibility_) {
+      DirectionsT<kSpp, kSolidAngle>(n0, n, na, nb, nc, t, brdf, sc);
     } else {
-      DirectionsT<kSpp, false>(n0, n, na, nb, nc, t, brdf, sc);
+      DirectionsT<kSpp, kDiffuse>(n0, n, na, nb, nc, t, brdf, sc);
     }
     f0 = f1;
   }
@@ -290,7 +292,7 @@ void Sampler::GenerateRaysT(uint64_t row, const RowPoint& rp, const Brdf& brdf, 
 // ray: its slot is inactive, tfar = -inf < tnear, and its value is never read), weight; for a glossy
 // BRDF the value waits for the lobe (wc and x = max(0, r·d) are kept).
 // SplitMix64 is counter-based: draw k of the (row, texel) stream is Mix(s0 + (k+2)·G).
-template <uint32_t kSpp, bool kGlossy>
+template <uint32_t kSpp, int kKind>
 void Sampler::DirectionsT(size_t n0, size_t n1, double na, double nb, double nc, const TexelInfo& t, const Brdf& brdf,
                           RowScratch& sc) const {
   const uint64_t spp = kSpp ? kSpp : spp_;
@@ -331,9 +333,11 @@ void Sampler::DirectionsT(size_t n0, size_t n1, double na, double nb, double nc,
     ry[k] = static_cast<float>(dy);
     rz[k] = static_cast<float>(dz);
     tf[k] = cosn > 0 ? kInf : -kInf;
-    if constexpr (kGlossy) {
+    if constexpr (kKind == kGlossy) {
       wc[k] = w;
       pw[k] = std::max(0.0, rfx * dx + rfy * dy + rfz * dz);
+    } else if constexpr (kKind == kSolidAngle) {
+      val[k] = inv * inv * inv;  // every slot, inactive ones too: the texel's total weight
     } else {
       // Unconditional (the value of an inactive slot is never read), so it if-converts.
       val[k] = w * diffuse;
@@ -364,17 +368,47 @@ void Sampler::AccumulateT(const RowScratch& sc, std::vector<double>& acc) const 
   }
 }
 
+void Sampler::AccumulateVisibility(const RowScratch& sc, std::vector<double>& acc, std::vector<double>& total) const {
+  const float* tf = sc.batch.tfar.data();
+  const double* val = sc.ray_value.data();
+  const size_t texels = sc.n / spp_;
+  for (size_t m = 0; m < texels; ++m) {
+    double seen = 0, all = 0;
+    for (uint64_t i = 0; i < spp_; ++i) {
+      const double w = val[m * spp_ + i];
+      all += w;
+      if (tf[m * spp_ + i] >= 0) seen += w;  // traced and not occluded
+    }
+    acc[sc.texel[m]] = seen;
+    total[sc.texel[m]] = all;
+  }
+}
+
 void Sampler::Transport(uint64_t row, const RowPoint& rp, float* out, RowScratch& sc, Counters& cnt) const {
   uint64_t below = 0, samples_below = 0, rays = 0;
   const Brdf brdf = MakeBrdf(rp);
   const uint64_t cols = texels_.size(), step = TexelsPerBatch();
   std::vector<double>& acc = sc.sum_value;
   acc.assign(cols, 0.0);
+  if (visibility_) sc.sum_weight.assign(cols, 0.0);
   for (uint64_t c0 = 0; c0 < cols; c0 += step) {
     GenerateRays(row, rp, brdf, c0, std::min(cols, c0 + step), sc, &below, &samples_below);
     g_.rays->Occluded(sc.batch, sc.n);
-    Accumulate(sc, acc);
+    if (visibility_) {
+      AccumulateVisibility(sc, acc, sc.sum_weight);
+    } else {
+      Accumulate(sc, acc);
+    }
     rays += sc.active;
+  }
+  if (visibility_) {  // texels wholly below the horizon were never generated: V = 0
+    for (uint64_t c = 0; c < cols; ++c) {
+      out[c] = sc.sum_weight[c] > 0 ? static_cast<float>(std::min(1.0, acc[c] / sc.sum_weight[c])) : 0.0f;
+    }
+    cnt.rays += rays;
+    cnt.below += below;
+    cnt.samples_below += samples_below;
+    return;
   }
   // Stratified estimate of ∫_texel f cos V dω = ∫∫ f cos V w du dv: each of the spp
   // strata has area h²/spp in face coordinates (unbiased; docs/SAMPLE.md).

@@ -47,7 +47,7 @@ struct RowScratch {
   std::vector<double> ray_value;
   size_t n = 0;       // slots in use
   size_t active = 0;  // rays traced (slots above the horizon)
-  std::vector<double> sum_value;
+  std::vector<double> sum_value, sum_weight;
 };
 
 struct Counters {
@@ -57,6 +57,12 @@ struct Counters {
 class Sampler {
  public:
   Sampler(const SceneDesc& s, const Geometry& g, uint32_t r, uint32_t spp, uint32_t bounces, uint64_t seed);
+
+  // Visibility mode (`sample --visibility`, docs/TRIPLE.md): Transport gives each texel the
+  // fraction of its solid angle that is above the horizon and unoccluded, V ∈ [0, 1]: the
+  // ratio Σ_visible w / Σ_all w over its stratified samples (w = dω/du dv), so a texel wholly
+  // visible is exactly 1 and one wholly below the horizon exactly 0. No bounces.
+  void SetVisibility(bool on) { visibility_ = on; }
 
   RowPoint Primary(uint64_t row) const;
 
@@ -86,11 +92,17 @@ class Sampler {
   template <uint32_t kSpp>
   void GenerateRaysT(uint64_t row, const RowPoint& rp, const Brdf& brdf, uint64_t c0, uint64_t c1, RowScratch& sc,
                      uint64_t* below, uint64_t* samples_below) const;
-  template <uint32_t kSpp, bool kGlossy>
+  // kKind: what a ray's value is — kDiffuse w·cos·albedo/π, kGlossy w·cos (the lobe follows),
+  // kSolidAngle w alone (visibility).
+  enum Kind : int { kDiffuse = 0, kGlossy = 1, kSolidAngle = 2 };
+  template <uint32_t kSpp, int kKind>
   void DirectionsT(size_t n0, size_t n1, double na, double nb, double nc, const TexelInfo& t, const Brdf& brdf,
                    RowScratch& sc) const;
   template <uint32_t kSpp>
   void AccumulateT(const RowScratch& sc, std::vector<double>& acc) const;
+  // Visibility mode: per texel of the batch, Σ w of its unoccluded samples into acc and Σ w
+  // of all its samples (below the horizon included) into total.
+  void AccumulateVisibility(const RowScratch& sc, std::vector<double>& acc, std::vector<double>& total) const;
   uint64_t Indirect(uint64_t row, const RowPoint& rp, const Brdf& brdf, const glm::dvec3& origin,
                     std::vector<double>& acc) const;
 
@@ -98,6 +110,7 @@ class Sampler {
   const Geometry& g_;
   uint32_t r_, spp_, bounces_;
   uint64_t seed_;
+  bool visibility_ = false;
   std::vector<TexelInfo> texels_;
   uint32_t kx_ = 1, ky_ = 1;
   // The texel table's fields the ray generator reads, as arrays it can vectorise over.

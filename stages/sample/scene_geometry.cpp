@@ -44,11 +44,14 @@ bool IsRowObject(const SceneDesc& s, const Object& o) {
 // The object's normals after its transform: its vertex rows (vertex mode: the file's
 // normals for normals = "file", else the area-weighted ones) and its shading normals at
 // hits (primary hits in image mode, bounce hits in both modes) for "smooth" or "file"; an
-// empty entry otherwise (the geometric normal).
+// empty entry otherwise (the geometric normal); and its Geometry::RowMesh.
 void AddNormals(const SceneDesc& s, const Object& o, TriangleMesh& mesh, Geometry* g) {
   const bool file = o.normals == Object::Normals::kFile;
   const std::vector<glm::dvec3>& n = file ? mesh.file_normals : mesh.normals;
+  Geometry::RowMesh rm;
+  rm.first_row = g->vertex_rows.size();
   if (IsRowObject(s, o)) {
+    rm.triangles = mesh.triangles;
     for (size_t i = 0; i < mesh.positions.size(); ++i) {
       g->vertex_rows.push_back({true, mesh.positions[i], n[i], n[i], o.material});
     }
@@ -59,6 +62,7 @@ void AddNormals(const SceneDesc& s, const Object& o, TriangleMesh& mesh, Geometr
     sh.normals = n;
   }
   g->shading.push_back(std::move(sh));
+  g->row_meshes.push_back(std::move(rm));
 }
 
 }  // namespace
@@ -101,6 +105,7 @@ Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
       lo = glm::min(lo, c - r);
       hi = glm::max(hi, c + r);
       g.shading.emplace_back();  // a sphere's normal is its exact geometric one
+      g.row_meshes.emplace_back();
     } else {
       sample::TriangleMesh mesh;
       if (o.type == Object::Type::kMesh) {

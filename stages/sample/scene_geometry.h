@@ -36,6 +36,14 @@ struct Geometry {
   // Embree geometry id -> shading normals; an empty entry (or none): the geometric normal.
   std::vector<ShadingNormals> shading;
   std::vector<RowPoint> vertex_rows;
+  // Vertex mode, per Embree geometry id: the first vertex row of the object and its
+  // triangles (primitive id -> vertex ids within the object), for renderers that shade by
+  // vertex; empty triangles for an object whose vertices are not rows.
+  struct RowMesh {
+    uint64_t first_row = 0;
+    std::vector<glm::uvec3> triangles;
+  };
+  std::vector<RowMesh> row_meshes;
   double epsilon = 1e-4;
   uint64_t degenerate = 0;
   std::string scene_hash;

@@ -115,6 +115,19 @@ std::vector<double> HaarFace::Inverse() const {
   return mean;
 }
 
+void HaarRowsInPlace(float* rows, uint64_t count, uint64_t res) {
+  const uint64_t face = res * res;
+  std::vector<double> pixels(face);
+  for (uint64_t r = 0; r < count; ++r) {
+    for (uint64_t f = 0; f < 6; ++f) {
+      float* x = rows + (r * 6 + f) * face;
+      std::copy(x, x + face, pixels.begin());
+      const HaarFace h = HaarFace::Forward(pixels, res);
+      for (uint64_t k = 0; k < face; ++k) x[k] = static_cast<float>(h.c[k]);
+    }
+  }
+}
+
 double PixelTripleProduct(std::span<const double> l, std::span<const double> v, std::span<const double> rho) {
   double sum = 0;
   for (size_t p = 0; p < l.size(); ++p) sum += l[p] * v[p] * rho[p];
@@ -122,25 +135,6 @@ double PixelTripleProduct(std::span<const double> l, std::span<const double> v, 
 }
 
 namespace {
-
-// Parent sums of every square by dynamic programming: P[root] = X_scale, and a square's is
-// its parent's plus 2^(parent level) × the parent's wavelets signed for its quadrant.
-void ParentSums(const HaarFace& x, int n, std::vector<double>* p) {
-  p->assign(((uint64_t{1} << (2 * n)) - 1) / 3, 0.0);
-  if (p->empty()) return;
-  (*p)[0] = x.c[0];
-  for (int l = 1; l < n; ++l) {
-    const uint64_t side = uint64_t{1} << l;
-    const double scale = std::ldexp(1.0, l - 1);
-    for (uint64_t j = 0; j < side; ++j) {
-      for (uint64_t i = 0; i < side; ++i) {
-        const uint64_t parent = SquareIndex(l - 1, i / 2, j / 2);
-        (*p)[SquareIndex(l, i, j)] =
-            (*p)[parent] + scale * SignedSum(&x.c[1 + 3 * parent], static_cast<int>(i & 1), static_cast<int>(j & 1));
-      }
-    }
-  }
-}
 
 // Case 2 of one square: three different types, C = 2^l.
 double Case2(const double* r, const double* a, const double* b, double scale) {
@@ -150,25 +144,47 @@ double Case2(const double* r, const double* a, const double* b, double scale) {
 
 }  // namespace
 
-double LinearTripleProduct(const HaarFace& l, const HaarFace& v, const HaarFace& rho) {
-  const int n = Log2(l.res);
-  std::vector<double> pl, pv, pr;
-  ParentSums(l, n, &pl);
-  ParentSums(v, n, &pv);
-  ParentSums(rho, n, &pr);
-  double integral = l.c[0] * v.c[0] * rho.c[0];
+void ParentSums(const double* coef, int n, std::vector<double>* p) {
+  p->assign(((uint64_t{1} << (2 * n)) - 1) / 3, 0.0);
+  if (p->empty()) return;
+  (*p)[0] = coef[0];
+  for (int l = 1; l < n; ++l) {
+    const uint64_t side = uint64_t{1} << l;
+    const double scale = std::ldexp(1.0, l - 1);
+    for (uint64_t j = 0; j < side; ++j) {
+      for (uint64_t i = 0; i < side; ++i) {
+        const uint64_t parent = SquareIndex(l - 1, i / 2, j / 2);
+        (*p)[SquareIndex(l, i, j)] =
+            (*p)[parent] + scale * SignedSum(&coef[1 + 3 * parent], static_cast<int>(i & 1), static_cast<int>(j & 1));
+      }
+    }
+  }
+}
+
+double LinearTripleProductDense(const double* l, const double* pl, const double* v, const double* pv,
+                                const double* rho, const double* pr, int n) {
+  double integral = l[0] * v[0] * rho[0];
   for (int lv = 0; lv < n; ++lv) {
     const uint64_t first = SquareIndex(lv, 0, 0), count = uint64_t{1} << (2 * lv);
     const double scale = std::ldexp(1.0, lv);
     for (uint64_t s = first; s < first + count; ++s) {
-      const double* a = &l.c[1 + 3 * s];
-      const double* b = &v.c[1 + 3 * s];
-      const double* r = &rho.c[1 + 3 * s];
+      const double* a = &l[1 + 3 * s];
+      const double* b = &v[1 + 3 * s];
+      const double* r = &rho[1 + 3 * s];
       integral += Case2(r, a, b, scale);
       for (int t = 0; t < 3; ++t) integral += r[t] * a[t] * pv[s] + a[t] * b[t] * pr[s] + b[t] * r[t] * pl[s];
     }
   }
   return integral;
+}
+
+double LinearTripleProduct(const HaarFace& l, const HaarFace& v, const HaarFace& rho) {
+  const int n = Log2(l.res);
+  std::vector<double> pl, pv, pr;
+  ParentSums(l.c.data(), n, &pl);
+  ParentSums(v.c.data(), n, &pv);
+  ParentSums(rho.c.data(), n, &pr);
+  return LinearTripleProductDense(l.c.data(), pl.data(), v.c.data(), pv.data(), rho.c.data(), pr.data(), n);
 }
 
 std::vector<uint32_t> LargestTerms(const HaarFace& f, uint64_t n) {

@@ -67,8 +67,38 @@ struct HaarFace {
   std::vector<double> Inverse() const;
 };
 
+// Rows of 6R² values (a cube's six R × R faces, ltbake's column order, docs/CUBEMAP.md)
+// replaced by their per-face Haar coefficients, each face in HaarFace's layout.
+void HaarRowsInPlace(float* rows, uint64_t count, uint64_t res);
+
 // ∫ L·V·ρ over the unit square in the pixel basis: Σ_p L_p V_p ρ_p / R² (the reference).
 double PixelTripleProduct(std::span<const double> l, std::span<const double> v, std::span<const double> rho);
+
+// Parent sums of every square of a face (R = 2^levels), by dynamic programming: P[root] =
+// the scaling coefficient, a square's = its parent's + 2^(parent level) × the parent's
+// wavelets signed for its quadrant. (4^levels − 1)/3 values, SquareIndex order.
+void ParentSums(const double* coef, int levels, std::vector<double>* out);
+
+// The parent sum of square (level, i, j) from the coefficients alone, walking its ancestors
+// (O(level)); at level = log2 R it is the value of pixel (i, j). `coef` is any indexable
+// (double or float array).
+template <typename T>
+double ParentSumAt(const T* coef, int level, uint64_t i, uint64_t j) {
+  double p = coef[0];
+  for (int a = 0; a < level; ++a) {
+    const int shift = level - a;
+    const T* w = coef + 1 + 3 * SquareIndex(a, i >> shift, j >> shift);
+    const int qx = static_cast<int>((i >> (shift - 1)) & 1), qy = static_cast<int>((j >> (shift - 1)) & 1);
+    const double sy = qy ? 1.0 : -1.0, sx = qx ? 1.0 : -1.0;
+    p += static_cast<double>(uint64_t{1} << a) * (sy * w[0] + sx * w[1] + sx * sy * w[2]);
+  }
+  return p;
+}
+
+// LinearTripleProduct's sum from dense coefficient arrays (R² each, HaarFace layout) and
+// their parent sums (ParentSums), for callers that reuse parent sums across products.
+double LinearTripleProductDense(const double* l, const double* pl, const double* v, const double* pv,
+                                const double* rho, const double* pr, int levels);
 
 // The exact integral from the three faces' coefficients, O(R²): case 1, case 2 per square
 // and case 3 per wavelet with parent sums filled by dynamic programming (§5.2).

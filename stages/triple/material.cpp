@@ -49,6 +49,14 @@ Result<Brdf> ParseBrdf(const std::string& text) {
   return InvalidArgument("--brdf " + text + ": expected lambert[:ALBEDO] or phong:EXPONENT[:KS]");
 }
 
+double BrdfValue(const Brdf& brdf, const glm::dvec3& dir, const glm::dvec3& w) {
+  const double c = glm::dot(dir, w);
+  if (c <= 0) return 0;
+  return brdf.kind == Brdf::Kind::kLambert
+             ? brdf.albedo / std::numbers::pi * c
+             : brdf.albedo * (brdf.exponent + 1) / (2 * std::numbers::pi) * std::pow(c, brdf.exponent);
+}
+
 CubeFaces MaterialFaces(const Brdf& brdf, const glm::dvec3& dir, uint64_t res) {
   CubeFaces faces;
   const uint32_t r = static_cast<uint32_t>(res);
@@ -58,14 +66,7 @@ CubeFaces MaterialFaces(const Brdf& brdf, const glm::dvec3& dir, uint64_t res) {
     for (uint32_t t = 0; t < r; ++t) {
       for (uint32_t s = 0; s < r; ++s) {
         const cubemap::Texel x{f, s, t};
-        const double c = glm::dot(dir, cubemap::TexelCenter(x, r));
-        double value = 0;
-        if (c > 0) {
-          value = brdf.kind == Brdf::Kind::kLambert
-                      ? brdf.albedo / std::numbers::pi * c
-                      : brdf.albedo * (brdf.exponent + 1) / (2 * std::numbers::pi) * std::pow(c, brdf.exponent);
-        }
-        pixels[t * res + s] = value * cubemap::TexelSolidAngle(x, r) * area;
+        pixels[t * res + s] = BrdfValue(brdf, dir, cubemap::TexelCenter(x, r)) * cubemap::TexelSolidAngle(x, r) * area;
       }
     }
     faces[f] = HaarFace::Forward(pixels, res);

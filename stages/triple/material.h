@@ -33,6 +33,9 @@ Result<Brdf> ParseBrdf(const std::string& text);
 
 using CubeFaces = std::array<HaarFace, 6>;
 
+// ρ̃ for `dir` (the normal or the reflection vector, unit) at the incident direction w (unit).
+double BrdfValue(const Brdf& brdf, const glm::dvec3& dir, const glm::dvec3& w);
+
 // ρ̃ for `dir` (the normal for Lambert, the reflection vector for Phong; unit length) on
 // faces of R × R texels (R a power of two), solid-angle weighted as above, Haar-transformed.
 CubeFaces MaterialFaces(const Brdf& brdf, const glm::dvec3& dir, uint64_t res);

@@ -1,0 +1,758 @@
+#include "stages/triple/render.h"
+
+#include <algorithm>
+#include <atomic>
+#include <bit>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <glm/geometric.hpp>
+#include <glm/trigonometric.hpp>
+#include <memory>
+#include <mutex>
+#include <numbers>
+#include <numeric>
+
+#include "format/bits.h"
+#include "format/io/container_reader.h"
+#include "stages/common/cubemap.h"
+#include "stages/common/parallel_for.h"
+#include "stages/relight/environment.h"
+#include "stages/relight/image_io.h"
+#include "stages/sample/ray_scene.h"
+#include "stages/sample/scene.h"
+#include "stages/sample/scene_geometry.h"
+#include "stages/triple/haar_triple.h"
+#include "stages/triple/material.h"
+
+namespace ltb::triple {
+
+Result<TripleMethod> ParseTripleMethod(const std::string& name) {
+  if (name == "linear") return TripleMethod::kLinear;
+  if (name == "sublinear") return TripleMethod::kSublinear;
+  if (name == "pixel") return TripleMethod::kPixel;
+  return InvalidArgument("--method " + name + ": expected linear, sublinear or pixel");
+}
+
+const char* TripleMethodName(TripleMethod m) {
+  return m == TripleMethod::kLinear ? "linear" : m == TripleMethod::kSublinear ? "sublinear" : "pixel";
+}
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double Ms(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
+
+// Rows of sparse Haar coefficients in memory: row r's entries are [offset[r], offset[r+1]).
+struct SparseRows {
+  uint64_t rows = 0, cols = 0;
+  std::vector<uint64_t> offset{0};
+  std::vector<uint32_t> col;
+  std::vector<float> val;
+};
+
+// Reads a rows-layout f32 matrix as sparse rows, chunk by chunk (ContainerReader::ReadSparse:
+// sparse chunks are never densified).
+Status ReadSparseRows(const io::ContainerReader& in, SparseRows* out) {
+  const format::ArraySpec& a = in.metadata().matrix();
+  if (a.dtype != format::DType::kF32 || a.layout != format::Layout::kRows) {
+    return InvalidArgument(in.path() + ": the matrix must be f32 in row blocks");
+  }
+  out->rows = a.rows;
+  out->cols = a.cols;
+  out->offset.assign(1, 0);
+  out->offset.reserve(a.rows + 1);
+  for (uint64_t k = 0; k < a.ChunkCount(); ++k) {
+    LTB_ASSIGN_OR_RETURN(format::SparseChunk c, in.ReadSparse(0, k));
+    const auto values = c.as<float>();
+    uint64_t e = 0;
+    for (uint64_t r = 0; r < c.extent.rows; ++r) {
+      const uint64_t end = (r + 1) * a.cols;
+      for (; e < c.index.size() && c.index[e] < end; ++e) {
+        if (values[e] == 0) continue;  // a stored -0 or 0
+        out->col.push_back(static_cast<uint32_t>(c.index[e] - r * a.cols));
+        out->val.push_back(values[e]);
+      }
+      out->offset.push_back(out->col.size());
+    }
+  }
+  return Status::Ok();
+}
+
+// A material field (ltbake material): its BRDF, the sampled directions' cube S, and per row
+// the face scaling coefficients first, then the wavelets by decreasing magnitude, so that the
+// N-term approximation of a row is a prefix of it.
+struct MaterialField {
+  std::string path;
+  Brdf brdf;
+  uint32_t sres = 0;
+  SparseRows rows;
+  std::vector<uint32_t> scaling;  // per row: how many of its leading entries are scaling coefficients
+};
+
+Result<MaterialField> LoadMaterialField(const std::string& path, uint64_t res) {
+  LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(path));
+  if (!in.complete()) return FailedPrecondition(path + ": not complete; rerun `ltbake material` to finish it");
+  const nlohmann::json& j = in.metadata().json;
+  if (!j.contains("material") || !j["material"].is_object() || !j["material"].contains("brdf")) {
+    return InvalidArgument(path + ": is not a material field (made by `ltbake material`)");
+  }
+  MaterialField m;
+  m.path = path;
+  try {
+    const auto& b = j["material"]["brdf"];
+    const std::string kind = b.at("kind").get<std::string>();
+    m.brdf.albedo = b.at("albedo").get<double>();
+    if (kind == "phong") {
+      m.brdf.kind = Brdf::Kind::kPhong;
+      m.brdf.exponent = b.at("exponent").get<double>();
+    } else if (kind != "lambert") {
+      return InvalidArgument(path + ": material BRDF \"" + kind + "\" is not one this renderer knows");
+    }
+    m.sres = j["material"].at("samples_res").get<uint32_t>();
+    const uint64_t field_res = j.at("basis").at("cols").at("cube_res").get<uint64_t>();
+    if (field_res != res) {
+      return InvalidArgument(path + ": the material field is at cube resolution " + std::to_string(field_res) +
+                             " but the visibility field at " + std::to_string(res) +
+                             "; make it again with --cube-res " + std::to_string(res));
+    }
+  } catch (const nlohmann::json::exception& e) {
+    return InvalidArgument(path + ": malformed material metadata: " + e.what());
+  }
+  if (!(m.brdf.albedo > 0)) return InvalidArgument(path + ": the material field's albedo/ks is not positive");
+  LTB_RETURN_IF_ERROR(ReadSparseRows(in, &m.rows));
+  if (m.rows.rows != 6ull * m.sres * m.sres) {
+    return InvalidArgument(path + ": " + std::to_string(m.rows.rows) + " rows, not 6·S² for S = " +
+                           std::to_string(m.sres));
+  }
+  const uint64_t face = res * res;
+  m.scaling.resize(m.rows.rows);
+  for (uint64_t r = 0; r < m.rows.rows; ++r) {
+    const uint64_t b = m.rows.offset[r], e = m.rows.offset[r + 1];
+    std::vector<uint64_t> order(e - b);
+    std::iota(order.begin(), order.end(), b);
+    std::sort(order.begin(), order.end(), [&](uint64_t x, uint64_t y) {
+      const bool sx = m.rows.col[x] % face == 0, sy = m.rows.col[y] % face == 0;
+      if (sx != sy) return sx;
+      const float ax = std::fabs(m.rows.val[x]), ay = std::fabs(m.rows.val[y]);
+      return ax != ay ? ax > ay : m.rows.col[x] < m.rows.col[y];
+    });
+    std::vector<uint32_t> col(order.size());
+    std::vector<float> val(order.size());
+    for (size_t k = 0; k < order.size(); ++k) {
+      col[k] = m.rows.col[order[k]];
+      val[k] = m.rows.val[order[k]];
+      if (col[k] % face == 0) m.scaling[r]++;
+    }
+    std::copy(col.begin(), col.end(), m.rows.col.begin() + static_cast<std::ptrdiff_t>(b));
+    std::copy(val.begin(), val.end(), m.rows.val.begin() + static_cast<std::ptrdiff_t>(b));
+  }
+  return m;
+}
+
+// One sampled row of a field with its interpolation weight × the material's scale.
+struct RhoPart {
+  const MaterialField* field;
+  uint64_t row;
+  double weight;
+};
+
+// The four sampled directions of a field nearest `dir` (bilinear on the face `dir` falls in,
+// clamped at the face's edges), weighted, scaled by `scale`.
+void Interpolate(const MaterialField& f, const glm::dvec3& dir, double scale, std::vector<RhoPart>* out) {
+  int face = 0;
+  double u = 0, v = 0;
+  cubemap::DirectionToFace(dir, &face, &u, &v);
+  const double s = f.sres;
+  const double x = (u + 1) / 2 * s - 0.5, y = (v + 1) / 2 * s - 0.5;
+  const double fx0 = std::floor(x), fy0 = std::floor(y);
+  const double ax = x - fx0, ay = y - fy0;
+  const int64_t last = static_cast<int64_t>(f.sres) - 1;
+  auto clampi = [&](double t) { return static_cast<uint64_t>(std::clamp<int64_t>(static_cast<int64_t>(t), 0, last)); };
+  const uint64_t xs[2] = {clampi(fx0), clampi(fx0 + 1)}, ys[2] = {clampi(fy0), clampi(fy0 + 1)};
+  const double wx[2] = {1 - ax, ax}, wy[2] = {1 - ay, ay};
+  for (int b = 0; b < 2; ++b) {
+    for (int a = 0; a < 2; ++a) {
+      const double w = wx[a] * wy[b] * scale / f.brdf.albedo;
+      if (w != 0) out->push_back({&f, (uint64_t(face) * f.sres + ys[b]) * f.sres + xs[a], w});
+    }
+  }
+}
+
+// The lighting of one frame in Haar (per channel, 6R² coefficients, face by face), its
+// parent sums, and its N-term approximation: the wavelets kept, ascending.
+struct Lighting {
+  std::vector<double> c[3];       // exact
+  std::vector<double> kept[3];    // the approximation (scaling coefficients always kept)
+  std::vector<double> psum[3];    // of the exact coefficients, per face: 6 × squares
+  std::vector<double> kept_psum[3];
+  std::vector<uint32_t> terms;    // wavelet indices of the approximation, ascending
+};
+
+void MakeLighting(const std::vector<float>& cube, uint64_t res, uint64_t n_terms, Lighting* l) {
+  const uint64_t face = res * res, cols = 6 * face, squares = (face - 1) / 3;
+  const int levels = std::countr_zero(res);
+  std::vector<double> pixels(face), ps;
+  for (int ch = 0; ch < 3; ++ch) {
+    l->c[ch].assign(cols, 0.0);
+    l->psum[ch].assign(6 * squares, 0.0);
+    for (uint64_t f = 0; f < 6; ++f) {
+      for (uint64_t p = 0; p < face; ++p) pixels[p] = cube[(f * face + p) * 3 + ch];
+      const HaarFace h = HaarFace::Forward(pixels, res);
+      std::copy(h.c.begin(), h.c.end(), l->c[ch].begin() + static_cast<std::ptrdiff_t>(f * face));
+      ParentSums(h.c.data(), levels, &ps);
+      std::copy(ps.begin(), ps.end(), l->psum[ch].begin() + static_cast<std::ptrdiff_t>(f * squares));
+    }
+  }
+  // Rank wavelets by the magnitude of their luminance.
+  std::vector<uint32_t> idx;
+  std::vector<double> mag(cols, 0.0);
+  for (uint64_t k = 0; k < cols; ++k) {
+    mag[k] = std::fabs(0.2126 * l->c[0][k] + 0.7152 * l->c[1][k] + 0.0722 * l->c[2][k]);
+    if (k % face != 0 && (l->c[0][k] != 0 || l->c[1][k] != 0 || l->c[2][k] != 0)) idx.push_back(static_cast<uint32_t>(k));
+  }
+  const uint64_t n = std::min<uint64_t>(n_terms, idx.size());
+  std::partial_sort(idx.begin(), idx.begin() + static_cast<std::ptrdiff_t>(n), idx.end(), [&](uint32_t a, uint32_t b) {
+    return mag[a] != mag[b] ? mag[a] > mag[b] : a < b;
+  });
+  idx.resize(n);
+  std::sort(idx.begin(), idx.end());
+  l->terms = idx;
+  for (int ch = 0; ch < 3; ++ch) {
+    l->kept[ch].assign(cols, 0.0);
+    for (uint64_t f = 0; f < 6; ++f) l->kept[ch][f * face] = l->c[ch][f * face];
+    for (uint32_t k : idx) l->kept[ch][k] = l->c[ch][k];
+    l->kept_psum[ch].assign(6 * squares, 0.0);
+    for (uint64_t f = 0; f < 6; ++f) {
+      ParentSums(l->kept[ch].data() + f * face, levels, &ps);
+      std::copy(ps.begin(), ps.end(), l->kept_psum[ch].begin() + static_cast<std::ptrdiff_t>(f * squares));
+    }
+  }
+}
+
+// The basis function of each coefficient of a face, tabulated.
+struct FaceTable {
+  uint64_t res = 0, face = 0, squares = 0;
+  int levels = 0;
+  std::vector<HaarBasis> basis;  // per coefficient index within a face
+};
+
+// Scratch of one thread: dense V and ρ with the coefficients touched, stamps for squares.
+struct Scratch {
+  std::vector<double> v, rho, pv, pr;  // 6R² dense; parent sums of one face (linear)
+  std::vector<uint32_t> rho_terms;
+  std::vector<uint32_t> coef_stamp, square_stamp;
+  uint32_t stamp = 0;
+  std::vector<RhoPart> parts;
+  std::vector<double> pixels;
+  void Size(uint64_t cols, uint64_t squares) {
+    if (v.size() == cols) return;
+    v.assign(cols, 0.0);
+    rho.assign(cols, 0.0);
+    coef_stamp.assign(cols, 0);
+    square_stamp.assign(6 * squares, 0);
+    stamp = 0;
+  }
+  uint32_t NextStamp() {
+    if (++stamp == 0) {  // wrapped: clear so no old mark matches
+      std::fill(coef_stamp.begin(), coef_stamp.end(), 0);
+      std::fill(square_stamp.begin(), square_stamp.end(), 0);
+      stamp = 1;
+    }
+    return stamp;
+  }
+};
+
+// Case 2 of one square: three different types, weight 2^level.
+inline double Case2(const double* r, const double* a, const double* b) {
+  return r[0] * a[1] * b[2] + r[0] * a[2] * b[1] + r[1] * a[2] * b[0] + r[1] * a[0] * b[2] + r[2] * a[0] * b[1] +
+         r[2] * a[1] * b[0];
+}
+
+struct Renderer {
+  const RenderOptions& o;
+  uint64_t res = 0;
+  FaceTable ft;
+  SparseRows vis;
+  std::vector<MaterialField> fields;
+  sample::SceneDesc scene;
+  sample::Geometry geo;
+  // Per scene material: its Lambert and Phong fields (nullptr when the part is zero).
+  std::vector<const MaterialField*> lambert_of, phong_of;
+  std::vector<glm::dvec3> texel_dir;
+  std::vector<double> texel_solid_angle;
+  Lighting light;
+  std::vector<float> light_cube;  // 6R² × 3, the frame's radiance (pixel method)
+
+  // ρ̃ of vertex `row` seen from `eye`: the sampled rows of the fields, weighted.
+  void RhoParts(uint64_t row, const glm::dvec3& eye, std::vector<RhoPart>* parts) const {
+    parts->clear();
+    const sample::RowPoint& rp = geo.vertex_rows[row];
+    const sample::Material& m = scene.materials[rp.material];
+    if (lambert_of[rp.material]) Interpolate(*lambert_of[rp.material], rp.n, m.albedo, parts);
+    if (phong_of[rp.material]) Interpolate(*phong_of[rp.material], Reflection(rp, eye), m.ks, parts);
+  }
+  static glm::dvec3 Reflection(const sample::RowPoint& rp, const glm::dvec3& eye) {
+    const glm::dvec3 wo = glm::normalize(eye - rp.p);
+    return glm::normalize(2 * glm::dot(rp.n, wo) * rp.n - wo);
+  }
+
+  void ScatterV(uint64_t row, Scratch& s) const {
+    for (uint64_t e = vis.offset[row]; e < vis.offset[row + 1]; ++e) s.v[vis.col[e]] = vis.val[e];
+  }
+  void ClearV(uint64_t row, Scratch& s) const {
+    for (uint64_t e = vis.offset[row]; e < vis.offset[row + 1]; ++e) s.v[vis.col[e]] = 0;
+  }
+  // ρ's approximation into s.rho, the touched coefficients listed in s.rho_terms.
+  void ScatterRho(const std::vector<RhoPart>& parts, Scratch& s, uint32_t stamp) const {
+    s.rho_terms.clear();
+    for (const RhoPart& p : parts) {
+      const SparseRows& r = p.field->rows;
+      const uint64_t b = r.offset[p.row], e = r.offset[p.row + 1];
+      const uint64_t keep = o.brdf_terms == RenderOptions::kAll
+                                ? e - b
+                                : std::min<uint64_t>(e - b, p.field->scaling[p.row] + o.brdf_terms);
+      for (uint64_t k = b; k < b + keep; ++k) {
+        const uint32_t c = r.col[k];
+        if (s.coef_stamp[c] != stamp) {
+          s.coef_stamp[c] = stamp;
+          s.rho_terms.push_back(c);
+        }
+        s.rho[c] += p.weight * r.val[k];
+      }
+    }
+  }
+  void ClearRho(Scratch& s) const {
+    for (uint32_t c : s.rho_terms) s.rho[c] = 0;
+  }
+
+  // Sublinear evaluation (§5.3) of one vertex, V and ρ scattered.
+  void Sublinear(Scratch& s, uint32_t stamp, double out[3]) const {
+    const uint64_t face = ft.face;
+    double b[3] = {0, 0, 0};
+    for (uint64_t f = 0; f < 6; ++f) {  // case 1
+      const uint64_t k = f * face;
+      for (int ch = 0; ch < 3; ++ch) b[ch] += s.rho[k] * light.c[ch][k] * s.v[k];
+    }
+    for (uint32_t k : s.rho_terms) {  // case 2 over ρ's squares, case 3 over ρ's wavelets
+      const uint64_t f = k / face, local = k % face;
+      if (local == 0) continue;
+      const HaarBasis& hb = ft.basis[local];
+      const uint64_t sq = (local - 1) / 3, base = f * face + 1 + 3 * sq;
+      const double scale = static_cast<double>(uint64_t{1} << hb.level);
+      const bool first = s.square_stamp[f * ft.squares + sq] != stamp;
+      s.square_stamp[f * ft.squares + sq] = stamp;
+      const double pv = ParentSumAt(s.v.data() + f * face, hb.level, hb.i, hb.j);
+      for (int ch = 0; ch < 3; ++ch) {
+        if (first) b[ch] += scale * Case2(&s.rho[base], &light.c[ch][base], &s.v[base]);
+        b[ch] += s.rho[k] * (light.c[ch][k] * pv + s.v[k] * light.psum[ch][f * ft.squares + sq]);
+      }
+    }
+    for (uint32_t k : light.terms) {  // case 3 over L's kept wavelets, with ρ's parent sums
+      if (s.v[k] == 0) continue;
+      const uint64_t f = k / face, local = k % face;
+      const HaarBasis& hb = ft.basis[local];
+      const double pr = ParentSumAt(s.rho.data() + f * face, hb.level, hb.i, hb.j);
+      if (pr == 0) continue;
+      for (int ch = 0; ch < 3; ++ch) b[ch] += s.v[k] * light.c[ch][k] * pr;
+    }
+    for (int ch = 0; ch < 3; ++ch) out[ch] = b[ch];
+  }
+
+  // Linear evaluation (§5.2): every coefficient of the approximated L and ρ, and of V.
+  void Linear(Scratch& s, double out[3]) const {
+    const uint64_t face = ft.face;
+    out[0] = out[1] = out[2] = 0;
+    for (uint64_t f = 0; f < 6; ++f) {
+      const double* v = s.v.data() + f * face;
+      const double* r = s.rho.data() + f * face;
+      ParentSums(v, ft.levels, &s.pv);
+      ParentSums(r, ft.levels, &s.pr);
+      for (int ch = 0; ch < 3; ++ch) {
+        out[ch] += LinearTripleProductDense(light.kept[ch].data() + f * face,
+                                            light.kept_psum[ch].data() + f * ft.squares, v, s.pv.data(), r,
+                                            s.pr.data(), ft.levels);
+      }
+    }
+  }
+
+  // The pixel-basis reference: Σ_p L_p V_p ρ̃(ω_p) Ω_p over the texels (the N brightest with
+  // terms), ρ̃ evaluated exactly from the scene's material, V decoded from its Haar row.
+  void Pixel(uint64_t row, const glm::dvec3& eye, const std::vector<uint32_t>& texels, Scratch& s,
+             double out[3]) const {
+    const sample::RowPoint& rp = geo.vertex_rows[row];
+    const sample::Material& m = scene.materials[rp.material];
+    const Brdf lambert{Brdf::Kind::kLambert, 0, m.albedo};
+    const Brdf phong{Brdf::Kind::kPhong, m.exponent, m.ks};
+    const glm::dvec3 refl = m.ks > 0 ? Reflection(rp, eye) : glm::dvec3(0, 0, 1);
+    const uint64_t face = ft.face;
+    double b[3] = {0, 0, 0};
+    auto add = [&](uint64_t p, double vp) {
+      if (vp == 0) return;
+      double rho = m.albedo > 0 ? BrdfValue(lambert, rp.n, texel_dir[p]) : 0.0;
+      if (m.ks > 0) rho += BrdfValue(phong, refl, texel_dir[p]);
+      const double w = vp * rho * texel_solid_angle[p];
+      for (int ch = 0; ch < 3; ++ch) b[ch] += w * light_cube[3 * p + ch];
+    };
+    if (texels.empty()) {  // every texel: decode V per face
+      for (uint64_t f = 0; f < 6; ++f) {
+        HaarFace h;
+        h.res = ft.res;
+        h.c.assign(s.v.begin() + static_cast<std::ptrdiff_t>(f * face),
+                   s.v.begin() + static_cast<std::ptrdiff_t>((f + 1) * face));
+        const std::vector<double> px = h.Inverse();
+        for (uint64_t p = 0; p < face; ++p) add(f * face + p, px[p]);
+      }
+    } else {  // the kept texels: V at each by walking its ancestors
+      for (uint32_t p : texels) {
+        const uint64_t f = p / face, local = p % face;
+        add(p, ParentSumAt(s.v.data() + f * face, ft.levels, local % ft.res, local / ft.res));
+      }
+    }
+    for (int ch = 0; ch < 3; ++ch) out[ch] = b[ch];
+  }
+};
+
+// The N brightest texels of the frame's lighting (by luminance × solid angle); empty: all.
+std::vector<uint32_t> BrightestTexels(const std::vector<float>& cube, const std::vector<double>& solid_angle,
+                                      uint64_t n) {
+  const uint64_t cols = solid_angle.size();
+  if (n >= cols) return {};
+  std::vector<uint32_t> idx(cols);
+  std::iota(idx.begin(), idx.end(), 0u);
+  std::vector<double> mag(cols);
+  for (uint64_t p = 0; p < cols; ++p) {
+    mag[p] = std::fabs(0.2126 * cube[3 * p] + 0.7152 * cube[3 * p + 1] + 0.0722 * cube[3 * p + 2]) * solid_angle[p];
+  }
+  std::partial_sort(idx.begin(), idx.begin() + static_cast<std::ptrdiff_t>(n), idx.end(),
+                    [&](uint32_t a, uint32_t b) { return mag[a] != mag[b] ? mag[a] > mag[b] : a < b; });
+  idx.resize(n);
+  std::sort(idx.begin(), idx.end());
+  return idx;
+}
+
+// "name_%04d.png" with frame k: the one integer conversion of the pattern.
+Result<std::string> FramePath(const std::string& pattern, uint32_t k) {
+  const size_t pct = pattern.find('%');
+  size_t end = pct;
+  if (pct != std::string::npos) {
+    end = pct + 1;
+    while (end < pattern.size() && std::isdigit(static_cast<unsigned char>(pattern[end]))) ++end;
+  }
+  if (pct == std::string::npos || end >= pattern.size() || pattern[end] != 'd' ||
+      pattern.find('%', end + 1) != std::string::npos) {
+    return InvalidArgument("-o " + pattern + ": an orbit writes one image a frame; give a pattern with one %d, e.g. "
+                           "frames/view_%04d.png");
+  }
+  char buf[64];
+  std::snprintf(buf, sizeof buf, pattern.substr(pct, end + 1 - pct).c_str(), static_cast<int>(k));
+  return pattern.substr(0, pct) + buf + pattern.substr(end + 1);
+}
+
+Status ResolveMaterials(Renderer& rd) {
+  const MaterialField* lambert = nullptr;
+  for (const MaterialField& f : rd.fields) {
+    if (f.brdf.kind == Brdf::Kind::kLambert) {
+      if (lambert) return InvalidArgument("two Lambert material fields: " + lambert->path + " and " + f.path);
+      lambert = &f;
+    }
+  }
+  for (const sample::Material& m : rd.scene.materials) {
+    rd.lambert_of.push_back(nullptr);
+    rd.phong_of.push_back(nullptr);
+    if (rd.o.method == TripleMethod::kPixel) continue;  // evaluated exactly, no field
+    if (m.albedo > 0) {
+      if (!lambert) {
+        return InvalidArgument("material \"" + m.name + "\" has albedo " + std::to_string(m.albedo) +
+                               " but no Lambert material field was given: make one with `ltbake material --brdf "
+                               "lambert -o lambert.ltm --cube-res " +
+                               std::to_string(rd.res) + "` and pass --material lambert.ltm");
+      }
+      rd.lambert_of.back() = lambert;
+    }
+    if (m.ks > 0) {
+      for (const MaterialField& f : rd.fields) {
+        if (f.brdf.kind == Brdf::Kind::kPhong && std::fabs(f.brdf.exponent - m.exponent) <= 1e-9 * m.exponent) {
+          rd.phong_of.back() = &f;
+        }
+      }
+      if (!rd.phong_of.back()) {
+        char e[32];
+        std::snprintf(e, sizeof e, "%g", m.exponent);
+        return InvalidArgument("material \"" + m.name + "\" has ks " + std::to_string(m.ks) + " and exponent " + e +
+                               " but no Phong material field of that exponent was given: make one with `ltbake "
+                               "material --brdf phong:" +
+                               e + " -o phong" + e + ".ltm --cube-res " + std::to_string(rd.res) + "`");
+      }
+    }
+  }
+  return Status::Ok();
+}
+
+Status LoadInputs(const RenderOptions& o, const Progress& progress, Renderer& rd, nlohmann::json* report) {
+  LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(o.visibility));
+  const nlohmann::json& j = in.metadata().json;
+  const auto cols = j.contains("basis") && j["basis"].is_object() ? j["basis"].value("cols", nlohmann::json()) : nlohmann::json();
+  if (!cols.is_object() || cols.value("basis", "") != "haar-squares" || cols.value("quantity", "") != "visibility" ||
+      !j.contains("visibility")) {
+    return InvalidArgument(o.visibility +
+                           ": is not a visibility field; make one with `ltbake sample SCENE --visibility -o vis.ltm` "
+                           "(a vertex-mode scene)");
+  }
+  if (!in.complete()) {
+    return FailedPrecondition(o.visibility + ": not complete; rerun `ltbake sample --visibility` to finish it");
+  }
+  rd.res = cols.value("cube_res", uint64_t{0});
+  if (!IsPowerOfTwo(rd.res) || in.metadata().matrix().cols != 6 * rd.res * rd.res) {
+    return InvalidArgument(o.visibility + ": columns are not 6R² for a power-of-two R");
+  }
+  LTB_RETURN_IF_ERROR(ReadSparseRows(in, &rd.vis));
+  std::string scene_path = o.scene, want_hash;
+  try {
+    if (scene_path.empty()) scene_path = j["visibility"].at("scene").get<std::string>();
+    want_hash = j["visibility"].at("scene_hash").get<std::string>();
+  } catch (const nlohmann::json::exception& e) {
+    return InvalidArgument(o.visibility + ": malformed visibility metadata: " + e.what());
+  }
+  LTB_ASSIGN_OR_RETURN(rd.scene, sample::ParseScene(scene_path));
+  LTB_ASSIGN_OR_RETURN(rd.geo, sample::BuildGeometry(rd.scene, progress));
+  if (rd.geo.scene_hash != want_hash) {
+    return FailedPrecondition(scene_path + ": the scene (or a mesh it names) changed since " + o.visibility +
+                              " was baked (hash " + rd.geo.scene_hash + ", baked from " + want_hash +
+                              "); bake the visibility field again");
+  }
+  if (rd.geo.vertex_rows.size() != rd.vis.rows) {
+    return FailedPrecondition(scene_path + " has " + std::to_string(rd.geo.vertex_rows.size()) + " vertex rows but " +
+                              o.visibility + " " + std::to_string(rd.vis.rows));
+  }
+  for (const std::string& path : o.materials) {
+    LTB_ASSIGN_OR_RETURN(MaterialField f, LoadMaterialField(path, rd.res));
+    rd.fields.push_back(std::move(f));
+  }
+  LTB_RETURN_IF_ERROR(ResolveMaterials(rd));
+  (*report)["scene"] = scene_path;
+  (*report)["cube_res"] = rd.res;
+  (*report)["vertices"] = rd.vis.rows;
+  (*report)["visibility_terms"] = rd.vis.col.size();
+  (*report)["visibility_bytes"] = in.file_size();
+  nlohmann::json mats = nlohmann::json::array();
+  for (const MaterialField& f : rd.fields) {
+    mats.push_back({{"file", f.path},
+                    {"brdf", f.brdf.kind == Brdf::Kind::kLambert ? "lambert" : "phong"},
+                    {"exponent", f.brdf.exponent},
+                    {"samples_res", f.sres},
+                    {"terms", f.rows.col.size()}});
+  }
+  (*report)["materials"] = mats;
+  return Status::Ok();
+}
+
+// The camera's primary hits: per pixel the geometry, triangle and barycentrics (geom = −1: none).
+struct PixelHit {
+  int64_t geom = -1;
+  uint32_t prim = 0;
+  float u = 0, v = 0;
+};
+
+Status TraceCamera(const Renderer& rd, const glm::dvec3& eye, std::vector<PixelHit>* hits) {
+  const RenderOptions& o = rd.o;
+  const glm::dvec3 f = glm::normalize(o.target - eye);
+  const glm::dvec3 right = glm::normalize(glm::cross(f, o.up));
+  const glm::dvec3 up = glm::cross(right, f);
+  const double th = std::tan(glm::radians(o.fov_degrees) / 2), aspect = double(o.width) / o.height;
+  hits->assign(uint64_t{o.width} * o.height, PixelHit{});
+  std::vector<uint64_t> lines(o.height);
+  std::iota(lines.begin(), lines.end(), 0);
+  LTB_RETURN_IF_ERROR(stages::ParallelFor(lines, o.jobs, Progress{}, "lines", [&](uint64_t y) -> Status {
+    for (uint64_t x = 0; x < o.width; ++x) {
+      const double px = (2.0 * (x + 0.5) / o.width - 1.0) * th * aspect, py = (1.0 - 2.0 * (y + 0.5) / o.height) * th;
+      const sample::Hit h = rd.geo.rays->Intersect(eye, glm::normalize(f + px * right + py * up));
+      if (!h.hit) continue;
+      PixelHit& ph = (*hits)[y * o.width + x];
+      ph.geom = h.geom_id;
+      ph.prim = h.prim_id;
+      ph.u = static_cast<float>(h.u);
+      ph.v = static_cast<float>(h.v);
+    }
+    return Status::Ok();
+  }));
+  return rd.geo.rays->error();
+}
+
+}  // namespace
+
+Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& progress) {
+  if (o.width == 0 || o.height == 0 || uint64_t{o.width} * o.height > (1u << 26)) {
+    return InvalidArgument("--size " + std::to_string(o.width) + "x" + std::to_string(o.height) +
+                           " is empty or above 2^26 pixels");
+  }
+  if (!(o.fov_degrees > 0 && o.fov_degrees < 180)) return InvalidArgument("--fov must be in (0, 180) degrees");
+  if (glm::length(o.target - o.eye) == 0 || glm::length(glm::cross(o.target - o.eye, o.up)) == 0) {
+    return InvalidArgument("--eye equals --target, or the view is parallel to --up");
+  }
+  if (o.light_terms == 0) return InvalidArgument("--terms must be at least 1 (or all)");
+  const uint32_t frames = std::max<uint32_t>(1, o.orbit_frames);
+  if (o.orbit_frames > 0 && !o.output.empty()) LTB_RETURN_IF_ERROR(FramePath(o.output, 0).status());
+  nlohmann::json report = {{"method", TripleMethodName(o.method)},
+                           {"visibility", o.visibility},
+                           {"env", o.env},
+                           {"light_terms", o.light_terms == RenderOptions::kAll ? nlohmann::json("all")
+                                                                                : nlohmann::json(o.light_terms)},
+                           {"brdf_terms", o.brdf_terms == RenderOptions::kAll ? nlohmann::json("all")
+                                                                              : nlohmann::json(o.brdf_terms)}};
+  auto t0 = Clock::now();
+  Renderer rd{o};
+  LTB_RETURN_IF_ERROR(LoadInputs(o, progress, rd, &report));
+  rd.ft.res = rd.res;
+  rd.ft.face = rd.res * rd.res;
+  rd.ft.squares = (rd.ft.face - 1) / 3;
+  rd.ft.levels = std::countr_zero(rd.res);
+  for (uint64_t k = 0; k < rd.ft.face; ++k) rd.ft.basis.push_back(BasisOf(k));
+  const uint64_t cols = 6 * rd.ft.face;
+  for (uint64_t c = 0; c < cols; ++c) {
+    const cubemap::Texel x = cubemap::ColumnToTexel(c, static_cast<uint32_t>(rd.res));
+    rd.texel_dir.push_back(cubemap::TexelCenter(x, static_cast<uint32_t>(rd.res)));
+    rd.texel_solid_angle.push_back(cubemap::TexelSolidAngle(x, static_cast<uint32_t>(rd.res)));
+  }
+  stages::EnvLoadOptions eo;
+  eo.layout = o.env_layout;
+  eo.clamp = o.clamp_env;
+  eo.max_bytes = o.mem_limit;
+  eo.progress = progress;
+  LTB_ASSIGN_OR_RETURN(stages::Environment env, stages::Environment::Open(o.env, rd.res, eo));
+  env.Cubemap(o.rotate_deg * std::numbers::pi / 180, &rd.light_cube);
+  auto t1 = Clock::now();
+  report["load_ms"] = Ms(t0, t1);
+  MakeLighting(rd.light_cube, rd.res, o.method == TripleMethod::kPixel ? RenderOptions::kAll : o.light_terms,
+               &rd.light);
+  const std::vector<uint32_t> texels = o.method == TripleMethod::kPixel && o.light_terms != RenderOptions::kAll
+                                           ? BrightestTexels(rd.light_cube, rd.texel_solid_angle, o.light_terms)
+                                           : std::vector<uint32_t>{};
+  report["light_terms_used"] = o.method == TripleMethod::kPixel ? (texels.empty() ? cols : texels.size())
+                                                                : rd.light.terms.size();
+  report["lighting_ms"] = Ms(t1, Clock::now());
+
+  const uint64_t rows = rd.vis.rows;
+  std::vector<float> values(rows * 3, 0.0f);
+  std::vector<uint8_t> needed(rows, 0);
+  std::atomic<uint64_t> brdf_terms_sum{0};
+  // B of the needed vertices from `eye` into values.
+  auto evaluate = [&](const glm::dvec3& eye) -> Status {
+    std::vector<uint64_t> blocks;
+    for (uint64_t r0 = 0; r0 < rows; r0 += 256) blocks.push_back(r0);
+    return stages::ParallelFor(blocks, o.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "vertices",
+                               [&](uint64_t r0) -> Status {
+                                 thread_local std::unique_ptr<Scratch> tls;
+                                 if (!tls) tls = std::make_unique<Scratch>();
+                                 Scratch& s = *tls;
+                                 s.Size(cols, rd.ft.squares);
+                                 uint64_t terms = 0;
+                                 for (uint64_t row = r0; row < std::min(rows, r0 + 256); ++row) {
+                                   if (!needed[row]) continue;
+                                   double b[3];
+                                   rd.ScatterV(row, s);
+                                   if (o.method == TripleMethod::kPixel) {
+                                     rd.Pixel(row, eye, texels, s, b);
+                                   } else {
+                                     const uint32_t stamp = s.NextStamp();
+                                     rd.RhoParts(row, eye, &s.parts);
+                                     rd.ScatterRho(s.parts, s, stamp);
+                                     terms += s.rho_terms.size();
+                                     if (o.method == TripleMethod::kLinear) {
+                                       rd.Linear(s, b);
+                                     } else {
+                                       rd.Sublinear(s, stamp, b);
+                                     }
+                                     rd.ClearRho(s);
+                                   }
+                                   rd.ClearV(row, s);
+                                   for (int ch = 0; ch < 3; ++ch) values[row * 3 + ch] = static_cast<float>(b[ch]);
+                                 }
+                                 brdf_terms_sum += terms;
+                                 return Status::Ok();
+                               });
+  };
+
+  RenderResult result;
+  nlohmann::json frame_reports = nlohmann::json::array();
+  if (!o.vertex_output.empty()) {  // every vertex, from the first frame's eye
+    std::fill(needed.begin(), needed.end(), 1);
+    auto a = Clock::now();
+    LTB_RETURN_IF_ERROR(evaluate(o.eye));
+    report["vertex_output_ms"] = Ms(a, Clock::now());
+    LTB_RETURN_IF_ERROR(stages::WriteImage(o.vertex_output, values.data(), rows, rows, 1));
+    result.vertex_values = values;
+  }
+  const uint64_t pixels = uint64_t{o.width} * o.height;
+  std::vector<PixelHit> hits;
+  std::vector<float> image(pixels * 3);
+  // Frames are rendered unless only the vertex values were asked for.
+  const uint32_t rendered = o.output.empty() && !o.vertex_output.empty() ? 0 : frames;
+  for (uint32_t k = 0; k < rendered; ++k) {
+    if (progress.Cancelled()) return Cancelled("interrupted between frames; the frames written are kept");
+    const double angle = glm::radians(o.orbit_deg * k);
+    const glm::dvec3 rel = o.eye - o.target;
+    const glm::dvec3 eye = o.target + glm::dvec3(rel.x * std::cos(angle) - rel.y * std::sin(angle),
+                                                 rel.x * std::sin(angle) + rel.y * std::cos(angle), rel.z);
+    auto a = Clock::now();
+    LTB_RETURN_IF_ERROR(TraceCamera(rd, eye, &hits));
+    std::fill(needed.begin(), needed.end(), 0);
+    uint64_t hit_pixels = 0, unshaded = 0;
+    for (const PixelHit& h : hits) {
+      if (h.geom < 0) continue;
+      ++hit_pixels;
+      const sample::Geometry::RowMesh& m = rd.geo.row_meshes[static_cast<size_t>(h.geom)];
+      if (m.triangles.empty()) {
+        ++unshaded;
+        continue;
+      }
+      const glm::uvec3& t = m.triangles[h.prim];
+      for (int c = 0; c < 3; ++c) needed[m.first_row + t[c]] = 1;
+    }
+    const uint64_t visible = static_cast<uint64_t>(std::count(needed.begin(), needed.end(), uint8_t{1}));
+    auto b = Clock::now();
+    brdf_terms_sum = 0;
+    LTB_RETURN_IF_ERROR(evaluate(eye));
+    auto c = Clock::now();
+    for (uint64_t p = 0; p < pixels; ++p) {
+      const PixelHit& h = hits[p];
+      float rgb[3] = {0, 0, 0};
+      if (h.geom >= 0) {
+        const sample::Geometry::RowMesh& m = rd.geo.row_meshes[static_cast<size_t>(h.geom)];
+        if (!m.triangles.empty()) {
+          const glm::uvec3& t = m.triangles[h.prim];
+          const float w[3] = {1 - h.u - h.v, h.u, h.v};
+          for (int q = 0; q < 3; ++q)
+            for (int ch = 0; ch < 3; ++ch) rgb[ch] += w[q] * values[(m.first_row + t[q]) * 3 + ch];
+        }
+      }
+      for (int ch = 0; ch < 3; ++ch) image[p * 3 + ch] = std::max(0.0f, rgb[ch]);
+    }
+    auto d = Clock::now();
+    nlohmann::json fr = {{"frame", k},
+                         {"eye", {eye.x, eye.y, eye.z}},
+                         {"pixels_hit", hit_pixels},
+                         {"pixels_not_vertex_shaded", unshaded},
+                         {"visible_vertices", visible},
+                         {"trace_ms", Ms(a, b)},
+                         {"relight_ms", Ms(b, c)},
+                         {"image_ms", Ms(c, d)}};
+    if (o.method != TripleMethod::kPixel && visible > 0) {
+      fr["brdf_terms_per_vertex"] = static_cast<double>(brdf_terms_sum.load()) / static_cast<double>(visible);
+    }
+    frame_reports.push_back(fr);
+    if (!o.output.empty()) {
+      std::string path = o.output;
+      if (o.orbit_frames > 0) {
+        LTB_ASSIGN_OR_RETURN(path, FramePath(o.output, k));
+      }
+      LTB_RETURN_IF_ERROR(stages::WriteImage(path, image.data(), pixels, o.width, o.height, {.exposure = o.exposure}));
+    }
+    if (k == 0) result.image = image;
+  }
+  report["frames"] = frame_reports;
+  result.report = std::move(report);
+  return result;
+}
+
+}  // namespace ltb::triple
