@@ -8,6 +8,7 @@
 
 #include <gtest/gtest.h>
 
+#include <bit>
 #include <cmath>
 #include <random>
 #include <vector>
@@ -177,6 +178,46 @@ TEST(HaarTriple, SublinearConvergesToTheLinearResult) {
   EXPECT_LT(err[4], 1e-2);           // 256
   EXPECT_LT(err[5], 1e-4 * err[0]);  // 1024
   EXPECT_LT(err[6], 1e-12);          // every term: exact
+}
+
+// The parent sum of a square by walking its ancestors equals the dynamic programme's; at the
+// pixel level it is the pixel's value (Inverse).
+TEST(HaarTriple, ParentSumAtMatchesParentSumsAndPixels) {
+  std::mt19937_64 rng(11);
+  for (uint64_t res : {1, 2, 8, 32}) {
+    const int levels = std::countr_zero(res);
+    const HaarFace f = HaarFace::Forward(Random(res * res, rng), res);
+    std::vector<double> dp;
+    ParentSums(f.c.data(), levels, &dp);
+    for (int l = 0; l < levels; ++l) {
+      for (uint64_t j = 0; j < (uint64_t{1} << l); ++j) {
+        for (uint64_t i = 0; i < (uint64_t{1} << l); ++i) {
+          EXPECT_NEAR(ParentSumAt(f.c.data(), l, i, j), dp[SquareIndex(l, i, j)], 1e-12)
+              << "R " << res << " square " << l << "," << i << "," << j;
+        }
+      }
+    }
+    const std::vector<double> px = f.Inverse();
+    for (uint64_t y = 0; y < res; ++y)
+      for (uint64_t x = 0; x < res; ++x) EXPECT_NEAR(ParentSumAt(f.c.data(), levels, x, y), px[y * res + x], 1e-12);
+  }
+}
+
+// Cube rows Haar-transformed in place face by face: each face as HaarFace::Forward.
+TEST(HaarTriple, HaarRowsInPlaceTransformsEachFace) {
+  std::mt19937_64 rng(12);
+  const uint64_t res = 8, face = res * res, cols = 6 * face;
+  const std::vector<double> values = Random(2 * cols, rng);
+  std::vector<float> rows(values.begin(), values.end());
+  HaarRowsInPlace(rows.data(), 2, res);
+  for (uint64_t r = 0; r < 2; ++r) {
+    for (uint64_t f = 0; f < 6; ++f) {
+      std::vector<double> px(face);
+      for (uint64_t k = 0; k < face; ++k) px[k] = static_cast<float>(values[r * cols + f * face + k]);
+      const HaarFace h = HaarFace::Forward(px, res);
+      for (uint64_t k = 0; k < face; ++k) EXPECT_EQ(rows[r * cols + f * face + k], static_cast<float>(h.c[k]));
+    }
+  }
 }
 
 }  // namespace
