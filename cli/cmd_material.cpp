@@ -1,4 +1,4 @@
-// ltbake material --brdf lambert|phong:S -o mat.ltm [--cube-res R] [--samples-res S] [--energy 0.99]
+// ltbake material --brdf lambert|phong:S -o mat.ltm [--cube-res R] [--samples-res S] [--energy 0.999]
 #include <iostream>
 #include <nlohmann/json.hpp>
 
@@ -21,10 +21,10 @@ class MaterialCommand : public Command {
     app->add_option("--cube-res", options_.cube_res, "face size R of the lighting's cubemap (a power of two)")
         ->default_val(32);
     app->add_option("--samples-res", options_.samples_res,
-                    "face size of the cube of sampled normals / reflection vectors (default 8 for lambert, 32 for "
+                    "face size of the cube of sampled normals / reflection vectors (default 16 for lambert, 32 for "
                     "phong)");
     app->add_option("--energy", options_.energy, "fraction of each row's energy the kept coefficients hold")
-        ->default_val(0.99);
+        ->default_val(0.999);
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     app->add_flag("--json", json_, "print the summary as JSON");
     AddCommonFlags(app, &flags_);

@@ -126,7 +126,7 @@ Result<MaterialResult> RunMaterial(const MaterialOptions& o, const Progress& pro
   if (!IsPowerOfTwo(res) || res > 512) {
     return InvalidArgument("--cube-res " + std::to_string(res) + " is not a power of two up to 512");
   }
-  const uint64_t sres = o.samples_res != 0 ? o.samples_res : o.brdf.kind == Brdf::Kind::kLambert ? 8 : 32;
+  const uint64_t sres = o.samples_res != 0 ? o.samples_res : o.brdf.kind == Brdf::Kind::kLambert ? 16 : 32;
   if (sres > 512) return InvalidArgument("--samples-res " + std::to_string(sres) + " is above 512");
   if (!(o.energy > 0 && o.energy <= 1)) {
     return InvalidArgument("--energy " + std::to_string(o.energy) + " is not in (0, 1]");

@@ -61,8 +61,8 @@ struct MaterialOptions {
   std::string output;
   Brdf brdf;
   uint64_t cube_res = 32;    // R, the lighting's cubemap
-  uint64_t samples_res = 0;  // S; 0: 8 for Lambert, 32 for Phong
-  double energy = 0.99;      // kept fraction of each row's energy (0, 1]
+  uint64_t samples_res = 0;  // S; 0: 16 for Lambert, 32 for Phong
+  double energy = 0.999;     // kept fraction of each row's energy (0, 1]
   int jobs = 2;
   bool overwrite = false;
 };
