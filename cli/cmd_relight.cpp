@@ -122,10 +122,12 @@ class RelightCommand : public Command {
     o.method = *triple::ParseTripleMethod(method_);  // checked by IsMember
     o.light_terms = terms_text_ == "all" ? triple::RenderOptions::kAll : std::stoull(terms_text_);
     o.brdf_terms = brdf_terms_text_ == "all" ? triple::RenderOptions::kAll : std::stoull(brdf_terms_text_);
-    if (eye_.empty()) return ReportUsage(InvalidArgument("the triple-product path (--material, --method) needs --eye X,Y,Z"));
+    if (eye_.empty())
+      return ReportUsage(InvalidArgument("the triple-product path (--material, --method) needs --eye X,Y,Z"));
     for (auto [text, dst, name] : {std::tuple{&eye_, &o.eye, "--eye"}, std::tuple{&target_, &o.target, "--target"},
                                    std::tuple{&up_, &o.up, "--up"}}) {
-      if (!ParseVec3(*text, dst)) return ReportUsage(InvalidArgument(std::string(name) + " " + *text + ": expected X,Y,Z"));
+      if (!ParseVec3(*text, dst))
+        return ReportUsage(InvalidArgument(std::string(name) + " " + *text + ": expected X,Y,Z"));
     }
     unsigned w = 0, h = 0;
     char tail = 0;
@@ -144,7 +146,8 @@ class RelightCommand : public Command {
       o.orbit_frames = n;
     }
     if (frames_ > 0 || !reference_.empty() || weighting_ != "area") {
-      return ReportUsage(InvalidArgument("--frames, --reference and --weighting belong to the matrix path, not the triple-product one"));
+      return ReportUsage(InvalidArgument(
+          "--frames, --reference and --weighting belong to the matrix path, not the triple-product one"));
     }
     StageFlags sf;
     if (int code = ResolveStageFlags(flags_, nullptr, &sf); code != kExitOk) return code;
@@ -162,9 +165,9 @@ class RelightCommand : public Command {
       std::cout << "wrote " << output_;
       if (!f.empty()) {
         std::cout << " (" << f.size() << (f.size() == 1 ? " frame" : " frames") << "): " << method_ << ", "
-                  << report["light_terms_used"].get<uint64_t>() << " lighting terms; frame 0: "
-                  << f[0]["visible_vertices"].get<uint64_t>() << " visible vertices relit in " << std::setprecision(3)
-                  << f[0]["relight_ms"].get<double>() << " ms";
+                  << report["light_terms_used"].get<uint64_t>()
+                  << " lighting terms; frame 0: " << f[0]["visible_vertices"].get<uint64_t>()
+                  << " visible vertices relit in " << std::setprecision(3) << f[0]["relight_ms"].get<double>() << " ms";
       }
       std::cout << "\n";
     }

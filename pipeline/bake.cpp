@@ -98,6 +98,9 @@ bool Bake::BeforeFrom(const Node& n) const {
   return true;
 }
 
+// Steps that ray-cast the scene file: their output depends on its (and its meshes') hash.
+bool ReadsScene(const Node& n) { return n.stages.front() == "sample" || n.stages.front() == "visibility"; }
+
 bool Bake::Forced(const Node& n) const {
   for (const auto& s : n.stages)
     if (forced_.count(s)) return true;
@@ -126,7 +129,7 @@ Result<std::string> Bake::ContentHashOf(const Node& n, const std::string& path) 
 
 json Bake::InputsOf(const Node& n, const std::map<std::string, FileHash>& hashes) const {
   json in = json::object();
-  if (n.stages.front() == "sample") in["scene"] = scene_hash_;
+  if (ReadsScene(n)) in["scene"] = scene_hash_;
   for (const auto& f : n.inputs) {
     auto it = hashes.find(f);
     in[f] = it == hashes.end() ? std::string() : it->second.ForRecord();
@@ -255,7 +258,7 @@ Status Bake::PrepareGraph() {
     }
   }
   for (const Node& n : g_.nodes) {
-    if (n.stages.front() != "sample") continue;
+    if (!ReadsScene(n)) continue;
     if (o_.dry_run && !r_.inline_scene.empty() && !fs::exists(scene_file_, ec)) {
       scene_hash_ = "(inline scene, not written yet)";
     } else {
@@ -466,7 +469,7 @@ Result<StepEnd> Bake::RunStep(size_t i, const Plan& plan) {
   std::vector<std::string> in_paths;
   for (const auto& f : n.inputs) in_paths.push_back(Path(f));
   if (n.image) in_paths.push_back(n.env);
-  if (n.stages.front() == "sample") in_paths.push_back(scene_file_);
+  if (ReadsScene(n)) in_paths.push_back(scene_file_);
   for (const auto& p : in_paths) {
     std::error_code size_ec;
     uint64_t bytes = fs::file_size(p, size_ec);

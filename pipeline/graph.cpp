@@ -1,7 +1,9 @@
 #include "pipeline/graph.h"
 
 #include <algorithm>
+#include <cctype>
 #include <filesystem>
+#include <functional>
 
 #include "pipeline/stage_table.h"
 
@@ -9,6 +11,82 @@ namespace ltb::pipeline {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
+
+namespace {
+
+// "phong:64" -> "material-phong-64.ltm".
+std::string MaterialFile(const std::string& spec) {
+  std::string name = spec;
+  for (char& ch : name) {
+    if (!std::isalnum(static_cast<unsigned char>(ch)) && ch != '.') ch = '-';
+  }
+  return "material-" + name + ".ltm";
+}
+
+std::string Vec3Text(const glm::dvec3& v) { return Shortest(v.x) + "," + Shortest(v.y) + "," + Shortest(v.z); }
+
+// The triple-product path's steps: one `ltbake material` per [triple] materials entry, or
+// one `ltbake relight vis.ltm --material ...` view per map.
+Status AddTripleNodes(const Recipe& r, const std::string& stage,
+                      const std::function<std::string(const std::string&)>& path, Graph* g) {
+  const auto& t = r.triple;
+  if (!t.present) return InvalidArgument(r.path + ": " + stage + " is asked for but the recipe has no [triple] table");
+  if (stage == "material") {
+    for (const std::string& spec : t.materials) {
+      Node m;
+      m.name = "material:" + spec;
+      m.stages = {"material"};
+      m.output = MaterialFile(spec);
+      m.params = {{"brdf", spec}, {"cube_res", t.cube_res}};
+      m.args = {"material", "--brdf", spec, "--cube-res", std::to_string(t.cube_res)};
+      g->nodes.push_back(std::move(m));
+    }
+    return Status::Ok();
+  }
+  for (const EnvMap& env : t.envs) {
+    if (env.path.find("{face}") != std::string::npos) {
+      return InvalidArgument(r.path + ": [triple] envs: " + env.path +
+                             ": six-file {face} maps are not supported in recipes; convert it to one cubemap first");
+    }
+    Node m;
+    m.name = "triple:" + env.name;
+    m.stages = {"triple"};
+    m.image = true;
+    m.env = env.path;
+    m.inputs = {"vis.ltm"};
+    m.output = "view-" + env.name + "." + t.format;
+    m.args = {"relight", path("vis.ltm")};
+    for (const std::string& spec : t.materials) {
+      m.inputs.push_back(MaterialFile(spec));
+      m.args.insert(m.args.end(), {"--material", path(MaterialFile(spec))});
+    }
+    m.params = {{"env", env.path},
+                {"eye", {t.eye.x, t.eye.y, t.eye.z}},
+                {"target", {t.target.x, t.target.y, t.target.z}},
+                {"up", {t.up.x, t.up.y, t.up.z}},
+                {"fov", t.fov},
+                {"size", {t.width, t.height}},
+                {"method", t.method},
+                {"terms", t.terms},
+                {"brdf_terms", t.brdf_terms},
+                {"clamp", t.clamp},
+                {"format", t.format},
+                {"exposure", t.exposure}};
+    m.args.insert(
+        m.args.end(),
+        {"--env",        env.path,           "--eye",      Vec3Text(t.eye),
+         "--target",     Vec3Text(t.target), "--up",       Vec3Text(t.up),
+         "--fov",        Shortest(t.fov),    "--size",     std::to_string(t.width) + "x" + std::to_string(t.height),
+         "--method",     t.method,           "--terms",    t.terms,
+         "--brdf-terms", t.brdf_terms,       "--exposure", Shortest(t.exposure),
+         "--json"});
+    if (t.clamp) m.args.push_back("--clamp");
+    g->nodes.push_back(std::move(m));
+  }
+  return Status::Ok();
+}
+
+}  // namespace
 
 int StageIndex(const std::string& s) {
   const auto& n = StageNames();
@@ -85,6 +163,10 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
       g.nodes.push_back(std::move(n));
       continue;
     }
+    if (stage == "material" || stage == "triple") {
+      LTB_RETURN_IF_ERROR(AddTripleNodes(r, stage, path, &g));
+      continue;
+    }
     const auto& rl = r.relight;
     std::string matrix = rl.matrix == "cpca" ? "cpca.ltm" : "final.ltm";
     for (const EnvMap& env : rl.envs) {
@@ -122,7 +204,11 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
     for (const auto& s : n.stages) target = target || g.targets.count(s);
     if (n.name == "sample+row-transform") target = g.targets.count("row-transform") > 0;
     std::string stem = fs::path(n.output).stem().string();
-    if (target || n.image || r.Keeps(stem) || stem == "final" || stem == "cpca") g.wanted.insert(n.output);
+    // The triple path's fields are what every later view reads: kept like final and cpca.
+    if (target || n.image || r.Keeps(stem) || stem == "final" || stem == "cpca" || stem == "vis" ||
+        stem.starts_with("material-")) {
+      g.wanted.insert(n.output);
+    }
   }
   return g;
 }

@@ -8,10 +8,12 @@
 #include <filesystem>
 #include <sstream>
 
+#include "format/bits.h"
 #include "stages/column_transform/column_transform.h"
 #include "stages/common/quantity.h"
 #include "stages/common/toml_fields.h"
 #include "stages/sample/scene.h"
+#include "stages/triple/material.h"
 
 namespace ltb::pipeline {
 namespace {
@@ -22,6 +24,7 @@ using tomlf::GetBool;
 using tomlf::GetNumber;
 using tomlf::GetString;
 using tomlf::GetUnsigned;
+using tomlf::GetVec3;
 using tomlf::Where;
 
 std::string Join(const std::vector<std::string>& v) {
@@ -221,21 +224,13 @@ Status ParseColumnTransform(const std::string& path, const toml::table& t, Recip
   return Status::Ok();
 }
 
-Status ParseRelight(const std::string& path, const std::string& dir, const toml::table& t, Recipe::Relight* r) {
-  LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[relight]",
-                                {"matrix", "envs", "terms", "weighting", "clamp", "reference", "format", "exposure"}));
-  r->present = true;
-  LTB_ASSIGN_OR_RETURN(r->matrix, GetChoice(path, t, "matrix", r->matrix, {"final", "cpca"}));
-  LTB_ASSIGN_OR_RETURN(r->terms, GetUnsigned(path, t, "terms", r->terms, 1, uint64_t{1} << 32));
-  LTB_ASSIGN_OR_RETURN(r->weighting, GetChoice(path, t, "weighting", r->weighting, {"area", "transport", "none"}));
-  LTB_ASSIGN_OR_RETURN(r->clamp, GetBool(path, t, "clamp", r->clamp));
-  LTB_ASSIGN_OR_RETURN(r->reference, GetBool(path, t, "reference", r->reference));
-  LTB_ASSIGN_OR_RETURN(r->format, GetChoice(path, t, "format", r->format, {"png", "exr"}));
-  LTB_ASSIGN_OR_RETURN(r->exposure, GetNumber(path, t, "exposure", r->exposure, -64, 64));
+// The "envs" list of [relight] or [triple]: absolute paths, each named by its file stem.
+Status ParseEnvs(const std::string& path, const std::string& dir, const toml::table& t, const std::string& table,
+                 std::vector<EnvMap>* out) {
   const toml::node* envs = t.get("envs");
   if (envs == nullptr || envs->as_array() == nullptr || envs->as_array()->empty()) {
-    return InvalidArgument(Where(path, t) +
-                           ": [relight] needs \"envs\", a list of environment maps "
+    return InvalidArgument(Where(path, t) + ": " + table +
+                           " needs \"envs\", a list of environment maps "
                            "(.exr/.hdr lat-long or cross, or a 6R²×3 .npy cubemap)");
   }
   for (const auto& item : *envs->as_array()) {
@@ -251,14 +246,87 @@ Status ParseRelight(const std::string& path, const std::string& dir, const toml:
     if (e.path.find("{face}") == std::string::npos) {
       LTB_RETURN_IF_ERROR(CheckRegular(Where(path, *envs), "environment map", e.path));
     }
-    for (const EnvMap& other : r->envs) {
+    for (const EnvMap& other : *out) {
       if (other.name == e.name) {
         return InvalidArgument(Where(path, *envs) + ": two environment maps are named \"" + e.name +
                                "\" (the relit images would overwrite each other): " + other.path + " and " + e.path);
       }
     }
-    r->envs.push_back(e);
+    out->push_back(e);
   }
+  return Status::Ok();
+}
+
+Status ParseRelight(const std::string& path, const std::string& dir, const toml::table& t, Recipe::Relight* r) {
+  LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[relight]",
+                                {"matrix", "envs", "terms", "weighting", "clamp", "reference", "format", "exposure"}));
+  r->present = true;
+  LTB_ASSIGN_OR_RETURN(r->matrix, GetChoice(path, t, "matrix", r->matrix, {"final", "cpca"}));
+  LTB_ASSIGN_OR_RETURN(r->terms, GetUnsigned(path, t, "terms", r->terms, 1, uint64_t{1} << 32));
+  LTB_ASSIGN_OR_RETURN(r->weighting, GetChoice(path, t, "weighting", r->weighting, {"area", "transport", "none"}));
+  LTB_ASSIGN_OR_RETURN(r->clamp, GetBool(path, t, "clamp", r->clamp));
+  LTB_ASSIGN_OR_RETURN(r->reference, GetBool(path, t, "reference", r->reference));
+  LTB_ASSIGN_OR_RETURN(r->format, GetChoice(path, t, "format", r->format, {"png", "exr"}));
+  LTB_ASSIGN_OR_RETURN(r->exposure, GetNumber(path, t, "exposure", r->exposure, -64, 64));
+  return ParseEnvs(path, dir, t, "[relight]", &r->envs);
+}
+
+Status ParseTriple(const std::string& path, const std::string& dir, const toml::table& t, Recipe::Triple* r) {
+  LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[triple]",
+                                {"cube_res", "spp", "materials", "envs", "eye", "target", "up", "fov", "size", "method",
+                                 "terms", "brdf_terms", "clamp", "format", "exposure"}));
+  r->present = true;
+  LTB_ASSIGN_OR_RETURN(r->cube_res, GetUnsigned(path, t, "cube_res", r->cube_res, 1, 512));
+  if (!IsPowerOfTwo(r->cube_res)) {
+    return InvalidArgument(Where(path, *t.get("cube_res")) + ": [triple] cube_res " + std::to_string(r->cube_res) +
+                           " is not a power of two");
+  }
+  if (t.contains("spp")) {
+    LTB_ASSIGN_OR_RETURN(uint64_t spp, GetUnsigned(path, t, "spp", 4, 1, 1 << 16));
+    r->spp = spp;
+  }
+  const toml::node* mats = t.get("materials");
+  if (mats == nullptr || mats->as_array() == nullptr || mats->as_array()->empty()) {
+    return InvalidArgument(Where(path, t) +
+                           ": [triple] needs \"materials\", the material fields to make, e.g. [\"lambert\", "
+                           "\"phong:64\"] (one Lambert, one Phong per exponent the scene uses)");
+  }
+  for (const auto& item : *mats->as_array()) {
+    auto text = item.value<std::string>();
+    if (!text) return InvalidArgument(Where(path, *mats) + ": \"materials\" must be a list of strings");
+    auto brdf = triple::ParseBrdf(*text);
+    if (!brdf.ok()) return brdf.status().WithContext(Where(path, *mats) + ": \"materials\"");
+    r->materials.push_back(*text);
+  }
+  LTB_RETURN_IF_ERROR(ParseEnvs(path, dir, t, "[triple]", &r->envs));
+  LTB_ASSIGN_OR_RETURN(r->eye, GetVec3(path, t, "eye", r->eye));
+  LTB_ASSIGN_OR_RETURN(r->target, GetVec3(path, t, "target", r->target));
+  LTB_ASSIGN_OR_RETURN(r->up, GetVec3(path, t, "up", r->up));
+  LTB_ASSIGN_OR_RETURN(r->fov, GetNumber(path, t, "fov", r->fov, 1e-3, 179.999));
+  if (const toml::node* sz = t.get("size")) {
+    const toml::array* a = sz->as_array();
+    auto w = a && a->size() == 2 ? (*a)[0].value<int64_t>() : std::nullopt;
+    auto h = a && a->size() == 2 ? (*a)[1].value<int64_t>() : std::nullopt;
+    if (!w || !h || *w < 1 || *h < 1 || *w > 16384 || *h > 16384) {
+      return InvalidArgument(Where(path, *sz) + ": [triple] \"size\" must be [width, height], each 1..16384");
+    }
+    r->width = static_cast<uint64_t>(*w);
+    r->height = static_cast<uint64_t>(*h);
+  }
+  LTB_ASSIGN_OR_RETURN(r->method, GetChoice(path, t, "method", r->method, {"sublinear", "linear", "pixel"}));
+  for (auto [key, dst] : {std::pair{"terms", &r->terms}, std::pair{"brdf_terms", &r->brdf_terms}}) {
+    const toml::node* n = t.get(key);
+    if (n == nullptr) continue;
+    if (auto s = n->value<std::string>(); s && *s == "all") {
+      *dst = "all";
+    } else {
+      LTB_ASSIGN_OR_RETURN(uint64_t v, GetUnsigned(path, t, key, 1, 1, uint64_t{1} << 32));
+      *dst = std::to_string(v);
+    }
+  }
+  LTB_ASSIGN_OR_RETURN(r->clamp, GetBool(path, t, "clamp", r->clamp));
+  LTB_ASSIGN_OR_RETURN(r->format, GetChoice(path, t, "format", r->format, {"png", "exr", "npy"}));
+  LTB_ASSIGN_OR_RETURN(r->exposure, GetNumber(path, t, "exposure", r->exposure, -64, 64));
   return Status::Ok();
 }
 
@@ -274,7 +342,7 @@ Result<Recipe> ParseRecipe(const std::string& path_in) {
   r.dir = fs::path(path).parent_path().string();
   LTB_RETURN_IF_ERROR(CheckKeys(path, root, "the recipe",
                                 {"name", "scene", "workdir", "targets", "keep", "sample", "row-transform", "transpose",
-                                 "column-transform", "quantize", "cpca", "relight"}));
+                                 "column-transform", "quantize", "cpca", "relight", "triple"}));
   LTB_ASSIGN_OR_RETURN(r.name, GetString(path, root, "name", fs::path(path).stem().string()));
   if (r.name.empty()) return InvalidArgument(Where(path, *root.get("name")) + ": \"name\" is empty");
 
@@ -363,14 +431,21 @@ Result<Recipe> ParseRecipe(const std::string& path_in) {
   }
   LTB_ASSIGN_OR_RETURN(const toml::table* relight, table("relight"));
   if (relight) LTB_RETURN_IF_ERROR(ParseRelight(path, r.dir, *relight, &r.relight));
+  LTB_ASSIGN_OR_RETURN(const toml::table* tri, table("triple"));
+  if (tri) LTB_RETURN_IF_ERROR(ParseTriple(path, r.dir, *tri, &r.triple));
 
   LTB_ASSIGN_OR_RETURN(r.targets, GetStringList(path, root, "targets", StageNames()));
   if (!root.contains("targets")) {
-    r.targets = {"quantize"};
+    // A [triple] table means a vertex-mode scene, which has no image for quantize.
+    r.targets = {r.triple.present ? "triple" : "quantize"};
     if (r.cpca.present) r.targets.push_back("cpca");
     if (r.relight.present) r.targets.push_back("relight");
   }
   if (r.targets.empty()) return InvalidArgument(Where(path, *root.get("targets")) + ": \"targets\" is empty");
+  if (std::count(r.targets.begin(), r.targets.end(), "triple") && !r.triple.present) {
+    return InvalidArgument(Where(path, *root.get("targets")) +
+                           ": \"targets\" asks for triple but the recipe has no [triple] table (materials, envs, eye)");
+  }
   if (std::count(r.targets.begin(), r.targets.end(), "relight") && !r.relight.present) {
     return InvalidArgument(Where(path, *root.get("targets")) +
                            ": \"targets\" asks for relight but the recipe has no [relight] table (envs, terms, ...)");

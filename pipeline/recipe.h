@@ -5,6 +5,7 @@
 #pragma once
 
 #include <cstdint>
+#include <glm/vec3.hpp>
 #include <optional>
 #include <set>
 #include <string>
@@ -89,6 +90,24 @@ struct Recipe {
     std::string format = "png";  // png | exr
     double exposure = 0;
   } relight;
+
+  // The triple-product path (docs/TRIPLE.md): a visibility field, material fields and one
+  // view per map of a vertex-mode scene.
+  struct Triple {
+    bool present = false;
+    uint64_t cube_res = 32;  // the visibility and material fields' R
+    std::optional<uint64_t> spp;
+    std::vector<std::string> materials;  // --brdf specs: "lambert", "phong:64", ...
+    std::vector<EnvMap> envs;
+    glm::dvec3 eye{0, -3, 1.5}, target{0, 0, 0}, up{0, 0, 1};
+    double fov = 40;
+    uint64_t width = 256, height = 256;
+    std::string method = "sublinear";
+    std::string terms = "100", brdf_terms = "all";  // N or "all"
+    bool clamp = false;
+    std::string format = "png";  // png | exr | npy
+    double exposure = 0;
+  } triple;
 
   bool Keeps(const std::string& intermediate) const { return keep.count(intermediate) != 0; }
 };

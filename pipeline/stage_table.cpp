@@ -93,6 +93,17 @@ StageCommand Cpca(const Recipe& r, const StageContext& ctx) {
   return c;
 }
 
+StageCommand Visibility(const Recipe& r, const StageContext& ctx) {
+  StageCommand c;
+  c.args = {"sample", ctx.scene_file, "--visibility", "--cube-res", std::to_string(r.triple.cube_res)};
+  c.params = {{"visibility", true}, {"cube_res", r.triple.cube_res}, {"spp", nullptr}};
+  if (r.triple.spp) {
+    c.params["spp"] = *r.triple.spp;
+    c.args.insert(c.args.end(), {"--spp", std::to_string(*r.triple.spp)});
+  }
+  return c;
+}
+
 }  // namespace
 
 const std::vector<StageInfo>& StageTable() {
@@ -109,6 +120,14 @@ const std::vector<StageInfo>& StageTable() {
       {"quantize", "final.ltm", {"column-transform"}, true, "quantize the kept coefficients", Quantize},
       {"cpca", "cpca.ltm", {"row-transform"}, false, "clustered PCA of the row-transformed matrix", Cpca},
       {"relight", "", {}, false, "relight under each environment map, with its error", nullptr},
+      {"visibility",
+       "vis.ltm",
+       {},
+       true,
+       "triple products: the visibility field per vertex (sample --visibility)",
+       Visibility},
+      {"material", "", {}, false, "triple products: a material field per [triple] materials entry", nullptr},
+      {"triple", "", {"visibility", "material"}, false, "triple products: a view of the scene under each map", nullptr},
   };
   return table;
 }

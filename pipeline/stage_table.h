@@ -32,11 +32,12 @@ struct StageContext {
 
 struct StageInfo {
   std::string_view name;
-  std::string_view output;              // the work-directory file it makes ("" for relight: an image per map)
+  std::string_view output;  // the work-directory file it makes ("" for relight, material, triple: one per item)
   std::vector<std::string_view> needs;  // stages whose outputs it reads (relight's depend on the recipe)
   bool shardable = false;               // can run as shards and be committed (docs/cluster.md)
   std::string_view summary;             // one line, for plans and docs
-  // The step's command from the recipe; empty for relight (one step per map, built by the graph).
+  // The step's command from the recipe; empty for relight and triple (one step per map) and
+  // material (one per material), built by the graph.
   std::function<StageCommand(const Recipe&, const StageContext&)> command;
 };
 

@@ -5,6 +5,7 @@
 #include <toml++/toml.h>
 
 #include <cstdint>
+#include <glm/vec3.hpp>
 #include <set>
 #include <string>
 
@@ -27,6 +28,9 @@ Result<uint64_t> GetUnsigned(const std::string& path, const toml::table& t, cons
                              uint64_t hi);
 Result<std::string> GetString(const std::string& path, const toml::table& t, const char* key, std::string def);
 Result<bool> GetBool(const std::string& path, const toml::table& t, const char* key, bool def);
+// [x, y, z] of finite numbers (or, with allow_scalar, one number for all three), or `def`.
+Result<glm::dvec3> GetVec3(const std::string& path, const toml::table& t, const char* key, glm::dvec3 def,
+                           bool allow_scalar = false);
 
 // The value of a node as TOML writes it (for messages): 1.5, nan, "text", [1, 2].
 std::string ValueText(const toml::node& n);

@@ -65,8 +65,8 @@ Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress
                              "an [output] table with mode = \"vertices\" (docs/SCENE.md)");
     }
     if (o.bounces.value_or(0) > 0) {
-      return InvalidArgument("--visibility traces direct visibility only; --bounces " +
-                             std::to_string(*o.bounces) + " does not apply (leave it out)");
+      return InvalidArgument("--visibility traces direct visibility only; --bounces " + std::to_string(*o.bounces) +
+                             " does not apply (leave it out)");
     }
     if (o.row_filter) return InvalidArgument("--visibility cannot be fused with a row-transform");
     p->bounces = 0;  // the scene's [sampling] bounces do not apply to visibility

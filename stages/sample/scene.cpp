@@ -19,6 +19,7 @@ using tomlf::CheckKeys;
 using tomlf::GetNumber;
 using tomlf::GetString;
 using tomlf::GetUnsigned;
+using tomlf::GetVec3;
 using tomlf::Where;
 
 // The camera must give Embree a well-defined frame: a view direction (eye != target), a
@@ -60,40 +61,6 @@ Status CheckCamera(const std::string& path, const toml::table& cam, const Camera
     }
   }
   return Status::Ok();
-}
-
-Result<glm::dvec3> GetVec3(const std::string& path, const toml::table& t, const char* key, glm::dvec3 def,
-                           bool allow_scalar = false) {
-  const toml::node* n = t.get(key);
-  if (n == nullptr) return def;
-  if (allow_scalar) {
-    if (auto s = n->value<double>()) {
-      if (!std::isfinite(*s)) {
-        return InvalidArgument(Where(path, *n) + ": \"" + key + "\" is " + tomlf::ValueText(*n) +
-                               "; it must be a finite number or [x, y, z]");
-      }
-      return glm::dvec3(*s);
-    }
-  }
-  const toml::array* a = n->as_array();
-  if (a == nullptr || a->size() != 3) {
-    return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must be [x, y, z]" +
-                           (allow_scalar ? " or a number" : ""));
-  }
-  glm::dvec3 v;
-  for (int i = 0; i < 3; ++i) {
-    auto x = (*a)[i].value<double>();
-    if (!x) return InvalidArgument(Where(path, *n) + ": \"" + key + "\" must hold 3 numbers");
-    if (!std::isfinite(*x)) {
-      return InvalidArgument(Where(path, *n) + ": \"" + key + "\" element " + std::to_string(i + 1) + " is " +
-                             (std::isnan(*x) ? "nan"
-                              : *x > 0       ? "inf"
-                                             : "-inf") +
-                             "; it must hold 3 finite numbers");
-    }
-    v[i] = *x;
-  }
-  return v;
 }
 
 }  // namespace

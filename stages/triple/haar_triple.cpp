@@ -161,8 +161,8 @@ void ParentSums(const double* coef, int n, std::vector<double>* p) {
   }
 }
 
-double LinearTripleProductDense(const double* l, const double* pl, const double* v, const double* pv,
-                                const double* rho, const double* pr, int n) {
+double LinearTripleProductDense(const double* l, const double* pl, const double* v, const double* pv, const double* rho,
+                                const double* pr, int n) {
   double integral = l[0] * v[0] * rho[0];
   for (int lv = 0; lv < n; ++lv) {
     const uint64_t first = SquareIndex(lv, 0, 0), count = uint64_t{1} << (2 * lv);

@@ -97,8 +97,8 @@ double ParentSumAt(const T* coef, int level, uint64_t i, uint64_t j) {
 
 // LinearTripleProduct's sum from dense coefficient arrays (R² each, HaarFace layout) and
 // their parent sums (ParentSums), for callers that reuse parent sums across products.
-double LinearTripleProductDense(const double* l, const double* pl, const double* v, const double* pv,
-                                const double* rho, const double* pr, int levels);
+double LinearTripleProductDense(const double* l, const double* pl, const double* v, const double* pv, const double* rho,
+                                const double* pr, int levels);
 
 // The exact integral from the three faces' coefficients, O(R²): case 1, case 2 per square
 // and case 3 per wavelet with parent sums filled by dynamic programming (§5.2).

@@ -125,11 +125,16 @@ Result<MaterialField> LoadMaterialField(const std::string& path, uint64_t res) {
   } catch (const nlohmann::json::exception& e) {
     return InvalidArgument(path + ": malformed material metadata: " + e.what());
   }
-  if (!(m.brdf.albedo > 0)) return InvalidArgument(path + ": the material field's albedo/ks is not positive");
+  if (!(m.brdf.albedo > 0) || !std::isfinite(m.brdf.albedo)) {
+    return InvalidArgument(path + ": the material field's albedo/ks is not a positive number");
+  }
+  if (m.sres < 1 || m.sres > 512) {
+    return InvalidArgument(path + ": samples_res " + std::to_string(m.sres) + " is not in 1..512");
+  }
   LTB_RETURN_IF_ERROR(ReadSparseRows(in, &m.rows));
   if (m.rows.rows != 6ull * m.sres * m.sres) {
-    return InvalidArgument(path + ": " + std::to_string(m.rows.rows) + " rows, not 6·S² for S = " +
-                           std::to_string(m.sres));
+    return InvalidArgument(path + ": " + std::to_string(m.rows.rows) +
+                           " rows, not 6·S² for S = " + std::to_string(m.sres));
   }
   const uint64_t face = res * res;
   std::vector<double> l1(face);
@@ -169,6 +174,9 @@ struct RhoPart {
 // The four sampled directions of a field nearest `dir` (bilinear on the face `dir` falls in,
 // clamped at the face's edges), weighted, scaled by `scale`.
 void Interpolate(const MaterialField& f, const glm::dvec3& dir, double scale, std::vector<RhoPart>* out) {
+  // A vertex without a normal (no faces) or seen from its own position has no direction:
+  // it reflects nothing.
+  if (!std::isfinite(dir.x) || !std::isfinite(dir.y) || !std::isfinite(dir.z) || glm::dot(dir, dir) < 1e-24) return;
   int face = 0;
   double u = 0, v = 0;
   cubemap::DirectionToFace(dir, &face, &u, &v);
@@ -191,11 +199,11 @@ void Interpolate(const MaterialField& f, const glm::dvec3& dir, double scale, st
 // The lighting of one frame in Haar (per channel, 6R² coefficients, face by face), its
 // parent sums, and its N-term approximation: the wavelets kept, ascending.
 struct Lighting {
-  std::vector<double> c[3];       // exact
-  std::vector<double> kept[3];    // the approximation (scaling coefficients always kept)
-  std::vector<double> psum[3];    // of the exact coefficients, per face: 6 × squares
+  std::vector<double> c[3];     // exact
+  std::vector<double> kept[3];  // the approximation (scaling coefficients always kept)
+  std::vector<double> psum[3];  // of the exact coefficients, per face: 6 × squares
   std::vector<double> kept_psum[3];
-  std::vector<uint32_t> terms;    // wavelet indices of the approximation, ascending
+  std::vector<uint32_t> terms;  // wavelet indices of the approximation, ascending
 };
 
 void MakeLighting(const std::vector<float>& cube, uint64_t res, uint64_t n_terms, Lighting* l) {
@@ -218,12 +226,12 @@ void MakeLighting(const std::vector<float>& cube, uint64_t res, uint64_t n_terms
   std::vector<double> mag(cols, 0.0);
   for (uint64_t k = 0; k < cols; ++k) {
     mag[k] = std::fabs(0.2126 * l->c[0][k] + 0.7152 * l->c[1][k] + 0.0722 * l->c[2][k]) * L1Norm(k % face);
-    if (k % face != 0 && (l->c[0][k] != 0 || l->c[1][k] != 0 || l->c[2][k] != 0)) idx.push_back(static_cast<uint32_t>(k));
+    if (k % face != 0 && (l->c[0][k] != 0 || l->c[1][k] != 0 || l->c[2][k] != 0))
+      idx.push_back(static_cast<uint32_t>(k));
   }
   const uint64_t n = std::min<uint64_t>(n_terms, idx.size());
-  std::partial_sort(idx.begin(), idx.begin() + static_cast<std::ptrdiff_t>(n), idx.end(), [&](uint32_t a, uint32_t b) {
-    return mag[a] != mag[b] ? mag[a] > mag[b] : a < b;
-  });
+  std::partial_sort(idx.begin(), idx.begin() + static_cast<std::ptrdiff_t>(n), idx.end(),
+                    [&](uint32_t a, uint32_t b) { return mag[a] != mag[b] ? mag[a] > mag[b] : a < b; });
   idx.resize(n);
   std::sort(idx.begin(), idx.end());
   l->terms = idx;
@@ -426,9 +434,9 @@ struct Renderer {
       ParentSums(v, ft.levels, &s.pv);
       ParentSums(r, ft.levels, &s.pr);
       for (int ch = 0; ch < 3; ++ch) {
-        out[ch] += LinearTripleProductDense(light.kept[ch].data() + f * face,
-                                            light.kept_psum[ch].data() + f * ft.squares, v, s.pv.data(), r,
-                                            s.pr.data(), ft.levels);
+        out[ch] +=
+            LinearTripleProductDense(light.kept[ch].data() + f * face, light.kept_psum[ch].data() + f * ft.squares, v,
+                                     s.pv.data(), r, s.pr.data(), ft.levels);
       }
     }
   }
@@ -498,7 +506,8 @@ Result<std::string> FramePath(const std::string& pattern, uint32_t k) {
   }
   if (pct == std::string::npos || end >= pattern.size() || pattern[end] != 'd' ||
       pattern.find('%', end + 1) != std::string::npos) {
-    return InvalidArgument("-o " + pattern + ": an orbit writes one image a frame; give a pattern with one %d, e.g. "
+    return InvalidArgument("-o " + pattern +
+                           ": an orbit writes one image a frame; give a pattern with one %d, e.g. "
                            "frames/view_%04d.png");
   }
   char buf[64];
@@ -549,28 +558,30 @@ Status ResolveMaterials(Renderer& rd) {
 Status LoadInputs(const RenderOptions& o, const Progress& progress, Renderer& rd, nlohmann::json* report) {
   LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(o.visibility));
   const nlohmann::json& j = in.metadata().json;
-  const auto cols = j.contains("basis") && j["basis"].is_object() ? j["basis"].value("cols", nlohmann::json()) : nlohmann::json();
-  if (!cols.is_object() || cols.value("basis", "") != "haar-squares" || cols.value("quantity", "") != "visibility" ||
-      !j.contains("visibility")) {
-    return InvalidArgument(o.visibility +
-                           ": is not a visibility field; make one with `ltbake sample SCENE --visibility -o vis.ltm` "
-                           "(a vertex-mode scene)");
-  }
-  if (!in.complete()) {
-    return FailedPrecondition(o.visibility + ": not complete; rerun `ltbake sample --visibility` to finish it");
-  }
-  rd.res = cols.value("cube_res", uint64_t{0});
-  if (!IsPowerOfTwo(rd.res) || in.metadata().matrix().cols != 6 * rd.res * rd.res) {
-    return InvalidArgument(o.visibility + ": columns are not 6R² for a power-of-two R");
-  }
-  LTB_RETURN_IF_ERROR(ReadSparseRows(in, &rd.vis));
   std::string scene_path = o.scene, want_hash;
   try {
+    const nlohmann::json cols = j.contains("basis") && j["basis"].is_object() && j["basis"].contains("cols")
+                                    ? j["basis"]["cols"]
+                                    : nlohmann::json();
+    if (!cols.is_object() || cols.value("basis", "") != "haar-squares" || cols.value("quantity", "") != "visibility" ||
+        !j.contains("visibility")) {
+      return InvalidArgument(o.visibility +
+                             ": is not a visibility field; make one with `ltbake sample SCENE --visibility -o "
+                             "vis.ltm` (a vertex-mode scene)");
+    }
+    rd.res = cols.value("cube_res", uint64_t{0});
     if (scene_path.empty()) scene_path = j["visibility"].at("scene").get<std::string>();
     want_hash = j["visibility"].at("scene_hash").get<std::string>();
   } catch (const nlohmann::json::exception& e) {
     return InvalidArgument(o.visibility + ": malformed visibility metadata: " + e.what());
   }
+  if (!in.complete()) {
+    return FailedPrecondition(o.visibility + ": not complete; rerun `ltbake sample --visibility` to finish it");
+  }
+  if (!IsPowerOfTwo(rd.res) || rd.res > 512 || in.metadata().matrix().cols != 6 * rd.res * rd.res) {
+    return InvalidArgument(o.visibility + ": columns are not 6R² for a power-of-two R up to 512");
+  }
+  LTB_RETURN_IF_ERROR(ReadSparseRows(in, &rd.vis));
   LTB_ASSIGN_OR_RETURN(rd.scene, sample::ParseScene(scene_path));
   LTB_ASSIGN_OR_RETURN(rd.geo, sample::BuildGeometry(rd.scene, progress));
   if (rd.geo.scene_hash != want_hash) {
@@ -650,13 +661,12 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
   if (o.light_terms == 0) return InvalidArgument("--terms must be at least 1 (or all)");
   const uint32_t frames = std::max<uint32_t>(1, o.orbit_frames);
   if (o.orbit_frames > 0 && !o.output.empty()) LTB_RETURN_IF_ERROR(FramePath(o.output, 0).status());
-  nlohmann::json report = {{"method", TripleMethodName(o.method)},
-                           {"visibility", o.visibility},
-                           {"env", o.env},
-                           {"light_terms", o.light_terms == RenderOptions::kAll ? nlohmann::json("all")
-                                                                                : nlohmann::json(o.light_terms)},
-                           {"brdf_terms", o.brdf_terms == RenderOptions::kAll ? nlohmann::json("all")
-                                                                              : nlohmann::json(o.brdf_terms)}};
+  nlohmann::json report = {
+      {"method", TripleMethodName(o.method)},
+      {"visibility", o.visibility},
+      {"env", o.env},
+      {"light_terms", o.light_terms == RenderOptions::kAll ? nlohmann::json("all") : nlohmann::json(o.light_terms)},
+      {"brdf_terms", o.brdf_terms == RenderOptions::kAll ? nlohmann::json("all") : nlohmann::json(o.brdf_terms)}};
   auto t0 = Clock::now();
   Renderer rd{o};
   LTB_RETURN_IF_ERROR(LoadInputs(o, progress, rd, &report));
@@ -685,8 +695,8 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
   const std::vector<uint32_t> texels = o.method == TripleMethod::kPixel && o.light_terms != RenderOptions::kAll
                                            ? BrightestTexels(rd.light_cube, rd.texel_solid_angle, o.light_terms)
                                            : std::vector<uint32_t>{};
-  report["light_terms_used"] = o.method == TripleMethod::kPixel ? (texels.empty() ? cols : texels.size())
-                                                                : rd.light.terms.size();
+  report["light_terms_used"] =
+      o.method == TripleMethod::kPixel ? (texels.empty() ? cols : texels.size()) : rd.light.terms.size();
   report["lighting_ms"] = Ms(t1, Clock::now());
 
   const uint64_t rows = rd.vis.rows;

@@ -61,9 +61,9 @@ struct RenderOptions {
 };
 
 struct RenderResult {
-  nlohmann::json report;  // docs/TRIPLE.md lists the keys
-  std::vector<float> image;           // the first frame, height·width × 3
-  std::vector<float> vertex_values;   // with vertex_output: rows × 3
+  nlohmann::json report;             // docs/TRIPLE.md lists the keys
+  std::vector<float> image;          // the first frame, height·width × 3
+  std::vector<float> vertex_values;  // with vertex_output: rows × 3
 };
 
 Result<RenderResult> RunTripleRender(const RenderOptions& options, const Progress& progress);

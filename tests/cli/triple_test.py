@@ -9,7 +9,8 @@
 - sublinear with every term equals linear; its error against linear falls as terms grow.
 - A Phong sphere under one bright texel: the brightest vertex is where the light's mirror
   direction meets the eye (the reflection of the view about the normal is the light).
-- Orbits write one image a frame; bad inputs fail with a clear message.
+- Orbits write one image a frame; a [triple] recipe makes the same view as the commands
+  and a rerun skips; bad inputs fail with a clear message.
 
 usage: triple_test.py PATH_TO_LTBAKE
 """
@@ -320,6 +321,34 @@ file = "sphere.obj"
     p = run("relight", visd, "--material", lam, "--env", env_npy, "--eye", eye, "--orbit", "5:3",
             "-o", os.path.join(d, "y.png"), expect=1)
     check("%d" in p.stderr, f"an orbit needs a frame pattern: {p.stderr}")
+    # --- a recipe: [triple] makes the fields and one view per map, like the commands ---------
+    rec = write(os.path.join(d, "triple.toml"), f"""
+scene = "diffuse.toml"
+[triple]
+cube_res = {R}
+materials = ["lambert"]
+envs = ["env.npy"]
+eye = [0.0, -4.0, 2.5]
+target = [0.0, 0.0, 0.3]
+size = [40, 30]
+terms = 64
+format = "npy"
+""")
+    wd = os.path.join(d, "work")
+    run("run", rec, "--workdir", wd, "--progress", "never")
+    run("material", "--brdf", "lambert", "--cube-res", R, "-o", os.path.join(d, "lam_default.ltm"))
+    run("relight", visd, "--material", os.path.join(d, "lam_default.ltm"), "--env", env_npy, "--eye", "0,-4,2.5",
+        "--target", "0,0,0.3", "--size", "40x30", "--terms", 64, "-o", os.path.join(d, "by_hand.npy"))
+    view = os.path.join(wd, "view-env.npy")
+    check(os.path.exists(view) and np.array_equal(np.load(view), np.load(os.path.join(d, "by_hand.npy"))),
+          "the recipe's view equals the same relight run by hand")
+    check(os.path.exists(os.path.join(wd, "vis.ltm")) and os.path.exists(os.path.join(wd, "material-lambert.ltm")),
+          "the recipe keeps the fields")
+    run("run", rec, "--workdir", wd, "--progress", "never")
+    rep = json.load(open(os.path.join(wd, "run.json")))
+    check(all(st["action"] == "skip" for st in rep["stages"]),
+          f"a rerun skips every step: {[(st['node'], st['action']) for st in rep['stages']]}")
+
     p = run("sample", os.path.join(os.path.dirname(__file__), "..", "..", "samples", "tiny.toml"), "--visibility",
             "-o", os.path.join(d, "t.ltm"), expect=1)
     check("vertex" in p.stderr, f"--visibility on an image-mode scene: {p.stderr}")

@@ -80,5 +80,41 @@ TEST(Graph, OneRelightStepPerMapWithItsReference) {
   EXPECT_FALSE(BuildGraph(r, BakeOptions{}, "/work", "/work/scene.toml").ok());
 }
 
+TEST(Graph, TriplePathMakesTheFieldsThenOneViewPerMap) {
+  Recipe r = Base();
+  r.targets = {"triple"};
+  r.triple.present = true;
+  r.triple.cube_res = 16;
+  r.triple.spp = 2;
+  r.triple.materials = {"lambert", "phong:64"};
+  r.triple.envs = {{"sky", "/maps/sky.exr"}, {"dusk", "/maps/dusk.hdr"}};
+  r.triple.eye = {1, -2, 0.5};
+  auto g = BuildGraph(r, BakeOptions{}, "/work", "/work/scene.toml");
+  ASSERT_TRUE(g.ok()) << g.status().message();
+  EXPECT_EQ(Names(*g), (std::vector<std::string>{"visibility", "material:lambert", "material:phong:64", "triple:sky",
+                                                 "triple:dusk"}));
+  EXPECT_EQ(g->nodes[0].output, "vis.ltm");
+  EXPECT_EQ(g->nodes[0].args,
+            (std::vector<std::string>{"sample", "/work/scene.toml", "--visibility", "--cube-res", "16", "--spp", "2"}));
+  EXPECT_EQ(g->nodes[2].output, "material-phong-64.ltm");
+  EXPECT_EQ(g->nodes[2].args, (std::vector<std::string>{"material", "--brdf", "phong:64", "--cube-res", "16"}));
+  const Node& view = g->nodes[3];
+  EXPECT_TRUE(view.image);
+  EXPECT_EQ(view.output, "view-sky.png");
+  EXPECT_EQ(view.inputs, (std::vector<std::string>{"vis.ltm", "material-lambert.ltm", "material-phong-64.ltm"}));
+  auto at = [&](const std::string& flag) {
+    for (size_t k = 0; k + 1 < view.args.size(); ++k)
+      if (view.args[k] == flag) return view.args[k + 1];
+    return std::string("(missing)");
+  };
+  EXPECT_EQ(at("--eye"), "1,-2,0.5");
+  EXPECT_EQ(at("--env"), "/maps/sky.exr");
+  EXPECT_EQ(at("--material"), "/work/material-lambert.ltm");
+  // The fields are kept for later views, like final.ltm.
+  EXPECT_TRUE(g->wanted.count("vis.ltm") && g->wanted.count("material-lambert.ltm"));
+  r.triple.present = false;
+  EXPECT_FALSE(BuildGraph(r, BakeOptions{}, "/work", "/work/scene.toml").ok());
+}
+
 }  // namespace
 }  // namespace ltb::pipeline
