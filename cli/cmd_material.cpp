@@ -1,4 +1,5 @@
-// ltbake material --brdf lambert|phong:S -o mat.ltm [--cube-res R] [--samples-res S] [--energy 0.999]
+// ltbake material --brdf lambert|phong:S|blinn:S|ward:A|cook-torrance:M,F0 -o mat.ltm [--cube-res R]
+//                 [--samples-res S] [--normals-res N] [--energy 0.999]
 #include <iostream>
 #include <nlohmann/json.hpp>
 
@@ -16,13 +17,19 @@ class MaterialCommand : public Command {
         "material",
         "tabulate a BRDF for the triple-product relighting (docs/TRIPLE.md): Haar coefficients of its lobe "
         "over the cubemap (lambert with the cosine), per sampled normal (lambert) or reflection vector (phong)");
-    app->add_option("--brdf", brdf_, "lambert[:ALBEDO] or phong:EXPONENT[:KS]")->required();
+    app->add_option("--brdf", brdf_,
+                    "lambert[:ALBEDO], phong:EXPONENT[:KS], blinn:EXPONENT[:KS], ward:ALPHA[:KS] or "
+                    "cook-torrance:M,F0[:KS]")
+        ->required();
     app->add_option("-o,--output", options_.output, "output container (mat.ltm)")->required();
     app->add_option("--cube-res", options_.cube_res, "face size R of the lighting's cubemap (a power of two)")
         ->default_val(32);
     app->add_option("--samples-res", options_.samples_res,
-                    "face size of the cube of sampled normals / reflection vectors (default 16 for lambert, 32 for "
-                    "phong)");
+                    "face size of the cube of sampled normals (lambert) / reflection vectors (default 16 for lambert, "
+                    "32 for phong, 16 for blinn, ward, cook-torrance)");
+    app->add_option("--normals-res", options_.normals_res,
+                    "blinn, ward, cook-torrance: face size of the cube of sampled normals (default 4); rows are "
+                    "every (normal, reflection vector) pair");
     app->add_option("--energy", options_.energy, "fraction of each row's energy the kept coefficients hold")
         ->default_val(0.999);
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
@@ -43,6 +50,7 @@ class MaterialCommand : public Command {
                                 {"rows", r->rows},
                                 {"cols", r->cols},
                                 {"samples_res", r->samples_res},
+                                {"normals_res", r->normals_res},
                                 {"terms_kept", r->terms_kept},
                                 {"worst_energy_kept", r->worst_energy_kept},
                                 {"chunks_written", r->chunks_written},

@@ -144,13 +144,25 @@ Status ParseMaterials(const std::string& path, const toml::table& root, SceneDes
       const toml::table* m = node.as_table();
       if (m == nullptr) return InvalidArgument(Where(path, node) + ": [[material]] entries must be tables");
       LTB_RETURN_IF_ERROR(CheckKeys(path, *m, "[[material]] at line " + std::to_string(node.source().begin.line),
-                                    {"name", "albedo", "ks", "exponent"}));
+                                    {"name", "albedo", "ks", "exponent", "brdf", "roughness", "f0"}));
       Material mat;
       LTB_ASSIGN_OR_RETURN(mat.name, GetString(path, *m, "name", ""));
       if (mat.name.empty()) return InvalidArgument(Where(path, node) + ": [[material]] needs a name");
       LTB_ASSIGN_OR_RETURN(mat.albedo, GetNumber(path, *m, "albedo", mat.albedo, 0.0, 1.0));
       LTB_ASSIGN_OR_RETURN(mat.ks, GetNumber(path, *m, "ks", mat.ks, 0.0, 1.0));
       LTB_ASSIGN_OR_RETURN(mat.exponent, GetNumber(path, *m, "exponent", mat.exponent, 0.0, 1e5));
+      LTB_ASSIGN_OR_RETURN(mat.brdf, GetString(path, *m, "brdf", mat.brdf));
+      if (mat.brdf != "phong" && mat.brdf != "blinn" && mat.brdf != "ward" && mat.brdf != "cook-torrance") {
+        return InvalidArgument(Where(path, *m->get("brdf")) + ": material \"" + mat.name + "\" has brdf \"" + mat.brdf +
+                               "\"; expected phong, blinn, ward or cook-torrance");
+      }
+      LTB_ASSIGN_OR_RETURN(mat.roughness, GetNumber(path, *m, "roughness", mat.roughness, 1e-4, 10.0));
+      LTB_ASSIGN_OR_RETURN(mat.f0, GetNumber(path, *m, "f0", mat.f0, 0.0, 1.0));
+      if (s->mode == SceneDesc::Mode::kImage && mat.ks > 0 && mat.brdf != "phong") {
+        return InvalidArgument(Where(path, node) + ": material \"" + mat.name + "\" has brdf \"" + mat.brdf +
+                               "\", which only the triple-product path renders (a vertex-mode scene, relight "
+                               "--material; docs/TRIPLE.md); image mode renders the Phong lobe");
+      }
       if (mat.albedo + mat.ks > 1.0) {
         return InvalidArgument(Where(path, node) + ": material \"" + mat.name + "\" has albedo + ks = " +
                                std::to_string(mat.albedo + mat.ks) + " > 1 (it would create energy)");

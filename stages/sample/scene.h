@@ -21,6 +21,12 @@ struct Material {
   double albedo = 0.8;  // Lambertian reflectance, f = albedo / π
   double ks = 0.0;      // normalised Phong lobe ks (n+2)/(2π) cos^n(r·ω); image mode only
   double exponent = 20.0;
+  // The glossy lobe's BRDF for the triple-product path (docs/TRIPLE.md): "phong" (image mode
+  // renders only this one), "blinn" (exponent), "ward" (roughness α), "cook-torrance"
+  // (roughness m, f0).
+  std::string brdf = "phong";
+  double roughness = 0.2;
+  double f0 = 0.04;
 };
 
 struct Camera {

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstdio>
 #include <mutex>
 #include <numbers>
 #include <vector>
@@ -26,52 +27,170 @@ Result<Brdf> ParseBrdf(const std::string& text) {
       start = k + 1;
     }
   }
-  auto number = [&](size_t i, double* out) -> Status {
+  auto number = [&](const std::string& part, double* out) -> Status {
     char* end = nullptr;
-    const double v = std::strtod(parts[i].c_str(), &end);
-    if (parts[i].empty() || *end != '\0' || !std::isfinite(v) || v < 0) {
-      return InvalidArgument("--brdf " + text + ": '" + parts[i] + "' is not a non-negative number");
+    const double v = std::strtod(part.c_str(), &end);
+    if (part.empty() || *end != '\0' || !std::isfinite(v) || v < 0) {
+      return InvalidArgument("--brdf " + text + ": '" + part + "' is not a non-negative number");
     }
     *out = v;
     return Status::Ok();
   };
-  if (parts[0] == "lambert" && parts.size() <= 2) {
+  // "A,B" -> two numbers.
+  auto pair = [&](const std::string& part, double* a, double* b) -> Status {
+    const size_t comma = part.find(',');
+    if (comma == std::string::npos)
+      return InvalidArgument("--brdf " + text + ": '" + part + "' is not two numbers A,B");
+    LTB_RETURN_IF_ERROR(number(part.substr(0, comma), a));
+    return number(part.substr(comma + 1), b);
+  };
+  const std::string& kind = parts[0];
+  if (kind == "lambert" && parts.size() <= 2) {
     b.kind = Brdf::Kind::kLambert;
-    if (parts.size() == 2) LTB_RETURN_IF_ERROR(number(1, &b.albedo));
+    if (parts.size() == 2) LTB_RETURN_IF_ERROR(number(parts[1], &b.albedo));
     return b;
   }
-  if (parts[0] == "phong" && (parts.size() == 2 || parts.size() == 3)) {
-    b.kind = Brdf::Kind::kPhong;
-    LTB_RETURN_IF_ERROR(number(1, &b.exponent));
-    if (parts.size() == 3) LTB_RETURN_IF_ERROR(number(2, &b.albedo));
+  if (parts.size() < 2 || parts.size() > 3) {
+    return InvalidArgument("--brdf " + text +
+                           ": expected lambert[:ALBEDO], phong:S[:KS], blinn:S[:KS], ward:A[:KS] or "
+                           "cook-torrance:M,F0[:KS]");
+  }
+  if (parts.size() == 3) LTB_RETURN_IF_ERROR(number(parts[2], &b.albedo));
+  if (kind == "phong" || kind == "blinn") {
+    b.kind = kind == "phong" ? Brdf::Kind::kPhong : Brdf::Kind::kBlinn;
+    LTB_RETURN_IF_ERROR(number(parts[1], &b.exponent));
     return b;
   }
-  return InvalidArgument("--brdf " + text + ": expected lambert[:ALBEDO] or phong:EXPONENT[:KS]");
-}
-
-double BrdfValue(const Brdf& brdf, const glm::dvec3& dir, const glm::dvec3& w) {
-  const double c = glm::dot(dir, w);
-  if (c <= 0) return 0;
-  return brdf.kind == Brdf::Kind::kLambert
-             ? brdf.albedo / std::numbers::pi * c
-             : brdf.albedo * (brdf.exponent + 1) / (2 * std::numbers::pi) * std::pow(c, brdf.exponent);
-}
-
-CubeFaces MaterialFaces(const Brdf& brdf, const glm::dvec3& dir, uint64_t res) {
-  CubeFaces faces;
-  const uint32_t r = static_cast<uint32_t>(res);
-  std::vector<double> pixels(res * res);
-  const double area = static_cast<double>(res * res);  // texel solid angle × R²: unit-square measure
-  for (int f = 0; f < 6; ++f) {
-    for (uint32_t t = 0; t < r; ++t) {
-      for (uint32_t s = 0; s < r; ++s) {
-        const cubemap::Texel x{f, s, t};
-        pixels[t * res + s] = BrdfValue(brdf, dir, cubemap::TexelCenter(x, r)) * cubemap::TexelSolidAngle(x, r) * area;
+  if (kind == "ward") {
+    b.kind = Brdf::Kind::kWard;
+    if (parts[1].find(',') != std::string::npos) {
+      double ay = 0;
+      LTB_RETURN_IF_ERROR(pair(parts[1], &b.roughness, &ay));
+      if (ay != b.roughness) {
+        return InvalidArgument("--brdf " + text +
+                               ": an anisotropic Ward lobe (ax != ay) needs a tangent frame per vertex, which "
+                               "vertex rows do not have; give one roughness, ward:A");
       }
+    } else {
+      LTB_RETURN_IF_ERROR(number(parts[1], &b.roughness));
+    }
+  } else if (kind == "cook-torrance") {
+    b.kind = Brdf::Kind::kCookTorrance;
+    LTB_RETURN_IF_ERROR(pair(parts[1], &b.roughness, &b.f0));
+    if (b.f0 > 1) return InvalidArgument("--brdf " + text + ": F0 is a reflectance in [0, 1]");
+  } else {
+    return InvalidArgument("--brdf " + text +
+                           ": expected lambert[:ALBEDO], phong:S[:KS], blinn:S[:KS], ward:A[:KS] or "
+                           "cook-torrance:M,F0[:KS]");
+  }
+  if (!(b.roughness > 0)) return InvalidArgument("--brdf " + text + ": the roughness must be positive");
+  return b;
+}
+
+const char* BrdfKindName(Brdf::Kind kind) {
+  switch (kind) {
+    case Brdf::Kind::kLambert:
+      return "lambert";
+    case Brdf::Kind::kPhong:
+      return "phong";
+    case Brdf::Kind::kBlinn:
+      return "blinn";
+    case Brdf::Kind::kWard:
+      return "ward";
+    default:
+      return "cook-torrance";
+  }
+}
+
+std::string BrdfSpec(const Brdf& b) {
+  char buf[96];
+  switch (b.kind) {
+    case Brdf::Kind::kLambert:
+      return "lambert";
+    case Brdf::Kind::kPhong:
+    case Brdf::Kind::kBlinn:
+      std::snprintf(buf, sizeof buf, "%s:%g", BrdfKindName(b.kind), b.exponent);
+      return buf;
+    case Brdf::Kind::kWard:
+      std::snprintf(buf, sizeof buf, "ward:%g", b.roughness);
+      return buf;
+    default:
+      std::snprintf(buf, sizeof buf, "cook-torrance:%g,%g", b.roughness, b.f0);
+      return buf;
+  }
+}
+
+bool Brdf::SameLobe(const Brdf& o) const {
+  auto close = [](double a, double b) { return std::fabs(a - b) <= 1e-9 * std::max(std::fabs(a), std::fabs(b)); };
+  return kind == o.kind && close(exponent, o.exponent) && close(roughness, o.roughness) && close(f0, o.f0);
+}
+
+double BrdfValue(const Brdf& brdf, const glm::dvec3& n, const glm::dvec3& wr, const glm::dvec3& w) {
+  constexpr double kPi = std::numbers::pi;
+  if (brdf.kind == Brdf::Kind::kLambert) {
+    const double c = glm::dot(n, w);
+    return c > 0 ? brdf.albedo / kPi * c : 0.0;
+  }
+  if (brdf.kind == Brdf::Kind::kPhong) {
+    const double c = glm::dot(wr, w);
+    return c > 0 ? brdf.albedo * (brdf.exponent + 1) / (2 * kPi) * std::pow(c, brdf.exponent) : 0.0;
+  }
+  const double nw = glm::dot(n, w);
+  const glm::dvec3 wo = 2 * glm::dot(n, wr) * n - wr;
+  const double no = glm::dot(n, wo);
+  if (nw <= 0 || no <= 0) return 0;
+  const glm::dvec3 hsum = w + wo;
+  const double hl = glm::length(hsum);
+  if (!(hl > 0)) return 0;
+  const glm::dvec3 h = hsum / hl;
+  const double nh = std::max(0.0, glm::dot(n, h));
+  double f = 0;
+  if (brdf.kind == Brdf::Kind::kBlinn) {  // normalised Blinn–Phong
+    f = brdf.albedo * (brdf.exponent + 2) / (8 * kPi) * std::pow(nh, brdf.exponent);
+  } else {
+    const double a2 = brdf.roughness * brdf.roughness;
+    const double cos2 = nh * nh;
+    if (!(cos2 > 0)) return 0;
+    const double tan2 = (1 - cos2) / cos2;
+    if (brdf.kind == Brdf::Kind::kWard) {  // isotropic Ward
+      f = brdf.albedo * std::exp(-tan2 / a2) / (4 * kPi * a2 * std::sqrt(nw * no));
+    } else {  // Cook–Torrance: Beckmann D, Schlick F, the V-groove G
+      const double d = std::exp(-tan2 / a2) / (kPi * a2 * cos2 * cos2);
+      const double wh = std::max(0.0, glm::dot(w, h));
+      const double fr = brdf.f0 + (1 - brdf.f0) * std::pow(1 - wh, 5);
+      const double oh = glm::dot(wo, h);
+      const double g = oh > 0 ? std::min({1.0, 2 * nh * no / oh, 2 * nh * nw / oh}) : 0.0;
+      f = brdf.albedo * d * fr * g / (4 * nw * no);
+    }
+  }
+  return f * nw;
+}
+
+TexelTable::TexelTable(uint64_t r) : res(r) {
+  const uint32_t rr = static_cast<uint32_t>(r);
+  const double area = static_cast<double>(r * r);  // texel solid angle × R²: unit-square measure
+  for (uint64_t c = 0; c < 6 * r * r; ++c) {
+    const cubemap::Texel x = cubemap::ColumnToTexel(c, rr);
+    centre.push_back(cubemap::TexelCenter(x, rr));
+    weight.push_back(cubemap::TexelSolidAngle(x, rr) * area);
+  }
+}
+
+CubeFaces MaterialFaces(const Brdf& brdf, const glm::dvec3& n, const glm::dvec3& wr, const TexelTable& texels) {
+  CubeFaces faces;
+  const uint64_t res = texels.res, face = res * res;
+  std::vector<double> pixels(face);
+  for (uint64_t f = 0; f < 6; ++f) {
+    for (uint64_t p = 0; p < face; ++p) {
+      pixels[p] = BrdfValue(brdf, n, wr, texels.centre[f * face + p]) * texels.weight[f * face + p];
     }
     faces[f] = HaarFace::Forward(pixels, res);
   }
   return faces;
+}
+
+CubeFaces MaterialFaces(const Brdf& brdf, const glm::dvec3& n, const glm::dvec3& wr, uint64_t res) {
+  return MaterialFaces(brdf, n, wr, TexelTable(res));
 }
 
 CubeFaces CubeFunctionFaces(const double* values, uint64_t res) {
@@ -90,17 +209,18 @@ double CubeTripleProduct(const CubeFaces& l, const CubeFaces& v, const CubeFaces
 
 namespace {
 
-std::string BrdfName(const Brdf& b) { return b.kind == Brdf::Kind::kLambert ? "lambert" : "phong"; }
-
-// One row: the Haar coefficients of ρ̃ for `dir` on the six faces, the smallest ones zeroed
+// One row: the Haar coefficients of ρ̃ for (normal, wr) on the six faces, the smallest ones zeroed
 // so that the kept ones hold at least `energy` of Σc². Returns the kept fraction.
-double MaterialRow(const Brdf& brdf, const glm::dvec3& dir, uint64_t res, double energy, float* out, uint64_t* kept) {
-  const CubeFaces faces = MaterialFaces(brdf, dir, res);
-  const uint64_t face = res * res, n = 6 * face;
+double MaterialRow(const Brdf& brdf, const glm::dvec3& normal, const glm::dvec3& wr, const TexelTable& texels,
+                   double energy, float* out, uint64_t* kept) {
+  const CubeFaces faces = MaterialFaces(brdf, normal, wr, texels);
+  const uint64_t face = texels.res * texels.res, n = 6 * face;
   std::vector<double> c(n);
   for (int f = 0; f < 6; ++f) std::copy(faces[f].c.begin(), faces[f].c.end(), c.begin() + f * face);
-  std::vector<uint32_t> order(n);
-  for (uint32_t k = 0; k < n; ++k) order[k] = k;
+  std::vector<uint32_t> order;  // the nonzero coefficients, largest first
+  for (uint32_t k = 0; k < n; ++k) {
+    if (c[k] != 0) order.push_back(k);
+  }
   std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) {
     const double x = c[a] * c[a], y = c[b] * c[b];
     return x != y ? x > y : a < b;
@@ -109,7 +229,7 @@ double MaterialRow(const Brdf& brdf, const glm::dvec3& dir, uint64_t res, double
   for (double v : c) total += v * v;
   double sum = 0;
   uint64_t m = 0;
-  while (m < n && total > 0 && sum < energy * total) {
+  while (m < order.size() && total > 0 && sum < energy * total) {
     const double v = c[order[m++]];
     sum += v * v;
   }
@@ -126,34 +246,49 @@ Result<MaterialResult> RunMaterial(const MaterialOptions& o, const Progress& pro
   if (!IsPowerOfTwo(res) || res > 512) {
     return InvalidArgument("--cube-res " + std::to_string(res) + " is not a power of two up to 512");
   }
-  const uint64_t sres = o.samples_res != 0 ? o.samples_res : o.brdf.kind == Brdf::Kind::kLambert ? 16 : 32;
+  const bool two = o.brdf.TwoDirections();
+  const uint64_t sres = o.samples_res != 0 ? o.samples_res : o.brdf.kind == Brdf::Kind::kPhong ? 32 : 16;
+  const uint64_t nres = two ? (o.normals_res != 0 ? o.normals_res : 4) : 0;
   if (sres > 512) return InvalidArgument("--samples-res " + std::to_string(sres) + " is above 512");
+  if (nres > 64) return InvalidArgument("--normals-res " + std::to_string(nres) + " is above 64");
+  if (!two && o.normals_res != 0) {
+    return InvalidArgument(std::string("--normals-res is for the BRDFs of two directions (blinn, ward, "
+                                       "cook-torrance); ") +
+                           BrdfKindName(o.brdf.kind) + " has one");
+  }
   if (!(o.energy > 0 && o.energy <= 1)) {
     return InvalidArgument("--energy " + std::to_string(o.energy) + " is not in (0, 1]");
   }
-  const uint64_t rows = 6 * sres * sres, cols = 6 * res * res;
+  const uint64_t per_normal = 6 * sres * sres, rows = two ? 6 * nres * nres * per_normal : per_normal;
+  const uint64_t cols = 6 * res * res;
   format::ArraySpec spec;
   spec.name = "matrix";
   spec.rows = rows;
   spec.cols = cols;
   spec.block = format::BlockForTargetBytes(rows, cols, format::DType::kF32, format::Layout::kRows, 4ull << 20);
   LTB_RETURN_IF_ERROR(spec.Validate().WithContext(o.output));
-  nlohmann::json brdf = {{"kind", BrdfName(o.brdf)}, {"albedo", o.brdf.albedo}};
-  if (o.brdf.kind == Brdf::Kind::kPhong) brdf["exponent"] = o.brdf.exponent;
+  nlohmann::json brdf = {{"kind", BrdfKindName(o.brdf.kind)}, {"albedo", o.brdf.albedo}};
+  if (o.brdf.kind == Brdf::Kind::kPhong || o.brdf.kind == Brdf::Kind::kBlinn) brdf["exponent"] = o.brdf.exponent;
+  if (o.brdf.kind == Brdf::Kind::kWard || o.brdf.kind == Brdf::Kind::kCookTorrance) {
+    brdf["roughness"] = o.brdf.roughness;
+  }
+  if (o.brdf.kind == Brdf::Kind::kCookTorrance) brdf["f0"] = o.brdf.f0;
+  const char* role = o.brdf.kind == Brdf::Kind::kLambert ? "normal" : two ? "normal-reflection" : "reflection";
+  nlohmann::json material = {{"brdf", brdf}, {"energy", o.energy}, {"samples_res", sres}};
+  nlohmann::json params = {{"cube_res", res}, {"samples_res", sres}, {"energy", o.energy}, {"brdf", brdf}};
+  if (two) {
+    material["normals_res"] = nres;
+    params["normals_res"] = nres;
+  }
   nlohmann::json meta = {
       {"arrays", {spec.ToJson()}},
       {"basis",
        {{"rows",
-         {{"kind", "cubemap"},
-          {"cube_res", sres},
-          {"basis", "pixel"},
-          {"role", o.brdf.kind == Brdf::Kind::kLambert ? "normal" : "reflection"}}},
+         two ? nlohmann::json{{"kind", "direction-pairs"}, {"normals_res", nres}, {"samples_res", sres}, {"role", role}}
+             : nlohmann::json{{"kind", "cubemap"}, {"cube_res", sres}, {"basis", "pixel"}, {"role", role}}},
         {"cols", {{"kind", "cubemap"}, {"cube_res", res}, {"basis", "haar-squares"}}}}},
-      {"material", {{"brdf", brdf}, {"energy", o.energy}, {"samples_res", sres}}},
-      {"provenance",
-       {{"tool", std::string("ltbake ") + kToolVersion},
-        {"stage", "material"},
-        {"parameters", {{"cube_res", res}, {"samples_res", sres}, {"energy", o.energy}, {"brdf", brdf}}}}},
+      {"material", material},
+      {"provenance", {{"tool", std::string("ltbake ") + kToolVersion}, {"stage", "material"}, {"parameters", params}}},
   };
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
@@ -162,6 +297,7 @@ Result<MaterialResult> RunMaterial(const MaterialOptions& o, const Progress& pro
   result.rows = rows;
   result.cols = cols;
   result.samples_res = sres;
+  result.normals_res = nres;
   result.chunks_already_committed = writer.resume_info().committed_chunks;
   const std::vector<uint64_t> missing = writer.Missing(0);
   std::mutex mu;
@@ -170,6 +306,7 @@ Result<MaterialResult> RunMaterial(const MaterialOptions& o, const Progress& pro
   eo.zstd = true;
   eo.dtype = format::DType::kF32;
   const uint32_t sr = static_cast<uint32_t>(sres);
+  const TexelTable texels(res);
   LTB_RETURN_IF_ERROR(
       stages::ParallelFor(missing, std::max(1, o.jobs), progress, "chunks", [&](uint64_t chunk) -> Status {
         const format::ChunkExtent e = spec.Extent(chunk);
@@ -177,8 +314,13 @@ Result<MaterialResult> RunMaterial(const MaterialOptions& o, const Progress& pro
         uint64_t kept = 0;
         double worst = 1;
         for (uint64_t r = 0; r < e.rows; ++r) {
-          const glm::dvec3 dir = cubemap::TexelCenter(cubemap::ColumnToTexel(e.row0 + r, sr), sr);
-          worst = std::min(worst, MaterialRow(o.brdf, dir, res, o.energy, values.data() + r * cols, &kept));
+          const uint64_t row = e.row0 + r;
+          const glm::dvec3 wr = cubemap::TexelCenter(cubemap::ColumnToTexel(row % per_normal, sr), sr);
+          const glm::dvec3 n =
+              two ? cubemap::TexelCenter(cubemap::ColumnToTexel(row / per_normal, static_cast<uint32_t>(nres)),
+                                         static_cast<uint32_t>(nres))
+                  : wr;
+          worst = std::min(worst, MaterialRow(o.brdf, n, wr, texels, o.energy, values.data() + r * cols, &kept));
         }
         LTB_RETURN_IF_ERROR(writer.Put(
             0, chunk, format::ByteSpan(reinterpret_cast<const std::byte*>(values.data()), values.size() * 4), eo));

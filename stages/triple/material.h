@@ -16,6 +16,7 @@
 #include <glm/geometric.hpp>
 #include <glm/vec3.hpp>
 #include <string>
+#include <vector>
 
 #include "format/progress.h"
 #include "format/status.h"
@@ -23,22 +24,52 @@
 
 namespace ltb::triple {
 
+// A BRDF times the incident cosine, ρ̃, in global coordinates (docs/TRIPLE.md "The
+// material"). Lambert depends on the normal n only, Phong on the reflection vector ω_r only
+// (the paper's form, no cosine); the general isotropic ones on both: with the view
+// ω_o = 2(n·ω_r)n − ω_r recovered from them, ρ̃(ω) = f(ω, ω_o)·max(0, n·ω), zero when ω_o is
+// below the horizon.
 struct Brdf {
-  enum class Kind { kLambert, kPhong } kind = Kind::kLambert;
-  double exponent = 0;  // Phong s
-  double albedo = 1;    // Lambert albedo, Phong ks
+  enum class Kind { kLambert, kPhong, kBlinn, kWard, kCookTorrance } kind = Kind::kLambert;
+  double exponent = 0;   // Phong, Blinn s
+  double albedo = 1;     // Lambert albedo; ks of the glossy ones
+  double roughness = 0;  // Ward α, Cook-Torrance m (Beckmann slope)
+  double f0 = 0;         // Cook-Torrance: Fresnel reflectance at normal incidence (Schlick)
+  // Tabulated over (n, ω_r) rather than one direction.
+  bool TwoDirections() const { return kind == Kind::kBlinn || kind == Kind::kWard || kind == Kind::kCookTorrance; }
+  // The parameters equal (the field a scene material needs).
+  bool SameLobe(const Brdf& o) const;
 };
-// "lambert", "lambert:ALBEDO", "phong:S", "phong:S:KS".
+// "lambert[:ALBEDO]", "phong:S[:KS]", "blinn:S[:KS]", "ward:A[:KS]" or "ward:AX,AY[:KS]" (only
+// isotropic, AX = AY: an anisotropic lobe needs a tangent frame per vertex),
+// "cook-torrance:M,F0[:KS]".
 Result<Brdf> ParseBrdf(const std::string& text);
+// The --brdf spelling of a BRDF ("phong:64", "cook-torrance:0.3,0.04"), its albedo/ks omitted.
+std::string BrdfSpec(const Brdf& brdf);
+const char* BrdfKindName(Brdf::Kind kind);
 
 using CubeFaces = std::array<HaarFace, 6>;
 
-// ρ̃ for `dir` (the normal or the reflection vector, unit) at the incident direction w (unit).
-double BrdfValue(const Brdf& brdf, const glm::dvec3& dir, const glm::dvec3& w);
+// ρ̃ for the normal n and the reflection vector wr (unit; Lambert reads n only, Phong wr
+// only) at the incident direction w (unit).
+double BrdfValue(const Brdf& brdf, const glm::dvec3& n, const glm::dvec3& wr, const glm::dvec3& w);
 
-// ρ̃ for `dir` (the normal for Lambert, the reflection vector for Phong; unit length) on
-// faces of R × R texels (R a power of two), solid-angle weighted as above, Haar-transformed.
-CubeFaces MaterialFaces(const Brdf& brdf, const glm::dvec3& dir, uint64_t res);
+// The texel centres of a cube of faces R × R (ltbake's column order) and their solid angles × R².
+struct TexelTable {
+  explicit TexelTable(uint64_t res);
+  uint64_t res;
+  std::vector<glm::dvec3> centre;
+  std::vector<double> weight;
+};
+
+// ρ̃ for (n, wr) on faces of R × R texels (R a power of two), solid-angle weighted as above,
+// Haar-transformed.
+CubeFaces MaterialFaces(const Brdf& brdf, const glm::dvec3& n, const glm::dvec3& wr, const TexelTable& texels);
+CubeFaces MaterialFaces(const Brdf& brdf, const glm::dvec3& n, const glm::dvec3& wr, uint64_t res);
+// The one-direction BRDFs: `dir` is the normal (Lambert) or the reflection vector (Phong).
+inline CubeFaces MaterialFaces(const Brdf& brdf, const glm::dvec3& dir, uint64_t res) {
+  return MaterialFaces(brdf, dir, dir, res);
+}
 
 // A function on the cube's texels (6R² values, ltbake's column order) Haar-transformed per
 // face: lighting (radiance) or visibility.
@@ -53,7 +84,9 @@ namespace ltb::triple {
 
 // `ltbake material --brdf B -o mat.ltm --cube-res R` (docs/TRIPLE.md "The material field"):
 // ρ̃ tabulated for every sampled direction — the texel centres of a cube of faces S × S: the
-// normals n for Lambert, the reflection vectors ω_r for Phong — one row each, its 6R²
+// normals n for Lambert, the reflection vectors ω_r for Phong; for the two-direction BRDFs
+// every pair of a normal (a cube of faces N × N) and a reflection vector, row
+// n_index·6S² + ω_r_index — one row each, its 6R²
 // columns the Haar coefficients of the six faces (face f's at f·R² + the HaarFace layout),
 // non-linearly approximated: the largest coefficients holding `energy` of the row's Σc²
 // are kept, the rest are zero. Rows layout, sparse(+zstd) chunks; resumable like a stage.
@@ -61,14 +94,15 @@ struct MaterialOptions {
   std::string output;
   Brdf brdf;
   uint64_t cube_res = 32;    // R, the lighting's cubemap
-  uint64_t samples_res = 0;  // S; 0: 16 for Lambert, 32 for Phong
+  uint64_t samples_res = 0;  // S; 0: 16 for Lambert, 32 for Phong, 16 for the two-direction BRDFs
+  uint64_t normals_res = 0;  // N, two-direction BRDFs only; 0: 4
   double energy = 0.999;     // kept fraction of each row's energy (0, 1]
   int jobs = 2;
   bool overwrite = false;
 };
 
 struct MaterialResult {
-  uint64_t rows = 0, cols = 0, samples_res = 0;
+  uint64_t rows = 0, cols = 0, samples_res = 0, normals_res = 0;
   uint64_t terms_kept = 0;       // nonzero coefficients stored
   double worst_energy_kept = 1;  // the smallest kept fraction over rows (≥ energy)
   uint64_t chunks_written = 0, chunks_already_committed = 0;

@@ -92,6 +92,7 @@ struct MaterialField {
   std::string path;
   Brdf brdf;
   uint32_t sres = 0;
+  uint32_t nres = 0;  // the normals' cube, for the two-direction BRDFs
   SparseRows rows;
   std::vector<uint32_t> scaling;  // per row: how many of its leading entries are scaling coefficients
 };
@@ -109,12 +110,19 @@ Result<MaterialField> LoadMaterialField(const std::string& path, uint64_t res) {
     const auto& b = j["material"]["brdf"];
     const std::string kind = b.at("kind").get<std::string>();
     m.brdf.albedo = b.at("albedo").get<double>();
-    if (kind == "phong") {
-      m.brdf.kind = Brdf::Kind::kPhong;
+    if (kind == "lambert") {
+      m.brdf.kind = Brdf::Kind::kLambert;
+    } else if (kind == "phong" || kind == "blinn") {
+      m.brdf.kind = kind == "phong" ? Brdf::Kind::kPhong : Brdf::Kind::kBlinn;
       m.brdf.exponent = b.at("exponent").get<double>();
-    } else if (kind != "lambert") {
+    } else if (kind == "ward" || kind == "cook-torrance") {
+      m.brdf.kind = kind == "ward" ? Brdf::Kind::kWard : Brdf::Kind::kCookTorrance;
+      m.brdf.roughness = b.at("roughness").get<double>();
+      if (kind == "cook-torrance") m.brdf.f0 = b.at("f0").get<double>();
+    } else {
       return InvalidArgument(path + ": material BRDF \"" + kind + "\" is not one this renderer knows");
     }
+    if (m.brdf.TwoDirections()) m.nres = j["material"].at("normals_res").get<uint32_t>();
     m.sres = j["material"].at("samples_res").get<uint32_t>();
     const uint64_t field_res = j.at("basis").at("cols").at("cube_res").get<uint64_t>();
     if (field_res != res) {
@@ -128,13 +136,15 @@ Result<MaterialField> LoadMaterialField(const std::string& path, uint64_t res) {
   if (!(m.brdf.albedo > 0) || !std::isfinite(m.brdf.albedo)) {
     return InvalidArgument(path + ": the material field's albedo/ks is not a positive number");
   }
-  if (m.sres < 1 || m.sres > 512) {
-    return InvalidArgument(path + ": samples_res " + std::to_string(m.sres) + " is not in 1..512");
+  if (m.sres < 1 || m.sres > 512 || (m.brdf.TwoDirections() && (m.nres < 1 || m.nres > 64))) {
+    return InvalidArgument(path + ": samples_res " + std::to_string(m.sres) + " / normals_res " +
+                           std::to_string(m.nres) + " out of range");
   }
   LTB_RETURN_IF_ERROR(ReadSparseRows(in, &m.rows));
-  if (m.rows.rows != 6ull * m.sres * m.sres) {
-    return InvalidArgument(path + ": " + std::to_string(m.rows.rows) +
-                           " rows, not 6·S² for S = " + std::to_string(m.sres));
+  const uint64_t want_rows = 6ull * m.sres * m.sres * (m.brdf.TwoDirections() ? 6ull * m.nres * m.nres : 1);
+  if (m.rows.rows != want_rows) {
+    return InvalidArgument(path + ": " + std::to_string(m.rows.rows) + " rows, not the " + std::to_string(want_rows) +
+                           " its sampled directions make");
   }
   const uint64_t face = res * res;
   std::vector<double> l1(face);
@@ -164,6 +174,20 @@ Result<MaterialField> LoadMaterialField(const std::string& path, uint64_t res) {
   return m;
 }
 
+// The glossy lobe of a scene material (its brdf, exponent, roughness, f0), ks = 1.
+Brdf GlossyLobe(const sample::Material& m) {
+  Brdf b;
+  b.kind = m.brdf == "blinn"           ? Brdf::Kind::kBlinn
+           : m.brdf == "ward"          ? Brdf::Kind::kWard
+           : m.brdf == "cook-torrance" ? Brdf::Kind::kCookTorrance
+                                       : Brdf::Kind::kPhong;
+  b.albedo = m.ks;
+  if (b.kind == Brdf::Kind::kPhong || b.kind == Brdf::Kind::kBlinn) b.exponent = m.exponent;
+  if (b.kind == Brdf::Kind::kWard || b.kind == Brdf::Kind::kCookTorrance) b.roughness = m.roughness;
+  if (b.kind == Brdf::Kind::kCookTorrance) b.f0 = m.f0;
+  return b;
+}
+
 // One sampled row of a field with its interpolation weight × the material's scale.
 struct RhoPart {
   const MaterialField* field;
@@ -171,27 +195,55 @@ struct RhoPart {
   double weight;
 };
 
-// The four sampled directions of a field nearest `dir` (bilinear on the face `dir` falls in,
-// clamped at the face's edges), weighted, scaled by `scale`.
-void Interpolate(const MaterialField& f, const glm::dvec3& dir, double scale, std::vector<RhoPart>* out) {
-  // A vertex without a normal (no faces) or seen from its own position has no direction:
-  // it reflects nothing.
-  if (!std::isfinite(dir.x) || !std::isfinite(dir.y) || !std::isfinite(dir.z) || glm::dot(dir, dir) < 1e-24) return;
+// The four texel centres of a cube of faces `res` × `res` nearest `dir` (bilinear on the
+// face `dir` falls in, clamped at the face's edges): their indices and weights. False for a
+// direction that is not one (zero or not finite: a vertex without faces, or seen from its
+// own position), which then reflects nothing.
+bool Bilinear(const glm::dvec3& dir, uint32_t res, uint64_t index[4], double weight[4]) {
+  if (!std::isfinite(dir.x) || !std::isfinite(dir.y) || !std::isfinite(dir.z) || glm::dot(dir, dir) < 1e-24) {
+    return false;
+  }
   int face = 0;
   double u = 0, v = 0;
   cubemap::DirectionToFace(dir, &face, &u, &v);
-  const double s = f.sres;
-  const double x = (u + 1) / 2 * s - 0.5, y = (v + 1) / 2 * s - 0.5;
+  const double x = (u + 1) / 2 * res - 0.5, y = (v + 1) / 2 * res - 0.5;
   const double fx0 = std::floor(x), fy0 = std::floor(y);
   const double ax = x - fx0, ay = y - fy0;
-  const int64_t last = static_cast<int64_t>(f.sres) - 1;
+  const int64_t last = static_cast<int64_t>(res) - 1;
   auto clampi = [&](double t) { return static_cast<uint64_t>(std::clamp<int64_t>(static_cast<int64_t>(t), 0, last)); };
   const uint64_t xs[2] = {clampi(fx0), clampi(fx0 + 1)}, ys[2] = {clampi(fy0), clampi(fy0 + 1)};
   const double wx[2] = {1 - ax, ax}, wy[2] = {1 - ay, ay};
   for (int b = 0; b < 2; ++b) {
     for (int a = 0; a < 2; ++a) {
-      const double w = wx[a] * wy[b] * scale / f.brdf.albedo;
-      if (w != 0) out->push_back({&f, (uint64_t(face) * f.sres + ys[b]) * f.sres + xs[a], w});
+      index[2 * b + a] = (uint64_t(face) * res + ys[b]) * res + xs[a];
+      weight[2 * b + a] = wx[a] * wy[b];
+    }
+  }
+  return true;
+}
+
+// ρ̃ of the field at (n, ω_r), scaled by `scale` (the material's albedo or ks over the
+// field's): bilinear between the four nearest sampled directions for a one-direction BRDF,
+// quadrilinear between the 16 nearest (normal, reflection vector) pairs for a two-direction
+// one (§7.2).
+void Interpolate(const MaterialField& f, const glm::dvec3& n, const glm::dvec3& wr, double scale,
+                 std::vector<RhoPart>* out) {
+  uint64_t ri[4], ni[4];
+  double rw[4], nw[4];
+  const double k = scale / f.brdf.albedo;
+  if (!f.brdf.TwoDirections()) {
+    if (!Bilinear(f.brdf.kind == Brdf::Kind::kLambert ? n : wr, f.sres, ri, rw)) return;
+    for (int a = 0; a < 4; ++a) {
+      if (rw[a] != 0) out->push_back({&f, ri[a], rw[a] * k});
+    }
+    return;
+  }
+  if (!Bilinear(n, f.nres, ni, nw) || !Bilinear(wr, f.sres, ri, rw)) return;
+  const uint64_t per_normal = 6ull * f.sres * f.sres;
+  for (int b = 0; b < 4; ++b) {
+    for (int a = 0; a < 4; ++a) {
+      const double w = nw[b] * rw[a];
+      if (w != 0) out->push_back({&f, ni[b] * per_normal + ri[a], w * k});
     }
   }
 }
@@ -329,8 +381,8 @@ struct Renderer {
   std::vector<MaterialField> fields;
   sample::SceneDesc scene;
   sample::Geometry geo;
-  // Per scene material: its Lambert and Phong fields (nullptr when the part is zero).
-  std::vector<const MaterialField*> lambert_of, phong_of;
+  // Per scene material: its Lambert and glossy fields (nullptr when the part is zero).
+  std::vector<const MaterialField*> lambert_of, glossy_of;
   std::vector<glm::dvec3> texel_dir;
   std::vector<double> texel_solid_angle;
   Lighting light;
@@ -341,8 +393,8 @@ struct Renderer {
     parts->clear();
     const sample::RowPoint& rp = geo.vertex_rows[row];
     const sample::Material& m = scene.materials[rp.material];
-    if (lambert_of[rp.material]) Interpolate(*lambert_of[rp.material], rp.n, m.albedo, parts);
-    if (phong_of[rp.material]) Interpolate(*phong_of[rp.material], Reflection(rp, eye), m.ks, parts);
+    if (lambert_of[rp.material]) Interpolate(*lambert_of[rp.material], rp.n, rp.n, m.albedo, parts);
+    if (glossy_of[rp.material]) Interpolate(*glossy_of[rp.material], rp.n, Reflection(rp, eye), m.ks, parts);
   }
   static glm::dvec3 Reflection(const sample::RowPoint& rp, const glm::dvec3& eye) {
     const glm::dvec3 wo = glm::normalize(eye - rp.p);
@@ -447,15 +499,16 @@ struct Renderer {
              double out[3]) const {
     const sample::RowPoint& rp = geo.vertex_rows[row];
     const sample::Material& m = scene.materials[rp.material];
-    const Brdf lambert{Brdf::Kind::kLambert, 0, m.albedo};
-    const Brdf phong{Brdf::Kind::kPhong, m.exponent, m.ks};
+    Brdf lambert;
+    lambert.albedo = m.albedo;
+    const Brdf glossy = GlossyLobe(m);
     const glm::dvec3 refl = m.ks > 0 ? Reflection(rp, eye) : glm::dvec3(0, 0, 1);
     const uint64_t face = ft.face;
     double b[3] = {0, 0, 0};
     auto add = [&](uint64_t p, double vp) {
       if (vp == 0) return;
-      double rho = m.albedo > 0 ? BrdfValue(lambert, rp.n, texel_dir[p]) : 0.0;
-      if (m.ks > 0) rho += BrdfValue(phong, refl, texel_dir[p]);
+      double rho = m.albedo > 0 ? BrdfValue(lambert, rp.n, rp.n, texel_dir[p]) : 0.0;
+      if (m.ks > 0) rho += BrdfValue(glossy, rp.n, refl, texel_dir[p]);
       const double w = vp * rho * texel_solid_angle[p];
       for (int ch = 0; ch < 3; ++ch) b[ch] += w * light_cube[3 * p + ch];
     };
@@ -525,7 +578,7 @@ Status ResolveMaterials(Renderer& rd) {
   }
   for (const sample::Material& m : rd.scene.materials) {
     rd.lambert_of.push_back(nullptr);
-    rd.phong_of.push_back(nullptr);
+    rd.glossy_of.push_back(nullptr);
     if (rd.o.method == TripleMethod::kPixel) continue;  // evaluated exactly, no field
     if (m.albedo > 0) {
       if (!lambert) {
@@ -537,18 +590,16 @@ Status ResolveMaterials(Renderer& rd) {
       rd.lambert_of.back() = lambert;
     }
     if (m.ks > 0) {
+      const Brdf lobe = GlossyLobe(m);
       for (const MaterialField& f : rd.fields) {
-        if (f.brdf.kind == Brdf::Kind::kPhong && std::fabs(f.brdf.exponent - m.exponent) <= 1e-9 * m.exponent) {
-          rd.phong_of.back() = &f;
-        }
+        if (f.brdf.SameLobe(lobe)) rd.glossy_of.back() = &f;
       }
-      if (!rd.phong_of.back()) {
-        char e[32];
-        std::snprintf(e, sizeof e, "%g", m.exponent);
-        return InvalidArgument("material \"" + m.name + "\" has ks " + std::to_string(m.ks) + " and exponent " + e +
-                               " but no Phong material field of that exponent was given: make one with `ltbake "
-                               "material --brdf phong:" +
-                               e + " -o phong" + e + ".ltm --cube-res " + std::to_string(rd.res) + "`");
+      if (!rd.glossy_of.back()) {
+        const std::string spec = BrdfSpec(lobe);
+        return InvalidArgument("material \"" + m.name + "\" has ks " + std::to_string(m.ks) + " and the lobe " + spec +
+                               " but no material field of that lobe was given: make one with `ltbake material --brdf " +
+                               spec + " -o glossy.ltm --cube-res " + std::to_string(rd.res) +
+                               "` and pass --material glossy.ltm");
       }
     }
   }
@@ -605,11 +656,8 @@ Status LoadInputs(const RenderOptions& o, const Progress& progress, Renderer& rd
   (*report)["visibility_bytes"] = in.file_size();
   nlohmann::json mats = nlohmann::json::array();
   for (const MaterialField& f : rd.fields) {
-    mats.push_back({{"file", f.path},
-                    {"brdf", f.brdf.kind == Brdf::Kind::kLambert ? "lambert" : "phong"},
-                    {"exponent", f.brdf.exponent},
-                    {"samples_res", f.sres},
-                    {"terms", f.rows.col.size()}});
+    mats.push_back(
+        {{"file", f.path}, {"brdf", BrdfSpec(f.brdf)}, {"samples_res", f.sres}, {"terms", f.rows.col.size()}});
   }
   (*report)["materials"] = mats;
   return Status::Ok();

@@ -94,23 +94,25 @@ with tempfile.TemporaryDirectory() as d:
         f.write("".join(f"v {x} {y} 0\n" for y in (-1, 0, 1) for x in (-1, 0, 1)))
         f.write("".join(f"f {a} {a + 1} {a + 4}\nf {a} {a + 4} {a + 3}\n" for a in (1, 2, 4, 5)))
     scene = write(P("v.toml"), '[output]\nmode = "vertex"\nobjects = ["g"]\n[sampling]\ncube_res = 4\n'
-                  '[[material]]\nname = "m"\nalbedo = 0.5\nks = 0.3\nexponent = 8.0\n'
+                  '[[material]]\nname = "m"\nalbedo = 0.5\nks = 0.3\nbrdf = "ward"\nroughness = 0.3\n'
                   '[[object]]\nname = "g"\ntype = "mesh"\nfile = "grid.obj"\nmaterial = "m"\n'
                   '[[object]]\nname = "b"\ntype = "box"\nsize = [0.5, 0.5, 0.5]\ncenter = [0.0, 0.0, 0.5]\n')
     run("sample", scene, "--visibility", "-o", P("vis.ltm"), *Q)
     run("material", "--brdf", "lambert", "--cube-res", 4, "--samples-res", 2, "-o", P("lam.ltm"), *Q)
     run("material", "--brdf", "phong:8", "--cube-res", 4, "--samples-res", 2, "-o", P("ph.ltm"), *Q)
+    run("material", "--brdf", "ward:0.3", "--cube-res", 4, "--samples-res", 2, "--normals-res", 1,
+        "-o", P("ward.ltm"), *Q)
     np.save(P("env4.npy"), np.ones((6 * 4 * 4, 3), np.float32))
     vals = {}
     for method in ("pixel", "linear", "sublinear"):
-        run("relight", P("vis.ltm"), "--material", P("lam.ltm"), "--material", P("ph.ltm"), "--env", P("env4.npy"),
+        run("relight", P("vis.ltm"), "--material", P("lam.ltm"), "--material", P("ward.ltm"), "--env", P("env4.npy"),
             "--eye", "2,-3,2", "--method", method, "--size", "16x12", "--terms", "all", "-o", P(f"t_{method}.npy"),
             "--vertex-output", P(f"v_{method}.npy"), *Q)
         vals[method] = np.load(P(f"v_{method}.npy"))
     check(vals["linear"].shape == (9, 3) and np.allclose(vals["linear"], vals["sublinear"], rtol=1e-5, atol=1e-7),
           f"triple: sublinear with every term differs from linear: {vals['linear']} {vals['sublinear']}")
-    run("relight", P("vis.ltm"), "--material", P("lam.ltm"), "--material", P("ph.ltm"), "--env", P("env4.npy"),
-        "--eye", "2,-3,2", "--orbit", "30:2", "--size", "8x8", "--terms", 3, "--brdf-terms", 2,
+    run("relight", P("vis.ltm"), "--material", P("lam.ltm"), "--material", P("ward.ltm"), "--material", P("ph.ltm"),
+        "--env", P("env4.npy"), "--eye", "2,-3,2", "--orbit", "30:2", "--size", "8x8", "--terms", 3, "--brdf-terms", 2,
         "-o", P("o_%d.png"), *Q)
     check(os.path.exists(P("o_1.png")), "triple: the orbit wrote no second frame")
 

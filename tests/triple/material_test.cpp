@@ -34,8 +34,51 @@ TEST(TripleMaterial, ParsesBrdfs) {
   EXPECT_EQ(p->kind, Brdf::Kind::kPhong);
   EXPECT_EQ(p->exponent, 64.0);
   EXPECT_EQ(p->albedo, 0.5);
-  for (const char* bad : {"phong", "phong:x", "phong:-1", "ward:1,2", "lambert:1:2", "", "phong:1e999"}) {
+  auto ct = ParseBrdf("cook-torrance:0.3,0.04:0.7");
+  ASSERT_TRUE(ct.ok()) << ct.status().ToString();
+  EXPECT_EQ(ct->kind, Brdf::Kind::kCookTorrance);
+  EXPECT_EQ(ct->roughness, 0.3);
+  EXPECT_EQ(ct->f0, 0.04);
+  EXPECT_EQ(ct->albedo, 0.7);
+  EXPECT_TRUE(ct->TwoDirections());
+  EXPECT_EQ(BrdfSpec(*ct), "cook-torrance:0.3,0.04");
+  auto w = ParseBrdf("ward:0.2,0.2");
+  ASSERT_TRUE(w.ok());
+  EXPECT_EQ(w->kind, Brdf::Kind::kWard);
+  EXPECT_TRUE(w->SameLobe(*ParseBrdf("ward:0.2:0.5")));
+  EXPECT_FALSE(w->SameLobe(*ParseBrdf("ward:0.3")));
+  EXPECT_EQ(ParseBrdf("blinn:40")->kind, Brdf::Kind::kBlinn);
+  for (const char* bad : {"phong", "phong:x", "phong:-1", "ward:1,2", "lambert:1:2", "", "phong:1e999", "ward:0",
+                          "cook-torrance:0.3", "cook-torrance:0.3,2", "blinn", "oren-nayar:1"}) {
     EXPECT_FALSE(ParseBrdf(bad).ok()) << bad;
+  }
+  EXPECT_NE(ParseBrdf("ward:0.1,0.3").status().message().find("anisotropic"), std::string::npos);
+}
+
+// The two-direction BRDFs are reciprocal: with ρ̃ = f(ω, ω_o)·(n·ω) and ω_o recovered from
+// the reflection vector, f(ω, ω_o) = f(ω_o, ω) for every pair above the horizon.
+TEST(TripleMaterial, GlossyLobesAreReciprocal) {
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> g;
+  auto unit = [&] { return glm::normalize(glm::dvec3(g(rng), g(rng), g(rng))); };
+  auto reflect = [](const glm::dvec3& n, const glm::dvec3& d) { return 2 * glm::dot(n, d) * n - d; };
+  for (const char* spec : {"blinn:30", "ward:0.25", "cook-torrance:0.3,0.1"}) {
+    const Brdf b = *ParseBrdf(spec);
+    int tested = 0;
+    while (tested < 200) {
+      const glm::dvec3 n = unit(), wi = unit(), wo = unit();
+      if (glm::dot(n, wi) < 0.05 || glm::dot(n, wo) < 0.05) continue;
+      const double f_io = BrdfValue(b, n, reflect(n, wo), wi) / glm::dot(n, wi);
+      const double f_oi = BrdfValue(b, n, reflect(n, wi), wo) / glm::dot(n, wo);
+      EXPECT_NEAR(f_io, f_oi, 1e-9 * std::max(1.0, f_io)) << spec;
+      EXPECT_GE(f_io, 0.0) << spec;
+      ++tested;
+    }
+    // Below the horizon, in either direction, nothing.
+    const glm::dvec3 n(0, 0, 1);
+    EXPECT_EQ(BrdfValue(b, n, reflect(n, glm::normalize(glm::dvec3(1, 0, 1))), glm::normalize(glm::dvec3(0, 1, -1))),
+              0.0);
+    EXPECT_EQ(BrdfValue(b, n, glm::normalize(glm::dvec3(1, 0, -1)), glm::normalize(glm::dvec3(0, 1, 1))), 0.0);
   }
 }
 
