@@ -176,7 +176,8 @@ nlohmann::json SampleMetadata(const SampleOptions& o, const Prepared& p, uint64_
     params["visibility"] = true;
     // Where the renderer finds the geometry for its primary rays (relight --material).
     extra["visibility"] = {{"scene", std::filesystem::absolute(o.scene).lexically_normal().string()},
-                           {"scene_hash", p.geo.scene_hash}};
+                           {"scene_hash", p.geo.scene_hash},
+                           {"geometry_hash", p.geo.geometry_hash}};
   }
   if (o.row_filter) {
     cols_basis = WaveletCubemapCols(r, wavelet::FilterName(*o.row_filter));

@@ -65,6 +65,37 @@ void AddNormals(const SceneDesc& s, const Object& o, TriangleMesh& mesh, Geometr
   g->row_meshes.push_back(std::move(rm));
 }
 
+// Geometry::geometry_hash: every object's type, transform, shape parameters, normals mode and
+// mesh file bytes, in order, then the vertex rows and their triangles.
+std::string GeometryHash(const SceneDesc& s, const Geometry& g) {
+  XXH3_state_t* st = XXH3_createState();
+  XXH3_64bits_reset(st);
+  auto add = [&](const void* p, size_t n) { XXH3_64bits_update(st, p, n); };
+  for (const Object& o : s.objects) {
+    const int type = static_cast<int>(o.type);
+    add(&type, sizeof type);
+    const glm::dmat4 m = ObjectTransform(o);
+    add(&m, sizeof m);
+    add(&o.size, sizeof o.size);
+    add(&o.center, sizeof o.center);
+    add(&o.radius, sizeof o.radius);
+    const int normals = static_cast<int>(o.normals);
+    add(&normals, sizeof normals);
+    if (o.type == Object::Type::kMesh) (void)HashFile(o.file, st);  // read once already: it opens
+  }
+  for (const RowPoint& r : g.vertex_rows) {
+    add(&r.p, sizeof r.p);
+    add(&r.n, sizeof r.n);
+  }
+  for (const Geometry::RowMesh& m : g.row_meshes) {
+    add(&m.first_row, sizeof m.first_row);
+    add(m.triangles.data(), m.triangles.size() * sizeof(glm::uvec3));
+  }
+  const uint64_t h = XXH3_64bits_digest(st);
+  XXH3_freeState(st);
+  return Hex64(h).substr(2);
+}
+
 }  // namespace
 
 glm::dvec3 Geometry::ShadingNormal(const Hit& h) const {
@@ -159,6 +190,7 @@ Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
   XXH3_freeState(st);
   LTB_RETURN_IF_ERROR(hs);
   g.scene_hash = Hex64(h).substr(2);
+  g.geometry_hash = GeometryHash(s, g);
   LTB_RETURN_IF_ERROR(g.rays->Commit(progress));
   g.epsilon = std::max(1e-6, 1e-5 * glm::length(hi - lo));
   return g;

@@ -47,6 +47,10 @@ struct Geometry {
   double epsilon = 1e-4;
   uint64_t degenerate = 0;
   std::string scene_hash;
+  // XXH3 of what rays see and what the vertex rows are — every object's transformed
+  // triangles (and spheres), each vertex row's position and normal — but not the materials:
+  // the triple-product renderer checks it, so materials may change after the visibility bake.
+  std::string geometry_hash;
 
   // The unit shading normal at a hit, not oriented: the vertex normals interpolated with the
   // hit's barycentrics, normalize((1−u−v)·n0 + u·n1 + v·n2), for a geometry that has them;

@@ -622,7 +622,7 @@ Status LoadInputs(const RenderOptions& o, const Progress& progress, Renderer& rd
     }
     rd.res = cols.value("cube_res", uint64_t{0});
     if (scene_path.empty()) scene_path = j["visibility"].at("scene").get<std::string>();
-    want_hash = j["visibility"].at("scene_hash").get<std::string>();
+    want_hash = j["visibility"].at("geometry_hash").get<std::string>();
   } catch (const nlohmann::json::exception& e) {
     return InvalidArgument(o.visibility + ": malformed visibility metadata: " + e.what());
   }
@@ -635,10 +635,10 @@ Status LoadInputs(const RenderOptions& o, const Progress& progress, Renderer& rd
   LTB_RETURN_IF_ERROR(ReadSparseRows(in, &rd.vis));
   LTB_ASSIGN_OR_RETURN(rd.scene, sample::ParseScene(scene_path));
   LTB_ASSIGN_OR_RETURN(rd.geo, sample::BuildGeometry(rd.scene, progress));
-  if (rd.geo.scene_hash != want_hash) {
-    return FailedPrecondition(scene_path + ": the scene (or a mesh it names) changed since " + o.visibility +
-                              " was baked (hash " + rd.geo.scene_hash + ", baked from " + want_hash +
-                              "); bake the visibility field again");
+  if (rd.geo.geometry_hash != want_hash) {
+    return FailedPrecondition(scene_path + ": the scene's geometry (an object, a transform or a mesh file) changed since " +
+                              o.visibility + " was baked (geometry hash " + rd.geo.geometry_hash + ", baked from " +
+                              want_hash + "); bake the visibility field again. Materials may change freely");
   }
   if (rd.geo.vertex_rows.size() != rd.vis.rows) {
     return FailedPrecondition(scene_path + " has " + std::to_string(rd.geo.vertex_rows.size()) + " vertex rows but " +

@@ -282,6 +282,21 @@ material = "chalk"
     check(e_sub < 1e-6, f"sublinear with every term equals linear: {e_sub}")
     print(f"diffuse scene, R = {R}: rel. L2 against relight of T: pixel {e_pixel:.2e}, linear {e_lin:.2e}")
 
+    # Materials may change after the visibility bake (the field checks the geometry only);
+    # the geometry may not.
+    darker = write(os.path.join(d, "darker.toml"), open(diffuse).read().replace("albedo = 0.6", "albedo = 0.3"))
+    vo = os.path.join(d, "darker.npy")
+    run("relight", visd, "--scene", darker, "--env", env_npy, "--eye", eye, "--method", "pixel", "--terms", "all",
+        "-o", os.path.join(d, "x.png"), "--vertex-output", vo)
+    dk = np.load(vo)
+    check(np.allclose(dk, outs["pixel"] / 2, rtol=1e-6, atol=1e-9),
+          "a material changed after the bake (albedo 0.6 -> 0.3, every object's) halves every vertex")
+    moved = write(os.path.join(d, "moved.toml"), open(diffuse).read().replace("[0.0, 0.0, 0.55]", "[0.1, 0.0, 0.55]"))
+    p = run("relight", visd, "--scene", moved, "--env", env_npy, "--eye", eye, "--method", "pixel",
+            "-o", os.path.join(d, "x.png"), expect=1)
+    check("geometry" in p.stderr and "bake the visibility field again" in p.stderr,
+          f"a moved object is refused: {p.stderr}")
+
     # --- sublinear error falls with terms ---------------------------------------------------
     errs = []
     for n in (4, 16, 64, 256):
