@@ -9,7 +9,6 @@
 #include <glm/geometric.hpp>
 #include <glm/trigonometric.hpp>
 #include <memory>
-#include <mutex>
 #include <numbers>
 #include <numeric>
 
@@ -323,7 +322,6 @@ struct Scratch {
   std::vector<uint32_t> psum_v_stamp, psum_r_stamp;
   uint32_t stamp = 0;
   std::vector<RhoPart> parts;
-  std::vector<double> pixels;
   void Size(uint64_t cols, uint64_t squares) {
     if (v.size() == cols) return;
     v.assign(cols, 0.0);
@@ -636,7 +634,8 @@ Status LoadInputs(const RenderOptions& o, const Progress& progress, Renderer& rd
   LTB_ASSIGN_OR_RETURN(rd.scene, sample::ParseScene(scene_path));
   LTB_ASSIGN_OR_RETURN(rd.geo, sample::BuildGeometry(rd.scene, progress));
   if (rd.geo.geometry_hash != want_hash) {
-    return FailedPrecondition(scene_path + ": the scene's geometry (an object, a transform or a mesh file) changed since " +
+    return FailedPrecondition(scene_path +
+                              ": the scene's geometry (an object, a transform or a mesh file) changed since " +
                               o.visibility + " was baked (geometry hash " + rd.geo.geometry_hash + ", baked from " +
                               want_hash + "); bake the visibility field again. Materials may change freely");
   }
