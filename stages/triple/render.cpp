@@ -257,7 +257,9 @@ struct Lighting {
   std::vector<uint32_t> terms;  // wavelet indices of the approximation, ascending
 };
 
-void MakeLighting(const std::vector<float>& cube, uint64_t res, uint64_t n_terms, Lighting* l) {
+// `linear`: also the approximation's dense coefficients and parent sums (only the linear
+// method reads them).
+void MakeLighting(const std::vector<float>& cube, uint64_t res, uint64_t n_terms, bool linear, Lighting* l) {
   const uint64_t face = res * res, cols = 6 * face, squares = (face - 1) / 3;
   const int levels = std::countr_zero(res);
   std::vector<double> pixels(face), ps;
@@ -286,7 +288,7 @@ void MakeLighting(const std::vector<float>& cube, uint64_t res, uint64_t n_terms
   idx.resize(n);
   std::sort(idx.begin(), idx.end());
   l->terms = idx;
-  for (int ch = 0; ch < 3; ++ch) {
+  for (int ch = 0; ch < 3 && linear; ++ch) {
     l->kept[ch].assign(cols, 0.0);
     for (uint64_t f = 0; f < 6; ++f) l->kept[ch][f * face] = l->c[ch][f * face];
     for (uint32_t k : idx) l->kept[ch][k] = l->c[ch][k];
@@ -381,8 +383,7 @@ struct Renderer {
   sample::Geometry geo;
   // Per scene material: its Lambert and glossy fields (nullptr when the part is zero).
   std::vector<const MaterialField*> lambert_of, glossy_of;
-  std::vector<glm::dvec3> texel_dir;
-  std::vector<double> texel_solid_angle;
+  std::unique_ptr<TexelTable> texel_table;  // centres and solid angles × R² (pixel method)
   Lighting light;
   std::vector<float> light_cube;  // 6R² × 3, the frame's radiance (pixel method)
 
@@ -505,9 +506,10 @@ struct Renderer {
     double b[3] = {0, 0, 0};
     auto add = [&](uint64_t p, double vp) {
       if (vp == 0) return;
-      double rho = m.albedo > 0 ? BrdfValue(lambert, rp.n, rp.n, texel_dir[p]) : 0.0;
-      if (m.ks > 0) rho += BrdfValue(glossy, rp.n, refl, texel_dir[p]);
-      const double w = vp * rho * texel_solid_angle[p];
+      const glm::dvec3& dir = texel_table->centre[p];
+      double rho = m.albedo > 0 ? BrdfValue(lambert, rp.n, rp.n, dir) : 0.0;
+      if (m.ks > 0) rho += BrdfValue(glossy, rp.n, refl, dir);
+      const double w = vp * rho * texel_table->weight[p] / static_cast<double>(face);
       for (int ch = 0; ch < 3; ++ch) b[ch] += w * light_cube[3 * p + ch];
     };
     if (texels.empty()) {  // every texel: decode V per face
@@ -529,7 +531,8 @@ struct Renderer {
   }
 };
 
-// The N brightest texels of the frame's lighting (by luminance × solid angle); empty: all.
+// The N brightest texels of the frame's lighting (by luminance × solid angle, or anything
+// proportional to it); empty: all.
 std::vector<uint32_t> BrightestTexels(const std::vector<float>& cube, const std::vector<double>& solid_angle,
                                       uint64_t n) {
   const uint64_t cols = solid_angle.size();
@@ -723,11 +726,7 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
   rd.ft.levels = std::countr_zero(rd.res);
   for (uint64_t k = 0; k < rd.ft.face; ++k) rd.ft.basis.push_back(BasisOf(k));
   const uint64_t cols = 6 * rd.ft.face;
-  for (uint64_t c = 0; c < cols; ++c) {
-    const cubemap::Texel x = cubemap::ColumnToTexel(c, static_cast<uint32_t>(rd.res));
-    rd.texel_dir.push_back(cubemap::TexelCenter(x, static_cast<uint32_t>(rd.res)));
-    rd.texel_solid_angle.push_back(cubemap::TexelSolidAngle(x, static_cast<uint32_t>(rd.res)));
-  }
+  if (o.method == TripleMethod::kPixel) rd.texel_table = std::make_unique<TexelTable>(rd.res);
   stages::EnvLoadOptions eo;
   eo.layout = o.env_layout;
   eo.clamp = o.clamp_env;
@@ -738,9 +737,9 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
   auto t1 = Clock::now();
   report["load_ms"] = Ms(t0, t1);
   MakeLighting(rd.light_cube, rd.res, o.method == TripleMethod::kPixel ? RenderOptions::kAll : o.light_terms,
-               &rd.light);
+               o.method == TripleMethod::kLinear, &rd.light);
   const std::vector<uint32_t> texels = o.method == TripleMethod::kPixel && o.light_terms != RenderOptions::kAll
-                                           ? BrightestTexels(rd.light_cube, rd.texel_solid_angle, o.light_terms)
+                                           ? BrightestTexels(rd.light_cube, rd.texel_table->weight, o.light_terms)
                                            : std::vector<uint32_t>{};
   report["light_terms_used"] =
       o.method == TripleMethod::kPixel ? (texels.empty() ? cols : texels.size()) : rd.light.terms.size();
