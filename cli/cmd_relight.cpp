@@ -18,6 +18,7 @@
 #include "stages/relight/envmap.h"
 #include "stages/relight/relight.h"
 #include "stages/relight/run_relight.h"
+#include "stages/relight/run_sequence.h"
 #include "stages/triple/render.h"
 
 namespace ltb::cli {
@@ -70,10 +71,17 @@ class RelightCommand : public Command {
     app->add_option("--fov", fov_, "triple-product path: vertical field of view in degrees")->default_val(40.0);
     app->add_option("--size", size_, "triple-product path: image WIDTHxHEIGHT")->default_val("256x256");
     app->add_option("--method", method_,
-                    "triple-product path: sublinear (kept terms only), linear (every coefficient) or pixel (the "
-                    "exact pixel-basis reference; --terms keeps the brightest texels)")
-        ->default_val("sublinear")
-        ->check(CLI::IsMember({"sublinear", "linear", "pixel"}));
+                    "with --sequence: nwa (each frame on its own), bi (basic incremental) or pbi (per-band "
+                    "incremental, the default). Triple-product path: sublinear (the default; kept terms only), linear "
+                    "(every coefficient) or pixel (the exact pixel-basis reference; --terms keeps the brightest "
+                    "texels)")
+        ->check(CLI::IsMember({"nwa", "bi", "pbi", "sublinear", "linear", "pixel"}));
+    app->add_option("--sequence", sequence_,
+                    "a lighting sequence, comma-separated segments played in order: rotate:DEG_PER_FRAME:FRAMES "
+                    "(about +Z), hold:FRAMES, maps:A.exr+B.hdr+... (one map a frame), fade:A.exr+B.exr:FRAMES; -o is "
+                    "then a pattern with one %04d, or an .mp4 (docs/SEQUENCE.md)");
+    app->add_option("--csv", csv_, "with --sequence: the per-frame table (time, terms per band, errors) as CSV");
+    app->add_option("--fps", fps_, "with --sequence and an .mp4 output: frames per second")->default_val(25.0);
     app->add_option("--brdf-terms", brdf_terms_text_,
                     "triple-product path: wavelet terms kept of each sampled BRDF row (largest first), N or all")
         ->default_val("all")
@@ -87,7 +95,9 @@ class RelightCommand : public Command {
     AddCommonFlags(app, &flags_);
   }
 
-  bool Triple() const { return !materials_.empty() || !eye_.empty() || method_ != "sublinear"; }
+  bool Triple() const {
+    return !materials_.empty() || !eye_.empty() || method_ == "sublinear" || method_ == "linear" || method_ == "pixel";
+  }
 
   // "X,Y,Z" -> vector; false when it is not three finite numbers.
   static bool ParseVec3(const std::string& text, glm::dvec3* out) {
@@ -119,7 +129,17 @@ class RelightCommand : public Command {
     o.vertex_output = vertex_output_;
     o.exposure = exposure_;
     o.fov_degrees = fov_;
-    o.method = *triple::ParseTripleMethod(method_);  // checked by IsMember
+    if (!sequence_.empty()) {
+      return ReportUsage(InvalidArgument("--sequence belongs to the matrix path, not the triple-product one"));
+    }
+    if (method_.empty()) method_ = "sublinear";
+    auto method = triple::ParseTripleMethod(method_);
+    if (!method.ok()) {
+      return ReportUsage(InvalidArgument("--method " + method_ +
+                                         ": the triple-product path takes sublinear, linear or pixel (nwa, bi and pbi "
+                                         "are for --sequence)"));
+    }
+    o.method = *method;
     o.light_terms = terms_text_ == "all" ? triple::RenderOptions::kAll : std::stoull(terms_text_);
     o.brdf_terms = brdf_terms_text_ == "all" ? triple::RenderOptions::kAll : std::stoull(brdf_terms_text_);
     if (eye_.empty())
@@ -176,24 +196,13 @@ class RelightCommand : public Command {
 
   int Run() override {
     if (Triple()) return RunTriple();
+    if (!sequence_.empty()) return RunSequence();
+    if (!method_.empty() || !csv_.empty()) {
+      return ReportUsage(InvalidArgument("--method " + method_ + (csv_.empty() ? "" : " and --csv") +
+                                         " need --sequence (a lighting sequence; docs/SEQUENCE.md)"));
+    }
     stages::RelightOptions o;
-    o.matrix = matrix_;
-    o.env = env_;
-    o.output = output_;
-    o.reference = reference_;
-    o.weighting = *stages::ParseWeighting(weighting_);  // checked by IsMember
-    // "all": every nonzero coefficient (SelectTerms keeps min(N, nonzeros)).
-    o.terms = terms_text_ == "all" ? stages::RelightOptions::kAllTerms : std::stoull(terms_text_);
-    o.frames = frames_;
-    o.rotate_deg = rotate_deg_;
-    o.exposure = exposure_;
-    o.keep_negative = keep_negative_;
-    o.clamp_env = clamp_;
-    o.env_layout = *stages::ParseEnvLayout(layout_);  // checked by IsMember
-    StageFlags sf;
-    if (int code = ResolveStageFlags(flags_, nullptr, &sf); code != kExitOk) return code;
-    o.mem_limit = sf.mem_limit;
-    o.jobs = sf.jobs;
+    if (int code = FillOptions(&o); code != kExitOk) return code;
     ProgressBar bar(flags_, "relight");
     auto r = stages::RunRelight(o, bar.hook());
     if (!r.ok()) return ReportFailure(r.status());
@@ -236,13 +245,64 @@ class RelightCommand : public Command {
     return kExitOk;
   }
 
+  // The matrix path's options from the flags (kExitOk, or the usage error's code).
+  int FillOptions(stages::RelightOptions* o) {
+    o->matrix = matrix_;
+    o->env = env_;
+    o->output = output_;
+    o->reference = reference_;
+    o->weighting = *stages::ParseWeighting(weighting_);  // checked by IsMember
+    // "all": every nonzero coefficient (SelectTerms keeps min(N, nonzeros)).
+    o->terms = terms_text_ == "all" ? stages::RelightOptions::kAllTerms : std::stoull(terms_text_);
+    o->frames = frames_;
+    o->rotate_deg = rotate_deg_;
+    o->exposure = exposure_;
+    o->keep_negative = keep_negative_;
+    o->clamp_env = clamp_;
+    o->env_layout = *stages::ParseEnvLayout(layout_);  // checked by IsMember
+    StageFlags sf;
+    if (int code = ResolveStageFlags(flags_, nullptr, &sf); code != kExitOk) return code;
+    o->mem_limit = sf.mem_limit;
+    o->jobs = sf.jobs;
+    return kExitOk;
+  }
+
+  int RunSequence() {
+    stages::RelightOptions o;
+    if (int code = FillOptions(&o); code != kExitOk) return code;
+    stages::SequenceOptions so;
+    so.spec = sequence_;
+    so.method = *stages::ParseSequenceMethod(method_.empty() ? "pbi" : method_);  // checked by IsMember
+    so.csv = csv_;
+    so.fps = fps_;
+    ProgressBar bar(flags_, "relight");
+    auto r = stages::RunRelightSequence(o, so, bar.hook());
+    if (!r.ok()) return ReportFailure(r.status());
+    bar.Done();
+    const nlohmann::json& report = r->report;
+    if (json_) {
+      std::cout << report.dump(2) << "\n";
+    } else if (!flags_.quiet) {
+      const nlohmann::json& s = report["summary"];
+      std::cout << "wrote " << s["frames"].get<uint64_t>() << " frames to " << output_ << ": " << so.spec << ", "
+                << report["method"].get<std::string>() << " with " << terms_text_ << " terms a frame; median "
+                << std::setprecision(3) << s["median_ms"].get<double>() << " ms a frame";
+      if (s.contains("mean_rel_l2")) {
+        std::cout << "; against " << reference_ << ": mean rel. L2 " << s["mean_rel_l2"].get<double>()
+                  << ", last frame " << s["final_rel_l2"].get<double>();
+      }
+      std::cout << "\n";
+    }
+    return kExitOk;
+  }
+
  private:
   std::string matrix_, env_, output_, weighting_ = "area", reference_, layout_ = "auto";
   std::string terms_text_ = "100";
   std::vector<std::string> materials_;
-  std::string eye_, target_ = "0,0,0", up_ = "0,0,1", size_ = "256x256", method_ = "sublinear",
+  std::string eye_, target_ = "0,0,0", up_ = "0,0,1", size_ = "256x256", method_, sequence_, csv_,
                     brdf_terms_text_ = "all", orbit_, scene_, vertex_output_;
-  double fov_ = 40;
+  double fov_ = 40, fps_ = 25;
   int frames_ = 0;
   double rotate_deg_ = 0, exposure_ = 0;
   bool clamp_ = false, json_ = false, keep_negative_ = false;

@@ -46,19 +46,8 @@ double SrgbEncode(double v) {
 }
 
 Status WritePng(const std::string& tmp, const float* rgb, uint64_t w, uint64_t h, double exposure) {
-  const uint64_t n = w * h;
-  if (exposure <= 0) {
-    std::vector<float> lum(n);
-    for (uint64_t i = 0; i < n; ++i)
-      lum[i] = 0.2126f * rgb[i * 3] + 0.7152f * rgb[i * 3 + 1] + 0.0722f * rgb[i * 3 + 2];
-    auto k = lum.begin() + static_cast<std::ptrdiff_t>(std::min<uint64_t>(n - 1, n * 99 / 100));
-    std::nth_element(lum.begin(), k, lum.end());
-    exposure = *k > 0 ? 0.9 / *k : 1.0;
-  }
-  std::vector<uint8_t> px(n * 3);
-  for (uint64_t i = 0; i < n * 3; ++i) {
-    px[i] = static_cast<uint8_t>(std::lround(255.0 * SrgbEncode(exposure * rgb[i])));
-  }
+  if (exposure <= 0) exposure = AutoExposure(rgb, w * h);
+  std::vector<uint8_t> px = ToSrgb8(rgb, w * h, exposure);
   if (stbi_write_png(tmp.c_str(), static_cast<int>(w), static_cast<int>(h), 3, px.data(), static_cast<int>(w * 3)) ==
       0) {
     return IoError(tmp + ": writing the PNG failed", errno);
@@ -73,6 +62,29 @@ Status WriteNpy(const io::File& f, const float* rgb, uint64_t rows) {
 }
 
 }  // namespace
+
+double AutoExposure(const float* rgb, uint64_t n) {
+  if (n == 0) return 1.0;
+  std::vector<float> lum(n);
+  for (uint64_t i = 0; i < n; ++i) lum[i] = 0.2126f * rgb[i * 3] + 0.7152f * rgb[i * 3 + 1] + 0.0722f * rgb[i * 3 + 2];
+  auto k = lum.begin() + static_cast<std::ptrdiff_t>(std::min<uint64_t>(n - 1, n * 99 / 100));
+  std::nth_element(lum.begin(), k, lum.end());
+  return *k > 0 ? 0.9 / *k : 1.0;
+}
+
+std::vector<uint8_t> ToSrgb8(const float* rgb, uint64_t n, double exposure) {
+  std::vector<uint8_t> px(n * 3);
+  for (uint64_t i = 0; i < n * 3; ++i) px[i] = static_cast<uint8_t>(std::lround(255.0 * SrgbEncode(exposure * rgb[i])));
+  return px;
+}
+
+std::string EncodePng(const uint8_t* srgb, uint64_t w, uint64_t h) {
+  std::string out;
+  stbi_write_png_to_func(
+      [](void* ctx, void* data, int size) { static_cast<std::string*>(ctx)->append(static_cast<char*>(data), size); },
+      &out, static_cast<int>(w), static_cast<int>(h), 3, srgb, static_cast<int>(w * 3));
+  return out;
+}
 
 Status WriteImage(const std::string& path, const float* rgb, uint64_t rows, uint64_t width, uint64_t height,
                   const ImageWriteOptions& options) {

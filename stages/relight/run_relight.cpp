@@ -12,6 +12,7 @@
 #include "stages/cpca/cpca_model.h"
 #include "stages/relight/environment.h"
 #include "stages/relight/image_io.h"
+#include "stages/relight/relight_matrix.h"
 
 namespace ltb::stages {
 namespace {
@@ -19,70 +20,18 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double Ms(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
 
-// The matrix as relight uses it: held in memory (Relighter), clustered PCA (CpcaRelighter,
-// per cluster) or, for a row-block matrix (rows.ltm, raw.ltm), streamed (RelightStreaming).
-struct Matrix {
-  uint64_t rows = 0;
-  std::optional<Relighter> relighter;
-  std::optional<CpcaRelighter> cpca;
-  std::vector<uint8_t> mask;  // rows that see no geometry are black in every output (FinishRelitImage)
-  uint64_t width = 0, height = 0;
-};
-
-// Loads the matrix in the form it needs; the in-memory forms report their size.
-Status LoadMatrix(const RelightOptions& o, const io::ContainerReader& reader, const Progress& progress, Matrix* m,
-                  nlohmann::json* report) {
-  const bool is_cpca = CpcaModel::IsCpca(reader.metadata());
-  const bool streaming = !is_cpca && reader.metadata().matrix().layout == format::Layout::kRows;
-  m->rows = reader.metadata().matrix().rows;
-  if (is_cpca) {  // clustered PCA: project the lighting per cluster, blend per row
-    LTB_ASSIGN_OR_RETURN(CpcaRelighter r, CpcaRelighter::Load(o.matrix, o.mem_limit));
-    m->cpca = std::move(r);
-    m->rows = m->cpca->rows();
-    (*report)["cpca"] = {{"clusters", m->cpca->model().clusters()}, {"basis", m->cpca->model().basis()}};
-    (*report)["matrix_bytes_in_memory"] = m->cpca->bytes();
-  } else if (!streaming) {
-    LTB_ASSIGN_OR_RETURN(Relighter r, Relighter::Load(o.matrix, o.mem_limit, progress, o.jobs));
-    m->relighter = std::move(r);
-    (*report)["nonzeros"] = m->relighter->nonzeros();
-    (*report)["matrix_bytes_in_memory"] = m->relighter->bytes();
-  }
-  LTB_ASSIGN_OR_RETURN(m->mask, ReadRowMask(reader));
-  return Status::Ok();
-}
-
-// The image the rows form (0 × 0: not an image).
-void SetImageSize(const io::ContainerReader& reader, Matrix* m) {
-  if (m->relighter) {
-    m->width = m->relighter->image_width();
-    m->height = m->relighter->image_height();
-  } else if (m->cpca) {
-    if (auto img = m->cpca->model().image()) {
-      m->width = img->first;
-      m->height = img->second;
-    }
-  } else if (auto img = ReadImageRows(reader.metadata())) {
-    m->width = img->width;
-    m->height = img->height;
-  }
-}
-
 // The frames relight renders, sharing their buffers: `cube` holds the last frame's
 // lighting in the basis, `terms` its kept terms, `image` its output, `fixes` what the
 // output policy changed in it.
 struct Frames {
-  Frames(const RelightOptions& o, const Environment& env, const LightingBasis& basis, Matrix& m,
-         const Progress& progress)
-      : o(o), env(env), basis(basis), m(m), progress(progress), image(m.rows * 3) {}
+  Frames(const RelightOptions& o, const Environment& env, const LightingBasis& basis, RelightMatrix& m)
+      : o(o), env(env), basis(basis), m(m), image(m.rows() * 3) {}
 
   // The column norms the transport weighting needs (in-memory matrices only).
-  const std::vector<double>& norms() const {
-    static const std::vector<double> kNoNorms;
-    return m.relighter ? m.relighter->column_norms() : kNoNorms;
-  }
+  const std::vector<double>& norms() const { return m.column_norms(); }
 
   // The output policy (mask-0 rows black, negatives clamped unless kept).
-  OutputFixes Finish(std::vector<float>* img) const { return FinishRelitImage(m.mask, o.keep_negative, img); }
+  OutputFixes Finish(std::vector<float>* img) const { return FinishRelitImage(m.mask(), o.keep_negative, img); }
 
   // One frame: resample, transform, select, relight.
   Status Render(double rot, double* lighting_ms, double* relight_ms) {
@@ -91,16 +40,7 @@ struct Frames {
     basis.ToBasis(cube.data());
     LTB_RETURN_IF_ERROR(basis.SelectTerms(cube.data(), o.terms, o.weighting, norms(), &terms));
     auto b = Clock::now();
-    if (m.relighter) {
-      m.relighter->Relight(terms, image.data());
-    } else if (m.cpca) {
-      m.cpca->RelightTerms(terms.column, terms.rgb, image.data());
-    } else {
-      std::vector<float> dense(cube.size(), 0.0f);
-      for (size_t k = 0; k < terms.column.size(); ++k)
-        for (int c = 0; c < 3; ++c) dense[terms.column[k] * 3 + c] = terms.rgb[k * 3 + c];
-      LTB_ASSIGN_OR_RETURN(image, RelightStreaming(o.matrix, dense.data(), o.jobs, progress));
-    }
+    LTB_RETURN_IF_ERROR(m.Relight(terms, &image));
     fixes = Finish(&image);
     auto c = Clock::now();
     if (lighting_ms) *lighting_ms = Ms(a, b);
@@ -111,8 +51,7 @@ struct Frames {
   const RelightOptions& o;
   const Environment& env;
   const LightingBasis& basis;
-  Matrix& m;
-  const Progress& progress;
+  RelightMatrix& m;
   std::vector<float> cube, image;
   LightTerms terms;
   OutputFixes fixes;
@@ -152,10 +91,10 @@ Status TimeFrames(const RelightOptions& o, const Environment& env, double rotati
 // The errors of the written image (`first`, from `first_terms`) against the uncompressed
 // reference matrix o.reference: in all, of the lighting approximation alone, and of the
 // compressed matrix alone.
-Status MeasureErrors(const RelightOptions& o, const Environment& env, const LightingBasis& basis, Matrix& m,
+Status MeasureErrors(const RelightOptions& o, const Environment& env, const LightingBasis& basis, RelightMatrix& m,
                      const Frames& frames, const std::vector<float>& first, const LightTerms& first_terms,
                      double rotation, const Progress& progress, nlohmann::json* report) {
-  const uint64_t rows = m.rows;
+  const uint64_t rows = m.rows();
   LTB_ASSIGN_OR_RETURN(io::ContainerReader ref_reader, io::ContainerReader::Open(o.reference));
   LTB_ASSIGN_OR_RETURN(LightingBasis ref_basis, LightingBasis::FromMetadata(ref_reader.metadata(), o.reference));
   if (ref_basis.cube_res() != basis.cube_res() || ref_reader.metadata().matrix().rows != rows) {
@@ -177,7 +116,7 @@ Status MeasureErrors(const RelightOptions& o, const Environment& env, const Ligh
   LTB_ASSIGN_OR_RETURN(std::vector<float> light_only, RelightStreaming(o.reference, approx.data(), o.jobs, progress));
   frames.Finish(&light_only);
   auto metrics = [&](const std::vector<float>& img) {
-    auto e = CompareImages(img.data(), exact.data(), rows, m.width, m.height);
+    auto e = CompareImages(img.data(), exact.data(), rows, m.width(), m.height());
     nlohmann::json j = {{"rel_l2", e.rel_l2}, {"psnr_db", e.psnr}};
     if (e.rel_h1 >= 0) j["rel_h1"] = e.rel_h1;
     return j;
@@ -187,16 +126,8 @@ Status MeasureErrors(const RelightOptions& o, const Environment& env, const Ligh
   // Matrix alone: every lighting term through the compressed matrix.
   std::vector<float> all = full;
   basis.ToBasis(all.data());
-  LightTerms every;
-  LTB_RETURN_IF_ERROR(basis.SelectTerms(all.data(), all.size() / 3, Weighting::kNone, frames.norms(), &every));
-  std::vector<float> matrix_only(rows * 3);
-  if (m.relighter) {
-    m.relighter->Relight(every, matrix_only.data());
-  } else if (m.cpca) {
-    m.cpca->Relight(all.data(), matrix_only.data());
-  } else {
-    LTB_ASSIGN_OR_RETURN(matrix_only, RelightStreaming(o.matrix, all.data(), o.jobs, progress));
-  }
+  std::vector<float> matrix_only;
+  LTB_RETURN_IF_ERROR(m.RelightDense(all, &matrix_only));
   frames.Finish(&matrix_only);
   (*report)["error_matrix_only"] = metrics(matrix_only);
   return Status::Ok();
@@ -217,20 +148,17 @@ Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progre
       {"matrix", o.matrix}, {"env", o.env}, {"terms", terms_json}, {"weighting", WeightingName(o.weighting)}};
 
   auto t0 = Clock::now();
-  LTB_ASSIGN_OR_RETURN(io::ContainerReader reader, io::ContainerReader::Open(o.matrix));
-  LTB_ASSIGN_OR_RETURN(LightingBasis basis, LightingBasis::FromMetadata(reader.metadata(), o.matrix));
-  Matrix m;
-  LTB_RETURN_IF_ERROR(LoadMatrix(o, reader, progress, &m, &report));
+  LTB_ASSIGN_OR_RETURN(RelightMatrix m, RelightMatrix::Open(o.matrix, o.mem_limit, o.jobs, progress, &report));
+  const LightingBasis& basis = m.basis();
   auto t1 = Clock::now();
   LTB_ASSIGN_OR_RETURN(Environment env, Environment::Open(o.env, basis.cube_res(), eo));
   auto t2 = Clock::now();
   report["load_matrix_ms"] = Ms(t0, t1);
   report["load_env_ms"] = Ms(t1, t2);
   if (env.clamped()) report["clamped_values"] = env.clamped();
-  SetImageSize(reader, &m);
   const double rotation = o.rotate_deg * std::numbers::pi / 180.0;
 
-  Frames frames(o, env, basis, m, progress);
+  Frames frames(o, env, basis, m);
   double lighting_ms = 0, relight_ms = 0;
   LTB_RETURN_IF_ERROR(frames.Render(rotation, &lighting_ms, &relight_ms));
   report["lighting_ms"] = lighting_ms;
@@ -240,7 +168,8 @@ Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progre
   report["output"] = {{"masked_rows", frames.fixes.masked_rows}, {"clamped_values", nullptr}};
   if (!o.keep_negative) report["output"]["clamped_values"] = frames.fixes.clamped_values;
   if (!o.output.empty()) {
-    LTB_RETURN_IF_ERROR(WriteImage(o.output, frames.image.data(), m.rows, m.width, m.height, {.exposure = o.exposure}));
+    LTB_RETURN_IF_ERROR(
+        WriteImage(o.output, frames.image.data(), m.rows(), m.width(), m.height(), {.exposure = o.exposure}));
   }
   std::vector<float> first = frames.image;
   LightTerms first_terms = frames.terms;

@@ -1,0 +1,55 @@
+// The matrix a relight multiplies, in whichever form its layout calls for: held in memory
+// (Relighter, Eq. 8, for final.ltm / cols4d.ltm / cols.ltm), clustered PCA (CpcaRelighter,
+// per cluster, for cpca.ltm) or streamed from disk (RelightStreaming, for the row-block
+// rows.ltm / raw.ltm). Shared by `relight` (run_relight.cpp), lighting sequences
+// (run_sequence.cpp) and `view` (stages/view).
+#pragma once
+
+#include <cstdint>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "format/progress.h"
+#include "format/status.h"
+#include "stages/cpca/cpca_model.h"
+#include "stages/relight/relight.h"
+
+namespace ltb::stages {
+
+class RelightMatrix {
+ public:
+  // Opens and (unless streamed) loads `path`; `report` (may be null) gains the in-memory
+  // size: nonzeros / cpca clusters and matrix_bytes_in_memory.
+  static Result<RelightMatrix> Open(const std::string& path, uint64_t mem_limit, int jobs, const Progress& progress,
+                                    nlohmann::json* report);
+
+  const std::string& path() const { return path_; }
+  uint64_t rows() const { return rows_; }
+  uint64_t width() const { return width_; }  // 0 × 0 when the rows are not an image
+  uint64_t height() const { return height_; }
+  bool streamed() const { return !relighter_ && !cpca_; }
+  const LightingBasis& basis() const { return basis_; }
+  // Rows that see no geometry (empty: no such table); FinishRelitImage blackens them.
+  const std::vector<uint8_t>& mask() const { return mask_; }
+  // ‖T_j‖ per column for the transport weighting (empty unless held in memory by columns).
+  const std::vector<double>& column_norms() const;
+
+  // image (rows × 3) = T × the terms' lighting; the weights may be negative.
+  Status Relight(const LightTerms& terms, std::vector<float>* image);
+  // image = T × dense lighting (6R² × 3, in basis()).
+  Status RelightDense(const std::vector<float>& lighting, std::vector<float>* image);
+
+ private:
+  std::string path_;
+  int jobs_ = 1;
+  uint64_t rows_ = 0, width_ = 0, height_ = 0;
+  LightingBasis basis_;
+  std::optional<Relighter> relighter_;
+  std::optional<CpcaRelighter> cpca_;
+  std::vector<uint8_t> mask_;
+  Progress progress_;
+};
+
+}  // namespace ltb::stages

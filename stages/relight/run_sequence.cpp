@@ -1,0 +1,406 @@
+#include "stages/relight/run_sequence.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <numbers>
+#include <optional>
+#include <span>
+#include <sstream>
+
+#include "format/io/atomic_file.h"
+#include "stages/common/cubemap.h"
+#include "stages/relight/image_io.h"
+#include "stages/relight/relight_matrix.h"
+#include "stages/relight/video.h"
+
+namespace ltb::stages {
+namespace {
+
+using SeqClock = std::chrono::steady_clock;
+double SeqMs(SeqClock::time_point a, SeqClock::time_point b) {
+  return std::chrono::duration<double, std::milli>(b - a).count();
+}
+
+constexpr uint64_t kMaxFrames = 1000000;
+
+std::vector<std::string> Split(const std::string& s, char sep) {
+  std::vector<std::string> out;
+  size_t pos = 0;
+  while (true) {
+    size_t end = s.find(sep, pos);
+    out.push_back(s.substr(pos, end == std::string::npos ? std::string::npos : end - pos));
+    if (end == std::string::npos) return out;
+    pos = end + 1;
+  }
+}
+
+bool ParseCount(const std::string& s, uint64_t* out) {
+  if (s.empty() || s.size() > 7 || s.find_first_not_of("0123456789") != std::string::npos) return false;
+  *out = std::stoull(s);
+  return *out >= 1 && *out <= kMaxFrames;
+}
+
+// Relative L2 and relative L1 of `x` against `ref`, each entry weighted by w (per row).
+std::pair<double, double> RelErrors(const float* x, const float* ref, uint64_t rows, const std::vector<double>* w) {
+  double d2 = 0, r2 = 0, d1 = 0, r1 = 0;
+  for (uint64_t i = 0; i < rows; ++i) {
+    const double wi = w ? (*w)[i] : 1.0;
+    for (int c = 0; c < 3; ++c) {
+      const double d = static_cast<double>(x[i * 3 + c]) - ref[i * 3 + c], r = ref[i * 3 + c];
+      d2 += wi * d * d;
+      r2 += wi * r * r;
+      d1 += wi * std::fabs(d);
+      r1 += wi * std::fabs(r);
+    }
+  }
+  return {r2 > 0 ? std::sqrt(d2 / r2) : std::sqrt(d2), r1 > 0 ? d1 / r1 : d1};
+}
+
+}  // namespace
+
+Result<std::vector<SequenceSegment>> ParseSequence(const std::string& spec) {
+  std::vector<SequenceSegment> out;
+  uint64_t total = 0;
+  auto bad = [&](const std::string& seg, const std::string& why) {
+    return InvalidArgument("--sequence: segment \"" + seg + "\": " + why +
+                           " (segments: rotate:DEG_PER_FRAME:FRAMES, hold:FRAMES, maps:A.exr+B.hdr+..., "
+                           "fade:A.exr+B.exr:FRAMES, comma-separated)");
+  };
+  if (spec.empty()) return InvalidArgument("--sequence is empty; e.g. rotate:3.6:100,hold:25");
+  for (const std::string& seg : Split(spec, ',')) {
+    SequenceSegment s;
+    const size_t colon = seg.find(':');
+    const std::string kind = seg.substr(0, colon);
+    const std::string rest = colon == std::string::npos ? "" : seg.substr(colon + 1);
+    if (kind == "rotate") {
+      s.kind = SequenceSegment::Kind::kRotate;
+      const size_t c = rest.find(':');
+      if (c == std::string::npos) return bad(seg, "expected rotate:DEG_PER_FRAME:FRAMES");
+      const std::string deg = rest.substr(0, c);
+      char* stop = nullptr;
+      s.degrees = std::strtod(deg.c_str(), &stop);
+      if (deg.empty() || *stop != '\0' || !std::isfinite(s.degrees) || std::fabs(s.degrees) > 360) {
+        return bad(seg, "the degrees per frame \"" + deg + "\" are not a number in [-360, 360]");
+      }
+      if (!ParseCount(rest.substr(c + 1), &s.frames)) {
+        return bad(seg, "the frame count \"" + rest.substr(c + 1) + "\" is not an integer in [1, 1000000]");
+      }
+    } else if (kind == "hold") {
+      s.kind = SequenceSegment::Kind::kHold;
+      if (!ParseCount(rest, &s.frames))
+        return bad(seg, "the frame count \"" + rest + "\" is not an integer in [1, 1000000]");
+    } else if (kind == "maps") {
+      s.kind = SequenceSegment::Kind::kMaps;
+      s.maps = Split(rest, '+');
+      for (const auto& m : s.maps)
+        if (m.empty()) return bad(seg, "a map path is empty");
+      s.frames = s.maps.size();
+    } else if (kind == "fade") {
+      s.kind = SequenceSegment::Kind::kFade;
+      const size_t c = rest.rfind(':');
+      if (c == std::string::npos) return bad(seg, "expected fade:A+B:FRAMES");
+      s.maps = Split(rest.substr(0, c), '+');
+      if (s.maps.size() != 2 || s.maps[0].empty() || s.maps[1].empty()) {
+        return bad(seg, "a fade takes two maps joined by +");
+      }
+      if (!ParseCount(rest.substr(c + 1), &s.frames)) {
+        return bad(seg, "the frame count \"" + rest.substr(c + 1) + "\" is not an integer in [1, 1000000]");
+      }
+    } else {
+      return bad(seg, "unknown kind \"" + kind + "\"");
+    }
+    total += s.frames;
+    if (total > kMaxFrames) return bad(seg, "the sequence has more than 1000000 frames");
+    out.push_back(std::move(s));
+  }
+  return out;
+}
+
+Result<LightingSequence> LightingSequence::Open(const std::vector<SequenceSegment>& segments, const std::string& first,
+                                                double rotation, uint64_t cube_res, const EnvLoadOptions& options) {
+  LightingSequence seq;
+  std::map<std::string, uint32_t> loaded;
+  auto env = [&](const std::string& path) -> Result<uint32_t> {
+    auto it = loaded.find(path);
+    if (it != loaded.end()) return it->second;
+    LTB_ASSIGN_OR_RETURN(Environment e, Environment::Open(path, cube_res, options));
+    seq.envs_.push_back(std::move(e));
+    loaded[path] = static_cast<uint32_t>(seq.envs_.size() - 1);
+    return loaded[path];
+  };
+  LTB_ASSIGN_OR_RETURN(uint32_t current, env(first));
+  const double kRad = std::numbers::pi / 180.0;
+  for (const SequenceSegment& s : segments) {
+    switch (s.kind) {
+      case SequenceSegment::Kind::kRotate:
+        for (uint64_t k = 0; k < s.frames; ++k)
+          seq.frames_.push_back({current, current, 0.0f, rotation + k * s.degrees * kRad});
+        rotation += s.frames * s.degrees * kRad;
+        break;
+      case SequenceSegment::Kind::kHold:
+        for (uint64_t k = 0; k < s.frames; ++k) seq.frames_.push_back({current, current, 0.0f, rotation});
+        break;
+      case SequenceSegment::Kind::kMaps:
+        for (const std::string& m : s.maps) {
+          LTB_ASSIGN_OR_RETURN(current, env(m));
+          seq.frames_.push_back({current, current, 0.0f, rotation});
+        }
+        break;
+      case SequenceSegment::Kind::kFade: {
+        LTB_ASSIGN_OR_RETURN(uint32_t a, env(s.maps[0]));
+        LTB_ASSIGN_OR_RETURN(uint32_t b, env(s.maps[1]));
+        for (uint64_t k = 0; k < s.frames; ++k) {
+          const float t = s.frames == 1 ? 1.0f : static_cast<float>(k) / static_cast<float>(s.frames - 1);
+          seq.frames_.push_back({a, b, t, rotation});
+        }
+        current = b;
+        break;
+      }
+    }
+  }
+  for (const Frame& f : seq.frames_) {
+    for (uint32_t e : {f.a, f.b}) {
+      if (!seq.envs_[e].rotates() && f.rotation != 0) {
+        return InvalidArgument(
+            "--sequence rotates a cubemap .npy, which cannot rotate; give an .exr or .hdr map, or drop the rotation");
+      }
+    }
+  }
+  return seq;
+}
+
+void LightingSequence::Cubemap(uint64_t frame, std::vector<float>* out) const {
+  const Frame& f = frames_[frame];
+  envs_[f.a].Cubemap(f.rotation, out);
+  if (f.b == f.a || f.t == 0.0f) return;
+  std::vector<float> b;
+  envs_[f.b].Cubemap(f.rotation, &b);
+  for (size_t i = 0; i < out->size(); ++i) (*out)[i] = (1.0f - f.t) * (*out)[i] + f.t * b[i];
+}
+
+Result<std::string> FramePath(const std::string& pattern, uint64_t frame) {
+  std::string out;
+  int conversions = 0;
+  for (size_t i = 0; i < pattern.size(); ++i) {
+    if (pattern[i] != '%') {
+      out += pattern[i];
+      continue;
+    }
+    if (i + 1 < pattern.size() && pattern[i + 1] == '%') {
+      out += '%';
+      ++i;
+      continue;
+    }
+    size_t j = i + 1;
+    bool zero = j < pattern.size() && pattern[j] == '0';
+    if (zero) ++j;
+    size_t width_start = j;
+    while (j < pattern.size() && std::isdigit(static_cast<unsigned char>(pattern[j]))) ++j;
+    if (j >= pattern.size() || pattern[j] != 'd' || j - width_start > 2) {
+      return InvalidArgument("-o " + pattern +
+                             ": a sequence's output is a pattern with one %d or %0Nd (N < 100), or "
+                             "an .mp4; write %% for a literal %");
+    }
+    const int width = j > width_start ? std::stoi(pattern.substr(width_start, j - width_start)) : 0;
+    std::string num = std::to_string(frame);
+    if (static_cast<int>(num.size()) < width) num.insert(0, width - num.size(), zero ? '0' : ' ');
+    out += num;
+    ++conversions;
+    i = j;
+  }
+  if (conversions != 1) {
+    return InvalidArgument("-o " + pattern +
+                           ": a sequence writes one file per frame: give a pattern with one %d or "
+                           "%04d (e.g. frames/relit_%04d.png), or an .mp4");
+  }
+  return out;
+}
+
+Result<RelightResult> RunRelightSequence(const RelightOptions& o, const SequenceOptions& so, const Progress& progress) {
+  if (o.terms == 0) return InvalidArgument("--terms must be at least 1 (or all)");
+  if (o.frames > 0) return InvalidArgument("--frames times a rotation of one image; with --sequence drop it");
+  LTB_ASSIGN_OR_RETURN(std::vector<SequenceSegment> segments, ParseSequence(so.spec));
+  const bool video = o.output.ends_with(".mp4");
+  if (!video) LTB_RETURN_IF_ERROR(FramePath(o.output, 0).status());
+  EnvLoadOptions eo;
+  eo.clamp = o.clamp_env;
+  eo.layout = o.env_layout;
+  eo.max_bytes = o.mem_limit;
+  eo.progress = progress;
+  const nlohmann::json terms_json =
+      o.terms == RelightOptions::kAllTerms ? nlohmann::json("all") : nlohmann::json(o.terms);
+  nlohmann::json report = {{"matrix", o.matrix},  {"env", o.env},
+                           {"sequence", so.spec}, {"method", SequenceMethodName(so.method)},
+                           {"terms", terms_json}, {"weighting", WeightingName(o.weighting)}};
+  auto t0 = SeqClock::now();
+  LTB_ASSIGN_OR_RETURN(RelightMatrix m, RelightMatrix::Open(o.matrix, o.mem_limit, o.jobs, progress, &report));
+  const LightingBasis& basis = m.basis();
+  std::optional<RelightMatrix> ref_storage;
+  RelightMatrix* ref = nullptr;
+  if (!o.reference.empty()) {
+    if (o.reference == o.matrix) {
+      ref = &m;
+    } else {
+      LTB_ASSIGN_OR_RETURN(RelightMatrix r, RelightMatrix::Open(o.reference, o.mem_limit, o.jobs, progress, nullptr));
+      if (r.basis().cube_res() != basis.cube_res() || r.rows() != m.rows()) {
+        return InvalidArgument(o.reference + ": is not the same bake as " + o.matrix + " (shape or R differ)");
+      }
+      ref_storage = std::move(r);
+      ref = &*ref_storage;
+    }
+  }
+  auto t1 = SeqClock::now();
+  LTB_ASSIGN_OR_RETURN(
+      LightingSequence seq,
+      LightingSequence::Open(segments, o.env, o.rotate_deg * std::numbers::pi / 180.0, basis.cube_res(), eo));
+  report["load_matrix_ms"] = SeqMs(t0, t1);
+  report["load_env_ms"] = SeqMs(t1, SeqClock::now());
+
+  const uint64_t rows = m.rows(), r = basis.cube_res(), texels = 6 * r * r;
+  std::vector<double> omega(texels);
+  for (uint64_t j = 0; j < texels; ++j)
+    omega[j] = cubemap::TexelSolidAngle(cubemap::ColumnToTexel(j, static_cast<uint32_t>(r)), static_cast<uint32_t>(r));
+  IncrementalLighting inc(basis, so.method, o.terms, o.weighting, m.column_norms());
+  std::vector<float> cube, cube_basis, image(rows * 3, 0.0f), delta, out, exact, applied_px;
+  std::vector<double> acc(rows * 3, 0.0);
+  std::optional<Mp4Writer> mp4;
+  double exposure = o.exposure;
+  FrameUpdate u;
+  nlohmann::json frames = nlohmann::json::array();
+  std::vector<double> ms_all;
+  double sum_l2 = 0, sum_l1 = 0;
+  uint64_t measured = 0;
+  for (uint64_t f = 0; f < seq.frames(); ++f) {
+    if (progress.Cancelled()) {
+      return Cancelled("relight: interrupted after " + std::to_string(f) + " of " + std::to_string(seq.frames()) +
+                       " frames (those are written)");
+    }
+    auto a = SeqClock::now();
+    seq.Cubemap(f, &cube);
+    cube_basis = cube;
+    basis.ToBasis(cube_basis.data());
+    LTB_RETURN_IF_ERROR(inc.Step(cube_basis, &u));
+    auto b = SeqClock::now();
+    if (u.absolute) {
+      LTB_RETURN_IF_ERROR(m.Relight(u.terms, &image));
+    } else if (!u.terms.column.empty()) {
+      LTB_RETURN_IF_ERROR(m.Relight(u.terms, &delta));
+      for (uint64_t i = 0; i < rows * 3; ++i) {
+        acc[i] += delta[i];
+        image[i] = static_cast<float>(acc[i]);
+      }
+    }
+    auto c = SeqClock::now();
+    const double frame_ms = SeqMs(a, c);
+    ms_all.push_back(frame_ms);
+
+    out = image;
+    FinishRelitImage(m.mask(), o.keep_negative, &out);
+    if (exposure <= 0 && m.width() > 0) exposure = AutoExposure(out.data(), rows);  // fixed from frame 0 on
+    if (video) {
+      if (!mp4) {
+        LTB_ASSIGN_OR_RETURN(Mp4Writer w, Mp4Writer::Open(o.output, m.width(), m.height(), so.fps));
+        mp4.emplace(std::move(w));
+      }
+      std::vector<uint8_t> px = ToSrgb8(out.data(), rows, exposure);
+      LTB_RETURN_IF_ERROR(mp4->Add(px.data()));
+    } else {
+      LTB_ASSIGN_OR_RETURN(std::string path, FramePath(o.output, f));
+      LTB_RETURN_IF_ERROR(WriteImage(path, out.data(), rows, m.width(), m.height(), {.exposure = exposure}));
+    }
+
+    nlohmann::json fr = {{"frame", f},
+                         {"ms", frame_ms},
+                         {"lighting_ms", SeqMs(a, b)},
+                         {"relight_ms", SeqMs(b, c)},
+                         {"terms", u.budget_terms},
+                         {"columns_touched", u.terms.column.size()},
+                         {"rotate_deg", seq.Rotation(f) * 180.0 / std::numbers::pi}};
+    nlohmann::json bands = nlohmann::json::array();
+    for (size_t k = 0; k < u.bands.size(); ++k) {
+      bands.push_back({{"band", k},
+                       {"terms", u.bands[k].terms},
+                       {"update", u.bands[k].incremental ? "incremental" : "reset"},
+                       {"reset_terms", u.bands[k].reset_terms}});
+    }
+    fr["bands"] = std::move(bands);
+    // The applied lighting against the frame's true lighting, in pixels (area-weighted L1).
+    applied_px = inc.applied();
+    basis.ToPixels(applied_px.data());
+    auto [ll2, ll1] = RelErrors(applied_px.data(), cube.data(), texels, &omega);
+    fr["lighting_rel_l2"] = ll2;
+    fr["lighting_l1_area"] = ll1;
+    if (ref) {
+      std::vector<float> full = cube;
+      ref->basis().ToBasis(full.data());
+      LTB_RETURN_IF_ERROR(ref->RelightDense(full, &exact));
+      FinishRelitImage(m.mask(), o.keep_negative, &exact);
+      auto [l2, l1] = RelErrors(out.data(), exact.data(), rows, nullptr);
+      fr["rel_l2"] = l2;
+      fr["l1_area"] = l1;
+      sum_l2 += l2;
+      sum_l1 += l1;
+      ++measured;
+    } else {
+      fr["rel_l2"] = nullptr;
+      fr["l1_area"] = nullptr;
+    }
+    frames.push_back(std::move(fr));
+    progress.Report(f + 1, seq.frames(), "frames");
+  }
+  if (mp4) LTB_RETURN_IF_ERROR(mp4->Finish());
+
+  std::vector<double> sorted = ms_all;
+  std::sort(sorted.begin(), sorted.end());
+  double mean_ms = 0;
+  for (double v : ms_all) mean_ms += v / static_cast<double>(ms_all.size());
+  nlohmann::json summary = {
+      {"frames", seq.frames()},
+      {"bands", inc.bands()},
+      {"median_ms", sorted[sorted.size() / 2]},
+      {"mean_ms", mean_ms},
+      {"output", o.output},
+      {"exposure", exposure},
+      // what incremental methods hold beyond nwa: the image in double,
+      // the frame's change and the applied lighting
+      {"memory_overhead_bytes",
+       so.method == SequenceMethod::kNwa ? uint64_t{0} : rows * 3 * (8 + 4) + texels * 3 * 4 * 3}};
+  if (measured > 0) {
+    summary["mean_rel_l2"] = sum_l2 / static_cast<double>(measured);
+    summary["mean_l1_area"] = sum_l1 / static_cast<double>(measured);
+    summary["final_rel_l2"] = frames.back()["rel_l2"];
+  }
+  report["frames"] = std::move(frames);
+  report["summary"] = std::move(summary);
+
+  if (!so.csv.empty()) {
+    std::ostringstream csv;
+    csv << "frame,ms,relight_ms,terms,columns_touched,rel_l2,l1_area,lighting_rel_l2,lighting_l1_area,bands\n";
+    csv.precision(9);
+    for (const auto& fr : report["frames"]) {
+      csv << fr["frame"].get<uint64_t>() << ',' << fr["ms"].get<double>() << ',' << fr["relight_ms"].get<double>()
+          << ',' << fr["terms"].get<uint64_t>() << ',' << fr["columns_touched"].get<uint64_t>() << ',';
+      for (const char* k : {"rel_l2", "l1_area"}) {
+        if (!fr[k].is_null()) csv << fr[k].get<double>();
+        csv << ',';
+      }
+      csv << fr["lighting_rel_l2"].get<double>() << ',' << fr["lighting_l1_area"].get<double>() << ',';
+      bool first_band = true;
+      for (const auto& bd : fr["bands"]) {  // per band: terms and i (incremental) or r (reset)
+        csv << (first_band ? "" : " ") << bd["terms"].get<uint64_t>() << (bd["update"] == "incremental" ? 'i' : 'r');
+        first_band = false;
+      }
+      csv << '\n';
+    }
+    LTB_ASSIGN_OR_RETURN(io::AtomicFile file, io::AtomicFile::Create(so.csv));
+    const std::string text = csv.str();
+    LTB_RETURN_IF_ERROR(file.file().WriteAt(0, std::as_bytes(std::span(text.data(), text.size()))));
+    LTB_RETURN_IF_ERROR(file.Commit());
+  }
+  return RelightResult{std::move(report), {}};
+}
+
+}  // namespace ltb::stages

@@ -1,0 +1,66 @@
+// `ltbake relight MATRIX --env ENV --sequence SPEC -o PATTERN` as a library call
+// (docs/SEQUENCE.md): a lighting sequence — rotations, holds, map lists, fades — relit frame
+// by frame with the non-linear (nwa), basic incremental (bi) or per-band incremental (pbi)
+// lighting approximation of Overbeck et al. 2006, each frame written through a printf
+// pattern or into an .mp4, with per-frame timings and, against a reference matrix, errors.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "format/progress.h"
+#include "format/status.h"
+#include "stages/relight/environment.h"
+#include "stages/relight/incremental.h"
+#include "stages/relight/run_relight.h"
+
+namespace ltb::stages {
+
+// One segment of --sequence: rotate:DEG_PER_FRAME:FRAMES, hold:FRAMES, maps:A+B+...,
+// fade:A+B:FRAMES.
+struct SequenceSegment {
+  enum class Kind { kRotate, kHold, kMaps, kFade } kind = Kind::kHold;
+  double degrees = 0;  // per frame (rotate)
+  uint64_t frames = 0;
+  std::vector<std::string> maps;  // maps: one per frame; fade: the two ends
+};
+// Checked: at least one frame, at most 1,000,000 in all; every count and angle finite.
+Result<std::vector<SequenceSegment>> ParseSequence(const std::string& spec);
+
+// The lighting of each frame (6R² × 3 radiance in pixels), frames taken in any order.
+class LightingSequence {
+ public:
+  // `first`: the map the sequence starts from (--env), turned by `rotation` radians.
+  static Result<LightingSequence> Open(const std::vector<SequenceSegment>& segments, const std::string& first,
+                                       double rotation, uint64_t cube_res, const EnvLoadOptions& options);
+  uint64_t frames() const { return frames_.size(); }
+  void Cubemap(uint64_t frame, std::vector<float>* out) const;
+  double Rotation(uint64_t frame) const { return frames_[frame].rotation; }
+
+ private:
+  struct Frame {
+    uint32_t a = 0, b = 0;  // environments blended (1 − t)·a + t·b
+    float t = 0;
+    double rotation = 0;  // radians about +Z
+  };
+  std::vector<Environment> envs_;
+  std::vector<Frame> frames_;
+};
+
+struct SequenceOptions {
+  std::string spec;
+  SequenceMethod method = SequenceMethod::kPbi;
+  std::string csv;  // the per-frame table (empty: none)
+  double fps = 25;  // .mp4 output
+};
+
+// -o is a pattern with one integer conversion (%d, %04d; %% for a literal %) or an .mp4.
+// Cancelled between frames; the frames written stay.
+Result<RelightResult> RunRelightSequence(const RelightOptions& options, const SequenceOptions& sequence,
+                                         const Progress& progress);
+
+// The frame's path from a pattern, or an error naming the pattern.
+Result<std::string> FramePath(const std::string& pattern, uint64_t frame);
+
+}  // namespace ltb::stages
