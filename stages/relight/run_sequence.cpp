@@ -219,6 +219,37 @@ Result<std::string> FramePath(const std::string& pattern, uint64_t frame) {
   return out;
 }
 
+IncrementalRelighter::IncrementalRelighter(RelightMatrix& matrix, SequenceMethod method, uint64_t terms,
+                                           Weighting weighting)
+    : m_(matrix),
+      lighting_(matrix.basis(), method, terms, weighting, matrix.column_norms()),
+      image_(matrix.rows() * 3, 0.0f),
+      acc_(method == SequenceMethod::kNwa ? 0 : matrix.rows() * 3, 0.0) {}
+
+uint64_t IncrementalRelighter::overhead_bytes() const {
+  return acc_.size() * 8 + delta_.capacity() * 4 + lighting_.applied().size() * 4 * 3;
+}
+
+Status IncrementalRelighter::Frame(const std::vector<float>& cube) {
+  auto a = SeqClock::now();
+  basis_cube_ = cube;
+  m_.basis().ToBasis(basis_cube_.data());
+  LTB_RETURN_IF_ERROR(lighting_.Step(basis_cube_, &update_));
+  auto b = SeqClock::now();
+  if (update_.absolute) {
+    LTB_RETURN_IF_ERROR(m_.Relight(update_.terms, &image_));
+  } else if (!update_.terms.column.empty()) {
+    LTB_RETURN_IF_ERROR(m_.Relight(update_.terms, &delta_));
+    for (size_t i = 0; i < acc_.size(); ++i) {
+      acc_[i] += delta_[i];
+      image_[i] = static_cast<float>(acc_[i]);
+    }
+  }
+  lighting_ms_ = SeqMs(a, b);
+  relight_ms_ = SeqMs(b, SeqClock::now());
+  return Status::Ok();
+}
+
 Result<RelightResult> RunRelightSequence(const RelightOptions& o, const SequenceOptions& so, const Progress& progress) {
   if (o.terms == 0) return InvalidArgument("--terms must be at least 1 (or all)");
   if (o.frames > 0) return InvalidArgument("--frames times a rotation of one image; with --sequence drop it");
@@ -263,12 +294,10 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
   std::vector<double> omega(texels);
   for (uint64_t j = 0; j < texels; ++j)
     omega[j] = cubemap::TexelSolidAngle(cubemap::ColumnToTexel(j, static_cast<uint32_t>(r)), static_cast<uint32_t>(r));
-  IncrementalLighting inc(basis, so.method, o.terms, o.weighting, m.column_norms());
-  std::vector<float> cube, cube_basis, image(rows * 3, 0.0f), delta, out, exact, applied_px;
-  std::vector<double> acc(rows * 3, 0.0);
+  IncrementalRelighter inc(m, so.method, o.terms, o.weighting);
+  std::vector<float> cube, out, exact, applied_px;
   std::optional<Mp4Writer> mp4;
   double exposure = o.exposure;
-  FrameUpdate u;
   nlohmann::json frames = nlohmann::json::array();
   std::vector<double> ms_all;
   double sum_l2 = 0, sum_l1 = 0;
@@ -280,24 +309,12 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
     }
     auto a = SeqClock::now();
     seq.Cubemap(f, &cube);
-    cube_basis = cube;
-    basis.ToBasis(cube_basis.data());
-    LTB_RETURN_IF_ERROR(inc.Step(cube_basis, &u));
-    auto b = SeqClock::now();
-    if (u.absolute) {
-      LTB_RETURN_IF_ERROR(m.Relight(u.terms, &image));
-    } else if (!u.terms.column.empty()) {
-      LTB_RETURN_IF_ERROR(m.Relight(u.terms, &delta));
-      for (uint64_t i = 0; i < rows * 3; ++i) {
-        acc[i] += delta[i];
-        image[i] = static_cast<float>(acc[i]);
-      }
-    }
-    auto c = SeqClock::now();
-    const double frame_ms = SeqMs(a, c);
+    LTB_RETURN_IF_ERROR(inc.Frame(cube));
+    const double frame_ms = SeqMs(a, SeqClock::now());
     ms_all.push_back(frame_ms);
+    const FrameUpdate& u = inc.update();
 
-    out = image;
+    out = inc.image();
     FinishRelitImage(m.mask(), o.keep_negative, &out);
     if (exposure <= 0 && m.width() > 0) exposure = AutoExposure(out.data(), rows);  // fixed from frame 0 on
     if (video) {
@@ -314,8 +331,8 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
 
     nlohmann::json fr = {{"frame", f},
                          {"ms", frame_ms},
-                         {"lighting_ms", SeqMs(a, b)},
-                         {"relight_ms", SeqMs(b, c)},
+                         {"lighting_ms", inc.lighting_ms()},
+                         {"relight_ms", inc.relight_ms()},
                          {"terms", u.budget_terms},
                          {"columns_touched", u.terms.column.size()},
                          {"rotate_deg", seq.Rotation(f) * 180.0 / std::numbers::pi}};
@@ -328,7 +345,7 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
     }
     fr["bands"] = std::move(bands);
     // The applied lighting against the frame's true lighting, in pixels (area-weighted L1).
-    applied_px = inc.applied();
+    applied_px = inc.lighting().applied();
     basis.ToPixels(applied_px.data());
     auto [ll2, ll1] = RelErrors(applied_px.data(), cube.data(), texels, &omega);
     fr["lighting_rel_l2"] = ll2;
@@ -357,17 +374,13 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
   std::sort(sorted.begin(), sorted.end());
   double mean_ms = 0;
   for (double v : ms_all) mean_ms += v / static_cast<double>(ms_all.size());
-  nlohmann::json summary = {
-      {"frames", seq.frames()},
-      {"bands", inc.bands()},
-      {"median_ms", sorted[sorted.size() / 2]},
-      {"mean_ms", mean_ms},
-      {"output", o.output},
-      {"exposure", exposure},
-      // what incremental methods hold beyond nwa: the image in double,
-      // the frame's change and the applied lighting
-      {"memory_overhead_bytes",
-       so.method == SequenceMethod::kNwa ? uint64_t{0} : rows * 3 * (8 + 4) + texels * 3 * 4 * 3}};
+  nlohmann::json summary = {{"frames", seq.frames()},
+                            {"bands", inc.lighting().bands()},
+                            {"median_ms", sorted[sorted.size() / 2]},
+                            {"mean_ms", mean_ms},
+                            {"output", o.output},
+                            {"exposure", exposure},
+                            {"memory_overhead_bytes", inc.overhead_bytes()}};
   if (measured > 0) {
     summary["mean_rel_l2"] = sum_l2 / static_cast<double>(measured);
     summary["mean_l1_area"] = sum_l1 / static_cast<double>(measured);

@@ -48,6 +48,33 @@ class LightingSequence {
   std::vector<Frame> frames_;
 };
 
+class RelightMatrix;
+
+// A matrix relit frame after frame under one lighting approximation: nwa relights the
+// frame's terms; bi and pbi add T·ΔL̃ to the image kept (in double) from frame to frame.
+class IncrementalRelighter {
+ public:
+  IncrementalRelighter(RelightMatrix& matrix, SequenceMethod method, uint64_t terms, Weighting weighting);
+  // `cube`: the frame's full lighting in pixels (6R² × 3). Fills image() (T·L̃, before the
+  // output policy) and update().
+  Status Frame(const std::vector<float>& cube);
+  const std::vector<float>& image() const { return image_; }
+  const FrameUpdate& update() const { return update_; }
+  const IncrementalLighting& lighting() const { return lighting_; }
+  double lighting_ms() const { return lighting_ms_; }  // transform and term selection
+  double relight_ms() const { return relight_ms_; }    // the matrix product and the image update
+  // What bi and pbi hold beyond nwa.
+  uint64_t overhead_bytes() const;
+
+ private:
+  RelightMatrix& m_;
+  IncrementalLighting lighting_;
+  FrameUpdate update_;
+  std::vector<float> basis_cube_, image_, delta_;
+  std::vector<double> acc_;
+  double lighting_ms_ = 0, relight_ms_ = 0;
+};
+
 struct SequenceOptions {
   std::string spec;
   SequenceMethod method = SequenceMethod::kPbi;
