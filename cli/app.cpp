@@ -31,7 +31,7 @@ int LtbakeMain(int argc, char** argv) {
   std::map<CLI::App*, std::unique_ptr<Command>> commands;
   for (auto reg : {RegisterInspect, RegisterVerify, RegisterConvert, RegisterRowTransform, RegisterTranspose,
                    RegisterSample, RegisterColumnTransform, RegisterQuantize, RegisterCpca, RegisterRelight,
-                   RegisterRun, RegisterCommit, RegisterMerge, RegisterMaterial}) {
+                   RegisterRun, RegisterCommit, RegisterMerge, RegisterMaterial, RegisterView}) {
     auto cmd = reg(&app);
     commands[app.get_subcommands({}).back()] = std::move(cmd);
   }

@@ -27,6 +27,7 @@ std::unique_ptr<Command> RegisterRun(CLI::App* parent);
 std::unique_ptr<Command> RegisterCommit(CLI::App* parent);
 std::unique_ptr<Command> RegisterMerge(CLI::App* parent);
 std::unique_ptr<Command> RegisterMaterial(CLI::App* parent);
+std::unique_ptr<Command> RegisterView(CLI::App* parent);
 
 // The whole ltbake command line (main and the ltbake-<stage> executables call it).
 int LtbakeMain(int argc, char** argv);

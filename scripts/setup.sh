@@ -29,6 +29,9 @@ PACKAGES=(
   python3 python3-numpy python3-pywt python3-h5py python3-matplotlib python3-xxhash python3-sklearn  # oracles, baselines, plots
   python3-dev pybind11-dev python3-pytest  # the Python module (import ltbake; docs/PYTHON.md) and its tests
   nodejs                           # converting the sample meshes (npm is checked below)
+  ffmpeg                           # relight --sequence -o relit.mp4 (docs/SEQUENCE.md)
+  libcpp-httplib-dev               # ltbake view: the local relighting page's HTTP server
+  chromium-headless-shell          # the browser test of ltbake view (tests/cli/view_browser_test.py)
   slurm-wlm munge slurm-client     # cluster test: a single-node Slurm on localhost (tests/cluster, docs/cluster.md)
 )
 

@@ -1,0 +1,98 @@
+// The page `ltbake view` serves: plain HTML, CSS and JavaScript in one response, nothing
+// fetched from elsewhere. One frame request is in flight at a time; while the lighting holds
+// and an incremental method still has terms to apply, it keeps asking for frames (the image
+// converges), then waits for the next input.
+#include "stages/view/server.h"
+
+namespace ltb::stages::view {
+
+const std::string& PageHtml() {
+  static const std::string kPage = R"HTML(<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>ltbake view</title>
+<style>
+body{font:14px system-ui,sans-serif;margin:16px;background:#1b1b1b;color:#ddd}
+#frame{cursor:grab;image-rendering:pixelated;border:1px solid #444;user-select:none;-webkit-user-drag:none}
+#env{display:block;margin-top:8px;border:1px solid #444;width:512px}
+.row{margin:6px 0}label{display:inline-block;width:90px}
+#figures span{display:inline-block;min-width:110px}
+</style></head><body>
+<h3>ltbake view <small id="matrix"></small></h3>
+<div style="display:flex;gap:24px;flex-wrap:wrap">
+<div><img id="frame" alt="relit frame" draggable="false"><div><small>drag to rotate the environment</small></div></div>
+<div>
+<div class="row"><label for="method">method</label><select id="method">
+<option value="pbi">PBI (per-band incremental)</option><option value="bi">BI (basic incremental)</option>
+<option value="nwa">NWA (non-incremental)</option></select></div>
+<div class="row"><label for="terms">terms</label><input id="terms" type="range" min="1" max="500" value="100">
+<span id="termsval">100</span></div>
+<div class="row"><label for="exposure">exposure</label><input id="exposure" type="range" min="-6" max="6" step="0.25" value="0">
+<span id="expval">0 stops</span></div>
+<div class="row"><label>rotation</label><span id="rotval">0°</span></div>
+<div id="figures" class="row"><span id="ms">– ms</span><span id="used">– terms</span><span id="err"></span><span id="count">0 frames</span></div>
+<div class="row"><small id="bands"></small></div>
+<img id="env" alt="environment (lat-long), the frame's terms in red">
+</div></div>
+<script>
+"use strict";
+const $ = (id) => document.getElementById(id);
+const ltb = window.ltb = {frames: 0, rotate: 0, base: 0, last: null, stats: null, error: null};
+let dirty = true, wake = null;
+function poke() { dirty = true; if (wake) { const w = wake; wake = null; w(); } }
+function params() {
+  const stops = parseFloat($("exposure").value);
+  const exposure = ltb.base > 0 ? ltb.base * Math.pow(2, stops) : 0;
+  return {rotate: ltb.rotate.toFixed(3), terms: $("terms").value, method: $("method").value, exposure: exposure};
+}
+let dragging = false, lastX = 0;
+$("frame").addEventListener("pointerdown", (e) => { dragging = true; lastX = e.clientX; $("frame").setPointerCapture(e.pointerId); e.preventDefault(); });
+$("frame").addEventListener("pointermove", (e) => {
+  if (!dragging) return;
+  ltb.rotate += (e.clientX - lastX) * 0.5; lastX = e.clientX;
+  $("rotval").textContent = ltb.rotate.toFixed(1) + "°"; poke();
+});
+for (const ev of ["pointerup", "pointercancel"]) $("frame").addEventListener(ev, () => { dragging = false; });
+$("terms").addEventListener("input", () => { $("termsval").textContent = $("terms").value; poke(); });
+$("method").addEventListener("change", poke);
+$("exposure").addEventListener("input", () => { $("expval").textContent = $("exposure").value + " stops"; poke(); });
+async function frame() {
+  const p = params();
+  const url = "/frame.png?" + new URLSearchParams(p).toString();
+  const res = await fetch(url, {cache: "no-store"});
+  if (!res.ok) throw new Error(await res.text());
+  const stats = JSON.parse(res.headers.get("X-Ltb-Stats"));
+  const blob = await res.blob();
+  const img = $("frame");
+  const old = img.src;
+  await new Promise((ok, bad) => { img.onload = ok; img.onerror = bad; img.src = URL.createObjectURL(blob); });
+  if (old.startsWith("blob:")) URL.revokeObjectURL(old);
+  if (ltb.base === 0) ltb.base = stats.exposure;
+  ltb.frames += 1; ltb.last = p; ltb.stats = stats;
+  $("ms").textContent = stats.ms.toFixed(2) + " ms";
+  $("used").textContent = stats.terms_used + " terms";
+  $("err").textContent = "rel_l2" in stats ? "error " + (100 * stats.rel_l2).toFixed(2) + "%" : "";
+  $("count").textContent = ltb.frames + " frames";
+  $("bands").textContent = "bands: " + stats.bands.map((b) => b.terms + (b.incremental ? "i" : "r")).join(" ");
+  $("env").src = "/env.png?f=" + stats.frame;
+  return stats;
+}
+async function loop() {
+  for (;;) {
+    if (!dirty) await new Promise((ok) => { wake = ok; });
+    dirty = false;
+    try {
+      const s = await frame();
+      // Keep converging while the lighting holds and terms are still being applied.
+      if (s.method !== "nwa" && s.columns_touched > 0) dirty = true;
+    } catch (e) {
+      ltb.error = String(e); $("err").textContent = ltb.error;
+      await new Promise((ok) => setTimeout(ok, 500));
+    }
+  }
+}
+loop();
+</script></body></html>
+)HTML";
+  return kPage;
+}
+
+}  // namespace ltb::stages::view

@@ -1,0 +1,169 @@
+#include "stages/view/view_session.h"
+
+#include <chrono>
+#include <cmath>
+#include <numbers>
+
+#include "stages/common/cubemap.h"
+#include "stages/relight/image_io.h"
+
+namespace ltb::stages::view {
+namespace {
+
+bool ParseDouble(const std::string& s, double* out) {
+  if (s.empty() || s.size() > 32) return false;
+  char* stop = nullptr;
+  *out = std::strtod(s.c_str(), &stop);
+  return *stop == '\0' && std::isfinite(*out);
+}
+
+// The face texels a lighting column's basis function covers: the whole face for the
+// scaling function, else the block of side R/2^l of a level-l detail (Mallat layout).
+void Support(uint64_t column, uint64_t r, bool wavelet, std::vector<uint8_t>* mark) {
+  const uint64_t rr = r * r, face = column / rr, p = column % rr, s = p % r, t = p / r;
+  if (!wavelet) {
+    (*mark)[column] = 1;
+    return;
+  }
+  const uint64_t m = std::max(s, t);
+  uint64_t x0 = 0, y0 = 0, side = r;
+  if (m > 0) {
+    const int l = 63 - __builtin_clzll(m);
+    const uint64_t n = uint64_t{1} << l;  // blocks per side at this level
+    side = r / n;
+    x0 = (s % n) * side;
+    y0 = (t % n) * side;
+  }
+  for (uint64_t y = y0; y < y0 + side; ++y)
+    for (uint64_t x = x0; x < x0 + side; ++x) (*mark)[face * rr + y * r + x] = 1;
+}
+
+}  // namespace
+
+Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>& params, const FrameRequest& d) {
+  FrameRequest r = d;
+  for (const auto& [key, value] : params) {
+    const std::string shown = value.size() > 40 ? value.substr(0, 40) + "..." : value;
+    if (key == "rotate") {
+      if (!ParseDouble(value, &r.rotate_deg) || std::fabs(r.rotate_deg) > 1e6) {
+        return InvalidArgument("rotate=" + shown + ": expected degrees, a number within ±1e6");
+      }
+    } else if (key == "terms") {
+      if (value == "all") {
+        r.terms = RelightOptions::kAllTerms;
+      } else if (value.empty() || value.size() > 9 || value.find_first_not_of("0123456789") != std::string::npos ||
+                 std::stoull(value) == 0) {
+        return InvalidArgument("terms=" + shown + ": expected an integer >= 1 or all");
+      } else {
+        r.terms = std::stoull(value);
+      }
+    } else if (key == "method") {
+      auto m = ParseSequenceMethod(value);
+      if (!m.ok()) return InvalidArgument("method=" + shown + ": expected nwa, bi or pbi");
+      r.method = *m;
+    } else if (key == "exposure") {
+      if (!ParseDouble(value, &r.exposure) || r.exposure < 0 || r.exposure > 1e12) {
+        return InvalidArgument("exposure=" + shown + ": expected a number >= 0 (0: automatic)");
+      }
+    } else {
+      return InvalidArgument("unknown parameter \"" + (key.size() > 40 ? key.substr(0, 40) + "..." : key) +
+                             "\" (rotate, terms, method, exposure)");
+    }
+  }
+  return r;
+}
+
+Result<std::unique_ptr<ViewSession>> ViewSession::Open(const ViewOptions& o) {
+  LTB_ASSIGN_OR_RETURN(RelightMatrix m, RelightMatrix::Open(o.matrix, o.mem_limit, o.jobs, Progress{}, nullptr));
+  if (m.width() == 0) {
+    return FailedPrecondition(o.matrix + ": its rows are not an image (a vertex bake); view shows image bakes");
+  }
+  EnvLoadOptions eo;
+  eo.clamp = o.clamp_env;
+  eo.layout = o.env_layout;
+  eo.max_bytes = o.mem_limit;
+  LTB_ASSIGN_OR_RETURN(Environment env, Environment::Open(o.env, m.basis().cube_res(), eo));
+  if (!env.rotates()) {
+    return FailedPrecondition(o.env + ": a cubemap .npy cannot rotate; view needs an .exr or .hdr map");
+  }
+  std::unique_ptr<ViewSession> s(new ViewSession(std::move(m), std::move(env)));
+  if (!o.reference.empty()) {
+    LTB_ASSIGN_OR_RETURN(RelightMatrix r, RelightMatrix::Open(o.reference, o.mem_limit, o.jobs, Progress{}, nullptr));
+    if (r.rows() != s->m_.rows() || r.basis().cube_res() != s->m_.basis().cube_res()) {
+      return InvalidArgument(o.reference + ": is not the same bake as " + o.matrix + " (shape or R differ)");
+    }
+    s->reference_ = std::move(r);
+  }
+  s->defaults_.terms = o.terms;
+  s->defaults_.method = o.method;
+  return s;
+}
+
+Result<std::string> ViewSession::Render(const FrameRequest& q) {
+  auto a = std::chrono::steady_clock::now();
+  if (!relighter_ || q.method != last_.method || q.terms != last_.terms) {
+    relighter_ = std::make_unique<IncrementalRelighter>(m_, q.method, q.terms, Weighting::kArea);
+  }
+  env_.Cubemap(q.rotate_deg * std::numbers::pi / 180.0, &cube_);
+  LTB_RETURN_IF_ERROR(relighter_->Frame(cube_));
+  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - a).count();
+  std::vector<float> out = relighter_->image();
+  FinishRelitImage(m_.mask(), false, &out);
+  const double exposure = q.exposure > 0 ? q.exposure : AutoExposure(out.data(), m_.rows());
+  const FrameUpdate& u = relighter_->update();
+  nlohmann::json bands = nlohmann::json::array();
+  for (size_t k = 0; k < u.bands.size(); ++k) {
+    bands.push_back({{"band", k}, {"terms", u.bands[k].terms}, {"incremental", u.bands[k].incremental}});
+  }
+  stats_ = {{"frame", frame_++},
+            {"rotate", q.rotate_deg},
+            {"method", SequenceMethodName(q.method)},
+            {"terms", q.terms == RelightOptions::kAllTerms ? nlohmann::json("all") : nlohmann::json(q.terms)},
+            {"terms_used", u.budget_terms},
+            {"columns_touched", u.terms.column.size()},
+            {"ms", ms},
+            {"exposure", exposure},
+            {"width", m_.width()},
+            {"height", m_.height()},
+            {"bands", std::move(bands)}};
+  if (reference_) {
+    std::vector<float> full = cube_, exact;
+    reference_->basis().ToBasis(full.data());
+    LTB_RETURN_IF_ERROR(reference_->RelightDense(full, &exact));
+    FinishRelitImage(m_.mask(), false, &exact);
+    stats_["rel_l2"] = CompareImages(out.data(), exact.data(), m_.rows(), m_.width(), m_.height()).rel_l2;
+  }
+  last_ = q;
+  std::vector<uint8_t> px = ToSrgb8(out.data(), m_.rows(), exposure);
+  return EncodePng(px.data(), m_.width(), m_.height());
+}
+
+std::string ViewSession::EnvironmentPng(uint64_t width) const {
+  const uint64_t w = std::max<uint64_t>(width, 2), h = w / 2, r = m_.basis().cube_res();
+  std::vector<uint8_t> mark(6 * r * r, 0);
+  if (relighter_) {
+    for (uint32_t j : relighter_->update().terms.column) Support(j, r, m_.basis().wavelet(), &mark);
+  }
+  std::vector<float> rgb(w * h * 3, 0.0f);
+  std::vector<uint64_t> texel(w * h, 0);
+  for (uint64_t y = 0; y < h; ++y)
+    for (uint64_t x = 0; x < w; ++x) {
+      // Lat-long: +Z up, longitude about +Z from +X.
+      const double phi = 2 * std::numbers::pi * (x + 0.5) / w, theta = std::numbers::pi * (y + 0.5) / h;
+      const glm::dvec3 d(std::sin(theta) * std::cos(phi), std::sin(theta) * std::sin(phi), std::cos(theta));
+      const uint64_t j = cubemap::Column(cubemap::DirectionToTexel(d, static_cast<uint32_t>(r)), r);
+      texel[y * w + x] = j;
+      if (!cube_.empty())
+        for (int c = 0; c < 3; ++c) rgb[(y * w + x) * 3 + c] = cube_[j * 3 + c];
+    }
+  std::vector<uint8_t> px = ToSrgb8(rgb.data(), w * h, AutoExposure(rgb.data(), w * h));
+  for (uint64_t i = 0; i < w * h; ++i) {
+    if (!mark[texel[i]]) continue;
+    px[i * 3] = static_cast<uint8_t>(std::min(255, px[i * 3] / 2 + 128));
+    px[i * 3 + 1] = static_cast<uint8_t>(px[i * 3 + 1] / 2);
+    px[i * 3 + 2] = static_cast<uint8_t>(px[i * 3 + 2] / 2);
+  }
+  return EncodePng(px.data(), w, h);
+}
+
+}  // namespace ltb::stages::view

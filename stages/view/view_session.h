@@ -1,0 +1,71 @@
+// The state behind `ltbake view` (docs/VIEW.md): one matrix, one environment, and the
+// lighting approximation carried from frame to frame, so that dragging the environment
+// relights incrementally (pbi or bi) exactly like `relight --sequence`. HTTP-free: the
+// server (server.h) parses requests into FrameRequest and sends what Render returns.
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "format/status.h"
+#include "stages/relight/environment.h"
+#include "stages/relight/relight_matrix.h"
+#include "stages/relight/run_sequence.h"
+
+namespace ltb::stages::view {
+
+struct ViewOptions {
+  std::string matrix, env, reference;
+  uint64_t terms = 100;
+  SequenceMethod method = SequenceMethod::kPbi;
+  EnvLayout env_layout = EnvLayout::kAuto;
+  bool clamp_env = false;
+  uint64_t mem_limit = 1ull << 30;
+  int jobs = 2;
+  int port = 0;  // 0: a free one
+};
+
+struct FrameRequest {
+  double rotate_deg = 0;
+  uint64_t terms = 100;  // RelightOptions::kAllTerms: every term
+  SequenceMethod method = SequenceMethod::kPbi;
+  double exposure = 0;  // 0: automatic (the 99th percentile of luminance to 0.9)
+};
+// From a query's parameters (rotate, terms, method, exposure; each optional, defaults from
+// `defaults`); an InvalidArgument names the parameter and the value.
+Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>& params, const FrameRequest& defaults);
+
+class ViewSession {
+ public:
+  static Result<std::unique_ptr<ViewSession>> Open(const ViewOptions& options);
+  const FrameRequest& defaults() const { return defaults_; }
+  bool has_image() const { return m_.width() > 0; }
+
+  // Relights one frame (the approximation carries over from the last frame when method and
+  // terms are the same) and returns its PNG bytes; stats() describes it afterwards.
+  Result<std::string> Render(const FrameRequest& request);
+  // The last frame: frame, rotate, method, terms, columns_touched, ms, exposure, bands, and
+  // rel_l2 against the reference when there is one.
+  const nlohmann::json& stats() const { return stats_; }
+  // A lat-long strip (width × width/2) of the last frame's lighting, the texels its terms
+  // touched tinted red.
+  std::string EnvironmentPng(uint64_t width) const;
+
+ private:
+  ViewSession(RelightMatrix m, Environment env) : m_(std::move(m)), env_(std::move(env)) {}
+  RelightMatrix m_;
+  Environment env_;
+  std::optional<RelightMatrix> reference_;
+  FrameRequest defaults_, last_;
+  std::unique_ptr<IncrementalRelighter> relighter_;
+  std::vector<float> cube_;
+  uint64_t frame_ = 0;
+  nlohmann::json stats_ = nlohmann::json::object();
+};
+
+}  // namespace ltb::stages::view
