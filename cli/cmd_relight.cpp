@@ -81,6 +81,9 @@ class RelightCommand : public Command {
                     "(about +Z), hold:FRAMES, maps:A.exr+B.hdr+... (one map a frame), fade:A.exr+B.exr:FRAMES; -o is "
                     "then a pattern with one %04d, or an .mp4 (docs/SEQUENCE.md)");
     app->add_option("--csv", csv_, "with --sequence: the per-frame table (time, terms per band, errors) as CSV");
+    app->add_option("--applied-lighting", applied_,
+                    "with --sequence: a pattern like -o's (.npy) for each frame's applied lighting (6R² x 3, in the "
+                    "matrix's column basis)");
     app->add_option("--fps", fps_, "with --sequence and an .mp4 output: frames per second")->default_val(25.0);
     app->add_option("--brdf-terms", brdf_terms_text_,
                     "triple-product path: wavelet terms kept of each sampled BRDF row (largest first), N or all")
@@ -197,9 +200,9 @@ class RelightCommand : public Command {
   int Run() override {
     if (Triple()) return RunTriple();
     if (!sequence_.empty()) return RunSequence();
-    if (!method_.empty() || !csv_.empty()) {
-      return ReportUsage(InvalidArgument("--method " + method_ + (csv_.empty() ? "" : " and --csv") +
-                                         " need --sequence (a lighting sequence; docs/SEQUENCE.md)"));
+    if (!method_.empty() || !csv_.empty() || !applied_.empty()) {
+      return ReportUsage(InvalidArgument(
+          "--method, --csv and --applied-lighting belong to lighting sequences: add --sequence (docs/SEQUENCE.md)"));
     }
     stages::RelightOptions o;
     if (int code = FillOptions(&o); code != kExitOk) return code;
@@ -275,6 +278,7 @@ class RelightCommand : public Command {
     so.method = *stages::ParseSequenceMethod(method_.empty() ? "pbi" : method_);  // checked by IsMember
     so.csv = csv_;
     so.fps = fps_;
+    so.applied_output = applied_;
     ProgressBar bar(flags_, "relight");
     auto r = stages::RunRelightSequence(o, so, bar.hook());
     if (!r.ok()) return ReportFailure(r.status());
@@ -300,7 +304,7 @@ class RelightCommand : public Command {
   std::string matrix_, env_, output_, weighting_ = "area", reference_, layout_ = "auto";
   std::string terms_text_ = "100";
   std::vector<std::string> materials_;
-  std::string eye_, target_ = "0,0,0", up_ = "0,0,1", size_ = "256x256", method_, sequence_, csv_,
+  std::string eye_, target_ = "0,0,0", up_ = "0,0,1", size_ = "256x256", method_, sequence_, csv_, applied_,
                     brdf_terms_text_ = "all", orbit_, scene_, vertex_output_;
   double fov_ = 40, fps_ = 25;
   int frames_ = 0;

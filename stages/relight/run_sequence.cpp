@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <map>
 #include <numbers>
 #include <optional>
@@ -255,7 +256,20 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
   if (o.frames > 0) return InvalidArgument("--frames times a rotation of one image; with --sequence drop it");
   LTB_ASSIGN_OR_RETURN(std::vector<SequenceSegment> segments, ParseSequence(so.spec));
   const bool video = o.output.ends_with(".mp4");
-  if (!video) LTB_RETURN_IF_ERROR(FramePath(o.output, 0).status());
+  if (!video) {
+    LTB_ASSIGN_OR_RETURN(std::string first, FramePath(o.output, 0));
+    // Frames go into a directory of their own more often than not: make it.
+    const std::filesystem::path dir = std::filesystem::path(first).parent_path();
+    std::error_code ec;
+    if (!dir.empty()) std::filesystem::create_directories(dir, ec);
+    if (ec) return IoError(o.output + ": cannot make the frames' directory " + dir.string(), ec.value());
+  }
+  if (!so.applied_output.empty()) {
+    if (!so.applied_output.ends_with(".npy")) {
+      return InvalidArgument("--applied-lighting " + so.applied_output + ": it writes .npy files (a %04d pattern)");
+    }
+    LTB_RETURN_IF_ERROR(FramePath(so.applied_output, 0).status());
+  }
   EnvLoadOptions eo;
   eo.clamp = o.clamp_env;
   eo.layout = o.env_layout;
@@ -329,6 +343,11 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
       LTB_RETURN_IF_ERROR(WriteImage(path, out.data(), rows, m.width(), m.height(), {.exposure = exposure}));
     }
 
+    if (!so.applied_output.empty()) {
+      LTB_ASSIGN_OR_RETURN(std::string path, FramePath(so.applied_output, f));
+      const std::vector<float>& applied = inc.lighting().applied();
+      LTB_RETURN_IF_ERROR(WriteImage(path, applied.data(), applied.size() / 3, 0, 0));
+    }
     nlohmann::json fr = {{"frame", f},
                          {"ms", frame_ms},
                          {"lighting_ms", inc.lighting_ms()},

@@ -80,6 +80,9 @@ struct SequenceOptions {
   SequenceMethod method = SequenceMethod::kPbi;
   std::string csv;  // the per-frame table (empty: none)
   double fps = 25;  // .mp4 output
+  // A pattern like -o's: each frame's applied lighting L̃ (6R² × 3 .npy, in the matrix's
+  // column basis), for checking T·L̃ against the image. Empty: not written.
+  std::string applied_output;
 };
 
 // -o is a pattern with one integer conversion (%d, %04d; %% for a literal %) or an .mp4.

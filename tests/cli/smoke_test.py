@@ -5,7 +5,8 @@ for little extra (the same code paths, slower). This script goes through each co
 once with the smallest inputs that still reach its main paths, so that a memory error in
 any of them is caught by the sanitizers:
   sample (plain and fused with row-transform), row-transform, transpose, column-transform
-  (adaptive, budget), quantize, cpca, relight (final, rows, cpca; .npy and .exr maps),
+  (adaptive, budget), quantize, cpca, relight (final, rows, cpca; .npy and .exr maps; lighting
+  sequences with nwa, bi and pbi), view (a frame, bad requests, Ctrl-C),
   convert (both directions), inspect, verify, run (a recipe; a rerun that skips),
   a sharded sample with commit and merge, one kill-and-resume of a stage, and the
   triple-product path (sample --visibility, material, relight --material, three methods).
@@ -21,6 +22,8 @@ import subprocess
 import sys
 import tempfile
 import time
+import urllib.error
+import urllib.request
 
 import numpy as np
 
@@ -88,6 +91,42 @@ with tempfile.TemporaryDirectory() as d:
         run("relight", src, "--env", env, "-o", out, "--terms", 64, *Q)
         check(os.path.getsize(out) > 0, f"relight {src}: empty image")
     run("relight", final, "--env", env, "-o", P("frames.npy"), "--terms", 32, "--frames", 3, *Q)
+    # Lighting sequences (docs/SEQUENCE.md): every method over each kind of matrix; on one
+    # map repeated, bi and pbi converge to the image of every term (with 64 terms a frame,
+    # 384 coefficients take at most 6 frames).
+    spec = f"maps:{'+'.join([env] * 7)},fade:{env}+{env}:2"
+    for src in [rows, final, P("cpca.ltm")]:
+        run("relight", src, "--env", env, "-o", P("all.npy"), "--terms", "all", "--no-clamp-output", *Q)
+        for method in ("nwa", "bi", "pbi"):
+            run("relight", src, "--env", env, "--sequence", spec, "--method", method, "--terms", 64, "-o",
+                P("seq_%02d.npy"), "--csv", P("seq.csv"), "--no-clamp-output", *Q)
+            if method != "nwa":
+                a, b = np.load(P("all.npy")), np.load(P("seq_08.npy"))
+                check(np.abs(a - b).max() <= 1e-4 * np.abs(a).max(), f"{method} {src}: not converged to every term")
+    # ltbake view: a frame, a bad request (400), an unknown path (404), then Ctrl-C (130).
+    with open(P("const.hdr"), "wb") as f:
+        f.write(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 8 +X 16\n" + bytes([128, 128, 128, 129]) * 128)
+    view = subprocess.Popen([LTBAKE, "view", final, "--env", P("const.hdr"), "--terms", "16"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        url = view.stdout.readline().strip()
+        check(url.startswith("http://127.0.0.1:"), f"view printed {url!r}")
+        with urllib.request.urlopen(url + "frame.png?rotate=20&method=pbi", timeout=60) as resp:
+            check(resp.read(8) == b"\x89PNG\r\n\x1a\n", "view: /frame.png is not a PNG")
+        for path, code in (("frame.png?terms=0", 400), ("frame.png?rotate=x", 400), ("nothing", 404)):
+            try:
+                urllib.request.urlopen(url + path, timeout=60)
+                check(False, f"view: {path} was accepted")
+            except urllib.error.HTTPError as e:
+                check(e.code == code, f"view: {path} gave {e.code}, expected {code}")
+    finally:
+        view.send_signal(signal.SIGINT)
+        try:
+            rc = view.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            view.kill()
+            rc = None
+    check(rc == 130, f"view after Ctrl-C: exit {rc}, stderr {view.stderr.read()!r}")
 
     # --- the triple-product path: visibility and material fields, three methods, an orbit ----
     with open(P("grid.obj"), "w") as f:

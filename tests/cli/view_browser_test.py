@@ -1,0 +1,610 @@
+"""`ltbake view` (stages/view) end to end: its HTTP server, then its page in a headless browser.
+
+- The server prints its URL (http://127.0.0.1:PORT/, PORT from --port 0) as the first line
+  of stdout, and listens on 127.0.0.1 only: the same port on 127.0.0.2 and on the host's
+  non-loopback IPv4 addresses refuses the connection.
+- HTTP: / is the page (text/html); an NWA frame with an explicit exposure is, pixel for
+  pixel (±1 level), `ltbake relight --clamp --rotate --terms --exposure` of the same bake;
+  a bad rotate/terms/method, an unknown parameter, an unknown path and a 100 kB query get
+  400/400/400/400/404/4xx naming what is wrong, and the server still answers /stats.
+- The page in headless Chromium (chromium-headless-shell, driven through the DevTools
+  protocol over --remote-debugging-pipe): the first frame arrives (automatic exposure
+  becomes the base); the method, terms and exposure controls change the next frame's query;
+  dragging 80 px on the frame rotates the environment by 40 degrees and brings a new frame
+  and new figures; the frame the page shows (read back through a canvas) equals `relight`
+  of the same query within 1 level; after switching back to PBI the page keeps asking for
+  frames on its own until the image has converged; no script errors; a screenshot of the
+  page goes to $LTB_TEST_ARTIFACTS (default ./test-artifacts)/view_page.png.
+- SIGINT stops the server: exit 130, "ltbake view: stopped", the port refuses connections.
+
+Without a headless Chromium the browser part cannot run: the HTTP checks still do, and the
+script exits 77 (ctest's skip) when they pass.
+
+usage: view_browser_test.py PATH_TO_LTBAKE
+"""
+import base64
+import json
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import urllib.error
+import urllib.request
+
+import numpy as np
+from PIL import Image
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from ltbtest import LTBAKE, check, failures, finish, run, write  # noqa: E402
+
+REPO = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
+Q = ["--progress", "never"]
+DEADLINE = 60.0  # seconds for any one condition to come true (CI machines are slow and shared)
+POLL = 0.05
+
+
+class Abort(Exception):
+    """A failed step after which the rest of a part means nothing: recorded, then cleanup."""
+
+
+def wait_until(cond, what, timeout=DEADLINE):
+    """Polls cond() every 50 ms until it returns something truthy (returned); Abort after timeout."""
+    end = time.monotonic() + timeout
+    while True:
+        v = cond()
+        if v:
+            return v
+        if time.monotonic() > end:
+            raise Abort(f"timed out after {timeout:.0f} s waiting for {what}")
+        time.sleep(POLL)
+
+
+def on_alarm(signum, frame):
+    raise TimeoutError("view_browser_test: the whole script took over 300 s")
+
+
+signal.signal(signal.SIGALRM, on_alarm)
+signal.alarm(300)  # the last resort; every wait below has its own, shorter deadline
+
+
+# --- the server --------------------------------------------------------------------------
+class Server:
+    """`ltbake view ARGS`, its stdout and stderr collected by two threads."""
+
+    def __init__(self, *args):
+        self.cmd = [LTBAKE, "view", *map(str, args)]
+        self.p = subprocess.Popen(self.cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        self.out, self.err = bytearray(), bytearray()
+        for stream, buf in ((self.p.stdout, self.out), (self.p.stderr, self.err)):
+            threading.Thread(target=self._drain, args=(stream, buf), daemon=True).start()
+
+    @staticmethod
+    def _drain(stream, buf):
+        for chunk in iter(lambda: stream.read1(65536), b""):
+            buf.extend(chunk)
+
+    def first_line(self):
+        def line():
+            if b"\n" in self.out:
+                return self.out.split(b"\n", 1)[0].decode(errors="replace")
+            if self.p.poll() is not None:
+                raise Abort(f"ltbake view exited {self.p.returncode} before printing its URL")
+            return None
+        return wait_until(line, "ltbake view to print its URL")
+
+    def stderr(self):
+        return self.err.decode(errors="replace")
+
+    def kill(self):
+        if self.p.poll() is None:
+            self.p.kill()
+        try:
+            self.p.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            pass
+
+
+def get(url, timeout=30):
+    """(status, headers, body) of GET url; status None and the error as body when there is no answer."""
+    try:
+        with urllib.request.urlopen(url, timeout=timeout) as r:
+            return r.status, r.headers, r.read()
+    except urllib.error.HTTPError as e:
+        return e.code, e.headers, e.read()
+    except (OSError, urllib.error.URLError) as e:
+        return None, {}, repr(e).encode()
+
+
+def connect_result(host, port, family=socket.AF_INET):
+    """'open', 'refused' or the error of a TCP connect to (host, port)."""
+    s = socket.socket(family, socket.SOCK_STREAM)
+    s.settimeout(10)
+    try:
+        s.connect((host, port))
+        return "open"
+    except ConnectionRefusedError:
+        return "refused"
+    except OSError as e:
+        return repr(e)
+    finally:
+        s.close()
+
+
+def other_ipv4_addresses():
+    """This host's IPv4 addresses outside 127/8 (from `ip -4 addr`, else the resolver)."""
+    found = set()
+    try:
+        out = subprocess.run(["ip", "-4", "-o", "addr", "show"], capture_output=True, text=True, timeout=10).stdout
+        found.update(re.findall(r"\binet (\d+\.\d+\.\d+\.\d+)/", out))
+    except (OSError, subprocess.TimeoutExpired):
+        pass
+    try:
+        found.update(a[4][0] for a in socket.getaddrinfo(socket.gethostname(), None, socket.AF_INET))
+    except OSError:
+        pass
+    return sorted(a for a in found if not a.startswith("127."))
+
+
+def png_pixels(data):
+    """RGB pixels (H × W × 3, int16) of PNG bytes or a PNG path."""
+    import io
+    img = Image.open(io.BytesIO(data) if isinstance(data, bytes) else data)
+    return np.asarray(img.convert("RGB"), np.int16)
+
+
+def relight_png(matrix, env, rotate, terms, exposure, out):
+    """`ltbake relight` of the same query as a view frame (NWA: each frame on its own)."""
+    run("relight", matrix, "--env", env, "--clamp", "--rotate", rotate, "--terms", terms, "--exposure", exposure,
+        "-o", out, *Q)
+    return png_pixels(out) if os.path.exists(out) else None
+
+
+def compare(got, want, what):
+    """One check: got and want (H × W × 3) agree within 1 level (8-bit PNG quantisation)."""
+    if got is None or want is None or got.shape != want.shape:
+        check(False, f"{what}: shapes {None if got is None else got.shape} and {None if want is None else want.shape}")
+        return
+    diff = np.abs(got - want)
+    check(diff.max() <= 1 and want.max() > 0,
+          f"{what}: max difference {diff.max()} levels at {np.unravel_index(diff.argmax(), diff.shape)} "
+          f"({(diff > 1).sum()} values over 1; reference max {want.max()})")
+
+
+# --- the browser -------------------------------------------------------------------------
+def find_chromium():
+    """A headless Chromium: chromium-headless-shell (Debian), else chromium / chromium-browser."""
+    for name in ("chromium-headless-shell", "chromium", "chromium-browser", "google-chrome", "headless_shell"):
+        path = shutil.which(name)
+        if path:
+            return path
+    for path in ("/usr/lib/chromium/chromium-headless-shell", "/usr/lib/chromium/headless_shell",
+                 "/usr/lib/chromium/chromium"):
+        if os.access(path, os.X_OK):
+            return path
+    return None
+
+
+class Browser:
+    """Headless Chromium driven through the DevTools protocol over --remote-debugging-pipe:
+    JSON commands go in on the browser's fd 3, answers and events come out of its fd 4,
+    each message ended by a NUL byte. Spawned with os.posix_spawn (no Python between fork
+    and exec) into its own session, so that kill() takes the whole process group."""
+
+    def __init__(self, exe, profile, log):
+        cmd_r, cmd_w = os.pipe()
+        res_r, res_w = os.pipe()
+        # The child's ends go to fds 3 and 4; park them at >= 10 first, so that no dup2
+        # onto 3 or 4 overwrites the other one.
+        hi_r, hi_w = fcntl_dupfd(cmd_r), fcntl_dupfd(res_w)
+        os.close(cmd_r)
+        os.close(res_w)
+        self.log = log
+        logfd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        argv = [exe, "--headless", "--no-sandbox", "--remote-debugging-pipe", "--disable-gpu",
+                "--disable-dev-shm-usage", "--no-first-run", "--no-default-browser-check",
+                "--force-color-profile=srgb", f"--user-data-dir={profile}", "--window-size=1200,900", "about:blank"]
+        try:
+            self.pid = os.posix_spawn(exe, argv, os.environ, setsid=True, file_actions=[
+                (os.POSIX_SPAWN_OPEN, 0, "/dev/null", os.O_RDONLY, 0),
+                (os.POSIX_SPAWN_DUP2, logfd, 1),
+                (os.POSIX_SPAWN_DUP2, logfd, 2),
+                (os.POSIX_SPAWN_DUP2, hi_r, 3),
+                (os.POSIX_SPAWN_DUP2, hi_w, 4),
+            ])
+        finally:
+            for fd in (hi_r, hi_w, logfd):
+                os.close(fd)
+        self.cmd_w, self.res_r = cmd_w, res_r
+        self.returncode = None
+        self.next_id = 0
+        self.answers = {}
+        self.events = []
+        self.cv = threading.Condition()
+        self.closed = False
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self):
+        buf = b""
+        while True:
+            try:
+                chunk = os.read(self.res_r, 1 << 20)
+            except OSError:
+                chunk = b""
+            if not chunk:
+                with self.cv:
+                    self.closed = True
+                    self.cv.notify_all()
+                return
+            buf += chunk
+            *messages, buf = buf.split(b"\0")
+            with self.cv:
+                for m in messages:
+                    msg = json.loads(m)
+                    if "id" in msg:
+                        self.answers[msg["id"]] = msg
+                    else:
+                        self.events.append(msg)
+                self.cv.notify_all()
+
+    def send(self, method, params=None, session=None, timeout=DEADLINE):
+        """The result of one DevTools command; Abort on an error answer or no answer in time."""
+        with self.cv:
+            self.next_id += 1
+            mid = self.next_id
+        msg = {"id": mid, "method": method, "params": params or {}}
+        if session:
+            msg["sessionId"] = session
+        data = json.dumps(msg).encode() + b"\0"
+        try:
+            while data:
+                data = data[os.write(self.cmd_w, data):]
+        except OSError as e:
+            raise Abort(f"DevTools {method}: the browser's pipe is gone ({e!r}); browser log:\n{self.log_tail()}")
+        end = time.monotonic() + timeout
+        with self.cv:
+            while mid not in self.answers:
+                left = end - time.monotonic()
+                if self.closed or left <= 0:
+                    raise Abort(f"DevTools {method}: {'the browser closed its pipe' if self.closed else 'no answer'}"
+                                f"; browser log:\n{self.log_tail()}")
+                self.cv.wait(min(left, 1.0))
+            answer = self.answers.pop(mid)
+        if "error" in answer:
+            raise Abort(f"DevTools {method} {json.dumps(params)[:300]}: {answer['error']}")
+        return answer.get("result", {})
+
+    def exited(self):
+        if self.returncode is None:
+            pid, status = os.waitpid(self.pid, os.WNOHANG)
+            if pid:
+                self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode is not None
+
+    def close(self):
+        """Browser.close, then wait for the process; kill its process group if it lingers."""
+        try:
+            if not self.closed and not self.exited():
+                self.send("Browser.close", timeout=10)
+            wait_until(self.exited, "the browser to exit after Browser.close", timeout=20)
+        except Abort:
+            pass
+        finally:
+            self.kill()
+
+    def kill(self):
+        for sig in (signal.SIGKILL,):
+            try:
+                os.killpg(self.pid, sig)
+            except (ProcessLookupError, PermissionError):
+                pass
+        if not self.exited():
+            try:
+                os.waitpid(self.pid, 0)
+            except ChildProcessError:
+                pass
+        for fd in (self.cmd_w, self.res_r):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def log_tail(self, n=3000):
+        try:
+            with open(self.log, errors="replace") as f:
+                return f.read()[-n:]
+        except OSError:
+            return "(no log)"
+
+
+def fcntl_dupfd(fd):
+    import fcntl
+    return fcntl.fcntl(fd, fcntl.F_DUPFD_CLOEXEC, 10)
+
+
+class Page:
+    """One tab, attached with flatten: commands carry its sessionId."""
+
+    def __init__(self, browser, url):
+        self.b = browser
+        target = browser.send("Target.createTarget", {"url": url})["targetId"]
+        self.session = browser.send("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
+        self.send("Runtime.enable")
+
+    def send(self, method, params=None, timeout=DEADLINE):
+        return self.b.send(method, params, session=self.session, timeout=timeout)
+
+    def eval(self, expression, timeout=DEADLINE):
+        r = self.send("Runtime.evaluate", {"expression": expression, "returnByValue": True, "awaitPromise": True},
+                      timeout=timeout)
+        if "exceptionDetails" in r:
+            d = r["exceptionDetails"]
+            raise Abort(f"page script failed: {d.get('exception', {}).get('description', d.get('text'))}\n"
+                        f"in: {expression[:300]}")
+        return r["result"].get("value")
+
+    def state(self):
+        """window.ltb and the figures the page shows, in one evaluation."""
+        return self.eval("""(() => {
+          const ltb = window.ltb || null, t = (id) => { const e = document.getElementById(id); return e ? e.textContent : null; };
+          return {ltb: ltb && {frames: ltb.frames, rotate: ltb.rotate, base: ltb.base, last: ltb.last,
+                               stats: ltb.stats, error: ltb.error},
+                  ms: t('ms'), used: t('used'), count: t('count'), err: t('err')};
+        })()""")
+
+    def wait_state(self, cond, what):
+        """Polls state() until cond(state) holds; the last state goes into the failure message."""
+        seen = {}
+
+        def ok():
+            seen["s"] = self.state()
+            return seen["s"] if seen["s"]["ltb"] and cond(seen["s"]["ltb"]) else None
+        try:
+            return wait_until(ok, what)
+        except Abort as e:
+            raise Abort(f"{e}; page state: {json.dumps(seen.get('s'))[:1500]}")
+
+    def exceptions(self):
+        with self.b.cv:
+            return [e["params"]["exceptionDetails"] for e in self.b.events
+                    if e.get("method") == "Runtime.exceptionThrown" and e.get("sessionId") == self.session]
+
+    def mouse(self, kind, x, y, buttons):
+        self.send("Input.dispatchMouseEvent", {"type": kind, "x": x, "y": y, "button": "left", "buttons": buttons,
+                                               "clickCount": 1 if kind != "mouseMoved" else 0})
+
+
+# The frame the page shows, read back through a canvas of its natural size, with the query
+# it answers. Read only when the page is idle; the frame count before and after tells.
+READ_FRAME = """(async () => {
+  const img = document.getElementById('frame'), before = ltb.frames, src = img.src;
+  await img.decode();
+  const c = document.createElement('canvas');
+  c.width = img.naturalWidth; c.height = img.naturalHeight;
+  const g = c.getContext('2d');
+  g.drawImage(img, 0, 0);
+  const d = g.getImageData(0, 0, c.width, c.height).data;
+  let s = '';
+  for (let i = 0; i < d.length; i += 8192) s += String.fromCharCode.apply(null, d.subarray(i, i + 8192));
+  return {w: c.width, h: c.height, rgba: btoa(s), last: ltb.last, exposure: String(ltb.last.exposure),
+          frame: ltb.stats.frame, steady: ltb.frames === before && img.src === src};
+})()"""
+
+
+# --- the test ----------------------------------------------------------------------------
+server = browser = None
+chromium = find_chromium()
+skip_browser = chromium is None
+with tempfile.TemporaryDirectory() as d:
+    def P(*parts):
+        return os.path.join(d, *parts)
+
+    try:
+        # A tiny image bake (samples/tiny.toml at 64×48): sample → final.ltm in about a second.
+        scene = open(os.path.join(REPO, "samples", "tiny.toml")).read()
+        scene = re.sub(r"(?m)^width = \d+", "width = 64", re.sub(r"(?m)^height = \d+", "height = 48", scene))
+        write(P("scene.toml"), scene)
+        for args in (["sample", P("scene.toml"), "-o", P("raw.ltm")], ["row-transform", P("raw.ltm"), "-o", P("rows.ltm")],
+                     ["transpose", P("rows.ltm"), "-o", P("cols.ltm")],
+                     ["column-transform", P("cols.ltm"), "-o", P("cols4d.ltm")],
+                     ["quantize", P("cols4d.ltm"), "-o", P("final.ltm")]):
+            if run(*args, *Q).returncode != 0:
+                raise Abort("the bake failed")
+        final = P("final.ltm")
+        envdir = subprocess.run(["bash", os.path.join(REPO, "scripts", "find_envmaps.sh")],
+                                capture_output=True, text=True, timeout=60).stdout.strip()
+        env = os.path.join(envdir, "sunset.exr")
+        if not envdir or not os.path.exists(env):
+            raise Abort(f"blender-data maps not found (sunset.exr under {envdir!r}): scripts/setup.sh installs blender-data")
+
+        # 1. The URL, first line of stdout.
+        server = Server(final, "--env", env, "--clamp", "--port", 0, "--method", "pbi", "--terms", 100)
+        url = server.first_line()
+        m = re.fullmatch(r"http://127\.0\.0\.1:(\d+)/", url)
+        if not m:
+            raise Abort(f"the first line of stdout is {url!r}, expected http://127.0.0.1:PORT/")
+        port = int(m.group(1))
+        check(0 < port < 65536, f"port {port}")
+
+        # 2. 127.0.0.1 only: the port is open there, refused on every other local address.
+        check(connect_result("127.0.0.1", port) == "open", f"127.0.0.1:{port} does not accept connections")
+        check(connect_result("127.0.0.2", port) == "refused",
+              f"127.0.0.2:{port} (loopback, but not 127.0.0.1): {connect_result('127.0.0.2', port)}, expected refused")
+        others = other_ipv4_addresses()
+        if not others:
+            print("note: this host has no non-loopback IPv4 address; the 'not on other interfaces' check is skipped")
+        for a in others:
+            r = connect_result(a, port)
+            check(r == "refused", f"{a}:{port} (a non-loopback address of this host): {r}, expected refused")
+        if socket.has_ipv6:
+            r = connect_result("::1", port, socket.AF_INET6)
+            check(r != "open", f"[::1]:{port} accepts connections; the server should be on 127.0.0.1 only")
+
+        # 3. HTTP.
+        base = url.rstrip("/")
+        st, h, body = get(url)
+        check(st == 200 and h.get("Content-Type", "").startswith("text/html") and b'id="frame"' in body,
+              f"GET /: {st} {h.get('Content-Type') if h else None} {body[:200]!r}")
+        st, h, body = get(base + "/frame.png?rotate=30&terms=20&method=nwa&exposure=0.5")
+        check(st == 200 and h.get("Content-Type") == "image/png" and body[:8] == b"\x89PNG\r\n\x1a\n",
+              f"GET /frame.png (nwa): {st} {h.get('Content-Type') if h else None} {body[:200]!r}")
+        if st == 200:
+            stats = json.loads(h.get("X-Ltb-Stats", "{}"))
+            check(stats.get("method") == "nwa" and stats.get("terms") == 20 and stats.get("terms_used") == 20 and
+                  stats.get("exposure") == 0.5 and stats.get("rotate") == 30 and
+                  (stats.get("width"), stats.get("height")) == (64, 48), f"X-Ltb-Stats of the nwa frame: {stats}")
+            got = png_pixels(body)
+            check(got.shape == (48, 64, 3), f"/frame.png is {got.shape[1]}x{got.shape[0]}, expected 64x48")
+            compare(got, relight_png(final, env, 30, 20, 0.5, P("http_ref.png")),
+                    "/frame.png?rotate=30&terms=20&method=nwa&exposure=0.5 against relight")
+        for query, name in (("rotate=abc", "rotate"), ("terms=0", "terms"), ("method=xyz", "method"),
+                            ("bogus=1", "bogus"), ("exposure=-1", "exposure")):
+            st, h, body = get(base + "/frame.png?" + query)
+            check(st == 400 and name.encode() in body, f"GET /frame.png?{query}: {st} {body[:300]!r}, expected 400 naming {name}")
+        st, h, body = get(base + "/nope")
+        check(st == 404, f"GET /nope: {st} {body[:200]!r}, expected 404")
+        st, h, body = get(base + "/frame.png?rotate=" + "1" * 100_000)
+        check(st is not None and 400 <= st < 500, f"a 100 kB query: {st} {body[:200]!r}, expected a 4xx")
+        st, h, body = get(base + "/stats")
+        check(st == 200 and h.get("Content-Type") == "application/json" and
+              json.loads(body or b"{}").get("method") == "nwa",
+              f"GET /stats after the bad requests: {st} {body[:300]!r} (the server should still answer)")
+        st, h, body = get(base + "/env.png")
+        check(st == 200 and body[:8] == b"\x89PNG\r\n\x1a\n" and png_pixels(body).shape == (128, 256, 3),
+              f"GET /env.png: {st} {body[:100]!r}")
+
+        # 4. The page in a headless browser.
+        if skip_browser:
+            raise Abort(None)
+        browser = Browser(chromium, P("profile"), P("chromium.log"))
+        t0 = time.monotonic()
+        page = Page(browser, url)
+        s = page.wait_state(lambda ltb: ltb["frames"] >= 1, "the page's first frame (ltb.frames >= 1)")
+        first_ms = (time.monotonic() - t0) * 1000
+        st0 = s["ltb"]["stats"]
+        check(s["ltb"]["last"]["exposure"] == 0 and s["ltb"]["base"] == st0["exposure"] and st0["exposure"] > 0,
+              f"the first frame should ask for automatic exposure (0) and make its exposure the base: {s['ltb']}")
+        check(st0["method"] == "pbi" and st0["terms"] == 100, f"the first frame should use --method/--terms: {st0}")
+
+        # Method NWA, 20 terms, +1 stop through the controls (their change/input events).
+        page.eval("""(() => {
+          const set = (id, v, ev) => { const e = document.getElementById(id); e.value = v; e.dispatchEvent(new Event(ev)); };
+          set('method', 'nwa', 'change'); set('terms', '20', 'input'); set('exposure', '1', 'input');
+        })()""")
+        s = page.wait_state(lambda ltb: ltb["last"] and ltb["last"]["method"] == "nwa" and ltb["last"]["terms"] == "20"
+                            and ltb["last"]["exposure"] == 2 * ltb["base"],
+                            "a frame with method nwa, terms 20 and exposure 2 × base")
+        check(s["ltb"]["stats"]["method"] == "nwa" and s["ltb"]["stats"]["terms_used"] == 20 and
+              s["used"] == "20 terms", f"the nwa frame's figures: {s}")
+
+        # Drag 80 px to the right on the frame: 40 degrees.
+        box = page.eval("(() => { const r = document.getElementById('frame').getBoundingClientRect();"
+                        " return {x: r.x, y: r.y, w: r.width, h: r.height}; })()")
+        check(box["w"] >= 32 and box["h"] >= 24, f"#frame's box {box}")
+        x, y = int(box["x"] + box["w"] / 2), int(box["y"] + box["h"] / 2)
+        before = s
+        page.mouse("mousePressed", x, y, 1)
+        for step in range(1, 9):
+            page.mouse("mouseMoved", x + 10 * step, y, 1)
+        page.mouse("mouseReleased", x + 80, y, 0)
+        t_drag = time.monotonic()
+        s = page.wait_state(lambda ltb: ltb["frames"] > before["ltb"]["frames"] and ltb["rotate"] != 0 and
+                            ltb["last"]["rotate"] == f"{ltb['rotate']:.3f}",
+                            "a frame of the dragged rotation")
+        drag_ms = (time.monotonic() - t_drag) * 1000
+        check(abs(s["ltb"]["rotate"] - 40) < 1 and abs(float(s["ltb"]["last"]["rotate"]) - 40) < 1,
+              f"an 80 px drag should rotate by 40 degrees: ltb.rotate {s['ltb']['rotate']}, last {s['ltb']['last']}")
+        check(abs(s["ltb"]["stats"]["rotate"] - float(s["ltb"]["last"]["rotate"])) < 1e-9,
+              f"the frame's stats rotate {s['ltb']['stats']['rotate']} is not the query's {s['ltb']['last']['rotate']}")
+        check(s["count"] != before["count"] and s["count"] == f"{s['ltb']['frames']} frames",
+              f"#count should change with the new frame: {before['count']!r} -> {s['count']!r}")
+        check(re.fullmatch(r"\d+(\.\d+)? ms", s["ms"] or "") is not None, f"#ms shows {s['ms']!r}, expected '<number> ms'")
+        check(s["ltb"]["last"]["method"] == "nwa" and s["ltb"]["last"]["terms"] == "20",
+              f"the drag changed method/terms: {s['ltb']['last']}")
+
+        # The frame the page shows, against relight of its query. Idle: the server's last
+        # frame is the page's (nwa asks for no more frames once the lighting holds).
+        shown = page.eval(READ_FRAME)
+        st, h, body = get(base + "/stats")
+        server_frame = json.loads(body).get("frame") if st == 200 else None
+        check(shown["steady"] and server_frame == shown["frame"],
+              f"the page was not idle while read: steady {shown['steady']}, page frame {shown['frame']}, "
+              f"server frame {server_frame}")
+        rgba = np.frombuffer(base64.b64decode(shown["rgba"]), np.uint8).reshape(shown["h"], shown["w"], 4)
+        check((rgba[..., 3] == 255).all(), "the frame read back has transparent pixels")
+        last = shown["last"]
+        compare(rgba[..., :3].astype(np.int16),
+                relight_png(final, env, last["rotate"], last["terms"], shown["exposure"], P("page_ref.png")),
+                f"the page's frame (rotate {last['rotate']}, terms {last['terms']}, exposure {shown['exposure']}) "
+                "against relight")
+
+        # PBI again: the page keeps asking for frames with no input until the image converges
+        # (a frame that touches no column), then stops.
+        f0 = s["ltb"]["frames"]
+        page.eval("(() => { const e = document.getElementById('method'); e.value = 'pbi';"
+                  " e.dispatchEvent(new Event('change')); })()")
+        s = page.wait_state(lambda ltb: ltb["frames"] >= f0 + 2 and ltb["last"]["method"] == "pbi",
+                            "two PBI frames or more after one change event")
+        s = page.wait_state(lambda ltb: ltb["stats"]["method"] == "pbi" and ltb["stats"]["columns_touched"] == 0,
+                            "the PBI frames to converge (columns_touched 0)")
+        st, h, body = get(base + "/stats")
+        check(st == 200 and json.loads(body).get("frame") == s["ltb"]["stats"]["frame"],
+              f"the page asked for frames after PBI converged: server {body[:200]!r}, page {s['ltb']['stats']}")
+        check(s["ltb"]["last"]["rotate"] == f"{s['ltb']['rotate']:.3f}", f"PBI frames at another rotation: {s['ltb']}")
+
+        check(s["ltb"]["error"] is None and not s["err"], f"the page shows an error: {s['ltb']['error']!r} {s['err']!r}")
+        exc = page.exceptions()
+        check(not exc, f"uncaught script errors in the page: {json.dumps(exc)[:1000]}")
+
+        # A screenshot of the page, kept for people.
+        shot = base64.b64decode(page.send("Page.captureScreenshot", {"format": "png"})["data"])
+        art = os.environ.get("LTB_TEST_ARTIFACTS") or os.path.join(os.getcwd(), "test-artifacts")
+        os.makedirs(art, exist_ok=True)
+        shot_path = os.path.join(art, "view_page.png")
+        with open(shot_path, "wb") as f:
+            f.write(shot)
+        print(f"screenshot: {shot_path}")
+        img = png_pixels(shot)
+        check(img.shape[0] >= 300 and img.shape[1] >= 400 and len(np.unique(img.reshape(-1, 3), axis=0)) > 16,
+              f"the screenshot {shot_path} is {img.shape} with {len(np.unique(img.reshape(-1, 3), axis=0))} colours")
+        print(f"browser: first frame {first_ms:.0f} ms after the tab opened, dragged frame {drag_ms:.0f} ms "
+              f"after the release, {s['ltb']['frames']} frames shown")
+        browser.close()
+        check(browser.returncode is not None, "the browser did not exit after Browser.close")
+
+        # 5. SIGINT stops the server.
+        server.p.send_signal(signal.SIGINT)
+        try:
+            rc = server.p.wait(timeout=DEADLINE)
+        except subprocess.TimeoutExpired:
+            rc = None
+        check(rc == 130, f"ltbake view after SIGINT: exit {rc}, expected 130")
+        wait_until(lambda: "ltbake view: stopped" in server.stderr() or server.p.poll() is None, "stderr", timeout=10)
+        check("ltbake view: stopped" in server.stderr(), f"stderr after SIGINT: {server.stderr()!r}")
+        r = connect_result("127.0.0.1", port)
+        check(r == "refused", f"127.0.0.1:{port} after the server stopped: {r}, expected refused")
+    except (Abort, TimeoutError) as e:
+        if str(e) != "None":
+            check(False, str(e))
+    finally:
+        signal.alarm(0)
+        if browser:
+            browser.kill()
+        if server:
+            server.kill()
+    if failures and server:
+        print(f"--- {' '.join(server.cmd)}: stdout ---\n{server.out.decode(errors='replace')}"
+              f"--- stderr ---\n{server.stderr()}---")
+    if failures and browser:
+        print(f"--- browser log (tail) ---\n{browser.log_tail()}\n---")
+
+if skip_browser and not failures:
+    print("SKIP: no headless Chromium (chromium-headless-shell, chromium or chromium-browser): the HTTP checks "
+          "passed, the page was not tried; install it with: sudo apt-get install chromium-headless-shell")
+    sys.exit(77)
+finish()
