@@ -191,6 +191,11 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
                 "--exposure",  Shortest(rl.exposure),
                 "--json"};
       if (rl.clamp) m.args.push_back("--clamp");
+      if (!rl.sequence.empty()) {
+        m.params["sequence"] = rl.sequence;
+        m.params["method"] = rl.method;
+        m.args.insert(m.args.end(), {"--sequence", rl.sequence, "--method", rl.method});
+      }
       if (rl.reference) {
         m.inputs.push_back("rows.ltm");
         m.args.insert(m.args.end(), {"--reference", path("rows.ltm")});

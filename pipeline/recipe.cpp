@@ -12,6 +12,7 @@
 #include "stages/column_transform/column_transform.h"
 #include "stages/common/quantity.h"
 #include "stages/common/toml_fields.h"
+#include "stages/relight/sequence_spec.h"
 #include "stages/sample/scene.h"
 #include "stages/triple/material.h"
 
@@ -258,16 +259,41 @@ Status ParseEnvs(const std::string& path, const std::string& dir, const toml::ta
 }
 
 Status ParseRelight(const std::string& path, const std::string& dir, const toml::table& t, Recipe::Relight* r) {
-  LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[relight]",
-                                {"matrix", "envs", "terms", "weighting", "clamp", "reference", "format", "exposure"}));
+  LTB_RETURN_IF_ERROR(CheckKeys(
+      path, t, "[relight]",
+      {"matrix", "envs", "terms", "weighting", "clamp", "reference", "format", "exposure", "sequence", "method"}));
   r->present = true;
   LTB_ASSIGN_OR_RETURN(r->matrix, GetChoice(path, t, "matrix", r->matrix, {"final", "cpca"}));
   LTB_ASSIGN_OR_RETURN(r->terms, GetUnsigned(path, t, "terms", r->terms, 1, uint64_t{1} << 32));
   LTB_ASSIGN_OR_RETURN(r->weighting, GetChoice(path, t, "weighting", r->weighting, {"area", "transport", "none"}));
   LTB_ASSIGN_OR_RETURN(r->clamp, GetBool(path, t, "clamp", r->clamp));
   LTB_ASSIGN_OR_RETURN(r->reference, GetBool(path, t, "reference", r->reference));
-  LTB_ASSIGN_OR_RETURN(r->format, GetChoice(path, t, "format", r->format, {"png", "exr"}));
+  LTB_ASSIGN_OR_RETURN(r->format, GetChoice(path, t, "format", r->format, {"png", "exr", "mp4"}));
   LTB_ASSIGN_OR_RETURN(r->exposure, GetNumber(path, t, "exposure", r->exposure, -64, 64));
+  LTB_ASSIGN_OR_RETURN(r->method, GetChoice(path, t, "method", r->method, {"pbi", "bi", "nwa"}));
+  if (const toml::node* seq = t.get("sequence")) {
+    auto text = seq->value<std::string>();
+    if (!text)
+      return InvalidArgument(Where(path, *seq) + ": [relight] sequence must be a string, e.g. \"rotate:3.6:100\"");
+    auto parsed = stages::ParseSequence(*text);
+    if (!parsed.ok()) return parsed.status().WithContext(Where(path, *seq) + ": [relight] sequence");
+    r->sequence = *text;
+    // A sequence in a recipe makes one file a map: an .mp4 (format left out means mp4).
+    if (!t.contains("format")) r->format = "mp4";
+    if (r->format != "mp4") {
+      return InvalidArgument(Where(path, *seq) +
+                             ": [relight] sequence writes an .mp4 a map; set format = \"mp4\" "
+                             "or leave format out");
+    }
+  } else if (r->format == "mp4") {
+    return InvalidArgument(Where(path, t) +
+                           ": [relight] format = \"mp4\" needs a sequence (e.g. sequence = "
+                           "\"rotate:3.6:100\")");
+  } else if (t.contains("method")) {
+    return InvalidArgument(Where(path, *t.get("method")) +
+                           ": [relight] method belongs to a sequence; add sequence = "
+                           "\"...\"");
+  }
   return ParseEnvs(path, dir, t, "[relight]", &r->envs);
 }
 

@@ -87,8 +87,10 @@ struct Recipe {
     std::string weighting = "area";
     bool clamp = false;
     bool reference = false;      // compare with the uncompressed rows.ltm (which is then kept)
-    std::string format = "png";  // png | exr
+    std::string format = "png";  // png | exr | mp4 (mp4: with a sequence, the default then)
     double exposure = 0;
+    std::string sequence;        // relight --sequence (docs/SEQUENCE.md); empty: one image a map
+    std::string method = "pbi";  // with a sequence: pbi | bi | nwa
   } relight;
 
   // The triple-product path (docs/TRIPLE.md): a visibility field, material fields and one

@@ -14,19 +14,9 @@
 #include "stages/relight/environment.h"
 #include "stages/relight/incremental.h"
 #include "stages/relight/run_relight.h"
+#include "stages/relight/sequence_spec.h"
 
 namespace ltb::stages {
-
-// One segment of --sequence: rotate:DEG_PER_FRAME:FRAMES, hold:FRAMES, maps:A+B+...,
-// fade:A+B:FRAMES.
-struct SequenceSegment {
-  enum class Kind { kRotate, kHold, kMaps, kFade } kind = Kind::kHold;
-  double degrees = 0;  // per frame (rotate)
-  uint64_t frames = 0;
-  std::vector<std::string> maps;  // maps: one per frame; fade: the two ends
-};
-// Checked: at least one frame, at most 1,000,000 in all; every count and angle finite.
-Result<std::vector<SequenceSegment>> ParseSequence(const std::string& spec);
 
 // The lighting of each frame (6R² × 3 radiance in pixels), frames taken in any order.
 class LightingSequence {

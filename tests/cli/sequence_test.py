@@ -19,7 +19,6 @@ import csv
 import json
 import os
 import shutil
-import struct
 import subprocess
 import sys
 import tempfile
@@ -247,6 +246,28 @@ with tempfile.TemporaryDirectory() as d:
         check(not [n for n in os.listdir(d) if n.startswith("v.mp4") and n != "v.mp4"], "temporary files left")
     else:
         print("note: ffmpeg/ffprobe not installed; the .mp4 output is not checked")
+    # 7. Recipes: [relight] sequence makes one .mp4 a map; a rerun skips; a bad spec is
+    # refused when the recipe is read (exit 2, naming the line).
+    if shutil.which("ffmpeg"):
+        scene = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "samples",
+                             "tiny.toml")
+        rec = p("seq.toml")
+        with open(rec, "w") as f:
+            f.write(f'name = "seq"\nscene = "{scene}"\nworkdir = "{p("bake")}"\n[sample]\ncube_res = 4\nspp = 1\n'
+                    f'[relight]\nenvs = ["{p("const.hdr")}"]\nterms = 8\nsequence = "rotate:30:4,hold:2"\n'
+                    f'method = "bi"\n')
+        run("run", rec, *q)
+        check(os.path.exists(p("bake/relit-const.mp4")), f"recipe sequence: {os.listdir(p('bake'))}")
+        again = run("run", rec, *q)
+        check("relight:const" in again.stdout and "skip" in again.stdout.split("relight:const")[1].split("\n")[0],
+              f"rerun of the sequence recipe: {again.stdout}")
+        with open(rec) as f:
+            text = f.read()
+        with open(rec, "w") as f:
+            f.write(text.replace("rotate:30:4", "rotate:30:0"))
+        r = run("run", rec, *q, expect=2)
+        check("seq.toml:" in r.stderr and "rotate:30:0" in r.stderr, f"bad recipe sequence: {r.stderr}")
+
     bad = [
         (["--sequence", "rotate:abc:3"], 1, "rotate:abc:3"),
         (["--sequence", "spin:3"], 1, "unknown kind"),

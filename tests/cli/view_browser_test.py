@@ -1,20 +1,21 @@
 """`ltbake view` (stages/view) end to end: its HTTP server, then its page in a headless browser.
 
 - The server prints its URL (http://127.0.0.1:PORT/, PORT from --port 0) as the first line
-  of stdout, and listens on 127.0.0.1 only: the same port on 127.0.0.2 and on the host's
-  non-loopback IPv4 addresses refuses the connection.
+  of stdout, and listens on 127.0.0.1 only: the same port on 127.0.0.2, on [::1] and on the
+  host's non-loopback IPv4 addresses does not accept connections.
 - HTTP: / is the page (text/html); an NWA frame with an explicit exposure is, pixel for
   pixel (±1 level), `ltbake relight --clamp --rotate --terms --exposure` of the same bake;
-  a bad rotate/terms/method, an unknown parameter, an unknown path and a 100 kB query get
-  400/400/400/400/404/4xx naming what is wrong, and the server still answers /stats.
+  a bad rotate/terms/method/exposure and an unknown parameter get 400 naming it, an
+  unknown path 404, a 100 kB query a 4xx, and the server still answers /stats and /env.png.
 - The page in headless Chromium (chromium-headless-shell, driven through the DevTools
   protocol over --remote-debugging-pipe): the first frame arrives (automatic exposure
   becomes the base); the method, terms and exposure controls change the next frame's query;
   dragging 80 px on the frame rotates the environment by 40 degrees and brings a new frame
   and new figures; the frame the page shows (read back through a canvas) equals `relight`
   of the same query within 1 level; after switching back to PBI the page keeps asking for
-  frames on its own until the image has converged; no script errors; a screenshot of the
-  page goes to $LTB_TEST_ARTIFACTS (default ./test-artifacts)/view_page.png.
+  frames on its own until the image has converged, then stops; no script errors; a
+  screenshot of the page goes to $LTB_TEST_ARTIFACTS (default ./test-artifacts)/view_page.png.
+  The slowest frame request the page made is printed (a note when over 2 s).
 - SIGINT stops the server: exit 130, "ltbake view: stopped", the port refuses connections.
 
 Without a headless Chromium the browser part cannot run: the HTTP checks still do, and the
@@ -81,8 +82,10 @@ class Server:
         self.cmd = [LTBAKE, "view", *map(str, args)]
         self.p = subprocess.Popen(self.cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         self.out, self.err = bytearray(), bytearray()
-        for stream, buf in ((self.p.stdout, self.out), (self.p.stderr, self.err)):
-            threading.Thread(target=self._drain, args=(stream, buf), daemon=True).start()
+        self.threads = [threading.Thread(target=self._drain, args=(stream, buf), daemon=True)
+                        for stream, buf in ((self.p.stdout, self.out), (self.p.stderr, self.err))]
+        for t in self.threads:
+            t.start()
 
     @staticmethod
     def _drain(stream, buf):
@@ -101,6 +104,16 @@ class Server:
     def stderr(self):
         return self.err.decode(errors="replace")
 
+    def wait(self, timeout=DEADLINE):
+        """The exit code (None if still running after timeout), its output read to the end."""
+        try:
+            self.p.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return None
+        for t in self.threads:
+            t.join(timeout=10)
+        return self.p.returncode
+
     def kill(self):
         if self.p.poll() is None:
             self.p.kill()
@@ -110,10 +123,13 @@ class Server:
             pass
 
 
+HTTP = urllib.request.build_opener(urllib.request.ProxyHandler({}))  # 127.0.0.1 never through a proxy
+
+
 def get(url, timeout=30):
     """(status, headers, body) of GET url; status None and the error as body when there is no answer."""
     try:
-        with urllib.request.urlopen(url, timeout=timeout) as r:
+        with HTTP.open(url, timeout=timeout) as r:
             return r.status, r.headers, r.read()
     except urllib.error.HTTPError as e:
         return e.code, e.headers, e.read()
@@ -161,7 +177,7 @@ def png_pixels(data):
 def relight_png(matrix, env, rotate, terms, exposure, out):
     """`ltbake relight` of the same query as a view frame (NWA: each frame on its own)."""
     run("relight", matrix, "--env", env, "--clamp", "--rotate", rotate, "--terms", terms, "--exposure", exposure,
-        "-o", out, *Q)
+        "-o", out, *Q, timeout=120)
     return png_pixels(out) if os.path.exists(out) else None
 
 
@@ -171,6 +187,7 @@ def compare(got, want, what):
         check(False, f"{what}: shapes {None if got is None else got.shape} and {None if want is None else want.shape}")
         return
     diff = np.abs(got - want)
+    print(f"{what}: max difference {diff.max()} levels")
     check(diff.max() <= 1 and want.max() > 0,
           f"{what}: max difference {diff.max()} levels at {np.unravel_index(diff.argmax(), diff.shape)} "
           f"({(diff > 1).sum()} values over 1; reference max {want.max()})")
@@ -207,7 +224,7 @@ class Browser:
         self.log = log
         logfd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         argv = [exe, "--headless", "--no-sandbox", "--remote-debugging-pipe", "--disable-gpu",
-                "--disable-dev-shm-usage", "--no-first-run", "--no-default-browser-check",
+                "--disable-dev-shm-usage", "--no-first-run", "--no-default-browser-check", "--no-proxy-server",
                 "--force-color-profile=srgb", f"--user-data-dir={profile}", "--window-size=1200,900", "about:blank"]
         try:
             self.pid = os.posix_spawn(exe, argv, os.environ, setsid=True, file_actions=[
@@ -217,6 +234,10 @@ class Browser:
                 (os.POSIX_SPAWN_DUP2, hi_r, 3),
                 (os.POSIX_SPAWN_DUP2, hi_w, 4),
             ])
+        except OSError as e:
+            os.close(cmd_w)
+            os.close(res_r)
+            raise Abort(f"cannot start {exe}: {e}")
         finally:
             for fd in (hi_r, hi_w, logfd):
                 os.close(fd)
@@ -236,7 +257,8 @@ class Browser:
                 chunk = os.read(self.res_r, 1 << 20)
             except OSError:
                 chunk = b""
-            if not chunk:
+            if not chunk:  # every holder of the write end is gone: the browser has exited
+                os.close(self.res_r)
                 with self.cv:
                     self.closed = True
                     self.cv.notify_all()
@@ -245,7 +267,10 @@ class Browser:
             *messages, buf = buf.split(b"\0")
             with self.cv:
                 for m in messages:
-                    msg = json.loads(m)
+                    try:
+                        msg = json.loads(m)
+                    except ValueError:
+                        msg = {"unparsed": m[:300].decode(errors="replace")}
                     if "id" in msg:
                         self.answers[msg["id"]] = msg
                     else:
@@ -261,6 +286,8 @@ class Browser:
         if session:
             msg["sessionId"] = session
         data = json.dumps(msg).encode() + b"\0"
+        if self.cmd_w is None:
+            raise Abort(f"DevTools {method}: the browser was closed")
         try:
             while data:
                 data = data[os.write(self.cmd_w, data):]
@@ -287,7 +314,8 @@ class Browser:
         return self.returncode is not None
 
     def close(self):
-        """Browser.close, then wait for the process; kill its process group if it lingers."""
+        """Browser.close, then wait for the process (it reaps its own children); SIGKILL its
+        process group if it lingers. Safe to call again."""
         try:
             if not self.closed and not self.exited():
                 self.send("Browser.close", timeout=10)
@@ -298,21 +326,19 @@ class Browser:
             self.kill()
 
     def kill(self):
-        for sig in (signal.SIGKILL,):
-            try:
-                os.killpg(self.pid, sig)
-            except (ProcessLookupError, PermissionError):
-                pass
+        try:
+            os.killpg(self.pid, signal.SIGKILL)  # its own session: the wrapper script and every child
+        except (ProcessLookupError, PermissionError):
+            pass
         if not self.exited():
             try:
                 os.waitpid(self.pid, 0)
+                self.returncode = -signal.SIGKILL
             except ChildProcessError:
                 pass
-        for fd in (self.cmd_w, self.res_r):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
+        if self.cmd_w is not None:  # res_r is the reader thread's: it closes it at end of file
+            os.close(self.cmd_w)
+            self.cmd_w = None
 
     def log_tail(self, n=3000):
         try:
@@ -332,9 +358,10 @@ class Page:
 
     def __init__(self, browser, url):
         self.b = browser
-        target = browser.send("Target.createTarget", {"url": url})["targetId"]
+        target = browser.send("Target.createTarget", {"url": "about:blank"})["targetId"]
         self.session = browser.send("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
-        self.send("Runtime.enable")
+        self.send("Runtime.enable")  # before the page loads: its script errors come as events
+        self.send("Page.navigate", {"url": url})
 
     def send(self, method, params=None, timeout=DEADLINE):
         return self.b.send(method, params, session=self.session, timeout=timeout)
@@ -351,7 +378,8 @@ class Page:
     def state(self):
         """window.ltb and the figures the page shows, in one evaluation."""
         return self.eval("""(() => {
-          const ltb = window.ltb || null, t = (id) => { const e = document.getElementById(id); return e ? e.textContent : null; };
+          const ltb = window.ltb || null;
+          const t = (id) => { const e = document.getElementById(id); return e ? e.textContent : null; };
           return {ltb: ltb && {frames: ltb.frames, rotate: ltb.rotate, base: ltb.base, last: ltb.last,
                                stats: ltb.stats, error: ltb.error},
                   ms: t('ms'), used: t('used'), count: t('count'), err: t('err')};
@@ -399,7 +427,6 @@ READ_FRAME = """(async () => {
 # --- the test ----------------------------------------------------------------------------
 server = browser = None
 chromium = find_chromium()
-skip_browser = chromium is None
 with tempfile.TemporaryDirectory() as d:
     def P(*parts):
         return os.path.join(d, *parts)
@@ -409,18 +436,20 @@ with tempfile.TemporaryDirectory() as d:
         scene = open(os.path.join(REPO, "samples", "tiny.toml")).read()
         scene = re.sub(r"(?m)^width = \d+", "width = 64", re.sub(r"(?m)^height = \d+", "height = 48", scene))
         write(P("scene.toml"), scene)
-        for args in (["sample", P("scene.toml"), "-o", P("raw.ltm")], ["row-transform", P("raw.ltm"), "-o", P("rows.ltm")],
+        for args in (["sample", P("scene.toml"), "-o", P("raw.ltm")],
+                     ["row-transform", P("raw.ltm"), "-o", P("rows.ltm")],
                      ["transpose", P("rows.ltm"), "-o", P("cols.ltm")],
                      ["column-transform", P("cols.ltm"), "-o", P("cols4d.ltm")],
                      ["quantize", P("cols4d.ltm"), "-o", P("final.ltm")]):
-            if run(*args, *Q).returncode != 0:
-                raise Abort("the bake failed")
+            if run(*args, *Q, timeout=300).returncode != 0:
+                raise Abort(f"the bake failed at {args[0]}")
         final = P("final.ltm")
         envdir = subprocess.run(["bash", os.path.join(REPO, "scripts", "find_envmaps.sh")],
                                 capture_output=True, text=True, timeout=60).stdout.strip()
         env = os.path.join(envdir, "sunset.exr")
         if not envdir or not os.path.exists(env):
-            raise Abort(f"blender-data maps not found (sunset.exr under {envdir!r}): scripts/setup.sh installs blender-data")
+            raise Abort(f"blender-data maps not found (sunset.exr under {envdir!r}): scripts/setup.sh installs "
+                        "blender-data")
 
         # 1. The URL, first line of stdout.
         server = Server(final, "--env", env, "--clamp", "--port", 0, "--method", "pbi", "--terms", 100)
@@ -429,24 +458,23 @@ with tempfile.TemporaryDirectory() as d:
         if not m:
             raise Abort(f"the first line of stdout is {url!r}, expected http://127.0.0.1:PORT/")
         port = int(m.group(1))
-        check(0 < port < 65536, f"port {port}")
+        base = url.rstrip("/")
 
-        # 2. 127.0.0.1 only: the port is open there, refused on every other local address.
+        # 2. 127.0.0.1 only: the port is open there, closed on every other local address.
         check(connect_result("127.0.0.1", port) == "open", f"127.0.0.1:{port} does not accept connections")
-        check(connect_result("127.0.0.2", port) == "refused",
-              f"127.0.0.2:{port} (loopback, but not 127.0.0.1): {connect_result('127.0.0.2', port)}, expected refused")
-        others = other_ipv4_addresses()
-        if not others:
-            print("note: this host has no non-loopback IPv4 address; the 'not on other interfaces' check is skipped")
+        others = ["127.0.0.2"] + other_ipv4_addresses()  # 127.0.0.2: loopback, but not the bound address
+        if len(others) == 1:
+            print("note: this host has no non-loopback IPv4 address: only 127.0.0.2 is tried")
         for a in others:
             r = connect_result(a, port)
-            check(r == "refused", f"{a}:{port} (a non-loopback address of this host): {r}, expected refused")
+            check(r != "open", f"{a}:{port} accepts connections: the server should listen on 127.0.0.1 only")
+            if r not in ("open", "refused"):
+                print(f"note: {a}:{port}: {r} (not refused, but not open either)")
         if socket.has_ipv6:
-            r = connect_result("::1", port, socket.AF_INET6)
-            check(r != "open", f"[::1]:{port} accepts connections; the server should be on 127.0.0.1 only")
+            check(connect_result("::1", port, socket.AF_INET6) != "open",
+                  f"[::1]:{port} accepts connections: the server should listen on 127.0.0.1 only")
 
         # 3. HTTP.
-        base = url.rstrip("/")
         st, h, body = get(url)
         check(st == 200 and h.get("Content-Type", "").startswith("text/html") and b'id="frame"' in body,
               f"GET /: {st} {h.get('Content-Type') if h else None} {body[:200]!r}")
@@ -454,7 +482,7 @@ with tempfile.TemporaryDirectory() as d:
         check(st == 200 and h.get("Content-Type") == "image/png" and body[:8] == b"\x89PNG\r\n\x1a\n",
               f"GET /frame.png (nwa): {st} {h.get('Content-Type') if h else None} {body[:200]!r}")
         if st == 200:
-            stats = json.loads(h.get("X-Ltb-Stats", "{}"))
+            stats = json.loads(h.get("X-Ltb-Stats") or "{}")
             check(stats.get("method") == "nwa" and stats.get("terms") == 20 and stats.get("terms_used") == 20 and
                   stats.get("exposure") == 0.5 and stats.get("rotate") == 30 and
                   (stats.get("width"), stats.get("height")) == (64, 48), f"X-Ltb-Stats of the nwa frame: {stats}")
@@ -465,7 +493,8 @@ with tempfile.TemporaryDirectory() as d:
         for query, name in (("rotate=abc", "rotate"), ("terms=0", "terms"), ("method=xyz", "method"),
                             ("bogus=1", "bogus"), ("exposure=-1", "exposure")):
             st, h, body = get(base + "/frame.png?" + query)
-            check(st == 400 and name.encode() in body, f"GET /frame.png?{query}: {st} {body[:300]!r}, expected 400 naming {name}")
+            check(st == 400 and name.encode() in body,
+                  f"GET /frame.png?{query}: {st} {body[:300]!r}, expected 400 naming {name}")
         st, h, body = get(base + "/nope")
         check(st == 404, f"GET /nope: {st} {body[:200]!r}, expected 404")
         st, h, body = get(base + "/frame.png?rotate=" + "1" * 100_000)
@@ -477,124 +506,142 @@ with tempfile.TemporaryDirectory() as d:
         st, h, body = get(base + "/env.png")
         check(st == 200 and body[:8] == b"\x89PNG\r\n\x1a\n" and png_pixels(body).shape == (128, 256, 3),
               f"GET /env.png: {st} {body[:100]!r}")
+        check(server.p.poll() is None, f"ltbake view exited ({server.p.returncode}) during the HTTP checks")
 
         # 4. The page in a headless browser.
-        if skip_browser:
-            raise Abort(None)
-        browser = Browser(chromium, P("profile"), P("chromium.log"))
-        t0 = time.monotonic()
-        page = Page(browser, url)
-        s = page.wait_state(lambda ltb: ltb["frames"] >= 1, "the page's first frame (ltb.frames >= 1)")
-        first_ms = (time.monotonic() - t0) * 1000
-        st0 = s["ltb"]["stats"]
-        check(s["ltb"]["last"]["exposure"] == 0 and s["ltb"]["base"] == st0["exposure"] and st0["exposure"] > 0,
-              f"the first frame should ask for automatic exposure (0) and make its exposure the base: {s['ltb']}")
-        check(st0["method"] == "pbi" and st0["terms"] == 100, f"the first frame should use --method/--terms: {st0}")
+        if chromium:
+            browser = Browser(chromium, P("profile"), P("chromium.log"))
+            t0 = time.monotonic()
+            page = Page(browser, url)
 
-        # Method NWA, 20 terms, +1 stop through the controls (their change/input events).
-        page.eval("""(() => {
-          const set = (id, v, ev) => { const e = document.getElementById(id); e.value = v; e.dispatchEvent(new Event(ev)); };
-          set('method', 'nwa', 'change'); set('terms', '20', 'input'); set('exposure', '1', 'input');
-        })()""")
-        s = page.wait_state(lambda ltb: ltb["last"] and ltb["last"]["method"] == "nwa" and ltb["last"]["terms"] == "20"
-                            and ltb["last"]["exposure"] == 2 * ltb["base"],
-                            "a frame with method nwa, terms 20 and exposure 2 × base")
-        check(s["ltb"]["stats"]["method"] == "nwa" and s["ltb"]["stats"]["terms_used"] == 20 and
-              s["used"] == "20 terms", f"the nwa frame's figures: {s}")
+            def wait_idle(cond, what):
+                """cond(ltb) with the page idle: the server's last frame is the one the page shows
+                (nothing in flight), and the page's last query is its controls' state."""
+                def ok(ltb):
+                    if not (ltb["stats"] and ltb["last"] and cond(ltb)):
+                        return False
+                    code, _, text = get(base + "/stats", timeout=DEADLINE)
+                    return code == 200 and json.loads(text).get("frame") == ltb["stats"]["frame"]
+                return page.wait_state(ok, what + ", the page idle")
 
-        # Drag 80 px to the right on the frame: 40 degrees.
-        box = page.eval("(() => { const r = document.getElementById('frame').getBoundingClientRect();"
-                        " return {x: r.x, y: r.y, w: r.width, h: r.height}; })()")
-        check(box["w"] >= 32 and box["h"] >= 24, f"#frame's box {box}")
-        x, y = int(box["x"] + box["w"] / 2), int(box["y"] + box["h"] / 2)
-        before = s
-        page.mouse("mousePressed", x, y, 1)
-        for step in range(1, 9):
-            page.mouse("mouseMoved", x + 10 * step, y, 1)
-        page.mouse("mouseReleased", x + 80, y, 0)
-        t_drag = time.monotonic()
-        s = page.wait_state(lambda ltb: ltb["frames"] > before["ltb"]["frames"] and ltb["rotate"] != 0 and
-                            ltb["last"]["rotate"] == f"{ltb['rotate']:.3f}",
-                            "a frame of the dragged rotation")
-        drag_ms = (time.monotonic() - t_drag) * 1000
-        check(abs(s["ltb"]["rotate"] - 40) < 1 and abs(float(s["ltb"]["last"]["rotate"]) - 40) < 1,
-              f"an 80 px drag should rotate by 40 degrees: ltb.rotate {s['ltb']['rotate']}, last {s['ltb']['last']}")
-        check(abs(s["ltb"]["stats"]["rotate"] - float(s["ltb"]["last"]["rotate"])) < 1e-9,
-              f"the frame's stats rotate {s['ltb']['stats']['rotate']} is not the query's {s['ltb']['last']['rotate']}")
-        check(s["count"] != before["count"] and s["count"] == f"{s['ltb']['frames']} frames",
-              f"#count should change with the new frame: {before['count']!r} -> {s['count']!r}")
-        check(re.fullmatch(r"\d+(\.\d+)? ms", s["ms"] or "") is not None, f"#ms shows {s['ms']!r}, expected '<number> ms'")
-        check(s["ltb"]["last"]["method"] == "nwa" and s["ltb"]["last"]["terms"] == "20",
-              f"the drag changed method/terms: {s['ltb']['last']}")
+            s = page.wait_state(lambda ltb: ltb["frames"] >= 1, "the page's first frame (ltb.frames >= 1)")
+            first_ms = (time.monotonic() - t0) * 1000
+            page.eval("performance.setResourceTimingBufferSize(100000)")
+            first = page.eval("performance.getEntriesByType('resource').map((e) => e.name)"
+                              ".filter((n) => n.includes('/frame.png'))[0]")
+            check(first and "exposure=0&" in first + "&" and "method=pbi" in first and "terms=100" in first,
+                  f"the first frame should ask for automatic exposure (0) with --method/--terms: {first}")
+            check(s["ltb"]["base"] > 0, f"ltb.base (the first frame's automatic exposure) is {s['ltb']['base']}")
 
-        # The frame the page shows, against relight of its query. Idle: the server's last
-        # frame is the page's (nwa asks for no more frames once the lighting holds).
-        shown = page.eval(READ_FRAME)
-        st, h, body = get(base + "/stats")
-        server_frame = json.loads(body).get("frame") if st == 200 else None
-        check(shown["steady"] and server_frame == shown["frame"],
-              f"the page was not idle while read: steady {shown['steady']}, page frame {shown['frame']}, "
-              f"server frame {server_frame}")
-        rgba = np.frombuffer(base64.b64decode(shown["rgba"]), np.uint8).reshape(shown["h"], shown["w"], 4)
-        check((rgba[..., 3] == 255).all(), "the frame read back has transparent pixels")
-        last = shown["last"]
-        compare(rgba[..., :3].astype(np.int16),
-                relight_png(final, env, last["rotate"], last["terms"], shown["exposure"], P("page_ref.png")),
-                f"the page's frame (rotate {last['rotate']}, terms {last['terms']}, exposure {shown['exposure']}) "
-                "against relight")
+            # Method NWA, 20 terms, -1 stop through the controls (their change/input events).
+            page.eval("""(() => {
+              const set = (id, v, ev) => {
+                const e = document.getElementById(id); e.value = v; e.dispatchEvent(new Event(ev)); };
+              set('method', 'nwa', 'change'); set('terms', '20', 'input'); set('exposure', '-1', 'input');
+            })()""")
+            s = wait_idle(lambda ltb: ltb["last"]["method"] == "nwa" and ltb["last"]["terms"] == "20" and
+                          ltb["last"]["exposure"] == ltb["base"] / 2,
+                          "a frame with method nwa, terms 20 and exposure base / 2")
+            check(s["ltb"]["stats"]["method"] == "nwa" and s["ltb"]["stats"]["terms_used"] == 20 and
+                  s["used"] == "20 terms", f"the nwa frame's figures: {s}")
 
-        # PBI again: the page keeps asking for frames with no input until the image converges
-        # (a frame that touches no column), then stops.
-        f0 = s["ltb"]["frames"]
-        page.eval("(() => { const e = document.getElementById('method'); e.value = 'pbi';"
-                  " e.dispatchEvent(new Event('change')); })()")
-        s = page.wait_state(lambda ltb: ltb["frames"] >= f0 + 2 and ltb["last"]["method"] == "pbi",
-                            "two PBI frames or more after one change event")
-        s = page.wait_state(lambda ltb: ltb["stats"]["method"] == "pbi" and ltb["stats"]["columns_touched"] == 0,
-                            "the PBI frames to converge (columns_touched 0)")
-        st, h, body = get(base + "/stats")
-        check(st == 200 and json.loads(body).get("frame") == s["ltb"]["stats"]["frame"],
-              f"the page asked for frames after PBI converged: server {body[:200]!r}, page {s['ltb']['stats']}")
-        check(s["ltb"]["last"]["rotate"] == f"{s['ltb']['rotate']:.3f}", f"PBI frames at another rotation: {s['ltb']}")
+            # Drag 80 px to the right on the frame: 40 degrees.
+            box = page.eval("(() => { const r = document.getElementById('frame').getBoundingClientRect();"
+                            " return {x: r.x, y: r.y, w: r.width, h: r.height}; })()")
+            check(box["w"] >= 32 and box["h"] >= 24, f"#frame's box {box}")
+            x, y = int(box["x"] + box["w"] / 2), int(box["y"] + box["h"] / 2)
+            before = s
+            page.mouse("mousePressed", x, y, 1)
+            for step in range(1, 9):
+                page.mouse("mouseMoved", x + 10 * step, y, 1)
+            page.mouse("mouseReleased", x + 80, y, 0)
+            t_drag = time.monotonic()
+            s = wait_idle(lambda ltb: ltb["frames"] > before["ltb"]["frames"] and ltb["rotate"] != 0 and
+                          ltb["last"]["rotate"] == f"{ltb['rotate']:.3f}", "a frame of the dragged rotation")
+            drag_ms = (time.monotonic() - t_drag) * 1000
+            check(abs(s["ltb"]["rotate"] - 40) < 1 and abs(float(s["ltb"]["last"]["rotate"]) - 40) < 1,
+                  f"an 80 px drag should rotate by 40 degrees: ltb.rotate {s['ltb']['rotate']}, "
+                  f"last {s['ltb']['last']}")
+            check(abs(s["ltb"]["stats"]["rotate"] - float(s["ltb"]["last"]["rotate"])) < 1e-9,
+                  f"the frame's stats rotate {s['ltb']['stats']['rotate']} is not the query's "
+                  f"{s['ltb']['last']['rotate']}")
+            check(s["count"] != before["count"] and s["count"] == f"{s['ltb']['frames']} frames",
+                  f"#count should change with the new frame: {before['count']!r} -> {s['count']!r}")
+            check(re.fullmatch(r"\d+(\.\d+)? ms", s["ms"] or "") is not None,
+                  f"#ms shows {s['ms']!r}, expected '<number> ms'")
+            check(s["ltb"]["last"]["method"] == "nwa" and s["ltb"]["last"]["terms"] == "20",
+                  f"the drag changed method/terms: {s['ltb']['last']}")
 
-        check(s["ltb"]["error"] is None and not s["err"], f"the page shows an error: {s['ltb']['error']!r} {s['err']!r}")
-        exc = page.exceptions()
-        check(not exc, f"uncaught script errors in the page: {json.dumps(exc)[:1000]}")
+            # The frame the page shows (idle: nwa asks for nothing more while the lighting
+            # holds), read back through a canvas, against relight of its query.
+            shown = page.eval(READ_FRAME)
+            check(shown["steady"] and shown["frame"] == s["ltb"]["stats"]["frame"],
+                  f"a new frame arrived while the page was idle: {shown['frame']} after {s['ltb']['stats']}")
+            rgba = np.frombuffer(base64.b64decode(shown["rgba"]), np.uint8).reshape(shown["h"], shown["w"], 4)
+            check((rgba[..., 3] == 255).all(), "the frame read back has transparent pixels")
+            last = shown["last"]
+            compare(rgba[..., :3].astype(np.int16),
+                    relight_png(final, env, last["rotate"], last["terms"], shown["exposure"], P("page_ref.png")),
+                    f"the page's frame (rotate {last['rotate']}, terms {last['terms']}, exposure {shown['exposure']})"
+                    " against relight")
 
-        # A screenshot of the page, kept for people.
-        shot = base64.b64decode(page.send("Page.captureScreenshot", {"format": "png"})["data"])
-        art = os.environ.get("LTB_TEST_ARTIFACTS") or os.path.join(os.getcwd(), "test-artifacts")
-        os.makedirs(art, exist_ok=True)
-        shot_path = os.path.join(art, "view_page.png")
-        with open(shot_path, "wb") as f:
-            f.write(shot)
-        print(f"screenshot: {shot_path}")
-        img = png_pixels(shot)
-        check(img.shape[0] >= 300 and img.shape[1] >= 400 and len(np.unique(img.reshape(-1, 3), axis=0)) > 16,
-              f"the screenshot {shot_path} is {img.shape} with {len(np.unique(img.reshape(-1, 3), axis=0))} colours")
-        print(f"browser: first frame {first_ms:.0f} ms after the tab opened, dragged frame {drag_ms:.0f} ms "
-              f"after the release, {s['ltb']['frames']} frames shown")
-        browser.close()
-        check(browser.returncode is not None, "the browser did not exit after Browser.close")
+            # PBI again: the page keeps asking for frames with no input until the image
+            # converges (a frame that touches no column), then stops.
+            f0 = s["ltb"]["frames"]
+            page.eval("(() => { const e = document.getElementById('method'); e.value = 'pbi';"
+                      " e.dispatchEvent(new Event('change')); })()")
+            s = page.wait_state(lambda ltb: ltb["frames"] >= f0 + 2 and ltb["last"]["method"] == "pbi",
+                                "two PBI frames or more after one change event")
+            s = wait_idle(lambda ltb: ltb["stats"]["method"] == "pbi" and ltb["stats"]["columns_touched"] == 0,
+                          "the PBI frames to converge (columns_touched 0)")
+            check(s["ltb"]["last"]["rotate"] == f"{s['ltb']['rotate']:.3f}" and s["ltb"]["last"]["terms"] == "20",
+                  f"PBI frames at another rotation or terms: {s['ltb']}")
+            check(s["ltb"]["error"] is None and not s["err"],
+                  f"the page shows an error: {s['ltb']['error']!r} {s['err']!r}")
+            exc = page.exceptions()
+            check(not exc, f"uncaught script errors in the page: {json.dumps(exc)[:1000]}")
+            times = page.eval("performance.getEntriesByType('resource').filter((e) => e.name.includes('/frame.png'))"
+                              ".map((e) => e.duration)")
+            slowest = max(times) if times else 0
+
+            # A screenshot of the page, kept for people, once the lighting strip shows the last frame.
+            wait_until(lambda: page.eval("(() => { const e = document.getElementById('env'); return e.complete &&"
+                                         " e.naturalWidth > 0 && e.src.endsWith('f=' + ltb.stats.frame); })()"),
+                       "the lighting strip (#env) of the last frame")
+            shot = base64.b64decode(page.send("Page.captureScreenshot", {"format": "png"})["data"])
+            art = os.environ.get("LTB_TEST_ARTIFACTS") or os.path.join(os.getcwd(), "test-artifacts")
+            os.makedirs(art, exist_ok=True)
+            shot_path = os.path.join(art, "view_page.png")
+            with open(shot_path, "wb") as f:
+                f.write(shot)
+            print(f"screenshot: {shot_path}")
+            img = png_pixels(shot)
+            rgb = img.astype(np.int32)
+            colours = len(np.unique((rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]))
+            check(img.shape[0] >= 300 and img.shape[1] >= 400 and colours > 16,
+                  f"the screenshot {shot_path} is {img.shape[1]}x{img.shape[0]} with {colours} colours")
+            print(f"browser: first frame {first_ms:.0f} ms after the tab was opened, the dragged rotation's frame "
+                  f"{drag_ms:.0f} ms after the release; {s['ltb']['frames']} frames, the slowest request "
+                  f"{slowest:.0f} ms")
+            if slowest > 2000:
+                print(f"note: a /frame.png request of the page took {slowest:.0f} ms: queued behind the browser's "
+                      "idle keep-alive connections, which hold the server's 2 worker threads for up to 5 s?")
+            browser.close()
+            check(browser.returncode is not None, "the browser did not exit after Browser.close")
 
         # 5. SIGINT stops the server.
         server.p.send_signal(signal.SIGINT)
-        try:
-            rc = server.p.wait(timeout=DEADLINE)
-        except subprocess.TimeoutExpired:
-            rc = None
+        rc = server.wait()
         check(rc == 130, f"ltbake view after SIGINT: exit {rc}, expected 130")
-        wait_until(lambda: "ltbake view: stopped" in server.stderr() or server.p.poll() is None, "stderr", timeout=10)
         check("ltbake view: stopped" in server.stderr(), f"stderr after SIGINT: {server.stderr()!r}")
         r = connect_result("127.0.0.1", port)
         check(r == "refused", f"127.0.0.1:{port} after the server stopped: {r}, expected refused")
-    except (Abort, TimeoutError) as e:
-        if str(e) != "None":
-            check(False, str(e))
+    except (Abort, TimeoutError, subprocess.TimeoutExpired) as e:
+        check(False, str(e))
     finally:
         signal.alarm(0)
         if browser:
-            browser.kill()
+            browser.close()
         if server:
             server.kill()
     if failures and server:
@@ -603,7 +650,7 @@ with tempfile.TemporaryDirectory() as d:
     if failures and browser:
         print(f"--- browser log (tail) ---\n{browser.log_tail()}\n---")
 
-if skip_browser and not failures:
+if not chromium and not failures:
     print("SKIP: no headless Chromium (chromium-headless-shell, chromium or chromium-browser): the HTTP checks "
           "passed, the page was not tried; install it with: sudo apt-get install chromium-headless-shell")
     sys.exit(77)

@@ -80,6 +80,23 @@ TEST(Graph, OneRelightStepPerMapWithItsReference) {
   EXPECT_FALSE(BuildGraph(r, BakeOptions{}, "/work", "/work/scene.toml").ok());
 }
 
+TEST(Graph, ASequenceMakesOneVideoPerMap) {
+  Recipe r = Base();
+  r.targets = {"relight"};
+  r.relight.present = true;
+  r.relight.envs = {{"sunset", "/maps/sunset.exr"}};
+  r.relight.sequence = "rotate:3.6:100,hold:25";
+  r.relight.method = "bi";
+  r.relight.format = "mp4";
+  auto g = BuildGraph(r, BakeOptions{}, "/work", "/work/scene.toml");
+  ASSERT_TRUE(g.ok()) << g.status().message();
+  const auto& n = g->nodes.back();
+  EXPECT_EQ(n.output, "relit-sunset.mp4");
+  const std::vector<std::string> tail(n.args.end() - 4, n.args.end());
+  EXPECT_EQ(tail, (std::vector<std::string>{"--sequence", "rotate:3.6:100,hold:25", "--method", "bi"}));
+  EXPECT_EQ(n.params["sequence"], "rotate:3.6:100,hold:25");  // a new sequence is a new output
+}
+
 TEST(Graph, TriplePathMakesTheFieldsThenOneViewPerMap) {
   Recipe r = Base();
   r.targets = {"triple"};
