@@ -17,7 +17,8 @@ Targets (issue 19): PBI 30 at or below NWA 100 over the rotation; below 1% rel. 
 
 Environment: LTB_PBI_MAPS (space-separated map paths; default every bundled map),
 LTB_PBI_SEQUENCE (rotate:3.6:100,hold:25), LTB_PBI_MATRIX (a final.ltm to use instead of
-the bake). Writes bench/results/pbi_sequences.{md,csv,png}.
+the bake), LTB_PBI_CONFIGS ("nwa:30 nwa:60 nwa:100 nwa:200 bi:30 pbi:30"; NWA 30 and PBI 30
+are needed for the targets), LTB_PBI_NAME (pbi_sequences). Writes bench/results/NAME.{md,csv,png}.
 """
 import csv
 import json
@@ -33,7 +34,9 @@ BUILD = os.path.abspath(sys.argv[1] if len(sys.argv) > 1 else os.path.join(ROOT,
 LTB = os.path.join(BUILD, "ltbake")
 SEQ = os.environ.get("LTB_PBI_SEQUENCE", "rotate:3.6:100,hold:25")
 RESULTS = os.path.join(HERE, "results")
-CONFIGS = [("nwa", 30), ("nwa", 60), ("nwa", 100), ("nwa", 200), ("bi", 30), ("pbi", 30)]
+CONFIGS = [(c.split(":")[0], int(c.split(":")[1])) for c in
+           os.environ.get("LTB_PBI_CONFIGS", "nwa:30 nwa:60 nwa:100 nwa:200 bi:30 pbi:30").split()]
+NAME = os.environ.get("LTB_PBI_NAME", "pbi_sequences")
 
 
 def maps():
@@ -88,7 +91,7 @@ def main():
                 print(f"{name} {method}{terms}: mean rel. L2 {rep['summary']['mean_rel_l2']:.4f}, "
                       f"median {rep['summary']['median_ms']:.2f} ms", flush=True)
     os.makedirs(RESULTS, exist_ok=True)
-    with open(os.path.join(RESULTS, "pbi_sequences.csv"), "w", newline="") as f:
+    with open(os.path.join(RESULTS, NAME + ".csv"), "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["map", "method", "terms", "frame", "ms", "rel_l2", "l1_area", "lighting_rel_l2"])
         w.writerows(rows)
@@ -147,7 +150,7 @@ def main():
         f"- Frame time within 1.2x of NWA 30: {pbi['ms'] / base_ms:.2f}x — "
         + ("**met**" if pbi["ms"] <= 1.2 * base_ms else "**missed**") + ".",
     ]
-    with open(os.path.join(RESULTS, "pbi_sequences.md"), "w") as f:
+    with open(os.path.join(RESULTS, NAME + ".md"), "w") as f:
         f.write("\n".join(lines) + "\n")
     print("\n".join(lines))
 
@@ -164,13 +167,13 @@ def main():
     for ax, what in zip(axes, ("rel. L2 of the image", "area-weighted rel. L1 of the image")):
         ax.axvline(rot_frames - 0.5, color="gray", lw=0.8)
         ax.set_yscale("log")
-        ax.set_xlabel("frame (rotating 3.6°/frame, then held)")
+        ax.set_xlabel(f"frame ({SEQ})")
         ax.set_ylabel(what + f" (mean of {len(names)} maps)")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
-    fig.suptitle("Medium scene, R = 32: lighting approximations over a rotation and a hold")
+    fig.suptitle(f"Medium scene, R = 32: lighting approximations over {SEQ}")
     fig.tight_layout()
-    fig.savefig(os.path.join(RESULTS, "pbi_sequences.png"), dpi=110)
+    fig.savefig(os.path.join(RESULTS, NAME + ".png"), dpi=110)
 
 
 if __name__ == "__main__":

@@ -6,15 +6,15 @@
 
 namespace ltb::stages::view {
 
-const std::string& PageHtml() {
+std::string PageHtml(const std::string& defaults_json) {
   static const std::string kPage = R"HTML(<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>ltbake view</title>
 <style>
 body{font:14px system-ui,sans-serif;margin:16px;background:#1b1b1b;color:#ddd}
-#frame{cursor:grab;image-rendering:pixelated;border:1px solid #444;user-select:none;-webkit-user-drag:none}
+#frame{cursor:grab;image-rendering:pixelated;border:1px solid #444;user-select:none;-webkit-user-drag:none;width:512px}
 #env{display:block;margin-top:8px;border:1px solid #444;width:512px}
 .row{margin:6px 0}label{display:inline-block;width:90px}
-#figures span{display:inline-block;min-width:110px}
+#figures span{display:inline-block;min-width:90px;margin-right:14px}
 </style></head><body>
 <h3>ltbake view <small id="matrix"></small></h3>
 <div style="display:flex;gap:24px;flex-wrap:wrap">
@@ -30,12 +30,16 @@ body{font:14px system-ui,sans-serif;margin:16px;background:#1b1b1b;color:#ddd}
 <div class="row"><label>rotation</label><span id="rotval">0°</span></div>
 <div id="figures" class="row"><span id="ms">– ms</span><span id="used">– terms</span><span id="err"></span><span id="count">0 frames</span></div>
 <div class="row"><small id="bands"></small></div>
-<img id="env" alt="environment (lat-long), the frame's terms in red">
+<img id="env" alt="environment (lat-long), the frame's terms in red"><div><small>the frame's terms in red, finer
+levels stronger</small></div>
 </div></div>
 <script>
 "use strict";
 const $ = (id) => document.getElementById(id);
 const ltb = window.ltb = {frames: 0, rotate: 0, base: 0, last: null, stats: null, error: null};
+const defaults = LTB_DEFAULTS;  // the command line's --terms and --method, filled in by the server
+if (defaults.terms !== "all") { $("terms").value = defaults.terms; $("termsval").textContent = $("terms").value; }
+$("method").value = defaults.method;
 let dirty = true, wake = null;
 function poke() { dirty = true; if (wake) { const w = wake; wake = null; w(); } }
 function params() {
@@ -68,7 +72,7 @@ async function frame() {
   if (ltb.base === 0) ltb.base = stats.exposure;
   ltb.frames += 1; ltb.last = p; ltb.stats = stats;
   $("ms").textContent = stats.ms.toFixed(2) + " ms";
-  $("used").textContent = stats.terms_used + " terms";
+  $("used").textContent = stats.terms_used + " terms (" + stats.terms_in_effect + " in effect)";
   $("err").textContent = "rel_l2" in stats ? "error " + (100 * stats.rel_l2).toFixed(2) + "%" : "";
   $("count").textContent = ltb.frames + " frames";
   $("bands").textContent = "bands: " + stats.bands.map((b) => b.terms + (b.incremental ? "i" : "r")).join(" ");
@@ -92,7 +96,10 @@ async function loop() {
 loop();
 </script></body></html>
 )HTML";
-  return kPage;
+  std::string page = kPage;
+  const std::string marker = "LTB_DEFAULTS;";
+  page.replace(page.find(marker), marker.size() - 1, defaults_json);
+  return page;
 }
 
 }  // namespace ltb::stages::view

@@ -14,25 +14,39 @@ Status Serve(const ViewOptions& o, const std::function<void(const std::string& u
   LTB_ASSIGN_OR_RETURN(std::unique_ptr<ViewSession> session, ViewSession::Open(o));
   std::mutex mu;  // one frame at a time: the approximation carries from frame to frame
   httplib::Server server;
-  server.new_task_queue = [] { return new httplib::ThreadPool(2); };
+  // A browser keeps up to six connections open to a host; with fewer workers a new request
+  // waits for an idle one to time out. Frames still render one at a time (the mutex).
+  server.new_task_queue = [] { return new httplib::ThreadPool(8); };
+  server.set_keep_alive_timeout(1);
   server.set_payload_max_length(1 << 16);
   server.set_read_timeout(5, 0);
   server.set_write_timeout(5, 0);
-  auto params = [](const httplib::Request& req) {
+  auto params = [](const httplib::Request& req) -> Result<std::map<std::string, std::string>> {
     std::map<std::string, std::string> p;
-    for (const auto& [k, v] : req.params) p[k] = v;
+    for (const auto& [k, v] : req.params) {
+      if (!p.emplace(k, v).second) {
+        return InvalidArgument("parameter \"" + (k.size() > 40 ? k.substr(0, 40) + "..." : k) + "\" is given twice");
+      }
+    }
     return p;
   };
   auto fail = [](httplib::Response& res, int code, const std::string& message) {
     res.status = code;
     res.set_content(message + "\n", "text/plain; charset=utf-8");
   };
-  server.Get("/", [](const httplib::Request&, httplib::Response& res) {
+  const FrameRequest& d = session->defaults();
+  const std::string page = PageHtml(nlohmann::json{
+      {"terms", d.terms == RelightOptions::kAllTerms ? nlohmann::json("all") : nlohmann::json(d.terms)},
+      {"method",
+       SequenceMethodName(d.method)}}.dump());
+  server.Get("/", [&page](const httplib::Request&, httplib::Response& res) {
     res.set_header("Cache-Control", "no-store");
-    res.set_content(PageHtml(), "text/html; charset=utf-8");
+    res.set_content(page, "text/html; charset=utf-8");
   });
   server.Get("/frame.png", [&](const httplib::Request& req, httplib::Response& res) {
-    auto q = ParseFrameRequest(params(req), session->defaults());
+    auto p = params(req);
+    if (!p.ok()) return fail(res, 400, p.status().message());
+    auto q = ParseFrameRequest(*p, session->defaults());
     if (!q.ok()) return fail(res, 400, q.status().message());
     std::lock_guard<std::mutex> lock(mu);
     auto png = session->Render(*q);

@@ -21,7 +21,7 @@ namespace ltb::stages::view {
 Status Serve(const ViewOptions& options, const std::function<void(const std::string& url)>& ready,
              const std::function<bool()>& stop);
 
-// The page's HTML.
-const std::string& PageHtml();
+// The page's HTML; `defaults_json` ({"terms": N or "all", "method": "pbi"}) sets its controls.
+std::string PageHtml(const std::string& defaults_json);
 
 }  // namespace ltb::stages::view

@@ -17,25 +17,40 @@ bool ParseDouble(const std::string& s, double* out) {
   return *stop == '\0' && std::isfinite(*out);
 }
 
-// The face texels a lighting column's basis function covers: the whole face for the
-// scaling function, else the block of side R/2^l of a level-l detail (Mallat layout).
+// Marks the face texels a lighting column's basis function covers — the whole face for the
+// scaling function, else the block of side R/2^l of a level-l detail (Mallat layout) — with
+// a strength that grows with the level, so that fine terms stand out over face-wide ones.
 void Support(uint64_t column, uint64_t r, bool wavelet, std::vector<uint8_t>* mark) {
   const uint64_t rr = r * r, face = column / rr, p = column % rr, s = p % r, t = p / r;
   if (!wavelet) {
-    (*mark)[column] = 1;
+    (*mark)[column] = 255;
     return;
   }
+  int levels = 1;
+  while ((uint64_t{1} << levels) < r) ++levels;
   const uint64_t m = std::max(s, t);
   uint64_t x0 = 0, y0 = 0, side = r;
+  int l = -1;
   if (m > 0) {
-    const int l = 63 - __builtin_clzll(m);
+    l = 63 - __builtin_clzll(m);
     const uint64_t n = uint64_t{1} << l;  // blocks per side at this level
     side = r / n;
     x0 = (s % n) * side;
     y0 = (t % n) * side;
   }
+  const uint8_t strength = static_cast<uint8_t>(255 * (l + 2) / (levels + 1));
   for (uint64_t y = y0; y < y0 + side; ++y)
-    for (uint64_t x = x0; x < x0 + side; ++x) (*mark)[face * rr + y * r + x] = 1;
+    for (uint64_t x = x0; x < x0 + side; ++x) {
+      uint8_t& v = (*mark)[face * rr + y * r + x];
+      v = std::max(v, strength);
+    }
+}
+
+// Lighting terms the approximation holds (nonzero applied coefficients).
+uint64_t InEffect(const std::vector<float>& applied) {
+  uint64_t n = 0;
+  for (size_t j = 0; j + 2 < applied.size(); j += 3) n += applied[j] != 0 || applied[j + 1] != 0 || applied[j + 2] != 0;
+  return n;
 }
 
 }  // namespace
@@ -121,6 +136,7 @@ Result<std::string> ViewSession::Render(const FrameRequest& q) {
             {"terms", q.terms == RelightOptions::kAllTerms ? nlohmann::json("all") : nlohmann::json(q.terms)},
             {"terms_used", u.budget_terms},
             {"columns_touched", u.terms.column.size()},
+            {"terms_in_effect", InEffect(relighter_->lighting().applied())},
             {"ms", ms},
             {"exposure", exposure},
             {"width", m_.width()},
@@ -158,10 +174,11 @@ std::string ViewSession::EnvironmentPng(uint64_t width) const {
     }
   std::vector<uint8_t> px = ToSrgb8(rgb.data(), w * h, AutoExposure(rgb.data(), w * h));
   for (uint64_t i = 0; i < w * h; ++i) {
-    if (!mark[texel[i]]) continue;
-    px[i * 3] = static_cast<uint8_t>(std::min(255, px[i * 3] / 2 + 128));
-    px[i * 3 + 1] = static_cast<uint8_t>(px[i * 3 + 1] / 2);
-    px[i * 3 + 2] = static_cast<uint8_t>(px[i * 3 + 2] / 2);
+    const double a = mark[texel[i]] / 255.0 * 0.7;  // tint: toward red by the strength
+    if (a == 0) continue;
+    px[i * 3] = static_cast<uint8_t>(std::lround((1 - a) * px[i * 3] + a * 255));
+    px[i * 3 + 1] = static_cast<uint8_t>(std::lround((1 - a) * px[i * 3 + 1]));
+    px[i * 3 + 2] = static_cast<uint8_t>(std::lround((1 - a) * px[i * 3 + 2]));
   }
   return EncodePng(px.data(), w, h);
 }

@@ -70,8 +70,6 @@ def on_alarm(signum, frame):
     raise TimeoutError("view_browser_test: the whole script took over 300 s")
 
 
-signal.signal(signal.SIGALRM, on_alarm)
-signal.alarm(300)  # the last resort; every wait below has its own, shorter deadline
 
 
 # --- the server --------------------------------------------------------------------------
@@ -425,233 +423,241 @@ READ_FRAME = """(async () => {
 
 
 # --- the test ----------------------------------------------------------------------------
-server = browser = None
-chromium = find_chromium()
-with tempfile.TemporaryDirectory() as d:
-    def P(*parts):
-        return os.path.join(d, *parts)
+def main():
+    global server, browser
+    signal.signal(signal.SIGALRM, on_alarm)
+    signal.alarm(300)  # the last resort; every wait below has its own, shorter deadline
+    server = browser = None
+    chromium = find_chromium()
+    with tempfile.TemporaryDirectory() as d:
+        def P(*parts):
+            return os.path.join(d, *parts)
 
-    try:
-        # A tiny image bake (samples/tiny.toml at 64×48): sample → final.ltm in about a second.
-        scene = open(os.path.join(REPO, "samples", "tiny.toml")).read()
-        scene = re.sub(r"(?m)^width = \d+", "width = 64", re.sub(r"(?m)^height = \d+", "height = 48", scene))
-        write(P("scene.toml"), scene)
-        for args in (["sample", P("scene.toml"), "-o", P("raw.ltm")],
-                     ["row-transform", P("raw.ltm"), "-o", P("rows.ltm")],
-                     ["transpose", P("rows.ltm"), "-o", P("cols.ltm")],
-                     ["column-transform", P("cols.ltm"), "-o", P("cols4d.ltm")],
-                     ["quantize", P("cols4d.ltm"), "-o", P("final.ltm")]):
-            if run(*args, *Q, timeout=300).returncode != 0:
-                raise Abort(f"the bake failed at {args[0]}")
-        final = P("final.ltm")
-        envdir = subprocess.run(["bash", os.path.join(REPO, "scripts", "find_envmaps.sh")],
-                                capture_output=True, text=True, timeout=60).stdout.strip()
-        env = os.path.join(envdir, "sunset.exr")
-        if not envdir or not os.path.exists(env):
-            raise Abort(f"blender-data maps not found (sunset.exr under {envdir!r}): scripts/setup.sh installs "
-                        "blender-data")
+        try:
+            # A tiny image bake (samples/tiny.toml at 64×48): sample → final.ltm in about a second.
+            scene = open(os.path.join(REPO, "samples", "tiny.toml")).read()
+            scene = re.sub(r"(?m)^width = \d+", "width = 64", re.sub(r"(?m)^height = \d+", "height = 48", scene))
+            write(P("scene.toml"), scene)
+            for args in (["sample", P("scene.toml"), "-o", P("raw.ltm")],
+                         ["row-transform", P("raw.ltm"), "-o", P("rows.ltm")],
+                         ["transpose", P("rows.ltm"), "-o", P("cols.ltm")],
+                         ["column-transform", P("cols.ltm"), "-o", P("cols4d.ltm")],
+                         ["quantize", P("cols4d.ltm"), "-o", P("final.ltm")]):
+                if run(*args, *Q, timeout=300).returncode != 0:
+                    raise Abort(f"the bake failed at {args[0]}")
+            final = P("final.ltm")
+            envdir = subprocess.run(["bash", os.path.join(REPO, "scripts", "find_envmaps.sh")],
+                                    capture_output=True, text=True, timeout=60).stdout.strip()
+            env = os.path.join(envdir, "sunset.exr")
+            if not envdir or not os.path.exists(env):
+                raise Abort(f"blender-data maps not found (sunset.exr under {envdir!r}): scripts/setup.sh installs "
+                            "blender-data")
 
-        # 1. The URL, first line of stdout.
-        server = Server(final, "--env", env, "--clamp", "--port", 0, "--method", "pbi", "--terms", 100)
-        url = server.first_line()
-        m = re.fullmatch(r"http://127\.0\.0\.1:(\d+)/", url)
-        if not m:
-            raise Abort(f"the first line of stdout is {url!r}, expected http://127.0.0.1:PORT/")
-        port = int(m.group(1))
-        base = url.rstrip("/")
+            # 1. The URL, first line of stdout.
+            server = Server(final, "--env", env, "--clamp", "--port", 0, "--method", "pbi", "--terms", 100)
+            url = server.first_line()
+            m = re.fullmatch(r"http://127\.0\.0\.1:(\d+)/", url)
+            if not m:
+                raise Abort(f"the first line of stdout is {url!r}, expected http://127.0.0.1:PORT/")
+            port = int(m.group(1))
+            base = url.rstrip("/")
 
-        # 2. 127.0.0.1 only: the port is open there, closed on every other local address.
-        check(connect_result("127.0.0.1", port) == "open", f"127.0.0.1:{port} does not accept connections")
-        others = ["127.0.0.2"] + other_ipv4_addresses()  # 127.0.0.2: loopback, but not the bound address
-        if len(others) == 1:
-            print("note: this host has no non-loopback IPv4 address: only 127.0.0.2 is tried")
-        for a in others:
-            r = connect_result(a, port)
-            check(r != "open", f"{a}:{port} accepts connections: the server should listen on 127.0.0.1 only")
-            if r not in ("open", "refused"):
-                print(f"note: {a}:{port}: {r} (not refused, but not open either)")
-        if socket.has_ipv6:
-            check(connect_result("::1", port, socket.AF_INET6) != "open",
-                  f"[::1]:{port} accepts connections: the server should listen on 127.0.0.1 only")
+            # 2. 127.0.0.1 only: the port is open there, closed on every other local address.
+            check(connect_result("127.0.0.1", port) == "open", f"127.0.0.1:{port} does not accept connections")
+            others = ["127.0.0.2"] + other_ipv4_addresses()  # 127.0.0.2: loopback, but not the bound address
+            if len(others) == 1:
+                print("note: this host has no non-loopback IPv4 address: only 127.0.0.2 is tried")
+            for a in others:
+                r = connect_result(a, port)
+                check(r != "open", f"{a}:{port} accepts connections: the server should listen on 127.0.0.1 only")
+                if r not in ("open", "refused"):
+                    print(f"note: {a}:{port}: {r} (not refused, but not open either)")
+            if socket.has_ipv6:
+                check(connect_result("::1", port, socket.AF_INET6) != "open",
+                      f"[::1]:{port} accepts connections: the server should listen on 127.0.0.1 only")
 
-        # 3. HTTP.
-        st, h, body = get(url)
-        check(st == 200 and h.get("Content-Type", "").startswith("text/html") and b'id="frame"' in body,
-              f"GET /: {st} {h.get('Content-Type') if h else None} {body[:200]!r}")
-        st, h, body = get(base + "/frame.png?rotate=30&terms=20&method=nwa&exposure=0.5")
-        check(st == 200 and h.get("Content-Type") == "image/png" and body[:8] == b"\x89PNG\r\n\x1a\n",
-              f"GET /frame.png (nwa): {st} {h.get('Content-Type') if h else None} {body[:200]!r}")
-        if st == 200:
-            stats = json.loads(h.get("X-Ltb-Stats") or "{}")
-            check(stats.get("method") == "nwa" and stats.get("terms") == 20 and stats.get("terms_used") == 20 and
-                  stats.get("exposure") == 0.5 and stats.get("rotate") == 30 and
-                  (stats.get("width"), stats.get("height")) == (64, 48), f"X-Ltb-Stats of the nwa frame: {stats}")
-            got = png_pixels(body)
-            check(got.shape == (48, 64, 3), f"/frame.png is {got.shape[1]}x{got.shape[0]}, expected 64x48")
-            compare(got, relight_png(final, env, 30, 20, 0.5, P("http_ref.png")),
-                    "/frame.png?rotate=30&terms=20&method=nwa&exposure=0.5 against relight")
-        for query, name in (("rotate=abc", "rotate"), ("terms=0", "terms"), ("method=xyz", "method"),
-                            ("bogus=1", "bogus"), ("exposure=-1", "exposure")):
-            st, h, body = get(base + "/frame.png?" + query)
-            check(st == 400 and name.encode() in body,
-                  f"GET /frame.png?{query}: {st} {body[:300]!r}, expected 400 naming {name}")
-        st, h, body = get(base + "/nope")
-        check(st == 404, f"GET /nope: {st} {body[:200]!r}, expected 404")
-        st, h, body = get(base + "/frame.png?rotate=" + "1" * 100_000)
-        check(st is not None and 400 <= st < 500, f"a 100 kB query: {st} {body[:200]!r}, expected a 4xx")
-        st, h, body = get(base + "/stats")
-        check(st == 200 and h.get("Content-Type") == "application/json" and
-              json.loads(body or b"{}").get("method") == "nwa",
-              f"GET /stats after the bad requests: {st} {body[:300]!r} (the server should still answer)")
-        st, h, body = get(base + "/env.png")
-        check(st == 200 and body[:8] == b"\x89PNG\r\n\x1a\n" and png_pixels(body).shape == (128, 256, 3),
-              f"GET /env.png: {st} {body[:100]!r}")
-        check(server.p.poll() is None, f"ltbake view exited ({server.p.returncode}) during the HTTP checks")
+            # 3. HTTP.
+            st, h, body = get(url)
+            check(st == 200 and h.get("Content-Type", "").startswith("text/html") and b'id="frame"' in body,
+                  f"GET /: {st} {h.get('Content-Type') if h else None} {body[:200]!r}")
+            st, h, body = get(base + "/frame.png?rotate=30&terms=20&method=nwa&exposure=0.5")
+            check(st == 200 and h.get("Content-Type") == "image/png" and body[:8] == b"\x89PNG\r\n\x1a\n",
+                  f"GET /frame.png (nwa): {st} {h.get('Content-Type') if h else None} {body[:200]!r}")
+            if st == 200:
+                stats = json.loads(h.get("X-Ltb-Stats") or "{}")
+                check(stats.get("method") == "nwa" and stats.get("terms") == 20 and stats.get("terms_used") == 20 and
+                      stats.get("exposure") == 0.5 and stats.get("rotate") == 30 and
+                      (stats.get("width"), stats.get("height")) == (64, 48), f"X-Ltb-Stats of the nwa frame: {stats}")
+                got = png_pixels(body)
+                check(got.shape == (48, 64, 3), f"/frame.png is {got.shape[1]}x{got.shape[0]}, expected 64x48")
+                compare(got, relight_png(final, env, 30, 20, 0.5, P("http_ref.png")),
+                        "/frame.png?rotate=30&terms=20&method=nwa&exposure=0.5 against relight")
+            for query, name in (("rotate=abc", "rotate"), ("terms=0", "terms"), ("method=xyz", "method"),
+                                ("bogus=1", "bogus"), ("exposure=-1", "exposure")):
+                st, h, body = get(base + "/frame.png?" + query)
+                check(st == 400 and name.encode() in body,
+                      f"GET /frame.png?{query}: {st} {body[:300]!r}, expected 400 naming {name}")
+            st, h, body = get(base + "/nope")
+            check(st == 404, f"GET /nope: {st} {body[:200]!r}, expected 404")
+            st, h, body = get(base + "/frame.png?rotate=" + "1" * 100_000)
+            check(st is not None and 400 <= st < 500, f"a 100 kB query: {st} {body[:200]!r}, expected a 4xx")
+            st, h, body = get(base + "/stats")
+            check(st == 200 and h.get("Content-Type") == "application/json" and
+                  json.loads(body or b"{}").get("method") == "nwa",
+                  f"GET /stats after the bad requests: {st} {body[:300]!r} (the server should still answer)")
+            st, h, body = get(base + "/env.png")
+            check(st == 200 and body[:8] == b"\x89PNG\r\n\x1a\n" and png_pixels(body).shape == (128, 256, 3),
+                  f"GET /env.png: {st} {body[:100]!r}")
+            check(server.p.poll() is None, f"ltbake view exited ({server.p.returncode}) during the HTTP checks")
 
-        # 4. The page in a headless browser.
-        if chromium:
-            browser = Browser(chromium, P("profile"), P("chromium.log"))
-            t0 = time.monotonic()
-            page = Page(browser, url)
+            # 4. The page in a headless browser.
+            if chromium:
+                browser = Browser(chromium, P("profile"), P("chromium.log"))
+                t0 = time.monotonic()
+                page = Page(browser, url)
 
-            def wait_idle(cond, what):
-                """cond(ltb) with the page idle: the server's last frame is the one the page shows
-                (nothing in flight), and the page's last query is its controls' state."""
-                def ok(ltb):
-                    if not (ltb["stats"] and ltb["last"] and cond(ltb)):
-                        return False
-                    code, _, text = get(base + "/stats", timeout=DEADLINE)
-                    return code == 200 and json.loads(text).get("frame") == ltb["stats"]["frame"]
-                return page.wait_state(ok, what + ", the page idle")
+                def wait_idle(cond, what):
+                    """cond(ltb) with the page idle: the server's last frame is the one the page shows
+                    (nothing in flight), and the page's last query is its controls' state."""
+                    def ok(ltb):
+                        if not (ltb["stats"] and ltb["last"] and cond(ltb)):
+                            return False
+                        code, _, text = get(base + "/stats", timeout=DEADLINE)
+                        return code == 200 and json.loads(text).get("frame") == ltb["stats"]["frame"]
+                    return page.wait_state(ok, what + ", the page idle")
 
-            s = page.wait_state(lambda ltb: ltb["frames"] >= 1, "the page's first frame (ltb.frames >= 1)")
-            first_ms = (time.monotonic() - t0) * 1000
-            page.eval("performance.setResourceTimingBufferSize(100000)")
-            first = page.eval("performance.getEntriesByType('resource').map((e) => e.name)"
-                              ".filter((n) => n.includes('/frame.png'))[0]")
-            check(first and "exposure=0&" in first + "&" and "method=pbi" in first and "terms=100" in first,
-                  f"the first frame should ask for automatic exposure (0) with --method/--terms: {first}")
-            check(s["ltb"]["base"] > 0, f"ltb.base (the first frame's automatic exposure) is {s['ltb']['base']}")
+                s = page.wait_state(lambda ltb: ltb["frames"] >= 1, "the page's first frame (ltb.frames >= 1)")
+                first_ms = (time.monotonic() - t0) * 1000
+                page.eval("performance.setResourceTimingBufferSize(100000)")
+                first = page.eval("performance.getEntriesByType('resource').map((e) => e.name)"
+                                  ".filter((n) => n.includes('/frame.png'))[0]")
+                check(first and "exposure=0&" in first + "&" and "method=pbi" in first and "terms=100" in first,
+                      f"the first frame should ask for automatic exposure (0) with --method/--terms: {first}")
+                check(s["ltb"]["base"] > 0, f"ltb.base (the first frame's automatic exposure) is {s['ltb']['base']}")
 
-            # Method NWA, 20 terms, -1 stop through the controls (their change/input events).
-            page.eval("""(() => {
-              const set = (id, v, ev) => {
-                const e = document.getElementById(id); e.value = v; e.dispatchEvent(new Event(ev)); };
-              set('method', 'nwa', 'change'); set('terms', '20', 'input'); set('exposure', '-1', 'input');
-            })()""")
-            s = wait_idle(lambda ltb: ltb["last"]["method"] == "nwa" and ltb["last"]["terms"] == "20" and
-                          ltb["last"]["exposure"] == ltb["base"] / 2,
-                          "a frame with method nwa, terms 20 and exposure base / 2")
-            check(s["ltb"]["stats"]["method"] == "nwa" and s["ltb"]["stats"]["terms_used"] == 20 and
-                  s["used"] == "20 terms", f"the nwa frame's figures: {s}")
+                # Method NWA, 20 terms, -1 stop through the controls (their change/input events).
+                page.eval("""(() => {
+                  const set = (id, v, ev) => {
+                    const e = document.getElementById(id); e.value = v; e.dispatchEvent(new Event(ev)); };
+                  set('method', 'nwa', 'change'); set('terms', '20', 'input'); set('exposure', '-1', 'input');
+                })()""")
+                s = wait_idle(lambda ltb: ltb["last"]["method"] == "nwa" and ltb["last"]["terms"] == "20" and
+                              ltb["last"]["exposure"] == ltb["base"] / 2,
+                              "a frame with method nwa, terms 20 and exposure base / 2")
+                check(s["ltb"]["stats"]["method"] == "nwa" and s["ltb"]["stats"]["terms_used"] == 20 and
+                      s["used"].startswith("20 terms"), f"the nwa frame's figures: {s}")
 
-            # Drag 80 px to the right on the frame: 40 degrees.
-            box = page.eval("(() => { const r = document.getElementById('frame').getBoundingClientRect();"
-                            " return {x: r.x, y: r.y, w: r.width, h: r.height}; })()")
-            check(box["w"] >= 32 and box["h"] >= 24, f"#frame's box {box}")
-            x, y = int(box["x"] + box["w"] / 2), int(box["y"] + box["h"] / 2)
-            before = s
-            page.mouse("mousePressed", x, y, 1)
-            for step in range(1, 9):
-                page.mouse("mouseMoved", x + 10 * step, y, 1)
-            page.mouse("mouseReleased", x + 80, y, 0)
-            t_drag = time.monotonic()
-            s = wait_idle(lambda ltb: ltb["frames"] > before["ltb"]["frames"] and ltb["rotate"] != 0 and
-                          ltb["last"]["rotate"] == f"{ltb['rotate']:.3f}", "a frame of the dragged rotation")
-            drag_ms = (time.monotonic() - t_drag) * 1000
-            check(abs(s["ltb"]["rotate"] - 40) < 1 and abs(float(s["ltb"]["last"]["rotate"]) - 40) < 1,
-                  f"an 80 px drag should rotate by 40 degrees: ltb.rotate {s['ltb']['rotate']}, "
-                  f"last {s['ltb']['last']}")
-            check(abs(s["ltb"]["stats"]["rotate"] - float(s["ltb"]["last"]["rotate"])) < 1e-9,
-                  f"the frame's stats rotate {s['ltb']['stats']['rotate']} is not the query's "
-                  f"{s['ltb']['last']['rotate']}")
-            check(s["count"] != before["count"] and s["count"] == f"{s['ltb']['frames']} frames",
-                  f"#count should change with the new frame: {before['count']!r} -> {s['count']!r}")
-            check(re.fullmatch(r"\d+(\.\d+)? ms", s["ms"] or "") is not None,
-                  f"#ms shows {s['ms']!r}, expected '<number> ms'")
-            check(s["ltb"]["last"]["method"] == "nwa" and s["ltb"]["last"]["terms"] == "20",
-                  f"the drag changed method/terms: {s['ltb']['last']}")
+                # Drag 80 px to the right on the frame: 40 degrees.
+                box = page.eval("(() => { const r = document.getElementById('frame').getBoundingClientRect();"
+                                " return {x: r.x, y: r.y, w: r.width, h: r.height}; })()")
+                check(box["w"] >= 32 and box["h"] >= 24, f"#frame's box {box}")
+                x, y = int(box["x"] + box["w"] / 2), int(box["y"] + box["h"] / 2)
+                before = s
+                page.mouse("mousePressed", x, y, 1)
+                for step in range(1, 9):
+                    page.mouse("mouseMoved", x + 10 * step, y, 1)
+                page.mouse("mouseReleased", x + 80, y, 0)
+                t_drag = time.monotonic()
+                s = wait_idle(lambda ltb: ltb["frames"] > before["ltb"]["frames"] and ltb["rotate"] != 0 and
+                              ltb["last"]["rotate"] == f"{ltb['rotate']:.3f}", "a frame of the dragged rotation")
+                drag_ms = (time.monotonic() - t_drag) * 1000
+                check(abs(s["ltb"]["rotate"] - 40) < 1 and abs(float(s["ltb"]["last"]["rotate"]) - 40) < 1,
+                      f"an 80 px drag should rotate by 40 degrees: ltb.rotate {s['ltb']['rotate']}, "
+                      f"last {s['ltb']['last']}")
+                check(abs(s["ltb"]["stats"]["rotate"] - float(s["ltb"]["last"]["rotate"])) < 1e-9,
+                      f"the frame's stats rotate {s['ltb']['stats']['rotate']} is not the query's "
+                      f"{s['ltb']['last']['rotate']}")
+                check(s["count"] != before["count"] and s["count"] == f"{s['ltb']['frames']} frames",
+                      f"#count should change with the new frame: {before['count']!r} -> {s['count']!r}")
+                check(re.fullmatch(r"\d+(\.\d+)? ms", s["ms"] or "") is not None,
+                      f"#ms shows {s['ms']!r}, expected '<number> ms'")
+                check(s["ltb"]["last"]["method"] == "nwa" and s["ltb"]["last"]["terms"] == "20",
+                      f"the drag changed method/terms: {s['ltb']['last']}")
 
-            # The frame the page shows (idle: nwa asks for nothing more while the lighting
-            # holds), read back through a canvas, against relight of its query.
-            shown = page.eval(READ_FRAME)
-            check(shown["steady"] and shown["frame"] == s["ltb"]["stats"]["frame"],
-                  f"a new frame arrived while the page was idle: {shown['frame']} after {s['ltb']['stats']}")
-            rgba = np.frombuffer(base64.b64decode(shown["rgba"]), np.uint8).reshape(shown["h"], shown["w"], 4)
-            check((rgba[..., 3] == 255).all(), "the frame read back has transparent pixels")
-            last = shown["last"]
-            compare(rgba[..., :3].astype(np.int16),
-                    relight_png(final, env, last["rotate"], last["terms"], shown["exposure"], P("page_ref.png")),
-                    f"the page's frame (rotate {last['rotate']}, terms {last['terms']}, exposure {shown['exposure']})"
-                    " against relight")
+                # The frame the page shows (idle: nwa asks for nothing more while the lighting
+                # holds), read back through a canvas, against relight of its query.
+                shown = page.eval(READ_FRAME)
+                check(shown["steady"] and shown["frame"] == s["ltb"]["stats"]["frame"],
+                      f"a new frame arrived while the page was idle: {shown['frame']} after {s['ltb']['stats']}")
+                rgba = np.frombuffer(base64.b64decode(shown["rgba"]), np.uint8).reshape(shown["h"], shown["w"], 4)
+                check((rgba[..., 3] == 255).all(), "the frame read back has transparent pixels")
+                last = shown["last"]
+                compare(rgba[..., :3].astype(np.int16),
+                        relight_png(final, env, last["rotate"], last["terms"], shown["exposure"], P("page_ref.png")),
+                        f"the page's frame (rotate {last['rotate']}, terms {last['terms']}, exposure {shown['exposure']})"
+                        " against relight")
 
-            # PBI again: the page keeps asking for frames with no input until the image
-            # converges (a frame that touches no column), then stops.
-            f0 = s["ltb"]["frames"]
-            page.eval("(() => { const e = document.getElementById('method'); e.value = 'pbi';"
-                      " e.dispatchEvent(new Event('change')); })()")
-            s = page.wait_state(lambda ltb: ltb["frames"] >= f0 + 2 and ltb["last"]["method"] == "pbi",
-                                "two PBI frames or more after one change event")
-            s = wait_idle(lambda ltb: ltb["stats"]["method"] == "pbi" and ltb["stats"]["columns_touched"] == 0,
-                          "the PBI frames to converge (columns_touched 0)")
-            check(s["ltb"]["last"]["rotate"] == f"{s['ltb']['rotate']:.3f}" and s["ltb"]["last"]["terms"] == "20",
-                  f"PBI frames at another rotation or terms: {s['ltb']}")
-            check(s["ltb"]["error"] is None and not s["err"],
-                  f"the page shows an error: {s['ltb']['error']!r} {s['err']!r}")
-            exc = page.exceptions()
-            check(not exc, f"uncaught script errors in the page: {json.dumps(exc)[:1000]}")
-            times = page.eval("performance.getEntriesByType('resource').filter((e) => e.name.includes('/frame.png'))"
-                              ".map((e) => e.duration)")
-            slowest = max(times) if times else 0
+                # PBI again: the page keeps asking for frames with no input until the image
+                # converges (a frame that touches no column), then stops.
+                f0 = s["ltb"]["frames"]
+                page.eval("(() => { const e = document.getElementById('method'); e.value = 'pbi';"
+                          " e.dispatchEvent(new Event('change')); })()")
+                s = page.wait_state(lambda ltb: ltb["frames"] >= f0 + 2 and ltb["last"]["method"] == "pbi",
+                                    "two PBI frames or more after one change event")
+                s = wait_idle(lambda ltb: ltb["stats"]["method"] == "pbi" and ltb["stats"]["columns_touched"] == 0,
+                              "the PBI frames to converge (columns_touched 0)")
+                check(s["ltb"]["last"]["rotate"] == f"{s['ltb']['rotate']:.3f}" and s["ltb"]["last"]["terms"] == "20",
+                      f"PBI frames at another rotation or terms: {s['ltb']}")
+                check(s["ltb"]["error"] is None and not s["err"],
+                      f"the page shows an error: {s['ltb']['error']!r} {s['err']!r}")
+                exc = page.exceptions()
+                check(not exc, f"uncaught script errors in the page: {json.dumps(exc)[:1000]}")
+                times = page.eval("performance.getEntriesByType('resource').filter((e) => e.name.includes('/frame.png'))"
+                                  ".map((e) => e.duration)")
+                slowest = max(times) if times else 0
 
-            # A screenshot of the page, kept for people, once the lighting strip shows the last frame.
-            wait_until(lambda: page.eval("(() => { const e = document.getElementById('env'); return e.complete &&"
-                                         " e.naturalWidth > 0 && e.src.endsWith('f=' + ltb.stats.frame); })()"),
-                       "the lighting strip (#env) of the last frame")
-            shot = base64.b64decode(page.send("Page.captureScreenshot", {"format": "png"})["data"])
-            art = os.environ.get("LTB_TEST_ARTIFACTS") or os.path.join(os.getcwd(), "test-artifacts")
-            os.makedirs(art, exist_ok=True)
-            shot_path = os.path.join(art, "view_page.png")
-            with open(shot_path, "wb") as f:
-                f.write(shot)
-            print(f"screenshot: {shot_path}")
-            img = png_pixels(shot)
-            rgb = img.astype(np.int32)
-            colours = len(np.unique((rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]))
-            check(img.shape[0] >= 300 and img.shape[1] >= 400 and colours > 16,
-                  f"the screenshot {shot_path} is {img.shape[1]}x{img.shape[0]} with {colours} colours")
-            print(f"browser: first frame {first_ms:.0f} ms after the tab was opened, the dragged rotation's frame "
-                  f"{drag_ms:.0f} ms after the release; {s['ltb']['frames']} frames, the slowest request "
-                  f"{slowest:.0f} ms")
-            if slowest > 2000:
-                print(f"note: a /frame.png request of the page took {slowest:.0f} ms: queued behind the browser's "
-                      "idle keep-alive connections, which hold the server's 2 worker threads for up to 5 s?")
-            browser.close()
-            check(browser.returncode is not None, "the browser did not exit after Browser.close")
+                # A screenshot of the page, kept for people, once the lighting strip shows the last frame.
+                wait_until(lambda: page.eval("(() => { const e = document.getElementById('env'); return e.complete &&"
+                                             " e.naturalWidth > 0 && e.src.endsWith('f=' + ltb.stats.frame); })()"),
+                           "the lighting strip (#env) of the last frame")
+                shot = base64.b64decode(page.send("Page.captureScreenshot", {"format": "png"})["data"])
+                art = os.environ.get("LTB_TEST_ARTIFACTS") or os.path.join(os.getcwd(), "test-artifacts")
+                os.makedirs(art, exist_ok=True)
+                shot_path = os.path.join(art, "view_page.png")
+                with open(shot_path, "wb") as f:
+                    f.write(shot)
+                print(f"screenshot: {shot_path}")
+                img = png_pixels(shot)
+                rgb = img.astype(np.int32)
+                colours = len(np.unique((rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]))
+                check(img.shape[0] >= 300 and img.shape[1] >= 400 and colours > 16,
+                      f"the screenshot {shot_path} is {img.shape[1]}x{img.shape[0]} with {colours} colours")
+                print(f"browser: first frame {first_ms:.0f} ms after the tab was opened, the dragged rotation's frame "
+                      f"{drag_ms:.0f} ms after the release; {s['ltb']['frames']} frames, the slowest request "
+                      f"{slowest:.0f} ms")
+                if slowest > 2000:
+                    print(f"note: a /frame.png request of the page took {slowest:.0f} ms: queued behind the browser's "
+                          "idle keep-alive connections, which hold the server's 2 worker threads for up to 5 s?")
+                browser.close()
+                check(browser.returncode is not None, "the browser did not exit after Browser.close")
 
-        # 5. SIGINT stops the server.
-        server.p.send_signal(signal.SIGINT)
-        rc = server.wait()
-        check(rc == 130, f"ltbake view after SIGINT: exit {rc}, expected 130")
-        check("ltbake view: stopped" in server.stderr(), f"stderr after SIGINT: {server.stderr()!r}")
-        r = connect_result("127.0.0.1", port)
-        check(r == "refused", f"127.0.0.1:{port} after the server stopped: {r}, expected refused")
-    except (Abort, TimeoutError, subprocess.TimeoutExpired) as e:
-        check(False, str(e))
-    finally:
-        signal.alarm(0)
-        if browser:
-            browser.close()
-        if server:
-            server.kill()
-    if failures and server:
-        print(f"--- {' '.join(server.cmd)}: stdout ---\n{server.out.decode(errors='replace')}"
-              f"--- stderr ---\n{server.stderr()}---")
-    if failures and browser:
-        print(f"--- browser log (tail) ---\n{browser.log_tail()}\n---")
+            # 5. SIGINT stops the server.
+            server.p.send_signal(signal.SIGINT)
+            rc = server.wait()
+            check(rc == 130, f"ltbake view after SIGINT: exit {rc}, expected 130")
+            check("ltbake view: stopped" in server.stderr(), f"stderr after SIGINT: {server.stderr()!r}")
+            r = connect_result("127.0.0.1", port)
+            check(r == "refused", f"127.0.0.1:{port} after the server stopped: {r}, expected refused")
+        except (Abort, TimeoutError, subprocess.TimeoutExpired) as e:
+            check(False, str(e))
+        finally:
+            signal.alarm(0)
+            if browser:
+                browser.close()
+            if server:
+                server.kill()
+        if failures and server:
+            print(f"--- {' '.join(server.cmd)}: stdout ---\n{server.out.decode(errors='replace')}"
+                  f"--- stderr ---\n{server.stderr()}---")
+        if failures and browser:
+            print(f"--- browser log (tail) ---\n{browser.log_tail()}\n---")
 
-if not chromium and not failures:
-    print("SKIP: no headless Chromium (chromium-headless-shell, chromium or chromium-browser): the HTTP checks "
-          "passed, the page was not tried; install it with: sudo apt-get install chromium-headless-shell")
-    sys.exit(77)
-finish()
+    if not chromium and not failures:
+        print("SKIP: no headless Chromium (chromium-headless-shell, chromium or chromium-browser): the HTTP checks "
+              "passed, the page was not tried; install it with: sudo apt-get install chromium-headless-shell")
+        sys.exit(77)
+    finish()
+
+
+if __name__ == "__main__":
+    main()
