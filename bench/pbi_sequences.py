@@ -18,7 +18,8 @@ Targets (issue 19): PBI 30 at or below NWA 100 over the rotation; below 1% rel. 
 Environment: LTB_PBI_MAPS (space-separated map paths; default every bundled map),
 LTB_PBI_SEQUENCE (rotate:3.6:100,hold:25), LTB_PBI_MATRIX (a final.ltm to use instead of
 the bake), LTB_PBI_CONFIGS ("nwa:30 nwa:60 nwa:100 nwa:200 bi:30 pbi:30"; NWA 30 and PBI 30
-are needed for the targets), LTB_PBI_NAME (pbi_sequences). Writes bench/results/NAME.{md,csv,png}.
+are needed for the targets), LTB_PBI_NAME (pbi_sequences), LTB_PBI_FROM_CSV=1 (no runs: the tables and the plot from
+the last run's CSV). Writes bench/results/NAME.{md,csv,png}.
 """
 import csv
 import json
@@ -72,12 +73,20 @@ def median(v):
     return v[len(v) // 2] if v else float("nan")
 
 
+def read_csv(path):
+    with open(path) as f:
+        return [[r["map"], r["method"], int(r["terms"]), int(r["frame"]), float(r["ms"]), float(r["rel_l2"]),
+                 float(r["l1_area"]), float(r["lighting_rel_l2"])] for r in csv.DictReader(f)]
+
+
 def main():
     mat = matrix()
     rot_frames = sum(int(s.split(":")[-1]) for s in SEQ.split(",") if s.startswith("rotate"))
     rows = []  # map, method, terms, frame, ms, rel_l2, l1_area, lighting_rel_l2
+    if os.environ.get("LTB_PBI_FROM_CSV") == "1":  # only the tables and the plot, from the last run's CSV
+        rows = read_csv(os.path.join(RESULTS, NAME + ".csv"))
     with tempfile.TemporaryDirectory() as tmp:
-        for m in maps():
+        for m in maps() if not rows else []:
             name = os.path.splitext(os.path.basename(m))[0]
             for method, terms in CONFIGS:
                 r = subprocess.run([LTB, "relight", mat, "--env", m, "--clamp", "--sequence", SEQ, "--method", method,
@@ -91,10 +100,11 @@ def main():
                 print(f"{name} {method}{terms}: mean rel. L2 {rep['summary']['mean_rel_l2']:.4f}, "
                       f"median {rep['summary']['median_ms']:.2f} ms", flush=True)
     os.makedirs(RESULTS, exist_ok=True)
-    with open(os.path.join(RESULTS, NAME + ".csv"), "w", newline="") as f:
+    with open(os.path.join(RESULTS, NAME + ".csv") + ".tmp", "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["map", "method", "terms", "frame", "ms", "rel_l2", "l1_area", "lighting_rel_l2"])
         w.writerows(rows)
+    os.replace(os.path.join(RESULTS, NAME + ".csv") + ".tmp", os.path.join(RESULTS, NAME + ".csv"))
 
     names = sorted({r[0] for r in rows})
     frames = max(r[3] for r in rows) + 1
@@ -144,7 +154,8 @@ def main():
         f"- PBI 30 at or below NWA 100 over the rotation: {pbi['rot_l2']:.4f} against {nwa100['rot_l2']:.4f} — "
         + ("**met**" if pbi["rot_l2"] <= nwa100["rot_l2"] else
            f"**missed** by {100 * (pbi['rot_l2'] / nwa100['rot_l2'] - 1):.0f}%")
-        + f" (NWA 60: {stats[('nwa', 60)]['rot_l2']:.4f}, NWA 200: {stats[('nwa', 200)]['rot_l2']:.4f}).",
+        + " (" + ", ".join(f"{m.upper()} {t}: {stats[(m, t)]['rot_l2']:.4f}" for m, t in CONFIGS
+                           if (m, t) != ("pbi", 30)) + ").",
         f"- Below 1% rel. L2 within 5 frames of the hold: worst map {worst_settle} frames — "
         + ("**met**" if worst_settle is not None and worst_settle <= 5 else "**missed**") + ".",
         f"- Frame time within 1.2x of NWA 30: {pbi['ms'] / base_ms:.2f}x — "
