@@ -12,6 +12,7 @@
 #include <sstream>
 
 #include "format/io/atomic_file.h"
+#include "format/io/file.h"
 #include "stages/common/cubemap.h"
 #include "stages/relight/image_io.h"
 #include "stages/relight/relight_matrix.h"
@@ -46,16 +47,17 @@ std::pair<double, double> RelErrors(const float* x, const float* ref, uint64_t r
 Result<LightingSequence> LightingSequence::Open(const std::vector<SequenceSegment>& segments, const std::string& first,
                                                 double rotation, uint64_t cube_res, const EnvLoadOptions& options) {
   LightingSequence seq;
-  std::map<std::string, uint32_t> loaded;
-  auto env = [&](const std::string& path) -> Result<uint32_t> {
-    auto it = loaded.find(path);
-    if (it != loaded.end()) return it->second;
-    LTB_ASSIGN_OR_RETURN(Environment e, Environment::Open(path, cube_res, options));
-    seq.envs_.push_back(std::move(e));
-    loaded[path] = static_cast<uint32_t>(seq.envs_.size() - 1);
-    return loaded[path];
+  seq.cube_res_ = cube_res;
+  seq.options_ = options;
+  std::map<std::string, uint32_t> index;
+  auto map = [&](const std::string& path) -> Result<uint32_t> {
+    auto it = index.find(path);
+    if (it != index.end()) return it->second;
+    LTB_RETURN_IF_ERROR(io::RequireRegularFile(path, "name an environment map (.exr, .hdr or a cubemap .npy)"));
+    seq.paths_.push_back(path);
+    return index[path] = static_cast<uint32_t>(seq.paths_.size() - 1);
   };
-  LTB_ASSIGN_OR_RETURN(uint32_t current, env(first));
+  LTB_ASSIGN_OR_RETURN(uint32_t current, map(first));
   const double kRad = std::numbers::pi / 180.0;
   for (const SequenceSegment& s : segments) {
     switch (s.kind) {
@@ -69,13 +71,13 @@ Result<LightingSequence> LightingSequence::Open(const std::vector<SequenceSegmen
         break;
       case SequenceSegment::Kind::kMaps:
         for (const std::string& m : s.maps) {
-          LTB_ASSIGN_OR_RETURN(current, env(m));
+          LTB_ASSIGN_OR_RETURN(current, map(m));
           seq.frames_.push_back({current, current, 0.0f, rotation});
         }
         break;
       case SequenceSegment::Kind::kFade: {
-        LTB_ASSIGN_OR_RETURN(uint32_t a, env(s.maps[0]));
-        LTB_ASSIGN_OR_RETURN(uint32_t b, env(s.maps[1]));
+        LTB_ASSIGN_OR_RETURN(uint32_t a, map(s.maps[0]));
+        LTB_ASSIGN_OR_RETURN(uint32_t b, map(s.maps[1]));
         for (uint64_t k = 0; k < s.frames; ++k) {
           const float t = s.frames == 1 ? 1.0f : static_cast<float>(k) / static_cast<float>(s.frames - 1);
           seq.frames_.push_back({a, b, t, rotation});
@@ -87,22 +89,38 @@ Result<LightingSequence> LightingSequence::Open(const std::vector<SequenceSegmen
   }
   for (const Frame& f : seq.frames_) {
     for (uint32_t e : {f.a, f.b}) {
-      if (!seq.envs_[e].rotates() && f.rotation != 0) {
-        return InvalidArgument(
-            "--sequence rotates a cubemap .npy, which cannot rotate; give an .exr or .hdr map, or drop the rotation");
+      if (seq.paths_[e].ends_with(".npy") && f.rotation != 0) {
+        return InvalidArgument("--sequence rotates " + seq.paths_[e] +
+                               ", a cubemap .npy, which cannot rotate; give an .exr or .hdr map, or drop the rotation");
       }
     }
   }
+  LTB_RETURN_IF_ERROR(seq.Load(0).status());  // --env: its errors before any frame
   return seq;
 }
 
-void LightingSequence::Cubemap(uint64_t frame, std::vector<float>* out) const {
+Result<const Environment*> LightingSequence::Load(uint32_t map) {
+  for (size_t i = 0; i < cache_.size(); ++i) {
+    if (cache_[i].first != map) continue;
+    std::rotate(cache_.begin() + i, cache_.begin() + i + 1, cache_.end());  // most recent last
+    return cache_.back().second.get();
+  }
+  LTB_ASSIGN_OR_RETURN(Environment e, Environment::Open(paths_[map], cube_res_, options_));
+  if (cache_.size() == 2) cache_.erase(cache_.begin());
+  cache_.emplace_back(map, std::make_unique<Environment>(std::move(e)));
+  return cache_.back().second.get();
+}
+
+Status LightingSequence::Cubemap(uint64_t frame, std::vector<float>* out) {
   const Frame& f = frames_[frame];
-  envs_[f.a].Cubemap(f.rotation, out);
-  if (f.b == f.a || f.t == 0.0f) return;
-  std::vector<float> b;
-  envs_[f.b].Cubemap(f.rotation, &b);
-  for (size_t i = 0; i < out->size(); ++i) (*out)[i] = (1.0f - f.t) * (*out)[i] + f.t * b[i];
+  LTB_ASSIGN_OR_RETURN(const Environment* a, Load(f.a));
+  a->Cubemap(f.rotation, out);
+  if (f.b == f.a || f.t == 0.0f) return Status::Ok();
+  LTB_ASSIGN_OR_RETURN(const Environment* b, Load(f.b));
+  std::vector<float> other;
+  b->Cubemap(f.rotation, &other);
+  for (size_t i = 0; i < out->size(); ++i) (*out)[i] = (1.0f - f.t) * (*out)[i] + f.t * other[i];
+  return Status::Ok();
 }
 
 Result<std::string> FramePath(const std::string& pattern, uint64_t frame) {
@@ -245,7 +263,7 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
                        " frames (those are written)");
     }
     auto a = SeqClock::now();
-    seq.Cubemap(f, &cube);
+    LTB_RETURN_IF_ERROR(seq.Cubemap(f, &cube));
     LTB_RETURN_IF_ERROR(inc.Frame(cube));
     const double frame_ms = SeqMs(a, SeqClock::now());
     ms_all.push_back(frame_ms);

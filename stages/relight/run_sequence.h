@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -18,23 +19,30 @@
 
 namespace ltb::stages {
 
-// The lighting of each frame (6R² × 3 radiance in pixels), frames taken in any order.
+// The lighting of each frame (6R² × 3 radiance in pixels). Maps are loaded when a frame
+// needs them and at most two are held (a fade's two ends), so a long list of maps costs the
+// memory of two.
 class LightingSequence {
  public:
-  // `first`: the map the sequence starts from (--env), turned by `rotation` radians.
+  // `first`: the map the sequence starts from (--env), turned by `rotation` radians. Every
+  // map must be a regular file; `first` is loaded now.
   static Result<LightingSequence> Open(const std::vector<SequenceSegment>& segments, const std::string& first,
                                        double rotation, uint64_t cube_res, const EnvLoadOptions& options);
   uint64_t frames() const { return frames_.size(); }
-  void Cubemap(uint64_t frame, std::vector<float>* out) const;
+  Status Cubemap(uint64_t frame, std::vector<float>* out);
   double Rotation(uint64_t frame) const { return frames_[frame].rotation; }
 
  private:
   struct Frame {
-    uint32_t a = 0, b = 0;  // environments blended (1 − t)·a + t·b
+    uint32_t a = 0, b = 0;  // maps blended (1 − t)·a + t·b
     float t = 0;
     double rotation = 0;  // radians about +Z
   };
-  std::vector<Environment> envs_;
+  Result<const Environment*> Load(uint32_t map);
+  std::vector<std::string> paths_;
+  uint64_t cube_res_ = 0;
+  EnvLoadOptions options_;
+  std::vector<std::pair<uint32_t, std::unique_ptr<Environment>>> cache_;  // most recent last, at most 2
   std::vector<Frame> frames_;
 };
 
