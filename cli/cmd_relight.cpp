@@ -176,25 +176,19 @@ class RelightCommand : public Command {
     if (int code = ResolveStageFlags(flags_, nullptr, &sf); code != kExitOk) return code;
     o.mem_limit = sf.mem_limit;
     o.jobs = sf.jobs;
-    ProgressBar bar(flags_, "relight");
-    auto r = triple::RunTripleRender(o, bar.hook());
-    if (!r.ok()) return ReportFailure(r.status());
-    bar.Done();
-    const nlohmann::json& report = r->report;
-    if (json_) {
-      std::cout << report.dump(2) << "\n";
-    } else if (!flags_.quiet) {
-      const nlohmann::json& f = report["frames"];
-      std::cout << "wrote " << output_;
-      if (!f.empty()) {
-        std::cout << " (" << f.size() << (f.size() == 1 ? " frame" : " frames") << "): " << method_ << ", "
-                  << report["light_terms_used"].get<uint64_t>()
-                  << " lighting terms; frame 0: " << f[0]["visible_vertices"].get<uint64_t>()
-                  << " visible vertices relit in " << std::setprecision(3) << f[0]["relight_ms"].get<double>() << " ms";
-      }
-      std::cout << "\n";
-    }
-    return kExitOk;
+    return Report([&](const Progress& p) { return triple::RunTripleRender(o, p); },
+                  [&](const nlohmann::json& report) {
+                    const nlohmann::json& f = report["frames"];
+                    std::cout << "wrote " << output_;
+                    if (!f.empty()) {
+                      std::cout << " (" << f.size() << (f.size() == 1 ? " frame" : " frames") << "): " << method_
+                                << ", " << report["light_terms_used"].get<uint64_t>()
+                                << " lighting terms; frame 0: " << f[0]["visible_vertices"].get<uint64_t>()
+                                << " visible vertices relit in " << std::setprecision(3)
+                                << f[0]["relight_ms"].get<double>() << " ms";
+                    }
+                    std::cout << "\n";
+                  });
   }
 
   int Run() override {
@@ -206,46 +200,41 @@ class RelightCommand : public Command {
     }
     stages::RelightOptions o;
     if (int code = FillOptions(&o); code != kExitOk) return code;
-    ProgressBar bar(flags_, "relight");
-    auto r = stages::RunRelight(o, bar.hook());
-    if (!r.ok()) return ReportFailure(r.status());
-    const nlohmann::json& report = r->report;
-    const uint64_t terms_used = report["terms_used"];
-    bar.Done();
-    if (json_) {
-      std::cout << report.dump(2) << "\n";
-    } else if (!flags_.quiet) {
-      const bool pixels = report["terms_basis"] == "pixels";
-      const uint64_t available = report["terms_available"];
-      std::cout << "wrote " << output_ << ": " << terms_used << " of " << available << " lighting terms ("
-                << (pixels ? "texels" : "wavelet coefficients, " + report["terms_basis"].get<std::string>().substr(8))
-                << ", " << weighting_ << " weighting; " << std::setprecision(3)
-                << 100 * report["lighting_energy_kept"].get<double>() << "% of the map's energy); lighting "
-                << report["lighting_ms"].get<double>() << " ms, relight " << report["relight_ms"].get<double>()
-                << " ms";
-      if (report.contains("frames")) {
-        std::cout << "; " << frames_ << " frames: median " << report["frames"]["median_ms"].get<double>() << " ms ("
-                  << report["frames"]["fps"].get<double>() << " fps)";
-      }
-      std::cout << "\n";
-      if (pixels && terms_used < available) {
-        std::cout << "  note: " << matrix_ << " has pixel-basis columns, so a term is one texel and " << terms_used
-                  << " texels keep only part of the light; relight a row-transformed bake "
-                     "(rows.ltm, cols4d.ltm, final.ltm) for wavelet terms, or pass --terms all\n";
-      }
-      if (report.contains("error")) {
-        auto line = [&](const char* what, const nlohmann::json& e) {
-          std::cout << "  " << what << ": rel. L2 " << e["rel_l2"].get<double>();
-          if (e.contains("rel_h1")) std::cout << ", rel. H1 " << e["rel_h1"].get<double>();
-          std::cout << ", PSNR " << e["psnr_db"].get<double>() << " dB\n";
-        };
-        std::cout << "  against " << reference_ << " relit with every lighting term (the exact image):\n";
-        line("  error of this image", report["error"]);
-        line("    lighting approximation alone (these terms through the reference)", report["error_lighting_only"]);
-        line("    matrix compression alone (every term through this matrix)", report["error_matrix_only"]);
-      }
-    }
-    return kExitOk;
+    return Report(
+        [&](const Progress& p) { return stages::RunRelight(o, p); },
+        [&](const nlohmann::json& report) {
+          const uint64_t terms_used = report["terms_used"];
+          const bool pixels = report["terms_basis"] == "pixels";
+          const uint64_t available = report["terms_available"];
+          std::cout << "wrote " << output_ << ": " << terms_used << " of " << available << " lighting terms ("
+                    << (pixels ? "texels"
+                               : "wavelet coefficients, " + report["terms_basis"].get<std::string>().substr(8))
+                    << ", " << weighting_ << " weighting; " << std::setprecision(3)
+                    << 100 * report["lighting_energy_kept"].get<double>() << "% of the map's energy); lighting "
+                    << report["lighting_ms"].get<double>() << " ms, relight " << report["relight_ms"].get<double>()
+                    << " ms";
+          if (report.contains("frames")) {
+            std::cout << "; " << frames_ << " frames: median " << report["frames"]["median_ms"].get<double>() << " ms ("
+                      << report["frames"]["fps"].get<double>() << " fps)";
+          }
+          std::cout << "\n";
+          if (pixels && terms_used < available) {
+            std::cout << "  note: " << matrix_ << " has pixel-basis columns, so a term is one texel and " << terms_used
+                      << " texels keep only part of the light; relight a row-transformed bake "
+                         "(rows.ltm, cols4d.ltm, final.ltm) for wavelet terms, or pass --terms all\n";
+          }
+          if (report.contains("error")) {
+            auto line = [&](const char* what, const nlohmann::json& e) {
+              std::cout << "  " << what << ": rel. L2 " << e["rel_l2"].get<double>();
+              if (e.contains("rel_h1")) std::cout << ", rel. H1 " << e["rel_h1"].get<double>();
+              std::cout << ", PSNR " << e["psnr_db"].get<double>() << " dB\n";
+            };
+            std::cout << "  against " << reference_ << " relit with every lighting term (the exact image):\n";
+            line("  error of this image", report["error"]);
+            line("    lighting approximation alone (these terms through the reference)", report["error_lighting_only"]);
+            line("    matrix compression alone (every term through this matrix)", report["error_matrix_only"]);
+          }
+        });
   }
 
   // The matrix path's options from the flags (kExitOk, or the usage error's code).
@@ -279,23 +268,33 @@ class RelightCommand : public Command {
     so.csv = csv_;
     so.fps = fps_;
     so.applied_output = applied_;
+    return Report([&](const Progress& p) { return stages::RunRelightSequence(o, so, p); },
+                  [&](const nlohmann::json& report) {
+                    const nlohmann::json& s = report["summary"];
+                    std::cout << "wrote " << s["frames"].get<uint64_t>() << " frames to " << output_ << ": " << so.spec
+                              << ", " << report["method"].get<std::string>() << " with " << terms_text_
+                              << " terms a frame; median " << std::setprecision(3) << s["median_ms"].get<double>()
+                              << " ms a frame";
+                    if (s.contains("mean_rel_l2")) {
+                      std::cout << "; against " << reference_ << ": mean rel. L2 " << s["mean_rel_l2"].get<double>()
+                                << ", last frame " << s["final_rel_l2"].get<double>();
+                    }
+                    std::cout << "\n";
+                  });
+  }
+
+  // Runs one relight path under a progress bar and prints its report: as JSON with --json,
+  // else (unless --quiet) through `text`. The exit code.
+  template <typename RunFn, typename TextFn>
+  int Report(RunFn run, TextFn text) {
     ProgressBar bar(flags_, "relight");
-    auto r = stages::RunRelightSequence(o, so, bar.hook());
+    auto r = run(bar.hook());
     if (!r.ok()) return ReportFailure(r.status());
     bar.Done();
-    const nlohmann::json& report = r->report;
     if (json_) {
-      std::cout << report.dump(2) << "\n";
+      std::cout << r->report.dump(2) << "\n";
     } else if (!flags_.quiet) {
-      const nlohmann::json& s = report["summary"];
-      std::cout << "wrote " << s["frames"].get<uint64_t>() << " frames to " << output_ << ": " << so.spec << ", "
-                << report["method"].get<std::string>() << " with " << terms_text_ << " terms a frame; median "
-                << std::setprecision(3) << s["median_ms"].get<double>() << " ms a frame";
-      if (s.contains("mean_rel_l2")) {
-        std::cout << "; against " << reference_ << ": mean rel. L2 " << s["mean_rel_l2"].get<double>()
-                  << ", last frame " << s["final_rel_l2"].get<double>();
-      }
-      std::cout << "\n";
+      text(r->report);
     }
     return kExitOk;
   }
