@@ -31,9 +31,20 @@ PACKAGES=(
   nodejs                           # converting the sample meshes (npm is checked below)
   ffmpeg                           # relight --sequence -o relit.mp4 (docs/SEQUENCE.md)
   libcpp-httplib-dev               # ltbake view: the local relighting page's HTTP server
-  chromium-headless-shell          # the browser test of ltbake view (tests/cli/view_browser_test.py)
   slurm-wlm munge slurm-client     # cluster test: a single-node Slurm on localhost (tests/cluster, docs/cluster.md)
 )
+
+# Wanted but not required: without it the browser test of `ltbake view` exits 77 (ctest
+# reports it skipped) and everything else runs. A failed install of these is a note, not an error.
+OPTIONAL=(
+  chromium-headless-shell          # the browser test of ltbake view (tests/cli/view_browser_test.py)
+)
+
+installed() { dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q "ok installed"; }
+optional_missing=()
+for p in "${OPTIONAL[@]}"; do
+  if ! installed "$p"; then optional_missing+=("$p"); fi
+done
 
 missing=()
 for p in "${PACKAGES[@]}"; do
@@ -46,22 +57,33 @@ done
 # be newer than Debian's); install Debian's only when there is none.
 if ! command -v npm >/dev/null 2>&1; then missing+=(npm); fi
 
-if [ ${#missing[@]} -eq 0 ]; then
-  echo "setup: all ${#PACKAGES[@]} Debian packages present"
+if [ ${#missing[@]} -eq 0 ] && [ ${#optional_missing[@]} -eq 0 ]; then
+  echo "setup: all ${#PACKAGES[@]} Debian packages present (and ${OPTIONAL[*]})"
   exit 0
 fi
 
 SUDO=""
 if [ "$(id -u)" -ne 0 ]; then
   if command -v sudo >/dev/null 2>&1; then SUDO="sudo"; else
+    if [ ${#missing[@]} -eq 0 ]; then
+      echo "setup: note: ${optional_missing[*]} not installed (needs root); the browser test of ltbake view will be skipped" >&2
+      exit 0
+    fi
     echo "setup: missing packages: ${missing[*]}" >&2
     echo "setup: run this script as root (apt-get install needs it)" >&2
     exit 1
   fi
 fi
 
-echo "setup: installing ${missing[*]}"
 export DEBIAN_FRONTEND=noninteractive
-$SUDO apt-get update -qq
-$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+$SUDO apt-get update -qq || [ ${#missing[@]} -eq 0 ]
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "setup: installing ${missing[*]}"
+  $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+fi
+if [ ${#optional_missing[@]} -gt 0 ]; then
+  echo "setup: installing ${optional_missing[*]} (optional)"
+  $SUDO apt-get install -y -qq --no-install-recommends "${optional_missing[@]}" ||
+    echo "setup: note: could not install ${optional_missing[*]}; the browser test of ltbake view will be skipped" >&2
+fi
 echo "setup: done"
