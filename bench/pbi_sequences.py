@@ -18,7 +18,7 @@ Targets (issue 19): PBI 30 at or below NWA 100 over the rotation; below 1% rel. 
 Environment: LTB_PBI_MAPS (space-separated map paths; default every bundled map),
 LTB_PBI_SEQUENCE (rotate:3.6:100,hold:25), LTB_PBI_MATRIX (a final.ltm to use instead of
 the bake), LTB_PBI_CONFIGS ("nwa:30 nwa:60 nwa:100 nwa:200 bi:30 pbi:30"; NWA 30 and PBI 30
-are needed for the targets), LTB_PBI_NAME (pbi_sequences), LTB_PBI_FROM_CSV=1 (no runs: the tables and the plot from
+are needed for the targets), LTB_PBI_NAME (pbi_sequences), LTB_PBI_DESC (the matrix's description in the table), LTB_PBI_FROM_CSV=1 (no runs: the tables and the plot from
 the last run's CSV). Writes bench/results/NAME.{md,csv,png}.
 """
 import csv
@@ -38,6 +38,7 @@ RESULTS = os.path.join(HERE, "results")
 CONFIGS = [(c.split(":")[0], int(c.split(":")[1])) for c in
            os.environ.get("LTB_PBI_CONFIGS", "nwa:30 nwa:60 nwa:100 nwa:200 bi:30 pbi:30").split()]
 NAME = os.environ.get("LTB_PBI_NAME", "pbi_sequences")
+DESC = os.environ.get("LTB_PBI_DESC", "the medium scene, 256x256, R = 32")
 
 
 def maps():
@@ -134,7 +135,7 @@ def main():
     lines = [
         "# Changing lighting: NWA, BI and PBI (bench/pbi_sequences.py)",
         "",
-        f"Machine: {machine()}. Matrix: `{os.path.relpath(mat, ROOT)}` (the medium scene, 256x256, R = 32). "
+        f"Machine: {machine()}. Matrix: `{os.path.relpath(mat, ROOT)}` ({DESC}). "
         f"Sequence `{SEQ}` under {len(names)} maps ({', '.join(names)}). Errors against the same matrix relit with "
         "every lighting term each frame (the lighting approximation alone); means over frames and maps; "
         "frame times are medians over every frame of every map (one run each, the machine otherwise idle).",
@@ -182,7 +183,7 @@ def main():
         ax.set_ylabel(what + f" (mean of {len(names)} maps)")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
-    fig.suptitle(f"Medium scene, R = 32: lighting approximations over {SEQ}")
+    fig.suptitle(f"{DESC}: lighting approximations over {SEQ}")
     fig.tight_layout()
     fig.savefig(os.path.join(RESULTS, NAME + ".png"), dpi=110)
 
