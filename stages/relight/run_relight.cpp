@@ -135,6 +135,10 @@ Status MeasureErrors(const RelightOptions& o, const Environment& env, const Ligh
 
 }  // namespace
 
+nlohmann::json TermsJson(uint64_t terms) {
+  return terms == RelightOptions::kAllTerms ? nlohmann::json("all") : nlohmann::json(terms);
+}
+
 Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progress) {
   if (o.terms == 0) return InvalidArgument("--terms must be at least 1 (or all)");
   EnvLoadOptions eo;
@@ -142,8 +146,7 @@ Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progre
   eo.layout = o.env_layout;
   eo.max_bytes = o.mem_limit;  // the map's pixels (and an .hdr's bytes) within --mem-limit
   eo.progress = progress;
-  const nlohmann::json terms_json =
-      o.terms == RelightOptions::kAllTerms ? nlohmann::json("all") : nlohmann::json(o.terms);
+  const nlohmann::json terms_json = TermsJson(o.terms);
   nlohmann::json report = {
       {"matrix", o.matrix}, {"env", o.env}, {"terms", terms_json}, {"weighting", WeightingName(o.weighting)}};
 

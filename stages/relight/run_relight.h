@@ -50,6 +50,9 @@ struct RelightResult {
   std::vector<float> image;  // rows × 3, with RelightOptions::return_image
 };
 
+// How reports spell a terms count: N, or "all" for RelightOptions::kAllTerms.
+nlohmann::json TermsJson(uint64_t terms);
+
 // Cancelled (progress.Cancelled()) between timing frames, after the image is written.
 Result<RelightResult> RunRelight(const RelightOptions& options, const Progress& progress);
 

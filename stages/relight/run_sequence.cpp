@@ -216,8 +216,7 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
   eo.layout = o.env_layout;
   eo.max_bytes = o.mem_limit;
   eo.progress = progress;
-  const nlohmann::json terms_json =
-      o.terms == RelightOptions::kAllTerms ? nlohmann::json("all") : nlohmann::json(o.terms);
+  const nlohmann::json terms_json = TermsJson(o.terms);
   nlohmann::json report = {{"matrix", o.matrix},  {"env", o.env},
                            {"sequence", so.spec}, {"method", SequenceMethodName(so.method)},
                            {"terms", terms_json}, {"weighting", WeightingName(o.weighting)}};

@@ -35,10 +35,8 @@ Status Serve(const ViewOptions& o, const std::function<void(const std::string& u
     res.set_content(message + "\n", "text/plain; charset=utf-8");
   };
   const FrameRequest& d = session->defaults();
-  const std::string page = PageHtml(nlohmann::json{
-      {"terms", d.terms == RelightOptions::kAllTerms ? nlohmann::json("all") : nlohmann::json(d.terms)},
-      {"method",
-       SequenceMethodName(d.method)}}.dump());
+  const std::string page =
+      PageHtml(nlohmann::json{{"terms", TermsJson(d.terms)}, {"method", SequenceMethodName(d.method)}}.dump());
   server.Get("/", [&page](const httplib::Request&, httplib::Response& res) {
     res.set_header("Cache-Control", "no-store");
     res.set_content(page, "text/html; charset=utf-8");

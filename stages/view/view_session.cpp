@@ -133,7 +133,7 @@ Result<std::string> ViewSession::Render(const FrameRequest& q) {
   stats_ = {{"frame", frame_++},
             {"rotate", q.rotate_deg},
             {"method", SequenceMethodName(q.method)},
-            {"terms", q.terms == RelightOptions::kAllTerms ? nlohmann::json("all") : nlohmann::json(q.terms)},
+            {"terms", TermsJson(q.terms)},
             {"terms_used", u.budget_terms},
             {"columns_touched", u.terms.column.size()},
             {"terms_in_effect", InEffect(relighter_->lighting().applied())},
@@ -160,18 +160,21 @@ std::string ViewSession::EnvironmentPng(uint64_t width) const {
   if (relighter_) {
     for (uint32_t j : relighter_->update().terms.column) Support(j, r, m_.basis().wavelet(), &mark);
   }
+  std::vector<uint64_t>& texel = strip_texel_;
+  if (texel.size() != w * h) {
+    texel.resize(w * h);
+    for (uint64_t y = 0; y < h; ++y)
+      for (uint64_t x = 0; x < w; ++x) {
+        // Lat-long: +Z up, longitude about +Z from +X.
+        const double phi = 2 * std::numbers::pi * (x + 0.5) / w, theta = std::numbers::pi * (y + 0.5) / h;
+        const glm::dvec3 d(std::sin(theta) * std::cos(phi), std::sin(theta) * std::sin(phi), std::cos(theta));
+        texel[y * w + x] = cubemap::Column(cubemap::DirectionToTexel(d, static_cast<uint32_t>(r)), r);
+      }
+  }
   std::vector<float> rgb(w * h * 3, 0.0f);
-  std::vector<uint64_t> texel(w * h, 0);
-  for (uint64_t y = 0; y < h; ++y)
-    for (uint64_t x = 0; x < w; ++x) {
-      // Lat-long: +Z up, longitude about +Z from +X.
-      const double phi = 2 * std::numbers::pi * (x + 0.5) / w, theta = std::numbers::pi * (y + 0.5) / h;
-      const glm::dvec3 d(std::sin(theta) * std::cos(phi), std::sin(theta) * std::sin(phi), std::cos(theta));
-      const uint64_t j = cubemap::Column(cubemap::DirectionToTexel(d, static_cast<uint32_t>(r)), r);
-      texel[y * w + x] = j;
-      if (!cube_.empty())
-        for (int c = 0; c < 3; ++c) rgb[(y * w + x) * 3 + c] = cube_[j * 3 + c];
-    }
+  if (!cube_.empty())
+    for (uint64_t i = 0; i < w * h; ++i)
+      for (int c = 0; c < 3; ++c) rgb[i * 3 + c] = cube_[texel[i] * 3 + c];
   std::vector<uint8_t> px = ToSrgb8(rgb.data(), w * h, AutoExposure(rgb.data(), w * h));
   for (uint64_t i = 0; i < w * h; ++i) {
     const double a = mark[texel[i]] / 255.0 * 0.7;  // tint: toward red by the strength

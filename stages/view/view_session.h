@@ -64,6 +64,7 @@ class ViewSession {
   FrameRequest defaults_, last_;
   std::unique_ptr<IncrementalRelighter> relighter_;
   std::vector<float> cube_;
+  mutable std::vector<uint64_t> strip_texel_;  // the cube texel of each strip pixel (made once)
   uint64_t frame_ = 0;
   nlohmann::json stats_ = nlohmann::json::object();
 };

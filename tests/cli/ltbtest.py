@@ -102,3 +102,17 @@ def side_table(ltm, name):
             v = np.frombuffer(raw, dtype, count=c["decoded_bytes"] // np.dtype(dtype).itemsize, offset=c["offset"] + 64)
         out[r0:r0 + len(v) // cols] = v.reshape(-1, cols)
     return out
+
+
+def haar_faces(L, R):
+    """Per-face orthonormal 2D Haar (PyWavelets, periodization, full depth, Mallat layout) of
+    a 6R² × 3 cubemap, in float64: the lighting basis of a Haar row-transformed bake."""
+    import numpy as np
+    import pywt
+    out = np.zeros(L.shape, np.float64)
+    for f in range(6):
+        for c in range(3):
+            face = L[f * R * R:(f + 1) * R * R, c].reshape(R, R).astype(np.float64)
+            arr, _ = pywt.coeffs_to_array(pywt.wavedec2(face, "haar", mode="periodization", level=int(np.log2(R))))
+            out[f * R * R:(f + 1) * R * R, c] = arr.reshape(-1)
+    return out

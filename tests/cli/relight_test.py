@@ -15,22 +15,9 @@ import sys
 import tempfile
 
 import numpy as np
-import pywt
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ltbtest import check, finish, run, side_table  # noqa: E402
-
-
-def haar_faces(L, R):
-    """Per-face 2D Haar (periodization, full depth, Mallat layout) of a 6R²×3 cubemap."""
-    out = np.zeros_like(L, dtype=np.float64)
-    for f in range(6):
-        for c in range(3):
-            face = L[f * R * R:(f + 1) * R * R, c].reshape(R, R).astype(np.float64)
-            arr, _ = pywt.coeffs_to_array(pywt.wavedec2(face, "haar", mode="periodization",
-                                                        level=int(np.log2(R))))
-            out[f * R * R:(f + 1) * R * R, c] = arr.reshape(-1)
-    return out
+from ltbtest import check, finish, haar_faces, run, side_table  # noqa: E402
 
 
 def area_weights(R):

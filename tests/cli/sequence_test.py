@@ -24,24 +24,12 @@ import sys
 import tempfile
 
 import numpy as np
-import pywt
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from ltbtest import check, finish, run  # noqa: E402
+from ltbtest import check, finish, haar_faces, run  # noqa: E402
 
 W, H, R = 16, 8, 8
 ROWS, COLS = W * H, 6 * R * R
-
-
-def haar_faces(L):
-    """Per-face orthonormal 2D Haar (full depth, Mallat layout) of a 6R² × 3 cubemap."""
-    out = np.zeros(L.shape, np.float64)
-    for f in range(6):
-        for c in range(3):
-            face = L[f * R * R:(f + 1) * R * R, c].reshape(R, R).astype(np.float64)
-            arr, _ = pywt.coeffs_to_array(pywt.wavedec2(face, "haar", mode="periodization", level=int(np.log2(R))))
-            out[f * R * R:(f + 1) * R * R, c] = arr.reshape(-1)
-    return out
 
 
 def level_and_area():
@@ -145,7 +133,7 @@ with tempfile.TemporaryDirectory() as d:
     nframes = len(pixel_frames)
     check(len(rep.get("frames", [])) == nframes, f"{nframes} frames expected: {rep.get('summary')}")
     basis_frames = [np.load(p(f"La_{f:02d}.npy")) for f in range(nframes)]
-    err = max(np.abs(basis_frames[f] - haar_faces(pixel_frames[f])).max() for f in range(nframes))
+    err = max(np.abs(basis_frames[f] - haar_faces(pixel_frames[f], R)).max() for f in range(nframes))
     check(err < 1e-5 * max(np.abs(m).max() for m in maps), f"frame lighting differs from Haar(map) by {err}")
     for method in ("nwa", "bi", "pbi"):
         for matrix in ("rows.ltm", "final.ltm"):
@@ -220,7 +208,7 @@ with tempfile.TemporaryDirectory() as d:
     # N >= 6 every frame is the same image, for every method; with N = 2, bi and pbi reach
     # that image by frame 3 (two faces a frame) and keep it while the map turns.
     write_hdr(p("const.hdr"), 64, 32, 1.0)
-    want = Tw @ haar_faces(np.ones((COLS, 3), np.float32))
+    want = Tw @ haar_faces(np.ones((COLS, 3), np.float32), R)
     for method in ("nwa", "bi", "pbi"):
         for n, first in ((6, 0), (2, 3)):
             if method == "nwa" and n == 2:
