@@ -1,6 +1,8 @@
 // ltbake sample SCENE.toml -o raw.ltm [--cube-res R] [--spp N] [--bounces N] [--seed S]
+#include <algorithm>
 #include <cstdio>
 #include <iostream>
+#include <optional>
 
 #include "cli/commands.h"
 #include "cli/common.h"
@@ -36,6 +38,22 @@ class SampleCommand : public Command {
     app->add_flag("--visibility", options_.visibility,
                   "vertex mode: bake the visibility field V(x, w) of the triple-product path (docs/TRIPLE.md), "
                   "Haar per face, sparse, instead of T");
+    app->add_flag("--sparse", options_.sparse.enabled,
+                  "sparse precomputation (docs/SPARSE.md): trace about a quarter of the rows densely and the rest "
+                  "on a few feature texels, reconstructed from dense neighbours");
+    app->add_option("--dense-fraction", options_.sparse.dense_fraction,
+                    "with --sparse: dense rows / rows that see geometry, in (0, 1]")
+        ->default_val(0.25);
+    app->add_option("--radius", radius_,
+                    "with --sparse: neighbour radius in scene units (default: 0.04 x the rows' bounding-box diagonal)");
+    app->add_option("--features", features_,
+                    "with --sparse: texels traced per sparse row (default: 350 x 6R^2 / 6144, i.e. 350 at R = 32)");
+    app->add_option("--neighbours", options_.sparse.neighbours,
+                    "with --sparse: dense neighbours a sparse row combines, at most (1..64)")
+        ->default_val(32);
+    app->add_option("--l1-lambda", options_.sparse.lambda,
+                    "with --sparse: L1 weight of the fit, relative to the smallest that gives all-zero weights")
+        ->default_val(1e-3);
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     app->add_flag("!--no-direct-io", options_.direct_io,
                   "write the output through the page cache instead of with O_DIRECT");
@@ -51,6 +69,9 @@ class SampleCommand : public Command {
     if (spp_ >= 0) options_.spp = static_cast<uint32_t>(spp_);
     if (bounces_ >= 0) options_.bounces = static_cast<uint32_t>(bounces_);
     if (seed_ >= 0) options_.seed = static_cast<uint64_t>(seed_);
+    if (radius_) options_.sparse.radius = *radius_;
+    if (features_)
+      options_.sparse.features = static_cast<uint32_t>(std::clamp<long long>(*features_, 0, (1ll << 32) - 1));
     options_.jobs = sf.jobs;
     options_.mem_limit = sf.mem_limit;  // bounds the queue of chunks waiting to be written
     if (!row_filter_.empty()) options_.row_filter = *wavelet::ParseFilter(row_filter_);  // checked by IsMember
@@ -76,12 +97,31 @@ class SampleCommand : public Command {
                 << "\n  skipped: " << r->texels_below_horizon << " (row, texel) pairs wholly below the horizon, "
                 << r->samples_below_horizon << " samples below it"
                 << "\n  degenerate triangles dropped: " << r->degenerate_triangles << "\n";
+      if (r->sparse) PrintSparse(*r->sparse);
     }
     return kExitOk;
   }
 
  private:
+  static void PrintSparse(const stages::SparseStats& s) {
+    char line[512];
+    std::snprintf(line, sizeof line,
+                  "  sparse: %llu dense rows in %llu rounds, %llu sparse rows (%llu traced like dense rows); radius "
+                  "%.4g, %u features\n  traced %.2f%% of the entries (phase 1 %.2f%%, phase 2 %.2f%%)\n"
+                  "  this run: phase 1 %llu rays in %.2f s, phase 2 %llu rays in %.2f s\n",
+                  static_cast<unsigned long long>(s.dense_rows), static_cast<unsigned long long>(s.iterations),
+                  static_cast<unsigned long long>(s.sparse_rows), static_cast<unsigned long long>(s.fallback_rows),
+                  s.radius, s.features, 100 * s.traced_fraction(),
+                  s.entries_total ? 100.0 * s.entries_traced[0] / s.entries_total : 0.0,
+                  s.entries_total ? 100.0 * s.entries_traced[1] / s.entries_total : 0.0,
+                  static_cast<unsigned long long>(s.rays[0]), s.seconds[0], static_cast<unsigned long long>(s.rays[1]),
+                  s.seconds[1]);
+    std::cout << line;
+  }
+
   stages::SampleOptions options_;
+  std::optional<double> radius_;
+  std::optional<long long> features_;
   std::string row_filter_;
   long long cube_res_ = -1, spp_ = -1, bounces_ = -1, seed_ = -1;
   CommonFlags flags_;

@@ -5,10 +5,12 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <memory>
 #include <mutex>
+#include <sstream>
 #include <vector>
 
 #include "format/io/async_chunk_writer.h"
@@ -19,6 +21,7 @@
 #include "stages/row_transform/row_transform.h"
 #include "stages/sample/geometry.h"
 #include "stages/sample/ray_scene.h"
+#include "stages/sample/sample_internal.h"
 #include "stages/sample/sampler.h"
 #include "stages/sample/scene.h"
 #include "stages/sample/scene_geometry.h"
@@ -35,16 +38,42 @@ using sample::RowPoint;
 using sample::RowScratch;
 using sample::Sampler;
 using sample::SceneDesc;
+using sample_internal::Prepared;
 
-namespace {
+namespace sample_internal {
 
-// The parsed scene, its Embree geometry and the effective sampling parameters.
-struct Prepared {
-  SceneDesc scene;
-  Geometry geo;
-  uint32_t r = 0, spp = 0, bounces = 0;
-  uint64_t seed = 0, rows = 0;
-};
+Status CheckSparse(const SampleOptions& o, uint32_t r) {
+  const SparseOptions& s = o.sparse;
+  if (!s.enabled) return Status::Ok();
+  auto num = [](double v) {
+    std::ostringstream os;
+    os << v;
+    return os.str();
+  };
+  if (!(s.dense_fraction > 0 && s.dense_fraction <= 1)) {
+    return InvalidArgument("--dense-fraction " + num(s.dense_fraction) + " is not in (0, 1]");
+  }
+  if (!(s.initial_fraction > 0 && s.initial_fraction <= 1)) {
+    return InvalidArgument("the initial dense fraction " + num(s.initial_fraction) + " is not in (0, 1]");
+  }
+  if (s.radius && !(*s.radius > 0 && std::isfinite(*s.radius))) {
+    return InvalidArgument("--radius " + num(*s.radius) + " must be a positive distance in scene units");
+  }
+  const uint64_t cols = 6ull * r * r;
+  if (s.features && (*s.features == 0 || *s.features > cols)) {
+    return InvalidArgument("--features " + std::to_string(*s.features) + " is not in 1..6R² = " + std::to_string(cols) +
+                           " (R = " + std::to_string(r) + ")");
+  }
+  if (s.neighbours < 1 || s.neighbours > 64) {
+    return InvalidArgument("--neighbours " + std::to_string(s.neighbours) + " is not in 1..64");
+  }
+  if (!(s.lambda >= 0 && s.lambda < 1)) return InvalidArgument("--l1-lambda " + num(s.lambda) + " is not in [0, 1)");
+  if (o.visibility) return InvalidArgument("--sparse bakes T; it does not apply to --visibility");
+  if (o.shard.sharded()) {
+    return InvalidArgument("--sparse cannot be sharded yet (phase 1 is one sequence of rounds); run it unsharded");
+  }
+  return Status::Ok();
+}
 
 Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress& progress) {
   auto p = std::make_unique<Prepared>();
@@ -58,6 +87,7 @@ Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress
                            " is not a power of two in 1..1024 (--cube-res)");
   }
   if (p->spp == 0) return InvalidArgument("--spp must be at least 1");
+  LTB_RETURN_IF_ERROR(CheckSparse(o, p->r));
   if (o.visibility) {
     if (p->scene.mode != SceneDesc::Mode::kVertex) {
       return InvalidArgument(o.scene +
@@ -77,10 +107,10 @@ Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress
   return p;
 }
 
-}  // namespace
+}  // namespace sample_internal
 
 Result<BareTraceResult> TraceBare(const SampleOptions& o) {
-  LTB_ASSIGN_OR_RETURN(std::unique_ptr<Prepared> p, Prepare(o, Progress{}));
+  LTB_ASSIGN_OR_RETURN(std::unique_ptr<Prepared> p, sample_internal::Prepare(o, Progress{}));
   Sampler sampler(p->scene, p->geo, p->r, p->spp, p->bounces, p->seed);
   std::vector<uint64_t> blocks;
   const uint64_t block = 64;
@@ -127,9 +157,8 @@ Result<BareTraceResult> TraceBare(const SampleOptions& o) {
   return out;
 }
 
-namespace {
+namespace sample_internal {
 
-// Rows per chunk: --chunk-rows, else about 2 MiB of matrix per block.
 uint64_t BlockRows(const SampleOptions& o, uint64_t rows, uint64_t cols) {
   uint64_t block = o.chunk_rows;
   if (block == 0) {
@@ -142,8 +171,6 @@ uint64_t BlockRows(const SampleOptions& o, uint64_t rows, uint64_t cols) {
   return std::min(block, rows);
 }
 
-// The output's metadata: the four arrays (matrix, mask, position, normal) in row blocks,
-// the row and column bases, and the provenance with the effective sampling parameters.
 nlohmann::json SampleMetadata(const SampleOptions& o, const Prepared& p, uint64_t block) {
   const SceneDesc& scene = p.scene;
   const uint32_t r = p.r;
@@ -195,6 +222,10 @@ nlohmann::json SampleMetadata(const SampleOptions& o, const Prepared& p, uint64_
   meta.update(extra);
   return meta;
 }
+
+}  // namespace sample_internal
+
+namespace {
 
 // Row blocks with any array missing (a shard: among the blocks it owns; the four arrays
 // share the row blocking, so they share the shard's chunk range).
@@ -338,16 +369,21 @@ struct BlockSampler {
 
 Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress) {
   auto t0 = std::chrono::steady_clock::now();
-  LTB_ASSIGN_OR_RETURN(std::unique_ptr<Prepared> prep, Prepare(o, progress));
+  LTB_ASSIGN_OR_RETURN(std::unique_ptr<Prepared> prep, sample_internal::Prepare(o, progress));
+  if (o.sparse.enabled) {
+    LTB_ASSIGN_OR_RETURN(SampleResult sr, sample_internal::RunSparseSample(o, *prep, progress));
+    sr.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return sr;
+  }
   const Geometry& geo = prep->geo;
   const uint32_t r = prep->r;
   const uint64_t rows = prep->rows;
-  const uint64_t block = BlockRows(o, rows, 6ull * r * r);
+  const uint64_t block = sample_internal::BlockRows(o, rows, 6ull * r * r);
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
   wo.direct_io = o.direct_io;
   LTB_ASSIGN_OR_RETURN(io::ContainerWriter out,
-                       io::OpenStageOutput(o.output, SampleMetadata(o, *prep, block), wo, o.shard));
+                       io::OpenStageOutput(o.output, sample_internal::SampleMetadata(o, *prep, block), wo, o.shard));
 
   SampleResult result;
   result.rows = rows;

@@ -14,6 +14,19 @@
 
 namespace ltb::stages {
 
+// Sparse precomputation (`sample --sparse`, docs/SPARSE.md; Huang & Ramamoorthi 2010):
+// about a quarter of the rows are traced densely (adaptively in angle), the rest on a few
+// feature texels and reconstructed from their dense neighbours.
+struct SparseOptions {
+  bool enabled = false;
+  double dense_fraction = 0.25;      // --dense-fraction: dense rows / rows that see geometry
+  double initial_fraction = 0.05;    // the first, uniformly random dense rows
+  std::optional<double> radius;      // --radius (scene units); default 0.04 × the rows' bounding-box diagonal
+  std::optional<uint32_t> features;  // --features per sparse row; default 350 · 6R² / 6144
+  uint32_t neighbours = 32;          // --neighbours: dense rows a sparse row combines, at most
+  double lambda = 1e-3;              // --l1-lambda: λ / λ_max of the L1-regularised fit
+};
+
 struct SampleOptions {
   std::string scene;
   std::string output;
@@ -42,6 +55,23 @@ struct SampleOptions {
   bool visibility = false;
   // Write shard `index` of `count` (io::ShardPath(output, ...)) instead of the whole output.
   io::ShardSpec shard;
+  SparseOptions sparse;
+};
+
+// What a sparse bake did, per phase (phase 1: the dense rows; phase 2: the sparse rows).
+struct SparseStats {
+  uint64_t dense_rows = 0, sparse_rows = 0;
+  uint64_t fallback_rows = 0;  // sparse rows without dense neighbours, traced like dense rows
+  uint64_t iterations = 0;     // dense-row placement rounds
+  uint64_t entries_total = 0;  // rows that see geometry × 6R²
+  uint64_t entries_traced[2] = {0, 0};
+  uint64_t rays[2] = {0, 0};   // traced by this run
+  double seconds[2] = {0, 0};  // wall seconds of this run
+  double radius = 0;
+  uint32_t features = 0;
+  double traced_fraction() const {
+    return entries_total ? static_cast<double>(entries_traced[0] + entries_traced[1]) / entries_total : 0.0;
+  }
 };
 
 struct SampleResult {
@@ -57,7 +87,11 @@ struct SampleResult {
   uint64_t write_queue_bytes = 0;  // the write queue's bound
   uint64_t write_queue_waits = 0;  // times a tracing thread waited for room in it
   double seconds = 0;
+  std::optional<SparseStats> sparse;
 };
+
+// The phase-1 checkpoint of a sparse bake, beside its output (removed once the output is sealed).
+std::string SparseCheckpointPath(const std::string& output);
 
 inline constexpr uint64_t kMaxWriteQueueBytes = 64ull << 20;
 

@@ -188,17 +188,17 @@ Brdf Sampler::MakeBrdf(const RowPoint& rp) const {
 }
 
 void Sampler::GenerateRays(uint64_t row, const RowPoint& rp, const Brdf& brdf, uint64_t c0, uint64_t c1, RowScratch& sc,
-                           uint64_t* below, uint64_t* samples_below) const {
+                           uint64_t* below, uint64_t* samples_below, const uint8_t* select) const {
   if (spp_ == 4) {
-    GenerateRaysT<4>(row, rp, brdf, c0, c1, sc, below, samples_below);
+    GenerateRaysT<4>(row, rp, brdf, c0, c1, sc, below, samples_below, select);
   } else {
-    GenerateRaysT<0>(row, rp, brdf, c0, c1, sc, below, samples_below);
+    GenerateRaysT<0>(row, rp, brdf, c0, c1, sc, below, samples_below, select);
   }
 }
 
 template <uint32_t kSpp>
 void Sampler::GenerateRaysT(uint64_t row, const RowPoint& rp, const Brdf& brdf, uint64_t c0, uint64_t c1,
-                            RowScratch& sc, uint64_t* below, uint64_t* samples_below) const {
+                            RowScratch& sc, uint64_t* below, uint64_t* samples_below, const uint8_t* select) const {
   const uint64_t spp = kSpp ? kSpp : spp_;
   const uint64_t slots = (c1 - c0) * spp;
   if (sc.wc.size() < slots) {
@@ -232,6 +232,9 @@ void Sampler::GenerateRaysT(uint64_t row, const RowPoint& rp, const Brdf& brdf, 
     for (uint64_t c = f0; c < f1; ++c) {
       // glm::dot(rp.n, centre) <= cos_limit: wholly below the horizon.
       up[c - f0] = (pnx * tcx[c] + pny * tcy[c]) + pnz * tcz[c] <= tcl[c] ? 0 : 1;
+    }
+    if (select != nullptr) {
+      for (uint64_t c = f0; c < f1; ++c) up[c - f0] &= select[c] != 0 ? 1 : 0;
     }
     const uint64_t stream_row = seed_ ^ (row * 0x9E3779B97F4A7C15ull);
     double* __restrict lu = sc.u0.data();
@@ -414,19 +417,62 @@ void Sampler::Transport(uint64_t row, const RowPoint& rp, float* out, RowScratch
   // strata has area h²/spp in face coordinates (unbiased; docs/SAMPLE.md).
   const double h = 2.0 / r_, stratum_area = h * h / spp_;
   for (uint64_t c = 0; c < cols; ++c) acc[c] *= stratum_area;
-  if (bounces_ > 0) rays += Indirect(row, rp, brdf, Origin(rp), acc);
+  if (bounces_ > 0) rays += Indirect(row, rp, brdf, Origin(rp), DefaultPaths(), acc.data());
   for (uint64_t c = 0; c < cols; ++c) out[c] = static_cast<float>(acc[c]);
   cnt.rays += rays;
   cnt.below += below;
   cnt.samples_below += samples_below;
 }
 
+uint64_t Sampler::DirectSelected(uint64_t row, const RowPoint& rp, const uint8_t* select, double* out,
+                                 RowScratch& sc) const {
+  uint64_t below = 0, samples_below = 0, rays = 0;
+  const Brdf brdf = MakeBrdf(rp);
+  const uint64_t cols = texels_.size(), step = TexelsPerBatch();
+  std::vector<double>& acc = sc.sum_value;
+  acc.assign(cols, 0.0);
+  const double h = 2.0 / r_, stratum_area = h * h / spp_;
+  // Ranges holding about a batch's worth of selected texels, so sparse selections still
+  // trace full batches.
+  for (uint64_t c0 = 0; c0 < cols;) {
+    uint64_t c1 = c0, picked = 0;
+    while (c1 < cols && picked < step) picked += select[c1++] != 0 ? 1 : 0;
+    if (picked == 0) break;
+    GenerateRays(row, rp, brdf, c0, c1, sc, &below, &samples_below, select);
+    g_.rays->Occluded(sc.batch, sc.n);
+    Accumulate(sc, acc);
+    rays += sc.active;
+    for (uint64_t c = c0; c < c1; ++c) {
+      if (select[c] != 0) out[c] = acc[c] * stratum_area;
+    }
+    c0 = c1;
+  }
+  return rays;
+}
+
+void Sampler::Unoccluded(uint64_t row, const RowPoint& rp, double* out, RowScratch& sc) const {
+  uint64_t below = 0, samples_below = 0;
+  const Brdf brdf = MakeBrdf(rp);
+  const uint64_t cols = texels_.size(), step = TexelsPerBatch();
+  std::vector<double>& acc = sc.sum_value;
+  acc.assign(cols, 0.0);
+  for (uint64_t c0 = 0; c0 < cols; c0 += step) {
+    GenerateRays(row, rp, brdf, c0, std::min(cols, c0 + step), sc, &below, &samples_below);
+    Accumulate(sc, acc);  // before tracing, every active ray counts as unoccluded
+  }
+  const double h = 2.0 / r_, stratum_area = h * h / spp_;
+  for (uint64_t c = 0; c < cols; ++c) out[c] = acc[c] * stratum_area;
+}
+
+uint64_t Sampler::IndirectTerm(uint64_t row, const RowPoint& rp, uint64_t paths, double* acc) const {
+  return Indirect(row, rp, MakeBrdf(rp), Origin(rp), paths, acc);
+}
+
 // Paths that bounce at least once before escaping; each escaping path adds its
 // throughput to the texel it leaves through. Diffuse at the bounces.
-uint64_t Sampler::Indirect(uint64_t row, const RowPoint& rp, const Brdf& brdf, const glm::dvec3& origin,
-                           std::vector<double>& acc) const {
+uint64_t Sampler::Indirect(uint64_t row, const RowPoint& rp, const Brdf& brdf, const glm::dvec3& origin, uint64_t paths,
+                           double* acc) const {
   const uint64_t cols = texels_.size();
-  const uint64_t paths = std::max<uint64_t>(1, spp_ * cols / 2);
   uint64_t rays = 0;
   for (uint64_t k = 0; k < paths; ++k) {
     Rng rng(seed_, row, cols + k);

@@ -4,6 +4,7 @@
 // paths. RunSample and TraceBare (sample.cpp) drive it over rows.
 #pragma once
 
+#include <algorithm>
 #include <atomic>
 #include <cstddef>
 #include <cstdint>
@@ -73,9 +74,10 @@ class Sampler {
   Brdf MakeBrdf(const RowPoint& rp) const;
 
   // The occlusion rays of texels [c0, c1) of one row (a valid point) into sc, with each
-  // ray's value w·f·cos; texels wholly below the horizon get none.
+  // ray's value w·f·cos; texels wholly below the horizon get none, nor (when select is
+  // given) texels c with select[c] == 0. *below counts the texels that got no rays.
   void GenerateRays(uint64_t row, const RowPoint& rp, const Brdf& brdf, uint64_t c0, uint64_t c1, RowScratch& sc,
-                    uint64_t* below, uint64_t* samples_below) const;
+                    uint64_t* below, uint64_t* samples_below, const uint8_t* select = nullptr) const;
 
   // Sums of the unoccluded rays' values into acc, per texel in stratum order (the order
   // the values were generated in, so the sums do not depend on the batching).
@@ -84,6 +86,25 @@ class Sampler {
   // One row of T (6R² values) for a valid point.
   void Transport(uint64_t row, const RowPoint& rp, float* out, RowScratch& sc, Counters& cnt) const;
 
+  // Sparse sampling (docs/SPARSE.md). The direct term of the texels c with select[c] != 0
+  // into out[c] (the others are left alone), estimated exactly as Transport estimates it
+  // (the same rays, summed in the same order). Returns the rays traced.
+  uint64_t DirectSelected(uint64_t row, const RowPoint& rp, const uint8_t* select, double* out, RowScratch& sc) const;
+  // Every texel's direct term with V = 1, from the same samples and without tracing: a
+  // texel that Transport finds wholly unoccluded has exactly this value, a texel wholly
+  // below the horizon 0.
+  void Unoccluded(uint64_t row, const RowPoint& rp, double* out, RowScratch& sc) const;
+  // The indirect term (bounces) of one row with `paths` paths, added into acc (6R² values).
+  // Transport uses DefaultPaths(). Returns the rays traced.
+  uint64_t IndirectTerm(uint64_t row, const RowPoint& rp, uint64_t paths, double* acc) const;
+  uint64_t DefaultPaths() const { return std::max<uint64_t>(1, spp_ * texels_.size() / 2); }
+  uint32_t bounces() const { return bounces_; }
+  uint32_t cube_res() const { return r_; }
+  // Whether texel c is wholly below the horizon of normal n (no ray of it is ever traced).
+  bool BelowHorizon(const glm::dvec3& n, uint64_t c) const {
+    return n.x * centre_x_[c] + n.y * centre_y_[c] + n.z * centre_z_[c] <= cos_limit_[c];
+  }
+
   glm::dvec3 Origin(const RowPoint& rp) const { return rp.p + rp.n * g_.epsilon; }
   const RayScene& rays() const { return *g_.rays; }
 
@@ -91,7 +112,7 @@ class Sampler {
   // kSpp: spp_ when known at compile time (the common 4), else 0.
   template <uint32_t kSpp>
   void GenerateRaysT(uint64_t row, const RowPoint& rp, const Brdf& brdf, uint64_t c0, uint64_t c1, RowScratch& sc,
-                     uint64_t* below, uint64_t* samples_below) const;
+                     uint64_t* below, uint64_t* samples_below, const uint8_t* select) const;
   // kKind: what a ray's value is — kDiffuse w·cos·albedo/π, kGlossy w·cos (the lobe follows),
   // kSolidAngle w alone (visibility).
   enum Kind : int { kDiffuse = 0, kGlossy = 1, kSolidAngle = 2 };
@@ -103,8 +124,8 @@ class Sampler {
   // Visibility mode: per texel of the batch, Σ w of its unoccluded samples into acc and Σ w
   // of all its samples (below the horizon included) into total.
   void AccumulateVisibility(const RowScratch& sc, std::vector<double>& acc, std::vector<double>& total) const;
-  uint64_t Indirect(uint64_t row, const RowPoint& rp, const Brdf& brdf, const glm::dvec3& origin,
-                    std::vector<double>& acc) const;
+  uint64_t Indirect(uint64_t row, const RowPoint& rp, const Brdf& brdf, const glm::dvec3& origin, uint64_t paths,
+                    double* acc) const;
 
   const SceneDesc& s_;
   const Geometry& g_;

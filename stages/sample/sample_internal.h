@@ -1,0 +1,38 @@
+// Internal to the sample stage (stages/sample/sample.h is its public header): what the full
+// bake (sample.cpp) and the sparse bake (sparse.cpp, docs/SPARSE.md) share — the prepared
+// scene, the row blocking and the output's metadata.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <nlohmann/json.hpp>
+
+#include "format/progress.h"
+#include "format/status.h"
+#include "stages/sample/sample.h"
+#include "stages/sample/scene.h"
+#include "stages/sample/scene_geometry.h"
+
+namespace ltb::stages::sample_internal {
+
+// The parsed scene, its Embree geometry and the effective sampling parameters.
+struct Prepared {
+  sample::SceneDesc scene;
+  sample::Geometry geo;
+  uint32_t r = 0, spp = 0, bounces = 0;
+  uint64_t seed = 0, rows = 0;
+};
+
+Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress& progress);
+
+// Rows per chunk: --chunk-rows, else about 2 MiB of matrix per block.
+uint64_t BlockRows(const SampleOptions& o, uint64_t rows, uint64_t cols);
+
+// The output's metadata: the four arrays (matrix, mask, position, normal) in row blocks,
+// the row and column bases, and the provenance with the effective sampling parameters.
+nlohmann::json SampleMetadata(const SampleOptions& o, const Prepared& p, uint64_t block);
+
+// `sample --sparse` (sparse.cpp): the whole stage once the scene is prepared.
+Result<SampleResult> RunSparseSample(const SampleOptions& o, const Prepared& p, const Progress& progress);
+
+}  // namespace ltb::stages::sample_internal

@@ -1,0 +1,713 @@
+// `ltbake sample --sparse` (docs/SPARSE.md; Huang & Ramamoorthi 2010, §4–§5).
+//
+// Phase 1 places dense rows in rounds — a uniformly random first round, then rounds drawn
+// with probability proportional to the local rank of the dense rows near each candidate —
+// and traces each on a quarter of its texels plus the texels whose 7×7 window disagrees.
+// The dense rows are committed to a checkpoint beside the output (row, direct term,
+// indirect term, feature flags), chunk by chunk, so an interrupted phase 1 resumes. Phase 2
+// writes the output block by block: dense rows from the checkpoint, every other row traced
+// on its feature texels and reconstructed from its dense neighbours.
+//
+// Deterministic: every random choice comes from a counter-based hash of (seed, round, row);
+// the rounds are a fixed number of fixed-size chunks of dense rows; and a row's arithmetic
+// never depends on --jobs, --chunk-rows or where a run was interrupted.
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <memory>
+#include <unordered_map>
+#include <vector>
+
+#include "format/io/container_reader.h"
+#include "format/io/container_writer.h"
+#include "format/io/file.h"
+#include "stages/common/basis.h"
+#include "stages/common/parallel_for.h"
+#include "stages/row_transform/row_transform.h"
+#include "stages/sample/l1_solver.h"
+#include "stages/sample/sample_internal.h"
+#include "stages/sample/sampler.h"
+#include "stages/sample/sparse_rows.h"
+
+namespace ltb::stages {
+
+using namespace ltb::format;
+
+std::string SparseCheckpointPath(const std::string& output) { return output + ".dense.ltm"; }
+
+namespace sample_internal {
+namespace {
+
+using sample::RowPoint;
+using sample::RowScratch;
+using sample::Sampler;
+namespace sp = sample::sparse;
+
+constexpr double kRadiusFactor = 0.04;   // default radius: this × the rows' bounding-box diagonal
+constexpr double kNormalCos = 0.5;       // neighbours' normals within 60° of the row's
+constexpr uint32_t kRankRes = 8;         // local rank on the cubemap box-filtered to 6·8²
+constexpr double kRankThreshold = 0.02;  // singular values above 2% of the largest count
+constexpr uint32_t kMinFeatures = 32;    // a sparse row traces at least this many texels
+constexpr double kMinWeight = 0.25;      // placement weight of a candidate whose neighbours have rank 0
+
+// Array indices of the checkpoint.
+enum CheckpointArray : uint32_t {
+  kRow = 0,
+  kDirect = 1,
+  kFeatures = 2,
+  kDenseRays = 3,
+  kDenseSeconds = 4,
+  kIndirect = 5
+};
+// Extra arrays of the output, after matrix, mask, position, normal.
+enum OutputArray : uint32_t { kKind = 4, kTraced = 5, kRays = 6, kResidual = 7, kSeconds = 8 };
+enum RowKind : uint8_t { kNone = 0, kDense = 1, kSparse = 2 };
+
+uint64_t Mix(uint64_t z) {
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
+
+// A uniform number in (0, 1] from (seed, round, row).
+double Uniform(uint64_t seed, uint64_t round, uint64_t row) {
+  const uint64_t z = Mix(seed ^ 0x5EED5EED5EED5EEDull ^ Mix(round * 0x9E3779B97F4A7C15ull + row));
+  return (static_cast<double>(z >> 11) + 1.0) * 0x1.0p-53;
+}
+
+double Seconds(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+struct Params {
+  uint64_t cols = 0, dense = 0, dense_block = 0;
+  std::vector<uint64_t> rounds;  // dense rows per round
+  double radius = 0;
+  uint32_t features = 0, neighbours = 0;
+  sample::L1Options l1;
+};
+
+// Per row: the primary point; the rows that see geometry.
+struct RowPoints {
+  std::vector<RowPoint> pt;
+  std::vector<uint64_t> valid;
+};
+
+Result<RowPoints> PrimaryPoints(const Sampler& sampler, const Prepared& p, int jobs, const Progress& progress) {
+  RowPoints rp;
+  rp.pt.resize(p.rows);
+  std::vector<uint64_t> blocks;
+  for (uint64_t r0 = 0; r0 < p.rows; r0 += 4096) blocks.push_back(r0);
+  LTB_RETURN_IF_ERROR(ParallelFor(blocks, jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "rows",
+                                  [&](uint64_t r0) -> Status {
+                                    for (uint64_t r = r0; r < std::min(p.rows, r0 + 4096); ++r)
+                                      rp.pt[r] = sampler.Primary(r);
+                                    return Status::Ok();
+                                  }));
+  for (uint64_t r = 0; r < p.rows; ++r)
+    if (rp.pt[r].valid) rp.valid.push_back(r);
+  return rp;
+}
+
+Params Resolve(const SampleOptions& o, const Prepared& p, const RowPoints& rows) {
+  Params pr;
+  const SparseOptions& so = o.sparse;
+  pr.cols = 6ull * p.r * p.r;
+  const uint64_t v = rows.valid.size();
+  pr.dense = v == 0 ? 0 : std::clamp<uint64_t>(static_cast<uint64_t>(std::llround(so.dense_fraction * v)), 1, v);
+  pr.dense_block = std::clamp<uint64_t>((2u << 20) / (pr.cols * 4), 1, 64);
+  uint64_t first = std::max<uint64_t>(1, static_cast<uint64_t>(std::llround(so.initial_fraction * v)));
+  first = std::min(pr.dense, (first + pr.dense_block - 1) / pr.dense_block * pr.dense_block);
+  for (uint64_t done = 0; done < pr.dense;) {
+    const uint64_t n = std::min(first, pr.dense - done);
+    pr.rounds.push_back(n);
+    done += n;
+  }
+  if (so.radius) {
+    pr.radius = *so.radius;
+  } else {
+    glm::dvec3 lo(INFINITY), hi(-INFINITY);
+    for (uint64_t r : rows.valid) {
+      lo = glm::min(lo, rows.pt[r].p);
+      hi = glm::max(hi, rows.pt[r].p);
+    }
+    const double diag = v ? glm::length(hi - lo) : 0.0;
+    pr.radius = diag > 0 ? kRadiusFactor * diag : 1.0;
+  }
+  pr.features = so.features.value_or(
+      static_cast<uint32_t>(std::max<int64_t>(1, std::llround(350.0 * static_cast<double>(pr.cols) / 6144.0))));
+  pr.neighbours = so.neighbours;
+  pr.l1.lambda_rel = so.lambda;
+  return pr;
+}
+
+nlohmann::json ParamsJson(const SampleOptions& o, const Params& pr) {
+  return {{"dense_fraction", o.sparse.dense_fraction},
+          {"initial_fraction", o.sparse.initial_fraction},
+          {"radius", pr.radius},
+          {"features", pr.features},
+          {"neighbours", pr.neighbours},
+          {"l1_lambda", pr.l1.lambda_rel},
+          {"l1_tolerance", pr.l1.tolerance},
+          {"window", 2 * sp::kWindowHalf + 1},
+          {"normal_cos", kNormalCos},
+          {"rank_res", kRankRes},
+          {"rank_threshold", kRankThreshold},
+          {"min_features", kMinFeatures}};
+}
+
+ArraySpec RowArray(const char* name, DType t, uint64_t rows, uint64_t cols, uint64_t block) {
+  ArraySpec a;
+  a.name = name;
+  a.dtype = t;
+  a.rows = rows;
+  a.cols = cols;
+  a.layout = Layout::kRows;
+  a.block = block;
+  return a;
+}
+
+// ---- Dense rows ----
+
+struct DenseScratch {
+  RowScratch sc;
+  std::vector<double> unoccluded, value, indirect;
+  std::vector<uint8_t> grid, second;
+};
+
+struct DenseRowResult {
+  uint64_t rays = 0, traced = 0;
+};
+
+// One dense row (§4.2): the unoccluded term of every texel (no rays), the regular grid,
+// then the texels whose window disagrees; the indirect term with a quarter of the paths.
+DenseRowResult TraceDenseRow(const Sampler& s, uint64_t row, const RowPoint& rp, uint64_t cols, DenseScratch& ds,
+                             float* direct, float* indirect, uint8_t* features) {
+  DenseRowResult out;
+  ds.unoccluded.resize(cols);
+  ds.value.assign(cols, 0.0);
+  s.Unoccluded(row, rp, ds.unoccluded.data(), ds.sc);
+  sp::GridSelection(s.cube_res(), ds.unoccluded.data(), &ds.grid);
+  out.rays += s.DirectSelected(row, rp, ds.grid.data(), ds.value.data(), ds.sc);
+  const uint64_t second = sp::SecondPass(s.cube_res(), ds.unoccluded.data(), ds.grid, ds.value.data(), &ds.second);
+  if (second > 0) out.rays += s.DirectSelected(row, rp, ds.second.data(), ds.value.data(), ds.sc);
+  out.traced = second + static_cast<uint64_t>(std::count(ds.grid.begin(), ds.grid.end(), uint8_t{1}));
+  for (uint64_t c = 0; c < cols; ++c) direct[c] = static_cast<float>(ds.value[c]);
+  if (indirect != nullptr) {
+    ds.indirect.assign(cols, 0.0);
+    out.rays += s.IndirectTerm(row, rp, std::max<uint64_t>(1, s.DefaultPaths() / 4), ds.indirect.data());
+    for (uint64_t c = 0; c < cols; ++c) indirect[c] = static_cast<float>(ds.indirect[c]);
+  }
+  if (features != nullptr) sp::PackBits(ds.second, features);
+  return out;
+}
+
+// ---- Phase 1 ----
+
+struct Phase1 {
+  std::vector<uint64_t> rows;  // dense index -> row
+  std::vector<float> low;      // dense index -> the direct term box-filtered to 6·kRankRes²
+  uint64_t traced = 0, rays = 0, chunks_written = 0, chunks_resumed = 0;
+  double seconds = 0;
+};
+
+class Phase1Runner {
+ public:
+  Phase1Runner(const SampleOptions& o, const Prepared& p, const Sampler& s, const RowPoints& pts, const Params& pr,
+               const Progress& progress)
+      : o_(o), p_(p), s_(s), pts_(pts), pr_(pr), progress_(progress) {
+    low_res_ = std::min(p.r, kRankRes);
+    low_cols_ = 6ull * low_res_ * low_res_;
+  }
+
+  nlohmann::json Metadata() const {
+    const uint64_t d = pr_.dense, b = pr_.dense_block;
+    nlohmann::json arrays = {
+        RowArray("row", DType::kU64, d, 1, b).ToJson(), RowArray("direct", DType::kF32, d, pr_.cols, b).ToJson(),
+        RowArray("features", DType::kU8, d, sp::PackedBytes(pr_.cols), b).ToJson(),
+        RowArray("rays", DType::kU64, d, 1, b).ToJson(), RowArray("seconds", DType::kF32, d, 1, b).ToJson()};
+    if (p_.bounces > 0) arrays.push_back(RowArray("indirect", DType::kF32, d, pr_.cols, b).ToJson());
+    nlohmann::json params = {{"cube_res", p_.r},
+                             {"spp", p_.spp},
+                             {"bounces", p_.bounces},
+                             {"seed", p_.seed},
+                             {"scene_hash", p_.geo.scene_hash},
+                             {"sparse", ParamsJson(o_, pr_)}};
+    return {{"arrays", arrays}, {"provenance", Provenance("sample --sparse (phase 1 checkpoint)", params, {})}};
+  }
+
+  Status Run(Phase1* out) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const std::string path = SparseCheckpointPath(o_.output);
+    io::WriterOptions wo;
+    wo.overwrite_mismatch = o_.overwrite;
+    wo.direct_io = false;
+    LTB_ASSIGN_OR_RETURN(io::ContainerWriter w, io::ContainerWriter::Open(path, Metadata(), wo));
+    // Chunks an earlier run committed (read back through a reader of the same file).
+    std::unique_ptr<io::ContainerReader> resumed;
+    if (w.resume_info().committed_chunks > 0) {
+      LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(path));
+      resumed = std::make_unique<io::ContainerReader>(std::move(r));
+    }
+    const uint32_t narrays = p_.bounces > 0 ? 6 : 5;
+    out->rows.clear();
+    out->low.assign(pr_.dense * low_cols_, 0.0f);
+    std::vector<uint8_t> is_dense(p_.rows, 0);
+    uint64_t start = 0;
+    for (size_t round = 0; round < pr_.rounds.size(); ++round) {
+      std::vector<uint64_t> chosen = Choose(round, pr_.rounds[round], *out, is_dense);
+      for (uint64_t r : chosen) is_dense[r] = 1;
+      out->rows.insert(out->rows.end(), chosen.begin(), chosen.end());
+      const uint64_t c0 = start / pr_.dense_block, c1 = (start + chosen.size() + pr_.dense_block - 1) / pr_.dense_block;
+      std::vector<uint64_t> todo;
+      for (uint64_t c = c0; c < c1; ++c) {
+        bool have = true;
+        for (uint32_t a = 0; a < narrays; ++a) have = have && w.Has(a, c);
+        if (have && resumed) {
+          LTB_RETURN_IF_ERROR(LoadChunk(*resumed, c, *out));
+          out->chunks_resumed++;
+        } else {
+          todo.push_back(c);
+        }
+      }
+      std::atomic<uint64_t> traced{0}, rays{0}, written{0};
+      LTB_RETURN_IF_ERROR(
+          ParallelFor(todo, o_.jobs, Progress{.update = nullptr, .cancelled = progress_.cancelled}, "chunks",
+                      [&](uint64_t c) -> Status { return TraceChunk(w, c, *out, &traced, &rays, &written); }));
+      out->traced += traced;
+      out->rays += rays;
+      out->chunks_written += written;
+      start += chosen.size();
+    }
+    LTB_RETURN_IF_ERROR(w.Finish());
+    out->seconds = Seconds(t0);
+    return Status::Ok();
+  }
+
+ private:
+  // Dense rows of one round: a weighted draw without replacement among the rows that see
+  // geometry and are not dense yet (Efraimidis–Spirakis keys u^(1/w), the largest win).
+  std::vector<uint64_t> Choose(size_t round, uint64_t count, const Phase1& st, const std::vector<uint8_t>& is_dense) {
+    std::vector<double> weight;
+    if (round > 0) weight = CandidateWeights(st, is_dense);
+    std::vector<std::pair<double, uint64_t>> keys;
+    keys.reserve(pts_.valid.size());
+    for (size_t i = 0; i < pts_.valid.size(); ++i) {
+      const uint64_t r = pts_.valid[i];
+      if (is_dense[r]) continue;
+      const double w = round == 0 ? 1.0 : weight[i];
+      keys.emplace_back(std::log(Uniform(p_.seed, round, r)) / w, r);
+    }
+    count = std::min<uint64_t>(count, keys.size());
+    std::partial_sort(
+        keys.begin(), keys.begin() + static_cast<std::ptrdiff_t>(count), keys.end(),
+        [](const auto& a, const auto& b) { return a.first != b.first ? a.first > b.first : a.second < b.second; });
+    std::vector<uint64_t> rows;
+    for (uint64_t i = 0; i < count; ++i) rows.push_back(keys[i].second);
+    std::sort(rows.begin(), rows.end());
+    return rows;
+  }
+
+  // Per valid row: the local rank at its nearest dense row (within the radius, normals
+  // alike), or the neighbour cap when none is near (unexplored).
+  std::vector<double> CandidateWeights(const Phase1& st, const std::vector<uint8_t>& is_dense) {
+    const size_t d = st.rows.size();
+    std::vector<glm::dvec3> pos(d), nor(d);
+    for (size_t i = 0; i < d; ++i) {
+      pos[i] = pts_.pt[st.rows[i]].p;
+      nor[i] = pts_.pt[st.rows[i]].n;
+    }
+    sp::PointGrid grid(pr_.radius, pos, nor);
+    std::vector<int> rank(d, 0);
+    std::vector<uint64_t> items;
+    for (uint64_t i = 0; i < d; i += 256) items.push_back(i);
+    (void)ParallelFor(items, o_.jobs, Progress{}, "rows", [&](uint64_t i0) -> Status {
+      std::vector<uint32_t> nb;
+      std::vector<const float*> rows;
+      for (uint64_t i = i0; i < std::min<uint64_t>(d, i0 + 256); ++i) {
+        grid.Query(pos[i], nor[i], pr_.radius, pr_.neighbours, kNormalCos, -1, &nb);
+        rows.clear();
+        for (uint32_t k : nb) rows.push_back(st.low.data() + k * low_cols_);
+        rank[i] = sp::NumericalRank(rows, low_cols_, kRankThreshold);
+      }
+      return Status::Ok();
+    });
+    std::vector<double> weight(pts_.valid.size(), 0.0);
+    std::vector<uint64_t> vitems;
+    for (uint64_t i = 0; i < pts_.valid.size(); i += 1024) vitems.push_back(i);
+    (void)ParallelFor(vitems, o_.jobs, Progress{}, "rows", [&](uint64_t i0) -> Status {
+      std::vector<uint32_t> nb;
+      for (uint64_t i = i0; i < std::min<uint64_t>(pts_.valid.size(), i0 + 1024); ++i) {
+        const RowPoint& q = pts_.pt[pts_.valid[i]];
+        if (is_dense[pts_.valid[i]]) continue;
+        grid.Query(q.p, q.n, pr_.radius, 1, kNormalCos, -1, &nb);
+        weight[i] = nb.empty() ? static_cast<double>(pr_.neighbours) : std::max(kMinWeight, double(rank[nb[0]]));
+      }
+      return Status::Ok();
+    });
+    return weight;
+  }
+
+  void StoreLow(const float* direct, uint64_t index, Phase1& st) const {
+    sp::Downsample(direct, p_.r, low_res_, st.low.data() + index * low_cols_);
+  }
+
+  Status LoadChunk(const io::ContainerReader& r, uint64_t c, Phase1& st) const {
+    LTB_ASSIGN_OR_RETURN(io::Chunk rows, r.ReadChunk(kRow, c));
+    LTB_ASSIGN_OR_RETURN(io::Chunk direct, r.ReadChunk(kDirect, c));
+    auto ids = rows.as<uint64_t>();
+    auto values = direct.as<float>();
+    const uint64_t i0 = c * pr_.dense_block;
+    for (uint64_t i = 0; i < ids.size(); ++i) {
+      if (i0 + i >= st.rows.size() || ids[i] != st.rows[i0 + i]) {
+        return DataLoss(r.path() + ": dense row " + std::to_string(i0 + i) + " is row " + std::to_string(ids[i]) +
+                        ", but this run places row " + std::to_string(i0 + i < st.rows.size() ? st.rows[i0 + i] : 0) +
+                        " there; remove the checkpoint to start phase 1 over");
+      }
+      StoreLow(values.data() + i * pr_.cols, i0 + i, st);
+    }
+    return Status::Ok();
+  }
+
+  Status TraceChunk(io::ContainerWriter& w, uint64_t c, Phase1& st, std::atomic<uint64_t>* traced,
+                    std::atomic<uint64_t>* rays, std::atomic<uint64_t>* written) {
+    thread_local DenseScratch ds;
+    const uint64_t i0 = c * pr_.dense_block, n = std::min(pr_.dense_block, pr_.dense - i0);
+    const uint64_t cols = pr_.cols, fb = sp::PackedBytes(cols);
+    std::vector<float> direct(n * cols), indirect(p_.bounces > 0 ? n * cols : 0), secs(n);
+    std::vector<uint8_t> feat(n * fb);
+    std::vector<uint64_t> ids(n), nrays(n);
+    for (uint64_t i = 0; i < n; ++i) {
+      if (progress_.Cancelled()) return Cancelled("interrupted; committed chunks are kept, rerun to resume");
+      const auto t0 = std::chrono::steady_clock::now();
+      ids[i] = st.rows[i0 + i];
+      DenseRowResult d = TraceDenseRow(s_, ids[i], pts_.pt[ids[i]], cols, ds, direct.data() + i * cols,
+                                       p_.bounces > 0 ? indirect.data() + i * cols : nullptr, feat.data() + i * fb);
+      StoreLow(direct.data() + i * cols, i0 + i, st);
+      *traced += d.traced;
+      *rays += d.rays;
+      nrays[i] = d.rays;
+      secs[i] = static_cast<float>(Seconds(t0));
+      progress_.Report(done_.fetch_add(1) + 1, pr_.dense, "dense rows");
+    }
+    LTB_RETURN_IF_ERROR(p_.geo.rays->error());
+    auto bytes = [](const auto& v) {
+      return ByteSpan(reinterpret_cast<const std::byte*>(v.data()), v.size() * sizeof(v[0]));
+    };
+    const ByteSpan parts[6] = {bytes(ids), bytes(direct), bytes(feat), bytes(nrays), bytes(secs), bytes(indirect)};
+    for (uint32_t a = 0; a < (p_.bounces > 0 ? 6u : 5u); ++a) {
+      if (w.Has(a, c)) continue;
+      LTB_RETURN_IF_ERROR(w.Put(a, c, parts[a]));
+      (*written)++;
+    }
+    return Status::Ok();
+  }
+
+  const SampleOptions& o_;
+  const Prepared& p_;
+  const Sampler& s_;
+  const RowPoints& pts_;
+  const Params& pr_;
+  const Progress& progress_;
+  uint32_t low_res_ = 1;
+  uint64_t low_cols_ = 6;
+  std::atomic<uint64_t> done_{0};
+};
+
+// ---- Phase 2 ----
+
+// The sealed checkpoint, its chunks mapped: a view of every dense row.
+struct DenseRows {
+  io::ContainerReader reader;
+  std::vector<io::Chunk> chunks;  // per chunk: direct, features, rays, seconds, [indirect]
+  std::vector<sp::DenseView> views;
+  std::vector<uint64_t> rays;
+  std::vector<float> seconds;
+};
+
+Result<std::unique_ptr<DenseRows>> MapDense(const std::string& path, const Params& pr, bool bounces) {
+  LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(path));
+  auto d = std::make_unique<DenseRows>(DenseRows{std::move(r), {}, {}, {}, {}});
+  const uint64_t nchunks = (pr.dense + pr.dense_block - 1) / pr.dense_block, fb = sp::PackedBytes(pr.cols);
+  d->views.resize(pr.dense);
+  d->rays.resize(pr.dense);
+  d->seconds.resize(pr.dense);
+  for (uint64_t c = 0; c < nchunks; ++c) {
+    LTB_ASSIGN_OR_RETURN(io::Chunk direct, d->reader.ReadChunk(kDirect, c));
+    LTB_ASSIGN_OR_RETURN(io::Chunk feat, d->reader.ReadChunk(kFeatures, c));
+    LTB_ASSIGN_OR_RETURN(io::Chunk rays, d->reader.ReadChunk(kDenseRays, c));
+    LTB_ASSIGN_OR_RETURN(io::Chunk secs, d->reader.ReadChunk(kDenseSeconds, c));
+    const uint64_t i0 = c * pr.dense_block, n = std::min(pr.dense_block, pr.dense - i0);
+    for (uint64_t i = 0; i < n; ++i) {
+      d->views[i0 + i].direct = direct.as<float>().data() + i * pr.cols;
+      d->views[i0 + i].features = feat.as<uint8_t>().data() + i * fb;
+      d->rays[i0 + i] = rays.as<uint64_t>()[i];
+      d->seconds[i0 + i] = secs.as<float>()[i];
+    }
+    d->chunks.push_back(std::move(direct));
+    d->chunks.push_back(std::move(feat));
+    if (bounces) {
+      LTB_ASSIGN_OR_RETURN(io::Chunk ind, d->reader.ReadChunk(kIndirect, c));
+      for (uint64_t i = 0; i < n; ++i) d->views[i0 + i].indirect = ind.as<float>().data() + i * pr.cols;
+      d->chunks.push_back(std::move(ind));
+    }
+  }
+  return d;
+}
+
+nlohmann::json OutputMetadata(const SampleOptions& o, const Prepared& p, const Params& pr, uint64_t block) {
+  nlohmann::json meta = SampleMetadata(o, p, block);
+  for (const ArraySpec& a :
+       {RowArray("sparse_kind", DType::kU8, p.rows, 1, block), RowArray("sparse_traced", DType::kU32, p.rows, 1, block),
+        RowArray("sparse_rays", DType::kU64, p.rows, 1, block),
+        RowArray("sparse_residual", DType::kF32, p.rows, 1, block),
+        RowArray("sparse_seconds", DType::kF32, p.rows, 1, block)}) {
+    meta["arrays"].push_back(a.ToJson());
+  }
+  meta["provenance"]["parameters"]["sparse"] = ParamsJson(o, pr);
+  return meta;
+}
+
+struct Phase2Counters {
+  std::atomic<uint64_t> traced_sparse{0}, rays_sparse{0}, fallback{0}, written{0}, done{0};
+};
+
+class Phase2Runner {
+ public:
+  Phase2Runner(const SampleOptions& o, const Prepared& p, const Sampler& s, const RowPoints& pts, const Params& pr,
+               const DenseRows& dense, const std::vector<int64_t>& dense_of, const Progress& progress)
+      : o_(o), p_(p), s_(s), pts_(pts), pr_(pr), dense_(dense), dense_of_(dense_of), progress_(progress) {
+    pos_.resize(pr.dense);
+    nor_.resize(pr.dense);
+    for (uint64_t r = 0; r < p.rows; ++r) {
+      if (dense_of[r] < 0) continue;
+      pos_[static_cast<size_t>(dense_of[r])] = pts.pt[r].p;
+      nor_[static_cast<size_t>(dense_of[r])] = pts.pt[r].n;
+    }
+    grid_ = std::make_unique<sp::PointGrid>(pr.radius, pos_, nor_);
+  }
+
+  Status Block(io::ContainerWriter& w, uint64_t chunk, uint64_t block, Phase2Counters& cnt) {
+    thread_local DenseScratch ds;
+    thread_local sp::Scratch fs;
+    thread_local std::vector<uint32_t> nb_idx, texels;
+    thread_local std::vector<sp::DenseView> nb;
+    thread_local std::vector<uint8_t> relevant, select;
+    thread_local std::vector<double> b;
+    const uint64_t cols = pr_.cols, r0 = chunk * block, n = std::min(block, p_.rows - r0);
+    std::vector<float> mat(n * cols, 0.0f), pos(n * 3, 0.0f), nor(n * 3, 0.0f), residual(n, 0.0f), secs(n, 0.0f);
+    std::vector<uint8_t> mask(n, 0), kind(n, kNone);
+    std::vector<uint32_t> traced(n, 0);
+    std::vector<uint64_t> rays(n, 0);
+    std::vector<float> ind_scratch;
+    for (uint64_t i = 0; i < n; ++i) {
+      if (progress_.Cancelled()) return Cancelled("interrupted; committed chunks are kept, rerun to resume");
+      progress_.Report(cnt.done.fetch_add(1) + 1, todo_rows_, "rows");
+      const uint64_t row = r0 + i;
+      const RowPoint& rp = pts_.pt[row];
+      if (!rp.valid) continue;
+      const auto t0 = std::chrono::steady_clock::now();
+      mask[i] = 1;
+      for (int k = 0; k < 3; ++k) {
+        pos[3 * i + k] = static_cast<float>(rp.p[k]);
+        nor[3 * i + k] = static_cast<float>(rp.n[k]);
+      }
+      float* out = mat.data() + i * cols;
+      const int64_t di = dense_of_[row];
+      if (di >= 0) {  // a dense row: direct + indirect from the checkpoint
+        const sp::DenseView& v = dense_.views[static_cast<size_t>(di)];
+        for (uint64_t c = 0; c < cols; ++c) {
+          out[c] = v.indirect ? static_cast<float>(double{v.direct[c]} + double{v.indirect[c]}) : v.direct[c];
+        }
+        kind[i] = kDense;
+        rays[i] = dense_.rays[static_cast<size_t>(di)];
+        secs[i] = dense_.seconds[static_cast<size_t>(di)];
+        traced[i] = static_cast<uint32_t>(DenseTraced(row));
+        continue;
+      }
+      kind[i] = kSparse;
+      // Neighbours within the radius; twice and four times it when fewer than two are found.
+      double radius = pr_.radius;
+      for (int widen = 0; widen < 3; ++widen, radius *= 2) {
+        grid_->Query(rp.p, rp.n, radius, pr_.neighbours, kNormalCos, -1, &nb_idx);
+        if (nb_idx.size() >= 2) break;
+      }
+      if (nb_idx.empty()) {  // no dense row anywhere near: trace it like a dense row
+        ind_scratch.assign(p_.bounces > 0 ? cols : 0, 0.0f);
+        DenseRowResult d =
+            TraceDenseRow(s_, row, rp, cols, ds, out, p_.bounces > 0 ? ind_scratch.data() : nullptr, nullptr);
+        for (uint64_t c = 0; c < ind_scratch.size(); ++c) {
+          out[c] = static_cast<float>(double{out[c]} + double{ind_scratch[c]});
+        }
+        kind[i] = kDense;
+        traced[i] = static_cast<uint32_t>(d.traced);
+        rays[i] = d.rays;
+        cnt.fallback++;
+        cnt.traced_sparse += d.traced;
+        cnt.rays_sparse += d.rays;
+        secs[i] = static_cast<float>(Seconds(t0));
+        continue;
+      }
+      nb.clear();
+      for (uint32_t k : nb_idx) nb.push_back(dense_.views[k]);
+      relevant.resize(cols);
+      for (uint64_t c = 0; c < cols; ++c) relevant[c] = s_.BelowHorizon(rp.n, c) ? 0 : 1;
+      sp::ChooseFeatures(nb, cols, relevant.data(), pr_.features, kMinFeatures, fs, &texels);
+      select.assign(cols, 0);
+      for (uint32_t c : texels) select[c] = 1;
+      // DirectSelected writes the selected texels of a full-length row.
+      ds.value.assign(cols, 0.0);
+      const uint64_t nr = texels.empty() ? 0 : s_.DirectSelected(row, rp, select.data(), ds.value.data(), ds.sc);
+      b.resize(texels.size());
+      for (size_t j = 0; j < texels.size(); ++j) b[j] = ds.value[texels[j]];
+      sp::Fit fit = sp::Reconstruct(nb, cols, texels, b.data(), relevant.data(), pr_.l1, fs, out);
+      residual[i] = static_cast<float>(fit.residual);
+      traced[i] = static_cast<uint32_t>(texels.size());
+      rays[i] = nr;
+      cnt.traced_sparse += texels.size();
+      cnt.rays_sparse += nr;
+      secs[i] = static_cast<float>(Seconds(t0));
+    }
+    LTB_RETURN_IF_ERROR(p_.geo.rays->error());
+    EncodeOptions matrix_encoding;
+    if (o_.row_filter) {  // fused row-transform, as RunRowTransform does to this block
+      thread_local std::vector<float> scratch;
+      scratch.resize(RowBlockScratchSize(p_.r));
+      uint64_t zero_rows = 0;
+      TransformRowBlock(*o_.row_filter, p_.r, mat.data(), n, scratch.data(), &zero_rows);
+      matrix_encoding.zstd = o_.row_zstd;
+    }
+    auto bytes = [](const auto& v) {
+      return ByteSpan(reinterpret_cast<const std::byte*>(v.data()), v.size() * sizeof(v[0]));
+    };
+    const ByteSpan parts[9] = {bytes(mat),    bytes(mask), bytes(pos),      bytes(nor), bytes(kind),
+                               bytes(traced), bytes(rays), bytes(residual), bytes(secs)};
+    for (uint32_t a = 0; a < 9; ++a) {
+      if (w.Has(a, chunk)) continue;
+      LTB_RETURN_IF_ERROR(w.Put(a, chunk, parts[a], a == 0 ? matrix_encoding : EncodeOptions{}));
+      cnt.written++;
+    }
+    return Status::Ok();
+  }
+
+  void SetTodoRows(uint64_t n) { todo_rows_ = n; }
+
+  // Texels a dense row traced: its grid texels plus its features (the checkpoint keeps the
+  // feature flags; the grid is recomputed from the row's horizon).
+  uint64_t DenseTraced(uint64_t row) const {
+    const sp::DenseView& v = dense_.views[static_cast<size_t>(dense_of_[row])];
+    const RowPoint& rp = pts_.pt[row];
+    uint64_t n = 0;
+    const uint64_t rr = uint64_t{p_.r} * p_.r;
+    for (uint64_t c = 0; c < pr_.cols; ++c) {
+      const uint64_t s = c % rr % p_.r, t = c % rr / p_.r;
+      if (sp::Bit(v.features, c)) {
+        ++n;
+      } else if (s % 2 == 0 && t % 2 == 0 && !s_.BelowHorizon(rp.n, c)) {
+        ++n;
+      }
+    }
+    return n;
+  }
+
+ private:
+  const SampleOptions& o_;
+  const Prepared& p_;
+  const Sampler& s_;
+  const RowPoints& pts_;
+  const Params& pr_;
+  const DenseRows& dense_;
+  const std::vector<int64_t>& dense_of_;
+  const Progress& progress_;
+  std::vector<glm::dvec3> pos_, nor_;
+  std::unique_ptr<sp::PointGrid> grid_;
+  uint64_t todo_rows_ = 0;
+};
+
+}  // namespace
+
+Result<SampleResult> RunSparseSample(const SampleOptions& o, const Prepared& p, const Progress& progress) {
+  Sampler sampler(p.scene, p.geo, p.r, p.spp, p.bounces, p.seed);
+  LTB_ASSIGN_OR_RETURN(RowPoints pts, PrimaryPoints(sampler, p, o.jobs, progress));
+  const Params pr = Resolve(o, p, pts);
+  const uint64_t block = BlockRows(o, p.rows, pr.cols);
+  const nlohmann::json out_meta = OutputMetadata(o, p, pr, block);
+
+  SampleResult result;
+  result.rows = p.rows;
+  result.valid_rows = pts.valid.size();
+  result.cube_res = p.r;
+  result.spp = p.spp;
+  result.bounces = p.bounces;
+  result.degenerate_triangles = p.geo.degenerate;
+  SparseStats st;
+  st.radius = pr.radius;
+  st.features = pr.features;
+  st.dense_rows = pr.dense;
+  st.iterations = pr.rounds.size();
+  st.entries_total = pts.valid.size() * pr.cols;
+
+  // Open the output first: a finished output is not baked again, and other parameters are
+  // refused before phase 1 spends anything.
+  io::WriterOptions wo;
+  wo.overwrite_mismatch = o.overwrite;
+  wo.direct_io = o.direct_io;
+  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, out_meta, wo, o.shard));
+  const uint64_t nchunks = (p.rows + block - 1) / block;
+  result.chunks_total = nchunks * 9;
+  result.chunks_already_committed = out.resume_info().committed_chunks;
+
+  // Phase 1 (its checkpoint is sealed once done; a rerun reads it back).
+  const std::string cp = SparseCheckpointPath(o.output);
+  Phase1 ph1;
+  if (pr.dense > 0) {
+    Phase1Runner runner(o, p, sampler, pts, pr, progress);
+    LTB_RETURN_IF_ERROR(runner.Run(&ph1));
+  }
+  st.entries_traced[0] = ph1.traced;
+  st.rays[0] = ph1.rays;
+  st.seconds[0] = ph1.seconds;
+
+  // Phase 2.
+  const auto t2 = std::chrono::steady_clock::now();
+  std::vector<int64_t> dense_of(p.rows, -1);
+  for (size_t i = 0; i < ph1.rows.size(); ++i) dense_of[ph1.rows[i]] = static_cast<int64_t>(i);
+  std::unique_ptr<DenseRows> dense;
+  if (pr.dense > 0) {
+    LTB_ASSIGN_OR_RETURN(dense, MapDense(cp, pr, p.bounces > 0));
+  } else {
+    dense = std::make_unique<DenseRows>();
+  }
+  std::vector<uint64_t> todo;
+  for (uint32_t a = 0; a < 9; ++a) {
+    std::vector<uint64_t> m = out.Missing(a);
+    todo.insert(todo.end(), m.begin(), m.end());
+  }
+  std::sort(todo.begin(), todo.end());
+  todo.erase(std::unique(todo.begin(), todo.end()), todo.end());
+  Phase2Runner runner(o, p, sampler, pts, pr, *dense, dense_of, progress);
+  runner.SetTodoRows(std::min(p.rows, todo.size() * block));
+  Phase2Counters cnt;
+  Status s = ParallelFor(todo, o.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
+                         [&](uint64_t c) -> Status { return runner.Block(out, c, block, cnt); });
+  result.chunks_written = cnt.written;
+  LTB_RETURN_IF_ERROR(s);
+  LTB_RETURN_IF_ERROR(out.Finish());
+  st.entries_traced[1] = cnt.traced_sparse;
+  st.rays[1] = cnt.rays_sparse;
+  st.fallback_rows = cnt.fallback;
+  st.sparse_rows = pts.valid.size() - pr.dense;
+  st.seconds[1] = Seconds(t2);
+  result.rays = st.rays[0] + st.rays[1];
+  // The checkpoint has served: the output holds every row now.
+  dense.reset();
+  std::error_code ec;
+  std::filesystem::remove(cp, ec);
+  result.sparse = st;
+  return result;
+}
+
+}  // namespace sample_internal
+}  // namespace ltb::stages
