@@ -14,11 +14,8 @@ namespace {
 // SSE ones. Each lane's sum is its own, so the results do not depend on the instruction set.
 typedef double V4 __attribute__((vector_size(4 * sizeof(double))));
 
-inline V4 Load(const double* p) {
-  V4 v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
+// (Through a pointer: a V4 returned by value warns of an ABI change where AVX is off.)
+inline void Load(V4* v, const double* p) { std::memcpy(v, p, sizeof *v); }
 
 // x·y_d for K vectors y_d at once, each summed in the same fixed order: lane j adds the
 // terms i ≡ j (mod 4) in increasing i (the last m mod 4 terms into lanes 0, 1, 2), then
@@ -30,8 +27,12 @@ void Dots(const double* __restrict x, const double* const* y, ptrdiff_t m, doubl
   for (int d = 0; d < K; ++d) acc[d] = V4{0, 0, 0, 0};
   const ptrdiff_t m4 = m & ~ptrdiff_t{3};
   for (ptrdiff_t i = 0; i < m4; i += 4) {
-    const V4 xv = Load(x + i);
-    for (int d = 0; d < K; ++d) acc[d] += xv * Load(y[d] + i);
+    V4 xv, yv;
+    Load(&xv, x + i);
+    for (int d = 0; d < K; ++d) {
+      Load(&yv, y[d] + i);
+      acc[d] += xv * yv;
+    }
   }
   for (int d = 0; d < K; ++d) {
     double lane[4];
@@ -123,118 +124,154 @@ bool Sweep(const double* G, int n, double lambda, double* alpha, double* __restr
 // combination of the support's earlier columns (sin² of its angle to their span).
 constexpr double kDependent = 1e-12;
 
-// Scratch areas: G (n×n), then the support's Cholesky factor (p×p, compact), then four
-// n-vectors.
+// Scratch areas after G (n×n): the support's Cholesky factor R (upper, row stride n), then
+// n-vectors, compact over the support (position j: its j-th nonzero coordinate).
 struct Work {
   double* G;
-  double* L;
-  double* a;      // α on the support (compact), then the candidate there
-  double* x;      // the Newton solution or null direction (compact)
+  double* R;
+  double* diag;   // G_kk
+  double* a;      // the current point
+  double* x;      // right-hand side, then the face's minimiser or a null direction
   double* cand;   // the candidate α (all n)
-  double* gcand;  // its gradient
+  double* gcand;  // its gradient (all n)
 };
 
-// One step on the face of α's support S = {k : α_k ≠ 0} and signs s, into a (compact over
-// S; zeroed coordinates stay in place). Cholesky of G_SS in index order; when it completes,
-// the face's minimiser x = G_SS⁻¹(c_S − λ s), or, when some sign of x differs from s, the
-// point of the segment a → x where the first coordinate reaches 0 (the objective is a
-// convex quadratic on the face, so it decreases along the segment). When a column j is
-// dependent on the earlier ones, the null direction d (d_S<j = G⁻¹G_S<j,j, d_j = −1)
-// leaves Aα as it is; moving along ±d, whichever lowers sᵀα, until a coordinate reaches 0
-// shrinks the support without raising the objective. Returns whether a coordinate was
-// zeroed (then the step is to be repeated on the smaller support).
-bool FaceStep(const double* c, int n, double lambda, const double* support, const Work& w) {
-  int p = 0;
-  for (int k = 0; k < n; ++k) p += support[k] != 0;
-  double* L = w.L;
+// G_SS = RᵀR for the support S of w.cand, right-looking (the inner loops are vector
+// updates). Returns −1, or the first position whose column depends on the earlier ones
+// (R is then complete above it only).
+int Factor(int n, int p, const Work& w) {
+  double* const R = w.R;
   for (int k = 0, j = 0; k < n; ++k) {
-    if (support[k] == 0) continue;
+    if (w.cand[k] == 0) continue;
     const double* row = w.G + ptrdiff_t{k} * n;
-    for (int l = 0, i = 0; l <= k; ++l) {
-      if (support[l] != 0) L[ptrdiff_t{j} * p + i++] = row[l];
+    double* rj = R + ptrdiff_t{j} * n;
+    for (int l = k, i = j; l < n; ++l) {
+      if (w.cand[l] != 0) rj[i++] = row[l];
     }
-    w.a[j] = support[k];
-    w.x[j] = c[k] - lambda * Sign(support[k]);
-    ++j;
+    w.diag[j++] = row[k];
   }
-  int dependent = -1;
-  for (int j = 0; j < p && dependent < 0; ++j) {
-    double* lj = L + ptrdiff_t{j} * p;
-    const double diag = lj[j];
-    for (int i = 0; i < j; ++i) {
-      const double* li = L + ptrdiff_t{i} * p;
-      double s = lj[i];
-      for (int q = 0; q < i; ++q) s -= lj[q] * li[q];
-      lj[i] = s / li[i];
-    }
-    double s = diag;
-    for (int q = 0; q < j; ++q) s -= lj[q] * lj[q];
-    if (s > kDependent * diag) {
-      lj[j] = std::sqrt(s);
-    } else {
-      dependent = j;
+  for (int j = 0; j < p; ++j) {
+    double* __restrict rj = R + ptrdiff_t{j} * n;
+    if (!(rj[j] > kDependent * w.diag[j])) return j;
+    const double pivot = std::sqrt(rj[j]);
+    rj[j] = pivot;
+    for (int q = j + 1; q < p; ++q) rj[q] /= pivot;
+    for (int i = j + 1; i < p; ++i) {
+      double* __restrict ri = R + ptrdiff_t{i} * n;
+      const double f = rj[i];
+#pragma omp simd
+      for (int q = i; q < p; ++q) ri[q] -= f * rj[q];
     }
   }
-  double t = 1;
-  int hit = -1;  // the coordinate that reaches 0
-  if (dependent < 0) {
-    // L y = rhs, then Lᵀ x = y (x holds rhs, then y, then x).
-    for (int j = 0; j < p; ++j) {
-      double s = w.x[j];
-      for (int q = 0; q < j; ++q) s -= L[ptrdiff_t{j} * p + q] * w.x[q];
-      w.x[j] = s / L[ptrdiff_t{j} * p + j];
-    }
-    for (int j = p - 1; j >= 0; --j) {
-      double s = w.x[j];
-      for (int q = j + 1; q < p; ++q) s -= L[ptrdiff_t{q} * p + j] * w.x[q];
-      w.x[j] = s / L[ptrdiff_t{j} * p + j];
-    }
-    for (int j = 0; j < p; ++j) {
-      if (w.x[j] * w.a[j] > 0) continue;
-      const double tj = w.a[j] / (w.a[j] - w.x[j]);
-      if (hit < 0 || tj < t) t = tj, hit = j;
-    }
-    for (int j = 0; j < p; ++j) w.a[j] = hit < 0 ? w.x[j] : w.a[j] + t * (w.x[j] - w.a[j]);
-  } else {
-    // Lᵀ_<j d = L_j,<j, then d_j = −1.
-    const int j = dependent;
-    const double* lj = L + ptrdiff_t{j} * p;
-    for (int i = j - 1; i >= 0; --i) {
-      double s = lj[i];
-      for (int q = i + 1; q < j; ++q) s -= L[ptrdiff_t{q} * p + i] * w.x[q];
-      w.x[i] = s / L[ptrdiff_t{i} * p + i];
-    }
-    w.x[j] = -1;
-    double slope = 0;
-    for (int i = 0; i <= j; ++i) slope += Sign(w.a[i]) * w.x[i];
-    const double dir = slope <= 0 ? 1.0 : -1.0;
-    for (int i = 0; i <= j; ++i) {
-      const double di = dir * w.x[i];
-      if (di * w.a[i] >= 0) continue;
-      const double ti = -w.a[i] / di;
-      if (hit < 0 || ti < t) t = ti, hit = i;
-    }
-    for (int i = 0; i <= j; ++i) w.a[i] += t * dir * w.x[i];
-  }
-  if (hit >= 0) w.a[hit] = 0;
-  return hit >= 0;
+  return -1;
 }
 
-// The candidate into w.cand: face steps from α until one ends at its face's minimiser with
-// the signs kept (at most |S| + 1 steps: each other step zeroes a coordinate). Returns false
-// when α = 0.
+// R of S without its position h: the columns after h move left, and Givens rotations of
+// rows (q, q+1) clear the subdiagonal this leaves. O((p − h)²) instead of a new factor.
+void DeleteColumn(int n, int p, int h, const Work& w) {
+  double* const R = w.R;
+  for (int q = h; q < p - 1; ++q) {
+    for (int r = 0; r <= q + 1; ++r) R[ptrdiff_t{r} * n + q] = R[ptrdiff_t{r} * n + q + 1];
+  }
+  for (int q = h; q < p - 1; ++q) {
+    double* __restrict r0 = R + ptrdiff_t{q} * n;
+    double* __restrict r1 = R + ptrdiff_t{q + 1} * n;
+    const double a = r0[q], b = r1[q], r = std::sqrt(a * a + b * b), cs = a / r, sn = b / r;
+    r0[q] = r;
+    r1[q] = 0;
+#pragma omp simd
+    for (int col = q + 1; col < p - 1; ++col) {
+      const double u = r0[col], v = r1[col];
+      r0[col] = cs * u + sn * v;
+      r1[col] = cs * v - sn * u;
+    }
+  }
+}
+
+// The candidate into w.cand: steps on the face of the support S = {k : α_k ≠ 0} and signs s
+// until one ends at its face's minimiser x = G_SS⁻¹(c_S − λ s) with the signs kept. When a
+// sign of x differs from s, the step goes to the point of the segment α → x where the first
+// coordinate reaches 0 (the objective is a convex quadratic on the face, so it decreases
+// along the segment), and that coordinate leaves S. When a column j of S depends on the
+// earlier ones, the null direction d (d_S<j = G⁻¹G_S<j,j, d_j = −1) leaves Aα as it is; the
+// step goes along ±d, whichever lowers sᵀα, until a coordinate reaches 0. So at most |S| + 1
+// steps. Returns false when α = 0.
 bool FaceCandidate(const double* c, int n, double lambda, const double* alpha, const Work& w) {
   std::copy(alpha, alpha + n, w.cand);
-  bool any = false;
-  for (int k = 0; k < n; ++k) any = any || alpha[k] != 0;
-  if (!any) return false;
-  for (bool again = true; again;) {
-    again = FaceStep(c, n, lambda, w.cand, w);
+  int p = 0;
+  for (int k = 0; k < n; ++k) p += alpha[k] != 0;
+  if (p == 0) return false;
+  const double* const R = w.R;
+  auto r = [&](int i, int j) { return R[ptrdiff_t{i} * n + j]; };
+  bool factored = false;
+  while (true) {
+    for (int k = 0, j = 0; k < n; ++k) {
+      if (w.cand[k] == 0) continue;
+      w.a[j] = w.cand[k];
+      w.x[j++] = c[k] - lambda * Sign(w.cand[k]);
+    }
+    const int dependent = factored ? -1 : Factor(n, p, w);
+    double t = 1;
+    int hit = -1;  // the position that reaches 0
+    if (dependent < 0) {
+      // Rᵀ y = rhs by rows of R, then R x = y (x holds rhs, then y, then x).
+      for (int j = 0; j < p; ++j) {
+        const double* __restrict rj = R + ptrdiff_t{j} * n;
+        double* __restrict x = w.x;
+        const double yj = x[j] / rj[j];
+        x[j] = yj;
+#pragma omp simd
+        for (int q = j + 1; q < p; ++q) x[q] -= rj[q] * yj;
+      }
+      for (int j = p - 1; j >= 0; --j) {
+        double s = w.x[j];
+        for (int q = j + 1; q < p; ++q) s -= r(j, q) * w.x[q];
+        w.x[j] = s / r(j, j);
+      }
+      for (int j = 0; j < p; ++j) {
+        if (w.x[j] * w.a[j] > 0) continue;
+        const double tj = w.a[j] / (w.a[j] - w.x[j]);
+        if (hit < 0 || tj < t) t = tj, hit = j;
+      }
+      for (int j = 0; j < p; ++j) w.a[j] = hit < 0 ? w.x[j] : w.a[j] + t * (w.x[j] - w.a[j]);
+    } else {
+      // R_<j d_<j = R_<j,j (column j above the pivot), then d_j = −1.
+      const int j = dependent;
+      for (int i = j - 1; i >= 0; --i) {
+        double s = r(i, j);
+        for (int q = i + 1; q < j; ++q) s -= r(i, q) * w.x[q];
+        w.x[i] = s / r(i, i);
+      }
+      w.x[j] = -1;
+      double slope = 0;
+      for (int i = 0; i <= j; ++i) slope += Sign(w.a[i]) * w.x[i];
+      const double dir = slope <= 0 ? 1.0 : -1.0;
+      for (int i = 0; i <= j; ++i) {
+        const double di = dir * w.x[i];
+        if (di * w.a[i] >= 0) continue;
+        const double ti = -w.a[i] / di;
+        if (hit < 0 || ti < t) t = ti, hit = i;
+      }
+      if (hit < 0) return true;  // only by rounding (d_j = ±1 always moves one): no step
+      for (int i = 0; i <= j; ++i) w.a[i] += t * dir * w.x[i];
+    }
+    if (hit < 0) {
+      for (int k = 0, j = 0; k < n; ++k) {
+        if (w.cand[k] != 0) w.cand[k] = w.a[j++];
+      }
+      return true;
+    }
+    w.a[hit] = 0;
+    int zeros = 0;  // more than one only when another coordinate reaches 0 at the same t
+    for (int j = 0; j < p; ++j) zeros += w.a[j] == 0;
     for (int k = 0, j = 0; k < n; ++k) {
       if (w.cand[k] != 0) w.cand[k] = w.a[j++];
     }
+    factored = dependent < 0 && zeros == 1;
+    if (factored) DeleteColumn(n, p, hit, w);
+    p -= zeros;
+    if (p == 0) return true;
   }
-  return true;
 }
 
 // ‖Aα − b‖², row blocks of Aα − b accumulated on the stack, columns with α_k = 0 skipped.
@@ -277,11 +314,12 @@ L1Result Solve(const double* A, int m, int n, const double* b, const L1Options& 
   }
 
   const size_t nn = size_t(n) * size_t(n);
-  if (scratch.gram.size() < 2 * nn + 4 * size_t(n)) scratch.gram.resize(2 * nn + 4 * size_t(n));
+  if (scratch.gram.size() < 2 * nn + 5 * size_t(n)) scratch.gram.resize(2 * nn + 5 * size_t(n));
   if (scratch.atb.size() < size_t(n)) scratch.atb.resize(n);
   if (scratch.grad.size() < size_t(n)) scratch.grad.resize(n);
   double* const G = scratch.gram.data();
-  const Work w{G, G + nn, G + 2 * nn, G + 2 * nn + n, G + 2 * nn + 2 * n, G + 2 * nn + 3 * n};
+  double* const vecs = G + 2 * nn;
+  const Work w{G, G + nn, vecs, vecs + n, vecs + 2 * n, vecs + 3 * n, vecs + 4 * n};
   double* const c = scratch.atb.data();
   double* const g = scratch.grad.data();
   GramAndCorrelation(A, rows, n, b, G, c);
