@@ -50,7 +50,7 @@ class SampleCommand : public Command {
                     "with --sparse: texels traced per sparse row (default: 350 x 6R^2 / 6144, i.e. 350 at R = 32)");
     app->add_option("--neighbours", options_.sparse.neighbours,
                     "with --sparse: dense neighbours a sparse row combines, at most (1..64)")
-        ->default_val(32);
+        ->default_val(16);
     app->add_option("--l1-lambda", options_.sparse.lambda,
                     "with --sparse: L1 weight of the fit, relative to the smallest that gives all-zero weights")
         ->default_val(1e-3);

@@ -51,6 +51,9 @@ constexpr uint32_t kRankRes = 8;         // local rank on the cubemap box-filter
 constexpr double kRankThreshold = 0.02;  // singular values above 2% of the largest count
 constexpr uint32_t kMinFeatures = 32;    // a sparse row traces at least this many texels
 constexpr double kMinWeight = 0.25;      // placement weight of a candidate whose neighbours have rank 0
+// The fit stops when its KKT violation is below this × λ_max, or after this many sweeps.
+constexpr double kL1Tolerance = 1e-4;
+constexpr int kL1MaxSweeps = 200;
 
 // Array indices of the checkpoint.
 enum CheckpointArray : uint32_t {
@@ -140,6 +143,8 @@ Params Resolve(const SampleOptions& o, const Prepared& p, const RowPoints& rows)
       static_cast<uint32_t>(std::max<int64_t>(1, std::llround(350.0 * static_cast<double>(pr.cols) / 6144.0))));
   pr.neighbours = so.neighbours;
   pr.l1.lambda_rel = so.lambda;
+  pr.l1.tolerance = kL1Tolerance;
+  pr.l1.max_sweeps = kL1MaxSweeps;
   return pr;
 }
 
@@ -200,7 +205,7 @@ DenseRowResult TraceDenseRow(const Sampler& s, uint64_t row, const RowPoint& rp,
     out.rays += s.IndirectTerm(row, rp, std::max<uint64_t>(1, s.DefaultPaths() / 4), ds.indirect.data());
     for (uint64_t c = 0; c < cols; ++c) indirect[c] = static_cast<float>(ds.indirect[c]);
   }
-  if (features != nullptr) sp::PackBits(ds.second, features);
+  if (features != nullptr) std::copy(ds.second.begin(), ds.second.end(), features);
   return out;
 }
 
@@ -226,8 +231,8 @@ class Phase1Runner {
     const uint64_t d = pr_.dense, b = pr_.dense_block;
     nlohmann::json arrays = {
         RowArray("row", DType::kU64, d, 1, b).ToJson(), RowArray("direct", DType::kF32, d, pr_.cols, b).ToJson(),
-        RowArray("features", DType::kU8, d, sp::PackedBytes(pr_.cols), b).ToJson(),
-        RowArray("rays", DType::kU64, d, 1, b).ToJson(), RowArray("seconds", DType::kF32, d, 1, b).ToJson()};
+        RowArray("features", DType::kU8, d, pr_.cols, b).ToJson(), RowArray("rays", DType::kU64, d, 1, b).ToJson(),
+        RowArray("seconds", DType::kF32, d, 1, b).ToJson()};
     if (p_.bounces > 0) arrays.push_back(RowArray("indirect", DType::kF32, d, pr_.cols, b).ToJson());
     nlohmann::json params = {{"cube_res", p_.r},
                              {"spp", p_.spp},
@@ -319,7 +324,7 @@ class Phase1Runner {
       pos[i] = pts_.pt[st.rows[i]].p;
       nor[i] = pts_.pt[st.rows[i]].n;
     }
-    sp::PointGrid grid(pr_.radius, pos, nor);
+    sp::PointGrid grid(pr_.radius / 4, pos, nor);
     std::vector<int> rank(d, 0);
     std::vector<uint64_t> items;
     for (uint64_t i = 0; i < d; i += 256) items.push_back(i);
@@ -375,7 +380,7 @@ class Phase1Runner {
                     std::atomic<uint64_t>* rays, std::atomic<uint64_t>* written) {
     thread_local DenseScratch ds;
     const uint64_t i0 = c * pr_.dense_block, n = std::min(pr_.dense_block, pr_.dense - i0);
-    const uint64_t cols = pr_.cols, fb = sp::PackedBytes(cols);
+    const uint64_t cols = pr_.cols, fb = cols;
     std::vector<float> direct(n * cols), indirect(p_.bounces > 0 ? n * cols : 0), secs(n);
     std::vector<uint8_t> feat(n * fb);
     std::vector<uint64_t> ids(n), nrays(n);
@@ -430,7 +435,7 @@ struct DenseRows {
 Result<std::unique_ptr<DenseRows>> MapDense(const std::string& path, const Params& pr, bool bounces) {
   LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(path));
   auto d = std::make_unique<DenseRows>(DenseRows{std::move(r), {}, {}, {}, {}});
-  const uint64_t nchunks = (pr.dense + pr.dense_block - 1) / pr.dense_block, fb = sp::PackedBytes(pr.cols);
+  const uint64_t nchunks = (pr.dense + pr.dense_block - 1) / pr.dense_block, fb = pr.cols;
   d->views.resize(pr.dense);
   d->rays.resize(pr.dense);
   d->seconds.resize(pr.dense);
@@ -486,7 +491,7 @@ class Phase2Runner {
       pos_[static_cast<size_t>(dense_of[r])] = pts.pt[r].p;
       nor_[static_cast<size_t>(dense_of[r])] = pts.pt[r].n;
     }
-    grid_ = std::make_unique<sp::PointGrid>(pr.radius, pos_, nor_);
+    grid_ = std::make_unique<sp::PointGrid>(pr.radius / 4, pos_, nor_);
   }
 
   Status Block(io::ContainerWriter& w, uint64_t chunk, uint64_t block, Phase2Counters& cnt) {
@@ -603,7 +608,7 @@ class Phase2Runner {
     const uint64_t rr = uint64_t{p_.r} * p_.r;
     for (uint64_t c = 0; c < pr_.cols; ++c) {
       const uint64_t s = c % rr % p_.r, t = c % rr / p_.r;
-      if (sp::Bit(v.features, c)) {
+      if (v.features[c]) {
         ++n;
       } else if (s % 2 == 0 && t % 2 == 0 && !s_.BelowHorizon(rp.n, c)) {
         ++n;

@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numeric>
 
 namespace ltb::sample::sparse {
@@ -22,6 +23,12 @@ uint64_t SecondPass(uint32_t r, const double* unoccluded, const std::vector<uint
   select->assign(cols, 0);
   uint64_t features = 0;
   const int64_t ri = r;
+  // The visible fraction of every sampled grid texel; NaN marks "not sampled".
+  thread_local std::vector<double> frac;
+  frac.assign(cols, std::numeric_limits<double>::quiet_NaN());
+  for (uint64_t c = 0; c < cols; ++c) {
+    if (grid[c]) frac[c] = value[c] / unoccluded[c];
+  }
   for (uint64_t c = 0; c < cols; ++c) {
     if (grid[c]) continue;
     if (!(unoccluded[c] > 0)) {
@@ -34,9 +41,8 @@ uint64_t SecondPass(uint32_t r, const double* unoccluded, const std::vector<uint
     double v0 = 0;
     for (int64_t y = std::max<int64_t>(0, t - kWindowHalf); y <= std::min(ri - 1, t + kWindowHalf) && uniform; ++y) {
       for (int64_t x = std::max<int64_t>(0, s - kWindowHalf); x <= std::min(ri - 1, s + kWindowHalf); ++x) {
-        const uint64_t j = face * rr + static_cast<uint64_t>(y) * r + static_cast<uint64_t>(x);
-        if (!grid[j]) continue;
-        const double v = value[j] / unoccluded[j];
+        const double v = frac[face * rr + static_cast<uint64_t>(y) * r + static_cast<uint64_t>(x)];
+        if (std::isnan(v)) continue;
         if (!any) {
           any = true;
           v0 = v;
@@ -56,13 +62,6 @@ uint64_t SecondPass(uint32_t r, const double* unoccluded, const std::vector<uint
   return features;
 }
 
-void PackBits(const std::vector<uint8_t>& flags, uint8_t* packed) {
-  std::fill_n(packed, PackedBytes(flags.size()), uint8_t{0});
-  for (uint64_t c = 0; c < flags.size(); ++c) {
-    if (flags[c]) packed[c >> 3] = static_cast<uint8_t>(packed[c >> 3] | (1u << (c & 7)));
-  }
-}
-
 void Downsample(const float* row, uint32_t r, uint32_t r_low, float* out) {
   const uint32_t f = r / r_low;
   const uint64_t rr = uint64_t{r} * r, ll = uint64_t{r_low} * r_low;
@@ -79,16 +78,12 @@ void Downsample(const float* row, uint32_t r, uint32_t r_low, float* out) {
 int NumericalRank(std::span<const float* const> rows, uint64_t m, double rel_threshold) {
   const auto k = static_cast<Eigen::Index>(rows.size());
   if (k == 0) return 0;
-  Eigen::MatrixXd gram(k, k);
+  thread_local Eigen::MatrixXf x;
+  x.resize(static_cast<Eigen::Index>(m), k);
   for (Eigen::Index i = 0; i < k; ++i) {
-    for (Eigen::Index j = 0; j <= i; ++j) {
-      double s = 0;
-      const float* a = rows[static_cast<size_t>(i)];
-      const float* b = rows[static_cast<size_t>(j)];
-      for (uint64_t c = 0; c < m; ++c) s += static_cast<double>(a[c]) * b[c];
-      gram(i, j) = gram(j, i) = s;
-    }
+    x.col(i) = Eigen::Map<const Eigen::VectorXf>(rows[static_cast<size_t>(i)], static_cast<Eigen::Index>(m));
   }
+  const Eigen::MatrixXd gram = (x.transpose() * x).cast<double>();
   Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(gram, Eigen::EigenvaluesOnly);
   const Eigen::VectorXd& ev = eig.eigenvalues();  // ascending; the squared singular values
   const double top = ev(k - 1);
@@ -124,21 +119,37 @@ void PointGrid::Query(const glm::dvec3& p, const glm::dvec3& n, double radius, u
   const auto cx = static_cast<int64_t>(std::floor(q.x)), cy = static_cast<int64_t>(std::floor(q.y)),
              cz = static_cast<int64_t>(std::floor(q.z));
   const double r2 = radius * radius;
-  for (int64_t x = cx - span; x <= cx + span; ++x) {
-    for (int64_t y = cy - span; y <= cy + span; ++y) {
-      for (int64_t z = cz - span; z <= cz + span; ++z) {
-        auto it = cells_.find(Key(x, y, z));
-        if (it == cells_.end()) continue;
-        for (uint32_t i : it->second) {
-          if (static_cast<int64_t>(i) == skip) continue;
-          const glm::dvec3 d = points_[i] - p;
-          const double d2 = d.x * d.x + d.y * d.y + d.z * d.z;
-          if (d2 > r2) continue;
-          const glm::dvec3& m = normals_[i];
-          if (n.x * m.x + n.y * m.y + n.z * m.z < cos_min) continue;
-          found.emplace_back(d2, i);
+  auto visit = [&](int64_t x, int64_t y, int64_t z) {
+    auto it = cells_.find(Key(x, y, z));
+    if (it == cells_.end()) return;
+    for (uint32_t i : it->second) {
+      if (static_cast<int64_t>(i) == skip) continue;
+      const glm::dvec3 d = points_[i] - p;
+      const double d2 = d.x * d.x + d.y * d.y + d.z * d.z;
+      if (d2 > r2) continue;
+      const glm::dvec3& m = normals_[i];
+      if (n.x * m.x + n.y * m.y + n.z * m.z < cos_min) continue;
+      found.emplace_back(d2, i);
+    }
+  };
+  // Shells of cells by Chebyshev distance: a point in shell s + 1 is at least s·cell away,
+  // so once k points lie within that, farther shells cannot change the answer.
+  for (int64_t sh = 0; sh <= span; ++sh) {
+    for (int64_t x = cx - sh; x <= cx + sh; ++x) {
+      for (int64_t y = cy - sh; y <= cy + sh; ++y) {
+        const bool face = x == cx - sh || x == cx + sh || y == cy - sh || y == cy + sh;
+        if (face) {
+          for (int64_t z = cz - sh; z <= cz + sh; ++z) visit(x, y, z);
+        } else {
+          visit(x, y, cz - sh);
+          if (sh > 0) visit(x, y, cz + sh);
         }
       }
+    }
+    if (found.size() >= k) {
+      std::nth_element(found.begin(), found.begin() + (k - 1), found.end());
+      const double limit = static_cast<double>(sh) * cell_;
+      if (found[k - 1].first <= limit * limit) break;
     }
   }
   const size_t keep = std::min<size_t>(k, found.size());
@@ -150,35 +161,43 @@ void ChooseFeatures(std::span<const DenseView> nb, uint64_t cols, const uint8_t*
                     uint32_t min_count, Scratch& sc, std::vector<uint32_t>* texels) {
   texels->clear();
   const double inv = nb.empty() ? 0.0 : 1.0 / static_cast<double>(nb.size());
+  // Sums in f32 (vectorised): the weights only rank texels.
+  sc.sum.assign(cols, 0.0f);
+  sc.sum_sq.assign(cols, 0.0f);
+  sc.count.assign(cols, 0);
   sc.weight.assign(cols, 0.0);
-  sc.b.assign(cols, 0.0);  // the neighbours' mean, for the texels without weight
-  sc.a.assign(cols, 0.0);  // Σ x²
-  std::vector<double>& w = sc.weight;
-  std::vector<double>& mean = sc.b;
-  std::vector<double>& sq = sc.a;
+  sc.b.resize(cols);
+  float* __restrict sum = sc.sum.data();
+  float* __restrict sq = sc.sum_sq.data();
+  uint8_t* __restrict feat = sc.count.data();
   for (const DenseView& v : nb) {
-    const float* d = v.direct;
+    const float* __restrict d = v.direct;
+    const uint8_t* __restrict f = v.features;
+#pragma omp simd
     for (uint64_t c = 0; c < cols; ++c) {
-      const double x = d[c];
-      mean[c] += x;
-      sq[c] += x * x;
+      sum[c] += d[c];
+      sq[c] += d[c] * d[c];
+      feat[c] = static_cast<uint8_t>(feat[c] + f[c]);
     }
   }
+  double* __restrict w = sc.weight.data();
+  double* __restrict mean = sc.b.data();
   std::vector<uint32_t>& order = sc.order;
   order.clear();
   for (uint64_t c = 0; c < cols; ++c) {
-    mean[c] *= inv;
+    mean[c] = sum[c] * inv;
     if (!relevant[c]) continue;
     const double var = std::max(0.0, sq[c] * inv - mean[c] * mean[c]);
-    uint32_t feat = 0;
-    for (const DenseView& v : nb) feat += Bit(v.features, c) ? 1 : 0;
-    w[c] = var * (1.0 + feat);
+    w[c] = var * (1.0 + feat[c]);
     order.push_back(static_cast<uint32_t>(c));
   }
   // The largest weights first, ties to the lower texel.
   auto by_weight = [&](uint32_t x, uint32_t y) { return w[x] != w[y] ? w[x] > w[y] : x < y; };
   const size_t take = std::min<size_t>(count, order.size());
-  std::partial_sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(take), order.end(), by_weight);
+  if (take < order.size()) {
+    std::nth_element(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(take), order.end(), by_weight);
+  }
+  std::sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(take), by_weight);
   size_t n = 0;
   while (n < take && w[order[n]] > 0) texels->push_back(order[n++]);
   const size_t floor = std::min<size_t>(take, min_count);
@@ -208,23 +227,28 @@ Fit Reconstruct(std::span<const DenseView> nb, uint64_t cols, const std::vector<
   double bb = 0;
   for (size_t i = 0; i < m; ++i) bb += b[i] * b[i];
   fit.residual = bb > 0 ? fit.solve.residual / std::sqrt(bb) : 0.0;
-  // The row in double: Σ α_k direct_k over relevant texels, + Σ α_k indirect_k everywhere.
-  std::vector<double>& row = sc.weight;
-  row.assign(cols, 0.0);
+  // The row: Σ α_k direct_k over relevant texels, + Σ α_k indirect_k everywhere (f32,
+  // vectorised; at most 64 terms, so the sum's relative rounding stays near 64 ulp).
+  sc.row.assign(cols, 0.0f);
+  float* __restrict row = sc.row.data();
   for (size_t j = 0; j < k; ++j) {
-    const double a = sc.alpha[j];
+    const auto a = static_cast<float>(sc.alpha[j]);
     if (a == 0) continue;
-    const float* d = nb[j].direct;
-    for (uint64_t c = 0; c < cols; ++c) row[c] += relevant[c] ? a * d[c] : 0.0;
-  }
-  for (size_t i = 0; i < m; ++i) row[texels[i]] = b[i];
-  for (size_t j = 0; j < k; ++j) {
-    const double a = sc.alpha[j];
-    if (a == 0 || nb[j].indirect == nullptr) continue;
-    const float* d = nb[j].indirect;
+    const float* __restrict d = nb[j].direct;
+#pragma omp simd
     for (uint64_t c = 0; c < cols; ++c) row[c] += a * d[c];
   }
-  for (uint64_t c = 0; c < cols; ++c) out[c] = static_cast<float>(std::max(0.0, row[c]));
+  for (uint64_t c = 0; c < cols; ++c) row[c] = relevant[c] ? row[c] : 0.0f;
+  for (size_t i = 0; i < m; ++i) row[texels[i]] = static_cast<float>(b[i]);
+  for (size_t j = 0; j < k; ++j) {
+    const auto a = static_cast<float>(sc.alpha[j]);
+    if (a == 0 || nb[j].indirect == nullptr) continue;
+    const float* __restrict d = nb[j].indirect;
+#pragma omp simd
+    for (uint64_t c = 0; c < cols; ++c) row[c] += a * d[c];
+  }
+#pragma omp simd
+  for (uint64_t c = 0; c < cols; ++c) out[c] = std::max(0.0f, row[c]);
   return fit;
 }
 

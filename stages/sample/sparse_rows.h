@@ -34,11 +34,6 @@ void GridSelection(uint32_t r, const double* unoccluded, std::vector<uint8_t>* s
 uint64_t SecondPass(uint32_t r, const double* unoccluded, const std::vector<uint8_t>& grid, double* value,
                     std::vector<uint8_t>* select);
 
-// Feature flags packed 8 texels to a byte (bit c % 8 of byte c / 8), as the checkpoint stores them.
-inline uint64_t PackedBytes(uint64_t cols) { return (cols + 7) / 8; }
-void PackBits(const std::vector<uint8_t>& flags, uint8_t* packed);
-inline bool Bit(const uint8_t* packed, uint64_t c) { return ((packed[c >> 3] >> (c & 7)) & 1) != 0; }
-
 // ---- Local rank (§4.1) ----
 
 // Box-filters a row of 6R² texels to 6·r_low² (r_low divides r).
@@ -71,7 +66,7 @@ class PointGrid {
 // ---- Sparse rows: features and reconstruction (§5.1, §5.2) ----
 
 // A dense neighbour: its direct term (6R² values), its indirect term (or null without
-// bounces) and its packed feature flags.
+// bounces) and its feature flags (6R² bytes, 1 where the texel was a feature).
 struct DenseView {
   const float* direct = nullptr;
   const float* indirect = nullptr;
@@ -80,7 +75,9 @@ struct DenseView {
 
 struct Scratch {
   std::vector<double> weight, a, b, alpha;
+  std::vector<float> sum, sum_sq, row;
   std::vector<uint32_t> order;
+  std::vector<uint8_t> count;
   L1Scratch l1;
 };
 
