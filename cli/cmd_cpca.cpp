@@ -43,6 +43,18 @@ class CpcaCommand : public Command {
         ->default_val(32768)
         ->check(CLI::Range(1, 1 << 30));
     app->add_option("--seed", options_.seed, "seed of the initialisation")->default_val(1);
+    auto* dense = app->add_flag("--dense-first", dense_first_,
+                                "run the seeded start and the growth levels on the dense rows of a sparse bake "
+                                "only (its \"sparse_kind\" array), then --final-iterations passes on all rows "
+                                "(default: on when the input marks dense rows)");
+    auto* no_dense =
+        app->add_flag("--no-dense-first", no_dense_first_, "every pass on all rows, even on a sparse bake");
+    dense->excludes(no_dense);
+    app->add_option("--final-iterations", options_.final_iterations,
+                    "dense-first: passes on all rows at the full basis after the dense growth levels (fewer when "
+                    "a pass improves the error by less than --tolerance)")
+        ->default_val(2)
+        ->check(CLI::Range(0, 100000));
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     app->add_flag("--json", json_, "print the summary as JSON");
     AddCommonFlags(app, &flags_);
@@ -62,6 +74,9 @@ class CpcaCommand : public Command {
     }
     StageFlags sf;
     if (int code = ResolveStageFlags(flags_, nullptr, &sf); code != kExitOk) return code;
+    options_.dense_first = dense_first_      ? stages::DenseFirst::kOn
+                           : no_dense_first_ ? stages::DenseFirst::kOff
+                                             : stages::DenseFirst::kAuto;
     options_.mem_limit = sf.mem_limit;
     options_.jobs = sf.jobs;
     ProgressBar bar(flags_, "cpca");
@@ -83,7 +98,12 @@ class CpcaCommand : public Command {
                           {"row_bytes", r->row_bytes},
                           {"memory_bytes_estimate", r->memory_bytes},
                           {"resumed", r->resumed},
-                          {"already_complete", r->already_complete}};
+                          {"already_complete", r->already_complete},
+                          {"dense_first", r->dense_first},
+                          {"dense_rows", r->dense_rows},
+                          {"rows_streamed", r->rows_streamed},
+                          {"seconds_dense", r->seconds_dense},
+                          {"seconds_final", r->seconds_final}};
       std::cout << j.dump(2) << "\n";
     } else if (!flags_.quiet) {
       std::cout << "wrote " << options_.output << ": " << r->rows << " rows of " << r->dims << " in " << r->clusters
@@ -91,6 +111,16 @@ class CpcaCommand : public Command {
                 << std::setprecision(4) << r->relative_rms_error << ", " << r->model_bytes + r->row_bytes
                 << " bytes stored";
       if (r->empty_clusters) std::cout << " (" << r->empty_clusters << " clusters empty)";
+      if (r->dense_first) {
+        std::cout << "; dense-first: growth levels on " << r->dense_rows << " dense rows of " << r->rows << ", "
+                  << r->rows_streamed << " rows streamed";
+      } else {
+        std::cout << "; " << r->rows_streamed << " rows streamed";
+      }
+      if (!r->already_complete) {
+        std::cout << std::setprecision(3) << " (" << r->seconds_dense << " s start and growth, " << r->seconds_final
+                  << " s final passes and output)";
+      }
       if (r->already_complete)
         std::cout << " (already complete)";
       else if (r->resumed)
@@ -103,6 +133,7 @@ class CpcaCommand : public Command {
  private:
   stages::CpcaOptions options_;
   bool json_ = false;
+  bool dense_first_ = false, no_dense_first_ = false;
   CommonFlags flags_;
   ShardFlags shard_flags_;
 };

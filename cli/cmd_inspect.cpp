@@ -117,6 +117,18 @@ class InspectCommand : public Command {
                 << " passes, relative RMS error " << c.value("relative_rms_error", json()).dump() << ", empty clusters "
                 << c.value("empty_clusters", json()).dump() << "\n";
     }
+    if (out.contains("sparse")) {
+      const json& sp = out["sparse"];
+      char line[400];
+      std::snprintf(line, sizeof line,
+                    "  sparse bake: %s dense rows, %s sparse; traced %.2f%% of the entries; rays dense %s, sparse %s; "
+                    "thread-seconds dense %.3g, sparse %.3g\n",
+                    sp["rows"]["dense"].dump().c_str(), sp["rows"]["sparse"].dump().c_str(),
+                    100 * sp["traced_fraction"].get<double>(), sp["rays"]["dense"].dump().c_str(),
+                    sp["rays"]["sparse"].dump().c_str(), sp["seconds"]["dense"].get<double>(),
+                    sp["seconds"]["sparse"].get<double>());
+      std::cout << line;
+    }
     if (out["uncommitted_tail_bytes"].get<uint64_t>() > 0) {
       std::cout << "  uncommitted tail: " << out["uncommitted_tail_bytes"]
                 << " bytes (a chunk in flight when the writer stopped; a rerun discards it)\n";

@@ -34,9 +34,12 @@ using nlohmann::json;
 
 // Steps that run as shards when --shards N > 1: the matrix stages (cpca's clustering is
 // global; relight makes an image).
+// A sparse sample (docs/SPARSE.md) is one sequence of rounds: it runs whole.
 bool Shardable(const Node& n) {
   const StageInfo* s = FindStage(n.stages.front());
-  return !n.image && s != nullptr && s->shardable;
+  const json& sample = n.params.contains("sample") ? n.params["sample"] : n.params;
+  const bool sparse = sample.is_object() && sample.contains("sparse");
+  return !n.image && !sparse && s != nullptr && s->shardable;
 }
 
 StepEnd Interrupted(int sig, std::string failure) {

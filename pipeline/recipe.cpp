@@ -139,7 +139,36 @@ Result<std::string> InlineScene(const std::string& path, const std::string& dir,
 }
 
 Status ParseSample(const std::string& path, const toml::table& t, Recipe::Sample* s) {
-  LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[sample]", {"cube_res", "spp", "bounces", "seed"}));
+  LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[sample]",
+                                {"cube_res", "spp", "bounces", "seed", "sparse", "dense_fraction", "radius", "features",
+                                 "neighbours", "l1_lambda"}));
+  LTB_ASSIGN_OR_RETURN(s->sparse, GetBool(path, t, "sparse", false));
+  for (const char* key : {"dense_fraction", "radius", "features", "neighbours", "l1_lambda"}) {
+    if (t.contains(key) && !s->sparse) {
+      return InvalidArgument(Where(path, *t.get(key)) + ": \"" + key +
+                             "\" applies to sparse precomputation; add sparse = true or remove it");
+    }
+  }
+  if (t.contains("dense_fraction")) {
+    LTB_ASSIGN_OR_RETURN(double v, GetNumber(path, t, "dense_fraction", 0.25, 1e-9, 1.0));
+    s->dense_fraction = v;
+  }
+  if (t.contains("radius")) {
+    LTB_ASSIGN_OR_RETURN(double v, GetNumber(path, t, "radius", 1.0, 1e-300, 1e300));
+    s->radius = v;
+  }
+  if (t.contains("l1_lambda")) {
+    LTB_ASSIGN_OR_RETURN(double v, GetNumber(path, t, "l1_lambda", 1e-3, 0.0, 0.999999));
+    s->l1_lambda = v;
+  }
+  if (t.contains("features")) {
+    LTB_ASSIGN_OR_RETURN(uint64_t v, GetUnsigned(path, t, "features", 350, 1, uint64_t{6} << 20));
+    s->features = v;
+  }
+  if (t.contains("neighbours")) {
+    LTB_ASSIGN_OR_RETURN(uint64_t v, GetUnsigned(path, t, "neighbours", 16, 1, 64));
+    s->neighbours = v;
+  }
   if (t.contains("cube_res")) {
     LTB_ASSIGN_OR_RETURN(uint64_t r, GetUnsigned(path, t, "cube_res", 0, 1, sample::kMaxCubeRes));
     if (!std::has_single_bit(r)) {

@@ -22,6 +22,27 @@ StageCommand Sample(const Recipe& r, const StageContext& ctx) {
   opt("--spp", "spp", r.sample.spp);
   opt("--bounces", "bounces", r.sample.bounces);
   opt("--seed", "seed", r.sample.seed);
+  const auto& sp = r.sample;
+  if (sp.sparse) {  // params["sparse"] marks the step unshardable (pipeline/bake.cpp)
+    json p = json::object();
+    c.args.push_back("--sparse");
+    auto num = [&](const char* flag, const char* key, const std::optional<double>& v) {
+      if (!v) return;
+      p[key] = *v;
+      c.args.insert(c.args.end(), {flag, Shortest(*v)});
+    };
+    auto whole = [&](const char* flag, const char* key, const std::optional<uint64_t>& v) {
+      if (!v) return;
+      p[key] = *v;
+      c.args.insert(c.args.end(), {flag, std::to_string(*v)});
+    };
+    num("--dense-fraction", "dense_fraction", sp.dense_fraction);
+    num("--radius", "radius", sp.radius);
+    num("--l1-lambda", "l1_lambda", sp.l1_lambda);
+    whole("--features", "features", sp.features);
+    whole("--neighbours", "neighbours", sp.neighbours);
+    c.params["sparse"] = p;
+  }
   return c;
 }
 

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 
@@ -63,12 +64,71 @@ Status CheckInput(const CpcaOptions& o, const io::ContainerReader& in) {
   return Status::Ok();
 }
 
+// Dense-first, resolved: whether the growth levels run on the dense rows, which array
+// marks them, and how many there are.
+struct DensePlan {
+  bool on = false;
+  int array = -1;
+  uint64_t dense = 0;
+};
+
+Result<DensePlan> PlanDenseFirst(const CpcaOptions& o, const io::ContainerReader& in) {
+  if (o.dense_first == DenseFirst::kOff) return DensePlan{};
+  const bool asked = o.dense_first == DenseFirst::kOn;
+  const Metadata& meta = in.metadata();
+  const uint64_t n = meta.matrix().rows;
+  const int a = meta.FindArray(kSparseKindArray);
+  if (a < 0) {
+    if (!asked) return DensePlan{};
+    return FailedPrecondition(o.input + ": has no \"" + kSparseKindArray +
+                              "\" array, so --dense-first has no dense rows to start from (a sparse bake of "
+                              "`ltbake sample` writes it, and row-transform keeps it); drop --dense-first (or give "
+                              "--no-dense-first) for a densely sampled matrix");
+  }
+  const ArraySpec& spec = meta.arrays[a];
+  if (spec.dtype != DType::kU8 || spec.cols != 1 || spec.rows != n || spec.layout != Layout::kRows) {
+    return DataLoss(o.input + ": side table \"" + kSparseKindArray + "\" is " + std::to_string(spec.rows) + " x " +
+                    std::to_string(spec.cols) + " " + DTypeName(spec.dtype) + " (" + LayoutName(spec.layout) +
+                    "), not one u8 per row of the " + std::to_string(n) + "-row matrix in row blocks");
+  }
+  uint64_t count[3] = {0, 0, 0};
+  for (uint64_t c = 0; c < spec.ChunkCount(); ++c) {
+    LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(static_cast<uint32_t>(a), c));
+    auto v = chunk.as<uint8_t>();
+    for (size_t i = 0; i < v.size(); ++i) {
+      if (v[i] > 2) {
+        return DataLoss(o.input + ": side table \"" + kSparseKindArray + "\" gives row " +
+                        std::to_string(chunk.extent().row0 + i) + " kind " + std::to_string(v[i]) +
+                        "; the kinds are 0 (no geometry), 1 (dense) and 2 (sparse)");
+      }
+      count[v[i]]++;
+    }
+  }
+  const uint64_t dense = count[kSparseKindDense];
+  if (dense == 0) {
+    if (!asked) return DensePlan{};
+    return FailedPrecondition(o.input + ": its \"" + kSparseKindArray + "\" array marks none of its " +
+                              std::to_string(n) + " rows dense (kind 1; " + std::to_string(count[2]) + " sparse, " +
+                              std::to_string(count[0]) +
+                              " without geometry), so --dense-first has nothing to start from; rerun with "
+                              "--no-dense-first");
+  }
+  if (dense < o.clusters) {
+    return FailedPrecondition(o.input + ": has " + std::to_string(dense) + " dense rows (\"" + kSparseKindArray +
+                              "\" 1), fewer than --clusters " + std::to_string(o.clusters) +
+                              "; dense-first seeds the clusters from dense rows: use at most " + std::to_string(dense) +
+                              " clusters, or --no-dense-first");
+  }
+  return DensePlan{true, a, dense};
+}
+
 // Memory: everything but the k-means++ sample is independent of the row count.
 struct MemoryPlan {
   uint64_t fixed = 0, per_sample_row = 0, min_sample = 0;
 };
 
-Result<MemoryPlan> PlanMemory(const CpcaOptions& o, uint64_t n, uint64_t d, uint64_t p) {
+// kind_block: the rows per chunk of dense-first's "sparse_kind" array, or 0.
+Result<MemoryPlan> PlanMemory(const CpcaOptions& o, uint64_t n, uint64_t d, uint64_t p, uint64_t kind_block) {
   const uint64_t k = o.clusters, s = o.basis;
   const uint64_t jobs = static_cast<uint64_t>(std::max(1, o.jobs));
   const uint64_t block = cpca_internal::PassBlockRows(d);
@@ -79,7 +139,9 @@ Result<MemoryPlan> PlanMemory(const CpcaOptions& o, uint64_t n, uint64_t d, uint
                          + k * (s + 1) * d * 8             // the assignment's stacked vectors
                          + block * d * 8 * 2 + block * 24  // pass block and its ids/errors
                          + jobs * (block * d * 8 + block * p * 8 + kSubRows * (k * (s + 1) + d) * 8) + 16 * d * 8 +
-                         (16ull << 20);  // reseed rows, output chunk buffers
+                         (16ull << 20)  // reseed rows, output chunk buffers
+                         // dense-first: the side array's chunk (decoded, copied), a block's row list
+                         + (kind_block > 0 ? 2 * kind_block + block * 8 : 0);
   const uint64_t per_sample_row = d * 8 + k * 8 + 64;
   const uint64_t min_sample = std::min(n, std::max<uint64_t>(k, 256));
   if (fixed + min_sample * per_sample_row > o.mem_limit) {
@@ -104,6 +166,18 @@ Result<CpcaResult> Summarize(const std::string& path, CpcaResult result) {
   LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(path));
   const auto& c = r.metadata().json["cpca"];
   result.iterations = c.value("iterations", uint64_t{0});
+  // Rows the passes read: growth passes (dense rows only in dense-first), final passes,
+  // evaluation and encoding.
+  const uint64_t n = result.rows;
+  result.rows_streamed = (result.iterations + 2) * n;
+  if (c.contains("dense_first") && c["dense_first"].is_object()) {
+    const auto& df = c["dense_first"];
+    result.dense_first = true;
+    result.dense_rows = df.value("dense_rows", uint64_t{0});
+    const uint64_t dense_passes = df.value("dense_passes", uint64_t{0});
+    const uint64_t final_passes = df.value("final_passes", uint64_t{0});
+    result.rows_streamed = dense_passes * result.dense_rows + (final_passes + 2) * n;
+  }
   result.relative_rms_error = c.value("relative_rms_error", 0.0);
   result.squared_error = c.value("squared_error", 0.0);
   result.squared_norm = c.value("squared_norm", 0.0);
@@ -154,6 +228,10 @@ Status WriteOutput(const CpcaOptions& o, const io::ContainerReader& in, const Pa
   info.squared_error = fit.squared_error;
   info.squared_norm = fit.squared_norm;
   info.empty_clusters = empty;
+  info.dense_first = pr.dense_first;
+  info.dense_rows = pr.dense_first ? pr.n_dense : 0;
+  info.dense_passes = fit.passes - fit.final_passes;
+  info.final_passes = fit.final_passes;
   nlohmann::json basis = in.metadata().json.value("basis", nlohmann::json::object());
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
@@ -177,9 +255,7 @@ Status WriteOutput(const CpcaOptions& o, const io::ContainerReader& in, const Pa
     std::vector<double> err(rows), x;
     return fitter.Encode(final_assigner, rounded, row0, rows, &x, id, w, err.data());
   };
-  auto done = [&](uint64_t rows) {
-    progress.Report(base_done + (encoded += rows), (o.max_iterations + 2) * n, "rows");
-  };
+  auto done = [&](uint64_t rows) { progress.Report(base_done + (encoded += rows), fitter.rows_total(), "rows"); };
   LTB_ASSIGN_OR_RETURN(uint64_t rows_written, WriteCpcaRows(out, layout, o.jobs, encode, done));
   result->chunks_written += rows_written;
   return out.Finish();
@@ -188,13 +264,16 @@ Status WriteOutput(const CpcaOptions& o, const io::ContainerReader& in, const Pa
 }  // namespace
 
 Result<CpcaResult> RunCpca(const CpcaOptions& o, const Progress& progress) {
+  const auto t0 = std::chrono::steady_clock::now();
   LTB_RETURN_IF_ERROR(CheckOptions(o));
   LTB_ASSIGN_OR_RETURN(io::ContainerReader in, io::ContainerReader::Open(o.input));
   LTB_RETURN_IF_ERROR(CheckInput(o, in));
+  LTB_ASSIGN_OR_RETURN(const DensePlan dense, PlanDenseFirst(o, in));
   const ArraySpec& a = in.metadata().matrix();
   const uint64_t n = a.rows, d = a.cols, k = o.clusters, s = o.basis;
   const uint64_t p = s == 0 ? 0 : std::min(d, s + o.oversample);
-  LTB_ASSIGN_OR_RETURN(const MemoryPlan mem, PlanMemory(o, n, d, p));
+  const uint64_t kind_block = dense.on ? in.metadata().arrays[dense.array].block : 0;
+  LTB_ASSIGN_OR_RETURN(const MemoryPlan mem, PlanMemory(o, n, d, p, kind_block));
   Params pr;
   pr.k = k;
   pr.s = s;
@@ -204,16 +283,29 @@ Result<CpcaResult> RunCpca(const CpcaOptions& o, const Progress& progress) {
   pr.sample_rows = std::min({n, o.sample_rows, (o.mem_limit - mem.fixed) / mem.per_sample_row});
   pr.sample_rows = std::max(pr.sample_rows, mem.min_sample);
   pr.levels = cpca_internal::Levels(s, o.growth_step);
+  if (dense.on) {
+    pr.dense_first = true;
+    pr.n_dense = dense.dense;
+    pr.kind_array = dense.array;
+    pr.final_iterations = o.final_iterations;
+    pr.sample_rows = std::min(pr.sample_rows, pr.n_dense);  // the sample is of dense rows
+  }
 
-  const nlohmann::json params = {{"clusters", k},
-                                 {"basis", s},
-                                 {"growth_step", o.growth_step},
-                                 {"level_iterations", o.level_iterations},
-                                 {"max_iterations", o.max_iterations},
-                                 {"tolerance", o.tolerance},
-                                 {"oversample", o.oversample},
-                                 {"sample_rows", pr.sample_rows},
-                                 {"seed", o.seed}};
+  // The mode is part of the run's identity through these parameters (a plain run's are
+  // those of builds before dense-first, so their outputs and checkpoints stay valid).
+  nlohmann::json params = {{"clusters", k},
+                           {"basis", s},
+                           {"growth_step", o.growth_step},
+                           {"level_iterations", o.level_iterations},
+                           {"max_iterations", o.max_iterations},
+                           {"tolerance", o.tolerance},
+                           {"oversample", o.oversample},
+                           {"sample_rows", pr.sample_rows},
+                           {"seed", o.seed}};
+  if (dense.on) {
+    params["dense_first"] = true;
+    params["final_iterations"] = o.final_iterations;
+  }
   const nlohmann::json provenance = Provenance("cpca", params, {&in});
   const std::string cp_path = CpcaCheckpointPath(o.output);
 
@@ -223,6 +315,8 @@ Result<CpcaResult> RunCpca(const CpcaOptions& o, const Progress& progress) {
   result.clusters = k;
   result.basis = s;
   result.memory_bytes = mem.fixed + pr.sample_rows * mem.per_sample_row;
+  result.dense_first = dense.on;
+  result.dense_rows = dense.on ? dense.dense : 0;
 
   // One writer per output, before the output or its checkpoint is touched (held to the end;
   // the container writer shares it).
@@ -230,12 +324,17 @@ Result<CpcaResult> RunCpca(const CpcaOptions& o, const Progress& progress) {
   LTB_ASSIGN_OR_RETURN(result.already_complete, CheckExistingOutput(o, provenance, cp_path));
   if (result.already_complete) return Summarize(o.output, result);
 
+  const auto t_fit = std::chrono::steady_clock::now();
   CpcaFitter fitter(o, in, pr, progress);
   const nlohmann::json identity = {{"provenance", provenance}, {"k", k}, {"d", d}, {"p", p}, {"s", s}};
   LTB_ASSIGN_OR_RETURN(const FitOutcome fit, fitter.Fit(cp_path, identity));
   result.resumed = fit.resumed;
   LTB_RETURN_IF_ERROR(WriteOutput(o, in, pr, provenance, fitter, fit, progress, &result));
   std::remove(cp_path.c_str());
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const double before_fit = std::chrono::duration<double>(t_fit - t0).count();
+  result.seconds_dense = before_fit + fit.seconds_dense;
+  result.seconds_final = std::max(0.0, seconds - result.seconds_dense);
   return Summarize(o.output, result);
 }
 

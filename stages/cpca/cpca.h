@@ -11,6 +11,11 @@
 // per pass (docs/CPCA.md), so memory is O(K·D·(S + oversampling)), independent of the
 // number of rows. Deterministic for any --jobs, input chunk size and interruption;
 // resumable at pass boundaries through a checkpoint file beside the output.
+//
+// Dense-first (Huang & Ramamoorthi 2010, §6; docs/CPCA.md): on the output of a sparse bake,
+// whose "sparse_kind" side array marks the rows traced densely (1) and those reconstructed
+// from them (2), the seeded start and the growth levels run on the dense rows only; then
+// every row is assigned and a few LBG passes at the full basis dimension run on all rows.
 #pragma once
 
 #include <cstdint>
@@ -20,6 +25,15 @@
 #include "format/status.h"
 
 namespace ltb::stages {
+
+// The side array a sparse bake writes beside its matrix: one u8 per row, 0 = the row sees
+// no geometry (all zero), 1 = traced densely, 2 = reconstructed from dense rows.
+inline constexpr const char* kSparseKindArray = "sparse_kind";
+inline constexpr uint8_t kSparseKindDense = 1;
+
+// Whether the growth levels run on the dense rows only. kAuto: when the input has a
+// "sparse_kind" array with at least one dense row.
+enum class DenseFirst { kAuto, kOn, kOff };
 
 struct CpcaOptions {
   std::string input;
@@ -33,6 +47,8 @@ struct CpcaOptions {
   uint64_t oversample = 8;        // extra directions tracked by the subspace iteration
   uint64_t sample_rows = 32768;   // rows held in memory for the seeded k-means++ start
   uint64_t seed = 1;
+  DenseFirst dense_first = DenseFirst::kAuto;
+  uint64_t final_iterations = 2;  // dense-first: LBG passes on all rows after the growth levels
   int jobs = 2;
   uint64_t mem_limit = 1ull << 30;
   bool overwrite = false;
@@ -49,6 +65,14 @@ struct CpcaResult {
   bool resumed = false;                     // continued from a checkpoint or a partial output
   bool already_complete = false;
   uint64_t chunks_written = 0, chunks_already_committed = 0;
+  bool dense_first = false;  // the growth levels ran on the dense rows only
+  uint64_t dense_rows = 0;   // rows the growth levels ran on when dense_first (else 0)
+  // Rows read by the fit's passes (growth, final, evaluation, encoding; not the k-means++
+  // sample), counted from the pass counts, so the same for a run interrupted and resumed.
+  uint64_t rows_streamed = 0;
+  // Wall seconds of this invocation: the seeded start and growth levels; the rest (final
+  // passes, evaluation, writing the output).
+  double seconds_dense = 0, seconds_final = 0;
 };
 
 Result<CpcaResult> RunCpca(const CpcaOptions& options, const Progress& progress);

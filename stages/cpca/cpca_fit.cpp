@@ -1,8 +1,10 @@
 #include "stages/cpca/cpca_fit.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <numeric>
+#include <optional>
 #include <queue>
 
 #include "stages/common/parallel_for.h"
@@ -25,6 +27,20 @@ std::vector<uint64_t> Levels(uint64_t s, uint64_t step) {
 
 namespace {
 
+// Copies row i (of the matrix) from its chunk as doubles, refusing non-finite values.
+Status CopyRow(const io::ContainerReader& in, const io::Chunk& chunk, uint64_t i, double* dst) {
+  const uint64_t cols = in.metadata().matrix().cols;
+  const float* src = chunk.as<float>().data() + (i - chunk.extent().row0) * cols;
+  for (uint64_t j = 0; j < cols; ++j) {
+    if (!std::isfinite(src[j])) {
+      return InvalidArgument(in.path() + ": row " + std::to_string(i) + ", column " + std::to_string(j) + " is " +
+                             std::to_string(src[j]) + "; cpca needs finite values");
+    }
+    dst[j] = src[j];
+  }
+  return Status::Ok();
+}
+
 // Reads rows [row0, row0 + n) of the f32 row-block matrix as doubles.
 Status ReadRows(const io::ContainerReader& in, uint64_t row0, uint64_t n, double* out) {
   const ArraySpec& a = in.metadata().matrix();
@@ -33,23 +49,56 @@ Status ReadRows(const io::ContainerReader& in, uint64_t row0, uint64_t n, double
     const uint64_t c = r / a.block;
     LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(0, c));
     const ChunkExtent e = chunk.extent();
-    auto v = chunk.as<float>();
     const uint64_t end = std::min(row0 + n, e.row0 + e.rows);
-    for (uint64_t i = r; i < end; ++i) {
-      const float* src = v.data() + (i - e.row0) * a.cols;
-      double* dst = out + (i - row0) * a.cols;
-      for (uint64_t j = 0; j < a.cols; ++j) {
-        if (!std::isfinite(src[j])) {
-          return InvalidArgument(in.path() + ": row " + std::to_string(i) + ", column " + std::to_string(j) + " is " +
-                                 std::to_string(src[j]) + "; cpca needs finite values");
-        }
-        dst[j] = src[j];
-      }
-    }
+    for (uint64_t i = r; i < end; ++i) LTB_RETURN_IF_ERROR(CopyRow(in, chunk, i, out + (i - row0) * a.cols));
     r = end;
   }
   return Status::Ok();
 }
+
+// Reads the rows rows[0..n) (ascending) as doubles into consecutive rows of out, each
+// input chunk once.
+Status ReadRowList(const io::ContainerReader& in, const uint64_t* rows, uint64_t n, double* out) {
+  const ArraySpec& a = in.metadata().matrix();
+  for (uint64_t i = 0; i < n;) {
+    const uint64_t c = rows[i] / a.block;
+    LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(0, c));
+    for (; i < n && rows[i] / a.block == c; ++i) LTB_RETURN_IF_ERROR(CopyRow(in, chunk, rows[i], out + i * a.cols));
+  }
+  return Status::Ok();
+}
+
+// The dense rows (sparse_kind == kSparseKindDense) in row order, streamed from the side
+// array a chunk at a time (its values were checked when the run started).
+class DenseRows {
+ public:
+  DenseRows(const io::ContainerReader& in, int array) : in_(in), array_(static_cast<uint32_t>(array)) {}
+  // The next (up to) max dense rows; fewer only at the end, none after it.
+  Status Next(uint64_t max, std::vector<uint64_t>* rows) {
+    rows->clear();
+    const ArraySpec& spec = in_.metadata().arrays[array_];
+    while (rows->size() < max) {
+      if (pos_ == kinds_.size()) {
+        if (next_chunk_ == spec.ChunkCount()) break;
+        LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in_.ReadChunk(array_, next_chunk_++));
+        auto v = chunk.as<uint8_t>();
+        kinds_.assign(v.begin(), v.end());
+        row0_ = chunk.extent().row0;
+        pos_ = 0;
+        continue;
+      }
+      if (kinds_[pos_] == kSparseKindDense) rows->push_back(row0_ + pos_);
+      ++pos_;
+    }
+    return Status::Ok();
+  }
+
+ private:
+  const io::ContainerReader& in_;
+  uint32_t array_;
+  uint64_t next_chunk_ = 0, row0_ = 0, pos_ = 0;
+  std::vector<uint8_t> kinds_;
+};
 
 // Per-cluster sums of one pass, about the pass's starting mean.
 struct Accum {
@@ -76,11 +125,14 @@ bool LoadModel(const std::vector<double>& v, uint64_t k, uint64_t d, uint64_t p,
 }
 
 Status WriteCheckpoint(const std::string& path, const nlohmann::json& identity, const std::string& phase,
-                       uint64_t level, uint64_t level_passes, uint64_t passes, double last_error, const Model& m,
-                       const nlohmann::json& extra = nullptr, const std::vector<double>& extra_values = {}) {
+                       uint64_t level, uint64_t level_passes, uint64_t passes, uint64_t final_passes, double last_error,
+                       const Model& m, const nlohmann::json& extra = nullptr,
+                       const std::vector<double>& extra_values = {}) {
   CpcaCheckpoint cp;
-  cp.header = {{"identity", identity},         {"phase", phase},   {"level", level},
-               {"level_passes", level_passes}, {"passes", passes}, {"extra", extra}};
+  cp.header = {{"identity", identity}, {"phase", phase},
+               {"level", level},       {"level_passes", level_passes},
+               {"passes", passes},     {"final_passes", final_passes},
+               {"extra", extra}};
   cp.values = ModelValues(m);
   cp.values.push_back(last_error);
   cp.values.insert(cp.values.end(), extra_values.begin(), extra_values.end());
@@ -89,39 +141,52 @@ Status WriteCheckpoint(const std::string& path, const nlohmann::json& identity, 
 
 }  // namespace
 
-// The fit's position, as the checkpoint records it.
+// The fit's position, as the checkpoint records it. Phases: "iterate" (the growth levels;
+// on the dense rows in dense-first mode), "final" (dense-first: passes on all rows at
+// dimension S), "evaluate", "encode".
 struct CpcaFitter::FitState {
   std::string phase = "iterate";
   uint64_t level = 0, level_passes = 0, passes = 0;
+  uint64_t final_passes = 0;  // of `passes`, those made in phase "final"
   double last_error = -1;
   double final_err = 0, final_norm = 0;  // phase "encode": the final assignment's totals
   std::vector<uint64_t> sizes;
 };
 
-std::vector<uint64_t> CpcaFitter::SampleRows() const {
+Result<std::vector<uint64_t>> CpcaFitter::SampleRows() const {
   const uint64_t n = pr_.n_rows;
-  // The sample: all rows, or the sample_rows rows of smallest hash(seed, row).
+  // The sample: all (dense) rows, or the sample_rows (dense) rows of smallest hash(seed, row).
   std::vector<uint64_t> rows;
-  if (pr_.sample_rows >= n) {
+  if (!pr_.dense_first && pr_.sample_rows >= n) {
     rows.resize(n);
     std::iota(rows.begin(), rows.end(), 0);
-  } else {
-    std::priority_queue<std::pair<uint64_t, uint64_t>> heap;  // (hash, row), largest on top
-    for (uint64_t r = 0; r < n; ++r) {
-      uint64_t h = SplitMix64(o_.seed ^ SplitMix64(r));
-      if (heap.size() < pr_.sample_rows) {
-        heap.push({h, r});
-      } else if (std::make_pair(h, r) < heap.top()) {
-        heap.pop();
-        heap.push({h, r});
-      }
-    }
-    while (!heap.empty()) {
-      rows.push_back(heap.top().second);
-      heap.pop();
-    }
-    std::sort(rows.begin(), rows.end());
+    return rows;
   }
+  std::priority_queue<std::pair<uint64_t, uint64_t>> heap;  // (hash, row), largest on top
+  auto offer = [&](uint64_t r) {
+    uint64_t h = SplitMix64(o_.seed ^ SplitMix64(r));
+    if (heap.size() < pr_.sample_rows) {
+      heap.push({h, r});
+    } else if (std::make_pair(h, r) < heap.top()) {
+      heap.pop();
+      heap.push({h, r});
+    }
+  };
+  if (pr_.dense_first) {
+    DenseRows dense(in_, pr_.kind_array);
+    std::vector<uint64_t> batch;
+    do {
+      LTB_RETURN_IF_ERROR(dense.Next(1 << 16, &batch));
+      for (uint64_t r : batch) offer(r);
+    } while (!batch.empty());
+  } else {
+    for (uint64_t r = 0; r < n; ++r) offer(r);
+  }
+  while (!heap.empty()) {
+    rows.push_back(heap.top().second);
+    heap.pop();
+  }
+  std::sort(rows.begin(), rows.end());
   return rows;
 }
 
@@ -241,15 +306,10 @@ Status CpcaFitter::InitialDirections(const RowMat& x, const std::vector<uint32_t
 
 Status CpcaFitter::Initialise(Model* m) {
   const uint64_t d = pr_.d, k = pr_.k, p = pr_.p;
-  const std::vector<uint64_t> rows = SampleRows();
+  LTB_ASSIGN_OR_RETURN(const std::vector<uint64_t> rows, SampleRows());
   const uint64_t ns = rows.size();
   RowMat x(ns, d);
-  for (uint64_t i = 0; i < ns;) {  // runs of consecutive rows
-    uint64_t j = i + 1;
-    while (j < ns && rows[j] == rows[j - 1] + 1 && j - i < 4096) ++j;
-    LTB_RETURN_IF_ERROR(ReadRows(in_, rows[i], j - i, x.data() + i * d));
-    i = j;
-  }
+  LTB_RETURN_IF_ERROR(ReadRowList(in_, rows.data(), ns, x.data()));
   const std::vector<uint64_t> centres = SeedCentres(x);
   m->k = k;
   m->d = d;
@@ -261,7 +321,7 @@ Status CpcaFitter::Initialise(Model* m) {
   return InitialDirections(x, id, m);
 }
 
-Result<double> CpcaFitter::Pass(Model* m, uint64_t n, uint64_t pass_index) {
+Result<double> CpcaFitter::Pass(Model* m, uint64_t n, uint64_t pass_index, bool dense_only) {
   const uint64_t d = pr_.d, k = pr_.k, p = pr_.p, nr = pr_.n_rows;
   const uint64_t block = PassBlockRows(d);
   Assigner assigner(*m, n, /*single=*/true);
@@ -278,20 +338,29 @@ Result<double> CpcaFitter::Pass(Model* m, uint64_t n, uint64_t pass_index) {
     return a.first > b.first || (a.first == b.first && a.second < b.second);
   };
 
+  // Pass blocks: `block` consecutive rows from row 0, or (dense_only) the next `block` dense
+  // rows; either way fixed by the data alone, as are their kSubRows sub-blocks.
+  std::optional<DenseRows> dense;
+  if (dense_only) dense.emplace(in_, pr_.kind_array);
+  std::vector<uint64_t> list;  // dense_only: the block's rows
   std::vector<double> x(block * d), err(block);
   std::vector<uint32_t> ids(block);
   double total = 0;
-  for (uint64_t row0 = 0; row0 < nr; row0 += block) {
+  for (uint64_t row0 = 0;; row0 += block) {
     if (progress_.Cancelled()) {
       return Cancelled("interrupted in pass " + std::to_string(pass_index + 1) +
                        "; passes before it are checkpointed, rerun the same command to resume");
     }
-    const uint64_t rows = std::min(block, nr - row0);
+    if (dense) LTB_RETURN_IF_ERROR(dense->Next(block, &list));
+    const uint64_t rows = dense ? list.size() : row0 < nr ? std::min(block, nr - row0) : 0;
+    if (rows == 0) break;
+    auto row_of = [&](uint64_t r) { return dense ? list[r] : row0 + r; };
     std::vector<uint64_t> subs;
     for (uint64_t s = 0; s < rows; s += kSubRows) subs.push_back(s);
     LTB_RETURN_IF_ERROR(ParallelFor(subs, o_.jobs, Progress{}, "rows", [&](uint64_t s) -> Status {
       const uint64_t m_rows = std::min(kSubRows, rows - s);
-      LTB_RETURN_IF_ERROR(ReadRows(in_, row0 + s, m_rows, x.data() + s * d));
+      LTB_RETURN_IF_ERROR(dense ? ReadRowList(in_, list.data() + s, m_rows, x.data() + s * d)
+                                : ReadRows(in_, row0 + s, m_rows, x.data() + s * d));
       assigner.Assign(x.data() + s * d, m_rows, d, ids.data() + s, err.data() + s, nullptr);
       return Status::Ok();
     }));
@@ -299,7 +368,7 @@ Result<double> CpcaFitter::Pass(Model* m, uint64_t n, uint64_t pass_index) {
     for (uint64_t r = 0; r < rows; ++r) {
       members[ids[r]].push_back(static_cast<uint32_t>(r));
       total += err[r];
-      std::pair<double, uint64_t> e{err[r], row0 + r};
+      std::pair<double, uint64_t> e{err[r], row_of(r)};
       if (worst.size() < keep || better(e, worst.back())) {
         auto pos = std::lower_bound(worst.begin(), worst.end(), e, better);
         size_t at = pos - worst.begin();
@@ -438,9 +507,11 @@ Result<bool> CpcaFitter::Resume(const std::string& cp_path, const nlohmann::json
       st->level = c.header.value("level", uint64_t{0});
       st->level_passes = c.header.value("level_passes", uint64_t{0});
       st->passes = c.header.value("passes", uint64_t{0});
+      st->final_passes = c.header.value("final_passes", uint64_t{0});
       st->phase = c.header.value("phase", std::string("iterate"));
       st->last_error = c.values[base];
-      loaded = st->level < pr_.levels.size();
+      loaded = st->level < pr_.levels.size() && st->final_passes <= st->passes &&
+               (pr_.dense_first || (st->phase != "final" && st->final_passes == 0));
       if (st->phase == "encode") {
         const auto& extra = c.header["extra"];
         loaded = loaded && c.values.size() == base + 3 && extra.is_object() && extra.contains("sizes") &&
@@ -456,31 +527,65 @@ Result<bool> CpcaFitter::Resume(const std::string& cp_path, const nlohmann::json
   return loaded;
 }
 
-// Alternate assignment and refit, growing the basis dimension level by level.
+// Alternate assignment and refit, growing the basis dimension level by level (dense-first:
+// on the dense rows).
 Status CpcaFitter::Iterate(const std::string& cp_path, const nlohmann::json& identity, Model* m, FitState* st) {
   while (st->phase == "iterate") {
     const uint64_t dim = pr_.levels[st->level];
     const bool last_level = st->level + 1 == pr_.levels.size();
-    LTB_ASSIGN_OR_RETURN(double e, Pass(m, dim, st->passes));
+    LTB_ASSIGN_OR_RETURN(double e, Pass(m, dim, st->passes, pr_.dense_first));
     ++st->passes;
     ++st->level_passes;
     const bool converged = st->last_error >= 0 && st->last_error - e <= o_.tolerance * st->last_error;
     st->last_error = e;
     if (st->passes >= o_.max_iterations || (last_level && converged)) {
-      st->phase = "evaluate";
+      if (pr_.dense_first && pr_.final_iterations > 0) {
+        st->phase = "final";
+        st->last_error = -1;  // the dense rows' error: not comparable with all rows'
+      } else {
+        st->phase = "evaluate";
+      }
     } else if (!last_level && (converged || st->level_passes >= o_.level_iterations)) {
       ++st->level;
       st->level_passes = 0;
       st->last_error = -1;
     }
-    LTB_RETURN_IF_ERROR(
-        WriteCheckpoint(cp_path, identity, st->phase, st->level, st->level_passes, st->passes, st->last_error, *m));
-    if (st->phase == "evaluate") break;
+    LTB_RETURN_IF_ERROR(WriteCheckpoint(cp_path, identity, st->phase, st->level, st->level_passes, st->passes,
+                                        st->final_passes, st->last_error, *m));
   }
   return Status::Ok();
 }
 
+// Dense-first: LBG passes over all rows at the full dimension (the first assigns the
+// sparse rows to their nearest clusters), until final_iterations or the error improves by
+// less than the tolerance (relative), as the last growth level stops.
+Status CpcaFitter::FinalPasses(const std::string& cp_path, const nlohmann::json& identity, Model* m, FitState* st) {
+  while (st->phase == "final") {
+    LTB_ASSIGN_OR_RETURN(double e, Pass(m, pr_.s, st->passes, /*dense_only=*/false));
+    ++st->passes;
+    ++st->final_passes;
+    const bool converged = st->last_error >= 0 && st->last_error - e <= o_.tolerance * st->last_error;
+    st->last_error = e;
+    if (st->final_passes >= pr_.final_iterations || converged) st->phase = "evaluate";
+    LTB_RETURN_IF_ERROR(WriteCheckpoint(cp_path, identity, st->phase, st->level, st->level_passes, st->passes,
+                                        st->final_passes, st->last_error, *m));
+  }
+  return Status::Ok();
+}
+
+uint64_t CpcaFitter::RowsStreamed(const FitState& st) const {
+  const uint64_t growth = st.passes - st.final_passes;
+  const uint64_t done = (st.phase == "encode") ? pr_.n_rows : 0;  // the evaluation pass
+  return growth * (pr_.dense_first ? pr_.n_dense : pr_.n_rows) + st.final_passes * pr_.n_rows + done;
+}
+
+uint64_t CpcaFitter::rows_total() const {
+  if (!pr_.dense_first) return (o_.max_iterations + 2) * pr_.n_rows;
+  return o_.max_iterations * pr_.n_dense + (pr_.final_iterations + 2) * pr_.n_rows;
+}
+
 Result<FitOutcome> CpcaFitter::Fit(const std::string& cp_path, const nlohmann::json& identity) {
+  const auto t0 = std::chrono::steady_clock::now();
   Model m;
   FitState st;
   FitOutcome out;
@@ -488,19 +593,23 @@ Result<FitOutcome> CpcaFitter::Fit(const std::string& cp_path, const nlohmann::j
   if (!out.resumed) {
     st = FitState();
     LTB_RETURN_IF_ERROR(Initialise(&m));
-    LTB_RETURN_IF_ERROR(
-        WriteCheckpoint(cp_path, identity, st.phase, st.level, st.level_passes, st.passes, st.last_error, m));
+    LTB_RETURN_IF_ERROR(WriteCheckpoint(cp_path, identity, st.phase, st.level, st.level_passes, st.passes,
+                                        st.final_passes, st.last_error, m));
   }
-  rows_done_ = st.passes * pr_.n_rows;
+  rows_done_ = RowsStreamed(st);
   LTB_RETURN_IF_ERROR(Iterate(cp_path, identity, &m, &st));
+  out.seconds_dense = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  LTB_RETURN_IF_ERROR(FinalPasses(cp_path, identity, &m, &st));
   out.rounded = Rounded(m);
   if (st.phase != "encode") {
     LTB_RETURN_IF_ERROR(Evaluate(out.rounded, &st.final_err, &st.final_norm, &st.sizes));
     st.phase = "encode";
     LTB_RETURN_IF_ERROR(WriteCheckpoint(cp_path, identity, st.phase, st.level, st.level_passes, st.passes,
-                                        st.last_error, m, {{"sizes", st.sizes}}, {st.final_err, st.final_norm}));
+                                        st.final_passes, st.last_error, m, {{"sizes", st.sizes}},
+                                        {st.final_err, st.final_norm}));
   }
   out.passes = st.passes;
+  out.final_passes = st.final_passes;
   out.squared_error = st.final_err;
   out.squared_norm = st.final_norm;
   out.sizes = std::move(st.sizes);

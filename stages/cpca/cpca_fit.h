@@ -1,7 +1,8 @@
 // Internal to `ltbake cpca` (stages/cpca/cpca.h): fitting the model to rows streamed from
 // the input — the seeded k-means++ start, the assignment/refit passes growing the basis
-// level by level, checkpointed at every pass boundary, and the final evaluation and
-// encoding with the f32-rounded model.
+// level by level (on the dense rows only in dense-first mode, then a few passes on all
+// rows), checkpointed at every pass boundary, and the final evaluation and encoding with
+// the f32-rounded model.
 #pragma once
 
 #include <cstdint>
@@ -32,12 +33,20 @@ std::vector<uint64_t> Levels(uint64_t s, uint64_t step);
 struct Params {
   uint64_t k, s, p, n_rows, d, sample_rows;
   std::vector<uint64_t> levels;
+  // Dense-first: the seeded start and the growth levels use only the n_dense rows whose
+  // sparse_kind (array kind_array of the input) is kSparseKindDense; then
+  // final_iterations passes at dimension s run on all rows.
+  bool dense_first = false;
+  uint64_t n_dense = 0, final_iterations = 0;
+  int kind_array = -1;
 };
 
 // Where a fit ends: the model as stored and the final assignment's totals.
 struct FitOutcome {
-  Model rounded;  // every value rounded to f32
-  uint64_t passes = 0;
+  Model rounded;                               // every value rounded to f32
+  uint64_t passes = 0;                         // every assignment/refit pass
+  uint64_t final_passes = 0;                   // of which on all rows after the dense growth levels
+  double seconds_dense = 0;                    // this invocation's wall seconds of the start and growth levels
   double squared_error = 0, squared_norm = 0;  // Σ of the stored approximation, Σ ‖x‖²
   std::vector<uint64_t> sizes;                 // rows per cluster
   bool resumed = false;                        // continued from the checkpoint
@@ -58,26 +67,32 @@ class CpcaFitter {
   // the decoded approximation. x receives the last sub-block's rows.
   Status Encode(const Assigner& a, const Model& rounded, uint64_t row0, uint64_t n, std::vector<double>* x,
                 uint32_t* ids, float* weights, double* err) const;
-  // Rows streamed so far, counting the passes of earlier runs (for progress).
+  // Rows streamed so far, counting the passes of earlier runs (for progress), and the
+  // total expected when every pass runs.
   uint64_t rows_done() const { return rows_done_; }
+  uint64_t rows_total() const;
 
  private:
   struct FitState;
   Status Initialise(Model* m);
-  std::vector<uint64_t> SampleRows() const;
+  Result<std::vector<uint64_t>> SampleRows() const;
   std::vector<uint64_t> SeedCentres(const RowMat& x) const;
   Status Lloyd(const RowMat& x, Model* m, std::vector<uint32_t>* id) const;
   Status InitialDirections(const RowMat& x, const std::vector<uint32_t>& id, Model* m) const;
-  // One assignment + refit pass at basis dimension n. Returns Σ squared error of the
-  // assignment (against the model before the refit).
-  Result<double> Pass(Model* m, uint64_t n, uint64_t pass_index);
+  // One assignment + refit pass at basis dimension n over all rows, or over the dense
+  // rows only. Returns Σ squared error of the assignment (against the model before the
+  // refit).
+  Result<double> Pass(Model* m, uint64_t n, uint64_t pass_index, bool dense_only);
   // The final assignment with the f32-rounded model: Σ squared error of what is stored,
   // Σ ‖x‖², and the cluster sizes.
   Status Evaluate(const Model& rounded, double* err, double* norm, std::vector<uint64_t>* sizes);
   Result<bool> Resume(const std::string& cp_path, const nlohmann::json& identity, Model* m, FitState* st) const;
   Status Iterate(const std::string& cp_path, const nlohmann::json& identity, Model* m, FitState* st);
+  Status FinalPasses(const std::string& cp_path, const nlohmann::json& identity, Model* m, FitState* st);
+  // Rows the passes counted in st have read.
+  uint64_t RowsStreamed(const FitState& st) const;
 
-  void ReportRows(uint64_t done) const { progress_.Report(done, (o_.max_iterations + 2) * pr_.n_rows, "rows"); }
+  void ReportRows(uint64_t done) const { progress_.Report(done, rows_total(), "rows"); }
   const CpcaOptions& o_;
   const io::ContainerReader& in_;
   const Params& pr_;

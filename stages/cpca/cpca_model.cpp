@@ -47,27 +47,32 @@ nlohmann::json CpcaOutputMetadata(const CpcaLayout& l, const CpcaFitInfo& fit, c
   if (s > 0) arrays.push_back(l.weights.ToJson());
   const double final_err = fit.squared_error, final_norm = fit.squared_norm;
   const double rel = final_norm > 0 ? std::sqrt(final_err / final_norm) : std::sqrt(final_err);
-  return {{"arrays", arrays},
-          {"basis", basis},
-          {"cpca",
-           {{"clusters", k},
-            {"basis_dim", s},
-            {"rows", n},
-            {"dims", d},
-            {"iterations", fit.iterations},
-            {"growth_levels", fit.growth_levels},
-            {"seed", fit.seed},
-            {"relative_rms_error", rel},
-            {"squared_error", final_err},
-            {"squared_norm", final_norm},
-            {"empty_clusters", fit.empty_clusters},
-            {"vectors_array", kCpcaVectorsArray},
-            {"id_array", kCpcaIdArray},
-            {"weights_array", s > 0 ? nlohmann::json(kCpcaWeightsArray) : nlohmann::json(nullptr)},
-            {"decode",
-             "row r = v[c·(S+1)] + Σ_i w[r,i]·v[c·(S+1)+1+i], c = cluster_id[r], v = cluster_vectors "
-             "(docs/CPCA.md)"}}},
-          {"provenance", provenance}};
+  nlohmann::json meta = {{"arrays", arrays},
+                         {"basis", basis},
+                         {"cpca",
+                          {{"clusters", k},
+                           {"basis_dim", s},
+                           {"rows", n},
+                           {"dims", d},
+                           {"iterations", fit.iterations},
+                           {"growth_levels", fit.growth_levels},
+                           {"seed", fit.seed},
+                           {"relative_rms_error", rel},
+                           {"squared_error", final_err},
+                           {"squared_norm", final_norm},
+                           {"empty_clusters", fit.empty_clusters},
+                           {"vectors_array", kCpcaVectorsArray},
+                           {"id_array", kCpcaIdArray},
+                           {"weights_array", s > 0 ? nlohmann::json(kCpcaWeightsArray) : nlohmann::json(nullptr)},
+                           {"decode",
+                            "row r = v[c·(S+1)] + Σ_i w[r,i]·v[c·(S+1)+1+i], c = cluster_id[r], v = cluster_vectors "
+                            "(docs/CPCA.md)"}}},
+                         {"provenance", provenance}};
+  if (fit.dense_first) {
+    meta["cpca"]["dense_first"] = {
+        {"dense_rows", fit.dense_rows}, {"dense_passes", fit.dense_passes}, {"final_passes", fit.final_passes}};
+  }
+  return meta;
 }
 
 Result<uint64_t> WriteCpcaVectors(io::ContainerWriter& out, const CpcaLayout& l,

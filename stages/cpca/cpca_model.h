@@ -44,6 +44,10 @@ struct CpcaFitInfo {
   uint64_t seed = 0;
   double squared_error = 0, squared_norm = 0;  // of the stored approximation, Σ ‖x‖²
   uint64_t empty_clusters = 0;
+  // Dense-first fits (recorded as "dense_first" in the block; absent otherwise): the rows
+  // the growth levels ran on, their passes, and the passes on all rows after them.
+  bool dense_first = false;
+  uint64_t dense_rows = 0, dense_passes = 0, final_passes = 0;
 };
 
 // An output's metadata: the arrays, the input's basis, the "cpca" block and provenance.

@@ -90,6 +90,65 @@ json ChunkList(const io::ContainerReader& reader) {
   return list;
 }
 
+// A sparse bake (docs/SPARSE.md) and every row-block container derived from it: the rows
+// per kind, the entries traced and the rays and thread-seconds per phase, from its side tables.
+Result<json> SummarizeSparse(const io::ContainerReader& r, const Metadata& meta) {
+  const int kind_a = meta.FindArray("sparse_kind"), traced_a = meta.FindArray("sparse_traced"),
+            rays_a = meta.FindArray("sparse_rays"), res_a = meta.FindArray("sparse_residual"),
+            secs_a = meta.FindArray("sparse_seconds");
+  if (kind_a < 0 || traced_a < 0 || rays_a < 0 || res_a < 0 || secs_a < 0) return json(nullptr);
+  const json& cols = meta.json["basis"]["cols"];
+  const uint64_t res = cols.is_object() && cols.contains("cube_res") && cols["cube_res"].is_number_unsigned()
+                           ? cols["cube_res"].get<uint64_t>()
+                           : 0;
+  uint64_t rows[3] = {0, 0, 0}, traced[3] = {0, 0, 0}, rays[3] = {0, 0, 0};
+  double secs[3] = {0, 0, 0};
+  std::vector<float> residuals;
+  const ArraySpec& ks = meta.arrays[static_cast<uint32_t>(kind_a)];
+  for (uint64_t c = 0; c < ks.ChunkCount(); ++c) {
+    LTB_ASSIGN_OR_RETURN(io::Chunk k, r.ReadChunk(static_cast<uint32_t>(kind_a), c));
+    LTB_ASSIGN_OR_RETURN(io::Chunk t, r.ReadChunk(static_cast<uint32_t>(traced_a), c));
+    LTB_ASSIGN_OR_RETURN(io::Chunk y, r.ReadChunk(static_cast<uint32_t>(rays_a), c));
+    LTB_ASSIGN_OR_RETURN(io::Chunk e, r.ReadChunk(static_cast<uint32_t>(res_a), c));
+    LTB_ASSIGN_OR_RETURN(io::Chunk s, r.ReadChunk(static_cast<uint32_t>(secs_a), c));
+    auto kv = k.as<uint8_t>();
+    auto tv = t.as<uint32_t>();
+    auto yv = y.as<uint64_t>();
+    auto ev = e.as<float>();
+    auto sv = s.as<float>();
+    if (tv.size() != kv.size() || yv.size() != kv.size() || ev.size() != kv.size() || sv.size() != kv.size()) {
+      return DataLoss(r.path() + ": the sparse side tables of chunk " + std::to_string(c) + " differ in length");
+    }
+    for (size_t i = 0; i < kv.size(); ++i) {
+      const uint8_t kind = kv[i] <= 2 ? kv[i] : 0;
+      rows[kind]++;
+      traced[kind] += tv[i];
+      rays[kind] += yv[i];
+      secs[kind] += sv[i];
+      if (kind == 2) residuals.push_back(ev[i]);
+    }
+  }
+  const uint64_t entries = (rows[1] + rows[2]) * 6 * res * res;
+  json out = {{"rows", {{"dense", rows[1]}, {"sparse", rows[2]}, {"no_geometry", rows[0]}}},
+              {"dense_rows", rows[1]},
+              {"entries", entries},
+              {"traced_entries", {{"dense", traced[1]}, {"sparse", traced[2]}}},
+              {"traced_fraction", entries ? static_cast<double>(traced[1] + traced[2]) / entries : 0.0},
+              {"rays", {{"dense", rays[1]}, {"sparse", rays[2]}}},
+              {"seconds", {{"dense", secs[1]}, {"sparse", secs[2]}}}};
+  if (!residuals.empty()) {
+    std::sort(residuals.begin(), residuals.end());
+    auto at = [&](double q) { return residuals[static_cast<size_t>(q * static_cast<double>(residuals.size() - 1))]; };
+    out["residual"] = {{"median", at(0.5)}, {"p90", at(0.9)}, {"max", residuals.back()}};
+  }
+  const json& prov = meta.json.value("provenance", json::object());
+  if (prov.is_object() && prov.contains("parameters") && prov["parameters"].is_object() &&
+      prov["parameters"].contains("sparse")) {
+    out["parameters"] = prov["parameters"]["sparse"];
+  }
+  return out;
+}
+
 // Column-transform / quantize outputs: chosen depths, error, bytes per nonzero; cpca
 // outputs: clusters, basis dimension, passes, error (docs/CPCA.md).
 void AddStageSummaries(const std::string& path, const Metadata& meta, bool complete, json& out) {
@@ -172,6 +231,11 @@ Result<json> InspectContainer(const std::string& path, const InspectOptions& opt
     if (m.contains(k)) out[k] = m[k];
   }
   AddStageSummaries(path, meta, reader.complete(), out);
+  if (reader.complete()) {
+    auto sparse = SummarizeSparse(reader, meta);
+    if (!sparse.ok()) return sparse.status();
+    if (!sparse->is_null()) out["sparse"] = *sparse;
+  }
   if (options.chunk_list) out["chunk_list"] = ChunkList(reader);
   return out;
 }
