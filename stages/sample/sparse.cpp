@@ -177,6 +177,7 @@ ArraySpec RowArray(const char* name, DType t, uint64_t rows, uint64_t cols, uint
 // ---- Dense rows ----
 
 struct DenseScratch {
+  const sp::WindowTable* windows = nullptr;
   RowScratch sc;
   std::vector<double> unoccluded, value, indirect;
   std::vector<uint8_t> grid, second;
@@ -196,7 +197,7 @@ DenseRowResult TraceDenseRow(const Sampler& s, uint64_t row, const RowPoint& rp,
   s.Unoccluded(row, rp, ds.unoccluded.data(), ds.sc);
   sp::GridSelection(s.cube_res(), ds.unoccluded.data(), &ds.grid);
   out.rays += s.DirectSelected(row, rp, ds.grid.data(), ds.value.data(), ds.sc);
-  const uint64_t second = sp::SecondPass(s.cube_res(), ds.unoccluded.data(), ds.grid, ds.value.data(), &ds.second);
+  const uint64_t second = sp::SecondPass(*ds.windows, ds.unoccluded.data(), ds.grid, ds.value.data(), &ds.second);
   if (second > 0) out.rays += s.DirectSelected(row, rp, ds.second.data(), ds.value.data(), ds.sc);
   out.traced = second + static_cast<uint64_t>(std::count(ds.grid.begin(), ds.grid.end(), uint8_t{1}));
   for (uint64_t c = 0; c < cols; ++c) direct[c] = static_cast<float>(ds.value[c]);
@@ -221,8 +222,8 @@ struct Phase1 {
 class Phase1Runner {
  public:
   Phase1Runner(const SampleOptions& o, const Prepared& p, const Sampler& s, const RowPoints& pts, const Params& pr,
-               const Progress& progress)
-      : o_(o), p_(p), s_(s), pts_(pts), pr_(pr), progress_(progress) {
+               const sp::WindowTable& windows, const Progress& progress)
+      : o_(o), p_(p), s_(s), pts_(pts), pr_(pr), windows_(windows), progress_(progress) {
     low_res_ = std::min(p.r, kRankRes);
     low_cols_ = 6ull * low_res_ * low_res_;
   }
@@ -379,6 +380,7 @@ class Phase1Runner {
   Status TraceChunk(io::ContainerWriter& w, uint64_t c, Phase1& st, std::atomic<uint64_t>* traced,
                     std::atomic<uint64_t>* rays, std::atomic<uint64_t>* written) {
     thread_local DenseScratch ds;
+    ds.windows = &windows_;
     const uint64_t i0 = c * pr_.dense_block, n = std::min(pr_.dense_block, pr_.dense - i0);
     const uint64_t cols = pr_.cols, fb = cols;
     std::vector<float> direct(n * cols), indirect(p_.bounces > 0 ? n * cols : 0), secs(n);
@@ -415,6 +417,7 @@ class Phase1Runner {
   const Sampler& s_;
   const RowPoints& pts_;
   const Params& pr_;
+  const sp::WindowTable& windows_;
   const Progress& progress_;
   uint32_t low_res_ = 1;
   uint64_t low_cols_ = 6;
@@ -482,8 +485,17 @@ struct Phase2Counters {
 class Phase2Runner {
  public:
   Phase2Runner(const SampleOptions& o, const Prepared& p, const Sampler& s, const RowPoints& pts, const Params& pr,
-               const DenseRows& dense, const std::vector<int64_t>& dense_of, const Progress& progress)
-      : o_(o), p_(p), s_(s), pts_(pts), pr_(pr), dense_(dense), dense_of_(dense_of), progress_(progress) {
+               const sp::WindowTable& windows, const DenseRows& dense, const std::vector<int64_t>& dense_of,
+               const Progress& progress)
+      : o_(o),
+        p_(p),
+        s_(s),
+        pts_(pts),
+        pr_(pr),
+        windows_(windows),
+        dense_(dense),
+        dense_of_(dense_of),
+        progress_(progress) {
     pos_.resize(pr.dense);
     nor_.resize(pr.dense);
     for (uint64_t r = 0; r < p.rows; ++r) {
@@ -496,6 +508,7 @@ class Phase2Runner {
 
   Status Block(io::ContainerWriter& w, uint64_t chunk, uint64_t block, Phase2Counters& cnt) {
     thread_local DenseScratch ds;
+    ds.windows = &windows_;
     thread_local sp::Scratch fs;
     thread_local std::vector<uint32_t> nb_idx, texels;
     thread_local std::vector<sp::DenseView> nb;
@@ -623,6 +636,7 @@ class Phase2Runner {
   const Sampler& s_;
   const RowPoints& pts_;
   const Params& pr_;
+  const sp::WindowTable& windows_;
   const DenseRows& dense_;
   const std::vector<int64_t>& dense_of_;
   const Progress& progress_;
@@ -666,9 +680,10 @@ Result<SampleResult> RunSparseSample(const SampleOptions& o, const Prepared& p, 
 
   // Phase 1 (its checkpoint is sealed once done; a rerun reads it back).
   const std::string cp = SparseCheckpointPath(o.output);
+  const sp::WindowTable windows(p.r);
   Phase1 ph1;
   if (pr.dense > 0) {
-    Phase1Runner runner(o, p, sampler, pts, pr, progress);
+    Phase1Runner runner(o, p, sampler, pts, pr, windows, progress);
     LTB_RETURN_IF_ERROR(runner.Run(&ph1));
   }
   st.entries_traced[0] = ph1.traced;
@@ -692,7 +707,7 @@ Result<SampleResult> RunSparseSample(const SampleOptions& o, const Prepared& p, 
   }
   std::sort(todo.begin(), todo.end());
   todo.erase(std::unique(todo.begin(), todo.end()), todo.end());
-  Phase2Runner runner(o, p, sampler, pts, pr, *dense, dense_of, progress);
+  Phase2Runner runner(o, p, sampler, pts, pr, windows, *dense, dense_of, progress);
   runner.SetTodoRows(std::min(p.rows, todo.size() * block));
   Phase2Counters cnt;
   Status s = ParallelFor(todo, o.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",

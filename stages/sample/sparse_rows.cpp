@@ -6,6 +6,8 @@
 #include <limits>
 #include <numeric>
 
+#include "stages/common/cubemap.h"
+
 namespace ltb::sample::sparse {
 
 void GridSelection(uint32_t r, const double* unoccluded, std::vector<uint8_t>* select) {
@@ -17,12 +19,32 @@ void GridSelection(uint32_t r, const double* unoccluded, std::vector<uint8_t>* s
   }
 }
 
-uint64_t SecondPass(uint32_t r, const double* unoccluded, const std::vector<uint8_t>& grid, double* value,
-                    std::vector<uint8_t>* select) {
-  const uint64_t rr = uint64_t{r} * r, cols = 6 * rr;
+WindowTable::WindowTable(uint32_t r) {
+  const uint64_t cols = 6ull * r * r;
+  ids_.resize(cols * kSize);
+  for (uint64_t c = 0; c < cols; ++c) {
+    const cubemap::Texel x = cubemap::ColumnToTexel(c, r);
+    size_t k = 0;
+    for (int dy = -kWindowHalf; dy <= kWindowHalf; ++dy) {
+      for (int dx = -kWindowHalf; dx <= kWindowHalf; ++dx) {
+        const double u = 2.0 * (x.s + dx + 0.5) / r - 1.0, v = 2.0 * (x.t + dy + 0.5) / r - 1.0;
+        uint64_t id = c;
+        if (u > -1 && u < 1 && v > -1 && v < 1) {
+          id = x.face * uint64_t{r} * r + static_cast<uint64_t>(x.t + dy) * r + static_cast<uint64_t>(x.s + dx);
+        } else {
+          id = cubemap::Column(cubemap::DirectionToTexel(cubemap::FaceDirection(x.face, u, v), r), r);
+        }
+        ids_[c * kSize + k++] = static_cast<uint32_t>(id);
+      }
+    }
+  }
+}
+
+uint64_t SecondPass(const WindowTable& windows, const double* unoccluded, const std::vector<uint8_t>& grid,
+                    double* value, std::vector<uint8_t>* select) {
+  const uint64_t cols = grid.size();
   select->assign(cols, 0);
   uint64_t features = 0;
-  const int64_t ri = r;
   // The visible fraction of every sampled grid texel; NaN marks "not sampled".
   thread_local std::vector<double> frac;
   frac.assign(cols, std::numeric_limits<double>::quiet_NaN());
@@ -35,21 +57,17 @@ uint64_t SecondPass(uint32_t r, const double* unoccluded, const std::vector<uint
       value[c] = 0;
       continue;
     }
-    const uint64_t face = c / rr;
-    const int64_t s = static_cast<int64_t>(c % rr % r), t = static_cast<int64_t>(c % rr / r);
     bool any = false, uniform = true;
     double v0 = 0;
-    for (int64_t y = std::max<int64_t>(0, t - kWindowHalf); y <= std::min(ri - 1, t + kWindowHalf) && uniform; ++y) {
-      for (int64_t x = std::max<int64_t>(0, s - kWindowHalf); x <= std::min(ri - 1, s + kWindowHalf); ++x) {
-        const double v = frac[face * rr + static_cast<uint64_t>(y) * r + static_cast<uint64_t>(x)];
-        if (std::isnan(v)) continue;
-        if (!any) {
-          any = true;
-          v0 = v;
-        } else if (v != v0) {
-          uniform = false;
-          break;
-        }
+    for (uint32_t j : windows.Of(c)) {
+      const double v = frac[j];
+      if (std::isnan(v)) continue;
+      if (!any) {
+        any = true;
+        v0 = v;
+      } else if (v != v0) {
+        uniform = false;
+        break;
       }
     }
     if (any && uniform) {

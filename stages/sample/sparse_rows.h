@@ -25,14 +25,28 @@ inline constexpr int kWindowHalf = 3;
 // with unoccluded[c] > 0 (not wholly below the horizon). select gets 6R² flags.
 void GridSelection(uint32_t r, const double* unoccluded, std::vector<uint8_t>* select);
 
+// The 7×7 window of every texel, across cube edges: offset (dx, dy) of texel (face, s, t)
+// is the texel whose direction the face's plane extended to (s + dx, t + dy) points to, so
+// a window near an edge continues on the neighbouring face. 6R² × 49 columns (repeats
+// possible near cube corners).
+class WindowTable {
+ public:
+  explicit WindowTable(uint32_t r);
+  std::span<const uint32_t> Of(uint64_t c) const { return {ids_.data() + c * kSize, kSize}; }
+  static constexpr size_t kSize = (2 * kWindowHalf + 1) * (2 * kWindowHalf + 1);
+
+ private:
+  std::vector<uint32_t> ids_;
+};
+
 // The second pass. For each texel c off the grid with unoccluded[c] > 0: the visible
 // fractions v_j = value[j] / unoccluded[j] of the grid texels j with unoccluded[j] > 0 in
-// the 7×7 window around c on c's face. When they are all equal (say to v), c is not traced
+// c's window. When they are all equal (say to v), c is not traced
 // and value[c] = unoccluded[c]·v; otherwise (or when the window holds none) select[c] = 1:
 // c is a feature and must be traced. A texel with unoccluded[c] == 0 gets value 0. Reads
 // value[j] only on the grid. Returns the number of features.
-uint64_t SecondPass(uint32_t r, const double* unoccluded, const std::vector<uint8_t>& grid, double* value,
-                    std::vector<uint8_t>* select);
+uint64_t SecondPass(const WindowTable& windows, const double* unoccluded, const std::vector<uint8_t>& grid,
+                    double* value, std::vector<uint8_t>* select);
 
 // ---- Local rank (§4.1) ----
 

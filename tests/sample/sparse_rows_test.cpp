@@ -64,7 +64,7 @@ TEST(SparseAngular, EveryTexelNearAShadowEdgeIsTracedAndTheRestIsExact) {
     for (uint64_t c = 0; c < grid.size(); ++c) {
       if (grid[c]) value[c] = s.exact[c];  // "traced"
     }
-    const uint64_t features = SecondPass(r, s.unoccluded.data(), grid, value.data(), &second);
+    const uint64_t features = SecondPass(WindowTable(r), s.unoccluded.data(), grid, value.data(), &second);
     EXPECT_EQ(features, static_cast<uint64_t>(std::count(second.begin(), second.end(), uint8_t{1})));
     EXPECT_GT(features, 0u);
     const uint64_t rr = uint64_t{r} * r;
@@ -99,7 +99,7 @@ TEST(SparseAngular, NoShadowNeedsNoSecondPass) {
   GridSelection(8, s.unoccluded.data(), &grid);
   std::vector<double> value(s.exact.size(), 0.0);
   for (uint64_t c = 0; c < grid.size(); ++c) value[c] = grid[c] ? s.exact[c] : 0.0;
-  EXPECT_EQ(SecondPass(8, s.unoccluded.data(), grid, value.data(), &second), 0u);
+  EXPECT_EQ(SecondPass(WindowTable(8), s.unoccluded.data(), grid, value.data(), &second), 0u);
   for (uint64_t c = 0; c < value.size(); ++c) EXPECT_EQ(value[c], s.exact[c]);
 }
 
