@@ -47,7 +47,8 @@ class SampleCommand : public Command {
     app->add_option("--radius", radius_,
                     "with --sparse: neighbour radius in scene units (default: 0.04 x the rows' bounding-box diagonal)");
     app->add_option("--features", features_,
-                    "with --sparse: texels traced per sparse row (default: 350 x 6R^2 / 6144, i.e. 350 at R = 32)");
+                    "with --sparse: texels traced per sparse row (default: 350 x 6R^2 / 6144, i.e. 350 at R = 32, but "
+                    "at least 4 x --neighbours)");
     app->add_option("--neighbours", options_.sparse.neighbours,
                     "with --sparse: dense neighbours a sparse row combines, at most (1..64)")
         ->default_val(16);

@@ -22,7 +22,7 @@ struct SparseOptions {
   double dense_fraction = 0.25;      // --dense-fraction: dense rows / rows that see geometry
   double initial_fraction = 0.05;    // the first, uniformly random dense rows
   std::optional<double> radius;      // --radius (scene units); default 0.04 × the rows' bounding-box diagonal
-  std::optional<uint32_t> features;  // --features per sparse row; default 350 · 6R² / 6144
+  std::optional<uint32_t> features;  // --features per sparse row; default max(350 · 6R² / 6144, 4 · neighbours)
   uint32_t neighbours = 16;          // --neighbours: dense rows a sparse row combines, at most
   double lambda = 1e-3;              // --l1-lambda: λ / λ_max of the L1-regularised fit
 };

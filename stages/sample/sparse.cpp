@@ -139,8 +139,11 @@ Params Resolve(const SampleOptions& o, const Prepared& p, const RowPoints& rows)
     const double diag = v ? glm::length(hi - lo) : 0.0;
     pr.radius = diag > 0 ? kRadiusFactor * diag : 1.0;
   }
-  pr.features = so.features.value_or(
-      static_cast<uint32_t>(std::max<int64_t>(1, std::llround(350.0 * static_cast<double>(pr.cols) / 6144.0))));
+  // The paper's 350 features at R = 32, scaled with 6R², but at least 4 per neighbour: fewer
+  // constraints than that let the fit match them with weights that are wrong elsewhere.
+  const auto scaled = static_cast<uint64_t>(std::llround(350.0 * static_cast<double>(pr.cols) / 6144.0));
+  pr.features = static_cast<uint32_t>(
+      so.features.value_or(std::min<uint64_t>(pr.cols, std::max<uint64_t>(scaled, 4ull * so.neighbours))));
   pr.neighbours = so.neighbours;
   pr.l1.lambda_rel = so.lambda;
   pr.l1.tolerance = kL1Tolerance;

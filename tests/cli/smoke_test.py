@@ -54,7 +54,12 @@ with tempfile.TemporaryDirectory() as d:
     run("column-transform", cols, "-o", budget, "--budget", "2%", *Q)
     run("quantize", cols4d, "-o", final, *Q)
     run("cpca", rows, "-o", P("cpca.ltm"), "--clusters", 2, "--basis", 2, *Q)
-    for f in [raw, rows, cols, cols4d, budget, final, P("cpca.ltm"), P("fused.ltm")]:
+    # Sparse precomputation with a bounce, fused, then cpca dense-first on it.
+    run("sample", TINY, "-o", P("sparse.ltm"), "--sparse", "--bounces", 1, "--row-transform", "haar", *Q)
+    check(info(P("sparse.ltm"))["sparse"]["rows"]["dense"] > 0, "sparse: no dense rows")
+    run("cpca", P("sparse.ltm"), "-o", P("sparse_cpca.ltm"), "--clusters", 2, "--basis", 2, *Q)
+    for f in [raw, rows, cols, cols4d, budget, final, P("cpca.ltm"), P("fused.ltm"), P("sparse.ltm"),
+              P("sparse_cpca.ltm")]:
         run("verify", f)
         # Text mode without content: the recorded hash, no stats (it crashed on a missing key).
         check(info(f)["content_hash"] in run("inspect", "--no-content", f).stdout,
