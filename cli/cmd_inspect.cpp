@@ -120,13 +120,15 @@ class InspectCommand : public Command {
     if (out.contains("sparse")) {
       const json& sp = out["sparse"];
       char line[400];
-      std::snprintf(line, sizeof line,
-                    "  sparse bake: %s dense rows, %s sparse; traced %.2f%% of the entries; rays dense %s, sparse %s; "
-                    "thread-seconds dense %.3g, sparse %.3g\n",
-                    sp["rows"]["dense"].dump().c_str(), sp["rows"]["sparse"].dump().c_str(),
-                    100 * sp["traced_fraction"].get<double>(), sp["rays"]["dense"].dump().c_str(),
-                    sp["rays"]["sparse"].dump().c_str(), sp["seconds"]["dense"].get<double>(),
-                    sp["seconds"]["sparse"].get<double>());
+      std::snprintf(
+          line, sizeof line,
+          "  sparse bake: %s dense rows, %s sparse (%s of them traced in full); traced %.2f%% of the "
+          "entries; rays phase 1 %s, phase 2 %s; thread-seconds phase 1 %.3g, phase 2 %.3g\n",
+          sp["rows"]["dense"].dump().c_str(),
+          std::to_string(sp["rows"]["sparse"].get<uint64_t>() + sp["rows"]["traced_in_full"].get<uint64_t>()).c_str(),
+          sp["rows"]["traced_in_full"].dump().c_str(), 100 * sp["traced_fraction"].get<double>(),
+          sp["rays"]["dense"].dump().c_str(), sp["rays"]["sparse"].dump().c_str(), sp["seconds"]["dense"].get<double>(),
+          sp["seconds"]["sparse"].get<double>());
       std::cout << line;
     }
     if (out["uncommitted_tail_bytes"].get<uint64_t>() > 0) {

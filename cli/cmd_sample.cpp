@@ -106,17 +106,18 @@ class SampleCommand : public Command {
  private:
   static void PrintSparse(const stages::SparseStats& s) {
     char line[512];
-    std::snprintf(line, sizeof line,
-                  "  sparse: %llu dense rows in %llu rounds, %llu sparse rows (%llu traced like dense rows); radius "
-                  "%.4g, %u features\n  traced %.2f%% of the entries (phase 1 %.2f%%, phase 2 %.2f%%)\n"
-                  "  this run: phase 1 %llu rays in %.2f s, phase 2 %llu rays in %.2f s\n",
-                  static_cast<unsigned long long>(s.dense_rows), static_cast<unsigned long long>(s.iterations),
-                  static_cast<unsigned long long>(s.sparse_rows), static_cast<unsigned long long>(s.fallback_rows),
-                  s.radius, s.features, 100 * s.traced_fraction(),
-                  s.entries_total ? 100.0 * s.entries_traced[0] / s.entries_total : 0.0,
-                  s.entries_total ? 100.0 * s.entries_traced[1] / s.entries_total : 0.0,
-                  static_cast<unsigned long long>(s.rays[0]), s.seconds[0], static_cast<unsigned long long>(s.rays[1]),
-                  s.seconds[1]);
+    std::snprintf(
+        line, sizeof line,
+        "  sparse: %llu dense rows in %llu rounds, %llu sparse rows (%llu traced like dense rows); radius "
+        "%.4g, %u features\n  traced %.2f%% of the entries (phase 1 %.2f%%, phase 2 %.2f%%); rays %llu + %llu\n"
+        "  this run: phase 1 %llu rays in %.2f s, phase 2 %llu rays in %.2f s\n",
+        static_cast<unsigned long long>(s.dense_rows), static_cast<unsigned long long>(s.iterations),
+        static_cast<unsigned long long>(s.sparse_rows), static_cast<unsigned long long>(s.fallback_rows), s.radius,
+        s.features, 100 * s.traced_fraction(), s.entries_total ? 100.0 * s.entries_traced[0] / s.entries_total : 0.0,
+        s.entries_total ? 100.0 * s.entries_traced[1] / s.entries_total : 0.0,
+        static_cast<unsigned long long>(s.total_rays[0]), static_cast<unsigned long long>(s.total_rays[1]),
+        static_cast<unsigned long long>(s.rays[0]), s.seconds[0], static_cast<unsigned long long>(s.rays[1]),
+        s.seconds[1]);
     std::cout << line;
   }
 

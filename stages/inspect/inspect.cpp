@@ -91,8 +91,12 @@ json ChunkList(const io::ContainerReader& reader) {
 }
 
 // A sparse bake (docs/SPARSE.md) and every row-block container derived from it: the rows
-// per kind, the entries traced and the rays and thread-seconds per phase, from its side tables.
-Result<json> SummarizeSparse(const io::ContainerReader& r, const Metadata& meta) {
+// per kind, the entries traced and the rays and thread-seconds (summed over rows) per phase,
+// from its side tables. Phase 2 includes the rows it traced in full.
+}  // namespace
+
+Result<json> SummarizeSparse(const io::ContainerReader& r) {
+  const Metadata& meta = r.metadata();
   const int kind_a = meta.FindArray("sparse_kind"), traced_a = meta.FindArray("sparse_traced"),
             rays_a = meta.FindArray("sparse_rays"), res_a = meta.FindArray("sparse_residual"),
             secs_a = meta.FindArray("sparse_seconds");
@@ -101,8 +105,10 @@ Result<json> SummarizeSparse(const io::ContainerReader& r, const Metadata& meta)
   const uint64_t res = cols.is_object() && cols.contains("cube_res") && cols["cube_res"].is_number_unsigned()
                            ? cols["cube_res"].get<uint64_t>()
                            : 0;
-  uint64_t rows[3] = {0, 0, 0}, traced[3] = {0, 0, 0}, rays[3] = {0, 0, 0};
-  double secs[3] = {0, 0, 0};
+  // Rows by phase: 0 no geometry, 1 dense (phase 1), 2 sparse (reconstructed in phase 2),
+  // 3 traced in full in phase 2 (kind 1 with a residual: the fit failed or had no neighbours).
+  uint64_t rows[4] = {0, 0, 0, 0}, traced[4] = {0, 0, 0, 0}, rays[4] = {0, 0, 0, 0};
+  double secs[4] = {0, 0, 0, 0};
   std::vector<float> residuals;
   const ArraySpec& ks = meta.arrays[static_cast<uint32_t>(kind_a)];
   for (uint64_t c = 0; c < ks.ChunkCount(); ++c) {
@@ -120,7 +126,8 @@ Result<json> SummarizeSparse(const io::ContainerReader& r, const Metadata& meta)
       return DataLoss(r.path() + ": the sparse side tables of chunk " + std::to_string(c) + " differ in length");
     }
     for (size_t i = 0; i < kv.size(); ++i) {
-      const uint8_t kind = kv[i] <= 2 ? kv[i] : 0;
+      uint8_t kind = kv[i] <= 2 ? kv[i] : 0;
+      if (kind == 1 && ev[i] > 0) kind = 3;
       rows[kind]++;
       traced[kind] += tv[i];
       rays[kind] += yv[i];
@@ -128,14 +135,15 @@ Result<json> SummarizeSparse(const io::ContainerReader& r, const Metadata& meta)
       if (kind == 2) residuals.push_back(ev[i]);
     }
   }
-  const uint64_t entries = (rows[1] + rows[2]) * 6 * res * res;
-  json out = {{"rows", {{"dense", rows[1]}, {"sparse", rows[2]}, {"no_geometry", rows[0]}}},
-              {"dense_rows", rows[1]},
-              {"entries", entries},
-              {"traced_entries", {{"dense", traced[1]}, {"sparse", traced[2]}}},
-              {"traced_fraction", entries ? static_cast<double>(traced[1] + traced[2]) / entries : 0.0},
-              {"rays", {{"dense", rays[1]}, {"sparse", rays[2]}}},
-              {"seconds", {{"dense", secs[1]}, {"sparse", secs[2]}}}};
+  const uint64_t entries = (rows[1] + rows[2] + rows[3]) * 6 * res * res;
+  json out = {
+      {"rows", {{"dense", rows[1]}, {"sparse", rows[2]}, {"traced_in_full", rows[3]}, {"no_geometry", rows[0]}}},
+      {"dense_rows", rows[1]},
+      {"entries", entries},
+      {"traced_entries", {{"dense", traced[1]}, {"sparse", traced[2] + traced[3]}}},
+      {"traced_fraction", entries ? static_cast<double>(traced[1] + traced[2] + traced[3]) / entries : 0.0},
+      {"rays", {{"dense", rays[1]}, {"sparse", rays[2] + rays[3]}}},
+      {"seconds", {{"dense", secs[1]}, {"sparse", secs[2] + secs[3]}}}};
   if (!residuals.empty()) {
     std::sort(residuals.begin(), residuals.end());
     auto at = [&](double q) { return residuals[static_cast<size_t>(q * static_cast<double>(residuals.size() - 1))]; };
@@ -148,6 +156,8 @@ Result<json> SummarizeSparse(const io::ContainerReader& r, const Metadata& meta)
   }
   return out;
 }
+
+namespace {
 
 // Column-transform / quantize outputs: chosen depths, error, bytes per nonzero; cpca
 // outputs: clusters, basis dimension, passes, error (docs/CPCA.md).
@@ -232,7 +242,7 @@ Result<json> InspectContainer(const std::string& path, const InspectOptions& opt
   }
   AddStageSummaries(path, meta, reader.complete(), out);
   if (reader.complete()) {
-    auto sparse = SummarizeSparse(reader, meta);
+    auto sparse = SummarizeSparse(reader);
     if (!sparse.ok()) return sparse.status();
     if (!sparse->is_null()) out["sparse"] = *sparse;
   }

@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "format/io/container_reader.h"
 #include "format/progress.h"
 #include "format/status.h"
 
@@ -25,5 +26,9 @@ struct InspectOptions {
 // damage found while opening is listed under "problems".
 Result<nlohmann::json> InspectContainer(const std::string& path, const InspectOptions& options,
                                         const Progress& progress);
+
+// The "sparse" block of a sparse bake (docs/SPARSE.md) or a row-block container derived
+// from it, from its side tables; null when the container has none.
+Result<nlohmann::json> SummarizeSparse(const io::ContainerReader& reader);
 
 }  // namespace ltb::stages

@@ -72,7 +72,13 @@ void GramAndCorrelation(const double* A, ptrdiff_t m, int n, const double* b, do
   }
 }
 
-double SoftThreshold(double z, double lambda) { return z > lambda ? z - lambda : z < -lambda ? z + lambda : 0.0; }
+// The minimiser over α_k of ½G_kk α_k² − zα_k + λ|α_k| is Threshold(z, λ)/G_kk: the soft threshold,
+// or with α_k ≥ 0 its positive half.
+template <bool kNonnegative>
+double Threshold(double z, double lambda) {
+  if constexpr (kNonnegative) return z > lambda ? z - lambda : 0.0;
+  return z > lambda ? z - lambda : z < -lambda ? z + lambda : 0.0;
+}
 
 double Sign(double x) { return x > 0 ? 1.0 : -1.0; }
 
@@ -88,11 +94,14 @@ void ExactGradient(const double* G, const double* c, const double* alpha, int n,
   }
 }
 
+// (With α ≥ 0 a zero coordinate violates only when g_k + λ < 0: increasing it lowers F.)
+template <bool kNonnegative>
 double KktViolation(const double* g, const double* alpha, int n, double lambda) {
   double v = 0;
   for (int k = 0; k < n; ++k) {
     const double e = alpha[k] > 0   ? std::abs(g[k] + lambda)
                      : alpha[k] < 0 ? std::abs(g[k] - lambda)
+                     : kNonnegative ? -(g[k] + lambda)
                                     : std::abs(g[k]) - lambda;
     v = std::max(v, e);
   }
@@ -101,6 +110,7 @@ double KktViolation(const double* g, const double* alpha, int n, double lambda) 
 
 // One coordinate-descent sweep in index order, updating g. Returns whether any coordinate
 // changed.
+template <bool kNonnegative>
 bool Sweep(const double* G, int n, double lambda, double* alpha, double* __restrict g) {
   bool changed = false;
   for (int k = 0; k < n; ++k) {
@@ -109,7 +119,7 @@ bool Sweep(const double* G, int n, double lambda, double* alpha, double* __restr
     if (!(gkk > 0)) continue;
     const double old = alpha[k];
     // c_k − Σ_{l≠k} G_kl α_l = G_kk α_k − g_k.
-    const double updated = SoftThreshold(gkk * old - g[k], lambda) / gkk;
+    const double updated = Threshold<kNonnegative>(gkk * old - g[k], lambda) / gkk;
     if (updated == old) continue;
     const double delta = updated - old;
     alpha[k] = updated;
@@ -196,6 +206,9 @@ void DeleteColumn(int n, int p, int h, const Work& w) {
 // earlier ones, the null direction d (d_S<j = G⁻¹G_S<j,j, d_j = −1) leaves Aα as it is; the
 // step goes along ±d, whichever lowers sᵀα, until a coordinate reaches 0. So at most |S| + 1
 // steps. Returns false when α = 0.
+// With α ≥ 0 every s_k is +1 and the same steps keep α ≥ 0; a coordinate that a step's
+// rounding leaves below 0 (one that reaches 0 at the same t as the hit one) is set to 0.
+template <bool kNonnegative>
 bool FaceCandidate(const double* c, int n, double lambda, const double* alpha, const Work& w) {
   std::copy(alpha, alpha + n, w.cand);
   int p = 0;
@@ -262,6 +275,11 @@ bool FaceCandidate(const double* c, int n, double lambda, const double* alpha, c
       return true;
     }
     w.a[hit] = 0;
+    if constexpr (kNonnegative) {
+      for (int j = 0; j < p; ++j) {
+        if (!(w.a[j] > 0)) w.a[j] = 0;
+      }
+    }
     int zeros = 0;  // more than one only when another coordinate reaches 0 at the same t
     for (int j = 0; j < p; ++j) zeros += w.a[j] == 0;
     for (int k = 0, j = 0; k < n; ++k) {
@@ -294,6 +312,7 @@ double SquaredResidual(const double* A, ptrdiff_t m, int n, const double* b, con
   return sum;
 }
 
+template <bool kNonnegative>
 L1Result Solve(const double* A, int m, int n, const double* b, const L1Options& options, L1Scratch& scratch,
                double* alpha) {
   L1Result result;
@@ -324,8 +343,9 @@ L1Result Solve(const double* A, int m, int n, const double* b, const L1Options& 
   double* const g = scratch.grad.data();
   GramAndCorrelation(A, rows, n, b, G, c);
 
+  // The smallest λ with α = 0: max_k |c_k|, or with α ≥ 0 max(0, max_k c_k).
   double lambda_max = 0;
-  for (int k = 0; k < n; ++k) lambda_max = std::max(lambda_max, std::abs(c[k]));
+  for (int k = 0; k < n; ++k) lambda_max = std::max(lambda_max, kNonnegative ? c[k] : std::abs(c[k]));
   for (int k = 0; k < n; ++k) {
     if (!std::isfinite(c[k])) lambda_max = c[k];  // NaN or ±inf: no meaningful fit
   }
@@ -337,13 +357,13 @@ L1Result Solve(const double* A, int m, int n, const double* b, const L1Options& 
   } else {
     const double stop = options.tolerance * lambda_max;
     ExactGradient(G, c, alpha, n, g);
-    double v = KktViolation(g, alpha, n, lambda);
+    double v = KktViolation<kNonnegative>(g, alpha, n, lambda);
     result.converged = v <= stop;
     while (!result.converged && result.sweeps < options.max_sweeps) {
-      const bool changed = Sweep(G, n, lambda, alpha, g);
+      const bool changed = Sweep<kNonnegative>(G, n, lambda, alpha, g);
       ++result.sweeps;
       ExactGradient(G, c, alpha, n, g);
-      v = KktViolation(g, alpha, n, lambda);
+      v = KktViolation<kNonnegative>(g, alpha, n, lambda);
       if (v <= stop) {
         result.converged = true;
         break;
@@ -351,9 +371,9 @@ L1Result Solve(const double* A, int m, int n, const double* b, const L1Options& 
       // The support's step, kept when it meets the tolerance or lowers the objective:
       // ΔF = δᵀg + ½δᵀGδ + λΔ‖α‖₁, with Gδ = g' − g.
       bool moved = false;
-      if (FaceCandidate(c, n, lambda, alpha, w)) {
+      if (FaceCandidate<kNonnegative>(c, n, lambda, alpha, w)) {
         ExactGradient(G, c, w.cand, n, w.gcand);
-        const double v_cand = KktViolation(w.gcand, w.cand, n, lambda);
+        const double v_cand = KktViolation<kNonnegative>(w.gcand, w.cand, n, lambda);
         double change = 0, l1_change = 0;
         for (int k = 0; k < n; ++k) {
           change += (w.cand[k] - alpha[k]) * (g[k] + w.gcand[k]);
@@ -385,7 +405,8 @@ L1Result Solve(const double* A, int m, int n, const double* b, const L1Options& 
 
 L1Result SolveL1LeastSquares(const double* A, int m, int n, const double* b, const L1Options& options,
                              L1Scratch& scratch, double* alpha) {
-  return l1_internal::Solve(A, m, n, b, options, scratch, alpha);
+  return options.nonnegative ? l1_internal::Solve<true>(A, m, n, b, options, scratch, alpha)
+                             : l1_internal::Solve<false>(A, m, n, b, options, scratch, alpha);
 }
 
 }  // namespace ltb::sample

@@ -24,6 +24,13 @@
 // max_sweeps rounds, or earlier when a round changes nothing (a fixed point: the tolerance
 // is below the rounding of g, about 1e-16 · max_k Σ_l |G_kl α_l|).
 //
+// Non-negative mode (L1Options::nonnegative): the same with α ≥ 0, i.e. min ½‖Aα − b‖² + λΣα_k
+// over α ≥ 0; it rules out the large cancelling weights a signed fit to few samples can
+// overfit with. Sweep: α_k ← max(0, c_k − Σ_{l≠k} G_kl α_l − λ)/G_kk; the support step is
+// the one above with every sign +1. λ_max = max(0, max_k c_k) (0: α = 0, converged). KKT
+// violation: |g_k + λ| when α_k > 0, max(0, −(g_k + λ)) when α_k = 0. Stop, bounds (α_opt the
+// constrained minimiser) and determinism as above.
+//
 // No output but the result; no exceptions; no allocation once the scratch has grown (to
 // 2n² + 5n doubles in gram, n in atb and grad). Deterministic: the same inputs give the
 // same bits, and the order of every sum is fixed in the code, so they do not depend on the
@@ -36,10 +43,11 @@
 namespace ltb::sample {
 
 struct L1Options {
-  double lambda_rel = 1e-3;  // λ = lambda_rel · λ_max, λ_max = max_k |A_kᵀ b| (the smallest λ with α = 0);
-                             // negative or NaN counts as 0
+  double lambda_rel = 1e-3;  // λ = lambda_rel · λ_max, λ_max = max_k |A_kᵀ b| (the smallest λ with α = 0;
+                             // max(0, max_k A_kᵀ b) when nonnegative); negative or NaN counts as 0
   double tolerance = 1e-6;   // stop when the KKT violation ≤ tolerance · λ_max (see above)
   int max_sweeps = 2000;     // cap on coordinate-descent sweeps (rounds of a sweep and a support step)
+  bool nonnegative = false;  // constrain α ≥ 0 (see "Non-negative mode" above)
 };
 
 struct L1Result {
@@ -56,15 +64,16 @@ struct L1Scratch {
   std::vector<double> gram, atb, grad;
 };
 
-// min_α ½‖Aα − b‖² + λ‖α‖₁. A is m×n, column-major (column k = A + k·m: the k-th neighbour's
-// values at the m sampled columns), b has m values, alpha receives n values. m, n ≥ 0 (n = 0 or
-// b = 0 or A = 0 → α = 0, converged; A may be null when m = 0 or n = 0, b when m = 0, alpha when
-// n = 0).
+// min_α ½‖Aα − b‖² + λ‖α‖₁, subject to α ≥ 0 when options.nonnegative. A is m×n,
+// column-major (column k = A + k·m: the k-th neighbour's values at the m sampled columns), b
+// has m values, alpha receives n values. m, n ≥ 0 (n = 0 or b = 0 or A = 0 → α = 0,
+// converged; A may be null when m = 0 or n = 0, b when m = 0, alpha when n = 0).
 // λ ≥ λ_max → α = 0, converged after 0 sweeps. Non-finite A_kᵀb → α = 0, not converged.
 // Deterministic (fixed sweep order), no allocation after the scratch has grown. Cyclic
 // coordinate descent on the Gram form G = AᵀA, c = Aᵀb:
 // α_k ← S(c_k − Σ_{l≠k} G_kl α_l, λ) / G_kk, S the soft threshold; columns with G_kk = 0 stay 0;
-// each sweep followed by the support step described above.
+// each sweep followed by the support step described above. Nonnegative: S replaced by
+// max(0, z − λ), and λ_max = 0 → α = 0, converged after 0 sweeps.
 L1Result SolveL1LeastSquares(const double* A, int m, int n, const double* b, const L1Options& options,
                              L1Scratch& scratch, double* alpha);
 

@@ -61,12 +61,13 @@ struct SampleOptions {
 // What a sparse bake did, per phase (phase 1: the dense rows; phase 2: the sparse rows).
 struct SparseStats {
   uint64_t dense_rows = 0, sparse_rows = 0;
-  uint64_t fallback_rows = 0;  // sparse rows without dense neighbours, traced like dense rows
-  uint64_t iterations = 0;     // dense-row placement rounds
-  uint64_t entries_total = 0;  // rows that see geometry × 6R²
-  uint64_t entries_traced[2] = {0, 0};
-  uint64_t rays[2] = {0, 0};   // traced by this run
-  double seconds[2] = {0, 0};  // wall seconds of this run
+  uint64_t fallback_rows = 0;           // sparse rows traced like dense rows: no dense neighbour, or a failed fit
+  uint64_t iterations = 0;              // dense-row placement rounds
+  uint64_t entries_total = 0;           // rows that see geometry × 6R²
+  uint64_t entries_traced[2] = {0, 0};  // the whole bake's
+  uint64_t rays[2] = {0, 0};            // traced by this run
+  uint64_t total_rays[2] = {0, 0};      // traced for the whole bake (earlier runs included)
+  double seconds[2] = {0, 0};           // wall seconds of this run
   double radius = 0;
   uint32_t features = 0;
   double traced_fraction() const {

@@ -25,6 +25,7 @@
 #include "format/io/file.h"
 #include "stages/common/basis.h"
 #include "stages/common/parallel_for.h"
+#include "stages/inspect/inspect.h"
 #include "stages/row_transform/row_transform.h"
 #include "stages/sample/l1_solver.h"
 #include "stages/sample/sample_internal.h"
@@ -54,6 +55,9 @@ constexpr double kMinWeight = 0.25;      // placement weight of a candidate whos
 // The fit stops when its KKT violation is below this × λ_max, or after this many sweeps.
 constexpr double kL1Tolerance = 1e-4;
 constexpr int kL1MaxSweeps = 200;
+// A sparse row whose fit misses its own traced texels by more than this (relative L2), or
+// whose traced texels are all black, is traced like a dense row instead.
+constexpr double kResidualLimit = 0.15;
 
 // Array indices of the checkpoint.
 enum CheckpointArray : uint32_t {
@@ -62,7 +66,8 @@ enum CheckpointArray : uint32_t {
   kFeatures = 2,
   kDenseRays = 3,
   kDenseSeconds = 4,
-  kIndirect = 5
+  kDenseTraced = 5,
+  kIndirect = 6
 };
 // Extra arrays of the output, after matrix, mask, position, normal.
 enum OutputArray : uint32_t { kKind = 4, kTraced = 5, kRays = 6, kResidual = 7, kSeconds = 8 };
@@ -148,6 +153,7 @@ Params Resolve(const SampleOptions& o, const Prepared& p, const RowPoints& rows)
   pr.l1.lambda_rel = so.lambda;
   pr.l1.tolerance = kL1Tolerance;
   pr.l1.max_sweeps = kL1MaxSweeps;
+  pr.l1.nonnegative = true;
   return pr;
 }
 
@@ -159,11 +165,13 @@ nlohmann::json ParamsJson(const SampleOptions& o, const Params& pr) {
           {"neighbours", pr.neighbours},
           {"l1_lambda", pr.l1.lambda_rel},
           {"l1_tolerance", pr.l1.tolerance},
+          {"l1_nonnegative", pr.l1.nonnegative},
           {"window", 2 * sp::kWindowHalf + 1},
           {"normal_cos", kNormalCos},
           {"rank_res", kRankRes},
           {"rank_threshold", kRankThreshold},
-          {"min_features", kMinFeatures}};
+          {"min_features", kMinFeatures},
+          {"residual_limit", kResidualLimit}};
 }
 
 ArraySpec RowArray(const char* name, DType t, uint64_t rows, uint64_t cols, uint64_t block) {
@@ -233,10 +241,12 @@ class Phase1Runner {
 
   nlohmann::json Metadata() const {
     const uint64_t d = pr_.dense, b = pr_.dense_block;
-    nlohmann::json arrays = {
-        RowArray("row", DType::kU64, d, 1, b).ToJson(), RowArray("direct", DType::kF32, d, pr_.cols, b).ToJson(),
-        RowArray("features", DType::kU8, d, pr_.cols, b).ToJson(), RowArray("rays", DType::kU64, d, 1, b).ToJson(),
-        RowArray("seconds", DType::kF32, d, 1, b).ToJson()};
+    nlohmann::json arrays = {RowArray("row", DType::kU64, d, 1, b).ToJson(),
+                             RowArray("direct", DType::kF32, d, pr_.cols, b).ToJson(),
+                             RowArray("features", DType::kU8, d, pr_.cols, b).ToJson(),
+                             RowArray("rays", DType::kU64, d, 1, b).ToJson(),
+                             RowArray("seconds", DType::kF32, d, 1, b).ToJson(),
+                             RowArray("traced", DType::kU32, d, 1, b).ToJson()};
     if (p_.bounces > 0) arrays.push_back(RowArray("indirect", DType::kF32, d, pr_.cols, b).ToJson());
     nlohmann::json params = {{"cube_res", p_.r},
                              {"spp", p_.spp},
@@ -260,7 +270,7 @@ class Phase1Runner {
       LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(path));
       resumed = std::make_unique<io::ContainerReader>(std::move(r));
     }
-    const uint32_t narrays = p_.bounces > 0 ? 6 : 5;
+    const uint32_t narrays = p_.bounces > 0 ? 7 : 6;
     out->rows.clear();
     out->low.assign(pr_.dense * low_cols_, 0.0f);
     std::vector<uint8_t> is_dense(p_.rows, 0);
@@ -389,6 +399,7 @@ class Phase1Runner {
     std::vector<float> direct(n * cols), indirect(p_.bounces > 0 ? n * cols : 0), secs(n);
     std::vector<uint8_t> feat(n * fb);
     std::vector<uint64_t> ids(n), nrays(n);
+    std::vector<uint32_t> ntraced(n);
     for (uint64_t i = 0; i < n; ++i) {
       if (progress_.Cancelled()) return Cancelled("interrupted; committed chunks are kept, rerun to resume");
       const auto t0 = std::chrono::steady_clock::now();
@@ -399,6 +410,7 @@ class Phase1Runner {
       *traced += d.traced;
       *rays += d.rays;
       nrays[i] = d.rays;
+      ntraced[i] = static_cast<uint32_t>(d.traced);
       secs[i] = static_cast<float>(Seconds(t0));
       progress_.Report(done_.fetch_add(1) + 1, pr_.dense, "dense rows");
     }
@@ -406,8 +418,9 @@ class Phase1Runner {
     auto bytes = [](const auto& v) {
       return ByteSpan(reinterpret_cast<const std::byte*>(v.data()), v.size() * sizeof(v[0]));
     };
-    const ByteSpan parts[6] = {bytes(ids), bytes(direct), bytes(feat), bytes(nrays), bytes(secs), bytes(indirect)};
-    for (uint32_t a = 0; a < (p_.bounces > 0 ? 6u : 5u); ++a) {
+    const ByteSpan parts[7] = {bytes(ids),  bytes(direct),  bytes(feat),    bytes(nrays),
+                               bytes(secs), bytes(ntraced), bytes(indirect)};
+    for (uint32_t a = 0; a < (p_.bounces > 0 ? 7u : 6u); ++a) {
       if (w.Has(a, c)) continue;
       LTB_RETURN_IF_ERROR(w.Put(a, c, parts[a]));
       (*written)++;
@@ -436,26 +449,30 @@ struct DenseRows {
   std::vector<sp::DenseView> views;
   std::vector<uint64_t> rays;
   std::vector<float> seconds;
+  std::vector<uint32_t> traced;
 };
 
 Result<std::unique_ptr<DenseRows>> MapDense(const std::string& path, const Params& pr, bool bounces) {
   LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(path));
-  auto d = std::make_unique<DenseRows>(DenseRows{std::move(r), {}, {}, {}, {}});
+  auto d = std::make_unique<DenseRows>(DenseRows{std::move(r), {}, {}, {}, {}, {}});
   const uint64_t nchunks = (pr.dense + pr.dense_block - 1) / pr.dense_block, fb = pr.cols;
   d->views.resize(pr.dense);
   d->rays.resize(pr.dense);
   d->seconds.resize(pr.dense);
+  d->traced.resize(pr.dense);
   for (uint64_t c = 0; c < nchunks; ++c) {
     LTB_ASSIGN_OR_RETURN(io::Chunk direct, d->reader.ReadChunk(kDirect, c));
     LTB_ASSIGN_OR_RETURN(io::Chunk feat, d->reader.ReadChunk(kFeatures, c));
     LTB_ASSIGN_OR_RETURN(io::Chunk rays, d->reader.ReadChunk(kDenseRays, c));
     LTB_ASSIGN_OR_RETURN(io::Chunk secs, d->reader.ReadChunk(kDenseSeconds, c));
+    LTB_ASSIGN_OR_RETURN(io::Chunk traced, d->reader.ReadChunk(kDenseTraced, c));
     const uint64_t i0 = c * pr.dense_block, n = std::min(pr.dense_block, pr.dense - i0);
     for (uint64_t i = 0; i < n; ++i) {
       d->views[i0 + i].direct = direct.as<float>().data() + i * pr.cols;
       d->views[i0 + i].features = feat.as<uint8_t>().data() + i * fb;
       d->rays[i0 + i] = rays.as<uint64_t>()[i];
       d->seconds[i0 + i] = secs.as<float>()[i];
+      d->traced[i0 + i] = traced.as<uint32_t>()[i];
     }
     d->chunks.push_back(std::move(direct));
     d->chunks.push_back(std::move(feat));
@@ -545,7 +562,7 @@ class Phase2Runner {
         kind[i] = kDense;
         rays[i] = dense_.rays[static_cast<size_t>(di)];
         secs[i] = dense_.seconds[static_cast<size_t>(di)];
-        traced[i] = static_cast<uint32_t>(DenseTraced(row));
+        traced[i] = dense_.traced[static_cast<size_t>(di)];
         continue;
       }
       kind[i] = kSparse;
@@ -555,7 +572,10 @@ class Phase2Runner {
         grid_->Query(rp.p, rp.n, radius, pr_.neighbours, kNormalCos, -1, &nb_idx);
         if (nb_idx.size() >= 2) break;
       }
-      if (nb_idx.empty()) {  // no dense row anywhere near: trace it like a dense row
+      // Traced like a dense row instead (kind 1 with a residual > 0: the failed fit's, or
+      // 1 when there was none): no dense row anywhere near, or a fit that does not match
+      // its own traced texels.
+      auto fallback = [&](double why, uint64_t traced_before, uint64_t rays_before) {
         ind_scratch.assign(p_.bounces > 0 ? cols : 0, 0.0f);
         DenseRowResult d =
             TraceDenseRow(s_, row, rp, cols, ds, out, p_.bounces > 0 ? ind_scratch.data() : nullptr, nullptr);
@@ -563,12 +583,16 @@ class Phase2Runner {
           out[c] = static_cast<float>(double{out[c]} + double{ind_scratch[c]});
         }
         kind[i] = kDense;
-        traced[i] = static_cast<uint32_t>(d.traced);
-        rays[i] = d.rays;
+        residual[i] = static_cast<float>(why);
+        traced[i] = static_cast<uint32_t>(traced_before + d.traced);
+        rays[i] = rays_before + d.rays;
         cnt.fallback++;
-        cnt.traced_sparse += d.traced;
-        cnt.rays_sparse += d.rays;
+        cnt.traced_sparse += traced[i];
+        cnt.rays_sparse += rays[i];
         secs[i] = static_cast<float>(Seconds(t0));
+      };
+      if (nb_idx.empty()) {
+        fallback(1.0, 0, 0);
         continue;
       }
       nb.clear();
@@ -584,6 +608,11 @@ class Phase2Runner {
       b.resize(texels.size());
       for (size_t j = 0; j < texels.size(); ++j) b[j] = ds.value[texels[j]];
       sp::Fit fit = sp::Reconstruct(nb, cols, texels, b.data(), relevant.data(), pr_.l1, fs, out);
+      const bool dark = std::all_of(b.begin(), b.end(), [](double x) { return x == 0; });
+      if (fit.residual > kResidualLimit || (dark && !texels.empty())) {
+        fallback(dark ? 1.0 : fit.residual, texels.size(), nr);
+        continue;
+      }
       residual[i] = static_cast<float>(fit.residual);
       traced[i] = static_cast<uint32_t>(texels.size());
       rays[i] = nr;
@@ -614,24 +643,6 @@ class Phase2Runner {
   }
 
   void SetTodoRows(uint64_t n) { todo_rows_ = n; }
-
-  // Texels a dense row traced: its grid texels plus its features (the checkpoint keeps the
-  // feature flags; the grid is recomputed from the row's horizon).
-  uint64_t DenseTraced(uint64_t row) const {
-    const sp::DenseView& v = dense_.views[static_cast<size_t>(dense_of_[row])];
-    const RowPoint& rp = pts_.pt[row];
-    uint64_t n = 0;
-    const uint64_t rr = uint64_t{p_.r} * p_.r;
-    for (uint64_t c = 0; c < pr_.cols; ++c) {
-      const uint64_t s = c % rr % p_.r, t = c % rr / p_.r;
-      if (v.features[c]) {
-        ++n;
-      } else if (s % 2 == 0 && t % 2 == 0 && !s_.BelowHorizon(rp.n, c)) {
-        ++n;
-      }
-    }
-    return n;
-  }
 
  private:
   const SampleOptions& o_;
@@ -684,13 +695,18 @@ Result<SampleResult> RunSparseSample(const SampleOptions& o, const Prepared& p, 
   // Phase 1 (its checkpoint is sealed once done; a rerun reads it back).
   const std::string cp = SparseCheckpointPath(o.output);
   const sp::WindowTable windows(p.r);
+  std::vector<uint64_t> todo;  // output blocks with any array missing
+  for (uint32_t a = 0; a < 9; ++a) {
+    std::vector<uint64_t> m = out.Missing(a);
+    todo.insert(todo.end(), m.begin(), m.end());
+  }
+  std::sort(todo.begin(), todo.end());
+  todo.erase(std::unique(todo.begin(), todo.end()), todo.end());
   Phase1 ph1;
-  if (pr.dense > 0) {
+  if (pr.dense > 0 && !todo.empty()) {  // a finished output needs neither phase
     Phase1Runner runner(o, p, sampler, pts, pr, windows, progress);
     LTB_RETURN_IF_ERROR(runner.Run(&ph1));
   }
-  st.entries_traced[0] = ph1.traced;
-  st.rays[0] = ph1.rays;
   st.seconds[0] = ph1.seconds;
 
   // Phase 2.
@@ -698,18 +714,11 @@ Result<SampleResult> RunSparseSample(const SampleOptions& o, const Prepared& p, 
   std::vector<int64_t> dense_of(p.rows, -1);
   for (size_t i = 0; i < ph1.rows.size(); ++i) dense_of[ph1.rows[i]] = static_cast<int64_t>(i);
   std::unique_ptr<DenseRows> dense;
-  if (pr.dense > 0) {
+  if (!ph1.rows.empty()) {
     LTB_ASSIGN_OR_RETURN(dense, MapDense(cp, pr, p.bounces > 0));
   } else {
     dense = std::make_unique<DenseRows>();
   }
-  std::vector<uint64_t> todo;
-  for (uint32_t a = 0; a < 9; ++a) {
-    std::vector<uint64_t> m = out.Missing(a);
-    todo.insert(todo.end(), m.begin(), m.end());
-  }
-  std::sort(todo.begin(), todo.end());
-  todo.erase(std::unique(todo.begin(), todo.end()), todo.end());
   Phase2Runner runner(o, p, sampler, pts, pr, windows, *dense, dense_of, progress);
   runner.SetTodoRows(std::min(p.rows, todo.size() * block));
   Phase2Counters cnt;
@@ -718,11 +727,20 @@ Result<SampleResult> RunSparseSample(const SampleOptions& o, const Prepared& p, 
   result.chunks_written = cnt.written;
   LTB_RETURN_IF_ERROR(s);
   LTB_RETURN_IF_ERROR(out.Finish());
-  st.entries_traced[1] = cnt.traced_sparse;
-  st.rays[1] = cnt.rays_sparse;
-  st.fallback_rows = cnt.fallback;
-  st.sparse_rows = pts.valid.size() - pr.dense;
   st.seconds[1] = Seconds(t2);
+  // The bake's totals (earlier runs' work included), from the sealed output's side tables.
+  {
+    LTB_ASSIGN_OR_RETURN(io::ContainerReader sealed, io::ContainerReader::Open(o.output));
+    LTB_ASSIGN_OR_RETURN(nlohmann::json sum, SummarizeSparse(sealed));
+    st.entries_traced[0] = sum["traced_entries"]["dense"].get<uint64_t>();
+    st.entries_traced[1] = sum["traced_entries"]["sparse"].get<uint64_t>();
+    st.fallback_rows = sum["rows"]["traced_in_full"].get<uint64_t>();
+    st.sparse_rows = sum["rows"]["sparse"].get<uint64_t>() + st.fallback_rows;
+    st.total_rays[0] = sum["rays"]["dense"].get<uint64_t>();
+    st.total_rays[1] = sum["rays"]["sparse"].get<uint64_t>();
+  }
+  st.rays[0] = ph1.rays;
+  st.rays[1] = cnt.rays_sparse;
   result.rays = st.rays[0] + st.rays[1];
   // The checkpoint has served: the output holds every row now.
   dense.reset();

@@ -150,9 +150,15 @@ with tempfile.TemporaryDirectory() as d:
     sp = meta["sparse"]
     kind = t.side_table(s1, "sparse_kind")[:, 0]
     mask = t.side_table(s1, "mask")[:, 0]
+    resid = t.side_table(s1, "sparse_residual")[:, 0]
     t.check(np.array_equal(kind > 0, mask > 0), "sparse_kind must be non-zero exactly where mask is")
-    dense, sparse_rows = int((kind == 1).sum()), int((kind == 2).sum())
-    t.check(sp["rows"]["dense"] == dense and sp["rows"]["sparse"] == sparse_rows, f"rows per kind: {sp['rows']}")
+    # Kind 1 with a residual: a row phase 2 traced in full (its fit failed), not a phase-1 row.
+    dense = int(((kind == 1) & (resid == 0)).sum())
+    in_full = int(((kind == 1) & (resid > 0)).sum())
+    sparse_rows = int((kind == 2).sum())
+    t.check(sp["rows"]["dense"] == dense and sp["rows"]["sparse"] == sparse_rows and
+            sp["rows"]["traced_in_full"] == in_full, f"rows per kind: {sp['rows']} vs {dense}, {sparse_rows}, {in_full}")
+    t.check(np.all(resid[kind == 2] <= 0.15), "a reconstructed row's residual above the limit")
     valid = int(mask.sum())
     t.check(abs(dense - 0.25 * valid) <= 1, f"dense rows {dense} for 25% of {valid}")
     cols = meta["shape"][1]
@@ -171,7 +177,7 @@ with tempfile.TemporaryDirectory() as d:
     t.check("sparse" in info(rows), "row-transform must carry the sparse side tables")
     c = json.loads(t.run("cpca", rows, "-o", os.path.join(d, "cpca.ltm"), "-k", "4", "-s", "3", "--json",
                          "--progress", "never").stdout)
-    t.check(c["dense_first"] and c["dense_rows"] == dense, f"cpca on a sparse bake should run dense-first: {c}")
+    t.check(c["dense_first"] and c["dense_rows"] == dense + in_full, f"cpca on a sparse bake should run dense-first: {c}")
     recipe = t.write(os.path.join(d, "bake.toml"), f"""
 scene = "{TINY}"
 workdir = "{os.path.join(d, 'work')}"
