@@ -54,6 +54,9 @@ Environment knobs:
   LTB_SPARSE_TERMS     relight --terms values (100,200)
   LTB_SPARSE_JOBS      sample --jobs (2)
   LTB_SPARSE_CPCA      0 skips step 6 (1)
+  LTB_SPARSE_CPCA_KS   CPCA clusters and basis size, "K,S" (64,16)
+  LTB_SPARSE_WARMUP    0: no untimed warm-up runs; the first runs, which also give the ray
+                       counts, are timed (1)
   LTB_SPARSE_CPCA_RUNS which CPCA runs (plain,dense-first,no-dense-first); the target needs the
                        first two, no-dense-first (the same passes on the sparse rows) is the slowest
   LTB_SPARSE_KEEP      1 keeps the case's .ltm files in bench/out/sparse/CASE/ (0: each raw
@@ -114,10 +117,12 @@ CPCA_SELECTED = [r.strip() for r in os.environ.get("LTB_SPARSE_CPCA_RUNS", ",".j
 KEEP = os.environ.get("LTB_SPARSE_KEEP", "0") == "1"
 NAME = os.environ.get("LTB_SPARSE_NAME", "")
 TAG = "_" + NAME if NAME else ""
-KNOBS = ["LTB_SPARSE_CASES", "LTB_SPARSE_REPEATS", "LTB_SPARSE_SCALE", "LTB_SPARSE_CUBE_RES", "LTB_SPARSE_TERMS",
+KNOBS = ["LTB_SPARSE_WARMUP", "LTB_SPARSE_CPCA_KS", "LTB_SPARSE_CASES", "LTB_SPARSE_REPEATS", "LTB_SPARSE_SCALE", "LTB_SPARSE_CUBE_RES", "LTB_SPARSE_TERMS",
          "LTB_SPARSE_JOBS", "LTB_SPARSE_CPCA", "LTB_SPARSE_CPCA_RUNS", "LTB_SPARSE_KEEP", "LTB_SPARSE_NAME"]
 
-CPCA_K, CPCA_S, CPCA_TERMS = 64, 16, 200
+CPCA_K, CPCA_S = (int(v) for v in os.environ.get("LTB_SPARSE_CPCA_KS", "64,16").split(","))
+CPCA_TERMS = 200
+WARMUP = os.environ.get("LTB_SPARSE_WARMUP", "1") != "0"
 GRID_N, GRID_SIZE = 160, 6.0  # the vertex scenes' ground: vertices a side, units a side
 DRAGON_PLY = os.path.join(ROOT, "data", "meshes", "dragon_res3.ply")
 TARGET_TRACED, TARGET_SPEEDUP, TARGET_L2 = 0.12, 5.0, 0.02
@@ -303,10 +308,13 @@ def bake(scene, flags, work):
         return ltbake("sample", scene, "-o", sparse, "--sparse", *common, *(["-q"] if quiet else []))
 
     warm_full, warm_sparse = run_full(quiet=False), run_sparse(quiet=False)
-    log(f"  warm-up: full {warm_full.wall:.2f} s, sparse {warm_sparse.wall:.2f} s wall")
+    log(f"  {'warm-up' if WARMUP else 'run #1'}: full {warm_full.wall:.2f} s, sparse {warm_sparse.wall:.2f} s wall")
     res = {"full_text": parse_full_text(warm_full.stdout), "sparse_text": parse_sparse_text(warm_sparse.stdout),
            "full": [], "sparse": []}
-    for i in range(REPEATS):
+    if not WARMUP:  # LTB_SPARSE_WARMUP=0: the first (verbose) runs are timed runs too
+        for kind, r in (("full", warm_full), ("sparse", warm_sparse)):
+            res[kind].append({"wall": r.wall, "cpu": r.cpu, "rss_mib": r.rss_mib})
+    for i in range(REPEATS if WARMUP else REPEATS - 1):
         for kind, fn in (("full", run_full), ("sparse", run_sparse)):
             r = fn()
             res[kind].append({"wall": r.wall, "cpu": r.cpu, "rss_mib": r.rss_mib})
@@ -541,7 +549,8 @@ def case_section(res, s):
             else "vertex mode")
     lines = [f"### {res['case']}: `{res['scene']}` {' '.join(res['flags'])}".rstrip(), "",
              f"{size}, {res['shape'][0]:,} rows ({ft['rows_seeing']:,} see geometry) × {res['shape'][1]:,} texels "
-             f"(R = {CUBE_RES}); sparse: {sp['rows']['dense']:,} dense rows, {sp['rows']['sparse']:,} sparse rows, "
+             f"(R = {CUBE_RES}); sparse: {sp['rows']['dense']:,} dense rows, {sp['rows']['sparse']:,} sparse rows "
+             f"reconstructed, {sp['rows'].get('traced_in_full', 0):,} traced in full (fit residual over the limit), "
              f"{sp['parameters']['features']} features, radius {sp['parameters']['radius']:.4g}; fit residual median "
              f"{sp.get('residual', {}).get('median', float('nan')):.3f}, p90 "
              f"{sp.get('residual', {}).get('p90', float('nan')):.3f}. Case time {res['seconds']:.0f} s.", "",

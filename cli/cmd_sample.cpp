@@ -55,6 +55,10 @@ class SampleCommand : public Command {
     app->add_option("--l1-lambda", options_.sparse.lambda,
                     "with --sparse: L1 weight of the fit, relative to the smallest that gives all-zero weights")
         ->default_val(1e-3);
+    app->add_option("--max-residual", options_.sparse.max_residual,
+                    "with --sparse: a sparse row whose fit misses its own traced texels by more than this (relative "
+                    "L2) is traced in full instead")
+        ->default_val(0.15);
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     app->add_flag("!--no-direct-io", options_.direct_io,
                   "write the output through the page cache instead of with O_DIRECT");

@@ -141,9 +141,9 @@ Result<std::string> InlineScene(const std::string& path, const std::string& dir,
 Status ParseSample(const std::string& path, const toml::table& t, Recipe::Sample* s) {
   LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[sample]",
                                 {"cube_res", "spp", "bounces", "seed", "sparse", "dense_fraction", "radius", "features",
-                                 "neighbours", "l1_lambda"}));
+                                 "neighbours", "l1_lambda", "max_residual"}));
   LTB_ASSIGN_OR_RETURN(s->sparse, GetBool(path, t, "sparse", false));
-  for (const char* key : {"dense_fraction", "radius", "features", "neighbours", "l1_lambda"}) {
+  for (const char* key : {"dense_fraction", "radius", "features", "neighbours", "l1_lambda", "max_residual"}) {
     if (t.contains(key) && !s->sparse) {
       return InvalidArgument(Where(path, *t.get(key)) + ": \"" + key +
                              "\" applies to sparse precomputation; add sparse = true or remove it");
@@ -160,6 +160,10 @@ Status ParseSample(const std::string& path, const toml::table& t, Recipe::Sample
   if (t.contains("l1_lambda")) {
     LTB_ASSIGN_OR_RETURN(double v, GetNumber(path, t, "l1_lambda", 1e-3, 0.0, 0.999999));
     s->l1_lambda = v;
+  }
+  if (t.contains("max_residual")) {
+    LTB_ASSIGN_OR_RETURN(double v, GetNumber(path, t, "max_residual", 0.15, 1e-300, 1e300));
+    s->max_residual = v;
   }
   if (t.contains("features")) {
     LTB_ASSIGN_OR_RETURN(uint64_t v, GetUnsigned(path, t, "features", 350, 1, uint64_t{6} << 20));

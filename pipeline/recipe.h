@@ -47,7 +47,7 @@ struct Recipe {
   struct Sample {
     std::optional<uint64_t> cube_res, spp, bounces, seed;  // unset: the scene's [sampling] values
     bool sparse = false;  // sparse precomputation (docs/SPARSE.md); the keys below are its flags
-    std::optional<double> dense_fraction, radius, l1_lambda;
+    std::optional<double> dense_fraction, radius, l1_lambda, max_residual;
     std::optional<uint64_t> features, neighbours;
   } sample;
   struct RowTransform {

@@ -39,6 +39,7 @@ StageCommand Sample(const Recipe& r, const StageContext& ctx) {
     num("--dense-fraction", "dense_fraction", sp.dense_fraction);
     num("--radius", "radius", sp.radius);
     num("--l1-lambda", "l1_lambda", sp.l1_lambda);
+    num("--max-residual", "max_residual", sp.max_residual);
     whole("--features", "features", sp.features);
     whole("--neighbours", "neighbours", sp.neighbours);
     c.params["sparse"] = p;

@@ -68,6 +68,10 @@ Status CheckSparse(const SampleOptions& o, uint32_t r) {
     return InvalidArgument("--neighbours " + std::to_string(s.neighbours) + " is not in 1..64");
   }
   if (!(s.lambda >= 0 && s.lambda < 1)) return InvalidArgument("--l1-lambda " + num(s.lambda) + " is not in [0, 1)");
+  if (!(s.max_residual > 0)) {
+    return InvalidArgument("--max-residual " + num(s.max_residual) +
+                           " must be positive (a large value never traces a row in full)");
+  }
   if (o.visibility) return InvalidArgument("--sparse bakes T; it does not apply to --visibility");
   if (o.shard.sharded()) {
     return InvalidArgument("--sparse cannot be sharded yet (phase 1 is one sequence of rounds); run it unsharded");

@@ -25,6 +25,7 @@ struct SparseOptions {
   std::optional<uint32_t> features;  // --features per sparse row; default max(350 · 6R² / 6144, 4 · neighbours)
   uint32_t neighbours = 16;          // --neighbours: dense rows a sparse row combines, at most
   double lambda = 1e-3;              // --l1-lambda: λ / λ_max of the L1-regularised fit
+  double max_residual = 0.15;        // --max-residual: a worse fit traces the row in full instead
 };
 
 struct SampleOptions {

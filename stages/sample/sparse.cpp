@@ -55,9 +55,6 @@ constexpr double kMinWeight = 0.25;      // placement weight of a candidate whos
 // The fit stops when its KKT violation is below this × λ_max, or after this many sweeps.
 constexpr double kL1Tolerance = 1e-4;
 constexpr int kL1MaxSweeps = 200;
-// A sparse row whose fit misses its own traced texels by more than this (relative L2), or
-// whose traced texels are all black, is traced like a dense row instead.
-constexpr double kResidualLimit = 0.15;
 
 // Array indices of the checkpoint.
 enum CheckpointArray : uint32_t {
@@ -171,7 +168,7 @@ nlohmann::json ParamsJson(const SampleOptions& o, const Params& pr) {
           {"rank_res", kRankRes},
           {"rank_threshold", kRankThreshold},
           {"min_features", kMinFeatures},
-          {"residual_limit", kResidualLimit}};
+          {"max_residual", o.sparse.max_residual}};
 }
 
 ArraySpec RowArray(const char* name, DType t, uint64_t rows, uint64_t cols, uint64_t block) {
@@ -609,7 +606,7 @@ class Phase2Runner {
       for (size_t j = 0; j < texels.size(); ++j) b[j] = ds.value[texels[j]];
       sp::Fit fit = sp::Reconstruct(nb, cols, texels, b.data(), relevant.data(), pr_.l1, fs, out);
       const bool dark = std::all_of(b.begin(), b.end(), [](double x) { return x == 0; });
-      if (fit.residual > kResidualLimit || (dark && !texels.empty())) {
+      if (fit.residual > o_.sparse.max_residual || (dark && !texels.empty())) {
         fallback(dark ? 1.0 : fit.residual, texels.size(), nr);
         continue;
       }

@@ -20,23 +20,30 @@ void GridSelection(uint32_t r, const double* unoccluded, std::vector<uint8_t>* s
 }
 
 WindowTable::WindowTable(uint32_t r) {
-  const uint64_t cols = 6ull * r * r;
-  ids_.resize(cols * kSize);
+  const uint64_t cols = 6ull * r * r, rr = uint64_t{r} * r;
+  start_.reserve(cols + 1);
+  start_.push_back(0);
+  std::vector<uint32_t> window;
   for (uint64_t c = 0; c < cols; ++c) {
     const cubemap::Texel x = cubemap::ColumnToTexel(c, r);
-    size_t k = 0;
+    window.clear();
     for (int dy = -kWindowHalf; dy <= kWindowHalf; ++dy) {
       for (int dx = -kWindowHalf; dx <= kWindowHalf; ++dx) {
         const double u = 2.0 * (x.s + dx + 0.5) / r - 1.0, v = 2.0 * (x.t + dy + 0.5) / r - 1.0;
-        uint64_t id = c;
+        uint64_t id = 0;
         if (u > -1 && u < 1 && v > -1 && v < 1) {
-          id = x.face * uint64_t{r} * r + static_cast<uint64_t>(x.t + dy) * r + static_cast<uint64_t>(x.s + dx);
+          id = x.face * rr + static_cast<uint64_t>(x.t + dy) * r + static_cast<uint64_t>(x.s + dx);
         } else {
           id = cubemap::Column(cubemap::DirectionToTexel(cubemap::FaceDirection(x.face, u, v), r), r);
         }
-        ids_[c * kSize + k++] = static_cast<uint32_t>(id);
+        const uint64_t s = id % rr % r, t = id % rr / r;
+        if (s % 2 == 0 && t % 2 == 0) window.push_back(static_cast<uint32_t>(id));
       }
     }
+    std::sort(window.begin(), window.end());
+    window.erase(std::unique(window.begin(), window.end()), window.end());
+    ids_.insert(ids_.end(), window.begin(), window.end());
+    start_.push_back(ids_.size());
   }
 }
 

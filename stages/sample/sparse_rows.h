@@ -25,17 +25,17 @@ inline constexpr int kWindowHalf = 3;
 // with unoccluded[c] > 0 (not wholly below the horizon). select gets 6R² flags.
 void GridSelection(uint32_t r, const double* unoccluded, std::vector<uint8_t>* select);
 
-// The 7×7 window of every texel, across cube edges: offset (dx, dy) of texel (face, s, t)
-// is the texel whose direction the face's plane extended to (s + dx, t + dy) points to, so
-// a window near an edge continues on the neighbouring face. 6R² × 49 columns (repeats
-// possible near cube corners).
+// The grid texels (even s and t) in the 7×7 window of every texel, across cube edges:
+// offset (dx, dy) of texel (face, s, t) is the texel whose direction the face's plane
+// extended to (s + dx, t + dy) points to, so a window near an edge continues on the
+// neighbouring face. At most 16 per texel inside a face; repeats removed.
 class WindowTable {
  public:
   explicit WindowTable(uint32_t r);
-  std::span<const uint32_t> Of(uint64_t c) const { return {ids_.data() + c * kSize, kSize}; }
-  static constexpr size_t kSize = (2 * kWindowHalf + 1) * (2 * kWindowHalf + 1);
+  std::span<const uint32_t> Of(uint64_t c) const { return {ids_.data() + start_[c], start_[c + 1] - start_[c]}; }
 
  private:
+  std::vector<uint64_t> start_;
   std::vector<uint32_t> ids_;
 };
 
