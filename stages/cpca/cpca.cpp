@@ -11,6 +11,7 @@
 #include "format/io/file.h"
 #include "format/io/file_lock.h"
 #include "stages/common/basis.h"
+#include "stages/common/parallel_for.h"
 #include "stages/cpca/cpca_fit.h"
 #include "stages/cpca/cpca_model.h"
 
@@ -155,6 +156,28 @@ Result<MemoryPlan> PlanMemory(const CpcaOptions& o, uint64_t n, uint64_t d, uint
   return MemoryPlan{fixed, per_sample_row, min_sample};
 }
 
+// The passes' memory beside `fixed`, decided once the sample is sized (so neither changes
+// the sample, which is part of the run's identity): the extra pass blocks read together
+// (PassGroupBlocks) and, in dense-first, the dense rows held in memory (f32 and row number
+// each) — when they fit --mem-limit with the sample (which is then read from them), or
+// after it (gathered at the first dense pass), else streamed every pass. Returns the
+// estimated peak: the start's (fixed + sample) or the passes', whichever is larger.
+uint64_t PlanPasses(const CpcaOptions& o, const MemoryPlan& mem, uint64_t n_dense, Params* pr) {
+  const uint64_t d = pr->d, block = cpca_internal::PassBlockRows(d);
+  pr->group_blocks = cpca_internal::PassGroupBlocks(d, o.jobs);
+  uint64_t group = (pr->group_blocks - 1) * block * (d * 8 + 24 + pr->s * 4);
+  if (mem.fixed + group > o.mem_limit) {
+    pr->group_blocks = 1;
+    group = 0;
+  }
+  const uint64_t sample = pr->sample_rows * mem.per_sample_row;
+  const uint64_t cache = n_dense * (d * 4 + 8);
+  pr->dense_cache = pr->dense_first && mem.fixed + group + cache <= o.mem_limit;
+  pr->sample_from_cache = pr->dense_cache && mem.fixed + sample + cache <= o.mem_limit;
+  const uint64_t held = pr->dense_cache ? cache : 0;
+  return std::max(mem.fixed + sample + (pr->sample_from_cache ? cache : 0), mem.fixed + group + held);
+}
+
 uint64_t StoredBytes(const io::ContainerReader& r, uint32_t array) {
   uint64_t b = 0;
   for (const auto& e : r.chunk_frames())
@@ -250,10 +273,22 @@ Status WriteOutput(const CpcaOptions& o, const io::ContainerReader& in, const Pa
   const Assigner final_assigner(rounded, s);
   const uint64_t base_done = fitter.rows_done();
   std::atomic<uint64_t> encoded{0};
+  // Row chunks are encoded in parallel, and so are pieces of a chunk when there are fewer
+  // chunks than threads (a chunk holds up to 2^20/S rows: often all of them). Pieces start
+  // at multiples of kSubRows, so every row is encoded in the same sub-block either way.
+  const uint64_t row_chunks = layout.ids.ChunkCount();
+  const uint64_t jobs = static_cast<uint64_t>(std::max(1, o.jobs));
+  const int inner = static_cast<int>(std::max<uint64_t>(1, (jobs + row_chunks - 1) / row_chunks));
   auto encode = [&](uint64_t row0, uint64_t rows, uint32_t* id, float* w) -> Status {
-    if (progress.Cancelled()) return Cancelled("interrupted while writing; rerun the same command to resume");
-    std::vector<double> err(rows), x;
-    return fitter.Encode(final_assigner, rounded, row0, rows, &x, id, w, err.data());
+    constexpr uint64_t kPiece = 16 * cpca_internal::kSubRows;
+    std::vector<uint64_t> pieces;
+    for (uint64_t at = 0; at < rows; at += kPiece) pieces.push_back(at);
+    return ParallelFor(pieces, inner, Progress{}, "rows", [&](uint64_t at) -> Status {
+      if (progress.Cancelled()) return Cancelled("interrupted while writing; rerun the same command to resume");
+      const uint64_t n_rows = std::min(kPiece, rows - at);
+      std::vector<double> err(n_rows), x;
+      return fitter.Encode(final_assigner, rounded, row0 + at, n_rows, &x, id + at, w + at * s, err.data());
+    });
   };
   auto done = [&](uint64_t rows) { progress.Report(base_done + (encoded += rows), fitter.rows_total(), "rows"); };
   LTB_ASSIGN_OR_RETURN(uint64_t rows_written, WriteCpcaRows(out, layout, o.jobs, encode, done));
@@ -314,9 +349,11 @@ Result<CpcaResult> RunCpca(const CpcaOptions& o, const Progress& progress) {
   result.dims = d;
   result.clusters = k;
   result.basis = s;
-  result.memory_bytes = mem.fixed + pr.sample_rows * mem.per_sample_row;
+  result.memory_bytes = PlanPasses(o, mem, pr.n_dense, &pr);
   result.dense_first = dense.on;
   result.dense_rows = dense.on ? dense.dense : 0;
+  result.dense_cache_bytes = pr.dense_cache ? pr.n_dense * (d * 4 + 8) : 0;
+  result.dense_cache_sample = pr.sample_from_cache;
 
   // One writer per output, before the output or its checkpoint is touched (held to the end;
   // the container writer shares it).

@@ -61,12 +61,17 @@ struct CpcaResult {
   double squared_error = 0, squared_norm = 0;
   uint64_t empty_clusters = 0;              // clusters without rows in the final assignment
   uint64_t model_bytes = 0, row_bytes = 0;  // stored payloads: means+bases, ids+weights
-  uint64_t memory_bytes = 0;                // the stage's estimated peak buffer memory
+  uint64_t memory_bytes = 0;                // the stage's estimated peak buffer memory (incl. dense_cache_bytes)
   bool resumed = false;                     // continued from a checkpoint or a partial output
   bool already_complete = false;
   uint64_t chunks_written = 0, chunks_already_committed = 0;
   bool dense_first = false;  // the growth levels ran on the dense rows only
   uint64_t dense_rows = 0;   // rows the growth levels ran on when dense_first (else 0)
+  // Dense-first: bytes of the dense rows held in memory for the dense passes (read from the
+  // input once; 0 when they do not fit --mem-limit and every dense pass streams them), and
+  // whether the k-means++ sample was taken from them too (they fit beside it).
+  uint64_t dense_cache_bytes = 0;
+  bool dense_cache_sample = false;
   // Rows read by the fit's passes (growth, final, evaluation, encoding; not the k-means++
   // sample), counted from the pass counts, so the same for a run interrupted and resumed.
   uint64_t rows_streamed = 0;

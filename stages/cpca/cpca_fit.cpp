@@ -19,6 +19,12 @@ uint64_t PassBlockRows(uint64_t d) {
   return std::max(kSubRows, r / kSubRows * kSubRows);
 }
 
+uint64_t PassGroupBlocks(uint64_t d, int jobs) {
+  const uint64_t subs = PassBlockRows(d) / kSubRows;
+  const uint64_t threads = static_cast<uint64_t>(std::max(1, jobs));
+  return std::max<uint64_t>(1, (threads + subs - 1) / subs);
+}
+
 std::vector<uint64_t> Levels(uint64_t s, uint64_t step) {
   std::vector<uint64_t> l{0};
   while (l.back() < s) l.push_back(std::min(s, l.back() + std::max<uint64_t>(1, step)));
@@ -27,8 +33,10 @@ std::vector<uint64_t> Levels(uint64_t s, uint64_t step) {
 
 namespace {
 
-// Copies row i (of the matrix) from its chunk as doubles, refusing non-finite values.
-Status CopyRow(const io::ContainerReader& in, const io::Chunk& chunk, uint64_t i, double* dst) {
+// Copies row i (of the matrix) from its chunk as doubles (or f32, for the dense-row cache),
+// refusing non-finite values.
+template <typename T>
+Status CopyRow(const io::ContainerReader& in, const io::Chunk& chunk, uint64_t i, T* dst) {
   const uint64_t cols = in.metadata().matrix().cols;
   const float* src = chunk.as<float>().data() + (i - chunk.extent().row0) * cols;
   for (uint64_t j = 0; j < cols; ++j) {
@@ -66,6 +74,19 @@ Status ReadRowList(const io::ContainerReader& in, const uint64_t* rows, uint64_t
     for (; i < n && rows[i] / a.block == c; ++i) LTB_RETURN_IF_ERROR(CopyRow(in, chunk, rows[i], out + i * a.cols));
   }
   return Status::Ok();
+}
+
+// ReadRowList on `jobs` threads, one input chunk's rows per task (the same values).
+Status ReadRowListParallel(const io::ContainerReader& in, const uint64_t* rows, uint64_t n, double* out, int jobs) {
+  const ArraySpec& a = in.metadata().matrix();
+  std::vector<std::pair<uint64_t, uint64_t>> runs;  // (first index, count) per chunk
+  for (uint64_t i = 0; i < n; ++i) {
+    if (runs.empty() || rows[i] / a.block != rows[runs.back().first] / a.block) runs.push_back({i, 0});
+    ++runs.back().second;
+  }
+  return ParallelFor(runs, jobs, Progress{}, "chunks", [&](const std::pair<uint64_t, uint64_t>& r) -> Status {
+    return ReadRowList(in, rows + r.first, r.second, out + r.first * a.cols);
+  });
 }
 
 // The dense rows (sparse_kind == kSparseKindDense) in row order, streamed from the side
@@ -172,7 +193,9 @@ Result<std::vector<uint64_t>> CpcaFitter::SampleRows() const {
       heap.push({h, r});
     }
   };
-  if (pr_.dense_first) {
+  if (cache_.filled) {
+    for (uint64_t r : cache_.rows) offer(r);
+  } else if (pr_.dense_first) {
     DenseRows dense(in_, pr_.kind_array);
     std::vector<uint64_t> batch;
     do {
@@ -304,12 +327,60 @@ Status CpcaFitter::InitialDirections(const RowMat& x, const std::vector<uint32_t
   });
 }
 
+Status CpcaFitter::GatherDense() {
+  if (cache_.filled) return Status::Ok();
+  const uint64_t d = pr_.d;
+  const ArraySpec& a = in_.metadata().matrix();
+  DenseCache cache;
+  cache.rows.reserve(pr_.n_dense);
+  DenseRows dense(in_, pr_.kind_array);
+  LTB_RETURN_IF_ERROR(dense.Next(pr_.n_dense + 1, &cache.rows));
+  if (cache.rows.size() != pr_.n_dense) {
+    return DataLoss(in_.path() + ": \"" + kSparseKindArray + "\" now marks " + std::to_string(cache.rows.size()) +
+                    " rows dense, " + std::to_string(pr_.n_dense) + " when the run started; was the file replaced?");
+  }
+  cache.values.resize(pr_.n_dense * d);
+  // The input chunks holding dense rows, each read once; a chunk's dense rows are a
+  // contiguous range of the cache.
+  std::vector<uint64_t> chunks;
+  for (uint64_t r : cache.rows)
+    if (chunks.empty() || chunks.back() != r / a.block) chunks.push_back(r / a.block);
+  LTB_RETURN_IF_ERROR(ParallelFor(chunks, o_.jobs, Progress{}, "chunks", [&](uint64_t c) -> Status {
+    if (progress_.Cancelled()) return Cancelled("interrupted while reading the dense rows; rerun the same command");
+    LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in_.ReadChunk(0, c));
+    auto it = std::lower_bound(cache.rows.begin(), cache.rows.end(), c * a.block);
+    for (; it != cache.rows.end() && *it / a.block == c; ++it) {
+      const uint64_t i = static_cast<uint64_t>(it - cache.rows.begin());
+      LTB_RETURN_IF_ERROR(CopyRow(in_, chunk, *it, cache.values.data() + i * d));
+    }
+    return Status::Ok();
+  }));
+  cache.filled = true;
+  cache_ = std::move(cache);
+  return Status::Ok();
+}
+
+void CpcaFitter::CachedRows(uint64_t i, uint64_t n, double* out) const {
+  const float* src = cache_.values.data() + i * pr_.d;
+  std::copy(src, src + n * pr_.d, out);
+}
+
 Status CpcaFitter::Initialise(Model* m) {
   const uint64_t d = pr_.d, k = pr_.k, p = pr_.p;
+  if (pr_.sample_from_cache) LTB_RETURN_IF_ERROR(GatherDense());
   LTB_ASSIGN_OR_RETURN(const std::vector<uint64_t> rows, SampleRows());
   const uint64_t ns = rows.size();
   RowMat x(ns, d);
-  LTB_RETURN_IF_ERROR(ReadRowList(in_, rows.data(), ns, x.data()));
+  if (cache_.filled) {
+    // The sample's rows are dense rows; both lists ascend.
+    uint64_t j = 0;
+    for (uint64_t i = 0; i < ns; ++i) {
+      while (cache_.rows[j] != rows[i]) ++j;
+      CachedRows(j, 1, x.data() + i * d);
+    }
+  } else {
+    LTB_RETURN_IF_ERROR(ReadRowListParallel(in_, rows.data(), ns, x.data(), o_.jobs));
+  }
   const std::vector<uint64_t> centres = SeedCentres(x);
   m->k = k;
   m->d = d;
@@ -322,8 +393,10 @@ Status CpcaFitter::Initialise(Model* m) {
 }
 
 Result<double> CpcaFitter::Pass(Model* m, uint64_t n, uint64_t pass_index, bool dense_only) {
-  const uint64_t d = pr_.d, k = pr_.k, p = pr_.p, nr = pr_.n_rows;
-  const uint64_t block = PassBlockRows(d);
+  const uint64_t d = pr_.d, k = pr_.k, p = pr_.p;
+  const uint64_t block = PassBlockRows(d), group = std::max<uint64_t>(1, pr_.group_blocks);
+  if (dense_only && pr_.dense_cache) LTB_RETURN_IF_ERROR(GatherDense());
+  const bool cached = dense_only && cache_.filled;
   Assigner assigner(*m, n, /*single=*/true);
   std::vector<Accum> acc(k);
   for (auto& a : acc) {
@@ -339,66 +412,107 @@ Result<double> CpcaFitter::Pass(Model* m, uint64_t n, uint64_t pass_index, bool 
   };
 
   // Pass blocks: `block` consecutive rows from row 0, or (dense_only) the next `block` dense
-  // rows; either way fixed by the data alone, as are their kSubRows sub-blocks.
-  std::optional<DenseRows> dense;
-  if (dense_only) dense.emplace(in_, pr_.kind_array);
-  std::vector<uint64_t> list;  // dense_only: the block's rows
-  std::vector<double> x(block * d), err(block);
-  std::vector<uint32_t> ids(block);
+  // rows — from the cache, or streamed with the side array; either way fixed by the data
+  // alone, as are their kSubRows sub-blocks. `group` blocks at a time are read and assigned
+  // in parallel, then accumulated block after block in row order (the arithmetic of one
+  // block at a time).
+  std::optional<DenseRows> dense;  // dense_only and not cached: the side array, streamed
+  if (dense_only && !cached) dense.emplace(in_, pr_.kind_array);
+  struct Block {
+    uint64_t first = 0, rows = 0;  // first: its first row, or (dense_only) dense row index
+    std::vector<uint64_t> list;    // streamed dense_only: its rows
+  };
+  std::vector<Block> blocks(group);
+  auto row_of = [&](const Block& b, uint64_t r) {
+    return dense ? b.list[r] : cached ? cache_.rows[b.first + r] : b.first + r;
+  };
+  const uint64_t end = dense_only ? pr_.n_dense : pr_.n_rows;
+  std::vector<double> x(group * block * d), err(group * block);
+  std::vector<uint32_t> ids(group * block);
   double total = 0;
-  for (uint64_t row0 = 0;; row0 += block) {
+  for (uint64_t next = 0;;) {
     if (progress_.Cancelled()) {
       return Cancelled("interrupted in pass " + std::to_string(pass_index + 1) +
                        "; passes before it are checkpointed, rerun the same command to resume");
     }
-    if (dense) LTB_RETURN_IF_ERROR(dense->Next(block, &list));
-    const uint64_t rows = dense ? list.size() : row0 < nr ? std::min(block, nr - row0) : 0;
-    if (rows == 0) break;
-    auto row_of = [&](uint64_t r) { return dense ? list[r] : row0 + r; };
-    std::vector<uint64_t> subs;
-    for (uint64_t s = 0; s < rows; s += kSubRows) subs.push_back(s);
-    LTB_RETURN_IF_ERROR(ParallelFor(subs, o_.jobs, Progress{}, "rows", [&](uint64_t s) -> Status {
-      const uint64_t m_rows = std::min(kSubRows, rows - s);
-      LTB_RETURN_IF_ERROR(dense ? ReadRowList(in_, list.data() + s, m_rows, x.data() + s * d)
-                                : ReadRows(in_, row0 + s, m_rows, x.data() + s * d));
-      assigner.Assign(x.data() + s * d, m_rows, d, ids.data() + s, err.data() + s, nullptr);
+    uint64_t nb = 0;  // blocks in this group
+    for (; nb < group; ++nb) {
+      Block& b = blocks[nb];
+      b.first = next;
+      if (dense) {
+        LTB_RETURN_IF_ERROR(dense->Next(block, &b.list));
+        b.rows = b.list.size();
+      } else {
+        b.rows = std::min(block, end - next);
+      }
+      if (b.rows == 0) break;
+      next += b.rows;
+    }
+    if (nb == 0) break;
+    std::vector<std::pair<uint64_t, uint64_t>> subs;  // (block, its first row of the sub-block)
+    for (uint64_t bi = 0; bi < nb; ++bi)
+      for (uint64_t s = 0; s < blocks[bi].rows; s += kSubRows) subs.push_back({bi, s});
+    LTB_RETURN_IF_ERROR(ParallelFor(subs, o_.jobs, Progress{}, "rows", [&](const auto& sub) -> Status {
+      const Block& b = blocks[sub.first];
+      const uint64_t s = sub.second, at = sub.first * block + s;
+      const uint64_t m_rows = std::min(kSubRows, b.rows - s);
+      double* xs = x.data() + at * d;
+      if (cached) {
+        CachedRows(b.first + s, m_rows, xs);
+      } else {
+        LTB_RETURN_IF_ERROR(dense ? ReadRowList(in_, b.list.data() + s, m_rows, xs)
+                                  : ReadRows(in_, b.first + s, m_rows, xs));
+      }
+      assigner.Assign(xs, m_rows, d, ids.data() + at, err.data() + at, nullptr);
       return Status::Ok();
     }));
-    std::vector<std::vector<uint32_t>> members(k);
-    for (uint64_t r = 0; r < rows; ++r) {
-      members[ids[r]].push_back(static_cast<uint32_t>(r));
-      total += err[r];
-      std::pair<double, uint64_t> e{err[r], row_of(r)};
-      if (worst.size() < keep || better(e, worst.back())) {
-        auto pos = std::lower_bound(worst.begin(), worst.end(), e, better);
-        size_t at = pos - worst.begin();
-        worst.insert(pos, e);
-        worst_rows.insert(worst_rows.begin() + at, std::vector<double>(x.data() + r * d, x.data() + (r + 1) * d));
-        if (worst.size() > keep) {
-          worst.pop_back();
-          worst_rows.pop_back();
+    // members[bi][c]: the rows (offsets in x) of block bi assigned to cluster c.
+    std::vector<std::vector<std::vector<uint32_t>>> members(nb, std::vector<std::vector<uint32_t>>(k));
+    std::vector<bool> busy_mask(k, false);
+    for (uint64_t bi = 0; bi < nb; ++bi) {
+      for (uint64_t r = 0; r < blocks[bi].rows; ++r) {
+        const uint64_t at = bi * block + r;
+        members[bi][ids[at]].push_back(static_cast<uint32_t>(at));
+        busy_mask[ids[at]] = true;
+        total += err[at];
+        std::pair<double, uint64_t> e{err[at], row_of(blocks[bi], r)};
+        if (worst.size() < keep || better(e, worst.back())) {
+          auto pos = std::lower_bound(worst.begin(), worst.end(), e, better);
+          size_t w_at = pos - worst.begin();
+          worst.insert(pos, e);
+          worst_rows.insert(worst_rows.begin() + w_at, std::vector<double>(x.data() + at * d, x.data() + (at + 1) * d));
+          if (worst.size() > keep) {
+            worst.pop_back();
+            worst_rows.pop_back();
+          }
         }
       }
     }
     std::vector<uint64_t> busy;
     for (uint64_t c = 0; c < k; ++c)
-      if (!members[c].empty()) busy.push_back(c);
+      if (busy_mask[c]) busy.push_back(c);
     LTB_RETURN_IF_ERROR(ParallelFor(busy, o_.jobs, Progress{}, "clusters", [&](uint64_t c) -> Status {
-      const auto& mem = members[c];
-      RowMat z(mem.size(), d);
-      for (size_t i = 0; i < mem.size(); ++i) {
-        z.row(i) = Eigen::Map<const Eigen::RowVectorXd>(x.data() + mem[i] * d, d) - m->mean.row(c);
-      }
-      acc[c].count += mem.size();
-      acc[c].sum += z.colwise().sum().transpose();
-      if (p > 0) {
-        Mat t = z * m->dir[c];
-        acc[c].y.noalias() += z.transpose() * t;
+      for (uint64_t bi = 0; bi < nb; ++bi) {  // block after block, as if one at a time
+        const auto& mem = members[bi][c];
+        if (mem.empty()) continue;
+        RowMat z(mem.size(), d);
+        for (size_t i = 0; i < mem.size(); ++i) {
+          z.row(i) = Eigen::Map<const Eigen::RowVectorXd>(x.data() + mem[i] * d, d) - m->mean.row(c);
+        }
+        acc[c].count += mem.size();
+        acc[c].sum += z.colwise().sum().transpose();
+        if (p > 0) {
+          Mat t = z * m->dir[c];
+          acc[c].y.noalias() += z.transpose() * t;
+        }
       }
       return Status::Ok();
     }));
-    rows_done_ += rows;
-    ReportRows(rows_done_);
+    for (uint64_t bi = 0; bi < nb; ++bi) {
+      rows_done_ += blocks[bi].rows;
+      ReportRows(rows_done_);
+    }
+    if (nb < group) break;
   }
 
   // Refit: means, then directions from the streamed products (corrected to the new mean:
@@ -459,17 +573,20 @@ Status CpcaFitter::Encode(const Assigner& a, const Model& rounded, uint64_t row0
 
 Status CpcaFitter::Evaluate(const Model& rounded, double* err, double* norm, std::vector<uint64_t>* sizes) {
   const uint64_t nr = pr_.n_rows, d = pr_.d;
-  const uint64_t block = PassBlockRows(d);
+  // `group` pass blocks at a time (their sub-blocks in parallel); per-row results are
+  // summed in row order, so the totals do not depend on the grouping.
+  const uint64_t block = PassBlockRows(d), group = std::max<uint64_t>(1, pr_.group_blocks);
+  const uint64_t span = group * block;
   Assigner a(rounded, pr_.s);
-  std::vector<uint32_t> ids(block);
-  std::vector<float> w(block * pr_.s);
-  std::vector<double> e(block), xx(block);
+  std::vector<uint32_t> ids(span);
+  std::vector<float> w(span * pr_.s);
+  std::vector<double> e(span), xx(span);
   sizes->assign(pr_.k, 0);
   *err = 0;
   *norm = 0;
-  for (uint64_t row0 = 0; row0 < nr; row0 += block) {
+  for (uint64_t row0 = 0; row0 < nr; row0 += span) {
     if (progress_.Cancelled()) return Cancelled("interrupted in the final pass; rerun the same command to resume");
-    const uint64_t rows = std::min(block, nr - row0);
+    const uint64_t rows = std::min(span, nr - row0);
     std::vector<uint64_t> subs;
     for (uint64_t s = 0; s < rows; s += kSubRows) subs.push_back(s);
     LTB_RETURN_IF_ERROR(ParallelFor(subs, o_.jobs, Progress{}, "rows", [&](uint64_t s) -> Status {
@@ -488,8 +605,10 @@ Status CpcaFitter::Evaluate(const Model& rounded, double* err, double* norm, std
       *norm += xx[r];
       (*sizes)[ids[r]]++;
     }
-    rows_done_ += rows;
-    ReportRows(rows_done_);
+    for (uint64_t b0 = 0; b0 < rows; b0 += block) {  // one report per pass block
+      rows_done_ += std::min(block, rows - b0);
+      ReportRows(rows_done_);
+    }
   }
   return Status::Ok();
 }
@@ -553,6 +672,7 @@ Status CpcaFitter::Iterate(const std::string& cp_path, const nlohmann::json& ide
     LTB_RETURN_IF_ERROR(WriteCheckpoint(cp_path, identity, st->phase, st->level, st->level_passes, st->passes,
                                         st->final_passes, st->last_error, *m));
   }
+  cache_ = DenseCache();  // the passes that follow read all rows from the input
   return Status::Ok();
 }
 

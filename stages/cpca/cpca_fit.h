@@ -1,8 +1,8 @@
 // Internal to `ltbake cpca` (stages/cpca/cpca.h): fitting the model to rows streamed from
 // the input — the seeded k-means++ start, the assignment/refit passes growing the basis
-// level by level (on the dense rows only in dense-first mode, then a few passes on all
-// rows), checkpointed at every pass boundary, and the final evaluation and encoding with
-// the f32-rounded model.
+// level by level (on the dense rows only in dense-first mode, read once and held in memory
+// when they fit, then a few passes on all rows), checkpointed at every pass boundary, and
+// the final evaluation and encoding with the f32-rounded model.
 #pragma once
 
 #include <cstdint>
@@ -27,6 +27,11 @@ inline constexpr uint64_t kSubRows = 256;
 // 8 MiB of doubles, a multiple of kSubRows; depends only on D.
 uint64_t PassBlockRows(uint64_t d);
 
+// Pass blocks read and assigned together, in parallel (then accumulated one after another,
+// so the arithmetic is that of one block at a time): enough that a pass block of fewer
+// sub-blocks than --jobs (D > 2048: one) still keeps every thread busy.
+uint64_t PassGroupBlocks(uint64_t d, int jobs);
+
 // The basis dimensions the fit grows through: 0, step, 2·step, …, s.
 std::vector<uint64_t> Levels(uint64_t s, uint64_t step);
 
@@ -39,6 +44,12 @@ struct Params {
   bool dense_first = false;
   uint64_t n_dense = 0, final_iterations = 0;
   int kind_array = -1;
+  // Dense-first, when they fit --mem-limit: the dense rows are read from the input once and
+  // held in memory (f32, as stored) for the dense passes; sample_from_cache: gathered before
+  // the k-means++ sample, which is then read from them (both fit at once), else gathered at
+  // the first dense pass, after the sample is freed.
+  bool dense_cache = false, sample_from_cache = false;
+  uint64_t group_blocks = 1;  // PassGroupBlocks, or 1 when the extra blocks do not fit
 };
 
 // Where a fit ends: the model as stored and the final assignment's totals.
@@ -74,14 +85,26 @@ class CpcaFitter {
 
  private:
   struct FitState;
+  // Dense-first: the dense rows in row order, as read from the input (f32, checked finite),
+  // and their row numbers; held from their first read to the end of the growth levels.
+  struct DenseCache {
+    std::vector<uint64_t> rows;
+    std::vector<float> values;  // rows.size() × D
+    bool filled = false;
+  };
+  // Fills cache_ (once per invocation; a resumed run gathers again): one read of the side
+  // array and of every input chunk holding dense rows.
+  Status GatherDense();
+  // Cached dense rows [i, i + n) as doubles (exactly the values the input holds).
+  void CachedRows(uint64_t i, uint64_t n, double* out) const;
   Status Initialise(Model* m);
   Result<std::vector<uint64_t>> SampleRows() const;
   std::vector<uint64_t> SeedCentres(const RowMat& x) const;
   Status Lloyd(const RowMat& x, Model* m, std::vector<uint32_t>* id) const;
   Status InitialDirections(const RowMat& x, const std::vector<uint32_t>& id, Model* m) const;
   // One assignment + refit pass at basis dimension n over all rows, or over the dense
-  // rows only. Returns Σ squared error of the assignment (against the model before the
-  // refit).
+  // rows only (from cache_ when planned). Returns Σ squared error of the assignment
+  // (against the model before the refit).
   Result<double> Pass(Model* m, uint64_t n, uint64_t pass_index, bool dense_only);
   // The final assignment with the f32-rounded model: Σ squared error of what is stored,
   // Σ ‖x‖², and the cluster sizes.
@@ -98,6 +121,7 @@ class CpcaFitter {
   const Params& pr_;
   const Progress& progress_;
   uint64_t rows_done_ = 0;
+  DenseCache cache_;
 };
 
 }  // namespace ltb::stages::cpca_internal

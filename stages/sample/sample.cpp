@@ -42,6 +42,17 @@ using sample_internal::Prepared;
 
 namespace sample_internal {
 
+ArraySpec RowArray(const char* name, DType t, uint64_t rows, uint64_t cols, uint64_t block) {
+  ArraySpec a;
+  a.name = name;
+  a.dtype = t;
+  a.rows = rows;
+  a.cols = cols;
+  a.layout = Layout::kRows;
+  a.block = block;
+  return a;
+}
+
 Status CheckSparse(const SampleOptions& o, uint32_t r) {
   const SparseOptions& s = o.sparse;
   if (!s.enabled) return Status::Ok();
@@ -179,16 +190,7 @@ nlohmann::json SampleMetadata(const SampleOptions& o, const Prepared& p, uint64_
   const SceneDesc& scene = p.scene;
   const uint32_t r = p.r;
   const uint64_t rows = p.rows, cols = 6ull * r * r;
-  auto spec = [&](const char* name, DType t, uint64_t c) {
-    ArraySpec a;
-    a.name = name;
-    a.dtype = t;
-    a.rows = rows;
-    a.cols = c;
-    a.layout = Layout::kRows;
-    a.block = block;
-    return a.ToJson();
-  };
+  auto spec = [&](const char* name, DType t, uint64_t c) { return RowArray(name, t, rows, c, block).ToJson(); };
   nlohmann::json rows_basis =
       scene.mode == SceneDesc::Mode::kImage
           ? ImageRows(scene.camera.width, scene.camera.height)

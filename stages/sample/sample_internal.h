@@ -7,6 +7,7 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 
+#include "format/array_spec.h"
 #include "format/progress.h"
 #include "format/status.h"
 #include "stages/sample/sample.h"
@@ -24,6 +25,9 @@ struct Prepared {
 };
 
 Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress& progress);
+
+// An array in row blocks of `block` rows (the matrix and every side table).
+format::ArraySpec RowArray(const char* name, format::DType t, uint64_t rows, uint64_t cols, uint64_t block);
 
 // Rows per chunk: --chunk-rows, else about 2 MiB of matrix per block.
 uint64_t BlockRows(const SampleOptions& o, uint64_t rows, uint64_t cols);

@@ -171,17 +171,6 @@ nlohmann::json ParamsJson(const SampleOptions& o, const Params& pr) {
           {"max_residual", o.sparse.max_residual}};
 }
 
-ArraySpec RowArray(const char* name, DType t, uint64_t rows, uint64_t cols, uint64_t block) {
-  ArraySpec a;
-  a.name = name;
-  a.dtype = t;
-  a.rows = rows;
-  a.cols = cols;
-  a.layout = Layout::kRows;
-  a.block = block;
-  return a;
-}
-
 // ---- Dense rows ----
 
 struct DenseScratch {

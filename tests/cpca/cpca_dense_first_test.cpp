@@ -350,6 +350,84 @@ TEST(CpcaDenseFirst, SameContentForAnyJobsAndChunking) {
   }
 }
 
+// The dense rows are read once and held in memory when they fit --mem-limit — beside the
+// k-means++ sample (which is then taken from them) or after it — else streamed from the
+// input in every dense pass: the same rows in the same blocks either way, so the same
+// content. The limits come from the stage's own estimates: one byte under the peak with
+// the sample taken from the cache (fixed + sample + cache), the cache is gathered after the
+// sample (peak fixed + max(sample, passes' buffers + cache)); one byte under that, it does
+// not fit (the cache is the larger here: about N/4 dense rows against a 256-row sample).
+// D = 48: one pass block per pass; D = 2056: pass blocks of 256 rows (one sub-block), read
+// and assigned two at a time with --jobs 2, one at a time with --jobs 1.
+TEST(CpcaDenseFirst, SameContentWhetherDenseRowsAreCachedOrStreamed) {
+  for (const auto& [d, n] : std::vector<std::pair<uint64_t, uint64_t>>{{kD, 8192}, {2056, 4096}}) {
+    SCOPED_TRACE("D = " + std::to_string(d));
+    TempDir dir;
+    const Rows rows = AffineRows(kK, kS, d, n, 0.05, 22);
+    WriteInput(dir.File("in.ltm"), rows, 300, 1000);  // chunks straddle pass blocks and sub-blocks
+    CpcaOptions o = Options(dir.File("in.ltm"), dir.File("with-sample.ltm"), DenseFirst::kOn);
+    o.sample_rows = 256;  // the same sample under every limit below (it is in the run's identity)
+    o.mem_limit = 1ull << 30;
+    const CpcaResult with_sample = RunOk(o);
+    ASSERT_TRUE(with_sample.dense_first);
+    EXPECT_EQ(with_sample.dense_cache_bytes, with_sample.dense_rows * (d * 4 + 8));
+    EXPECT_TRUE(with_sample.dense_cache_sample);
+    const auto ref = Hashes(o.output);
+    const nlohmann::json provenance = Meta(o.output)["provenance"];
+
+    o.output = dir.File("after-sample.ltm");
+    o.mem_limit = with_sample.memory_bytes - 1;
+    const CpcaResult after = RunOk(o);
+    EXPECT_EQ(after.dense_cache_bytes, with_sample.dense_cache_bytes);
+    EXPECT_FALSE(after.dense_cache_sample);
+    EXPECT_LE(after.memory_bytes, o.mem_limit);
+
+    o.output = dir.File("streamed.ltm");
+    o.mem_limit = after.memory_bytes - 1;
+    const CpcaResult streamed = RunOk(o);
+    EXPECT_EQ(streamed.dense_cache_bytes, 0u);
+    EXPECT_LE(streamed.memory_bytes, o.mem_limit);
+
+    o.output = dir.File("one-job.ltm");
+    o.mem_limit = 1ull << 30;
+    o.jobs = 1;
+    const CpcaResult one_job = RunOk(o);
+    EXPECT_GT(one_job.dense_cache_bytes, 0u);
+
+    for (const auto* r : {&after, &streamed, &one_job}) {
+      EXPECT_EQ(r->iterations, with_sample.iterations);
+      EXPECT_EQ(r->rows_streamed, with_sample.rows_streamed);
+      EXPECT_EQ(r->squared_error, with_sample.squared_error);
+    }
+    for (const char* name : {"after-sample.ltm", "streamed.ltm", "one-job.ltm"}) {
+      EXPECT_EQ(Hashes(dir.File(name)), ref) << name;
+      EXPECT_EQ(Meta(dir.File(name))["provenance"], provenance) << name;
+    }
+
+    // Interrupted in the dense passes with the rows cached, resumed streaming them, and the
+    // other way round (the limit is not part of the run's identity; the cache is rebuilt).
+    const uint64_t cached_limit = 1ull << 30, streamed_limit = after.memory_bytes - 1;
+    for (const auto& [first, second] :
+         std::vector<std::pair<uint64_t, uint64_t>>{{cached_limit, streamed_limit}, {streamed_limit, cached_limit}}) {
+      o.output = dir.File("cut-" + std::to_string(first) + ".ltm");
+      o.jobs = 2;
+      o.mem_limit = first;
+      std::atomic<uint64_t> reports{0};
+      Progress cut;
+      cut.update = [&](uint64_t, uint64_t, const char*) { ++reports; };
+      cut.cancelled = [&] { return reports.load() >= 3; };
+      auto interrupted = RunCpca(o, cut);
+      ASSERT_FALSE(interrupted.ok());
+      EXPECT_EQ(interrupted.status().code(), StatusCode::kCancelled);
+      o.mem_limit = second;
+      const CpcaResult resumed = RunOk(o);
+      EXPECT_TRUE(resumed.resumed);
+      EXPECT_EQ(resumed.dense_cache_bytes > 0, second == cached_limit);
+      EXPECT_EQ(Hashes(o.output), ref) << "cut with --mem-limit " << first << ", resumed with " << second;
+    }
+  }
+}
+
 TEST(CpcaDenseFirst, AutoFollowsTheSparseKindArray) {
   TempDir dir;
   const Rows rows = AffineRows(kK, kS, kD, kN, 0.05, 14);
