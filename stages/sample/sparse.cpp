@@ -207,47 +207,56 @@ DenseRowResult TraceDenseRow(const Sampler& s, uint64_t row, const RowPoint& rp,
   return out;
 }
 
+// What both phases read: the options, the scene, its rows and the resolved parameters.
+struct Context {
+  const SampleOptions& o;
+  const Prepared& p;
+  const Sampler& s;
+  const RowPoints& pts;
+  const Params& pr;
+  const sp::WindowTable& windows;
+  const Progress& progress;
+};
+
 // ---- Phase 1 ----
 
 struct Phase1 {
   std::vector<uint64_t> rows;  // dense index -> row
   std::vector<float> low;      // dense index -> the direct term box-filtered to 6·kRankRes²
-  uint64_t traced = 0, rays = 0, chunks_written = 0, chunks_resumed = 0;
+  uint64_t rays = 0;           // traced by this run
   double seconds = 0;
 };
 
 class Phase1Runner {
  public:
-  Phase1Runner(const SampleOptions& o, const Prepared& p, const Sampler& s, const RowPoints& pts, const Params& pr,
-               const sp::WindowTable& windows, const Progress& progress)
-      : o_(o), p_(p), s_(s), pts_(pts), pr_(pr), windows_(windows), progress_(progress) {
-    low_res_ = std::min(p.r, kRankRes);
+  explicit Phase1Runner(const Context& c) : c_(c) {
+    low_res_ = std::min(c.p.r, kRankRes);
     low_cols_ = 6ull * low_res_ * low_res_;
   }
 
   nlohmann::json Metadata() const {
-    const uint64_t d = pr_.dense, b = pr_.dense_block;
+    const uint64_t d = c_.pr.dense, b = c_.pr.dense_block;
     nlohmann::json arrays = {RowArray("row", DType::kU64, d, 1, b).ToJson(),
-                             RowArray("direct", DType::kF32, d, pr_.cols, b).ToJson(),
-                             RowArray("features", DType::kU8, d, pr_.cols, b).ToJson(),
+                             RowArray("direct", DType::kF32, d, c_.pr.cols, b).ToJson(),
+                             RowArray("features", DType::kU8, d, c_.pr.cols, b).ToJson(),
                              RowArray("rays", DType::kU64, d, 1, b).ToJson(),
                              RowArray("seconds", DType::kF32, d, 1, b).ToJson(),
                              RowArray("traced", DType::kU32, d, 1, b).ToJson()};
-    if (p_.bounces > 0) arrays.push_back(RowArray("indirect", DType::kF32, d, pr_.cols, b).ToJson());
-    nlohmann::json params = {{"cube_res", p_.r},
-                             {"spp", p_.spp},
-                             {"bounces", p_.bounces},
-                             {"seed", p_.seed},
-                             {"scene_hash", p_.geo.scene_hash},
-                             {"sparse", ParamsJson(o_, pr_)}};
+    if (c_.p.bounces > 0) arrays.push_back(RowArray("indirect", DType::kF32, d, c_.pr.cols, b).ToJson());
+    nlohmann::json params = {{"cube_res", c_.p.r},
+                             {"spp", c_.p.spp},
+                             {"bounces", c_.p.bounces},
+                             {"seed", c_.p.seed},
+                             {"scene_hash", c_.p.geo.scene_hash},
+                             {"sparse", ParamsJson(c_.o, c_.pr)}};
     return {{"arrays", arrays}, {"provenance", Provenance("sample --sparse (phase 1 checkpoint)", params, {})}};
   }
 
   Status Run(Phase1* out) {
     const auto t0 = std::chrono::steady_clock::now();
-    const std::string path = SparseCheckpointPath(o_.output);
+    const std::string path = SparseCheckpointPath(c_.o.output);
     io::WriterOptions wo;
-    wo.overwrite_mismatch = o_.overwrite;
+    wo.overwrite_mismatch = c_.o.overwrite;
     wo.direct_io = false;
     LTB_ASSIGN_OR_RETURN(io::ContainerWriter w, io::ContainerWriter::Open(path, Metadata(), wo));
     // Chunks an earlier run committed (read back through a reader of the same file).
@@ -256,34 +265,31 @@ class Phase1Runner {
       LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(path));
       resumed = std::make_unique<io::ContainerReader>(std::move(r));
     }
-    const uint32_t narrays = p_.bounces > 0 ? 7 : 6;
+    const uint32_t narrays = c_.p.bounces > 0 ? 7 : 6;
     out->rows.clear();
-    out->low.assign(pr_.dense * low_cols_, 0.0f);
-    std::vector<uint8_t> is_dense(p_.rows, 0);
+    out->low.assign(c_.pr.dense * low_cols_, 0.0f);
+    std::vector<uint8_t> is_dense(c_.p.rows, 0);
     uint64_t start = 0;
-    for (size_t round = 0; round < pr_.rounds.size(); ++round) {
-      std::vector<uint64_t> chosen = Choose(round, pr_.rounds[round], *out, is_dense);
+    for (size_t round = 0; round < c_.pr.rounds.size(); ++round) {
+      std::vector<uint64_t> chosen = Choose(round, c_.pr.rounds[round], *out, is_dense);
       for (uint64_t r : chosen) is_dense[r] = 1;
       out->rows.insert(out->rows.end(), chosen.begin(), chosen.end());
-      const uint64_t c0 = start / pr_.dense_block, c1 = (start + chosen.size() + pr_.dense_block - 1) / pr_.dense_block;
+      const uint64_t c0 = start / c_.pr.dense_block,
+                     c1 = (start + chosen.size() + c_.pr.dense_block - 1) / c_.pr.dense_block;
       std::vector<uint64_t> todo;
       for (uint64_t c = c0; c < c1; ++c) {
         bool have = true;
         for (uint32_t a = 0; a < narrays; ++a) have = have && w.Has(a, c);
         if (have && resumed) {
           LTB_RETURN_IF_ERROR(LoadChunk(*resumed, c, *out));
-          out->chunks_resumed++;
         } else {
           todo.push_back(c);
         }
       }
-      std::atomic<uint64_t> traced{0}, rays{0}, written{0};
-      LTB_RETURN_IF_ERROR(
-          ParallelFor(todo, o_.jobs, Progress{.update = nullptr, .cancelled = progress_.cancelled}, "chunks",
-                      [&](uint64_t c) -> Status { return TraceChunk(w, c, *out, &traced, &rays, &written); }));
-      out->traced += traced;
+      std::atomic<uint64_t> rays{0};
+      LTB_RETURN_IF_ERROR(ParallelFor(todo, c_.o.jobs, Progress{.update = nullptr, .cancelled = c_.progress.cancelled},
+                                      "chunks", [&](uint64_t c) -> Status { return TraceChunk(w, c, *out, &rays); }));
       out->rays += rays;
-      out->chunks_written += written;
       start += chosen.size();
     }
     LTB_RETURN_IF_ERROR(w.Finish());
@@ -298,12 +304,12 @@ class Phase1Runner {
     std::vector<double> weight;
     if (round > 0) weight = CandidateWeights(st, is_dense);
     std::vector<std::pair<double, uint64_t>> keys;
-    keys.reserve(pts_.valid.size());
-    for (size_t i = 0; i < pts_.valid.size(); ++i) {
-      const uint64_t r = pts_.valid[i];
+    keys.reserve(c_.pts.valid.size());
+    for (size_t i = 0; i < c_.pts.valid.size(); ++i) {
+      const uint64_t r = c_.pts.valid[i];
       if (is_dense[r]) continue;
       const double w = round == 0 ? 1.0 : weight[i];
-      keys.emplace_back(std::log(Uniform(p_.seed, round, r)) / w, r);
+      keys.emplace_back(std::log(Uniform(c_.p.seed, round, r)) / w, r);
     }
     count = std::min<uint64_t>(count, keys.size());
     std::partial_sort(
@@ -321,34 +327,34 @@ class Phase1Runner {
     const size_t d = st.rows.size();
     std::vector<glm::dvec3> pos(d), nor(d);
     for (size_t i = 0; i < d; ++i) {
-      pos[i] = pts_.pt[st.rows[i]].p;
-      nor[i] = pts_.pt[st.rows[i]].n;
+      pos[i] = c_.pts.pt[st.rows[i]].p;
+      nor[i] = c_.pts.pt[st.rows[i]].n;
     }
-    sp::PointGrid grid(pr_.radius / 4, pos, nor);
+    sp::PointGrid grid(c_.pr.radius / 4, pos, nor);
     std::vector<int> rank(d, 0);
     std::vector<uint64_t> items;
     for (uint64_t i = 0; i < d; i += 256) items.push_back(i);
-    (void)ParallelFor(items, o_.jobs, Progress{}, "rows", [&](uint64_t i0) -> Status {
+    (void)ParallelFor(items, c_.o.jobs, Progress{}, "rows", [&](uint64_t i0) -> Status {
       std::vector<uint32_t> nb;
       std::vector<const float*> rows;
       for (uint64_t i = i0; i < std::min<uint64_t>(d, i0 + 256); ++i) {
-        grid.Query(pos[i], nor[i], pr_.radius, pr_.neighbours, kNormalCos, -1, &nb);
+        grid.Query(pos[i], nor[i], c_.pr.radius, c_.pr.neighbours, kNormalCos, -1, &nb);
         rows.clear();
         for (uint32_t k : nb) rows.push_back(st.low.data() + k * low_cols_);
         rank[i] = sp::NumericalRank(rows, low_cols_, kRankThreshold);
       }
       return Status::Ok();
     });
-    std::vector<double> weight(pts_.valid.size(), 0.0);
+    std::vector<double> weight(c_.pts.valid.size(), 0.0);
     std::vector<uint64_t> vitems;
-    for (uint64_t i = 0; i < pts_.valid.size(); i += 1024) vitems.push_back(i);
-    (void)ParallelFor(vitems, o_.jobs, Progress{}, "rows", [&](uint64_t i0) -> Status {
+    for (uint64_t i = 0; i < c_.pts.valid.size(); i += 1024) vitems.push_back(i);
+    (void)ParallelFor(vitems, c_.o.jobs, Progress{}, "rows", [&](uint64_t i0) -> Status {
       std::vector<uint32_t> nb;
-      for (uint64_t i = i0; i < std::min<uint64_t>(pts_.valid.size(), i0 + 1024); ++i) {
-        const RowPoint& q = pts_.pt[pts_.valid[i]];
-        if (is_dense[pts_.valid[i]]) continue;
-        grid.Query(q.p, q.n, pr_.radius, 1, kNormalCos, -1, &nb);
-        weight[i] = nb.empty() ? static_cast<double>(pr_.neighbours) : std::max(kMinWeight, double(rank[nb[0]]));
+      for (uint64_t i = i0; i < std::min<uint64_t>(c_.pts.valid.size(), i0 + 1024); ++i) {
+        const RowPoint& q = c_.pts.pt[c_.pts.valid[i]];
+        if (is_dense[c_.pts.valid[i]]) continue;
+        grid.Query(q.p, q.n, c_.pr.radius, 1, kNormalCos, -1, &nb);
+        weight[i] = nb.empty() ? static_cast<double>(c_.pr.neighbours) : std::max(kMinWeight, double(rank[nb[0]]));
       }
       return Status::Ok();
     });
@@ -356,7 +362,7 @@ class Phase1Runner {
   }
 
   void StoreLow(const float* direct, uint64_t index, Phase1& st) const {
-    sp::Downsample(direct, p_.r, low_res_, st.low.data() + index * low_cols_);
+    sp::Downsample(direct, c_.p.r, low_res_, st.low.data() + index * low_cols_);
   }
 
   Status LoadChunk(const io::ContainerReader& r, uint64_t c, Phase1& st) const {
@@ -364,63 +370,54 @@ class Phase1Runner {
     LTB_ASSIGN_OR_RETURN(io::Chunk direct, r.ReadChunk(kDirect, c));
     auto ids = rows.as<uint64_t>();
     auto values = direct.as<float>();
-    const uint64_t i0 = c * pr_.dense_block;
+    const uint64_t i0 = c * c_.pr.dense_block;
     for (uint64_t i = 0; i < ids.size(); ++i) {
       if (i0 + i >= st.rows.size() || ids[i] != st.rows[i0 + i]) {
         return DataLoss(r.path() + ": dense row " + std::to_string(i0 + i) + " is row " + std::to_string(ids[i]) +
                         ", but this run places row " + std::to_string(i0 + i < st.rows.size() ? st.rows[i0 + i] : 0) +
                         " there; remove the checkpoint to start phase 1 over");
       }
-      StoreLow(values.data() + i * pr_.cols, i0 + i, st);
+      StoreLow(values.data() + i * c_.pr.cols, i0 + i, st);
     }
     return Status::Ok();
   }
 
-  Status TraceChunk(io::ContainerWriter& w, uint64_t c, Phase1& st, std::atomic<uint64_t>* traced,
-                    std::atomic<uint64_t>* rays, std::atomic<uint64_t>* written) {
+  Status TraceChunk(io::ContainerWriter& w, uint64_t c, Phase1& st, std::atomic<uint64_t>* rays) {
     thread_local DenseScratch ds;
-    ds.windows = &windows_;
-    const uint64_t i0 = c * pr_.dense_block, n = std::min(pr_.dense_block, pr_.dense - i0);
-    const uint64_t cols = pr_.cols, fb = cols;
-    std::vector<float> direct(n * cols), indirect(p_.bounces > 0 ? n * cols : 0), secs(n);
+    ds.windows = &c_.windows;
+    const uint64_t i0 = c * c_.pr.dense_block, n = std::min(c_.pr.dense_block, c_.pr.dense - i0);
+    const uint64_t cols = c_.pr.cols, fb = cols;
+    std::vector<float> direct(n * cols), indirect(c_.p.bounces > 0 ? n * cols : 0), secs(n);
     std::vector<uint8_t> feat(n * fb);
     std::vector<uint64_t> ids(n), nrays(n);
     std::vector<uint32_t> ntraced(n);
     for (uint64_t i = 0; i < n; ++i) {
-      if (progress_.Cancelled()) return Cancelled("interrupted; committed chunks are kept, rerun to resume");
+      if (c_.progress.Cancelled()) return Cancelled("interrupted; committed chunks are kept, rerun to resume");
       const auto t0 = std::chrono::steady_clock::now();
       ids[i] = st.rows[i0 + i];
-      DenseRowResult d = TraceDenseRow(s_, ids[i], pts_.pt[ids[i]], cols, ds, direct.data() + i * cols,
-                                       p_.bounces > 0 ? indirect.data() + i * cols : nullptr, feat.data() + i * fb);
+      DenseRowResult d = TraceDenseRow(c_.s, ids[i], c_.pts.pt[ids[i]], cols, ds, direct.data() + i * cols,
+                                       c_.p.bounces > 0 ? indirect.data() + i * cols : nullptr, feat.data() + i * fb);
       StoreLow(direct.data() + i * cols, i0 + i, st);
-      *traced += d.traced;
       *rays += d.rays;
       nrays[i] = d.rays;
       ntraced[i] = static_cast<uint32_t>(d.traced);
       secs[i] = static_cast<float>(Seconds(t0));
-      progress_.Report(done_.fetch_add(1) + 1, pr_.dense, "dense rows");
+      c_.progress.Report(done_.fetch_add(1) + 1, c_.pr.dense, "dense rows");
     }
-    LTB_RETURN_IF_ERROR(p_.geo.rays->error());
+    LTB_RETURN_IF_ERROR(c_.p.geo.rays->error());
     auto bytes = [](const auto& v) {
       return ByteSpan(reinterpret_cast<const std::byte*>(v.data()), v.size() * sizeof(v[0]));
     };
     const ByteSpan parts[7] = {bytes(ids),  bytes(direct),  bytes(feat),    bytes(nrays),
                                bytes(secs), bytes(ntraced), bytes(indirect)};
-    for (uint32_t a = 0; a < (p_.bounces > 0 ? 7u : 6u); ++a) {
+    for (uint32_t a = 0; a < (c_.p.bounces > 0 ? 7u : 6u); ++a) {
       if (w.Has(a, c)) continue;
       LTB_RETURN_IF_ERROR(w.Put(a, c, parts[a]));
-      (*written)++;
     }
     return Status::Ok();
   }
 
-  const SampleOptions& o_;
-  const Prepared& p_;
-  const Sampler& s_;
-  const RowPoints& pts_;
-  const Params& pr_;
-  const sp::WindowTable& windows_;
-  const Progress& progress_;
+  const Context& c_;
   uint32_t low_res_ = 1;
   uint64_t low_cols_ = 6;
   std::atomic<uint64_t> done_{0};
@@ -485,52 +482,42 @@ nlohmann::json OutputMetadata(const SampleOptions& o, const Prepared& p, const P
 }
 
 struct Phase2Counters {
-  std::atomic<uint64_t> traced_sparse{0}, rays_sparse{0}, fallback{0}, written{0}, done{0};
+  std::atomic<uint64_t> rays_sparse{0}, written{0}, done{0};
 };
 
 class Phase2Runner {
  public:
-  Phase2Runner(const SampleOptions& o, const Prepared& p, const Sampler& s, const RowPoints& pts, const Params& pr,
-               const sp::WindowTable& windows, const DenseRows& dense, const std::vector<int64_t>& dense_of,
-               const Progress& progress)
-      : o_(o),
-        p_(p),
-        s_(s),
-        pts_(pts),
-        pr_(pr),
-        windows_(windows),
-        dense_(dense),
-        dense_of_(dense_of),
-        progress_(progress) {
-    pos_.resize(pr.dense);
-    nor_.resize(pr.dense);
-    for (uint64_t r = 0; r < p.rows; ++r) {
+  Phase2Runner(const Context& c, const DenseRows& dense, const std::vector<int64_t>& dense_of)
+      : c_(c), dense_(dense), dense_of_(dense_of) {
+    pos_.resize(c.pr.dense);
+    nor_.resize(c.pr.dense);
+    for (uint64_t r = 0; r < c.p.rows; ++r) {
       if (dense_of[r] < 0) continue;
-      pos_[static_cast<size_t>(dense_of[r])] = pts.pt[r].p;
-      nor_[static_cast<size_t>(dense_of[r])] = pts.pt[r].n;
+      pos_[static_cast<size_t>(dense_of[r])] = c.pts.pt[r].p;
+      nor_[static_cast<size_t>(dense_of[r])] = c.pts.pt[r].n;
     }
-    grid_ = std::make_unique<sp::PointGrid>(pr.radius / 4, pos_, nor_);
+    grid_ = std::make_unique<sp::PointGrid>(c.pr.radius / 4, pos_, nor_);
   }
 
   Status Block(io::ContainerWriter& w, uint64_t chunk, uint64_t block, Phase2Counters& cnt) {
     thread_local DenseScratch ds;
-    ds.windows = &windows_;
+    ds.windows = &c_.windows;
     thread_local sp::Scratch fs;
     thread_local std::vector<uint32_t> nb_idx, texels;
     thread_local std::vector<sp::DenseView> nb;
     thread_local std::vector<uint8_t> relevant, select;
     thread_local std::vector<double> b;
-    const uint64_t cols = pr_.cols, r0 = chunk * block, n = std::min(block, p_.rows - r0);
+    const uint64_t cols = c_.pr.cols, r0 = chunk * block, n = std::min(block, c_.p.rows - r0);
     std::vector<float> mat(n * cols, 0.0f), pos(n * 3, 0.0f), nor(n * 3, 0.0f), residual(n, 0.0f), secs(n, 0.0f);
     std::vector<uint8_t> mask(n, 0), kind(n, kNone);
     std::vector<uint32_t> traced(n, 0);
     std::vector<uint64_t> rays(n, 0);
     std::vector<float> ind_scratch;
     for (uint64_t i = 0; i < n; ++i) {
-      if (progress_.Cancelled()) return Cancelled("interrupted; committed chunks are kept, rerun to resume");
-      progress_.Report(cnt.done.fetch_add(1) + 1, todo_rows_, "rows");
+      if (c_.progress.Cancelled()) return Cancelled("interrupted; committed chunks are kept, rerun to resume");
+      c_.progress.Report(cnt.done.fetch_add(1) + 1, todo_rows_, "rows");
       const uint64_t row = r0 + i;
-      const RowPoint& rp = pts_.pt[row];
+      const RowPoint& rp = c_.pts.pt[row];
       if (!rp.valid) continue;
       const auto t0 = std::chrono::steady_clock::now();
       mask[i] = 1;
@@ -553,18 +540,18 @@ class Phase2Runner {
       }
       kind[i] = kSparse;
       // Neighbours within the radius; twice and four times it when fewer than two are found.
-      double radius = pr_.radius;
+      double radius = c_.pr.radius;
       for (int widen = 0; widen < 3; ++widen, radius *= 2) {
-        grid_->Query(rp.p, rp.n, radius, pr_.neighbours, kNormalCos, -1, &nb_idx);
+        grid_->Query(rp.p, rp.n, radius, c_.pr.neighbours, kNormalCos, -1, &nb_idx);
         if (nb_idx.size() >= 2) break;
       }
       // Traced like a dense row instead (kind 1 with a residual > 0: the failed fit's, or
       // 1 when there was none): no dense row anywhere near, or a fit that does not match
       // its own traced texels.
       auto fallback = [&](double why, uint64_t traced_before, uint64_t rays_before) {
-        ind_scratch.assign(p_.bounces > 0 ? cols : 0, 0.0f);
+        ind_scratch.assign(c_.p.bounces > 0 ? cols : 0, 0.0f);
         DenseRowResult d =
-            TraceDenseRow(s_, row, rp, cols, ds, out, p_.bounces > 0 ? ind_scratch.data() : nullptr, nullptr);
+            TraceDenseRow(c_.s, row, rp, cols, ds, out, c_.p.bounces > 0 ? ind_scratch.data() : nullptr, nullptr);
         for (uint64_t c = 0; c < ind_scratch.size(); ++c) {
           out[c] = static_cast<float>(double{out[c]} + double{ind_scratch[c]});
         }
@@ -572,8 +559,6 @@ class Phase2Runner {
         residual[i] = static_cast<float>(why);
         traced[i] = static_cast<uint32_t>(traced_before + d.traced);
         rays[i] = rays_before + d.rays;
-        cnt.fallback++;
-        cnt.traced_sparse += traced[i];
         cnt.rays_sparse += rays[i];
         secs[i] = static_cast<float>(Seconds(t0));
       };
@@ -584,36 +569,35 @@ class Phase2Runner {
       nb.clear();
       for (uint32_t k : nb_idx) nb.push_back(dense_.views[k]);
       relevant.resize(cols);
-      for (uint64_t c = 0; c < cols; ++c) relevant[c] = s_.BelowHorizon(rp.n, c) ? 0 : 1;
-      sp::ChooseFeatures(nb, cols, relevant.data(), pr_.features, kMinFeatures, fs, &texels);
+      for (uint64_t c = 0; c < cols; ++c) relevant[c] = c_.s.BelowHorizon(rp.n, c) ? 0 : 1;
+      sp::ChooseFeatures(nb, cols, relevant.data(), c_.pr.features, kMinFeatures, fs, &texels);
       select.assign(cols, 0);
       for (uint32_t c : texels) select[c] = 1;
       // DirectSelected writes the selected texels of a full-length row.
       ds.value.assign(cols, 0.0);
-      const uint64_t nr = texels.empty() ? 0 : s_.DirectSelected(row, rp, select.data(), ds.value.data(), ds.sc);
+      const uint64_t nr = texels.empty() ? 0 : c_.s.DirectSelected(row, rp, select.data(), ds.value.data(), ds.sc);
       b.resize(texels.size());
       for (size_t j = 0; j < texels.size(); ++j) b[j] = ds.value[texels[j]];
-      sp::Fit fit = sp::Reconstruct(nb, cols, texels, b.data(), relevant.data(), pr_.l1, fs, out);
+      sp::Fit fit = sp::Reconstruct(nb, cols, texels, b.data(), relevant.data(), c_.pr.l1, fs, out);
       const bool dark = std::all_of(b.begin(), b.end(), [](double x) { return x == 0; });
-      if (fit.residual > o_.sparse.max_residual || (dark && !texels.empty())) {
+      if (fit.residual > c_.o.sparse.max_residual || (dark && !texels.empty())) {
         fallback(dark ? 1.0 : fit.residual, texels.size(), nr);
         continue;
       }
       residual[i] = static_cast<float>(fit.residual);
       traced[i] = static_cast<uint32_t>(texels.size());
       rays[i] = nr;
-      cnt.traced_sparse += texels.size();
       cnt.rays_sparse += nr;
       secs[i] = static_cast<float>(Seconds(t0));
     }
-    LTB_RETURN_IF_ERROR(p_.geo.rays->error());
+    LTB_RETURN_IF_ERROR(c_.p.geo.rays->error());
     EncodeOptions matrix_encoding;
-    if (o_.row_filter) {  // fused row-transform, as RunRowTransform does to this block
+    if (c_.o.row_filter) {  // fused row-transform, as RunRowTransform does to this block
       thread_local std::vector<float> scratch;
-      scratch.resize(RowBlockScratchSize(p_.r));
+      scratch.resize(RowBlockScratchSize(c_.p.r));
       uint64_t zero_rows = 0;
-      TransformRowBlock(*o_.row_filter, p_.r, mat.data(), n, scratch.data(), &zero_rows);
-      matrix_encoding.zstd = o_.row_zstd;
+      TransformRowBlock(*c_.o.row_filter, c_.p.r, mat.data(), n, scratch.data(), &zero_rows);
+      matrix_encoding.zstd = c_.o.row_zstd;
     }
     auto bytes = [](const auto& v) {
       return ByteSpan(reinterpret_cast<const std::byte*>(v.data()), v.size() * sizeof(v[0]));
@@ -631,15 +615,9 @@ class Phase2Runner {
   void SetTodoRows(uint64_t n) { todo_rows_ = n; }
 
  private:
-  const SampleOptions& o_;
-  const Prepared& p_;
-  const Sampler& s_;
-  const RowPoints& pts_;
-  const Params& pr_;
-  const sp::WindowTable& windows_;
+  const Context& c_;
   const DenseRows& dense_;
   const std::vector<int64_t>& dense_of_;
-  const Progress& progress_;
   std::vector<glm::dvec3> pos_, nor_;
   std::unique_ptr<sp::PointGrid> grid_;
   uint64_t todo_rows_ = 0;
@@ -681,6 +659,7 @@ Result<SampleResult> RunSparseSample(const SampleOptions& o, const Prepared& p, 
   // Phase 1 (its checkpoint is sealed once done; a rerun reads it back).
   const std::string cp = SparseCheckpointPath(o.output);
   const sp::WindowTable windows(p.r);
+  const Context ctx{o, p, sampler, pts, pr, windows, progress};
   std::vector<uint64_t> todo;  // output blocks with any array missing
   for (uint32_t a = 0; a < 9; ++a) {
     std::vector<uint64_t> m = out.Missing(a);
@@ -690,7 +669,7 @@ Result<SampleResult> RunSparseSample(const SampleOptions& o, const Prepared& p, 
   todo.erase(std::unique(todo.begin(), todo.end()), todo.end());
   Phase1 ph1;
   if (pr.dense > 0 && !todo.empty()) {  // a finished output needs neither phase
-    Phase1Runner runner(o, p, sampler, pts, pr, windows, progress);
+    Phase1Runner runner(ctx);
     LTB_RETURN_IF_ERROR(runner.Run(&ph1));
   }
   st.seconds[0] = ph1.seconds;
@@ -705,7 +684,7 @@ Result<SampleResult> RunSparseSample(const SampleOptions& o, const Prepared& p, 
   } else {
     dense = std::make_unique<DenseRows>();
   }
-  Phase2Runner runner(o, p, sampler, pts, pr, windows, *dense, dense_of, progress);
+  Phase2Runner runner(ctx, *dense, dense_of);
   runner.SetTodoRows(std::min(p.rows, todo.size() * block));
   Phase2Counters cnt;
   Status s = ParallelFor(todo, o.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
