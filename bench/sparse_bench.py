@@ -54,6 +54,7 @@ Environment knobs:
   LTB_SPARSE_TERMS     relight --terms values (100,200)
   LTB_SPARSE_JOBS      sample --jobs (2)
   LTB_SPARSE_CPCA      0 skips step 6 (1)
+  LTB_SPARSE_MAPS      comma-separated environment maps instead of scripts/find_envmaps.sh's
   LTB_SPARSE_CPCA_KS   CPCA clusters and basis size, "K,S" (64,16)
   LTB_SPARSE_WARMUP    0: no untimed warm-up runs; the first runs, which also give the ray
                        counts, are timed (1)
@@ -117,7 +118,7 @@ CPCA_SELECTED = [r.strip() for r in os.environ.get("LTB_SPARSE_CPCA_RUNS", ",".j
 KEEP = os.environ.get("LTB_SPARSE_KEEP", "0") == "1"
 NAME = os.environ.get("LTB_SPARSE_NAME", "")
 TAG = "_" + NAME if NAME else ""
-KNOBS = ["LTB_SPARSE_WARMUP", "LTB_SPARSE_CPCA_KS", "LTB_SPARSE_CASES", "LTB_SPARSE_REPEATS", "LTB_SPARSE_SCALE", "LTB_SPARSE_CUBE_RES", "LTB_SPARSE_TERMS",
+KNOBS = ["LTB_SPARSE_MAPS", "LTB_SPARSE_WARMUP", "LTB_SPARSE_CPCA_KS", "LTB_SPARSE_CASES", "LTB_SPARSE_REPEATS", "LTB_SPARSE_SCALE", "LTB_SPARSE_CUBE_RES", "LTB_SPARSE_TERMS",
          "LTB_SPARSE_JOBS", "LTB_SPARSE_CPCA", "LTB_SPARSE_CPCA_RUNS", "LTB_SPARSE_KEEP", "LTB_SPARSE_NAME"]
 
 CPCA_K, CPCA_S = (int(v) for v in os.environ.get("LTB_SPARSE_CPCA_KS", "64,16").split(","))
@@ -253,6 +254,8 @@ def case_setup(case):
 
 
 def envmaps():
+    if os.environ.get("LTB_SPARSE_MAPS"):  # maps of one's own instead of Blender's
+        return [os.path.abspath(m) for m in os.environ["LTB_SPARSE_MAPS"].split(",") if m.strip()]
     p = subprocess.run(["bash", os.path.join(ROOT, "scripts", "find_envmaps.sh")], capture_output=True, text=True)
     if p.returncode != 0:
         raise CommandError(f"scripts/find_envmaps.sh exited {p.returncode}\n{p.stderr}")
