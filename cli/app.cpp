@@ -5,6 +5,7 @@
 #include "cli/commands.h"
 #include "cli/common.h"
 #include "format/version.h"
+#include "stages/common/channels.h"
 
 namespace {
 
@@ -18,6 +19,28 @@ void PrintVersion() {
 }  // namespace
 
 namespace ltb::cli {
+
+namespace {
+
+// Runs the command, once per channel file when its input names a colour channel set.
+int RunCommand(Command& cmd) {
+  std::vector<std::string*> paths = cmd.ChannelSetPaths();
+  if (paths.empty()) return cmd.Run();
+  auto files = stages::ChannelFiles(*paths.front());
+  if (!files.ok()) return ReportFailure(files.status());
+  if (files->empty()) return cmd.Run();
+  std::vector<std::string> sets;
+  for (const std::string* p : paths) sets.push_back(*p);
+  for (int c = 0; c < stages::kChannels; ++c) {
+    for (size_t i = 0; i < paths.size(); ++i) {
+      if (!sets[i].empty()) *paths[i] = stages::ChannelPath(sets[i], c);
+    }
+    if (int code = cmd.Run(); code != kExitOk) return code;
+  }
+  return kExitOk;
+}
+
+}  // namespace
 
 int LtbakeMain(int argc, char** argv) {
   CLI::App app{
@@ -71,7 +94,7 @@ int LtbakeMain(int argc, char** argv) {
     return kExitUsage;
   }
   InstallSignalHandlers();
-  return commands.at(chosen.front())->Run();
+  return RunCommand(*commands.at(chosen.front()));
 }
 
 }  // namespace ltb::cli

@@ -54,6 +54,8 @@ class ColumnTransformCommand : public Command {
     AddShardFlags(app, &shard_flags_);
   }
 
+  std::vector<std::string*> ChannelSetPaths() override { return {&options_.input, &options_.output}; }
+
   int Run() override {
     StageFlags sf;
     if (int code = ResolveStageFlags(flags_, &shard_flags_, &sf); code != kExitOk) return code;

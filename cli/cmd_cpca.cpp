@@ -61,6 +61,8 @@ class CpcaCommand : public Command {
     AddShardFlags(app, &shard_flags_);
   }
 
+  std::vector<std::string*> ChannelSetPaths() override { return {&options_.input, &options_.output}; }
+
   int Run() override {
     auto shard = ResolveShard(shard_flags_);
     if (!shard.ok() || shard->sharded()) {

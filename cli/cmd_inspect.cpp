@@ -24,6 +24,8 @@ class InspectCommand : public Command {
     AddCommonFlags(app, &flags_);
   }
 
+  std::vector<std::string*> ChannelSetPaths() override { return {&path_}; }
+
   int Run() override {
     stages::InspectOptions o;
     o.content = !no_content_;

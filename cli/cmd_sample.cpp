@@ -6,6 +6,7 @@
 
 #include "cli/commands.h"
 #include "cli/common.h"
+#include "stages/common/channels.h"
 #include "stages/sample/sample.h"
 #include "stages/sample/scene.h"
 
@@ -59,6 +60,13 @@ class SampleCommand : public Command {
                     "with --sparse: a sparse row whose fit misses its own traced texels by more than this (relative "
                     "L2) is traced in full instead")
         ->default_val(0.15);
+    app->add_option("--channels", channels_,
+                    "mono: one matrix (a scene with colour gets a per-row reflectance table); rgb: one matrix per "
+                    "colour channel, OUT.r.ltm, OUT.g.ltm, OUT.b.ltm (docs/COLOUR.md)")
+        ->default_val("mono")
+        ->check(CLI::IsMember({"mono", "rgb"}));
+    app->add_option("--channel", channel_, "bake only this channel of --channels rgb, into OUT as given")
+        ->check(CLI::IsMember({"r", "g", "b"}));
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     app->add_flag("!--no-direct-io", options_.direct_io,
                   "write the output through the page cache instead of with O_DIRECT");
@@ -80,7 +88,25 @@ class SampleCommand : public Command {
     options_.jobs = sf.jobs;
     options_.mem_limit = sf.mem_limit;  // bounds the queue of chunks waiting to be written
     if (!row_filter_.empty()) options_.row_filter = *wavelet::ParseFilter(row_filter_);  // checked by IsMember
-    ProgressBar bar(flags_, "sample");
+    if (!channel_.empty() && channels_ == "rgb") {
+      return ReportUsage(
+          InvalidArgument("--channel " + channel_ + " bakes one channel into OUT; leave out --channels rgb"));
+    }
+    if (!channel_.empty()) options_.channel = static_cast<int>(std::string("rgb").find(channel_));
+    if (channels_ != "rgb") return RunOne();
+    const std::string set = options_.output;
+    for (int c = 0; c < 3; ++c) {  // one container per channel: every later stage runs on each
+      options_.channel = c;
+      options_.output = stages::ChannelPath(set, c);
+      if (int code = RunOne(); code != kExitOk) return code;
+    }
+    return kExitOk;
+  }
+
+ private:
+  int RunOne() {
+    ProgressBar bar(flags_, options_.channel >= 0 ? std::string("sample ") + stages::ChannelName(options_.channel)
+                                                  : std::string("sample"));
     auto r = stages::RunSample(options_, bar.hook());
     bar.Done();
     if (!r.ok()) return ReportFailure(r.status());
@@ -107,7 +133,6 @@ class SampleCommand : public Command {
     return kExitOk;
   }
 
- private:
   static void PrintSparse(const stages::SparseStats& s) {
     char line[512];
     std::snprintf(
@@ -129,6 +154,7 @@ class SampleCommand : public Command {
   std::optional<double> radius_;
   std::optional<long long> features_;
   std::string row_filter_;
+  std::string channels_ = "mono", channel_;
   long long cube_res_ = -1, spp_ = -1, bounces_ = -1, seed_ = -1;
   CommonFlags flags_;
   ShardFlags shard_flags_;

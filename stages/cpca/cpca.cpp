@@ -256,10 +256,14 @@ Status WriteOutput(const CpcaOptions& o, const io::ContainerReader& in, const Pa
   info.dense_passes = fit.passes - fit.final_passes;
   info.final_passes = fit.final_passes;
   nlohmann::json basis = in.metadata().json.value("basis", nlohmann::json::object());
+  nlohmann::json out_meta = CpcaOutputMetadata(layout, info, basis, provenance);
+  // A colour bake's channel and reflectance table go with the rows (docs/COLOUR.md).
+  const int refl = in.metadata().FindArray("reflectance");
+  if (refl >= 0) out_meta["arrays"].push_back(in.metadata().arrays[refl].ToJson());
+  if (in.metadata().json.contains("channel")) out_meta["channel"] = in.metadata().json["channel"];
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
-  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out,
-                       io::ContainerWriter::Open(o.output, CpcaOutputMetadata(layout, info, basis, provenance), wo));
+  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::ContainerWriter::Open(o.output, out_meta, wo));
   result->resumed = result->resumed || out.resume_info().resumed;
   result->chunks_already_committed = out.resume_info().committed_chunks;
 
@@ -293,6 +297,14 @@ Status WriteOutput(const CpcaOptions& o, const io::ContainerReader& in, const Pa
   auto done = [&](uint64_t rows) { progress.Report(base_done + (encoded += rows), fitter.rows_total(), "rows"); };
   LTB_ASSIGN_OR_RETURN(uint64_t rows_written, WriteCpcaRows(out, layout, o.jobs, encode, done));
   result->chunks_written += rows_written;
+  if (refl >= 0) {
+    const auto out_refl = static_cast<uint32_t>(out.metadata().FindArray("reflectance"));
+    for (uint64_t c : out.Missing(out_refl)) {
+      LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(static_cast<uint32_t>(refl), c));
+      LTB_RETURN_IF_ERROR(out.Put(out_refl, c, chunk.bytes()));
+      result->chunks_written++;
+    }
+  }
   return out.Finish();
 }
 

@@ -478,6 +478,42 @@ Result<std::vector<uint8_t>> ReadRowMask(const io::ContainerReader& in) {
   return mask;
 }
 
+Result<std::vector<float>> ReadRowReflectance(const io::ContainerReader& in, uint64_t rows) {
+  const std::string& path = in.path();
+  const Metadata& meta = in.metadata();
+  std::vector<float> refl;
+  const int a = meta.FindArray("reflectance");
+  if (a < 0) return refl;
+  const ArraySpec& s = meta.arrays[a];
+  if (s.dtype != DType::kF32 || s.cols != 3 || s.rows != rows || s.layout != Layout::kRows) {
+    return DataLoss(path + ": side table \"reflectance\" is " + std::to_string(s.rows) + " x " +
+                    std::to_string(s.cols) + " " + DTypeName(s.dtype) + ", not three f32 per row of the " +
+                    std::to_string(rows) + "-row matrix");
+  }
+  refl.reserve(rows * 3);
+  for (uint64_t c = 0; c < s.ChunkCount(); ++c) {
+    LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(static_cast<uint32_t>(a), c));
+    auto v = chunk.as<float>();
+    refl.insert(refl.end(), v.begin(), v.end());
+  }
+  if (refl.size() != rows * 3) {
+    return DataLoss(path + ": side table \"reflectance\" holds " + std::to_string(refl.size()) + " values, not " +
+                    std::to_string(rows * 3));
+  }
+  for (uint64_t i = 0; i < refl.size(); ++i) {
+    if (!(refl[i] >= 0.0f) || !std::isfinite(refl[i])) {
+      return DataLoss(path + ": side table \"reflectance\" row " + std::to_string(i / 3) + " channel " + "rgb"[i % 3] +
+                      " is " + std::to_string(refl[i]) + " (expected a finite value >= 0)");
+    }
+  }
+  return refl;
+}
+
+void ApplyReflectance(const std::vector<float>& reflectance, std::vector<float>* image) {
+  if (reflectance.size() != image->size()) return;
+  for (size_t i = 0; i < image->size(); ++i) (*image)[i] *= reflectance[i];
+}
+
 OutputFixes FinishRelitImage(const std::vector<uint8_t>& mask, bool keep_negative, std::vector<float>* image) {
   OutputFixes fixes;
   const uint64_t rows = image->size() / 3;

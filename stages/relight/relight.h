@@ -132,6 +132,13 @@ ImageErrors CompareImages(const float* image, const float* reference, uint64_t r
 // table and the chunk are named on errors.
 Result<std::vector<uint8_t>> ReadRowMask(const io::ContainerReader& in);
 
+// The matrix's "reflectance" side table (rows × 3 f32: a coloured monochrome bake's per-row
+// tint × vertex colour, docs/COLOUR.md), read whole; empty when the container has none.
+// `rows`: the matrix's rows (a cpca.ltm's are not its first array's).
+Result<std::vector<float>> ReadRowReflectance(const io::ContainerReader& in, uint64_t rows);
+// image (rows × 3) *= reflectance per row and channel; nothing when reflectance is empty.
+void ApplyReflectance(const std::vector<float>& reflectance, std::vector<float>* image);
+
 // What relight does to every image it outputs (docs/RELIGHT.md "Output"): a row whose mask
 // is 0 is black — the uncompressed transport there is exactly 0, and what a compressed
 // matrix holds there is ringing of its column transform — and, unless keep_negative,

@@ -2,11 +2,54 @@
 
 #include "format/io/container_reader.h"
 #include "stages/common/basis.h"
+#include "stages/common/channels.h"
 
 namespace ltb::stages {
 
+Result<RelightMatrix> RelightMatrix::OpenSet(const std::string& path, const std::vector<std::string>& files,
+                                             uint64_t mem_limit, int jobs, const Progress& progress,
+                                             nlohmann::json* report) {
+  RelightMatrix m;
+  m.path_ = path;
+  m.jobs_ = jobs;
+  m.progress_ = progress;
+  nlohmann::json channels = nlohmann::json::array();
+  for (const std::string& f : files) {
+    nlohmann::json one = nlohmann::json::object();
+    LTB_ASSIGN_OR_RETURN(RelightMatrix c, Open(f, mem_limit, jobs, progress, &one));
+    if (!m.channels_.empty()) {
+      const RelightMatrix& first = m.channels_.front();
+      if (c.rows() != first.rows() || c.basis().cube_res() != first.basis().cube_res() || c.width() != first.width() ||
+          c.height() != first.height() || c.streamed() != first.streamed()) {
+        return InvalidArgument(f + ": is not the same kind of matrix as " + first.path() + " (rows " +
+                               std::to_string(c.rows()) + " vs " + std::to_string(first.rows()) + ", R " +
+                               std::to_string(c.basis().cube_res()) + " vs " +
+                               std::to_string(first.basis().cube_res()) +
+                               "): the channels of a set must come from one bake through the same stages");
+      }
+    }
+    channels.push_back(one);
+    m.channels_.push_back(std::move(c));
+  }
+  const RelightMatrix& first = m.channels_.front();
+  m.rows_ = first.rows_;
+  m.width_ = first.width_;
+  m.height_ = first.height_;
+  m.basis_ = first.basis_;
+  m.mask_ = first.mask_;
+  if (report != nullptr) {
+    (*report)["channels"] = channels;
+    uint64_t bytes = 0;
+    for (const auto& c : channels) bytes += c.value("matrix_bytes_in_memory", uint64_t{0});
+    if (bytes > 0) (*report)["matrix_bytes_in_memory"] = bytes;
+  }
+  return m;
+}
+
 Result<RelightMatrix> RelightMatrix::Open(const std::string& path, uint64_t mem_limit, int jobs,
                                           const Progress& progress, nlohmann::json* report) {
+  LTB_ASSIGN_OR_RETURN(std::vector<std::string> files, ChannelFiles(path));
+  if (!files.empty()) return OpenSet(path, files, mem_limit, jobs, progress, report);
   LTB_ASSIGN_OR_RETURN(io::ContainerReader reader, io::ContainerReader::Open(path));
   RelightMatrix m;
   m.path_ = path;
@@ -40,31 +83,50 @@ Result<RelightMatrix> RelightMatrix::Open(const std::string& path, uint64_t mem_
     m.height_ = img->height;
   }
   LTB_ASSIGN_OR_RETURN(m.mask_, ReadRowMask(reader));
+  LTB_ASSIGN_OR_RETURN(m.reflectance_, ReadRowReflectance(reader, m.rows_));
   return m;
 }
 
 const std::vector<double>& RelightMatrix::column_norms() const {
+  if (!channels_.empty()) return channels_[0].column_norms();
   static const std::vector<double> kNoNorms;
   return relighter_ ? relighter_->column_norms() : kNoNorms;
 }
 
+template <typename F>
+Status RelightMatrix::PerChannel(std::vector<float>* image, F relight_one) {
+  image->assign(rows_ * 3, 0.0f);
+  std::vector<float> one;
+  for (size_t c = 0; c < channels_.size(); ++c) {
+    LTB_RETURN_IF_ERROR(relight_one(channels_[c], &one));
+    for (uint64_t r = 0; r < rows_; ++r) (*image)[3 * r + c] = one[3 * r + c];
+  }
+  return Status::Ok();
+}
+
 Status RelightMatrix::Relight(const LightTerms& terms, std::vector<float>* image) {
+  if (!channels_.empty()) {
+    return PerChannel(image, [&](RelightMatrix& m, std::vector<float>* one) { return m.Relight(terms, one); });
+  }
   image->resize(rows_ * 3);
   if (relighter_) {
     relighter_->Relight(terms, image->data());
-    return Status::Ok();
-  }
-  if (cpca_) {
+  } else if (cpca_) {
     cpca_->RelightTerms(terms.column, terms.rgb, image->data());
-    return Status::Ok();
+  } else {
+    std::vector<float> dense(6 * basis_.cube_res() * basis_.cube_res() * 3, 0.0f);
+    for (size_t k = 0; k < terms.column.size(); ++k)
+      for (int c = 0; c < 3; ++c) dense[terms.column[k] * 3 + c] = terms.rgb[k * 3 + c];
+    return RelightDense(dense, image);
   }
-  std::vector<float> dense(6 * basis_.cube_res() * basis_.cube_res() * 3, 0.0f);
-  for (size_t k = 0; k < terms.column.size(); ++k)
-    for (int c = 0; c < 3; ++c) dense[terms.column[k] * 3 + c] = terms.rgb[k * 3 + c];
-  return RelightDense(dense, image);
+  ApplyReflectance(reflectance_, image);
+  return Status::Ok();
 }
 
 Status RelightMatrix::RelightDense(const std::vector<float>& lighting, std::vector<float>* image) {
+  if (!channels_.empty()) {
+    return PerChannel(image, [&](RelightMatrix& m, std::vector<float>* one) { return m.RelightDense(lighting, one); });
+  }
   if (relighter_) {
     LightTerms every;
     LTB_RETURN_IF_ERROR(
@@ -74,9 +136,10 @@ Status RelightMatrix::RelightDense(const std::vector<float>& lighting, std::vect
   if (cpca_) {
     image->resize(rows_ * 3);
     cpca_->Relight(lighting.data(), image->data());
-    return Status::Ok();
+  } else {
+    LTB_ASSIGN_OR_RETURN(*image, RelightStreaming(path_, lighting.data(), jobs_, progress_));
   }
-  LTB_ASSIGN_OR_RETURN(*image, RelightStreaming(path_, lighting.data(), jobs_, progress_));
+  ApplyReflectance(reflectance_, image);
   return Status::Ok();
 }
 

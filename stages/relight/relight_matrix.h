@@ -21,7 +21,10 @@ namespace ltb::stages {
 class RelightMatrix {
  public:
   // Opens and (unless streamed) loads `path`; `report` (may be null) gains the in-memory
-  // size: nonzeros / cpca clusters and matrix_bytes_in_memory.
+  // size: nonzeros / cpca clusters and matrix_bytes_in_memory. `path` may name a colour
+  // channel set (stages/common/channels.h): channel c of the image is then channel c of
+  // the lighting through the matrix of channel c. A "reflectance" side table (a coloured
+  // monochrome bake, docs/COLOUR.md) multiplies each row's RGB.
   static Result<RelightMatrix> Open(const std::string& path, uint64_t mem_limit, int jobs, const Progress& progress,
                                     nlohmann::json* report);
 
@@ -29,7 +32,9 @@ class RelightMatrix {
   uint64_t rows() const { return rows_; }
   uint64_t width() const { return width_; }  // 0 × 0 when the rows are not an image
   uint64_t height() const { return height_; }
-  bool streamed() const { return !relighter_ && !cpca_; }
+  bool streamed() const { return channels_.empty() ? !relighter_ && !cpca_ : channels_[0].streamed(); }
+  // 3 for a colour channel set, else 1.
+  int channel_count() const { return channels_.empty() ? 1 : static_cast<int>(channels_.size()); }
   const LightingBasis& basis() const { return basis_; }
   // Rows that see no geometry (empty: no such table); FinishRelitImage blackens them.
   const std::vector<uint8_t>& mask() const { return mask_; }
@@ -42,6 +47,11 @@ class RelightMatrix {
   Status RelightDense(const std::vector<float>& lighting, std::vector<float>* image);
 
  private:
+  static Result<RelightMatrix> OpenSet(const std::string& path, const std::vector<std::string>& files,
+                                       uint64_t mem_limit, int jobs, const Progress& progress, nlohmann::json* report);
+  // The image of each channel's matrix, channel c kept from the c-th; then the reflectance.
+  template <typename F>
+  Status PerChannel(std::vector<float>* image, F relight_one);
   std::string path_;
   int jobs_ = 1;
   uint64_t rows_ = 0, width_ = 0, height_ = 0;
@@ -49,6 +59,8 @@ class RelightMatrix {
   std::optional<Relighter> relighter_;
   std::optional<CpcaRelighter> cpca_;
   std::vector<uint8_t> mask_;
+  std::vector<float> reflectance_;       // rows × 3, or empty
+  std::vector<RelightMatrix> channels_;  // a channel set: one matrix per channel
   Progress progress_;
 };
 

@@ -95,17 +95,25 @@ Status MeasureErrors(const RelightOptions& o, const Environment& env, const Ligh
                      const Frames& frames, const std::vector<float>& first, const LightTerms& first_terms,
                      double rotation, const Progress& progress, nlohmann::json* report) {
   const uint64_t rows = m.rows();
-  LTB_ASSIGN_OR_RETURN(io::ContainerReader ref_reader, io::ContainerReader::Open(o.reference));
-  LTB_ASSIGN_OR_RETURN(LightingBasis ref_basis, LightingBasis::FromMetadata(ref_reader.metadata(), o.reference));
-  if (ref_basis.cube_res() != basis.cube_res() || ref_reader.metadata().matrix().rows != rows) {
+  // The reference goes through RelightMatrix too (streamed from its row blocks), so a channel
+  // set or a reflectance table is applied to it as to the matrix.
+  LTB_ASSIGN_OR_RETURN(RelightMatrix ref, RelightMatrix::Open(o.reference, o.mem_limit, o.jobs, progress, nullptr));
+  const LightingBasis& ref_basis = ref.basis();
+  if (ref_basis.cube_res() != basis.cube_res() || ref.rows() != rows) {
     return InvalidArgument(o.reference + ": is not the same bake as " + o.matrix + " (shape or R differ)");
+  }
+  if (ref.channel_count() != m.channel_count()) {
+    return InvalidArgument(o.reference + ": has " + std::to_string(ref.channel_count()) + " colour channel(s) and " +
+                           o.matrix + " has " + std::to_string(m.channel_count()) +
+                           "; compare a channel set with a channel set (docs/COLOUR.md)");
   }
   // Exact: the full lighting in the reference's basis.
   std::vector<float> full;
   env.Cubemap(rotation, &full);
   std::vector<float> full_ref = full;
   ref_basis.ToBasis(full_ref.data());
-  LTB_ASSIGN_OR_RETURN(std::vector<float> exact, RelightStreaming(o.reference, full_ref.data(), o.jobs, progress));
+  std::vector<float> exact;
+  LTB_RETURN_IF_ERROR(ref.RelightDense(full_ref, &exact));
   frames.Finish(&exact);  // T·L ≥ 0: clamps f32 rounding at most
   // Lighting alone: the kept terms, back in pixels, then into the reference's basis.
   std::vector<float> approx(full.size(), 0.0f);
@@ -113,7 +121,8 @@ Status MeasureErrors(const RelightOptions& o, const Environment& env, const Ligh
     for (int c = 0; c < 3; ++c) approx[first_terms.column[k] * 3 + c] = first_terms.rgb[k * 3 + c];
   basis.ToPixels(approx.data());
   ref_basis.ToBasis(approx.data());
-  LTB_ASSIGN_OR_RETURN(std::vector<float> light_only, RelightStreaming(o.reference, approx.data(), o.jobs, progress));
+  std::vector<float> light_only;
+  LTB_RETURN_IF_ERROR(ref.RelightDense(approx, &light_only));
   frames.Finish(&light_only);
   auto metrics = [&](const std::vector<float>& img) {
     auto e = CompareImages(img.data(), exact.data(), rows, m.width(), m.height());

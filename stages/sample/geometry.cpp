@@ -3,6 +3,7 @@
 #include <draco/compression/decode.h>
 
 #include <cerrno>
+#include <charconv>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -55,6 +56,23 @@ Status CheckFileNormals(const std::string& path, TriangleMesh* m) {
   return Status::Ok();
 }
 
+// colours = "file": the reader found colours for every vertex.
+Status CheckFileColours(const std::string& path, const std::string& ext, const TriangleMesh& m) {
+  if (m.colours.size() == m.positions.size()) return Status::Ok();
+  const char* what = ext == ".ply"   ? "PLY: add uchar (sRGB) or float (linear) vertex properties red green blue"
+                     : ext == ".off" ? "OFF: use a COFF header and r g b after x y z on every vertex line"
+                     : ext == ".obj" ? "OBJ: write every vertex as \"v x y z r g b\""
+                     : ext == ".drc" ? "Draco: encode the mesh with a COLOR attribute"
+                                     : "the format stores none";
+  const char* format = ext == ".ply"   ? "PLY"
+                       : ext == ".off" ? "OFF"
+                       : ext == ".obj" ? "OBJ"
+                       : ext == ".drc" ? "Draco"
+                                       : "mesh";
+  return InvalidArgument(path + ": colours = \"file\", but this " + format + " file stores no vertex colours (" + what +
+                         "); or give the object's material a colour instead");
+}
+
 // An attribute read as numbers: a bool (or unknown) attribute type would be read through a
 // bool lvalue holding any byte (undefined behaviour, found by the fuzzer).
 bool IsNumeric(draco::DataType t) {
@@ -93,7 +111,56 @@ Status ReadDracoNormals(const std::string& path, const draco::Mesh& mesh, Triang
   return Status::Ok();
 }
 
-Result<TriangleMesh> LoadDraco(const std::string& path, bool file_normals) {
+// The shortest text that reads back to d (for messages: -1e-09, not -0.000000).
+std::string Shortest(double d) {
+  char buf[32];
+  auto [p, ec] = std::to_chars(buf, buf + sizeof buf, d);
+  return ec == std::errc() ? std::string(buf, p) : std::to_string(d);
+}
+
+// Draco's COLOR attribute, per point, as linear RGB (its first 3 components; an alpha is
+// ignored): an integer type is divided by its largest value and sRGB-decoded (8-bit
+// colours, as PLY's uchar ones), a float type is linear as stored.
+Status ReadDracoColours(const std::string& path, const draco::Mesh& mesh, TriangleMesh* out) {
+  const draco::PointAttribute* col = mesh.GetNamedAttribute(draco::GeometryAttribute::COLOR);
+  if (col == nullptr) return Status::Ok();  // CheckFileColours reports it
+  if (!IsNumeric(col->data_type()) || col->num_components() < 3) {
+    return InvalidArgument(path + ": Draco COLOR attribute has data type " +
+                           std::to_string(static_cast<int>(col->data_type())) + " and " +
+                           std::to_string(int(col->num_components())) + " components; 3 numbers (r g b) are needed");
+  }
+  const draco::DataType t = col->data_type();
+  const bool is_float = t == draco::DT_FLOAT32 || t == draco::DT_FLOAT64;
+  const double max = t == draco::DT_INT8     ? 127.0
+                     : t == draco::DT_UINT8  ? 255.0
+                     : t == draco::DT_INT16  ? 32767.0
+                     : t == draco::DT_UINT16 ? 65535.0
+                     : t == draco::DT_INT32  ? 2147483647.0
+                                             : 4294967295.0;
+  static const char* const kNames[3] = {"red", "green", "blue"};
+  out->colours.resize(mesh.num_points());
+  for (draco::PointIndex i(0); i < mesh.num_points(); ++i) {
+    double d[3] = {0, 0, 0};
+    int64_t n[3] = {0, 0, 0};
+    // Integers as stored (not through double, which would apply the attribute's
+    // "normalized" flag): the same rule whatever the encoder set.
+    const bool ok = is_float ? col->ConvertValue<double>(col->mapped_index(i), 3, d)
+                             : col->ConvertValue<int64_t>(col->mapped_index(i), 3, n);
+    if (!ok) return InvalidArgument(path + ": cannot read the colour of point " + std::to_string(i.value()));
+    for (int c = 0; c < 3; ++c) {
+      const bool bad = is_float ? !std::isfinite(d[c]) || d[c] < 0 : n[c] < 0;
+      if (bad) {
+        return InvalidArgument(path + ": Draco point " + std::to_string(i.value()) + " colour " + kNames[c] + " is " +
+                               (is_float ? Shortest(d[c]) : std::to_string(n[c])) +
+                               "; a colour component must be finite and >= 0");
+      }
+      out->colours[i.value()][c] = is_float ? d[c] : SrgbToLinear(static_cast<double>(n[c]) / max);
+    }
+  }
+  return Status::Ok();
+}
+
+Result<TriangleMesh> LoadDraco(const std::string& path, bool file_normals, bool file_colours) {
   std::ifstream f(path, std::ios::binary);
   if (!f) return NotFound(path + ": cannot open mesh file");
   std::vector<char> data((std::istreambuf_iterator<char>(f)), {});
@@ -132,12 +199,14 @@ Result<TriangleMesh> LoadDraco(const std::string& path, bool file_normals) {
     out.triangles.push_back({face[0].value(), face[1].value(), face[2].value()});
   }
   if (file_normals) LTB_RETURN_IF_ERROR(ReadDracoNormals(path, *mesh, &out));
+  if (file_colours) LTB_RETURN_IF_ERROR(ReadDracoColours(path, *mesh, &out));
   return out;
 }
 
 }  // namespace
 
-Result<TriangleMesh> LoadMeshFile(const std::string& path, const Progress& progress, bool file_normals) {
+Result<TriangleMesh> LoadMeshFile(const std::string& path, const Progress& progress, bool file_normals,
+                                  bool file_colours) {
   std::string ext = Lower(std::filesystem::path(path).extension().string());
   // Opening refuses a directory, FIFO or device by name (and never blocks on a FIFO).
   LTB_ASSIGN_OR_RETURN(MeshInput in, MeshInput::Open(path, &progress));
@@ -149,17 +218,22 @@ Result<TriangleMesh> LoadMeshFile(const std::string& path, const Progress& progr
                            ": normals = \"file\": STL stores only facet normals, no vertex normals; use "
                            "normals = \"flat\" (image mode) or \"smooth\"");
   }
+  if (ext == ".stl" && file_colours) {
+    return InvalidArgument(path +
+                           ": colours = \"file\": STL stores no vertex colours; convert the mesh to PLY (red green "
+                           "blue vertex properties) or give the object's material a colour instead");
+  }
   if (ext == ".off") {
-    r = ReadOff(in, progress, file_normals);
+    r = ReadOff(in, progress, file_normals, file_colours);
   } else if (ext == ".ply") {
-    r = ReadPly(in, progress, file_normals);
+    r = ReadPly(in, progress, file_normals, file_colours);
   } else if (ext == ".obj") {
-    r = ReadObj(in, progress, file_normals);
+    r = ReadObj(in, progress, file_normals, file_colours);
   } else if (ext == ".stl") {
     r = ReadStl(in, progress);
   } else if (ext == ".drc") {
     try {
-      r = LoadDraco(path, file_normals);
+      r = LoadDraco(path, file_normals, file_colours);
     } catch (const std::bad_alloc&) {
       return InvalidArgument(path + ": reading the mesh ran out of memory (a corrupt count in the file?)");
     } catch (const std::exception& e) {
@@ -170,6 +244,7 @@ Result<TriangleMesh> LoadMeshFile(const std::string& path, const Progress& progr
   TriangleMesh& m = *r;
   LTB_RETURN_IF_ERROR(CheckFinite(path, m));
   if (file_normals) LTB_RETURN_IF_ERROR(CheckFileNormals(path, &m));
+  if (file_colours) LTB_RETURN_IF_ERROR(CheckFileColours(path, ext, m));
   Finalize(&m);
   if (m.triangles.empty()) {
     return InvalidArgument(path + ": the mesh holds no triangles" +
@@ -240,7 +315,7 @@ void ApplyTransform(const glm::dmat4& m, TriangleMesh* mesh) {
       }
     }
   }
-  Finalize(mesh);
+  Finalize(mesh);  // colours are per vertex, whatever the transform: kept as they are
 }
 
 void Finalize(TriangleMesh* m) {

@@ -22,6 +22,10 @@ struct TriangleMesh {
   // Per vertex, the normals the file stores (normals = "file"); empty unless the reader was
   // asked for them. LoadMeshFile leaves them unit length; ApplyTransform transforms them.
   std::vector<glm::dvec3> file_normals;
+  // Per vertex, the colours the file stores as linear RGB (colours = "file", docs/SCENE.md
+  // "Vertex colours"); empty unless the reader was asked for them. ApplyTransform and
+  // Finalize keep them (the vertices do not change).
+  std::vector<glm::dvec3> colours;
   uint64_t degenerate_dropped = 0;  // zero-area or repeated-vertex faces removed
 };
 
@@ -30,9 +34,12 @@ struct TriangleMesh {
 // a face with an out-of-range vertex index; Cancelled when `progress` asks to stop. With
 // `file_normals`, also the per-vertex normals the file stores (docs/SCENE.md "Normals"):
 // a format that stores none (STL), a file without them, or a vertex whose normal is
-// missing, zero or not finite is an error naming the file (and the vertex).
+// missing, zero or not finite is an error naming the file (and the vertex). With
+// `file_colours`, also the per-vertex colours the file stores, as linear RGB (docs/SCENE.md
+// "Vertex colours"): a format that stores none (STL), or a file without them, is an error
+// naming the file and saying what to add.
 Result<TriangleMesh> LoadMeshFile(const std::string& path, const Progress& progress = Progress{},
-                                  bool file_normals = false);
+                                  bool file_normals = false, bool file_colours = false);
 
 TriangleMesh MakePlane(const glm::dvec3& size);  // size.x × size.y at z = 0, normal +z
 TriangleMesh MakeBox(const glm::dvec3& size, const glm::dvec3& center);

@@ -48,12 +48,25 @@ void AddPolygon(const std::vector<uint32_t>& f, uint64_t face, std::vector<uint6
   for (size_t i = 1; i + 1 < k; ++i) m->triangles.push_back({f[0], f[i], f[i + 1]});
 }
 
+// A colour component must be finite and >= 0 (a float one may exceed 1: it scales an
+// albedo, whose product the scene checks).
+bool ValidColour(double c) { return std::isfinite(c) && c >= 0; }
+
+// A value for a message: the shortest text that reads back to it (-0.25, 1e-09, nan).
+std::string Number(double d) {
+  char buf[32];
+  auto [p, ec] = std::to_chars(buf, buf + sizeof buf, d);
+  return ec == std::errc() ? std::string(buf, p) : std::to_string(d);
+}
+
 std::string VertexRange(uint64_t nv) {
   return nv == 0 ? "the file declares no vertices"
                  : "the file declares " + std::to_string(nv) + " vertices: 0.." + std::to_string(nv - 1);
 }
 
 }  // namespace
+
+double SrgbToLinear(double c) { return c <= 0.04045 ? c / 12.92 : std::pow((c + 0.055) / 1.055, 2.4); }
 
 // ---- MeshInput ----
 
@@ -229,6 +242,7 @@ namespace {
 struct OffCounts {
   uint64_t nv = 0, nf = 0;
   bool normals = false;  // NOFF: nx ny nz follow x y z on every vertex line
+  bool colours = false;  // COFF: r g b [a] follow x y z (and nx ny nz) on every vertex line
 };
 
 Result<OffCounts> ReadOffHeader(MeshInput& in) {
@@ -240,10 +254,12 @@ Result<OffCounts> ReadOffHeader(MeshInput& in) {
   Tokens tk{line};
   std::string_view kw;
   tk.Next(&kw);
-  // [ST][C][N][4][n]OFF: texture coordinates, colours, normals follow x y z on a vertex line.
+  // [ST][C][N][4][n]OFF: a vertex line holds x y z, then nx ny nz (N), then r g b [a] (C),
+  // then s t (ST), in that order (Geomview's OFF, and OpenMesh's reader).
   std::string_view k = kw;
   if (k.substr(0, 2) == "ST") k.remove_prefix(2);
-  if (k.substr(0, 1) == "C") k.remove_prefix(1);
+  const bool colours = k.substr(0, 1) == "C";
+  if (colours) k.remove_prefix(1);
   const bool normals = k.substr(0, 1) == "N";
   if (normals) k.remove_prefix(1);
   if (k == "4OFF" || k == "nOFF" || k == "4nOFF") {
@@ -289,13 +305,53 @@ Result<OffCounts> ReadOffHeader(MeshInput& in) {
                     " faces, which need at least " + Bytes(need) + " bytes, but only " +
                     std::to_string(in.remaining()) + " follow the header (truncated, or a wrong count)");
   }
-  return OffCounts{nv, nf, normals};
+  return OffCounts{nv, nf, normals, colours};
 }
 
-// The nv vertex lines into m->positions (sized), and their normals into m->file_normals
-// when it is sized (NOFF, and asked for).
-Status ReadOffVertices(MeshInput& in, uint64_t nv, const Progress& progress, TriangleMesh* m) {
+// COFF: the r g b [a] of vertex i (after x y z and nx ny nz) as linear RGB. Three integers
+// are 8-bit sRGB (0..255); otherwise (a decimal point or an exponent) linear floats.
+Status ParseOffColour(Tokens& t, uint64_t i, const MeshInput& in, glm::dvec3* out) {
+  auto at = [&] { return in.name() + ":" + std::to_string(in.line()); };
+  std::string_view tok[3];
+  bool ints = true;
+  int64_t n[3] = {0, 0, 0};
+  for (int c = 0; c < 3; ++c) {
+    if (!t.Next(&tok[c])) {
+      return InvalidArgument(at() + ": vertex " + std::to_string(i) + " colour component " + std::to_string(c + 1) +
+                             " is missing (COFF: x y z [nx ny nz] r g b [a] on every vertex line)");
+    }
+    ints = ints && ParseNumber(tok[c], &n[c]);
+  }
+  for (int c = 0; c < 3; ++c) {
+    auto bad = [&](const std::string& why) {
+      return InvalidArgument(at() + ": vertex " + std::to_string(i) + " colour component " + std::to_string(c + 1) +
+                             " is " + Quote(tok[c]) + why);
+    };
+    if (ints) {
+      if (n[c] < 0) return bad("; a colour component must be >= 0");
+      if (n[c] > 255) {
+        return bad(
+            ", above 255 (three integers are 8-bit sRGB, 0..255; write linear floats with a decimal "
+            "point, e.g. 0.5)");
+      }
+      (*out)[c] = SrgbToLinear(static_cast<double>(n[c]) / 255);
+      continue;
+    }
+    double d;
+    if (!ParseNumber(tok[c], &d)) return bad(", not a number (COFF: r g b [a] after x y z [nx ny nz])");
+    if (!ValidColour(d)) return bad("; a colour component must be finite and >= 0");
+    (*out)[c] = d;
+  }
+  return Status::Ok();
+}
+
+// The nv vertex lines into m->positions (sized), their normals into m->file_normals when
+// it is sized (NOFF, and asked for) and their colours into m->colours when it is sized
+// (COFF, and asked for).
+Status ReadOffVertices(MeshInput& in, const OffCounts& counts, const Progress& progress, TriangleMesh* m) {
   const std::string& name = in.name();
+  const uint64_t nv = counts.nv;
+  const bool skip_normals = counts.normals && m->file_normals.empty();
   auto at = [&] { return name + ":" + std::to_string(in.line()); };
   std::string_view line, tok;
   for (uint64_t i = 0; i < nv; ++i) {
@@ -316,17 +372,21 @@ Status ReadOffVertices(MeshInput& in, uint64_t nv, const Progress& progress, Tri
       }
     }
     m->positions[i] = {p[0], p[1], p[2]};
-    if (m->file_normals.empty()) continue;
-    float n[3];
-    for (int c = 0; c < 3; ++c) {
-      tok = {};
-      if (!t.Next(&tok) || !ParseNumber(tok, &n[c])) {
-        return InvalidArgument(at() + ": vertex " + std::to_string(i) + " normal component " + std::to_string(c + 1) +
-                               " is " + (tok.empty() ? std::string("missing") : Quote(tok)) +
-                               " (NOFF: x y z nx ny nz on every vertex line)");
+    if (!m->file_normals.empty()) {
+      float n[3];
+      for (int c = 0; c < 3; ++c) {
+        tok = {};
+        if (!t.Next(&tok) || !ParseNumber(tok, &n[c])) {
+          return InvalidArgument(at() + ": vertex " + std::to_string(i) + " normal component " + std::to_string(c + 1) +
+                                 " is " + (tok.empty() ? std::string("missing") : Quote(tok)) +
+                                 " (NOFF: x y z nx ny nz on every vertex line)");
+        }
       }
+      m->file_normals[i] = {n[0], n[1], n[2]};
+    } else if (skip_normals) {
+      for (int c = 0; c < 3; ++c) t.Next(&tok);  // CNOFF without normals asked for: r g b follow them
     }
-    m->file_normals[i] = {n[0], n[1], n[2]};
+    if (!m->colours.empty()) LTB_RETURN_IF_ERROR(ParseOffColour(t, i, in, &m->colours[i]));
   }
   return Status::Ok();
 }
@@ -380,13 +440,14 @@ Status ReadOffFaces(MeshInput& in, uint64_t nv, uint64_t nf, const Progress& pro
 
 }  // namespace
 
-Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress, bool normals) {
+Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress, bool normals, bool colours) {
   LTB_ASSIGN_OR_RETURN(const OffCounts counts, ReadOffHeader(in));
   TriangleMesh m;
   m.positions.resize(counts.nv);
   if (normals && counts.normals) m.file_normals.resize(counts.nv);
+  if (colours && counts.colours) m.colours.resize(counts.nv);
   m.triangles.reserve(counts.nf);
-  LTB_RETURN_IF_ERROR(ReadOffVertices(in, counts.nv, progress, &m));
+  LTB_RETURN_IF_ERROR(ReadOffVertices(in, counts, progress, &m));
   LTB_RETURN_IF_ERROR(ReadOffFaces(in, counts.nv, counts.nf, progress, &m));
   return m;
 }
@@ -439,7 +500,9 @@ struct PlyProperty {
   PlyType type = PlyType::kFloat32;  // a list's item type
   bool list = false;
   PlyType count_type = PlyType::kUint8;
-  int role = -1;  // vertex: 0..2 = x, y, z, 4..6 = nx, ny, nz (when asked for); face: 3 = the vertex index list
+  // vertex: 0..2 = x, y, z, 4..6 = nx, ny, nz, 8..10 = red, green, blue (the last two when
+  // asked for); face: 3 = the vertex index list
+  int role = -1;
 };
 
 struct PlyElement {
@@ -697,10 +760,36 @@ Result<PlyHeader> ReadPlyHeader(MeshInput& in) {
   return h;
 }
 
-// Which element holds what (the first "vertex" with x, y, z, and nx, ny, nz when `normals`
-// asks for them; the first "face" with its index list), marked in the properties' roles,
-// and the least bytes the elements need, checked against what follows the header.
-Status ResolvePlyElements(MeshInput& in, bool normals, PlyHeader* h, PlyElement** vertex_out, PlyElement** face_out) {
+// The vertex colour properties, the first set the element has all three of.
+constexpr const char* kPlyColourNames[3][3] = {
+    {"red", "green", "blue"}, {"diffuse_red", "diffuse_green", "diffuse_blue"}, {"r", "g", "b"}};
+
+// The largest value of an integer type (what an integer colour component is divided by).
+double PlyTypeMax(PlyType t) {
+  switch (t) {
+    case PlyType::kInt8:
+      return 127;
+    case PlyType::kUint8:
+      return 255;
+    case PlyType::kInt16:
+      return 32767;
+    case PlyType::kUint16:
+      return 65535;
+    case PlyType::kInt32:
+      return 2147483647.0;
+    case PlyType::kUint32:
+      return 4294967295.0;
+    default:
+      return 1;
+  }
+}
+
+// Which element holds what (the first "vertex" with x, y, z, nx, ny, nz when `normals`
+// asks for them and the colour properties when `colours` does; the first "face" with its
+// index list), marked in the properties' roles, and the least bytes the elements need,
+// checked against what follows the header.
+Status ResolvePlyElements(MeshInput& in, bool normals, bool colours, PlyHeader* h, PlyElement** vertex_out,
+                          PlyElement** face_out) {
   const std::string& name = in.name();
   const int format = h->format;
   std::vector<PlyElement>& elements = h->elements;
@@ -713,6 +802,17 @@ Status ResolvePlyElements(MeshInput& in, bool normals, PlyHeader* h, PlyElement*
       for (PlyProperty& p : e.props) {
         if (!p.list && (p.name == "x" || p.name == "y" || p.name == "z")) p.role = p.name[0] - 'x';
         if (normals && !p.list && (p.name == "nx" || p.name == "ny" || p.name == "nz")) p.role = 4 + p.name[1] - 'x';
+      }
+      for (const auto& set : kPlyColourNames) {
+        if (!colours) break;
+        PlyProperty* found[3] = {nullptr, nullptr, nullptr};
+        for (PlyProperty& p : e.props) {
+          for (int c = 0; c < 3; ++c)
+            if (!p.list && p.role < 0 && found[c] == nullptr && p.name == set[c]) found[c] = &p;
+        }
+        if (found[0] == nullptr || found[1] == nullptr || found[2] == nullptr) continue;
+        for (int c = 0; c < 3; ++c) found[c]->role = 8 + c;
+        break;
       }
     } else if (e.name == "face" && face == nullptr) {
       face = &e;
@@ -766,8 +866,8 @@ Status ResolvePlyElements(MeshInput& in, bool normals, PlyHeader* h, PlyElement*
 }
 
 // The body: every element's items in file order; the vertex positions into m->positions
-// (sized), their normals into m->file_normals when it is sized, the face polygons fanned
-// into m->triangles, everything else skipped.
+// (sized), their normals into m->file_normals and their colours into m->colours when
+// those are sized, the face polygons fanned into m->triangles, everything else skipped.
 Status ReadPlyBody(MeshInput& in, const PlyHeader& h, const PlyElement* vertex, const PlyElement* face,
                    const Progress& progress, TriangleMesh* m) {
   const std::string& name = in.name();
@@ -777,19 +877,29 @@ Status ReadPlyBody(MeshInput& in, const PlyHeader& h, const PlyElement* vertex, 
   std::vector<uint32_t> indices;
   std::vector<uint64_t> stamp;
   PlyValue v;
+  PlyType colour_type[3] = {PlyType::kFloat32, PlyType::kFloat32, PlyType::kFloat32};
+  const char* colour_name[3] = {"", "", ""};
+  for (const PlyProperty& p : vertex->props) {
+    if (p.role >= 8) {
+      colour_type[p.role - 8] = p.type;
+      colour_name[p.role - 8] = p.name.c_str();
+    }
+  }
   for (const PlyElement& e : h.elements) {
     if (e.props.empty()) continue;  // nothing to read, however many it declares
     const bool is_vertex = &e == vertex, is_face = &e == face;
     for (uint64_t i = 0; i < e.count; ++i) {
       if ((i & 0xFFFF) == 0xFFFF && progress.Cancelled())
         return Cancelled(name + ": interrupted while reading the mesh");
-      double xyz[7] = {0, 0, 0, 0, 0, 0, 0};  // by role: x y z, -, nx ny nz
+      double xyz[11] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};  // by role: x y z, -, nx ny nz, -, r g b
+      int64_t ints[3] = {0, 0, 0};                         // the colour components as read
       for (const PlyProperty& p : e.props) {
         if (!p.list) {
           if (p.role >= 0 || format == 0) {
             LTB_RETURN_IF_ERROR(
                 body.Value(p.type, e.name + " " + std::to_string(i) + " property \"" + p.name + "\"", &v));
             if (p.role >= 0) xyz[p.role] = v.d;
+            if (p.role >= 8) ints[p.role - 8] = v.i;
           } else {
             LTB_RETURN_IF_ERROR(in.Read(nullptr, TypeSize(p.type), e.name + " " + std::to_string(i)));
           }
@@ -833,6 +943,16 @@ Status ReadPlyBody(MeshInput& in, const PlyHeader& h, const PlyElement* vertex, 
           m->positions[i][c] = f;
         }
         if (!m->file_normals.empty()) m->file_normals[i] = {xyz[4], xyz[5], xyz[6]};
+        for (int c = 0; c < 3 && !m->colours.empty(); ++c) {
+          const bool is_float = IsFloat(colour_type[c]);
+          if (is_float ? !ValidColour(xyz[8 + c]) : ints[c] < 0) {
+            return InvalidArgument(body.Where() + ": vertex " + std::to_string(i) + " " + colour_name[c] + " is " +
+                                   (is_float ? Number(xyz[8 + c]) : std::to_string(ints[c])) +
+                                   "; a colour component must be finite and >= 0");
+          }
+          m->colours[i][c] =
+              is_float ? xyz[8 + c] : SrgbToLinear(static_cast<double>(ints[c]) / PlyTypeMax(colour_type[c]));
+        }
       } else if (is_face) {
         AddPolygon(indices, i, &stamp, m);
       }
@@ -843,16 +963,20 @@ Status ReadPlyBody(MeshInput& in, const PlyHeader& h, const PlyElement* vertex, 
 
 }  // namespace
 
-Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress, bool normals) {
+Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress, bool normals, bool colours) {
   LTB_ASSIGN_OR_RETURN(PlyHeader h, ReadPlyHeader(in));
   PlyElement* vertex = nullptr;
   PlyElement* face = nullptr;
-  LTB_RETURN_IF_ERROR(ResolvePlyElements(in, normals, &h, &vertex, &face));
+  LTB_RETURN_IF_ERROR(ResolvePlyElements(in, normals, colours, &h, &vertex, &face));
   TriangleMesh m;
   m.positions.resize(vertex->count);
-  int roles = 0;  // nx, ny, nz found: all three or no normals
-  for (const PlyProperty& p : vertex->props) roles += p.role >= 4;
+  int roles = 0, colour_roles = 0;  // nx, ny, nz found: all three or no normals
+  for (const PlyProperty& p : vertex->props) {
+    roles += p.role >= 4 && p.role <= 6;
+    colour_roles += p.role >= 8;
+  }
   if (roles == 3) m.file_normals.resize(vertex->count);
+  if (colour_roles == 3) m.colours.resize(vertex->count);
   if (face != nullptr) m.triangles.reserve(face->count);
   LTB_RETURN_IF_ERROR(ReadPlyBody(in, h, vertex, face, progress, &m));
   return m;

@@ -66,8 +66,16 @@ class MeshInput {
 // normals the file stores go into file_normals, as stored (not normalised): OFF when the
 // header is NOFF (nx ny nz after x y z), PLY the vertex properties nx ny nz; left empty
 // when the file has none (LoadMeshFile reports that). Without, they are not kept.
-Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress, bool normals = false);
-Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress, bool normals = false);
+// With `colours`, the vertex colours go into m.colours as linear RGB (left empty when the
+// file has none): OFF when the header has the C prefix ([ST][C][N]OFF: r g b [a] after
+// x y z and after nx ny nz; three integers are 8-bit sRGB, otherwise linear floats), PLY
+// the vertex properties red green blue (or diffuse_red diffuse_green diffuse_blue, or
+// r g b): an integer type is divided by its largest value and sRGB-decoded, a float type
+// is linear as stored. A component that is negative, not finite, or (OFF) malformed,
+// missing or an integer above 255 is an error naming the file, the line or byte, the
+// vertex and the value.
+Result<TriangleMesh> ReadOff(MeshInput& in, const Progress& progress, bool normals = false, bool colours = false);
+Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress, bool normals = false, bool colours = false);
 // OBJ: `v x y z [w]` and `f` with i, i/t, i//n or i/t/n references (1-based, or negative
 // counting back from the last vertex read); every other statement is skipped. A repeated
 // vertex is removed from a face (keeping the first), as OpenMesh did; a face left with
@@ -77,10 +85,17 @@ Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress, bool norma
 // distinct normals its face references name (i//n, i/t/n), each normalised first; a
 // normal index must name a `vn` defined before the face (or count back from the last);
 // a vertex no reference gives a normal keeps (0, 0, 0), which LoadMeshFile reports.
-Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress, bool normals = false);
+// With `colours`, a `v` with exactly 6 numbers is `v x y z r g b`, a linear colour as
+// stored (finite, >= 0); if some vertices have one, every vertex must (else an error
+// naming the line of the first vertex without); if none has, m.colours stays empty.
+Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress, bool normals = false, bool colours = false);
 // STL, binary (84 + 50·n bytes exactly) or ASCII (starting with "solid"). Vertices with
 // equal coordinates are merged in order of first appearance; a triangle whose corners
 // merge is dropped and counted.
 Result<TriangleMesh> ReadStl(MeshInput& in, const Progress& progress);
+
+// The sRGB transfer function (EOTF), encoded c in [0, 1] to linear: c / 12.92 for
+// c <= 0.04045, ((c + 0.055) / 1.055)^2.4 above. How 8-bit (integer) colours are read.
+double SrgbToLinear(double c);
 
 }  // namespace ltb::sample

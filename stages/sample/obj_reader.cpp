@@ -90,8 +90,47 @@ Result<bool> NextStatement(MeshInput& in, std::string* joined, std::string_view*
   return true;
 }
 
-// A `v x y z [w]` statement (after the keyword) appended to m->positions.
-Status ParseVertex(Tokens& t, const ObjWhere& at, TriangleMesh* m) {
+// colours = "file": whether a vertex had a colour (`v x y z r g b`) yet, and the first
+// that had none (every vertex must have one once any has).
+struct ObjColours {
+  bool any = false;
+  uint64_t first_without = 0, first_without_line = 0;  // 1-based vertex; line 0: none yet
+};
+
+// A vertex with a colour, or one without, when `col` says whether any had one so far:
+// a mix is an error naming the line of the first vertex without.
+Status CheckColourMix(const ObjWhere& at, bool has, uint64_t vertex, ObjColours* col) {
+  if (!has && col->first_without_line == 0) {
+    col->first_without = vertex;
+    col->first_without_line = at.line_no;
+  }
+  col->any = col->any || has;
+  if (!col->any || col->first_without_line == 0) return Status::Ok();
+  const std::string without = at.name + ":" + std::to_string(col->first_without_line) + ": vertex " +
+                              std::to_string(col->first_without) + " has no colour";
+  return InvalidArgument(without + " (\"v x y z r g b\"), but " +
+                         (has ? "vertex " + std::to_string(vertex) + " (line " + std::to_string(at.line_no) + ")"
+                              : std::string("an earlier vertex")) +
+                         " has one; with colours = \"file\" every vertex needs r g b");
+}
+
+// The r g b of a `v x y z r g b` statement: linear, as stored (finite, >= 0).
+Status ParseColour(const std::string_view* tok, const ObjWhere& at, uint64_t vertex, glm::dvec3* out) {
+  for (int c = 0; c < 3; ++c) {
+    double d;
+    if (!ParseNumber(tok[c], &d) || !std::isfinite(d) || d < 0) {
+      return InvalidArgument(at() + ": vertex " + std::to_string(vertex) + " colour component " +
+                             std::to_string(c + 1) + " is " + Quote(tok[c]) +
+                             "; a colour component must be a finite number >= 0 (\"v x y z r g b\")");
+    }
+    (*out)[c] = d;
+  }
+  return Status::Ok();
+}
+
+// A `v x y z [w]` statement (after the keyword) appended to m->positions; with `col`
+// (colours = "file"), a `v x y z r g b` one's colour to m->colours.
+Status ParseVertex(Tokens& t, const ObjWhere& at, TriangleMesh* m, ObjColours* col = nullptr) {
   std::string_view tok;
   if (m->positions.size() >= kMaxVertices) {
     return InvalidArgument(at() + ": more than " + std::to_string(kMaxVertices) + " vertices; not supported");
@@ -108,7 +147,18 @@ Status ParseVertex(Tokens& t, const ObjWhere& at, TriangleMesh* m) {
                              "); fix or remove the vertex");
     }
   }
-  m->positions.push_back({p[0], p[1], p[2]});  // a w (or colour) after x y z is ignored
+  m->positions.push_back({p[0], p[1], p[2]});  // a w (or, unless asked for, a colour) is ignored
+  if (col == nullptr) return Status::Ok();
+  // Exactly 6 numbers are x y z r g b; 3, 4 (x y z w) or any other count: no colour.
+  std::string_view rest[4];
+  size_t k = 0;
+  while (k < 4 && t.Next(&rest[k])) ++k;
+  const uint64_t vertex = m->positions.size();
+  LTB_RETURN_IF_ERROR(CheckColourMix(at, k == 3, vertex, col));
+  if (k != 3) return Status::Ok();
+  glm::dvec3 rgb;
+  LTB_RETURN_IF_ERROR(ParseColour(rest, at, vertex, &rgb));
+  m->colours.push_back(rgb);
   return Status::Ok();
 }
 
@@ -262,10 +312,11 @@ struct ObjNormals {
 
 }  // namespace
 
-Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress, bool normals) {
+Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress, bool normals, bool colours) {
   const std::string& name = in.name();
   TriangleMesh m;
   ObjNormals nrm;
+  ObjColours col;
   std::string joined;  // a statement continued over lines ('\' at a line's end)
   std::vector<uint32_t> face;
   std::vector<uint64_t> stamp;
@@ -282,7 +333,7 @@ Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress, bool norma
     std::string_view kw;
     if (!t.Next(&kw)) continue;
     if (kw == "v") {
-      LTB_RETURN_IF_ERROR(ParseVertex(t, at, &m));
+      LTB_RETURN_IF_ERROR(ParseVertex(t, at, &m, colours ? &col : nullptr));
       continue;
     }
     if (normals && kw == "vn") {

@@ -17,6 +17,7 @@
 #include "format/io/container_writer.h"
 #include "format/version.h"
 #include "stages/common/basis.h"
+#include "stages/common/channels.h"
 #include "stages/common/parallel_for.h"
 #include "stages/row_transform/row_transform.h"
 #include "stages/sample/geometry.h"
@@ -90,6 +91,42 @@ Status CheckSparse(const SampleOptions& o, uint32_t r) {
   return Status::Ok();
 }
 
+// --channel: the scene as that channel sees it. A monochrome bake of a scene with colour:
+// the reflectance table when the colour factors out of T (no bounces, and in image mode,
+// where ks is rendered, one tint for albedo and ks and no vertex colours under a lobe);
+// otherwise an error that says to bake per channel.
+Status CheckColour(const SampleOptions& o, Prepared* p) {
+  const SceneDesc& s = p->scene;
+  if (o.channel >= 0) {
+    if (o.visibility) return InvalidArgument("--visibility bakes geometry (no colour); leave out --channel");
+    p->scene = ChannelScene(s, o.channel);
+    return Status::Ok();
+  }
+  if (o.visibility || !s.HasColour()) return Status::Ok();
+  const std::string fix = "; bake one matrix per channel with --channels rgb (docs/COLOUR.md)";
+  if (p->bounces > 0) {
+    return InvalidArgument(o.scene + ": the scene has colour and --bounces " + std::to_string(p->bounces) +
+                           " makes it bleed between surfaces, which one monochrome matrix cannot hold" + fix);
+  }
+  if (s.mode == SceneDesc::Mode::kImage) {
+    for (const sample::Object& obj : s.objects) {
+      const sample::Material& m = s.materials[static_cast<size_t>(obj.material)];
+      if (!m.separable) {
+        return InvalidArgument(o.scene + ": material \"" + m.name + "\" has albedo " +
+                               sample::FormatVec3(m.albedo_rgb) + " and ks " + sample::FormatVec3(m.ks_rgb) +
+                               ", not one colour times two numbers, so its colour does not factor out of T" + fix);
+      }
+      if (obj.colours == sample::Object::Colours::kFile && m.ks > 0) {
+        return InvalidArgument(o.scene + ":" + std::to_string(obj.line) + ": object \"" + obj.name +
+                               "\" has vertex colours under the glossy material \"" + m.name +
+                               "\" (ks > 0): they tint the albedo, not the lobe, so they do not factor out of T" + fix);
+      }
+    }
+  }
+  p->reflectance = true;
+  return Status::Ok();
+}
+
 Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress& progress) {
   auto p = std::make_unique<Prepared>();
   LTB_ASSIGN_OR_RETURN(p->scene, sample::ParseScene(o.scene));
@@ -116,6 +153,7 @@ Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress
     if (o.row_filter) return InvalidArgument("--visibility cannot be fused with a row-transform");
     p->bounces = 0;  // the scene's [sampling] bounces do not apply to visibility
   }
+  LTB_RETURN_IF_ERROR(CheckColour(o, p.get()));
   LTB_ASSIGN_OR_RETURN(p->geo, BuildGeometry(p->scene, progress));
   p->rows = p->scene.mode == SceneDesc::Mode::kImage ? uint64_t{p->scene.camera.width} * p->scene.camera.height
                                                      : p->geo.vertex_rows.size();
@@ -218,6 +256,12 @@ nlohmann::json SampleMetadata(const SampleOptions& o, const Prepared& p, uint64_
     params["row_filter"] = wavelet::FilterName(*o.row_filter);
     params["row_zstd"] = o.row_zstd;
   }
+  if (o.channel >= 0) {
+    params["channel"] = ChannelName(o.channel);
+    // Which channel of which set (docs/COLOUR.md); every later stage keeps it.
+    extra["channel"] = {{"name", ChannelName(o.channel)}, {"index", o.channel}, {"names", {"r", "g", "b"}}};
+  }
+  if (p.reflectance) params["colour"] = "reflectance";
   nlohmann::json meta = {
       {"arrays",
        {spec("matrix", DType::kF32, cols), spec("mask", DType::kU8, 1), spec("position", DType::kF32, 3),
@@ -227,6 +271,33 @@ nlohmann::json SampleMetadata(const SampleOptions& o, const Prepared& p, uint64_
   };
   meta.update(extra);
   return meta;
+}
+
+void AddReflectance(const Prepared& p, uint64_t block, nlohmann::json* meta) {
+  if (p.reflectance) (*meta)["arrays"].push_back(RowArray("reflectance", DType::kF32, p.rows, 3, block).ToJson());
+}
+
+Status WriteReflectance(const Prepared& p, const Sampler& sampler, uint64_t block, io::ContainerWriter& out,
+                        const Progress& progress) {
+  if (!p.reflectance) return Status::Ok();
+  const int a = out.metadata().FindArray("reflectance");
+  if (a < 0) return Internal(out.path() + ": no reflectance array to write");
+  std::vector<float> v;
+  for (uint64_t chunk : out.Missing(static_cast<uint32_t>(a))) {
+    if (progress.Cancelled()) return Cancelled("interrupted; committed chunks are kept, rerun to resume");
+    const uint64_t r0 = chunk * block, n = std::min(block, p.rows - r0);
+    v.assign(n * 3, 0.0f);
+    for (uint64_t i = 0; i < n; ++i) {
+      const RowPoint rp = sampler.Primary(r0 + i);
+      if (!rp.valid) continue;
+      const glm::dvec3 t = p.scene.materials[static_cast<size_t>(rp.material)].tint * rp.colour;
+      for (int c = 0; c < 3; ++c) v[3 * i + c] = static_cast<float>(t[c]);
+    }
+    LTB_RETURN_IF_ERROR(p.geo.rays->error());
+    LTB_RETURN_IF_ERROR(out.Put(static_cast<uint32_t>(a), chunk,
+                                ByteSpan(reinterpret_cast<const std::byte*>(v.data()), v.size() * sizeof(float))));
+  }
+  return Status::Ok();
 }
 
 }  // namespace sample_internal
@@ -388,8 +459,9 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
   wo.direct_io = o.direct_io;
-  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out,
-                       io::OpenStageOutput(o.output, sample_internal::SampleMetadata(o, *prep, block), wo, o.shard));
+  nlohmann::json meta = sample_internal::SampleMetadata(o, *prep, block);
+  sample_internal::AddReflectance(*prep, block, &meta);
+  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, meta, wo, o.shard));
 
   SampleResult result;
   result.rows = rows;
@@ -427,6 +499,7 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   result.samples_below_horizon = bs.cnt.samples_below;
   result.valid_rows = bs.valid;
   LTB_RETURN_IF_ERROR(s);
+  LTB_RETURN_IF_ERROR(sample_internal::WriteReflectance(*prep, sampler, block, out, progress));
   LTB_RETURN_IF_ERROR(out.Finish());
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return result;

@@ -57,6 +57,10 @@ struct SampleOptions {
   // Write shard `index` of `count` (io::ShardPath(output, ...)) instead of the whole output.
   io::ShardSpec shard;
   SparseOptions sparse;
+  // --channel r|g|b (0, 1, 2): bake the scene as that colour channel sees it (every
+  // material's channel value, vertex colours multiplying the albedo), one container per
+  // channel (docs/COLOUR.md); -1: the monochrome bake.
+  int channel = -1;
 };
 
 // What a sparse bake did, per phase (phase 1: the dense rows; phase 2: the sparse rows).

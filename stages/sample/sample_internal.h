@@ -8,9 +8,11 @@
 #include <nlohmann/json.hpp>
 
 #include "format/array_spec.h"
+#include "format/io/container_writer.h"
 #include "format/progress.h"
 #include "format/status.h"
 #include "stages/sample/sample.h"
+#include "stages/sample/sampler.h"
 #include "stages/sample/scene.h"
 #include "stages/sample/scene_geometry.h"
 
@@ -22,6 +24,10 @@ struct Prepared {
   sample::Geometry geo;
   uint32_t r = 0, spp = 0, bounces = 0;
   uint64_t seed = 0, rows = 0;
+  // A monochrome bake of a scene with colour: T is baked with each material's scalar albedo
+  // and ks, and the "reflectance" side table holds each row's tint × vertex colour
+  // (docs/COLOUR.md).
+  bool reflectance = false;
 };
 
 Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress& progress);
@@ -35,6 +41,14 @@ uint64_t BlockRows(const SampleOptions& o, uint64_t rows, uint64_t cols);
 // The output's metadata: the four arrays (matrix, mask, position, normal) in row blocks,
 // the row and column bases, and the provenance with the effective sampling parameters.
 nlohmann::json SampleMetadata(const SampleOptions& o, const Prepared& p, uint64_t block);
+
+// With p.reflectance, appends the "reflectance" side table (rows × 3 f32, row blocks) to
+// the metadata's arrays (after every other array: the sparse bake's come first).
+void AddReflectance(const Prepared& p, uint64_t block, nlohmann::json* meta);
+// Writes the reflectance table's missing chunks: per row, its material's tint times its
+// vertex colour (0 for a row that sees no geometry).
+Status WriteReflectance(const Prepared& p, const sample::Sampler& sampler, uint64_t block, io::ContainerWriter& out,
+                        const Progress& progress);
 
 // `sample --sparse` (sparse.cpp): the whole stage once the scene is prepared.
 Result<SampleResult> RunSparseSample(const SampleOptions& o, const Prepared& p, const Progress& progress);

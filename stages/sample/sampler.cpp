@@ -171,6 +171,7 @@ RowPoint Sampler::Primary(uint64_t row) const {
   rp.n = glm::dot(n, d) > 0 ? -n : n;        // facing the camera
   rp.wo = -d;
   rp.material = g_.geom_material[h.geom_id];
+  rp.colour = g_.HitColour(h);
   return rp;
 }
 
@@ -178,7 +179,10 @@ uint64_t Sampler::TexelsPerBatch() const { return std::max<uint64_t>(1, kBatchRa
 
 Brdf Sampler::MakeBrdf(const RowPoint& rp) const {
   const Material& m = s_.materials[rp.material];
-  Brdf brdf{m.albedo / M_PI, 0, m.exponent, {}};
+  // Vertex colours multiply the albedo in a channel's bake; the monochrome bake leaves
+  // them to the reflectance table (docs/COLOUR.md).
+  const double albedo = s_.channel >= 0 ? m.albedo * rp.colour[s_.channel] : m.albedo;
+  Brdf brdf{albedo / M_PI, 0, m.exponent, {}};
   if (s_.mode == SceneDesc::Mode::kImage && m.ks > 0) {
     brdf.ks_norm = m.ks * (m.exponent + 2) / (2 * M_PI);
     brdf.reflect = 2 * glm::dot(rp.n, rp.wo) * rp.n - rp.wo;
@@ -490,6 +494,7 @@ uint64_t Sampler::Indirect(uint64_t row, const RowPoint& rp, const Brdf& brdf, c
       const glm::dvec3 ns = g_.ShadingNormal(hit);
       const glm::dvec3 ny = glm::dot(ns, facing) < 0 ? -ns : ns;
       beta *= s_.materials[g_.geom_material[hit.geom_id]].albedo;
+      if (s_.channel >= 0) beta *= g_.HitColour(hit)[s_.channel];
       d = CosineSample(ny, rng);
       // A tilted shading normal can send the path into the surface: it is absorbed there.
       if (ns != hit.normal && glm::dot(d, facing) <= 0) break;

@@ -2,6 +2,7 @@
 
 #include <toml++/toml.h>
 
+#include <algorithm>
 #include <bit>
 #include <cmath>
 #include <cstdio>
@@ -134,6 +135,19 @@ Status ParseSampling(const std::string& path, const toml::table& root, SceneDesc
   return Status::Ok();
 }
 
+// A material's "albedo" or "ks": a number in [0, 1] (grey) or [r, g, b], each in [0, 1].
+Result<glm::dvec3> GetColour(const std::string& path, const toml::table& m, const char* key,
+                             const std::string& material, glm::dvec3 def) {
+  LTB_ASSIGN_OR_RETURN(glm::dvec3 v, GetVec3(path, m, key, def, /*allow_scalar=*/true));
+  for (int c = 0; c < 3; ++c) {
+    if (v[c] < 0.0 || v[c] > 1.0) {
+      return InvalidArgument(Where(path, *m.get(key)) + ": material \"" + material + "\": \"" + key + "\" is " +
+                             tomlf::ValueText(*m.get(key)) + "; each channel must be in [0, 1]");
+    }
+  }
+  return v;
+}
+
 // [[material]] entries (a "default" one when there are none); *index: name -> index of
 // the materials defined.
 Status ParseMaterials(const std::string& path, const toml::table& root, SceneDesc* s,
@@ -148,8 +162,9 @@ Status ParseMaterials(const std::string& path, const toml::table& root, SceneDes
       Material mat;
       LTB_ASSIGN_OR_RETURN(mat.name, GetString(path, *m, "name", ""));
       if (mat.name.empty()) return InvalidArgument(Where(path, node) + ": [[material]] needs a name");
-      LTB_ASSIGN_OR_RETURN(mat.albedo, GetNumber(path, *m, "albedo", mat.albedo, 0.0, 1.0));
-      LTB_ASSIGN_OR_RETURN(mat.ks, GetNumber(path, *m, "ks", mat.ks, 0.0, 1.0));
+      LTB_ASSIGN_OR_RETURN(mat.albedo_rgb, GetColour(path, *m, "albedo", mat.name, mat.albedo_rgb));
+      LTB_ASSIGN_OR_RETURN(mat.ks_rgb, GetColour(path, *m, "ks", mat.name, mat.ks_rgb));
+      SplitColour(&mat);
       LTB_ASSIGN_OR_RETURN(mat.exponent, GetNumber(path, *m, "exponent", mat.exponent, 0.0, 1e5));
       LTB_ASSIGN_OR_RETURN(mat.brdf, GetString(path, *m, "brdf", mat.brdf));
       if (mat.brdf != "phong" && mat.brdf != "blinn" && mat.brdf != "ward" && mat.brdf != "cook-torrance") {
@@ -163,9 +178,13 @@ Status ParseMaterials(const std::string& path, const toml::table& root, SceneDes
                                "\", which only the triple-product path renders (a vertex-mode scene, relight "
                                "--material; docs/TRIPLE.md); image mode renders the Phong lobe");
       }
-      if (mat.albedo + mat.ks > 1.0) {
-        return InvalidArgument(Where(path, node) + ": material \"" + mat.name + "\" has albedo + ks = " +
-                               std::to_string(mat.albedo + mat.ks) + " > 1 (it would create energy)");
+      for (int c = 0; c < 3; ++c) {
+        if (mat.albedo_rgb[c] + mat.ks_rgb[c] > 1.0) {
+          const bool grey = mat.albedo_rgb == glm::dvec3(mat.albedo_rgb.x) && mat.ks_rgb == glm::dvec3(mat.ks_rgb.x);
+          return InvalidArgument(Where(path, node) + ": material \"" + mat.name +
+                                 "\" has albedo + ks = " + std::to_string(mat.albedo_rgb[c] + mat.ks_rgb[c]) + " > 1" +
+                                 (grey ? "" : std::string(" in channel ") + "rgb"[c]) + " (it would create energy)");
+        }
       }
       if (!material_index.emplace(mat.name, static_cast<int>(s->materials.size())).second) {
         return InvalidArgument(Where(path, node) + ": material \"" + mat.name + "\" defined twice");
@@ -215,6 +234,7 @@ Result<Object> ParseObject(const std::string& path, const toml::node& node, cons
   obj.line = static_cast<int>(node.source().begin.line);
   LTB_ASSIGN_OR_RETURN(std::string type, GetString(path, *o, "type", ""));
   std::set<std::string> keys{"type", "name", "material", "translate", "rotate", "scale", "normals"};
+  if (type == "mesh") keys.insert("colours");
   if (type == "plane") {
     obj.type = Object::Type::kPlane;
     keys.insert("size");
@@ -264,6 +284,13 @@ Result<Object> ParseObject(const std::string& path, const toml::node& node, cons
     if (file.empty()) return InvalidArgument(Where(path, node) + ": mesh object \"" + obj.name + "\" needs \"file\"");
     std::filesystem::path f(file);
     obj.file = (f.is_absolute() ? f : base / f).lexically_normal().string();
+    LTB_ASSIGN_OR_RETURN(std::string colours, GetString(path, *o, "colours", "none"));
+    if (colours == "file") {
+      obj.colours = Object::Colours::kFile;
+    } else if (colours != "none") {
+      return InvalidArgument(Where(path, *o->get("colours")) + ": object \"" + obj.name + "\": colours is \"" +
+                             colours + "\" (expected \"none\" or \"file\")");
+    }
   }
   return obj;
 }
@@ -306,6 +333,47 @@ Result<SceneDesc> ParseScene(const std::string& path) {
   }
   if (s.mode == SceneDesc::Mode::kVertex) LTB_RETURN_IF_ERROR(CheckVertexObjects(path, names, &s));
   return s;
+}
+
+void SplitColour(Material* m) {
+  const glm::dvec3 a = m->albedo_rgb, k = m->ks_rgb;
+  const double amax = std::max({a.x, a.y, a.z}), kmax = std::max({k.x, k.y, k.z});
+  // The tint follows the albedo, or the lobe when there is no albedo; a scalar (grey)
+  // material divides by itself: tint exactly 1, albedo and ks exactly as given.
+  m->tint = amax > 0 ? a / amax : kmax > 0 ? k / kmax : glm::dvec3(1.0);
+  m->albedo = amax;
+  m->ks = kmax;
+  m->separable = true;
+  if (amax > 0 && kmax > 0) {
+    // ks must be tint·K for one K: K from the albedo's brightest channel, every channel within
+    // 1e-6 of it (relative to the brightest ks).
+    int c0 = a.x == amax ? 0 : a.y == amax ? 1 : 2;
+    m->ks = k[c0];
+    for (int c = 0; c < 3; ++c) {
+      if (std::fabs(k[c] - m->tint[c] * m->ks) > 1e-6 * kmax) m->separable = false;
+    }
+    if (!m->separable) m->ks = kmax;
+  }
+}
+
+bool SceneDesc::HasColour() const {
+  for (const Material& m : materials)
+    if (!m.Grey()) return true;
+  for (const Object& o : objects)
+    if (o.colours == Object::Colours::kFile) return true;
+  return false;
+}
+
+SceneDesc ChannelScene(const SceneDesc& s, int channel) {
+  SceneDesc c = s;
+  c.channel = channel;
+  for (Material& m : c.materials) {
+    m.albedo = m.albedo_rgb[channel];
+    m.ks = m.ks_rgb[channel];
+    m.tint = glm::dvec3(1.0);
+    m.separable = true;
+  }
+  return c;
 }
 
 }  // namespace ltb::sample

@@ -18,8 +18,18 @@ inline constexpr uint32_t kMaxCubeRes = 1024;
 
 struct Material {
   std::string name;
+  // Per channel (r, g, b): the scene's `albedo` and `ks`, a scalar meaning grey
+  // (docs/COLOUR.md). What `sample --channels rgb` bakes, channel by channel.
+  glm::dvec3 albedo_rgb{0.8}, ks_rgb{0.0};
+  // The monochrome bake's scalars: albedo_rgb = tint·albedo and ks_rgb = tint·ks, with the
+  // tint's largest channel 1 (a grey material: its own albedo and ks, tint 1). The tint goes
+  // into the per-row "reflectance" table relight applies, so a coloured direct bake costs
+  // no extra matrix. separable = false when no one tint fits both (a white highlight on a
+  // red base): such a material needs --channels rgb in image mode, where ks is rendered.
   double albedo = 0.8;  // Lambertian reflectance, f = albedo / π
   double ks = 0.0;      // normalised Phong lobe ks (n+2)/(2π) cos^n(r·ω); image mode only
+  glm::dvec3 tint{1.0};
+  bool separable = true;
   double exponent = 20.0;
   // The glossy lobe's BRDF for the triple-product path (docs/TRIPLE.md): "phong" (image mode
   // renders only this one), "blinn" (exponent), "ward" (roughness α), "cook-torrance"
@@ -27,7 +37,12 @@ struct Material {
   std::string brdf = "phong";
   double roughness = 0.2;
   double f0 = 0.04;
+  bool Grey() const { return tint == glm::dvec3(1.0); }
 };
+
+// Splits albedo_rgb and ks_rgb into tint × (albedo, ks) and sets separable (ParseScene
+// calls it; exposed for tests).
+void SplitColour(Material* m);
 
 struct Camera {
   glm::dvec3 eye{0, -3, 1.5}, target{0, 0, 0}, up{0, 0, 1};
@@ -49,6 +64,9 @@ struct Object {
   // interpolated at an image-mode hit; kFlat: the face's (image mode only); kFile: the
   // mesh file's per-vertex normals, interpolated at an image-mode hit.
   enum class Normals { kAuto, kFile, kSmooth, kFlat } normals = Normals::kAuto;
+  // Mesh files only: "file" multiplies the material's albedo by the file's per-vertex
+  // colours (docs/SCENE.md "Vertex colours"); "none" (the default) ignores them.
+  enum class Colours { kNone, kFile } colours = Colours::kNone;
   int line = 0;  // where it is defined, for messages
 };
 
@@ -64,7 +82,17 @@ struct SceneDesc {
   uint32_t spp = 4;
   uint32_t bounces = 0;
   uint64_t seed = 1;
+  // -1: the monochrome bake (materials' scalar albedo and ks); 0, 1, 2: the scene as
+  // channel r, g or b sees it (ChannelScene): vertex colours multiply the albedo there.
+  int channel = -1;
+  // Whether any material is not grey or any object takes vertex colours: the monochrome
+  // bake then writes a per-row reflectance table (docs/COLOUR.md).
+  bool HasColour() const;
 };
+
+// The scene as channel c (0 r, 1 g, 2 b) sees it: every material's albedo and ks are its
+// channel-c values (tint 1), and `channel` is c. What `sample --channel` bakes.
+SceneDesc ChannelScene(const SceneDesc& s, int channel);
 
 // Reads and checks a scene. Errors name the file, the line and the key, and the value:
 // unknown keys, wrong types, non-finite numbers, a degenerate camera (eye == target, a

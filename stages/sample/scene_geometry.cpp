@@ -53,7 +53,8 @@ void AddNormals(const SceneDesc& s, const Object& o, TriangleMesh& mesh, Geometr
   if (IsRowObject(s, o)) {
     rm.triangles = mesh.triangles;
     for (size_t i = 0; i < mesh.positions.size(); ++i) {
-      g->vertex_rows.push_back({true, mesh.positions[i], n[i], n[i], o.material});
+      g->vertex_rows.push_back(
+          {true, mesh.positions[i], n[i], n[i], o.material, mesh.colours.empty() ? glm::dvec3(1.0) : mesh.colours[i]});
     }
   }
   ShadingNormals sh;
@@ -63,6 +64,12 @@ void AddNormals(const SceneDesc& s, const Object& o, TriangleMesh& mesh, Geometr
   }
   g->shading.push_back(std::move(sh));
   g->row_meshes.push_back(std::move(rm));
+  Geometry::VertexColours vc;
+  if (!mesh.colours.empty()) {
+    vc.triangles = mesh.triangles;
+    vc.colours = mesh.colours;
+  }
+  g->colours.push_back(std::move(vc));
 }
 
 // Geometry::geometry_hash: every object's type, transform, shape parameters, normals mode and
@@ -108,6 +115,14 @@ glm::dvec3 Geometry::ShadingNormal(const Hit& h) const {
   return len > 0 && std::isfinite(len) ? n / len : h.normal;
 }
 
+glm::dvec3 Geometry::HitColour(const Hit& h) const {
+  if (h.geom_id >= colours.size() || colours[h.geom_id].colours.empty()) return glm::dvec3(1.0);
+  const VertexColours& vc = colours[h.geom_id];
+  if (h.prim_id >= vc.triangles.size()) return glm::dvec3(1.0);
+  const glm::uvec3& t = vc.triangles[h.prim_id];
+  return (1 - h.u - h.v) * vc.colours[t[0]] + h.u * vc.colours[t[1]] + h.v * vc.colours[t[2]];
+}
+
 Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
   Geometry g;
   LTB_ASSIGN_OR_RETURN(g.rays, RayScene::Create());
@@ -137,10 +152,12 @@ Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
       hi = glm::max(hi, c + r);
       g.shading.emplace_back();  // a sphere's normal is its exact geometric one
       g.row_meshes.emplace_back();
+      g.colours.emplace_back();
     } else {
       sample::TriangleMesh mesh;
       if (o.type == Object::Type::kMesh) {
-        auto loaded = sample::LoadMeshFile(o.file, progress, o.normals == Object::Normals::kFile);
+        auto loaded = sample::LoadMeshFile(o.file, progress, o.normals == Object::Normals::kFile,
+                                           o.colours == Object::Colours::kFile);
         if (!loaded.ok()) {
           XXH3_freeState(st);
           return loaded.status().WithContext(where);

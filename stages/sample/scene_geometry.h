@@ -21,6 +21,7 @@ struct RowPoint {
   bool valid = false;
   glm::dvec3 p{0}, n{0, 0, 1}, wo{0, 0, 1};
   int material = 0;
+  glm::dvec3 colour{1.0};  // the vertex colour there (objects with colours = "file"), else 1
 };
 
 // Per-vertex shading normals of one mesh (image mode, normals = "smooth" or "file"): the
@@ -35,6 +36,13 @@ struct Geometry {
   std::vector<int> geom_material;  // Embree geometry id -> material
   // Embree geometry id -> shading normals; an empty entry (or none): the geometric normal.
   std::vector<ShadingNormals> shading;
+  // Embree geometry id -> per-vertex colours (colours = "file"; docs/COLOUR.md) with the
+  // triangles as Embree holds them; an empty entry (or none): colour 1.
+  struct VertexColours {
+    std::vector<glm::uvec3> triangles;
+    std::vector<glm::dvec3> colours;
+  };
+  std::vector<VertexColours> colours;
   std::vector<RowPoint> vertex_rows;
   // Vertex mode, per Embree geometry id: the first vertex row of the object and its
   // triangles (primitive id -> vertex ids within the object), for renderers that shade by
@@ -56,6 +64,8 @@ struct Geometry {
   // hit's barycentrics, normalize((1−u−v)·n0 + u·n1 + v·n2), for a geometry that has them;
   // else (or when they cancel) the geometric normal.
   glm::dvec3 ShadingNormal(const Hit& h) const;
+  // The vertex colour at a hit, (1−u−v)·c0 + u·c1 + v·c2, for a geometry that has them; else 1.
+  glm::dvec3 HitColour(const Hit& h) const;
 };
 
 // Loads every object of the scene into one committed Embree scene. Every object's

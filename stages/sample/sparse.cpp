@@ -478,6 +478,7 @@ nlohmann::json OutputMetadata(const SampleOptions& o, const Prepared& p, const P
     meta["arrays"].push_back(a.ToJson());
   }
   meta["provenance"]["parameters"]["sparse"] = ParamsJson(o, pr);
+  AddReflectance(p, block, &meta);
   return meta;
 }
 
@@ -691,6 +692,7 @@ Result<SampleResult> RunSparseSample(const SampleOptions& o, const Prepared& p, 
                          [&](uint64_t c) -> Status { return runner.Block(out, c, block, cnt); });
   result.chunks_written = cnt.written;
   LTB_RETURN_IF_ERROR(s);
+  LTB_RETURN_IF_ERROR(WriteReflectance(p, sampler, block, out, progress));
   LTB_RETURN_IF_ERROR(out.Finish());
   st.seconds[1] = Seconds(t2);
   // The bake's totals (earlier runs' work included), from the sealed output's side tables.

@@ -6,8 +6,15 @@
 // lying counts, out-of-range indices and truncated bodies are errors naming the field.
 // OBJ and STL are also compared with OpenMesh, which read them before (an independent
 // reader): the same float positions and the same triangles in the same order.
+// Vertex colours (colours = "file"): PLY uchar colours in every encoding and COFF / CNOFF
+// colours against OpenMesh's vertex colours with the sRGB decode written out here; float
+// PLY, ushort / char PLY, big-endian PLY, OBJ "v x y z r g b" and Draco COLOR attributes
+// (encoded by libdraco here) against values known in closed form; and every way of lacking
+// a colour or having a bad one is an error naming the file, the line or byte and the value.
 #include "stages/sample/mesh_reader.h"
 
+#include <draco/compression/encode.h>
+#include <draco/mesh/triangle_soup_mesh_builder.h>
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -657,6 +664,380 @@ TEST_F(MeshFile, ObjAndStlReadLikeOpenMesh) {
   }
   ExpectSameAsOpenMesh(Write("grid_ascii.stl", ascii + "endsolid grid\n"));
   ExpectSameAsOpenMesh(Write("grid_binary.stl", binary));
+}
+
+// ---- Vertex colours ----
+
+// The sRGB EOTF, written out independently of the reader's.
+double Srgb8(int c) {
+  const double x = c / 255.0;
+  if (x <= 0.04045) return x / 12.92;
+  return std::pow((x + 0.055) / 1.055, 2.4);
+}
+
+// The cube's vertex v gets a distinct 8-bit colour, including values on the linear
+// segment of the sRGB curve (0, 5, 10) and both ends.
+std::array<int, 3> CubeColour(int v) { return {v * 36, 255 - v * 30, v < 3 ? v * 5 : 100 + v}; }
+
+const double kTriangle[3][3] = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
+
+TEST(MeshReader, SrgbDecodeKnownValues) {
+  EXPECT_EQ(SrgbToLinear(0), 0.0);
+  EXPECT_EQ(SrgbToLinear(1), 1.0);
+  EXPECT_DOUBLE_EQ(SrgbToLinear(0.04045), 0.04045 / 12.92);            // the linear segment's end
+  EXPECT_NEAR(SrgbToLinear(128 / 255.0), 0.21586050011389926, 1e-15);  // the published 8-bit table
+  EXPECT_NEAR(SrgbToLinear(0.5), 0.21404114048223255, 1e-15);
+  EXPECT_DOUBLE_EQ(SrgbToLinear(10 / 255.0), 10 / 255.0 / 12.92);
+  for (int c = 0; c < 256; ++c) EXPECT_NEAR(SrgbToLinear(c / 255.0), Srgb8(c), 1e-15) << c;
+}
+
+Result<TriangleMesh> PlyColours(const std::string& bytes) {
+  MeshInput in(bytes, "test.ply");
+  return ReadPly(in, Progress{}, false, true);
+}
+Result<TriangleMesh> OffColours(const std::string& bytes, bool normals = false) {
+  MeshInput in(bytes, "test.off");
+  return ReadOff(in, Progress{}, normals, true);
+}
+Result<TriangleMesh> ObjColours(const std::string& bytes, bool normals = false) {
+  MeshInput in(bytes, "test.obj");
+  return ReadObj(in, Progress{}, normals, true);
+}
+
+// The cube as PLY with uchar red green blue alpha vertex properties (CubeColour), x y z
+// float, in the given encoding.
+std::string ColourCubePly(const std::string& format) {
+  std::string s = "ply\nformat " + format +
+                  " 1.0\nelement vertex 8\nproperty float x\nproperty float y\nproperty float z\n"
+                  "property uchar red\nproperty uchar green\nproperty uchar blue\nproperty uchar alpha\n"
+                  "element face 6\nproperty list uchar int vertex_indices\nend_header\n";
+  const bool big = format == "binary_big_endian";
+  for (int v = 0; v < 8; ++v) {
+    glm::dvec3 p = CubeVertex(v);
+    auto c = CubeColour(v);
+    if (format == "ascii") {
+      s += std::to_string(int(p.x)) + " " + std::to_string(int(p.y)) + " " + std::to_string(int(p.z));
+      for (int k : c) s += " " + std::to_string(k);
+      s += " 128\n";
+      continue;
+    }
+    for (int k = 0; k < 3; ++k) Put(&s, float(p[k]), big);
+    for (int k : c) Put(&s, uint8_t(k), big);
+    Put(&s, uint8_t{128}, big);
+  }
+  for (const auto& q : kQuads) {
+    if (format == "ascii") {
+      s += "4 " + std::to_string(q[0]) + " " + std::to_string(q[1]) + " " + std::to_string(q[2]) + " " +
+           std::to_string(q[3]) + "\n";
+      continue;
+    }
+    Put(&s, uint8_t{4}, big);
+    for (int k = 0; k < 4; ++k) Put(&s, int32_t(q[k]), big);
+  }
+  return s;
+}
+
+// The cube as COFF (or CNOFF with a normal per vertex), 8-bit colours and an alpha.
+std::string ColourCubeOff(bool normals) {
+  std::string s = normals ? "CNOFF\n8 6 12\n" : "COFF\n8 6 12\n";
+  for (int v = 0; v < 8; ++v) {
+    glm::dvec3 p = CubeVertex(v);
+    s += std::to_string(int(p.x)) + " " + std::to_string(int(p.y)) + " " + std::to_string(int(p.z));
+    if (normals) s += " 0 0 1";
+    for (int k : CubeColour(v)) s += " " + std::to_string(k);
+    s += " 255\n";
+  }
+  for (const auto& q : kQuads)
+    s += "4 " + std::to_string(q[0]) + " " + std::to_string(q[1]) + " " + std::to_string(q[2]) + " " +
+         std::to_string(q[3]) + "\n";
+  return s;
+}
+
+// OpenMesh's vertex colours of `path` (8-bit, as it stores them), in vertex order.
+std::vector<std::array<int, 3>> OpenMeshColours(const std::string& path) {
+  OmMesh mesh;
+  mesh.request_vertex_colors();
+  OpenMesh::IO::Options opt = OpenMesh::IO::Options::VertexColor;
+  std::vector<std::array<int, 3>> out;
+  EXPECT_TRUE(OpenMesh::IO::read_mesh(mesh, path, opt)) << path;
+  EXPECT_TRUE(opt.vertex_has_color()) << path << ": OpenMesh read no vertex colours";
+  for (auto v : mesh.vertices()) {
+    auto c = mesh.color(v);
+    out.push_back({int(c[0]), int(c[1]), int(c[2])});
+  }
+  return out;
+}
+
+// Our colours are OpenMesh's 8-bit ones, sRGB-decoded; and the CubeColour ones.
+void ExpectColoursLikeOpenMesh(const std::string& path, const Result<TriangleMesh>& r) {
+  SCOPED_TRACE(path);
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  auto om = OpenMeshColours(path);
+  ASSERT_EQ(om.size(), 8u);
+  ASSERT_EQ(r->colours.size(), 8u);
+  for (int v = 0; v < 8; ++v) {
+    EXPECT_EQ(om[v], CubeColour(v)) << "OpenMesh, vertex " << v;
+    for (int c = 0; c < 3; ++c) EXPECT_DOUBLE_EQ(r->colours[v][c], Srgb8(om[v][c])) << "vertex " << v << " " << c;
+  }
+}
+
+TEST_F(MeshFile, PlyUcharColoursInEveryEncodingMatchOpenMesh) {
+  for (const char* format : {"ascii", "binary_little_endian", "binary_big_endian"}) {
+    const std::string path = Write(std::string(format) + "_colours.ply", ColourCubePly(format));
+    auto r = LoadMeshFile(path, Progress{}, false, true);
+    ExpectCube(r);
+    ExpectColoursLikeOpenMesh(path, r);
+  }
+}
+
+TEST_F(MeshFile, CoffAndCnoffColoursMatchOpenMesh) {
+  const std::string coff = Write("cube.off", ColourCubeOff(false));
+  ExpectColoursLikeOpenMesh(coff, LoadMeshFile(coff, Progress{}, false, true));
+  // CNOFF: the colour follows the normal; with and without the normals asked for.
+  const std::string cnoff = Write("cube_n.off", ColourCubeOff(true));
+  auto both = LoadMeshFile(cnoff, Progress{}, true, true);
+  ExpectColoursLikeOpenMesh(cnoff, both);
+  ASSERT_TRUE(both.ok());
+  EXPECT_EQ(both->file_normals, std::vector<glm::dvec3>(8, glm::dvec3(0, 0, 1)));
+  ExpectColoursLikeOpenMesh(cnoff, LoadMeshFile(cnoff, Progress{}, false, true));
+}
+
+TEST(MeshReader, ColoursAreReadOnlyWhenAskedFor) {
+  auto r = Ply(ColourCubePly("ascii"));
+  ExpectCube(r);
+  EXPECT_TRUE(r->colours.empty());
+  auto o = Off(ColourCubeOff(true));
+  ExpectCube(o);
+  EXPECT_TRUE(o->colours.empty());
+  // Asked for, but the file has none: empty (LoadMeshFile reports it).
+  auto none = PlyColours(CubePly("ascii", "uchar", "int"));  // has "red" only
+  ExpectCube(none);
+  EXPECT_TRUE(none->colours.empty());
+  auto plain = OffColours(CubeOff());
+  ExpectCube(plain);
+  EXPECT_TRUE(plain->colours.empty());
+}
+
+// x y z float, then the colour properties as given, big endian: the values known exactly.
+TEST(MeshReader, PlyFloatColoursAreLinearAsStoredInBigEndian) {
+  std::string s =
+      "ply\nformat binary_big_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+      "property float red\nproperty uchar alpha\nproperty double green\nproperty float blue\n"
+      "element face 1\nproperty list uchar uint vertex_indices\nend_header\n";
+  const double rgb[3][3] = {{0.25, 0.5, 0}, {1, 2.5, 0.125}, {0.1f, 1.0 / 3, 0.75}};
+  for (int v = 0; v < 3; ++v) {
+    for (int c = 0; c < 3; ++c) Put(&s, float(kTriangle[v][c]), true);
+    Put(&s, float(rgb[v][0]), true);
+    Put(&s, uint8_t{7}, true);
+    Put(&s, double(rgb[v][1]), true);
+    Put(&s, float(rgb[v][2]), true);
+  }
+  Put(&s, uint8_t{3}, true);
+  for (uint32_t i : {0u, 1u, 2u}) Put(&s, i, true);
+  auto r = PlyColours(s);
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  ASSERT_EQ(r->colours.size(), 3u);
+  for (int v = 0; v < 3; ++v) EXPECT_EQ(r->colours[v], glm::dvec3(rgb[v][0], rgb[v][1], rgb[v][2])) << v;
+  EXPECT_EQ(r->triangles.size(), 1u);
+}
+
+TEST(MeshReader, PlyIntegerColoursOfEveryTypeAreScaledAndSrgbDecoded) {
+  const std::string head =
+      "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n";
+  // ushort diffuse_*: 65535 is 1, 32768 is sRGB 0.50000763 (0.21404820...), 0 is 0.
+  auto r = PlyColours(head +
+                      "property ushort diffuse_red\nproperty ushort diffuse_green\nproperty ushort diffuse_blue\n"
+                      "end_header\n0 0 0 65535 32768 0\n1 0 0 0 1 2\n");
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  ASSERT_EQ(r->colours.size(), 2u);
+  EXPECT_DOUBLE_EQ(r->colours[0].x, 1.0);
+  EXPECT_NEAR(r->colours[0].y, 0.2140482022981852, 1e-15);
+  EXPECT_EQ(r->colours[0].z, 0.0);
+  EXPECT_DOUBLE_EQ(r->colours[1].y, 1.0 / 65535 / 12.92);
+  EXPECT_DOUBLE_EQ(r->colours[1].z, 2.0 / 65535 / 12.92);
+  // char (int8) r g b: 127 is 1; and "red" wins over r g b when both are there.
+  r = PlyColours(head + "property char r\nproperty char g\nproperty char b\nend_header\n0 0 0 127 0 5\n1 0 0 1 2 3\n");
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_EQ(r->colours[0], glm::dvec3(1, 0, 5.0 / 127 / 12.92));
+  r = PlyColours(head +
+                 "property float r\nproperty float g\nproperty float b\nproperty uchar red\nproperty uchar green\n"
+                 "property uchar blue\nend_header\n0 0 0 0.5 0.5 0.5 255 128 0\n1 0 0 9 9 9 0 0 0\n");
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_EQ(r->colours[0], glm::dvec3(1, Srgb8(128), 0));
+  EXPECT_EQ(r->colours[1], glm::dvec3(0));
+}
+
+TEST(MeshReader, OffColoursIntegerSrgbFloatLinearAlphaAndTexcoords) {
+  auto r = OffColours(
+      "COFF\n3 1 0\n"
+      "0 0 0 255 128 10 255\n"  // 8-bit sRGB with an alpha
+      "1 0 0 0.5 1.5 0\n"       // linear floats (> 1 allowed)
+      "0 1 0 1 0.25 0e0\n"      // one non-integer: all three are floats
+      "3 0 1 2 255 0 0\n");     // a face colour is ignored
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  ASSERT_EQ(r->colours.size(), 3u);
+  EXPECT_EQ(r->colours[0], glm::dvec3(1, Srgb8(128), 10 / 255.0 / 12.92));
+  EXPECT_EQ(r->colours[1], glm::dvec3(0.5, 1.5, 0));
+  EXPECT_EQ(r->colours[2], glm::dvec3(1, 0.25, 0));
+  // STCOFF: s t after the colour.
+  r = OffColours("STCOFF\n3 1 0\n0 0 0 255 255 255 0.5 0.5\n1 0 0 0 0 0 1 0\n0 1 0 0.5 0.5 0.5 0 1\n3 0 1 2\n");
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_EQ(r->colours, (std::vector<glm::dvec3>{{1, 1, 1}, {0, 0, 0}, {0.5, 0.5, 0.5}}));
+}
+
+TEST(MeshReader, ObjVertexColoursAreSixNumbers) {
+  const std::string tri = "v 0 0 0 1 0.5 0\nv 1 0 0 0.25 0.125 2\nv 0 1 0 0 0 1e-3\nf 1 2 3\n";
+  auto r = ObjColours(tri);
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  EXPECT_EQ(r->colours, (std::vector<glm::dvec3>{{1, 0.5, 0}, {0.25, 0.125, 2}, {0, 0, 1e-3}}));
+  EXPECT_EQ(r->positions[1], glm::dvec3(1, 0, 0));
+  auto plain = Obj(tri);  // not asked for: ignored
+  ASSERT_TRUE(plain.ok());
+  EXPECT_TRUE(plain->colours.empty());
+  // x y z w (4 numbers) and 7 numbers are not colours; none has one: empty.
+  auto w = ObjColours("v 0 0 0 1\nv 1 0 0 1 1 1 1\nv 0 1 0\nf 1 2 3\n");
+  ASSERT_TRUE(w.ok()) << w.status().message();
+  EXPECT_TRUE(w->colours.empty());
+  // Some with, some without: the line of the first vertex without, either way round.
+  ExpectError(ObjColours("v 0 0 0 1 1 1\n# c\nv 1 0 0\nv 0 1 0 1 1 1\nf 1 2 3\n"),
+              {"test.obj:3", "vertex 2 has no colour", "every vertex"});
+  ExpectError(ObjColours("v 0 0 0\nv 1 0 0 1 1 1\nv 0 1 0\nf 1 2 3\n"),
+              {"test.obj:1", "vertex 1 has no colour", "vertex 2 (line 2) has one"});
+  ExpectError(ObjColours("v 0 0 0 1 1 1\nv 1 0 0 1 1 1 1\n"), {"test.obj:2", "vertex 2 has no colour"});
+}
+
+TEST(MeshReader, BadColoursNameTheFileTheLineOrByteAndTheValue) {
+  const std::string head =
+      "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
+      "property float red\nproperty float green\nproperty float blue\nend_header\n";
+  ExpectError(PlyColours(head + "0 0 0 1 1 1\n1 0 0 -0.5 0 0\n"), {"test.ply:12", "vertex 1 red is -0.5", ">= 0"});
+  ExpectError(PlyColours(head + "0 0 0 1 inf 1\n1 0 0 0 0 0\n"), {"test.ply:11", "vertex 0 green is inf", "finite"});
+  ExpectError(PlyColours(head + "0 0 0 1 1 one\n1 0 0 0 0 0\n"), {"test.ply:11", "\"one\"", "not a float"});
+  std::string bin =
+      "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+      "property float z\nproperty char red\nproperty char green\nproperty char blue\nend_header\n";
+  const size_t header = bin.size();
+  for (float f : {0.0f, 0.0f, 0.0f}) Put(&bin, f, false);
+  for (int8_t c : {int8_t{1}, int8_t{-3}, int8_t{2}}) Put(&bin, c, false);
+  const std::string byte = "test.ply (byte " + std::to_string(header + 15) + ")";
+  ExpectError(PlyColours(bin), {byte.c_str(), "vertex 0 green is -3"});
+  const std::string off = "COFF\n3 1 0\n0 0 0 255 0 0\n";
+  const std::string rest = "0 1 0 1 1 1\n3 0 1 2\n";
+  ExpectError(OffColours(off + "1 0 0 255 0\n" + rest), {"test.off:4", "vertex 1 colour component 3 is missing"});
+  ExpectError(OffColours(off + "1 0 0\n" + rest), {"test.off:4", "vertex 1 colour component 1 is missing", "COFF"});
+  ExpectError(OffColours(off + "1 0 0 255 x 0\n" + rest), {"test.off:4", "component 2 is \"x\"", "not a number"});
+  ExpectError(OffColours(off + "1 0 0 255 0,5 0\n" + rest), {"test.off:4", "\"0,5\""});
+  ExpectError(OffColours(off + "1 0 0 -1 0 0\n" + rest), {"test.off:4", "component 1 is \"-1\"", ">= 0"});
+  ExpectError(OffColours(off + "1 0 0 0.5 -0.25 0\n" + rest), {"test.off:4", "\"-0.25\"", ">= 0"});
+  ExpectError(OffColours(off + "1 0 0 0.5 nan 0\n" + rest), {"test.off:4", "\"nan\"", "finite"});
+  ExpectError(OffColours(off + "1 0 0 256 0 0\n" + rest), {"test.off:4", "\"256\"", "above 255"});
+  // CNOFF without the normals asked for: a missing normal leaves the colour short.
+  ExpectError(OffColours("CNOFF\n1 0 0\n0 0 0 0 0 1 255 255\n"), {"test.off:3", "component 3 is missing"});
+  ExpectError(ObjColours("v 0 0 0 -0.1 0 0\n"), {"test.obj:1", "vertex 1 colour component 1 is \"-0.1\""});
+  ExpectError(ObjColours("v 0 0 0 1 1 1\nv 1 0 0 1 nan 1\n"), {"test.obj:2", "vertex 2 colour component 2", "\"nan\""});
+  ExpectError(ObjColours("v 0 0 0 1 1 red\n"), {"test.obj:1", "\"red\""});
+}
+
+TEST_F(MeshFile, MissingColoursAreAnErrorNamingTheFileAndWhatToAdd) {
+  struct Case {
+    std::string name, bytes;
+    std::vector<const char*> parts;
+  };
+  const std::vector<Case> cases = {
+      {"plain.ply",
+       CubePly("ascii", "uchar", "int"),
+       {"plain.ply", "PLY file stores no vertex colours", "red green blue"}},
+      {"plain.off", CubeOff(), {"plain.off", "OFF file stores no vertex colours", "COFF"}},
+      {"plain.obj", CubeObj(), {"plain.obj", "OBJ file stores no vertex colours", "v x y z r g b"}},
+      {"plain.stl", CubeStlAscii(), {"plain.stl", "STL stores no vertex colours"}},
+  };
+  for (const Case& c : cases) {
+    const std::string path = Write(c.name, c.bytes);
+    auto r = LoadMeshFile(path, Progress{}, false, true);
+    ASSERT_FALSE(r.ok()) << c.name;
+    for (const char* p : c.parts) EXPECT_NE(r.status().message().find(p), std::string::npos) << r.status().message();
+    EXPECT_TRUE(LoadMeshFile(path).ok()) << c.name;  // not asked for: fine
+  }
+}
+
+TEST_F(MeshFile, ColoursSurviveFinalizeAndTransform) {
+  auto r =
+      LoadMeshFile(Write("c.obj", "v 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\nv 5 5 5 2 2 2\nf 1 2 3\nf 1 1 2\n"),
+                   Progress{}, false, true);
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  const std::vector<glm::dvec3> want = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {2, 2, 2}};
+  EXPECT_EQ(r->colours, want);  // the unused vertex 4 keeps its row and colour
+  Object o;
+  o.scale = {-2, 1, 3};
+  o.rotate_degrees = {10, 20, 30};
+  ApplyTransform(ObjectTransform(o), &*r);
+  EXPECT_EQ(r->colours, want);
+}
+
+// A quad (two triangles) with a colour per corner, encoded by libdraco: 8-bit RGBA
+// colours (sRGB) or float RGB ones (linear as stored); Draco may renumber the points, so
+// each is matched by its position.
+const float kQuadPos[4][3] = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}};
+const uint8_t kQuadRgba[4][4] = {{255, 0, 10, 255}, {128, 64, 32, 0}, {0, 255, 200, 9}, {1, 2, 3, 4}};
+const float kQuadRgb[4][3] = {{0.25f, 0.5f, 0.75f}, {1, 2.5f, 0}, {0.1f, 0.2f, 0.3f}, {0, 0, 1}};
+
+std::string EncodeQuad(bool with_colour, bool float_colour, int method) {
+  draco::TriangleSoupMeshBuilder b;
+  b.Start(2);
+  const int pos = b.AddAttribute(draco::GeometryAttribute::POSITION, 3, draco::DT_FLOAT32);
+  int col = -1;
+  if (with_colour) {
+    col = float_colour ? b.AddAttribute(draco::GeometryAttribute::COLOR, 3, draco::DT_FLOAT32)
+                       : b.AddAttribute(draco::GeometryAttribute::COLOR, 4, draco::DT_UINT8);
+  }
+  const int faces[2][3] = {{0, 1, 2}, {0, 2, 3}};
+  for (int f = 0; f < 2; ++f) {
+    const int* c = faces[f];
+    b.SetAttributeValuesForFace(pos, draco::FaceIndex(f), kQuadPos[c[0]], kQuadPos[c[1]], kQuadPos[c[2]]);
+    if (col >= 0 && float_colour)
+      b.SetAttributeValuesForFace(col, draco::FaceIndex(f), kQuadRgb[c[0]], kQuadRgb[c[1]], kQuadRgb[c[2]]);
+    else if (col >= 0)
+      b.SetAttributeValuesForFace(col, draco::FaceIndex(f), kQuadRgba[c[0]], kQuadRgba[c[1]], kQuadRgba[c[2]]);
+  }
+  std::unique_ptr<draco::Mesh> mesh = b.Finalize();
+  EXPECT_NE(mesh, nullptr);
+  if (mesh == nullptr) return {};
+  draco::Encoder enc;
+  enc.SetEncodingMethod(method);
+  enc.SetSpeedOptions(5, 5);  // no quantisation set: positions and colours are stored exactly
+  draco::EncoderBuffer buf;
+  draco::Status s = enc.EncodeMeshToBuffer(*mesh, &buf);
+  EXPECT_TRUE(s.ok()) << s.error_msg_string();
+  return std::string(buf.data(), buf.data() + buf.size());
+}
+
+TEST_F(MeshFile, DracoColourAttributeUint8IsSrgbFloatIsLinear) {
+  for (int method : {draco::MESH_SEQUENTIAL_ENCODING, draco::MESH_EDGEBREAKER_ENCODING}) {
+    for (bool float_colour : {false, true}) {
+      SCOPED_TRACE("method " + std::to_string(method) + (float_colour ? " float" : " uint8"));
+      auto r = LoadMeshFile(Write("quad.drc", EncodeQuad(true, float_colour, method)), Progress{}, false, true);
+      ASSERT_TRUE(r.ok()) << r.status().message();
+      ASSERT_EQ(r->positions.size(), 4u);
+      ASSERT_EQ(r->colours.size(), 4u);
+      EXPECT_EQ(r->triangles.size(), 2u);
+      for (size_t i = 0; i < 4; ++i) {
+        int k = -1;
+        for (int j = 0; j < 4; ++j)
+          if (r->positions[i] == glm::dvec3(kQuadPos[j][0], kQuadPos[j][1], kQuadPos[j][2])) k = j;
+        ASSERT_GE(k, 0) << "point " << i;
+        for (int c = 0; c < 3; ++c) {
+          const double want = float_colour ? double(kQuadRgb[k][c]) : Srgb8(kQuadRgba[k][c]);
+          EXPECT_DOUBLE_EQ(r->colours[i][c], want) << "point " << i << " component " << c;
+        }
+      }
+    }
+  }
+  auto none = LoadMeshFile(Write("bare.drc", EncodeQuad(false, false, draco::MESH_SEQUENTIAL_ENCODING)), Progress{},
+                           false, true);
+  ASSERT_FALSE(none.ok());
+  EXPECT_NE(none.status().message().find("Draco file stores no vertex colours"), std::string::npos)
+      << none.status().message();
+  EXPECT_NE(none.status().message().find("COLOR"), std::string::npos);
 }
 
 TEST(MeshReader, BundledBunnyObjReadsLikeOpenMesh) {
