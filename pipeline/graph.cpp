@@ -4,8 +4,10 @@
 #include <cctype>
 #include <filesystem>
 #include <functional>
+#include <set>
 
 #include "pipeline/stage_table.h"
+#include "stages/common/channels.h"
 
 namespace ltb::pipeline {
 
@@ -84,6 +86,64 @@ Status AddTripleNodes(const Recipe& r, const std::string& stage,
     g->nodes.push_back(std::move(m));
   }
   return Status::Ok();
+}
+
+// [sample] channels = "rgb" (docs/COLOUR.md): every container step becomes one step per
+// colour channel, on the channel files (raw.ltm -> raw.r.ltm, ...); a sample step gains
+// --channel. Relight steps read the three files of their matrix (relight takes the set).
+void ExpandChannels(const std::function<std::string(const std::string&)>& path, Graph* g) {
+  static const std::set<std::string> kPerChannel = {"sample", "row-transform", "transpose", "column-transform",
+                                                    "quantize", "cpca"};
+  auto per_channel = [&](const Node& n) {
+    if (n.image || n.stages.empty() || n.params.contains("visibility")) return false;
+    for (const std::string& s : n.stages)
+      if (!kPerChannel.count(s)) return false;
+    return true;
+  };
+  std::set<std::string> split;  // work files made per channel
+  for (const Node& n : g->nodes)
+    if (per_channel(n)) split.insert(n.output);
+  std::vector<Node> nodes;
+  for (Node& n : g->nodes) {
+    if (!per_channel(n)) {
+      std::vector<std::string> inputs;
+      for (const std::string& in : n.inputs) {
+        if (!split.count(in)) {
+          inputs.push_back(in);
+          continue;
+        }
+        for (int c = 0; c < stages::kChannels; ++c) inputs.push_back(stages::ChannelPath(in, c));
+      }
+      n.inputs = std::move(inputs);
+      nodes.push_back(std::move(n));
+      continue;
+    }
+    for (int c = 0; c < stages::kChannels; ++c) {
+      Node m = n;
+      const std::string ch = stages::ChannelName(c);
+      m.name = n.name + "." + ch;
+      m.output = stages::ChannelPath(n.output, c);
+      for (std::string& in : m.inputs)
+        if (split.count(in)) in = stages::ChannelPath(in, c);
+      for (std::string& a : m.args) {
+        for (const std::string& f : split)
+          if (a == path(f)) a = path(stages::ChannelPath(f, c));
+      }
+      if (n.stages.front() == "sample") m.args.insert(m.args.begin() + 2, {"--channel", ch});
+      m.params["channel"] = ch;
+      nodes.push_back(std::move(m));
+    }
+  }
+  g->nodes = std::move(nodes);
+  std::set<std::string> wanted;
+  for (const std::string& w : g->wanted) {
+    if (!split.count(w)) {
+      wanted.insert(w);
+      continue;
+    }
+    for (int c = 0; c < stages::kChannels; ++c) wanted.insert(stages::ChannelPath(w, c));
+  }
+  g->wanted = std::move(wanted);
 }
 
 }  // namespace
@@ -215,6 +275,7 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
       g.wanted.insert(n.output);
     }
   }
+  if (r.sample.channels == "rgb") ExpandChannels(path, &g);
   return g;
 }
 

@@ -141,8 +141,13 @@ Result<std::string> InlineScene(const std::string& path, const std::string& dir,
 Status ParseSample(const std::string& path, const toml::table& t, Recipe::Sample* s) {
   LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[sample]",
                                 {"cube_res", "spp", "bounces", "seed", "sparse", "dense_fraction", "radius", "features",
-                                 "neighbours", "l1_lambda", "max_residual"}));
+                                 "neighbours", "l1_lambda", "max_residual", "channels"}));
   LTB_ASSIGN_OR_RETURN(s->sparse, GetBool(path, t, "sparse", false));
+  LTB_ASSIGN_OR_RETURN(s->channels, GetString(path, t, "channels", "mono"));
+  if (s->channels != "mono" && s->channels != "rgb") {
+    return InvalidArgument(Where(path, *t.get("channels")) + ": [sample] channels is \"" + s->channels +
+                           "\" (expected \"mono\" or \"rgb\")");
+  }
   for (const char* key : {"dense_fraction", "radius", "features", "neighbours", "l1_lambda", "max_residual"}) {
     if (t.contains(key) && !s->sparse) {
       return InvalidArgument(Where(path, *t.get(key)) + ": \"" + key +

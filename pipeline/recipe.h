@@ -49,6 +49,9 @@ struct Recipe {
     bool sparse = false;  // sparse precomputation (docs/SPARSE.md); the keys below are its flags
     std::optional<double> dense_fraction, radius, l1_lambda, max_residual;
     std::optional<uint64_t> features, neighbours;
+    // "rgb": one matrix per colour channel, every later step once per channel file
+    // (docs/COLOUR.md); "mono" (the default): one matrix.
+    std::string channels = "mono";
   } sample;
   struct RowTransform {
     std::string filter = "haar";

@@ -23,6 +23,7 @@
 #include "format/version.h"
 #include "stages/column_transform/column_codec.h"
 #include "stages/common/basis.h"
+#include "stages/common/channels.h"
 #include "stages/common/parallel_for.h"
 #include "stages/cpca/cpca_model.h"
 
@@ -255,9 +256,48 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
   return result;
 }
 
+// Where one matrix's values go inside a .npy being written (a channel set's output): the
+// file and the byte offset of the matrix's first value.
+struct NpySlot {
+  const File* file = nullptr;
+  uint64_t offset = 0;
+};
+
+// A .npy output of shape `shape`: its own file, written beside the output and renamed on
+// Commit (OUT never holds a partial matrix), with the header and the full length (zero
+// chunks need no write); or, given a slot, that slot in a file someone else commits.
+class NpyOutput {
+ public:
+  static Result<NpyOutput> Open(const std::string& path, const std::vector<uint64_t>& shape, const NpySlot* slot) {
+    NpyOutput n;
+    if (slot != nullptr) {
+      n.slot_ = *slot;
+      return n;
+    }
+    const std::vector<std::byte> header = EncodeNpyHeader("<f4", shape);
+    uint64_t values = 1;
+    for (uint64_t d : shape) values *= d;
+    const uint64_t total = header.size() + values * 4;
+    LTB_ASSIGN_OR_RETURN(io::AtomicFile atomic, io::AtomicFile::Create(path));
+    LTB_RETURN_IF_ERROR(atomic.file().WriteAt(0, header));
+    LTB_RETURN_IF_ERROR(atomic.file().Truncate(total));
+    n.atomic_.emplace(std::move(atomic));
+    n.slot_ = {nullptr, header.size()};  // file() is the atomic file
+    return n;
+  }
+  const File& file() const { return atomic_ ? atomic_->file() : *slot_.file; }
+  uint64_t data_offset() const { return slot_.offset; }
+  Status Commit() { return atomic_ ? atomic_->Commit() : Status::Ok(); }
+
+ private:
+  std::optional<io::AtomicFile> atomic_;
+  NpySlot slot_;
+};
+
 // A cpca output decodes to its approximation, N × D, in the stored row basis (or, with
 // --basis pixels, with the row transform inverted).
-Result<ConvertResult> CpcaToNpy(const ConvertOptions& o, const io::ContainerReader& reader, const Progress& progress) {
+Result<ConvertResult> CpcaToNpy(const ConvertOptions& o, const io::ContainerReader& reader, const Progress& progress,
+                                const NpySlot* slot) {
   LTB_ASSIGN_OR_RETURN(CpcaModel model, CpcaModel::Load(reader, o.mem_limit));
   LTB_ASSIGN_OR_RETURN(RowInverse to_pixels, RowInverse::For(o, reader));
   const uint64_t rows = model.rows(), cols = model.dims();
@@ -265,13 +305,10 @@ Result<ConvertResult> CpcaToNpy(const ConvertOptions& o, const io::ContainerRead
   result.rows = rows;
   result.cols = cols;
   result.chunks_total = model.row_chunks();
-  std::vector<std::byte> header = EncodeNpyHeader("<f4", {rows, cols});
-  const uint64_t data_offset = header.size(), total = data_offset + rows * cols * 4;
-  // Written beside the output and renamed at the end: OUT never holds a partial matrix.
-  LTB_ASSIGN_OR_RETURN(io::AtomicFile atomic, io::AtomicFile::Create(o.output));
-  const File& out = atomic.file();
-  Status s = out.WriteAt(0, header);
-  if (s.ok()) s = out.Truncate(total);
+  LTB_ASSIGN_OR_RETURN(NpyOutput npy, NpyOutput::Open(o.output, {rows, cols}, slot));
+  const File& out = npy.file();
+  const uint64_t data_offset = npy.data_offset(), total = data_offset + rows * cols * 4;
+  Status s;
   std::vector<uint64_t> chunks(model.row_chunks());
   for (uint64_t i = 0; i < chunks.size(); ++i) chunks[i] = i;
   if (s.ok()) {
@@ -284,15 +321,15 @@ Result<ConvertResult> CpcaToNpy(const ConvertOptions& o, const io::ContainerRead
     });
   }
   LTB_RETURN_IF_ERROR(s);
-  LTB_RETURN_IF_ERROR(atomic.Commit());
+  LTB_RETURN_IF_ERROR(npy.Commit());
   result.chunks_written = chunks.size();
   result.bytes_out = total;
   return result;
 }
 
-Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress) {
+Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress, const NpySlot* slot = nullptr) {
   LTB_ASSIGN_OR_RETURN(io::ContainerReader reader, io::ContainerReader::Open(o.input));
-  if (CpcaModel::IsCpca(reader.metadata())) return CpcaToNpy(o, reader, progress);
+  if (CpcaModel::IsCpca(reader.metadata())) return CpcaToNpy(o, reader, progress, slot);
   const ArraySpec& a = reader.metadata().matrix();
   std::optional<ColumnCodec> codec;
   if (ColumnCodec::IsColumnTransformed(reader.metadata())) {
@@ -315,14 +352,9 @@ Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress
   result.cols = a.cols;
   result.chunks_total = a.ChunkCount();
 
-  std::vector<std::byte> header = EncodeNpyHeader("<f4", {a.rows, a.cols});
-  uint64_t data_offset = header.size();
-  uint64_t total = data_offset + a.rows * a.cols * 4;
-  // Written beside the output and renamed at the end: OUT never holds a partial matrix.
-  LTB_ASSIGN_OR_RETURN(io::AtomicFile atomic, io::AtomicFile::Create(o.output));
-  const File& out = atomic.file();
-  LTB_RETURN_IF_ERROR(out.WriteAt(0, header));
-  LTB_RETURN_IF_ERROR(out.Truncate(total));  // zero chunks need no write
+  LTB_ASSIGN_OR_RETURN(NpyOutput npy, NpyOutput::Open(o.output, {a.rows, a.cols}, slot));
+  const File& out = npy.file();
+  const uint64_t data_offset = npy.data_offset(), total = data_offset + a.rows * a.cols * 4;
 
   std::vector<uint64_t> chunks;
   for (uint64_t i = 0; i < a.ChunkCount(); ++i) {
@@ -378,9 +410,48 @@ Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress
     }
   }
   LTB_RETURN_IF_ERROR(s);
-  LTB_RETURN_IF_ERROR(atomic.Commit());
+  LTB_RETURN_IF_ERROR(npy.Commit());
   result.chunks_written = a.ChunkCount();
   result.bytes_out = total;
+  return result;
+}
+
+// A colour channel set -> one .npy of shape (3, rows, cols): channel c is [c] (docs/COLOUR.md).
+Result<ConvertResult> SetToNpy(const ConvertOptions& o, const std::vector<std::string>& files,
+                               const Progress& progress) {
+  std::vector<std::pair<uint64_t, uint64_t>> shapes;
+  for (const std::string& f : files) {
+    LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(f));
+    if (CpcaModel::IsCpca(r.metadata())) {
+      LTB_ASSIGN_OR_RETURN(CpcaModel m, CpcaModel::Load(r, o.mem_limit));
+      shapes.emplace_back(m.rows(), m.dims());
+    } else {
+      shapes.emplace_back(r.metadata().matrix().rows, r.metadata().matrix().cols);
+    }
+    if (shapes.back() != shapes.front()) {
+      return InvalidArgument(f + ": is " + std::to_string(shapes.back().first) + " x " +
+                             std::to_string(shapes.back().second) + " but " + files.front() + " is " +
+                             std::to_string(shapes.front().first) + " x " + std::to_string(shapes.front().second) +
+                             ": the channels of a set must have one shape");
+    }
+  }
+  const auto [rows, cols] = shapes.front();
+  LTB_ASSIGN_OR_RETURN(NpyOutput npy, NpyOutput::Open(o.output, {files.size(), rows, cols}, nullptr));
+  ConvertResult result;
+  for (size_t c = 0; c < files.size(); ++c) {
+    ConvertOptions oc = o;
+    oc.input = files[c];
+    const NpySlot slot{&npy.file(), npy.data_offset() + c * rows * cols * 4};
+    LTB_ASSIGN_OR_RETURN(ConvertResult one, LtmToNpy(oc, progress, &slot));
+    result.chunks_total += one.chunks_total;
+    result.chunks_written += one.chunks_written;
+    result.zero_chunks += one.zero_chunks;
+  }
+  LTB_RETURN_IF_ERROR(npy.Commit());
+  result.channels = files.size();
+  result.rows = rows;
+  result.cols = cols;
+  result.bytes_out = npy.data_offset() + files.size() * rows * cols * 4;
   return result;
 }
 
@@ -393,7 +464,9 @@ Result<ConvertResult> RunConvert(const ConvertOptions& o, const Progress& progre
     // Held for the whole conversion (the container writer shares it): a second convert into
     // the same output stops here, before it removes or opens anything.
     LTB_ASSIGN_OR_RETURN(io::FileLock lock, io::LockOutput(o.output));
-    return to_ltm ? NpyToLtm(o, progress) : LtmToNpy(o, progress);
+    if (to_ltm) return NpyToLtm(o, progress);
+    LTB_ASSIGN_OR_RETURN(std::vector<std::string> files, ChannelFiles(o.input));
+    return files.empty() ? LtmToNpy(o, progress) : SetToNpy(o, files, progress);
   }
   return InvalidArgument("convert " + o.input + " " + o.output +
                          ": supported conversions are .npy -> .ltm, .ltm -> .npy and an environment map (.exr, .hdr) "

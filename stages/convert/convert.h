@@ -34,6 +34,7 @@ struct ConvertOptions {
 };
 
 struct ConvertResult {
+  uint64_t channels = 0;  // a colour channel set's .npy: its leading axis (docs/COLOUR.md); else 0
   uint64_t rows = 0, cols = 0;
   uint64_t chunks_total = 0;
   uint64_t chunks_written = 0;

@@ -206,13 +206,18 @@ Result<TriangleMesh> LoadDraco(const std::string& path, bool file_normals, bool 
 }  // namespace
 
 Result<TriangleMesh> LoadMeshFile(const std::string& path, const Progress& progress, bool file_normals,
-                                  bool file_colours) {
+                                  bool file_colours, bool groups) {
   std::string ext = Lower(std::filesystem::path(path).extension().string());
   // Opening refuses a directory, FIFO or device by name (and never blocks on a FIFO).
   LTB_ASSIGN_OR_RETURN(MeshInput in, MeshInput::Open(path, &progress));
   Result<TriangleMesh> r = InvalidArgument(path + ": unknown mesh format " +
                                            (ext.empty() ? std::string("(no extension)") : "\"" + ext + "\"") +
                                            "; supported: .obj, .ply, .off, .stl, .drc");
+  if (groups && ext != ".obj") {
+    return InvalidArgument(path + ": usemtl = true: only OBJ files have usemtl statements, and this is " +
+                           (ext.empty() ? std::string("a file without an extension") : "a \"" + ext + "\" file") +
+                           "; leave usemtl out (the object's material applies) or convert the mesh to OBJ");
+  }
   if (ext == ".stl" && file_normals) {
     return InvalidArgument(path +
                            ": normals = \"file\": STL stores only facet normals, no vertex normals; use "
@@ -228,7 +233,7 @@ Result<TriangleMesh> LoadMeshFile(const std::string& path, const Progress& progr
   } else if (ext == ".ply") {
     r = ReadPly(in, progress, file_normals, file_colours);
   } else if (ext == ".obj") {
-    r = ReadObj(in, progress, file_normals, file_colours);
+    r = ReadObj(in, progress, file_normals, file_colours, groups);
   } else if (ext == ".stl") {
     r = ReadStl(in, progress);
   } else if (ext == ".drc") {
@@ -321,8 +326,11 @@ void ApplyTransform(const glm::dmat4& m, TriangleMesh* mesh) {
 void Finalize(TriangleMesh* m) {
   std::vector<glm::uvec3> kept;
   kept.reserve(m->triangles.size());
+  // triangle_group stays aligned with triangles: the kept ones move down in place.
+  const bool grouped = m->triangle_group.size() == m->triangles.size() && !m->triangle_group.empty();
   m->normals.assign(m->positions.size(), glm::dvec3(0));
-  for (const auto& t : m->triangles) {
+  for (size_t i = 0; i < m->triangles.size(); ++i) {
+    const glm::uvec3 t = m->triangles[i];
     if (t[0] >= m->positions.size() || t[1] >= m->positions.size() || t[2] >= m->positions.size()) {
       m->degenerate_dropped++;
       continue;
@@ -334,9 +342,11 @@ void Finalize(TriangleMesh* m) {
       continue;
     }
     for (int k = 0; k < 3; ++k) m->normals[t[k]] += n;  // area-weighted (|n| = 2·area)
+    if (grouped) m->triangle_group[kept.size()] = m->triangle_group[i];
     kept.push_back(t);
   }
   m->triangles.swap(kept);
+  if (grouped) m->triangle_group.resize(m->triangles.size());
   for (auto& n : m->normals) {
     double len = glm::length(n);
     n = len > 0 ? n / len : glm::dvec3(0, 0, 1);

@@ -88,7 +88,12 @@ Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress, bool norma
 // With `colours`, a `v` with exactly 6 numbers is `v x y z r g b`, a linear colour as
 // stored (finite, >= 0); if some vertices have one, every vertex must (else an error
 // naming the line of the first vertex without); if none has, m.colours stays empty.
-Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress, bool normals = false, bool colours = false);
+// With `groups`, `usemtl NAME` statements (NAME: the rest of the statement, trimmed; a
+// usemtl without one is an error naming the line) select the group of the faces that
+// follow: m.group_names, m.group_lines and m.triangle_group (geometry.h), group 0 "" for
+// the faces before any usemtl. Without, usemtl is skipped like any other statement.
+Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress, bool normals = false, bool colours = false,
+                             bool groups = false);
 // STL, binary (84 + 50·n bytes exactly) or ASCII (starting with "solid"). Vertices with
 // equal coordinates are merged in order of first appearance; a triangle whose corners
 // merge is dropped and counted.

@@ -1,13 +1,16 @@
-// Wavefront OBJ: `v` and `f` statements, everything else skipped. One pass; a face may
-// name a vertex defined further down (OpenMesh, which read OBJ before, allowed that), so
-// such an index is checked when the file ends, and it must be one the rest of the file
-// could still define (what bounds the memory a forward index can cost). docs/SCENE.md
+// Wavefront OBJ: `v` and `f` statements (and, when asked, `vn`, vertex colours and
+// `usemtl`), everything else skipped. One pass; a face may name a vertex defined further
+// down (OpenMesh, which read OBJ before, allowed that), so such an index is checked when
+// the file ends, and it must be one the rest of the file could still define (what bounds
+// the memory a forward index can cost). docs/SCENE.md
 // "Mesh files" states the rules.
 #include <algorithm>
 #include <cmath>
 #include <glm/geometric.hpp>
 #include <glm/vec3.hpp>
 #include <limits>
+#include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -310,11 +313,56 @@ struct ObjNormals {
   }
 };
 
+// groups: the usemtl group of the faces being read (TriangleMesh::group_names).
+struct ObjGroups {
+  uint32_t current = 0;
+  uint64_t current_line = 0;                           // the line of the usemtl in effect
+  std::vector<bool> has_triangle;                      // per group
+  std::map<std::string, uint32_t, std::less<>> index;  // name -> group
+
+  explicit ObjGroups(TriangleMesh* m) {
+    m->group_names.assign(1, std::string());
+    m->group_lines.assign(1, 0);
+    has_triangle.assign(1, false);
+  }
+  // A `usemtl NAME` statement (after the keyword): NAME, the rest trimmed, selects its group.
+  Status Select(std::string_view rest, const ObjWhere& at, TriangleMesh* m) {
+    while (!rest.empty() && IsBlank(rest.front())) rest.remove_prefix(1);
+    rest = TrimEnd(rest);
+    if (rest.empty()) return InvalidArgument(at() + ": usemtl without a material name (expected \"usemtl NAME\")");
+    auto it = index.find(rest);
+    if (it == index.end()) {
+      if (m->group_names.size() >= std::numeric_limits<uint32_t>::max()) {
+        return InvalidArgument(at() + ": more than " + std::to_string(std::numeric_limits<uint32_t>::max()) +
+                               " usemtl names; not supported");
+      }
+      it = index.emplace(std::string(rest), static_cast<uint32_t>(m->group_names.size())).first;
+      m->group_names.emplace_back(rest);
+      m->group_lines.push_back(at.line_no);
+      has_triangle.push_back(false);
+    }
+    current = it->second;
+    current_line = at.line_no;
+    return Status::Ok();
+  }
+  // The n triangles just appended to m->triangles are the current group's.
+  void Add(size_t n, TriangleMesh* m) {
+    if (n == 0) return;
+    if (!has_triangle[current]) {
+      has_triangle[current] = true;
+      if (current != 0) m->group_lines[current] = current_line;
+    }
+    m->triangle_group.insert(m->triangle_group.end(), n, current);
+  }
+};
+
 }  // namespace
 
-Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress, bool normals, bool colours) {
+Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress, bool normals, bool colours, bool groups) {
   const std::string& name = in.name();
   TriangleMesh m;
+  std::optional<ObjGroups> grp;
+  if (groups) grp.emplace(&m);
   ObjNormals nrm;
   ObjColours col;
   std::string joined;  // a statement continued over lines ('\' at a line's end)
@@ -340,6 +388,10 @@ Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress, bool norma
       LTB_RETURN_IF_ERROR(ParseNormal(t, at, &nrm.vn));
       continue;
     }
+    if (groups && kw == "usemtl") {
+      LTB_RETURN_IF_ERROR(grp->Select(t.rest, at, &m));
+      continue;
+    }
     if (kw != "f") continue;  // vt, vn, vp, l, p, o, g, s, usemtl, mtllib, ...: not geometry we trace
     LTB_RETURN_IF_ERROR(
         ParseFace(t, at, in, faces, m.positions.size(), &forward, &face, nrm.vn.size(), normals ? &nrm.refs : nullptr));
@@ -349,6 +401,7 @@ Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress, bool norma
       m.degenerate_dropped++;  // fewer than 3 distinct vertices
     } else {
       for (size_t i = 1; i + 1 < face.size(); ++i) m.triangles.push_back({face[0], face[i], face[i + 1]});
+      if (groups) grp->Add(face.size() - 2, &m);
     }
     faces++;
   }

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <bit>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -17,6 +18,7 @@ namespace ltb::sample {
 namespace {
 
 using tomlf::CheckKeys;
+using tomlf::GetBool;
 using tomlf::GetNumber;
 using tomlf::GetString;
 using tomlf::GetUnsigned;
@@ -223,6 +225,26 @@ Result<Object::Normals> ParseNormals(const std::string& path, const toml::table&
   return n;
 }
 
+// An object's "usemtl": a boolean, true only for a mesh whose file is OBJ (obj.file set).
+Result<bool> ParseUsemtl(const std::string& path, const toml::table& o, const Object& obj, const std::string& type) {
+  LTB_ASSIGN_OR_RETURN(bool usemtl, GetBool(path, o, "usemtl", false));
+  if (!usemtl) return false;
+  const std::string where = Where(path, *o.get("usemtl")) + ": object \"" + obj.name + "\": usemtl = true";
+  if (obj.type != Object::Type::kMesh) {
+    return InvalidArgument(where + " is for type = \"mesh\" with an OBJ file (its usemtl statements pick the " +
+                           "materials); a " + type + " has none: leave usemtl out and set \"material\"");
+  }
+  std::string ext = std::filesystem::path(obj.file).extension().string();
+  for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  if (ext != ".obj") {
+    return InvalidArgument(where + " needs an OBJ file (its usemtl statements pick the materials), but \"" + obj.file +
+                           "\" is " +
+                           (ext.empty() ? std::string("a file without an extension") : "a \"" + ext + "\" file") +
+                           "; leave usemtl out and set \"material\", or convert the mesh to OBJ");
+  }
+  return true;
+}
+
 // One [[object]] entry; `names` holds the names used so far, `base` the scene's folder
 // (mesh files are resolved against it).
 Result<Object> ParseObject(const std::string& path, const toml::node& node, const SceneDesc& s,
@@ -233,7 +255,7 @@ Result<Object> ParseObject(const std::string& path, const toml::node& node, cons
   Object obj;
   obj.line = static_cast<int>(node.source().begin.line);
   LTB_ASSIGN_OR_RETURN(std::string type, GetString(path, *o, "type", ""));
-  std::set<std::string> keys{"type", "name", "material", "translate", "rotate", "scale", "normals"};
+  std::set<std::string> keys{"type", "name", "material", "translate", "rotate", "scale", "normals", "usemtl"};
   if (type == "mesh") keys.insert("colours");
   if (type == "plane") {
     obj.type = Object::Type::kPlane;
@@ -292,6 +314,7 @@ Result<Object> ParseObject(const std::string& path, const toml::node& node, cons
                              colours + "\" (expected \"none\" or \"file\")");
     }
   }
+  LTB_ASSIGN_OR_RETURN(obj.usemtl, ParseUsemtl(path, *o, obj, type));
   return obj;
 }
 

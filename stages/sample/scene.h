@@ -67,6 +67,10 @@ struct Object {
   // Mesh files only: "file" multiplies the material's albedo by the file's per-vertex
   // colours (docs/SCENE.md "Vertex colours"); "none" (the default) ignores them.
   enum class Colours { kNone, kFile } colours = Colours::kNone;
+  // Mesh objects with an OBJ file only: each `usemtl NAME` in the file selects the
+  // [[material]] named NAME for the faces that follow; `material` covers the faces before
+  // any usemtl (docs/SCENE.md "Materials from OBJ `usemtl`"). false: usemtl is ignored.
+  bool usemtl = false;
   int line = 0;  // where it is defined, for messages
 };
 

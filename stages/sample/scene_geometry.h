@@ -31,9 +31,14 @@ struct ShadingNormals {
   std::vector<glm::dvec3> normals;
 };
 
+// One Embree geometry per object, except an object with usemtl = true: one per material its
+// triangles use (in order of first appearance), each with all the object's vertices and
+// that material's triangles. Every per-geometry vector below has one entry per Embree
+// geometry id.
 struct Geometry {
   std::unique_ptr<RayScene> rays;
   std::vector<int> geom_material;  // Embree geometry id -> material
+  std::vector<int> geom_object;    // Embree geometry id -> index into SceneDesc::objects
   // Embree geometry id -> shading normals; an empty entry (or none): the geometric normal.
   std::vector<ShadingNormals> shading;
   // Embree geometry id -> per-vertex colours (colours = "file"; docs/COLOUR.md) with the
@@ -44,9 +49,10 @@ struct Geometry {
   };
   std::vector<VertexColours> colours;
   std::vector<RowPoint> vertex_rows;
-  // Vertex mode, per Embree geometry id: the first vertex row of the object and its
+  // Vertex mode, per Embree geometry id: the first vertex row of its object and its
   // triangles (primitive id -> vertex ids within the object), for renderers that shade by
-  // vertex; empty triangles for an object whose vertices are not rows.
+  // vertex; empty triangles for an object whose vertices are not rows. The geometries of
+  // one usemtl object share first_row: its vertices are rows once.
   struct RowMesh {
     uint64_t first_row = 0;
     std::vector<glm::uvec3> triangles;
@@ -57,7 +63,8 @@ struct Geometry {
   std::string scene_hash;
   // XXH3 of what rays see and what the vertex rows are — every object's transformed
   // triangles (and spheres), each vertex row's position and normal — but not the materials:
-  // the triple-product renderer checks it, so materials may change after the visibility bake.
+  // the triple-product renderer checks it, so materials may change after the visibility bake
+  // (how a usemtl object's triangles split by material does not enter it either).
   std::string geometry_hash;
 
   // The unit shading normal at a hit, not oriented: the vertex normals interpolated with the
