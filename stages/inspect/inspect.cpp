@@ -214,6 +214,7 @@ Result<json> InspectContainer(const std::string& path, const InspectOptions& opt
   }
   out["basis"] = meta.json.value("basis", json(nullptr));
   out["provenance"] = meta.json.value("provenance", json(nullptr));
+  if (meta.json.contains("channel")) out["channel"] = meta.json["channel"];  // docs/COLOUR.md
   out["arrays"] = json::array();
   for (uint32_t i = 0; i < meta.arrays.size(); ++i) {
     const ArraySpec& a = meta.arrays[i];

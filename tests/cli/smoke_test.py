@@ -58,8 +58,27 @@ with tempfile.TemporaryDirectory() as d:
     run("sample", TINY, "-o", P("sparse.ltm"), "--sparse", "--bounces", 1, "--row-transform", "haar", *Q)
     check(info(P("sparse.ltm"))["sparse"]["rows"]["dense"] > 0, "sparse: no dense rows")
     run("cpca", P("sparse.ltm"), "-o", P("sparse_cpca.ltm"), "--clusters", 2, "--basis", 2, *Q)
+    # Colour (docs/COLOUR.md): a reflectance table through cpca, and a channel set (sample
+    # --channels rgb with a bounce, every stage on the set, relight, convert to one .npy).
+    with open(TINY) as f:
+        red = write(P("red.toml"), f.read().replace("albedo = 0.5", "albedo = [0.5, 0.1, 0.1]")
+                    .replace("ks = 0.3", "ks = [0.3, 0.06, 0.06]"))
+    run("sample", red, "-o", P("red.ltm"), "--chunk-rows", 256, *Q)
+    run("cpca", P("red.ltm"), "-o", P("red_cpca.ltm"), "--clusters", 2, "--basis", 2, *Q)
+    run("sample", red, "-o", P("rgb.ltm"), "--channels", "rgb", "--bounces", 1, "--cube-res", 4, *Q)
+    for st, src, dst in [("row-transform", "rgb", "rgb_rows"), ("transpose", "rgb_rows", "rgb_cols"),
+                         ("column-transform", "rgb_cols", "rgb_c4"), ("quantize", "rgb_c4", "rgb_final")]:
+        run(st, P(src + ".ltm"), "-o", P(dst + ".ltm"), *Q)
+    run("convert", P("rgb_final.ltm"), P("rgb_final.npy"), *Q)
+    check(np.load(P("rgb_final.npy")).shape == (3, 1024, 96), "convert of a channel set: not (3, 1024, 96)")
+    np.save(P("white4.npy"), np.ones((96, 3), np.float32))
+    np.save(P("white8.npy"), np.ones((384, 3), np.float32))
+    for mat, env in [(P("rgb_final.ltm"), P("white4.npy")), (P("rgb_rows.ltm"), P("white4.npy")),
+                     (P("red_cpca.ltm"), P("white8.npy"))]:
+        run("relight", mat, "--env", env, "-o", P("rgb_relit.npy"), "--terms", 96, *Q)
+        check(np.load(P("rgb_relit.npy")).shape == (1024, 3), f"relight of the set {mat}: shape")
     for f in [raw, rows, cols, cols4d, budget, final, P("cpca.ltm"), P("fused.ltm"), P("sparse.ltm"),
-              P("sparse_cpca.ltm")]:
+              P("sparse_cpca.ltm"), P("red.ltm"), P("red_cpca.ltm"), P("rgb_final.r.ltm")]:
         run("verify", f)
         # Text mode without content: the recorded hash, no stats (it crashed on a missing key).
         check(info(f)["content_hash"] in run("inspect", "--no-content", f).stdout,
