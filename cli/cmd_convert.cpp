@@ -98,8 +98,7 @@ class ConvertCommand : public Command {
     if (!flags_.quiet) {
       std::cout << "wrote " << options_.output << ": ";
       if (r->channels) std::cout << r->channels << " channels x ";
-      std::cout << r->rows << " x " << r->cols << ", " << r->chunks_total
-                << " chunks";
+      std::cout << r->rows << " x " << r->cols << ", " << r->chunks_total << " chunks";
       if (r->chunks_already_committed > 0) {
         std::cout << " (resumed: " << r->chunks_already_committed << " already committed, " << r->chunks_written
                   << " written";

@@ -98,7 +98,8 @@ class InspectCommand : public Command {
     if (!out["basis"].is_null()) std::cout << "  basis: " << out["basis"].dump() << "\n";
     if (!out["provenance"].is_null()) std::cout << "  provenance: " << out["provenance"].dump() << "\n";
     if (out.contains("channel")) {
-      std::cout << "  colour channel: " << out["channel"].value("name", std::string("?")) << " of a set (docs/COLOUR.md)\n";
+      std::cout << "  colour channel: " << out["channel"].value("name", std::string("?"))
+                << " of a set (docs/COLOUR.md)\n";
     }
     if (out.contains("column_transform")) {
       const json& c = out["column_transform"];

@@ -143,4 +143,17 @@ Status RelightMatrix::RelightDense(const std::vector<float>& lighting, std::vect
   return Status::Ok();
 }
 
+Status CheckSameBake(const RelightMatrix& reference, const RelightMatrix& matrix) {
+  if (reference.basis().cube_res() != matrix.basis().cube_res() || reference.rows() != matrix.rows()) {
+    return InvalidArgument(reference.path() + ": is not the same bake as " + matrix.path() + " (shape or R differ)");
+  }
+  if (reference.channel_count() != matrix.channel_count()) {
+    return InvalidArgument(reference.path() + ": has " + std::to_string(reference.channel_count()) +
+                           " colour channel(s) and " + matrix.path() + " has " +
+                           std::to_string(matrix.channel_count()) +
+                           "; compare a channel set with a channel set (docs/COLOUR.md)");
+  }
+  return Status::Ok();
+}
+
 }  // namespace ltb::stages

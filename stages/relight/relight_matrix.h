@@ -64,4 +64,8 @@ class RelightMatrix {
   Progress progress_;
 };
 
+// A --reference against the matrix it judges: the same rows and R, and a channel set
+// against a channel set; the error names both files.
+Status CheckSameBake(const RelightMatrix& reference, const RelightMatrix& matrix);
+
 }  // namespace ltb::stages

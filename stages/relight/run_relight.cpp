@@ -99,14 +99,7 @@ Status MeasureErrors(const RelightOptions& o, const Environment& env, const Ligh
   // set or a reflectance table is applied to it as to the matrix.
   LTB_ASSIGN_OR_RETURN(RelightMatrix ref, RelightMatrix::Open(o.reference, o.mem_limit, o.jobs, progress, nullptr));
   const LightingBasis& ref_basis = ref.basis();
-  if (ref_basis.cube_res() != basis.cube_res() || ref.rows() != rows) {
-    return InvalidArgument(o.reference + ": is not the same bake as " + o.matrix + " (shape or R differ)");
-  }
-  if (ref.channel_count() != m.channel_count()) {
-    return InvalidArgument(o.reference + ": has " + std::to_string(ref.channel_count()) + " colour channel(s) and " +
-                           o.matrix + " has " + std::to_string(m.channel_count()) +
-                           "; compare a channel set with a channel set (docs/COLOUR.md)");
-  }
+  LTB_RETURN_IF_ERROR(CheckSameBake(ref, m));
   // Exact: the full lighting in the reference's basis.
   std::vector<float> full;
   env.Cubemap(rotation, &full);

@@ -230,9 +230,7 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
       ref = &m;
     } else {
       LTB_ASSIGN_OR_RETURN(RelightMatrix r, RelightMatrix::Open(o.reference, o.mem_limit, o.jobs, progress, nullptr));
-      if (r.basis().cube_res() != basis.cube_res() || r.rows() != m.rows()) {
-        return InvalidArgument(o.reference + ": is not the same bake as " + o.matrix + " (shape or R differ)");
-      }
+      LTB_RETURN_IF_ERROR(CheckSameBake(r, m));
       ref_storage = std::move(r);
       ref = &*ref_storage;
     }

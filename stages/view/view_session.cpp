@@ -104,9 +104,7 @@ Result<std::unique_ptr<ViewSession>> ViewSession::Open(const ViewOptions& o) {
   std::unique_ptr<ViewSession> s(new ViewSession(std::move(m), std::move(env)));
   if (!o.reference.empty()) {
     LTB_ASSIGN_OR_RETURN(RelightMatrix r, RelightMatrix::Open(o.reference, o.mem_limit, o.jobs, Progress{}, nullptr));
-    if (r.rows() != s->m_.rows() || r.basis().cube_res() != s->m_.basis().cube_res()) {
-      return InvalidArgument(o.reference + ": is not the same bake as " + o.matrix + " (shape or R differ)");
-    }
+    LTB_RETURN_IF_ERROR(CheckSameBake(r, s->m_));
     s->reference_ = std::move(r);
   }
   s->defaults_.terms = o.terms;
