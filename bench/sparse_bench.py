@@ -82,7 +82,6 @@ import datetime
 import io
 import json
 import os
-import platform
 import re
 import shlex
 import shutil
@@ -93,6 +92,9 @@ import tempfile
 import time
 
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from benchlib import git_describe, machine  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
@@ -643,23 +645,6 @@ def cpca_section(res):
     else:
         lines += ["Target not evaluated: it needs the plain and dense-first runs (LTB_SPARSE_CPCA_RUNS).", ""]
     return lines
-
-
-def machine():
-    cpu = "?"
-    with open("/proc/cpuinfo") as f:
-        for line in f:
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 30
-    nproc = subprocess.run(["nproc"], capture_output=True, text=True).stdout.strip()
-    return f"{cpu}, nproc {nproc}, {mem:.1f} GiB, {platform.system()} {platform.release()}"
-
-
-def git_describe():
-    p = subprocess.run(["git", "-C", ROOT, "describe", "--always", "--dirty"], capture_output=True, text=True)
-    return p.stdout.strip() if p.returncode == 0 else "?"
 
 
 def command_line():
