@@ -260,7 +260,7 @@ def main():
             "command": " ".join(f"{k}={os.environ[k]}" for k in KNOBS if k in os.environ)}
     with open(os.path.join(RESULTS, "colour_bench.json"), "w") as f:
         json.dump({"meta": meta, "results": results}, f, indent=1)
-    lines = [f"# Colour: what it costs (bench/colour_bench.py)", "",
+    lines = ["# Colour: what it costs (bench/colour_bench.py)", "",
              f"{started}, {meta['machine']}, commit {meta['commit']}, load before "
              f"{load[0]:.2f}; {REPEATS} timed runs of each after a warm-up, alternating; medians (min-max).", ""]
     for c, r in results.items():
