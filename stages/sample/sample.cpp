@@ -91,7 +91,8 @@ Status CheckSparse(const SampleOptions& o, uint32_t r) {
   return Status::Ok();
 }
 
-// --channel: the scene as that channel sees it. A monochrome bake of a scene with colour:
+// Once the geometry is built. --channel: the scene as that channel sees it. A monochrome
+// bake of a scene with colour:
 // the reflectance table when the colour factors out of T (no bounces, and in image mode,
 // where ks is rendered, one tint for albedo and ks and no vertex colours under a lobe);
 // otherwise an error that says to bake per channel.
@@ -109,8 +110,10 @@ Status CheckColour(const SampleOptions& o, Prepared* p) {
                            " makes it bleed between surfaces, which one monochrome matrix cannot hold" + fix);
   }
   if (s.mode == SceneDesc::Mode::kImage) {
-    for (const sample::Object& obj : s.objects) {
-      const sample::Material& m = s.materials[static_cast<size_t>(obj.material)];
+    // Every Embree geometry's material: an object's own, or those its OBJ's usemtl picks.
+    for (size_t g = 0; g < p->geo.geom_material.size(); ++g) {
+      const sample::Object& obj = s.objects[static_cast<size_t>(p->geo.geom_object[g])];
+      const sample::Material& m = s.materials[static_cast<size_t>(p->geo.geom_material[g])];
       if (!m.separable) {
         return InvalidArgument(o.scene + ": material \"" + m.name + "\" has albedo " +
                                sample::FormatVec3(m.albedo_rgb) + " and ks " + sample::FormatVec3(m.ks_rgb) +
@@ -153,8 +156,8 @@ Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress
     if (o.row_filter) return InvalidArgument("--visibility cannot be fused with a row-transform");
     p->bounces = 0;  // the scene's [sampling] bounces do not apply to visibility
   }
-  LTB_RETURN_IF_ERROR(CheckColour(o, p.get()));
   LTB_ASSIGN_OR_RETURN(p->geo, BuildGeometry(p->scene, progress));
+  LTB_RETURN_IF_ERROR(CheckColour(o, p.get()));
   p->rows = p->scene.mode == SceneDesc::Mode::kImage ? uint64_t{p->scene.camera.width} * p->scene.camera.height
                                                      : p->geo.vertex_rows.size();
   return p;

@@ -143,8 +143,10 @@ Result<glm::dvec3> GetColour(const std::string& path, const toml::table& m, cons
   LTB_ASSIGN_OR_RETURN(glm::dvec3 v, GetVec3(path, m, key, def, /*allow_scalar=*/true));
   for (int c = 0; c < 3; ++c) {
     if (v[c] < 0.0 || v[c] > 1.0) {
+      const bool scalar = m.get(key)->is_number();
       return InvalidArgument(Where(path, *m.get(key)) + ": material \"" + material + "\": \"" + key + "\" is " +
-                             tomlf::ValueText(*m.get(key)) + "; each channel must be in [0, 1]");
+                             tomlf::ValueText(*m.get(key)) + ", outside [0, 1]" +
+                             (scalar ? std::string() : std::string(" in channel ") + "rgb"[c]));
     }
   }
   return v;

@@ -139,9 +139,13 @@ radius = 0.4
     # Every bundled scene, at a reduced cube resolution.
     for name in ("tiny", "medium", "cornell", "dragon", "bunny-draco", "bunny-vertices"):
         out = os.path.join(d, f"sample-{name}.ltm")
-        p = run("sample", os.path.join(ROOT, "samples", name + ".toml"), "-o", out, "--cube-res", 4, "--spp", 1)
+        # The Cornell box is in colour with a bounce: one matrix per channel (docs/COLOUR.md).
+        rgb = ["--channels", "rgb"] if name == "cornell" else []
+        p = run("sample", os.path.join(ROOT, "samples", name + ".toml"), "-o", out, "--cube-res", 4, "--spp", 1, *rgb)
         if p.returncode != 0:
             continue
+        if rgb:
+            out = os.path.join(d, f"sample-{name}.r.ltm")
         v = json.loads(run("verify", "--json", out).stdout)[0]
         info = json.loads(run("inspect", "--json", out).stdout)
         check(v["ok"], f"{name}: output does not verify")
