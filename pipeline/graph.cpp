@@ -92,8 +92,8 @@ Status AddTripleNodes(const Recipe& r, const std::string& stage,
 // colour channel, on the channel files (raw.ltm -> raw.r.ltm, ...); a sample step gains
 // --channel. Relight steps read the three files of their matrix (relight takes the set).
 void ExpandChannels(const std::function<std::string(const std::string&)>& path, Graph* g) {
-  static const std::set<std::string> kPerChannel = {"sample", "row-transform", "transpose", "column-transform",
-                                                    "quantize", "cpca"};
+  static const std::set<std::string> kPerChannel = {"sample",           "row-transform", "transpose",
+                                                    "column-transform", "quantize",      "cpca"};
   auto per_channel = [&](const Node& n) {
     if (n.image || n.stages.empty() || n.params.contains("visibility")) return false;
     for (const std::string& s : n.stages)

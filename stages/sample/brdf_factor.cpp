@@ -79,7 +79,8 @@ Result<BrdfFactors> FactorPhong(double albedo, double ks, double exponent, uint3
     for (uint32_t i = 0; i < incident_res; ++i)
       wi[j * incident_res + i] = ParabolicTable::Direction(incident_res, i, j, &ai[j * incident_res + i]);
   for (uint32_t j = 0; j < view_res; ++j)
-    for (uint32_t i = 0; i < view_res; ++i) wv[j * view_res + i] = ParabolicTable::Direction(view_res, i, j, &av[j * view_res + i]);
+    for (uint32_t i = 0; i < view_res; ++i)
+      wv[j * view_res + i] = ParabolicTable::Direction(view_res, i, j, &av[j * view_res + i]);
   std::vector<uint32_t> in_i, in_v;
   for (uint32_t k = 0; k < ni; ++k)
     if (ai[k] > 0) in_i.push_back(k);
@@ -117,7 +118,8 @@ Result<BrdfFactors> FactorPhong(double albedo, double ks, double exponent, uint3
     }
   } else if (ks > 0) {
     Eigen::SelfAdjointEigenSolver<Mat> es(a.transpose() * a, Eigen::EigenvaluesOnly);
-    for (Eigen::Index k = es.eigenvalues().size() - 1; k >= 0; --k) sigma2.push_back(std::max(0.0, es.eigenvalues()(k)));
+    for (Eigen::Index k = es.eigenvalues().size() - 1; k >= 0; --k)
+      sigma2.push_back(std::max(0.0, es.eigenvalues()(k)));
   }
   double tail = 0;
   for (double s : sigma2) tail += s;
