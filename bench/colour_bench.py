@@ -146,10 +146,10 @@ def alternate(variants):
 
 def compress(raw, d, name):
     rows, cols, c4, final = (os.path.join(d, f"{name}-{s}.ltm") for s in ("rows", "cols", "cols4d", "final"))
-    run("row-transform", raw, "-o", rows, *Q)
-    run("transpose", rows, "-o", cols, *Q)
-    run("column-transform", cols, "-o", c4, "--budget", "2%", *Q)
-    run("quantize", c4, "-o", final, *Q)
+    run("row-transform", raw, "-o", rows, "--overwrite", *Q)
+    run("transpose", rows, "-o", cols, "--overwrite", *Q)
+    run("column-transform", cols, "-o", c4, "--budget", "2%", "--overwrite", *Q)
+    run("quantize", c4, "-o", final, "--overwrite", *Q)
     return final
 
 
