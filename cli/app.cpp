@@ -26,14 +26,14 @@ namespace {
 int RunCommand(Command& cmd) {
   std::vector<std::string*> paths = cmd.ChannelSetPaths();
   if (paths.empty()) return cmd.Run();
-  auto files = stages::ChannelFiles(*paths.front());
-  if (!files.ok()) return ReportFailure(files.status());
-  if (files->empty()) return cmd.Run();
+  auto members = stages::ChannelFiles(*paths.front());
+  if (!members.ok()) return ReportFailure(members.status());
+  if (members->empty()) return cmd.Run();
   std::vector<std::string> sets;
   for (const std::string* p : paths) sets.push_back(*p);
-  for (int c = 0; c < stages::kChannels; ++c) {
+  for (const stages::SetMember& m : *members) {
     for (size_t i = 0; i < paths.size(); ++i) {
-      if (!sets[i].empty()) *paths[i] = stages::ChannelPath(sets[i], c);
+      if (!sets[i].empty()) *paths[i] = stages::SetMemberPath(sets[i], m.name);
     }
     if (int code = cmd.Run(); code != kExitOk) return code;
   }

@@ -16,6 +16,7 @@
 #include "cli/common.h"
 #include "stages/common/quantity.h"
 #include "stages/relight/envmap.h"
+#include "stages/relight/glossy_view.h"
 #include "stages/relight/relight.h"
 #include "stages/relight/run_relight.h"
 #include "stages/relight/run_sequence.h"
@@ -65,7 +66,8 @@ class RelightCommand : public Command {
     app->add_option("--material", materials_,
                     "triple-product path: a material field (ltbake material); one Lambert field and one Phong field "
                     "per exponent the scene's materials use (repeat the flag)");
-    app->add_option("--eye", eye_, "triple-product path: the camera position X,Y,Z");
+    app->add_option("--eye", eye_,
+                    "a factored bake (sample --factor) or the triple-product path: the camera position X,Y,Z");
     app->add_option("--target", target_, "triple-product path: the point looked at X,Y,Z")->default_val("0,0,0");
     app->add_option("--up", up_, "triple-product path: the camera's up X,Y,Z")->default_val("0,0,1");
     app->add_option("--fov", fov_, "triple-product path: vertical field of view in degrees")->default_val(40.0);
@@ -99,7 +101,7 @@ class RelightCommand : public Command {
   }
 
   bool Triple() const {
-    return !materials_.empty() || !eye_.empty() || method_ == "sublinear" || method_ == "linear" || method_ == "pixel";
+    return !materials_.empty() || method_ == "sublinear" || method_ == "linear" || method_ == "pixel";
   }
 
   // "X,Y,Z" -> vector; false when it is not three finite numbers.
@@ -191,7 +193,65 @@ class RelightCommand : public Command {
                   });
   }
 
+  // A factored bake from a view (sample --factor K; docs/GLOSSY.md).
+  int RunGlossy() {
+    stages::GlossyViewOptions o;
+    o.set = matrix_;
+    o.env = env_;
+    o.env_layout = *stages::ParseEnvLayout(layout_);  // checked by IsMember
+    o.clamp_env = clamp_;
+    o.rotate_deg = rotate_deg_;
+    o.output = output_;
+    o.vertex_output = vertex_output_;
+    o.exposure = exposure_;
+    o.fov_degrees = fov_;
+    o.terms = terms_text_ == "all" ? stages::GlossyViewOptions::kAll : std::stoull(terms_text_);
+    o.use_terms = brdf_terms_text_ == "all"
+                      ? 0
+                      : static_cast<uint32_t>(std::min<unsigned long long>(std::stoull(brdf_terms_text_), 64));
+    if (!sequence_.empty() || frames_ > 0 || !reference_.empty() || weighting_ != "area" || !method_.empty()) {
+      return ReportUsage(InvalidArgument(
+          "--sequence, --frames, --reference, --weighting and --method are not for a view of a factored bake"));
+    }
+    for (auto [text, dst, name] : {std::tuple{&eye_, &o.eye, "--eye"}, std::tuple{&target_, &o.target, "--target"},
+                                   std::tuple{&up_, &o.up, "--up"}}) {
+      if (!ParseVec3(*text, dst))
+        return ReportUsage(InvalidArgument(std::string(name) + " " + *text + ": expected X,Y,Z"));
+    }
+    unsigned w = 0, h = 0;
+    char tail = 0;
+    if (std::sscanf(size_.c_str(), "%ux%u%c", &w, &h, &tail) != 2 || w == 0 || h == 0 || w > 16384 || h > 16384) {
+      return ReportUsage(InvalidArgument("--size " + size_ + ": expected WIDTHxHEIGHT, e.g. 512x384"));
+    }
+    o.width = w;
+    o.height = h;
+    if (!orbit_.empty()) {
+      double deg = 0;
+      unsigned n = 0;
+      if (std::sscanf(orbit_.c_str(), "%lf:%u%c", &deg, &n, &tail) != 2 || n == 0 || !std::isfinite(deg)) {
+        return ReportUsage(InvalidArgument("--orbit " + orbit_ + ": expected DEG:FRAMES, e.g. 10:36"));
+      }
+      o.orbit_deg = deg;
+      o.orbit_frames = n;
+    }
+    StageFlags sf;
+    if (int code = ResolveStageFlags(flags_, nullptr, &sf); code != kExitOk) return code;
+    o.mem_limit = sf.mem_limit;
+    o.jobs = sf.jobs;
+    return Report([&](const Progress& p) { return stages::RunGlossyView(o, p); },
+                  [&](const nlohmann::json& report) {
+                    const nlohmann::json& f = report["frames"];
+                    std::cout << "wrote " << output_ << " (" << f["count"].get<uint64_t>()
+                              << " view(s)): " << report["terms_used"].get<uint64_t>() << " of "
+                              << report["terms_in_bake"].get<uint64_t>() << " BRDF terms, "
+                              << report["vertices"].get<uint64_t>() << " vertices; relit in " << std::setprecision(3)
+                              << report["relight_ms"].get<double>() << " ms, then " << f["median_ms"].get<double>()
+                              << " ms a view (median)\n";
+                  });
+  }
+
   int Run() override {
+    if (!eye_.empty() && materials_.empty() && !Triple()) return RunGlossy();
     if (Triple()) return RunTriple();
     if (!sequence_.empty()) return RunSequence();
     if (!method_.empty() || !csv_.empty() || !applied_.empty()) {

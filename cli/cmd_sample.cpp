@@ -67,6 +67,10 @@ class SampleCommand : public Command {
         ->check(CLI::IsMember({"mono", "rgb"}));
     app->add_option("--channel", channel_, "bake only this channel of --channels rgb, into OUT as given")
         ->check(CLI::IsMember({"r", "g", "b"}));
+    app->add_option("--factor", options_.factor,
+                    "vertex mode: bake the BRDF in-out factorisation's K terms, OUT.k0.ltm .. OUT.k{K-1}.ltm, so "
+                    "glossy vertices relight from any view (relight --eye; docs/GLOSSY.md)")
+        ->check(CLI::Range(1, 64));
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     app->add_flag("!--no-direct-io", options_.direct_io,
                   "write the output through the page cache instead of with O_DIRECT");
@@ -116,9 +120,11 @@ class SampleCommand : public Command {
     if (!flags_.quiet) {
       char rate[64];
       std::snprintf(rate, sizeof rate, "%.3g", r->seconds > 0 ? r->rays / r->seconds : 0.0);
-      std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << r->rows << " rows x "
-                << 6ull * r->cube_res * r->cube_res << " texels (R = " << r->cube_res << ", spp " << r->spp
-                << ", bounces " << r->bounces << ")";
+      const std::string what = options_.factor > 0 ? stages::FactorPath(options_.output, 0) + " .. " +
+                                                         stages::FactorPath(options_.output, options_.factor - 1)
+                                                   : OutputName(options_.output, options_.shard);
+      std::cout << "wrote " << what << ": " << r->rows << " rows x " << 6ull * r->cube_res * r->cube_res
+                << " texels (R = " << r->cube_res << ", spp " << r->spp << ", bounces " << r->bounces << ")";
       if (!row_filter_.empty()) std::cout << ", row-transformed (" << row_filter_ << ")";
       if (options_.visibility) std::cout << ", visibility field (Haar, sparse)";
       if (r->chunks_already_committed)
@@ -129,6 +135,16 @@ class SampleCommand : public Command {
                 << r->samples_below_horizon << " samples below it"
                 << "\n  degenerate triangles dropped: " << r->degenerate_triangles << "\n";
       if (r->sparse) PrintSparse(*r->sparse);
+      for (const auto& [name, errors] : r->factor_errors) {
+        std::cout << "  factorisation of material \"" << name << "\": relative L2 error of rho*cos for K = 1..";
+        std::cout << errors.size() << ":";
+        char e[32];
+        for (double x : errors) {
+          std::snprintf(e, sizeof e, " %.4f", x);
+          std::cout << e;
+        }
+        std::cout << "\n";
+      }
     }
     return kExitOk;
   }

@@ -10,38 +10,84 @@ namespace fs = std::filesystem;
 
 const char* ChannelName(int channel) { return channel == 0 ? "r" : channel == 1 ? "g" : "b"; }
 
-std::string ChannelPath(const std::string& set_path, int channel) {
+std::string SetMemberPath(const std::string& set_path, const std::string& name) {
   const fs::path p(set_path);
-  return (p.parent_path() / (p.stem().string() + "." + ChannelName(channel) + p.extension().string())).string();
+  return (p.parent_path() / (p.stem().string() + "." + name + p.extension().string())).string();
 }
 
-Result<std::vector<std::string>> ChannelFiles(const std::string& path) {
+std::string ChannelPath(const std::string& set_path, int channel) {
+  return SetMemberPath(set_path, ChannelName(channel));
+}
+
+namespace {
+
+// The "channel" metadata key's member name, or "" when absent.
+std::string MemberName(const nlohmann::json& j) {
+  return j.contains("channel") && j["channel"].is_object() && j["channel"].contains("name") &&
+                 j["channel"]["name"].is_string()
+             ? j["channel"]["name"].get<std::string>()
+             : std::string();
+}
+
+}  // namespace
+
+Result<std::vector<SetMember>> ChannelFiles(const std::string& path) {
   std::error_code ec;
-  if (fs::exists(path, ec)) return std::vector<std::string>{};
-  std::vector<std::string> files;
-  int present = -1;
-  for (int c = 0; c < kChannels; ++c) {
-    files.push_back(ChannelPath(path, c));
-    if (present < 0 && fs::exists(files.back(), ec)) present = c;
-  }
-  if (present < 0) return std::vector<std::string>{};
-  for (int c = 0; c < kChannels; ++c) {
-    if (!fs::exists(files[c], ec)) {
-      return NotFound(path + ": names the channel set " + files[present] + ", ... but " + files[c] + " (channel " +
-                      ChannelName(c) + ") does not exist; bake it with sample --channel " + ChannelName(c) +
-                      " (docs/COLOUR.md)");
+  if (fs::exists(path, ec)) return std::vector<SetMember>{};
+  // Which kind of set: the first member that exists names the others.
+  std::vector<std::string> names;
+  std::string first;
+  for (const char* probe : {"r", "g", "b"}) {
+    if (fs::exists(SetMemberPath(path, probe), ec)) {
+      names = {"r", "g", "b"};
+      first = SetMemberPath(path, probe);
+      break;
     }
-    LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(files[c]));
+  }
+  if (names.empty() && fs::exists(SetMemberPath(path, "k0"), ec)) {
+    first = SetMemberPath(path, "k0");
+    LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(first));
     const nlohmann::json& j = r.metadata().json;
-    const std::string name =
-        j.contains("channel") && j["channel"].is_object() ? j["channel"].value("name", std::string()) : std::string();
-    if (name != ChannelName(c)) {
-      return InvalidArgument(files[c] + ": holds " + (name.empty() ? "no colour channel" : "channel " + name) +
-                             ", not channel " + ChannelName(c) + " of the set " + path + " (with " + files[present] +
-                             "); rebake it with sample --channel " + ChannelName(c));
+    const nlohmann::json* list = j.contains("channel") && j["channel"].is_object() && j["channel"].contains("names")
+                                     ? &j["channel"]["names"]
+                                     : nullptr;
+    if (list == nullptr || !list->is_array() || list->empty() || list->size() > 64) {
+      return InvalidArgument(first +
+                             ": names no terms of a factored bake (\"channel\": {\"names\": [...]}); rebake "
+                             "it with sample --factor K");
+    }
+    for (const auto& n : *list) {
+      if (!n.is_string() || n.get<std::string>().empty() || n.get<std::string>().find('/') != std::string::npos) {
+        return InvalidArgument(first + ": a set member name is " + n.dump() + ", not a plain name");
+      }
+      names.push_back(n.get<std::string>());
     }
   }
-  return files;
+  if (names.empty()) return std::vector<SetMember>{};
+  std::vector<SetMember> members;
+  for (const std::string& name : names) {
+    const std::string file = SetMemberPath(path, name);
+    if (!fs::exists(file, ec)) {
+      return NotFound(path + ": names the set of " + first + ", but its member " + file + " (" + name +
+                      ") does not exist; bake it (docs/COLOUR.md)");
+    }
+    LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(file));
+    const std::string got = MemberName(r.metadata().json);
+    const nlohmann::json& ch = r.metadata().json.value("channel", nlohmann::json::object());
+    if (got == name && first.find(".k0.") != std::string::npos && ch.value("names", nlohmann::json()) != names) {
+      return InvalidArgument(file + ": is term " + name + " of a bake with " +
+                             std::to_string(ch.value("names", nlohmann::json::array()).size()) + " terms, and " +
+                             first + " of one with " + std::to_string(names.size()) +
+                             "; every term of a set comes from one sample --factor K");
+    }
+    if (got != name) {
+      return InvalidArgument(file + ": holds " + (got.empty() ? "no colour channel or term" : "member " + got) +
+                             ", not " + name + " of the set " + path + " (with " + first +
+                             "); rebake it (sample --channel or --factor)");
+    }
+    members.push_back({name, file});
+  }
+  return members;
 }
 
 }  // namespace ltb::stages

@@ -17,11 +17,20 @@ inline constexpr int kChannels = 3;
 const char* ChannelName(int channel);
 // X.ltm -> X.r.ltm (channel 0): the file of one channel of the set named X.ltm.
 std::string ChannelPath(const std::string& set_path, int channel);
+// X.ltm -> X.NAME.ltm: the member NAME of the set named X.ltm (channels r, g, b; a factored
+// bake's terms k0, k1, ...).
+std::string SetMemberPath(const std::string& set_path, const std::string& name);
 
-// The channel files of the set `path` names, in channel order: empty when `path` exists
-// (one container) or when no file of the set does (the caller's open then reports the
-// missing file). A set with a file missing, or a file whose "channel" metadata is not its
-// name's channel (or is absent), is an error naming both files.
-Result<std::vector<std::string>> ChannelFiles(const std::string& path);
+// One file of a set: its member name ("r", "k2") and path.
+struct SetMember {
+  std::string name, path;
+};
+
+// The files of the set `path` names, in order: X.r.ltm, X.g.ltm, X.b.ltm (a colour set) or
+// X.k0.ltm .. (a factored bake, its terms listed in each file's "channel" metadata). Empty
+// when `path` exists (one container) or when no file of a set does (the caller's open then
+// reports the missing file). A set with a file missing, or a file whose "channel" metadata
+// is not its name's (or is absent), is an error naming both files.
+Result<std::vector<SetMember>> ChannelFiles(const std::string& path);
 
 }  // namespace ltb::stages

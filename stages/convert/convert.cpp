@@ -416,9 +416,12 @@ Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress
   return result;
 }
 
-// A colour channel set -> one .npy of shape (3, rows, cols): channel c is [c] (docs/COLOUR.md).
-Result<ConvertResult> SetToNpy(const ConvertOptions& o, const std::vector<std::string>& files,
+// A set (colour channels, a factored bake's terms) -> one .npy of shape (members, rows,
+// cols): member m is [m] (docs/COLOUR.md).
+Result<ConvertResult> SetToNpy(const ConvertOptions& o, const std::vector<SetMember>& members,
                                const Progress& progress) {
+  std::vector<std::string> files;
+  for (const SetMember& m : members) files.push_back(m.path);
   std::vector<std::pair<uint64_t, uint64_t>> shapes;
   for (const std::string& f : files) {
     LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(f));
@@ -465,8 +468,8 @@ Result<ConvertResult> RunConvert(const ConvertOptions& o, const Progress& progre
     // the same output stops here, before it removes or opens anything.
     LTB_ASSIGN_OR_RETURN(io::FileLock lock, io::LockOutput(o.output));
     if (to_ltm) return NpyToLtm(o, progress);
-    LTB_ASSIGN_OR_RETURN(std::vector<std::string> files, ChannelFiles(o.input));
-    return files.empty() ? LtmToNpy(o, progress) : SetToNpy(o, files, progress);
+    LTB_ASSIGN_OR_RETURN(std::vector<SetMember> members, ChannelFiles(o.input));
+    return members.empty() ? LtmToNpy(o, progress) : SetToNpy(o, members, progress);
   }
   return InvalidArgument("convert " + o.input + " " + o.output +
                          ": supported conversions are .npy -> .ltm, .ltm -> .npy and an environment map (.exr, .hdr) "

@@ -260,7 +260,10 @@ Status WriteOutput(const CpcaOptions& o, const io::ContainerReader& in, const Pa
   // A colour bake's channel and reflectance table go with the rows (docs/COLOUR.md).
   const int refl = in.metadata().FindArray("reflectance");
   if (refl >= 0) out_meta["arrays"].push_back(in.metadata().arrays[refl].ToJson());
-  if (in.metadata().json.contains("channel")) out_meta["channel"] = in.metadata().json["channel"];
+  // A set member's identity, and a factored bake's view factors and geometry (docs/GLOSSY.md).
+  for (const char* key : {"channel", "factor", "geometry"}) {
+    if (in.metadata().json.contains(key)) out_meta[key] = in.metadata().json[key];
+  }
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
   LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::ContainerWriter::Open(o.output, out_meta, wo));

@@ -6,7 +6,7 @@
 
 namespace ltb::stages {
 
-Result<RelightMatrix> RelightMatrix::OpenSet(const std::string& path, const std::vector<std::string>& files,
+Result<RelightMatrix> RelightMatrix::OpenSet(const std::string& path, const std::vector<SetMember>& members,
                                              uint64_t mem_limit, int jobs, const Progress& progress,
                                              nlohmann::json* report) {
   RelightMatrix m;
@@ -14,7 +14,14 @@ Result<RelightMatrix> RelightMatrix::OpenSet(const std::string& path, const std:
   m.jobs_ = jobs;
   m.progress_ = progress;
   nlohmann::json channels = nlohmann::json::array();
-  for (const std::string& f : files) {
+  if (members.size() != static_cast<size_t>(kChannels) || members.front().name != "r") {
+    return InvalidArgument(path + ": is the set of " + members.front().path + ", the " +
+                           std::to_string(members.size()) +
+                           " terms of a factored bake: their image depends on the view; relight it with --eye "
+                           "(docs/GLOSSY.md)");
+  }
+  for (const SetMember& member : members) {
+    const std::string& f = member.path;
     nlohmann::json one = nlohmann::json::object();
     LTB_ASSIGN_OR_RETURN(RelightMatrix c, Open(f, mem_limit, jobs, progress, &one));
     if (!m.channels_.empty()) {
@@ -48,8 +55,8 @@ Result<RelightMatrix> RelightMatrix::OpenSet(const std::string& path, const std:
 
 Result<RelightMatrix> RelightMatrix::Open(const std::string& path, uint64_t mem_limit, int jobs,
                                           const Progress& progress, nlohmann::json* report) {
-  LTB_ASSIGN_OR_RETURN(std::vector<std::string> files, ChannelFiles(path));
-  if (!files.empty()) return OpenSet(path, files, mem_limit, jobs, progress, report);
+  LTB_ASSIGN_OR_RETURN(std::vector<SetMember> members, ChannelFiles(path));
+  if (!members.empty()) return OpenSet(path, members, mem_limit, jobs, progress, report);
   LTB_ASSIGN_OR_RETURN(io::ContainerReader reader, io::ContainerReader::Open(path));
   RelightMatrix m;
   m.path_ = path;

@@ -13,6 +13,7 @@
 
 #include "format/progress.h"
 #include "format/status.h"
+#include "stages/common/channels.h"
 #include "stages/cpca/cpca_model.h"
 #include "stages/relight/relight.h"
 
@@ -47,7 +48,7 @@ class RelightMatrix {
   Status RelightDense(const std::vector<float>& lighting, std::vector<float>* image);
 
  private:
-  static Result<RelightMatrix> OpenSet(const std::string& path, const std::vector<std::string>& files,
+  static Result<RelightMatrix> OpenSet(const std::string& path, const std::vector<SetMember>& members,
                                        uint64_t mem_limit, int jobs, const Progress& progress, nlohmann::json* report);
   // The image of each channel's matrix, channel c kept from the c-th; then the reflectance.
   template <typename F>

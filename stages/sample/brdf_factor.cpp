@@ -31,27 +31,38 @@ glm::dvec3 ParabolicTable::Direction(uint32_t res, uint32_t i, uint32_t j, doubl
   return glm::dvec3(2 * u, 2 * v, 1.0 - s) / (1.0 + s);
 }
 
-double ParabolicTable::Lookup(const glm::dvec3& w) const {
+ParabolicCoords::ParabolicCoords(uint32_t res, const glm::dvec3& w) {
   glm::dvec3 d = w;
   if (d.z < 0) d.z = 0;
   const double len = glm::length(d);
-  if (!(len > 0)) return value[static_cast<size_t>(res / 2) * res + res / 2];
-  d /= len;
+  if (len > 0) {
+    d /= len;
+  } else {
+    d = glm::dvec3(0, 0, 1);
+  }
   const double u = d.x / (1.0 + d.z), v = d.y / (1.0 + d.z);
   const double fu = std::clamp((u + 1.0) * 0.5 * res - 0.5, 0.0, res - 1.0);
   const double fv = std::clamp((v + 1.0) * 0.5 * res - 0.5, 0.0, res - 1.0);
-  const uint32_t i0 = static_cast<uint32_t>(fu), j0 = static_cast<uint32_t>(fv);
-  const uint32_t i1 = std::min(i0 + 1, res - 1), j1 = std::min(j0 + 1, res - 1);
-  const double a = fu - i0, b = fv - j0;
-  const float* row0 = value.data() + static_cast<size_t>(j0) * res;
-  const float* row1 = value.data() + static_cast<size_t>(j1) * res;
-  return (1 - b) * ((1 - a) * row0[i0] + a * row0[i1]) + b * ((1 - a) * row1[i0] + a * row1[i1]);
+  i0 = static_cast<uint32_t>(fu);
+  j0 = static_cast<uint32_t>(fv);
+  i1 = std::min(i0 + 1, res - 1);
+  j1 = std::min(j0 + 1, res - 1);
+  a = fu - i0;
+  b = fv - j0;
+}
+
+double ParabolicTable::At(const ParabolicCoords& c) const {
+  const float* row0 = value.data() + static_cast<size_t>(c.j0) * res;
+  const float* row1 = value.data() + static_cast<size_t>(c.j1) * res;
+  return (1 - c.b) * ((1 - c.a) * row0[c.i0] + c.a * row0[c.i1]) + c.b * ((1 - c.a) * row1[c.i0] + c.a * row1[c.i1]);
 }
 
 double BrdfFactors::Eval(const glm::dvec3& w, const glm::dvec3& wo) const {
+  const double len = glm::length(w);
+  if (!(w.z > 0) || !(len > 0)) return 0.0;
   double s = 0;
   for (uint32_t k = 0; k < f.size(); ++k) s += f[k].Lookup(w) * g[k].Lookup(wo);
-  return s;
+  return s * w.z / len;
 }
 
 double PhongCos(double albedo, double ks, double exponent, const glm::dvec3& w, const glm::dvec3& wo) {
@@ -129,30 +140,36 @@ Result<BrdfFactors> FactorPhong(double albedo, double ks, double exponent, uint3
     for (uint32_t m = 0; m + 1 < k && m < sigma2.size(); ++m) rest -= sigma2[m];
     out.error.push_back(full2 > 0 ? std::sqrt(std::max(0.0, rest) / full2) : 0.0);
   }
-  // Term 0: f = albedo/π·cos (the diffuse bake computes it exactly; the table is for Eval).
-  ParabolicTable f0{incident_res, std::vector<float>(ni)}, g0{view_res, std::vector<float>(nv, 1.0f)};
-  for (uint32_t k = 0; k < ni; ++k) f0.value[k] = static_cast<float>(albedo / M_PI * std::max(0.0, wi[k].z));
+  // Term 0: f = albedo/π (the diffuse bake computes it exactly; the table is for Eval).
+  ParabolicTable f0{incident_res, std::vector<float>(ni, static_cast<float>(albedo / M_PI))},
+      g0{view_res, std::vector<float>(nv, 1.0f)};
+  // The glossy lobe without the cosine (horizon cells: the limit, cos → 0 cancels).
+  auto lobe = [&](const glm::dvec3& w, const glm::dvec3& o) {
+    const glm::dvec3 r(-o.x, -o.y, o.z);
+    const double c = glm::dot(r, w);
+    return c > 0 ? ks * (exponent + 2) / (2 * M_PI) * std::pow(c, exponent) : 0.0;
+  };
   out.f.push_back(std::move(f0));
   out.g.push_back(std::move(g0));
   for (uint32_t k = 1; k < terms; ++k) {
     ParabolicTable fk{incident_res, std::vector<float>(ni, 0.0f)}, gk{view_res, std::vector<float>(nv, 0.0f)};
     const uint32_t col = k - 1;
     if (col < sigma2.size() && sigma2[col] > 1e-30 * (tail > 0 ? tail : 1.0) && v.cols() > col) {
-      // f_k(ω) = Σ_j G(ω, ω_j)·√a_j·v_jk for every incident cell (the disk's and the rest's).
+      // f_k(ω) = cos θ·Σ_j lobe(ω, ω_j)·√a_j·v_jk for every incident cell (the disk's and
+      // the rest's); the table holds the sum, f_k / cos θ.
       std::vector<double> fv(ni, 0.0);
       for (uint32_t i = 0; i < ni; ++i) {
         double s = 0;
         for (size_t jj = 0; jj < in_v.size(); ++jj) {
-          s += PhongCos(0.0, ks, exponent, wi[i], wv[in_v[jj]]) * std::sqrt(av[in_v[jj]]) *
-               v(static_cast<Eigen::Index>(jj), col);
+          s += lobe(wi[i], wv[in_v[jj]]) * std::sqrt(av[in_v[jj]]) * v(static_cast<Eigen::Index>(jj), col);
         }
-        fv[i] = s;
+        fv[i] = s * wi[i].z;
         fk.value[i] = static_cast<float>(s);
       }
       // g_k(ω_o) = Σ_i f_k(ω_i)·a_i·G(ω_i, ω_o) / σ_k² (= v_jk/√a_j on the disk's cells).
       for (uint32_t j = 0; j < nv; ++j) {
         double s = 0;
-        for (uint32_t ii : in_i) s += fv[ii] * ai[ii] * PhongCos(0.0, ks, exponent, wi[ii], wv[j]);
+        for (uint32_t ii : in_i) s += fv[ii] * ai[ii] * lobe(wi[ii], wv[j]) * wi[ii].z;
         gk.value[j] = static_cast<float>(s / sigma2[col]);
       }
     }

@@ -23,25 +23,37 @@ namespace ltb::sample {
 // frame does for an isotropic BRDF, as long as both use it (Duff et al. 2017, branchless).
 void TangentFrame(const glm::dvec3& n, glm::dvec3* t, glm::dvec3* b);
 
+// Where a local direction falls on a parabolic map of res × res cells: the four cells'
+// offset and the bilinear weights (directions below the horizon read the horizon).
+struct ParabolicCoords {
+  uint32_t i0 = 0, i1 = 0, j0 = 0, j1 = 0;
+  double a = 0, b = 0;
+  ParabolicCoords(uint32_t res, const glm::dvec3& w);
+};
+
 // A table over a parabolic map of the upper hemisphere: res × res cells of [-1, 1]², values
-// at the cell centres; directions below the horizon read the horizon.
+// at the cell centres.
 struct ParabolicTable {
   uint32_t res = 0;
   std::vector<float> value;  // res × res, row v, column u
   // Bilinear at the local direction w (z up; need not be unit).
-  double Lookup(const glm::dvec3& w) const;
+  double Lookup(const glm::dvec3& w) const { return At(ParabolicCoords(res, w)); }
+  double At(const ParabolicCoords& c) const;
   // The cell centre's direction and its solid angle (0 for a centre outside the disk).
   static glm::dvec3 Direction(uint32_t res, uint32_t i, uint32_t j, double* solid_angle);
 };
 
-// The factorisation of one material's ρ·cos: K pairs (f_k, g_k), and the relative L2 error
-// of the rank-k approximation for k = 1..max_rank (over both hemispheres, solid-angle
-// weighted): error[k-1] = √(Σ_{i≥k} σ_i²) / √(Σ_i σ_i²).
+// The factorisation of one material's ρ·cos with K terms: term 0 is the diffuse part,
+// exact (f_0 = albedo/π·cos, g_0 = 1: a K = 1 bake is the plain diffuse vertex bake), terms
+// 1..K−1 the truncated SVD of the glossy part ks·lobe·cos. f holds f_k / cos θ (the
+// incident factor without the cosine the sampler's ray weights already carry). error[k−1]
+// is the relative L2 error of the K = k approximation of the whole ρ·cos over both
+// hemispheres (solid-angle weighted), for k = 1..max(K, 8).
 struct BrdfFactors {
   uint32_t terms = 0;
   std::vector<ParabolicTable> f, g;
   std::vector<double> error;
-  // Σ_k f_k(w)·g_k(wo), both local, for tests.
+  // cos θ·Σ_k f_k(w)·g_k(wo), both local (0 for w below the horizon), for tests.
   double Eval(const glm::dvec3& w, const glm::dvec3& wo) const;
 };
 

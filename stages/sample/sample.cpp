@@ -10,12 +10,14 @@
 #include <filesystem>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <sstream>
 #include <vector>
 
 #include "format/io/async_chunk_writer.h"
 #include "format/io/container_writer.h"
 #include "format/version.h"
+#include "stages/common/base64.h"
 #include "stages/common/basis.h"
 #include "stages/common/channels.h"
 #include "stages/common/parallel_for.h"
@@ -35,6 +37,7 @@ using sample::Brdf;
 using sample::BuildGeometry;
 using sample::Counters;
 using sample::Geometry;
+using sample::ParabolicTable;
 using sample::RowPoint;
 using sample::RowScratch;
 using sample::Sampler;
@@ -109,7 +112,7 @@ Status CheckColour(const SampleOptions& o, Prepared* p) {
     return InvalidArgument(o.scene + ": the scene has colour and --bounces " + std::to_string(p->bounces) +
                            " makes it bleed between surfaces, which one monochrome matrix cannot hold" + fix);
   }
-  if (s.mode == SceneDesc::Mode::kImage) {
+  if (s.mode == SceneDesc::Mode::kImage || o.factor > 1) {  // where the lobe is rendered
     // Every Embree geometry's material: an object's own, or those its OBJ's usemtl picks.
     for (size_t g = 0; g < p->geo.geom_material.size(); ++g) {
       const sample::Object& obj = s.objects[static_cast<size_t>(p->geo.geom_object[g])];
@@ -156,6 +159,22 @@ Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress
     if (o.row_filter) return InvalidArgument("--visibility cannot be fused with a row-transform");
     p->bounces = 0;  // the scene's [sampling] bounces do not apply to visibility
   }
+  if (o.factor > 0) {
+    const std::string f = "--factor " + std::to_string(o.factor);
+    if (p->scene.mode != SceneDesc::Mode::kVertex) {
+      return InvalidArgument(o.scene + ": " + f +
+                             " factors the BRDF for vertex rows seen from any view; the scene "
+                             "has a camera (image mode, one fixed view). Give it [output] mode = \"vertex\"");
+    }
+    if (o.factor > 64) return InvalidArgument(f + ": at most 64 terms");
+    if (o.visibility || o.sparse.enabled || o.channel >= 0) {
+      return InvalidArgument(f + " does not combine with --visibility, --sparse or --channel (docs/GLOSSY.md)");
+    }
+    if (p->bounces > 0 && o.factor > 1) {
+      return InvalidArgument(f + " bakes direct lighting; --bounces " + std::to_string(p->bounces) +
+                             " (interreflection off glossy vertices) is not done (docs/GLOSSY.md)");
+    }
+  }
   LTB_ASSIGN_OR_RETURN(p->geo, BuildGeometry(p->scene, progress));
   LTB_RETURN_IF_ERROR(CheckColour(o, p.get()));
   p->rows = p->scene.mode == SceneDesc::Mode::kImage ? uint64_t{p->scene.camera.width} * p->scene.camera.height
@@ -164,6 +183,8 @@ Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress
 }
 
 }  // namespace sample_internal
+
+std::string FactorPath(const std::string& output, uint32_t k) { return SetMemberPath(output, "k" + std::to_string(k)); }
 
 Result<BareTraceResult> TraceBare(const SampleOptions& o) {
   LTB_ASSIGN_OR_RETURN(std::unique_ptr<Prepared> p, sample_internal::Prepare(o, Progress{}));
@@ -307,13 +328,15 @@ Status WriteReflectance(const Prepared& p, const Sampler& sampler, uint64_t bloc
 
 namespace {
 
-// Row blocks with any array missing (a shard: among the blocks it owns; the four arrays
-// share the row blocking, so they share the shard's chunk range).
-std::vector<uint64_t> MissingBlocks(io::ContainerWriter& out) {
+// Row blocks with any array missing in any output (a shard: among the blocks it owns; the
+// four arrays share the row blocking, so they share the shard's chunk range).
+std::vector<uint64_t> MissingBlocks(std::vector<io::ContainerWriter>& outs) {
   std::vector<uint64_t> todo;
-  for (uint32_t a = 0; a < 4; ++a) {
-    std::vector<uint64_t> m = out.Missing(a);
-    todo.insert(todo.end(), m.begin(), m.end());
+  for (io::ContainerWriter& out : outs) {
+    for (uint32_t a = 0; a < 4; ++a) {
+      std::vector<uint64_t> m = out.Missing(a);
+      todo.insert(todo.end(), m.begin(), m.end());
+    }
   }
   std::sort(todo.begin(), todo.end());
   todo.erase(std::unique(todo.begin(), todo.end()), todo.end());
@@ -327,7 +350,8 @@ struct BlockBuffers {
     void operator()(float* p) const { std::free(p); }
   };
   std::unique_ptr<float, Free> mat;
-  uint64_t mat_floats = 0;  // allocated
+  uint64_t mat_floats = 0;   // allocated
+  std::vector<float> extra;  // a factored bake's terms 1..K−1, one block after the other
   std::vector<float> pos, nor;
   std::vector<uint8_t> mask;
 };
@@ -339,7 +363,7 @@ class BufferPool {
  public:
   // A buffer for `rows` rows of `cols` values, returned to the pool when the last
   // shared_ptr to it goes. nullptr when memory runs out.
-  std::shared_ptr<BlockBuffers> Get(uint64_t rows, uint64_t cols) {
+  std::shared_ptr<BlockBuffers> Get(uint64_t rows, uint64_t cols, uint64_t extra_terms) {
     std::unique_ptr<BlockBuffers> b;
     {
       std::lock_guard<std::mutex> lock(mu_);
@@ -356,6 +380,7 @@ class BufferPool {
       if (!b->mat) return nullptr;
       b->mat_floats = floats;
     }
+    b->extra.assign(extra_terms * rows * cols, 0.0f);
     b->pos.assign(rows * 3, 0.0f);
     b->nor.assign(rows * 3, 0.0f);
     b->mask.assign(rows, 0);
@@ -371,6 +396,79 @@ class BufferPool {
   std::vector<std::unique_ptr<BlockBuffers>> free_;
 };
 
+// A factored bake's factors (docs/GLOSSY.md): per material of a vertex row, its BRDF's
+// factorisation (glossy materials only) and the incident tables f_1..f_{K−1} the sampler
+// reads (empty for a diffuse material: its terms 1..K−1 are 0).
+struct FactorPlan {
+  uint32_t terms = 0;
+  std::vector<sample::BrdfFactors> factors;
+  std::vector<std::vector<const sample::ParabolicTable*>> tables;
+  std::vector<std::pair<std::string, std::vector<double>>> errors;
+};
+
+Result<FactorPlan> PlanFactors(const Prepared& p, uint32_t terms) {
+  FactorPlan plan;
+  plan.terms = terms;
+  const auto& mats = p.scene.materials;
+  std::vector<bool> used(mats.size(), false);
+  for (const RowPoint& rp : p.geo.vertex_rows) used[static_cast<size_t>(rp.material)] = true;
+  plan.factors.resize(mats.size());
+  for (size_t m = 0; m < mats.size(); ++m) {
+    if (!used[m] || !(mats[m].ks > 0) || terms < 2) continue;
+    if (mats[m].brdf != "phong") {
+      return InvalidArgument(p.scene.path + ": material \"" + mats[m].name + "\" has brdf \"" + mats[m].brdf +
+                             "\"; sample --factor factors the Phong lobe only (the triple-product path renders the "
+                             "others: docs/TRIPLE.md)");
+    }
+    LTB_ASSIGN_OR_RETURN(plan.factors[m], sample::FactorPhong(mats[m].albedo, mats[m].ks, mats[m].exponent, terms));
+    plan.errors.emplace_back(mats[m].name, plan.factors[m].error);
+  }
+  plan.tables.resize(mats.size());
+  for (size_t m = 0; m < mats.size(); ++m) {
+    for (size_t k = 1; k < plan.factors[m].f.size(); ++k) plan.tables[m].push_back(&plan.factors[m].f[k]);
+  }
+  return plan;
+}
+
+// Output k of a factored bake: which term it is ("channel" k<k> of the set, docs/COLOUR.md
+// "A set through the stages"), every material's view factors g_0..g_{K−1} (float32 tables
+// over the parabolic view map, base64) and errors, and where the renderer finds the
+// geometry (relight --eye).
+void AddFactorMetadata(const SampleOptions& o, const Prepared& p, const FactorPlan& plan, uint32_t k,
+                       nlohmann::json* meta) {
+  nlohmann::json names = nlohmann::json::array();
+  for (uint32_t i = 0; i < plan.terms; ++i) names.push_back("k" + std::to_string(i));
+  (*meta)["channel"] = {{"name", "k" + std::to_string(k)}, {"index", k}, {"names", names}, {"factor", k}};
+  nlohmann::json materials = nlohmann::json::array();
+  uint32_t view_res = 0;
+  for (size_t m = 0; m < p.scene.materials.size(); ++m) {
+    const sample::Material& mat = p.scene.materials[m];
+    const sample::BrdfFactors& f = plan.factors[m];
+    nlohmann::json j = {{"name", mat.name},
+                        {"albedo", mat.albedo},
+                        {"ks", mat.ks},
+                        {"exponent", mat.exponent},
+                        {"glossy", !f.g.empty()}};
+    if (!f.g.empty()) {
+      view_res = f.g.front().res;
+      nlohmann::json g = nlohmann::json::array();
+      for (const sample::ParabolicTable& t : f.g) g.push_back(FloatsToBase64(t.value));
+      j["g"] = g;
+      j["error"] = f.error;
+    }
+    materials.push_back(j);
+  }
+  (*meta)["factor"] = {{"terms", plan.terms},
+                       {"view_res", view_res},
+                       {"map", "parabolic"},
+                       {"frame", "duff2017"},
+                       {"materials", materials}};
+  (*meta)["geometry"] = {{"scene", std::filesystem::absolute(o.scene).lexically_normal().string()},
+                         {"scene_hash", p.geo.scene_hash},
+                         {"geometry_hash", p.geo.geometry_hash}};
+  (*meta)["provenance"]["parameters"]["factor"] = plan.terms;
+}
+
 // Samples row blocks, one chunk of each array per block, from any number of threads, and
 // hands the chunks to the writer thread; counts what it did. Progress in rays; the total
 // is extrapolated from the rays per row seen so far.
@@ -378,8 +476,10 @@ struct BlockSampler {
   const SampleOptions& o;
   const Prepared& p;
   const Sampler& sampler;
-  io::ContainerWriter& out;
-  io::AsyncChunkWriter& writer;
+  // One output, or a factored bake's K (term k into outs[k]).
+  std::vector<io::ContainerWriter>& outs;
+  std::vector<std::unique_ptr<io::AsyncChunkWriter>>& writers;
+  const FactorPlan* plan;
   BufferPool& pool;
   const Progress& progress;
   uint64_t block, rows_todo;
@@ -390,7 +490,8 @@ struct BlockSampler {
     const uint64_t rows = p.rows, cols = 6ull * p.r * p.r;
     uint64_t r0 = chunk * block, n = std::min(block, rows - r0);
     thread_local RowScratch sc;
-    std::shared_ptr<BlockBuffers> buf = pool.Get(n, cols);
+    const uint64_t extra_terms = outs.size() - 1;
+    std::shared_ptr<BlockBuffers> buf = pool.Get(n, cols, extra_terms);
     if (!buf) {
       return Internal("out of memory for a block of " + std::to_string(n) + " rows x " + std::to_string(cols) +
                       " values");
@@ -412,7 +513,15 @@ struct BlockSampler {
         pos[3 * i + k] = static_cast<float>(rp.p[k]);
         nor[3 * i + k] = static_cast<float>(rp.n[k]);
       }
-      sampler.Transport(r0 + i, rp, mat + i * cols, sc, cnt);
+      const std::vector<const ParabolicTable*>* f = plan ? &plan->tables[static_cast<size_t>(rp.material)] : nullptr;
+      if (f != nullptr && !f->empty()) {  // a glossy material of a factored bake: K terms from one set of rays
+        thread_local std::vector<float*> term_out;
+        term_out.assign(1, mat + i * cols);
+        for (uint64_t k = 0; k < extra_terms; ++k) term_out.push_back(buf->extra.data() + (k * n + i) * cols);
+        sampler.TransportFactored(r0 + i, rp, *f, term_out.data(), sc, cnt);
+      } else {  // terms 1..K−1 of a diffuse material are 0 (the buffers start at 0)
+        sampler.Transport(r0 + i, rp, mat + i * cols, sc, cnt);
+      }
       uint64_t rays = cnt.rays.load();
       uint64_t estimate = std::max(rays, static_cast<uint64_t>(static_cast<double>(rays) / done_rows * rows_todo));
       progress.Report(rays, done_rows >= rows_todo ? rays : estimate, "rays");
@@ -424,6 +533,9 @@ struct BlockSampler {
       scratch.resize(RowBlockScratchSize(p.r));
       uint64_t zero_rows = 0;
       TransformRowBlock(*o.row_filter, p.r, mat, n, scratch.data(), &zero_rows);
+      for (uint64_t k = 0; k < extra_terms; ++k) {
+        TransformRowBlock(*o.row_filter, p.r, buf->extra.data() + k * n * cols, n, scratch.data(), &zero_rows);
+      }
       matrix_encoding.zstd = o.row_zstd;
     }
     if (o.visibility) {  // each row's V, Haar-transformed per face; stored sparse
@@ -434,12 +546,15 @@ struct BlockSampler {
     auto bytes = [](const auto* v, uint64_t count) {
       return ByteSpan(reinterpret_cast<const std::byte*>(v), count * sizeof(v[0]));
     };
-    const ByteSpan parts[4] = {bytes(mat, n * cols), bytes(buf->mask.data(), n), bytes(pos, n * 3), bytes(nor, n * 3)};
-    for (uint32_t a = 0; a < 4; ++a) {
-      if (out.Has(a, chunk)) continue;
-      // The writer thread encodes and writes; buf goes back to the pool after the last part.
-      LTB_RETURN_IF_ERROR(writer.Submit(a, chunk, parts[a], buf, a == 0 ? matrix_encoding : EncodeOptions{}));
-      written++;
+    for (size_t k = 0; k < outs.size(); ++k) {
+      const float* m = k == 0 ? mat : buf->extra.data() + (k - 1) * n * cols;
+      const ByteSpan parts[4] = {bytes(m, n * cols), bytes(buf->mask.data(), n), bytes(pos, n * 3), bytes(nor, n * 3)};
+      for (uint32_t a = 0; a < 4; ++a) {
+        if (outs[k].Has(a, chunk)) continue;
+        // The writer thread encodes and writes; buf goes back to the pool after the last part.
+        LTB_RETURN_IF_ERROR(writers[k]->Submit(a, chunk, parts[a], buf, a == 0 ? matrix_encoding : EncodeOptions{}));
+        written++;
+      }
     }
     return Status::Ok();
   }
@@ -462,9 +577,22 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
   wo.direct_io = o.direct_io;
-  nlohmann::json meta = sample_internal::SampleMetadata(o, *prep, block);
-  sample_internal::AddReflectance(*prep, block, &meta);
-  LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, meta, wo, o.shard));
+  // A factored bake (--factor K): K outputs OUT.k0.ltm ... from one pass (docs/GLOSSY.md).
+  std::optional<FactorPlan> plan;
+  if (o.factor > 0) {
+    LTB_ASSIGN_OR_RETURN(FactorPlan p, PlanFactors(*prep, o.factor));
+    plan = std::move(p);
+  }
+  const uint32_t outputs = plan ? plan->terms : 1;
+  std::vector<io::ContainerWriter> outs;
+  for (uint32_t k = 0; k < outputs; ++k) {
+    nlohmann::json meta = sample_internal::SampleMetadata(o, *prep, block);
+    sample_internal::AddReflectance(*prep, block, &meta);
+    if (plan) AddFactorMetadata(o, *prep, *plan, k, &meta);
+    const std::string path = plan ? FactorPath(o.output, k) : o.output;
+    LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(path, meta, wo, o.shard));
+    outs.push_back(std::move(out));
+  }
 
   SampleResult result;
   result.rows = rows;
@@ -472,38 +600,51 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   result.spp = prep->spp;
   result.bounces = prep->bounces;
   result.degenerate_triangles = geo.degenerate;
+  if (plan) result.factor_errors = plan->errors;
   const uint64_t nchunks = (rows + block - 1) / block;
-  result.chunks_total = nchunks * 4;
-  result.chunks_already_committed = out.resume_info().committed_chunks;
+  result.chunks_total = nchunks * 4 * outputs;
+  for (const io::ContainerWriter& out : outs) result.chunks_already_committed += out.resume_info().committed_chunks;
 
-  const std::vector<uint64_t> todo = MissingBlocks(out);
+  const std::vector<uint64_t> todo = MissingBlocks(outs);
   Sampler sampler(prep->scene, geo, r, prep->spp, prep->bounces, prep->seed);
   sampler.SetVisibility(o.visibility);
-  // The tracing threads hand their chunks to one writer thread through a bounded queue (a
-  // quarter of --mem-limit, at most kMaxWriteQueueBytes); the pool outlives the writer,
-  // which returns the buffers to it.
+  // The tracing threads hand their chunks to one writer thread per output through a
+  // bounded queue (a quarter of --mem-limit, at most kMaxWriteQueueBytes, shared by the
+  // outputs); the pool outlives the writers, which return the buffers to it.
   BufferPool pool;
-  const uint64_t queue_bytes = o.mem_limit > 0 ? std::min(o.mem_limit / 4, kMaxWriteQueueBytes) : kMaxWriteQueueBytes;
-  io::AsyncChunkWriter writer(out, queue_bytes);
-  BlockSampler bs{o, *prep, sampler, out, writer, pool, progress, block, std::min(rows, todo.size() * block)};
+  const uint64_t queue_bytes =
+      (o.mem_limit > 0 ? std::min(o.mem_limit / 4, kMaxWriteQueueBytes) : kMaxWriteQueueBytes) / outputs;
+  std::vector<std::unique_ptr<io::AsyncChunkWriter>> writers;
+  for (io::ContainerWriter& out : outs) writers.push_back(std::make_unique<io::AsyncChunkWriter>(out, queue_bytes));
+  BlockSampler bs{o,       *prep,
+                  sampler, outs,
+                  writers, plan ? &*plan : nullptr,
+                  pool,    progress,
+                  block,   std::min(rows, todo.size() * block)};
   Status s = ParallelFor(todo, o.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
                          [&](uint64_t chunk) -> Status { return bs.Run(chunk); });
   // Also after a failure or an interrupt: the chunks already queued are written and commit.
-  Status closed = writer.Close();
-  if (s.ok()) s = closed;
-  const io::DirectIoStats ds = out.direct_io_stats();
-  result.bytes_direct = ds.direct_bytes;
-  result.direct_fallback = ds.fallback_reason;
-  result.write_queue_bytes = writer.capacity_bytes();
-  result.write_queue_waits = writer.submit_waits();
+  for (auto& w : writers) {
+    Status closed = w->Close();
+    if (s.ok()) s = closed;
+    result.write_queue_bytes += w->capacity_bytes();
+    result.write_queue_waits += w->submit_waits();
+  }
+  for (io::ContainerWriter& out : outs) {
+    const io::DirectIoStats ds = out.direct_io_stats();
+    result.bytes_direct += ds.direct_bytes;
+    if (result.direct_fallback.empty()) result.direct_fallback = ds.fallback_reason;
+  }
   result.chunks_written = bs.written;
   result.rays = bs.cnt.rays;
   result.texels_below_horizon = bs.cnt.below;
   result.samples_below_horizon = bs.cnt.samples_below;
   result.valid_rows = bs.valid;
   LTB_RETURN_IF_ERROR(s);
-  LTB_RETURN_IF_ERROR(sample_internal::WriteReflectance(*prep, sampler, block, out, progress));
-  LTB_RETURN_IF_ERROR(out.Finish());
+  for (io::ContainerWriter& out : outs) {
+    LTB_RETURN_IF_ERROR(sample_internal::WriteReflectance(*prep, sampler, block, out, progress));
+    LTB_RETURN_IF_ERROR(out.Finish());
+  }
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return result;
 }

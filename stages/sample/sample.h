@@ -6,6 +6,8 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "format/io/manifest.h"
 #include "format/progress.h"
@@ -61,7 +63,13 @@ struct SampleOptions {
   // material's channel value, vertex colours multiplying the albedo), one container per
   // channel (docs/COLOUR.md); -1: the monochrome bake.
   int channel = -1;
+  // --factor K (vertex mode): bake the BRDF in-out factorisation's K terms, OUT.k0.ltm ..
+  // OUT.k{K−1}.ltm, for glossy vertices seen from any view (docs/GLOSSY.md); 0: no.
+  uint32_t factor = 0;
 };
+
+// OUT.ltm -> OUT.k3.ltm: term k of a factored bake.
+std::string FactorPath(const std::string& output, uint32_t k);
 
 // What a sparse bake did, per phase (phase 1: the dense rows; phase 2: the sparse rows).
 struct SparseStats {
@@ -94,6 +102,8 @@ struct SampleResult {
   uint64_t write_queue_waits = 0;  // times a tracing thread waited for room in it
   double seconds = 0;
   std::optional<SparseStats> sparse;
+  // A factored bake: per glossy material, the relative L2 error of ρ·cos with K = 1..max(K, 8).
+  std::vector<std::pair<std::string, std::vector<double>>> factor_errors;
 };
 
 // The phase-1 checkpoint of a sparse bake, beside its output (removed once the output is sealed).

@@ -428,6 +428,48 @@ void Sampler::Transport(uint64_t row, const RowPoint& rp, float* out, RowScratch
   cnt.samples_below += samples_below;
 }
 
+void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vector<const ParabolicTable*>& f,
+                                float* const* out, RowScratch& sc, Counters& cnt) const {
+  const size_t terms = f.size() + 1;
+  const uint64_t cols = texels_.size(), step = TexelsPerBatch();
+  uint64_t below = 0, samples_below = 0, rays = 0;
+  const double diffuse = MakeBrdf(rp).diffuse;
+  Brdf unit = MakeBrdf(rp);
+  unit.diffuse = 1.0;  // ray values w·cos (w·cos·1.0, then ·diffuse: Transport's product, bit for bit)
+  std::vector<double>& acc = sc.sum_value;
+  acc.assign(cols * terms, 0.0);  // term k at [k·cols, (k+1)·cols)
+  glm::dvec3 t, b;
+  TangentFrame(rp.n, &t, &b);
+  const uint32_t res = f.empty() ? 0 : f.front()->res;
+  for (uint64_t c0 = 0; c0 < cols; c0 += step) {
+    GenerateRays(row, rp, unit, c0, std::min(cols, c0 + step), sc, &below, &samples_below);
+    g_.rays->Occluded(sc.batch, sc.n);
+    const float* tf = sc.batch.tfar.data();
+    const double* val = sc.ray_value.data();
+    const size_t texels = sc.n / spp_;
+    for (size_t m = 0; m < texels; ++m) {
+      const uint64_t c = sc.texel[m];
+      double s0 = acc[c];
+      for (uint64_t i = 0; i < spp_; ++i) {
+        const size_t slot = m * spp_ + i;
+        if (tf[slot] < 0) continue;  // occluded, or below the horizon
+        s0 += val[slot] * diffuse;
+        const glm::dvec3 d(sc.batch.dir_x[slot], sc.batch.dir_y[slot], sc.batch.dir_z[slot]);
+        const ParabolicCoords pc(res, glm::dvec3(glm::dot(t, d), glm::dot(b, d), glm::dot(rp.n, d)));
+        for (size_t k = 1; k < terms; ++k) acc[k * cols + c] += val[slot] * f[k - 1]->At(pc);
+      }
+      acc[c] = s0;
+    }
+    rays += sc.active;
+  }
+  const double h = 2.0 / r_, stratum_area = h * h / spp_;
+  for (size_t k = 0; k < terms; ++k)
+    for (uint64_t c = 0; c < cols; ++c) out[k][c] = static_cast<float>(acc[k * cols + c] * stratum_area);
+  cnt.rays += rays;
+  cnt.below += below;
+  cnt.samples_below += samples_below;
+}
+
 uint64_t Sampler::DirectSelected(uint64_t row, const RowPoint& rp, const uint8_t* select, double* out,
                                  RowScratch& sc) const {
   uint64_t below = 0, samples_below = 0, rays = 0;

@@ -11,6 +11,7 @@
 #include <glm/vec3.hpp>
 #include <vector>
 
+#include "stages/sample/brdf_factor.h"
 #include "stages/sample/geometry.h"
 #include "stages/sample/ray_scene.h"
 #include "stages/sample/scene.h"
@@ -85,6 +86,13 @@ class Sampler {
 
   // One row of T (6R² values) for a valid point.
   void Transport(uint64_t row, const RowPoint& rp, float* out, RowScratch& sc, Counters& cnt) const;
+
+  // The K terms of a factored bake (`sample --factor K`, docs/GLOSSY.md) of one row from one
+  // set of rays: out[0] exactly what Transport writes (the diffuse part), out[k] for
+  // k = 1..K−1 the texels' ∫ V·cos·f_k(ω in the row's tangent frame) dω, f[k] the incident
+  // factor tables of the row's material (f_k / cos θ). bounces must be 0.
+  void TransportFactored(uint64_t row, const RowPoint& rp, const std::vector<const ParabolicTable*>& f,
+                         float* const* out, RowScratch& sc, Counters& cnt) const;
 
   // Sparse sampling (docs/SPARSE.md). The direct term of the texels c with select[c] != 0
   // into out[c] (the others are left alone), estimated exactly as Transport estimates it

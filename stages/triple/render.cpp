@@ -550,25 +550,6 @@ std::vector<uint32_t> BrightestTexels(const std::vector<float>& cube, const std:
   return idx;
 }
 
-// "name_%04d.png" with frame k: the one integer conversion of the pattern.
-Result<std::string> FramePath(const std::string& pattern, uint32_t k) {
-  const size_t pct = pattern.find('%');
-  size_t end = pct;
-  if (pct != std::string::npos) {
-    end = pct + 1;
-    while (end < pattern.size() && std::isdigit(static_cast<unsigned char>(pattern[end]))) ++end;
-  }
-  if (pct == std::string::npos || end >= pattern.size() || pattern[end] != 'd' ||
-      pattern.find('%', end + 1) != std::string::npos) {
-    return InvalidArgument("-o " + pattern +
-                           ": an orbit writes one image a frame; give a pattern with one %d, e.g. "
-                           "frames/view_%04d.png");
-  }
-  char buf[64];
-  std::snprintf(buf, sizeof buf, pattern.substr(pct, end + 1 - pct).c_str(), static_cast<int>(k));
-  return pattern.substr(0, pct) + buf + pattern.substr(end + 1);
-}
-
 Status ResolveMaterials(Renderer& rd) {
   const MaterialField* lambert = nullptr;
   for (const MaterialField& f : rd.fields) {
@@ -698,6 +679,24 @@ Status TraceCamera(const Renderer& rd, const glm::dvec3& eye, std::vector<PixelH
 }
 
 }  // namespace
+
+Result<std::string> FramePath(const std::string& pattern, uint32_t k) {
+  const size_t pct = pattern.find('%');
+  size_t end = pct;
+  if (pct != std::string::npos) {
+    end = pct + 1;
+    while (end < pattern.size() && std::isdigit(static_cast<unsigned char>(pattern[end]))) ++end;
+  }
+  if (pct == std::string::npos || end >= pattern.size() || pattern[end] != 'd' ||
+      pattern.find('%', end + 1) != std::string::npos) {
+    return InvalidArgument("-o " + pattern +
+                           ": an orbit writes one image a frame; give a pattern with one %d, e.g. "
+                           "frames/view_%04d.png");
+  }
+  char buf[64];
+  std::snprintf(buf, sizeof buf, pattern.substr(pct, end + 1 - pct).c_str(), static_cast<int>(k));
+  return pattern.substr(0, pct) + buf + pattern.substr(end + 1);
+}
 
 Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& progress) {
   if (o.width == 0 || o.height == 0 || uint64_t{o.width} * o.height > (1u << 26)) {

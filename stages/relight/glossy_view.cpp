@@ -1,0 +1,240 @@
+#include "stages/relight/glossy_view.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <glm/geometric.hpp>
+#include <glm/trigonometric.hpp>
+#include <numbers>
+#include <optional>
+
+#include "format/io/container_reader.h"
+#include "stages/common/base64.h"
+#include "stages/common/channels.h"
+#include "stages/common/parallel_for.h"
+#include "stages/relight/environment.h"
+#include "stages/relight/image_io.h"
+#include "stages/relight/relight_matrix.h"
+#include "stages/sample/brdf_factor.h"
+#include "stages/sample/scene.h"
+#include "stages/sample/scene_geometry.h"
+#include "stages/triple/render.h"
+
+namespace ltb::stages {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double Ms(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
+
+// Per material, its view factors g_0..g_{K−1} (empty: a diffuse material, g_0 = 1, the
+// rest 0), from the first term's metadata.
+struct ViewFactors {
+  uint32_t terms = 0;
+  std::vector<std::vector<sample::ParabolicTable>> g;
+  std::string scene, geometry_hash;
+};
+
+Result<ViewFactors> ReadViewFactors(const std::string& path) {
+  LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(path));
+  const nlohmann::json& j = r.metadata().json;
+  ViewFactors v;
+  try {
+    const auto& f = j.at("factor");
+    v.terms = f.at("terms").get<uint32_t>();
+    const uint32_t res = f.at("view_res").get<uint32_t>();
+    if (f.at("map").get<std::string>() != "parabolic" || f.at("frame").get<std::string>() != "duff2017") {
+      return InvalidArgument(path + ": factors on a \"" + f.at("map").get<std::string>() + "\" map in a \"" +
+                             f.at("frame").get<std::string>() + "\" frame, which this renderer does not read");
+    }
+    for (const auto& m : f.at("materials")) {
+      std::vector<sample::ParabolicTable> g;
+      if (m.at("glossy").get<bool>()) {
+        for (const auto& text : m.at("g")) {
+          LTB_ASSIGN_OR_RETURN(std::vector<float> t, FloatsFromBase64(text.get<std::string>()));
+          if (res == 0 || res > 1024 || t.size() != uint64_t{res} * res) {
+            return DataLoss(path + ": material \"" + m.at("name").get<std::string>() + "\" has a view table of " +
+                            std::to_string(t.size()) + " values, not " + std::to_string(res) + "²");
+          }
+          g.push_back({res, std::move(t)});
+        }
+        if (g.size() != v.terms) {
+          return DataLoss(path + ": material \"" + m.at("name").get<std::string>() + "\" has " +
+                          std::to_string(g.size()) + " view tables for " + std::to_string(v.terms) + " terms");
+        }
+      }
+      v.g.push_back(std::move(g));
+    }
+    v.scene = j.at("geometry").at("scene").get<std::string>();
+    v.geometry_hash = j.at("geometry").at("geometry_hash").get<std::string>();
+  } catch (const nlohmann::json::exception& e) {
+    return InvalidArgument(path + ": not a term of a factored bake (sample --factor K): " + e.what());
+  }
+  return v;
+}
+
+// B per vertex (rows × 3) for one eye: Σ_k g_k(ω_o local)·P_k.
+void VertexRadiance(const sample::Geometry& geo, const ViewFactors& vf, const std::vector<std::vector<float>>& p,
+                    uint32_t used, const glm::dvec3& eye, int jobs, std::vector<float>* b) {
+  const uint64_t rows = geo.vertex_rows.size();
+  b->assign(rows * 3, 0.0f);
+  std::vector<uint64_t> blocks;
+  for (uint64_t r0 = 0; r0 < rows; r0 += 4096) blocks.push_back(r0);
+  (void)ParallelFor(blocks, jobs, Progress{}, "vertices", [&](uint64_t r0) -> Status {
+    for (uint64_t i = r0; i < std::min(rows, r0 + 4096); ++i) {
+      const sample::RowPoint& rp = geo.vertex_rows[i];
+      const auto& g = vf.g[static_cast<size_t>(rp.material)];
+      float* out = b->data() + 3 * i;
+      for (int c = 0; c < 3; ++c) out[c] = p[0][3 * i + c];  // g_0 = 1 (the diffuse term)
+      if (g.empty()) continue;
+      glm::dvec3 t, bt;
+      sample::TangentFrame(rp.n, &t, &bt);
+      const glm::dvec3 wo = eye - rp.p;
+      const sample::ParabolicCoords pc(g.front().res,
+                                       glm::dvec3(glm::dot(t, wo), glm::dot(bt, wo), glm::dot(rp.n, wo)));
+      for (uint32_t k = 1; k < used; ++k) {
+        const double gk = g[k].At(pc);
+        for (int c = 0; c < 3; ++c) out[c] += static_cast<float>(gk * p[k][3 * i + c]);
+      }
+    }
+    return Status::Ok();
+  });
+}
+
+}  // namespace
+
+Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progress& progress) {
+  auto t0 = Clock::now();
+  LTB_ASSIGN_OR_RETURN(std::vector<SetMember> members, ChannelFiles(o.set));
+  if (members.empty() || members.front().name != "k0") {
+    return InvalidArgument(o.set +
+                           ": --eye without --material renders a factored bake (sample --factor K: X.k0.ltm, "
+                           "X.k1.ltm, ...), and " +
+                           o.set +
+                           " is not one; for a fixed-view matrix leave out --eye, "
+                           "for the triple-product path add --material (docs/GLOSSY.md)");
+  }
+  LTB_ASSIGN_OR_RETURN(ViewFactors vf, ReadViewFactors(members.front().path));
+  if (vf.terms != members.size()) {
+    return InvalidArgument(members.front().path + ": says " + std::to_string(vf.terms) + " terms but the set has " +
+                           std::to_string(members.size()));
+  }
+  for (size_t k = 1; k < members.size(); ++k) {  // every term from the same bake
+    LTB_ASSIGN_OR_RETURN(ViewFactors other, ReadViewFactors(members[k].path));
+    if (other.terms != vf.terms || other.geometry_hash != vf.geometry_hash) {
+      return InvalidArgument(members[k].path + ": is not a term of the same bake as " + members.front().path + " (" +
+                             std::to_string(other.terms) + " vs " + std::to_string(vf.terms) +
+                             " terms, or another geometry); rebake the set");
+    }
+  }
+  const uint32_t used = o.use_terms == 0 ? vf.terms : std::min(o.use_terms, vf.terms);
+  // The geometry the bake saw (its rows, normals and materials) for the primary rays.
+  LTB_ASSIGN_OR_RETURN(sample::SceneDesc scene, sample::ParseScene(vf.scene));
+  LTB_ASSIGN_OR_RETURN(sample::Geometry geo, sample::BuildGeometry(scene, progress));
+  if (geo.geometry_hash != vf.geometry_hash) {
+    return FailedPrecondition(vf.scene + ": its geometry changed since " + members.front().path +
+                              " was baked (geometry hash " + geo.geometry_hash + ", baked " + vf.geometry_hash +
+                              "); bake again");
+  }
+  if (vf.g.size() != scene.materials.size()) {
+    return FailedPrecondition(vf.scene + ": has " + std::to_string(scene.materials.size()) + " materials, the bake " +
+                              std::to_string(vf.g.size()) + "; bake again");
+  }
+  nlohmann::json report = {{"set", o.set}, {"env", o.env}, {"terms_in_bake", vf.terms}, {"terms_used", used}};
+  // P_k = T_k·L, once (the lighting does not change along an orbit).
+  std::vector<std::vector<float>> p(used);
+  auto t1 = Clock::now();
+  EnvLoadOptions eo;
+  eo.layout = o.env_layout;
+  eo.clamp = o.clamp_env;
+  eo.max_bytes = o.mem_limit;
+  eo.progress = progress;
+  std::optional<Environment> env;
+  double relight_ms = 0;
+  for (uint32_t k = 0; k < used; ++k) {
+    LTB_ASSIGN_OR_RETURN(RelightMatrix m, RelightMatrix::Open(members[k].path, o.mem_limit, o.jobs, progress, nullptr));
+    if (m.rows() != geo.vertex_rows.size()) {
+      return InvalidArgument(members[k].path + ": " + std::to_string(m.rows()) + " rows, but " + vf.scene + " has " +
+                             std::to_string(geo.vertex_rows.size()) + " vertex rows");
+    }
+    if (!env) {
+      LTB_ASSIGN_OR_RETURN(Environment e, Environment::Open(o.env, m.basis().cube_res(), eo));
+      env.emplace(std::move(e));
+      if (env->clamped()) report["clamped_values"] = env->clamped();
+    }
+    std::vector<float> cube;
+    env->Cubemap(o.rotate_deg * std::numbers::pi / 180.0, &cube);
+    auto a = Clock::now();
+    m.basis().ToBasis(cube.data());
+    LightTerms terms;
+    LTB_RETURN_IF_ERROR(m.basis().SelectTerms(cube.data(), o.terms, Weighting::kArea, m.column_norms(), &terms));
+    LTB_RETURN_IF_ERROR(m.Relight(terms, &p[k]));
+    relight_ms += Ms(a, Clock::now());
+  }
+  report["load_ms"] = Ms(t0, t1);
+  report["relight_ms"] = relight_ms;
+  // Views.
+  const uint32_t frames = std::max<uint32_t>(1, o.orbit_frames);
+  if (o.orbit_frames > 0 && !o.output.empty()) LTB_RETURN_IF_ERROR(triple::FramePath(o.output, 0).status());
+  GlossyViewResult result;
+  std::vector<float> b, image;
+  std::vector<double> ms;
+  for (uint32_t f = 0; f < frames; ++f) {
+    if (progress.Cancelled()) return Cancelled("interrupted between frames; the frames written are kept");
+    const double angle = glm::radians(o.orbit_deg * f);
+    const glm::dvec3 rel = o.eye - o.target;
+    const glm::dvec3 eye = o.target + glm::dvec3(rel.x * std::cos(angle) - rel.y * std::sin(angle),
+                                                 rel.x * std::sin(angle) + rel.y * std::cos(angle), rel.z);
+    auto a = Clock::now();
+    VertexRadiance(geo, vf, p, used, eye, o.jobs, &b);
+    // Primary rays (the sampler's pinhole camera, docs/SCENE.md), B interpolated.
+    const glm::dvec3 fwd = glm::normalize(o.target - eye);
+    const glm::dvec3 right = glm::normalize(glm::cross(fwd, o.up));
+    const glm::dvec3 up = glm::cross(right, fwd);
+    const double th = std::tan(glm::radians(o.fov_degrees) / 2), aspect = double(o.width) / o.height;
+    image.assign(uint64_t{o.width} * o.height * 3, 0.0f);
+    std::vector<uint64_t> lines(o.height);
+    for (uint32_t y = 0; y < o.height; ++y) lines[y] = y;
+    LTB_RETURN_IF_ERROR(ParallelFor(lines, o.jobs, Progress{}, "lines", [&](uint64_t y) -> Status {
+      for (uint32_t x = 0; x < o.width; ++x) {
+        const double px = (2.0 * (x + 0.5) / o.width - 1.0) * th * aspect, py = (1.0 - 2.0 * (y + 0.5) / o.height) * th;
+        const sample::Hit h = geo.rays->Intersect(eye, glm::normalize(fwd + px * right + py * up));
+        if (!h.hit || h.geom_id >= geo.row_meshes.size()) continue;
+        const sample::Geometry::RowMesh& rm = geo.row_meshes[h.geom_id];
+        if (h.prim_id >= rm.triangles.size()) continue;  // not a row object: background
+        const glm::uvec3& tri = rm.triangles[h.prim_id];
+        const double w[3] = {1 - h.u - h.v, h.u, h.v};
+        float* out = image.data() + (y * o.width + x) * 3;
+        for (int v = 0; v < 3; ++v) {
+          const float* bv = b.data() + 3 * (rm.first_row + tri[v]);
+          for (int c = 0; c < 3; ++c) out[c] += static_cast<float>(w[v] * std::max(0.0f, bv[c]));
+        }
+      }
+      return Status::Ok();
+    }));
+    LTB_RETURN_IF_ERROR(geo.rays->error());
+    ms.push_back(Ms(a, Clock::now()));
+    if (f == 0 && !o.vertex_output.empty()) {
+      LTB_RETURN_IF_ERROR(WriteImage(o.vertex_output, b.data(), geo.vertex_rows.size(), 0, 0, {}));
+    }
+    if (!o.output.empty()) {
+      std::string path = o.output;
+      if (o.orbit_frames > 0) {
+        LTB_ASSIGN_OR_RETURN(std::string frame_path, triple::FramePath(o.output, f));
+        path = frame_path;
+      }
+      LTB_RETURN_IF_ERROR(
+          WriteImage(path, image.data(), uint64_t{o.width} * o.height, o.width, o.height, {.exposure = o.exposure}));
+    }
+    if (f == 0) result.image = image;
+  }
+  std::vector<double> sorted = ms;
+  std::sort(sorted.begin(), sorted.end());
+  const double median = sorted[sorted.size() / 2];
+  report["frames"] = {{"count", frames}, {"median_ms", median}, {"fps", 1000.0 / median}, {"first_ms", ms.front()}};
+  report["vertices"] = geo.vertex_rows.size();
+  report["size"] = {o.width, o.height};
+  result.report = std::move(report);
+  return result;
+}
+
+}  // namespace ltb::stages

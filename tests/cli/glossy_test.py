@@ -1,0 +1,252 @@
+"""Glossy vertices from any view: `sample --factor K` and `relight --eye` (docs/GLOSSY.md),
+against independent oracles.
+
+1. K = 1 is the existing vertex bake: the same matrix content_hash; so is term 0 of any K
+   (the diffuse part, exact). A Lambertian scene's terms 1..K-1 are all zero.
+2. The factorisation's errors (printed by sample, K = 1..8) equal NumPy's SVD of the same
+   solid-angle-weighted table on the same parabolic grids.
+3. Convergence to the brute-force render: `sample` in image mode from the same eye (the
+   same pinhole camera, the same Phong BRDF per pixel), relit under the same map; the
+   factored render's relative L2 error on the object falls with K (the table is printed),
+   for Phong exponent 4 below a bound at K = 8, and for exponent 32 it falls too.
+4. An orbit writes one image a view; the set goes through row-transform, transpose,
+   column-transform and quantize (100% budget, 16 bits) and renders within 1% of the raw set;
+   cpca of the set renders too.
+5. Refusals naming the files: a missing term, a term of another bake (another K), a factored
+   set relit without --eye, --factor in image mode or with --bounces.
+
+usage: glossy_test.py PATH_TO_LTBAKE
+"""
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import ltbtest as t  # noqa: E402
+
+SIZE = 64
+
+
+def icosphere(level):
+    g = (1 + 5 ** 0.5) / 2
+    v = [(-1, g, 0), (1, g, 0), (-1, -g, 0), (1, -g, 0), (0, -1, g), (0, 1, g), (0, -1, -g), (0, 1, -g),
+         (g, 0, -1), (g, 0, 1), (-g, 0, -1), (-g, 0, 1)]
+    v = [np.array(p, float) / np.linalg.norm(p) for p in v]
+    f = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2), (10, 7, 6),
+         (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10),
+         (8, 6, 7), (9, 8, 1)]
+    for _ in range(level):
+        cache, nf = {}, []
+
+        def mid(a, b):
+            k = (min(a, b), max(a, b))
+            if k not in cache:
+                m = v[a] + v[b]
+                v.append(m / np.linalg.norm(m))
+                cache[k] = len(v) - 1
+            return cache[k]
+        for a, b, c in f:
+            ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
+            nf += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
+        f = nf
+    return v, f
+
+
+def write_obj(path, v, f):
+    with open(path, "w") as o:
+        for p in v:
+            o.write("v %.7f %.7f %.7f\n" % tuple(p))
+        for a, b, c in f:
+            o.write("f %d %d %d\n" % (a + 1, b + 1, c + 1))
+
+
+SCENE = """
+[output]
+mode = "{mode}"
+{output}
+[sampling]
+cube_res = 8
+spp = 4
+[[material]]
+name = "shiny"
+albedo = 0.3
+ks = {ks}
+exponent = {exponent}
+[[material]]
+name = "floor"
+albedo = 0.7
+[[object]]
+name = "ground"
+type = "plane"
+size = [6.0, 6.0]
+material = "floor"
+[[object]]
+name = "ball"
+type = "mesh"
+file = "{obj}"
+translate = [0.0, 0.0, 1.0]
+normals = "smooth"
+material = "shiny"
+"""
+CAMERA = f"""[camera]
+eye = [0.0, -3.0, 2.0]
+target = [0.0, 0.0, 1.0]
+up = [0.0, 0.0, 1.0]
+fov = 30.0
+width = {SIZE}
+height = {SIZE}"""
+VIEW = ["--eye", "0,-3,2", "--target", "0,0,1", "--fov", "30", "--size", f"{SIZE}x{SIZE}"]
+
+
+def info(path):
+    return json.loads(t.run("inspect", path, "--json").stdout)
+
+
+def matrix_hash(path):
+    return info(path)["arrays"][0]["content_hash"]
+
+
+def parabolic(res):
+    """Cell directions and solid angles of a res x res parabolic map (docs/GLOSSY.md)."""
+    h = 2.0 / res
+    c = -1 + (np.arange(res) + 0.5) * h
+    u, v = np.meshgrid(c, c)  # row v, column u
+    s = u * u + v * v
+    inside = s < 1
+    d = np.stack([2 * u, 2 * v, 1 - s], -1) / (1 + s)[..., None]
+    a = np.where(inside, 4 / (1 + s) ** 2 * h * h, 0.0)
+    return d.reshape(-1, 3)[inside.ravel()], a.ravel()[inside.ravel()]
+
+
+def numpy_errors(albedo, ks, n, kmax=8):
+    """Relative L2 error of diffuse + (K-1) glossy SVD terms, NumPy's SVD."""
+    wi, ai = parabolic(96)
+    wo, ao = parabolic(32)
+    r = wo * np.array([-1, -1, 1])  # mirror about z
+    c = np.clip(wi @ r.T, 0, None)
+    glossy = ks * (n + 2) / (2 * np.pi) * c ** n * wi[:, 2:3]
+    full = glossy + albedo / np.pi * wi[:, 2:3]
+    w = np.sqrt(ai)[:, None] * np.sqrt(ao)[None, :]
+    s = np.linalg.svd(glossy * w, compute_uv=False)
+    total = np.sum((full * w) ** 2)
+    return [np.sqrt(np.sum(s[k - 1:] ** 2) / total) for k in range(1, kmax + 1)]
+
+
+def printed_errors(stdout):
+    m = re.search(r"relative L2 error of rho\*cos for K = 1\.\.\d+:((?: [0-9.]+)+)", stdout)
+    return [float(x) for x in m.group(1).split()] if m else None
+
+
+def main():
+    with tempfile.TemporaryDirectory() as d:
+        j = lambda *p: os.path.join(d, *p)  # noqa: E731
+        v, f = icosphere(4)
+        write_obj(j("ball.obj"), v, f)
+        city = None
+        maps = subprocess.run(["bash", os.path.join(os.path.dirname(__file__), "..", "..", "scripts",
+                                                      "find_envmaps.sh")], capture_output=True, text=True).stdout.strip()
+        if maps and os.path.exists(os.path.join(maps, "city.exr")):
+            city = os.path.join(maps, "city.exr")
+        else:  # a map of our own: a bright window in a dim room
+            env = np.full((6 * 8 * 8, 3), 0.2, np.float32)
+            env[4 * 64:4 * 64 + 16] = [8.0, 7.0, 5.0]
+            city = j("window.npy")
+            np.save(city, env)
+
+        def scene(name, mode="vertex", ks=0.6, exponent=32.0):
+            out = 'objects = ["ball"]' if mode == "vertex" else CAMERA
+            return t.write(j(name), SCENE.format(mode=mode, output=out, ks=ks, exponent=exponent, obj=j("ball.obj")))
+
+        # 1. K = 1 and term 0 are the plain vertex bake; a Lambertian scene's other terms are 0.
+        g32 = scene("g32.toml")
+        t.run("sample", g32, "-o", j("plain.ltm"), "-q")
+        t.run("sample", g32, "-o", j("k1.ltm"), "--factor", 1, "-q")
+        p = t.run("sample", g32, "-o", j("g32.ltm"), "--factor", 8)
+        t.check(matrix_hash(j("k1.k0.ltm")) == matrix_hash(j("plain.ltm")), "--factor 1 differs from the vertex bake")
+        t.check(matrix_hash(j("g32.k0.ltm")) == matrix_hash(j("plain.ltm")), "term 0 of --factor 8 is not the diffuse bake")
+        lam = scene("lambert.toml", ks=0.0)
+        t.run("sample", lam, "-o", j("lam.ltm"), "--factor", 3, "-q")
+        for k in (1, 2):
+            st = info(j(f"lam.k{k}.ltm"))["arrays"][0]["stats"]
+            t.check(st["max"] == 0 and st["min"] == 0, f"Lambertian term {k} is not zero: {st}")
+
+        # 2. The printed errors against NumPy's SVD.
+        got = printed_errors(p.stdout)
+        want = numpy_errors(0.3, 0.6, 32.0)
+        print("factorisation error, Phong(32), K = 1..8: ltbake", got, "NumPy", [round(x, 4) for x in want])
+        t.check(got is not None and np.allclose(got, want, atol=2e-4), f"errors {got} vs NumPy {want}")
+
+        # 3. Convergence to the brute-force render.
+        for exponent, bound in ((4.0, 0.12), (32.0, None)):
+            vs, bf = scene(f"v{exponent}.toml", exponent=exponent), scene(f"bf{exponent}.toml", "image",
+                                                                            exponent=exponent)
+            t.run("sample", vs, "-o", j(f"f{exponent}.ltm"), "--factor", 8, "-q")
+            t.run("sample", bf, "-o", j(f"bf{exponent}.ltm"), "-q")
+            t.run("relight", j(f"bf{exponent}.ltm"), "--env", city, "--clamp", "--terms", "all", "-o",
+                  j(f"bf{exponent}.npy"), "-q")
+            ref = np.load(j(f"bf{exponent}.npy")).reshape(SIZE, SIZE, 3).astype(np.float64)
+            errs = {}
+            for k in (1, 2, 4, 8):
+                t.run("relight", j(f"f{exponent}.ltm"), "--env", city, "--clamp", "--terms", "all", *VIEW,
+                      "--brdf-terms", k, "-o", j(f"v{exponent}_{k}.npy"), "-q")
+                img = np.load(j(f"v{exponent}_{k}.npy")).reshape(SIZE, SIZE, 3).astype(np.float64)
+                if k == 1:
+                    ball = img.sum(2) > 0
+                errs[k] = float(np.linalg.norm(img[ball] - ref[ball]) / np.linalg.norm(ref[ball]))
+            print(f"Phong({exponent:g}) against the brute-force render, rel. L2 on {ball.sum()} pixels: " +
+                  ", ".join(f"K={k} {e:.4f}" for k, e in errs.items()))
+            t.check(ball.sum() > SIZE * SIZE // 10, f"Phong({exponent}): the ball covers {ball.sum()} pixels")
+            t.check(errs[1] > errs[2] > errs[4] > errs[8], f"Phong({exponent}): error does not fall with K: {errs}")
+            if bound is not None:
+                t.check(errs[8] < bound, f"Phong({exponent}): K = 8 error {errs[8]:.4f} (bound {bound})")
+
+        # 4. An orbit; the set through the stages.
+        t.run("relight", j("g32.ltm"), "--env", city, "--clamp", *VIEW, "--orbit", "90:4", "-o", j("orbit_%02d.npy"),
+              "-q")
+        frames = [np.load(j(f"orbit_{k:02d}.npy")) for k in range(4)]
+        t.check(all(fr.shape == (SIZE * SIZE, 3) for fr in frames) and not np.allclose(frames[0], frames[2]),
+                "orbit: four views, the opposite one different")
+        t.run("row-transform", j("g32.ltm"), "-o", j("rows.ltm"), "-q")
+        t.run("transpose", j("rows.ltm"), "-o", j("cols.ltm"), "-q")
+        t.run("column-transform", j("cols.ltm"), "-o", j("c4.ltm"), "--depth", "none", "--budget", "100%", "-q")
+        t.run("quantize", j("c4.ltm"), "-o", j("final.ltm"), "--bits", 16, "-q")
+        t.run("relight", j("g32.ltm"), "--env", city, "--clamp", "--terms", "all", *VIEW, "-o", j("raw_view.npy"), "-q")
+        t.run("relight", j("final.ltm"), "--env", city, "--clamp", "--terms", "all", *VIEW, "-o", j("fin_view.npy"),
+              "-q")
+        a, b = np.load(j("fin_view.npy")), np.load(j("raw_view.npy"))
+        e = np.linalg.norm(a - b) / np.linalg.norm(b)
+        t.check(e < 0.01, f"the quantized set renders {e:.4f} off the raw set")
+        t.run("cpca", j("rows.ltm"), "-o", j("cpca.ltm"), "--clusters", 4, "--basis", 8, "-q")
+        t.run("relight", j("cpca.ltm"), "--env", city, "--clamp", "--terms", "all", *VIEW, "-o", j("cpca_view.npy"),
+              "-q")
+        e = np.linalg.norm(np.load(j("cpca_view.npy")) - b) / np.linalg.norm(b)
+        print(f"the cpca set (4 clusters, 8 basis vectors) renders {e:.4f} off the raw set")
+        t.check(e < 0.2, f"the cpca set renders {e:.4f} off the raw set")
+        t.run("convert", j("final.ltm"), j("final.npy"), "-q")
+        t.check(np.load(j("final.npy")).shape == (8, len(v), 384), "convert of a factored set: not (8, rows, cols)")
+
+        # 5. Refusals.
+        p = t.run("relight", j("g32.ltm"), "--env", city, "-o", j("x.npy"), expect=1)
+        t.check("--eye" in p.stderr, f"a factored set without --eye: {p.stderr}")
+        t.run("sample", g32, "-o", j("other.ltm"), "--factor", 4, "-q")
+        os.replace(j("g32.k2.ltm"), j("g32.k2.bak"))
+        p = t.run("relight", j("g32.ltm"), "--env", city, *VIEW, "-o", j("x.npy"), expect=1)
+        t.check("g32.k2.ltm" in p.stderr and "g32.k0.ltm" in p.stderr, f"a missing term: {p.stderr}")
+        os.replace(j("other.k2.ltm"), j("g32.k2.ltm"))
+        p = t.run("relight", j("g32.ltm"), "--env", city, *VIEW, "-o", j("x.npy"), expect=1)
+        t.check("g32.k2.ltm" in p.stderr and "g32.k0.ltm" in p.stderr and "terms" in p.stderr,
+                f"a term of another bake: {p.stderr}")
+        p = t.run("sample", scene("img.toml", "image"), "-o", j("img.ltm"), "--factor", 4, expect=1)
+        t.check("vertex" in p.stderr, f"--factor in image mode: {p.stderr}")
+        p = t.run("sample", g32, "-o", j("b.ltm"), "--factor", 4, "--bounces", 1, expect=1)
+        t.check("--bounces" in p.stderr, f"--factor with --bounces: {p.stderr}")
+    t.finish()
+
+
+if __name__ == "__main__":
+    main()
