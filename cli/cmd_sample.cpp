@@ -71,6 +71,9 @@ class SampleCommand : public Command {
                     "vertex mode: bake the BRDF in-out factorisation's K terms, OUT.k0.ltm .. OUT.k{K-1}.ltm, so "
                     "glossy vertices relight from any view (relight --eye; docs/GLOSSY.md)")
         ->check(CLI::Range(1, 64));
+    app->add_option("--factor-term", factor_term_,
+                    "with --factor K: write only term T (0..K-1) into OUT as given; ltbake run bakes a term a step")
+        ->check(CLI::Range(0, 63));
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     app->add_flag("!--no-direct-io", options_.direct_io,
                   "write the output through the page cache instead of with O_DIRECT");
@@ -97,6 +100,7 @@ class SampleCommand : public Command {
           InvalidArgument("--channel " + channel_ + " bakes one channel into OUT; leave out --channels rgb"));
     }
     if (!channel_.empty()) options_.channel = static_cast<int>(std::string("rgb").find(channel_));
+    if (factor_term_ >= 0) options_.factor_term = static_cast<uint32_t>(factor_term_);
     if (channels_ != "rgb") return RunOne();
     const std::string set = options_.output;
     for (int c = 0; c < 3; ++c) {  // one container per channel: every later stage runs on each
@@ -120,9 +124,10 @@ class SampleCommand : public Command {
     if (!flags_.quiet) {
       char rate[64];
       std::snprintf(rate, sizeof rate, "%.3g", r->seconds > 0 ? r->rays / r->seconds : 0.0);
-      const std::string what = options_.factor > 0 ? stages::FactorPath(options_.output, 0) + " .. " +
-                                                         stages::FactorPath(options_.output, options_.factor - 1)
-                                                   : OutputName(options_.output, options_.shard);
+      const std::string what = options_.factor > 0 && !options_.factor_term
+                                   ? stages::FactorPath(options_.output, 0) + " .. " +
+                                         stages::FactorPath(options_.output, options_.factor - 1)
+                                   : OutputName(options_.output, options_.shard);
       std::cout << "wrote " << what << ": " << r->rows << " rows x " << 6ull * r->cube_res * r->cube_res
                 << " texels (R = " << r->cube_res << ", spp " << r->spp << ", bounces " << r->bounces << ")";
       if (!row_filter_.empty()) std::cout << ", row-transformed (" << row_filter_ << ")";
@@ -171,6 +176,7 @@ class SampleCommand : public Command {
   std::optional<long long> features_;
   std::string row_filter_;
   std::string channels_ = "mono", channel_;
+  long long factor_term_ = -1;
   long long cube_res_ = -1, spp_ = -1, bounces_ = -1, seed_ = -1;
   CommonFlags flags_;
   ShardFlags shard_flags_;

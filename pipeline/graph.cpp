@@ -88,49 +88,53 @@ Status AddTripleNodes(const Recipe& r, const std::string& stage,
   return Status::Ok();
 }
 
-// [sample] channels = "rgb" (docs/COLOUR.md): every container step becomes one step per
-// colour channel, on the channel files (raw.ltm -> raw.r.ltm, ...); a sample step gains
-// --channel. Relight steps read the three files of their matrix (relight takes the set).
-void ExpandChannels(const std::function<std::string(const std::string&)>& path, Graph* g) {
-  static const std::set<std::string> kPerChannel = {"sample",           "row-transform", "transpose",
-                                                    "column-transform", "quantize",      "cpca"};
-  auto per_channel = [&](const Node& n) {
+// [sample] channels = "rgb" (docs/COLOUR.md) or factor = K (docs/GLOSSY.md): every
+// container step becomes one step per set member, on the member files (raw.ltm ->
+// raw.r.ltm or raw.k0.ltm, ...); a sample step gains the member's flags. Relight steps read
+// every member (relight takes the set).
+void ExpandSet(const std::function<std::string(const std::string&)>& path, const std::vector<std::string>& names,
+               const std::function<std::vector<std::string>(size_t)>& sample_args, Graph* g) {
+  static const std::set<std::string> kPerMember = {"sample",           "row-transform", "transpose",
+                                                   "column-transform", "quantize",      "cpca"};
+  auto per_member = [&](const Node& n) {
     if (n.image || n.stages.empty() || n.params.contains("visibility")) return false;
     for (const std::string& s : n.stages)
-      if (!kPerChannel.count(s)) return false;
+      if (!kPerMember.count(s)) return false;
     return true;
   };
-  std::set<std::string> split;  // work files made per channel
+  std::set<std::string> split;  // work files made per member
   for (const Node& n : g->nodes)
-    if (per_channel(n)) split.insert(n.output);
+    if (per_member(n)) split.insert(n.output);
   std::vector<Node> nodes;
   for (Node& n : g->nodes) {
-    if (!per_channel(n)) {
+    if (!per_member(n)) {
       std::vector<std::string> inputs;
       for (const std::string& in : n.inputs) {
         if (!split.count(in)) {
           inputs.push_back(in);
           continue;
         }
-        for (int c = 0; c < stages::kChannels; ++c) inputs.push_back(stages::ChannelPath(in, c));
+        for (const std::string& name : names) inputs.push_back(stages::SetMemberPath(in, name));
       }
       n.inputs = std::move(inputs);
       nodes.push_back(std::move(n));
       continue;
     }
-    for (int c = 0; c < stages::kChannels; ++c) {
+    for (size_t c = 0; c < names.size(); ++c) {
       Node m = n;
-      const std::string ch = stages::ChannelName(c);
-      m.name = n.name + "." + ch;
-      m.output = stages::ChannelPath(n.output, c);
+      m.name = n.name + "." + names[c];
+      m.output = stages::SetMemberPath(n.output, names[c]);
       for (std::string& in : m.inputs)
-        if (split.count(in)) in = stages::ChannelPath(in, c);
+        if (split.count(in)) in = stages::SetMemberPath(in, names[c]);
       for (std::string& a : m.args) {
         for (const std::string& f : split)
-          if (a == path(f)) a = path(stages::ChannelPath(f, c));
+          if (a == path(f)) a = path(stages::SetMemberPath(f, names[c]));
       }
-      if (n.stages.front() == "sample") m.args.insert(m.args.begin() + 2, {"--channel", ch});
-      m.params["channel"] = ch;
+      if (n.stages.front() == "sample") {
+        const std::vector<std::string> extra = sample_args(c);
+        m.args.insert(m.args.begin() + 2, extra.begin(), extra.end());
+      }
+      m.params["member"] = names[c];
       nodes.push_back(std::move(m));
     }
   }
@@ -141,7 +145,7 @@ void ExpandChannels(const std::function<std::string(const std::string&)>& path, 
       wanted.insert(w);
       continue;
     }
-    for (int c = 0; c < stages::kChannels; ++c) wanted.insert(stages::ChannelPath(w, c));
+    for (const std::string& name : names) wanted.insert(stages::SetMemberPath(w, name));
   }
   g->wanted = std::move(wanted);
 }
@@ -251,6 +255,25 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
                 "--exposure",  Shortest(rl.exposure),
                 "--json"};
       if (rl.clamp) m.args.push_back("--clamp");
+      if (rl.eye) {  // a view of a factored bake (docs/GLOSSY.md)
+        m.params["eye"] = {rl.eye->x, rl.eye->y, rl.eye->z};
+        m.params["target"] = {rl.target.x, rl.target.y, rl.target.z};
+        m.params["up"] = {rl.up.x, rl.up.y, rl.up.z};
+        m.params["fov"] = rl.fov;
+        m.params["size"] = {rl.width, rl.height};
+        // relight --eye takes neither --weighting nor --json's matrix-path keys: rebuilt here.
+        m.args = {"relight",    path(matrix),
+                  "--env",      env.path,
+                  "--terms",    std::to_string(rl.terms),
+                  "--eye",      Vec3Text(*rl.eye),
+                  "--target",   Vec3Text(rl.target),
+                  "--up",       Vec3Text(rl.up),
+                  "--fov",      Shortest(rl.fov),
+                  "--size",     std::to_string(rl.width) + "x" + std::to_string(rl.height),
+                  "--exposure", Shortest(rl.exposure),
+                  "--json"};
+        if (rl.clamp) m.args.push_back("--clamp");
+      }
       if (!rl.sequence.empty()) {
         m.params["sequence"] = rl.sequence;
         m.params["method"] = rl.method;
@@ -275,7 +298,24 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
       g.wanted.insert(n.output);
     }
   }
-  if (r.sample.channels == "rgb") ExpandChannels(path, &g);
+  if (r.sample.channels == "rgb") {
+    ExpandSet(
+        path, {"r", "g", "b"},
+        [](size_t c) {
+          return std::vector<std::string>{"--channel", std::string(1, "rgb"[c])};
+        },
+        &g);
+  } else if (r.sample.factor > 0) {
+    std::vector<std::string> names;
+    for (uint64_t k = 0; k < r.sample.factor; ++k) names.push_back("k" + std::to_string(k));
+    const std::string terms = std::to_string(r.sample.factor);
+    ExpandSet(
+        path, names,
+        [&](size_t k) {
+          return std::vector<std::string>{"--factor", terms, "--factor-term", std::to_string(k)};
+        },
+        &g);
+  }
   return g;
 }
 

@@ -141,9 +141,14 @@ Result<std::string> InlineScene(const std::string& path, const std::string& dir,
 Status ParseSample(const std::string& path, const toml::table& t, Recipe::Sample* s) {
   LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[sample]",
                                 {"cube_res", "spp", "bounces", "seed", "sparse", "dense_fraction", "radius", "features",
-                                 "neighbours", "l1_lambda", "max_residual", "channels"}));
+                                 "neighbours", "l1_lambda", "max_residual", "channels", "factor"}));
   LTB_ASSIGN_OR_RETURN(s->sparse, GetBool(path, t, "sparse", false));
   LTB_ASSIGN_OR_RETURN(s->channels, GetString(path, t, "channels", "mono"));
+  LTB_ASSIGN_OR_RETURN(s->factor, GetUnsigned(path, t, "factor", 0, 1, 64));
+  if (s->factor > 0 && (s->channels == "rgb" || s->sparse)) {
+    return InvalidArgument(Where(path, *t.get("factor")) +
+                           ": [sample] factor does not combine with channels = \"rgb\" or sparse (docs/GLOSSY.md)");
+  }
   if (s->channels != "mono" && s->channels != "rgb") {
     return InvalidArgument(Where(path, *t.get("channels")) + ": [sample] channels is \"" + s->channels +
                            "\" (expected \"mono\" or \"rgb\")");
@@ -297,10 +302,33 @@ Status ParseEnvs(const std::string& path, const std::string& dir, const toml::ta
 }
 
 Status ParseRelight(const std::string& path, const std::string& dir, const toml::table& t, Recipe::Relight* r) {
-  LTB_RETURN_IF_ERROR(CheckKeys(
-      path, t, "[relight]",
-      {"matrix", "envs", "terms", "weighting", "clamp", "reference", "format", "exposure", "sequence", "method"}));
+  LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[relight]",
+                                {"matrix", "envs", "terms", "weighting", "clamp", "reference", "format", "exposure",
+                                 "sequence", "method", "eye", "target", "up", "fov", "size"}));
   r->present = true;
+  if (t.contains("eye")) {
+    LTB_ASSIGN_OR_RETURN(glm::dvec3 eye, GetVec3(path, t, "eye", glm::dvec3(0)));
+    r->eye = eye;
+  }
+  for (const char* key : {"target", "up", "fov", "size"}) {
+    if (t.contains(key) && !r->eye) {
+      return InvalidArgument(Where(path, *t.get(key)) + ": [relight] \"" + key +
+                             "\" places the camera of a factored bake's view; add eye = [x, y, z]");
+    }
+  }
+  LTB_ASSIGN_OR_RETURN(r->target, GetVec3(path, t, "target", r->target));
+  LTB_ASSIGN_OR_RETURN(r->up, GetVec3(path, t, "up", r->up));
+  LTB_ASSIGN_OR_RETURN(r->fov, GetNumber(path, t, "fov", r->fov, 1e-3, 179.999));
+  if (const toml::node* sz = t.get("size")) {
+    const toml::array* a = sz->as_array();
+    auto w = a && a->size() == 2 ? (*a)[0].value<int64_t>() : std::nullopt;
+    auto h = a && a->size() == 2 ? (*a)[1].value<int64_t>() : std::nullopt;
+    if (!w || !h || *w < 1 || *h < 1 || *w > 16384 || *h > 16384) {
+      return InvalidArgument(Where(path, *sz) + ": [relight] \"size\" must be [width, height], each 1..16384");
+    }
+    r->width = static_cast<uint64_t>(*w);
+    r->height = static_cast<uint64_t>(*h);
+  }
   LTB_ASSIGN_OR_RETURN(r->matrix, GetChoice(path, t, "matrix", r->matrix, {"final", "cpca"}));
   LTB_ASSIGN_OR_RETURN(r->terms, GetUnsigned(path, t, "terms", r->terms, 1, uint64_t{1} << 32));
   LTB_ASSIGN_OR_RETURN(r->weighting, GetChoice(path, t, "weighting", r->weighting, {"area", "transport", "none"}));
@@ -309,6 +337,11 @@ Status ParseRelight(const std::string& path, const std::string& dir, const toml:
   LTB_ASSIGN_OR_RETURN(r->format, GetChoice(path, t, "format", r->format, {"png", "exr", "mp4"}));
   LTB_ASSIGN_OR_RETURN(r->exposure, GetNumber(path, t, "exposure", r->exposure, -64, 64));
   LTB_ASSIGN_OR_RETURN(r->method, GetChoice(path, t, "method", r->method, {"pbi", "bi", "nwa"}));
+  if (r->eye && (t.contains("sequence") || t.contains("reference") || t.contains("weighting"))) {
+    return InvalidArgument(Where(path, *t.get("eye")) +
+                           ": [relight] eye renders a view of a factored bake; \"sequence\", \"reference\" and "
+                           "\"weighting\" are for the matrix path");
+  }
   if (const toml::node* seq = t.get("sequence")) {
     auto text = seq->value<std::string>();
     if (!text)

@@ -52,6 +52,9 @@ struct Recipe {
     // "rgb": one matrix per colour channel, every later step once per channel file
     // (docs/COLOUR.md); "mono" (the default): one matrix.
     std::string channels = "mono";
+    // The BRDF in-out factorisation's terms (docs/GLOSSY.md); 0: none. Each term is its own
+    // step (sample --factor K --factor-term k), and so is every later container step.
+    uint64_t factor = 0;
   } sample;
   struct RowTransform {
     std::string filter = "haar";
@@ -97,6 +100,11 @@ struct Recipe {
     double exposure = 0;
     std::string sequence;        // relight --sequence (docs/SEQUENCE.md); empty: one image a map
     std::string method = "pbi";  // with a sequence: pbi | bi | nwa
+    // A view of a factored bake ([sample] factor; relight --eye): eye given, the rest theirs.
+    std::optional<glm::dvec3> eye;
+    glm::dvec3 target{0, 0, 0}, up{0, 0, 1};
+    double fov = 40;
+    uint64_t width = 256, height = 256;
   } relight;
 
   // The triple-product path (docs/TRIPLE.md): a visibility field, material fields and one

@@ -476,8 +476,9 @@ struct BlockSampler {
   const SampleOptions& o;
   const Prepared& p;
   const Sampler& sampler;
-  // One output, or a factored bake's K (term k into outs[k]).
+  // One output, or a factored bake's terms (term out_term[i] into outs[i]).
   std::vector<io::ContainerWriter>& outs;
+  const std::vector<uint32_t>& out_term;
   std::vector<std::unique_ptr<io::AsyncChunkWriter>>& writers;
   const FactorPlan* plan;
   BufferPool& pool;
@@ -490,7 +491,7 @@ struct BlockSampler {
     const uint64_t rows = p.rows, cols = 6ull * p.r * p.r;
     uint64_t r0 = chunk * block, n = std::min(block, rows - r0);
     thread_local RowScratch sc;
-    const uint64_t extra_terms = outs.size() - 1;
+    const uint64_t extra_terms = plan ? plan->terms - 1 : 0;
     std::shared_ptr<BlockBuffers> buf = pool.Get(n, cols, extra_terms);
     if (!buf) {
       return Internal("out of memory for a block of " + std::to_string(n) + " rows x " + std::to_string(cols) +
@@ -547,7 +548,8 @@ struct BlockSampler {
       return ByteSpan(reinterpret_cast<const std::byte*>(v), count * sizeof(v[0]));
     };
     for (size_t k = 0; k < outs.size(); ++k) {
-      const float* m = k == 0 ? mat : buf->extra.data() + (k - 1) * n * cols;
+      const uint32_t term = out_term[k];
+      const float* m = term == 0 ? mat : buf->extra.data() + (term - 1) * n * cols;
       const ByteSpan parts[4] = {bytes(m, n * cols), bytes(buf->mask.data(), n), bytes(pos, n * 3), bytes(nor, n * 3)};
       for (uint32_t a = 0; a < 4; ++a) {
         if (outs[k].Has(a, chunk)) continue;
@@ -583,13 +585,23 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
     LTB_ASSIGN_OR_RETURN(FactorPlan p, PlanFactors(*prep, o.factor));
     plan = std::move(p);
   }
-  const uint32_t outputs = plan ? plan->terms : 1;
+  // --factor-term t (recipes): only term t, into OUT as given.
+  std::vector<uint32_t> out_term;
+  if (o.factor_term) {
+    if (!plan || *o.factor_term >= plan->terms) {
+      return InvalidArgument("--factor-term " + std::to_string(*o.factor_term) + " needs --factor K with K > it");
+    }
+    out_term = {*o.factor_term};
+  } else {
+    for (uint32_t k = 0; k < (plan ? plan->terms : 1); ++k) out_term.push_back(k);
+  }
+  const uint32_t outputs = static_cast<uint32_t>(out_term.size());
   std::vector<io::ContainerWriter> outs;
-  for (uint32_t k = 0; k < outputs; ++k) {
+  for (uint32_t k : out_term) {
     nlohmann::json meta = sample_internal::SampleMetadata(o, *prep, block);
     sample_internal::AddReflectance(*prep, block, &meta);
     if (plan) AddFactorMetadata(o, *prep, *plan, k, &meta);
-    const std::string path = plan ? FactorPath(o.output, k) : o.output;
+    const std::string path = plan && !o.factor_term ? FactorPath(o.output, k) : o.output;
     LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(path, meta, wo, o.shard));
     outs.push_back(std::move(out));
   }
@@ -616,11 +628,17 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
       (o.mem_limit > 0 ? std::min(o.mem_limit / 4, kMaxWriteQueueBytes) : kMaxWriteQueueBytes) / outputs;
   std::vector<std::unique_ptr<io::AsyncChunkWriter>> writers;
   for (io::ContainerWriter& out : outs) writers.push_back(std::make_unique<io::AsyncChunkWriter>(out, queue_bytes));
-  BlockSampler bs{o,       *prep,
-                  sampler, outs,
-                  writers, plan ? &*plan : nullptr,
-                  pool,    progress,
-                  block,   std::min(rows, todo.size() * block)};
+  BlockSampler bs{o,
+                  *prep,
+                  sampler,
+                  outs,
+                  out_term,
+                  writers,
+                  plan ? &*plan : nullptr,
+                  pool,
+                  progress,
+                  block,
+                  std::min(rows, todo.size() * block)};
   Status s = ParallelFor(todo, o.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
                          [&](uint64_t chunk) -> Status { return bs.Run(chunk); });
   // Also after a failure or an interrupt: the chunks already queued are written and commit.

@@ -66,6 +66,8 @@ struct SampleOptions {
   // --factor K (vertex mode): bake the BRDF in-out factorisation's K terms, OUT.k0.ltm ..
   // OUT.k{K−1}.ltm, for glossy vertices seen from any view (docs/GLOSSY.md); 0: no.
   uint32_t factor = 0;
+  // --factor-term t: only term t of the K, into `output` as given (a recipe's step per term).
+  std::optional<uint32_t> factor_term;
 };
 
 // OUT.ltm -> OUT.k3.ltm: term k of a factored bake.

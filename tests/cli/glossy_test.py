@@ -12,6 +12,8 @@ against independent oracles.
 4. An orbit writes one image a view; the set goes through row-transform, transpose,
    column-transform and quantize (100% budget, 16 bits) and renders within 1% of the raw set;
    cpca of the set renders too.
+   A recipe with [sample] factor and [relight] eye bakes a term a step (each equal to the
+   one-pass bake's term) and renders; its rerun skips everything.
 5. Refusals naming the files: a missing term, a term of another bake (another K), a factored
    set relit without --eye, --factor in image mode or with --bounces.
 
@@ -229,6 +231,36 @@ def main():
         t.check(e < 0.2, f"the cpca set renders {e:.4f} off the raw set")
         t.run("convert", j("final.ltm"), j("final.npy"), "-q")
         t.check(np.load(j("final.npy")).shape == (8, len(v), 384), "convert of a factored set: not (8, rows, cols)")
+
+        # A recipe: [sample] factor = 3 bakes a term a step, each equal to the one-pass bake's;
+        # [relight] eye renders the view; a rerun skips everything.
+        recipe = t.write(j("bake.toml"), f"""
+scene = "{g32}"
+workdir = "{j('wd')}"
+targets = ["quantize", "relight"]
+[sample]
+factor = 3
+[column-transform]
+depth = "none"
+[relight]
+envs = ["{city}"]
+clamp = true
+eye = [0.0, -3.0, 2.0]
+target = [0.0, 0.0, 1.0]
+fov = 30.0
+size = [{SIZE}, {SIZE}]
+""")
+        t.run("run", recipe, "--progress", "never")
+        t.run("sample", g32, "-o", j("one.ltm"), "--factor", 3, "--row-transform", "haar", "-q")
+        for k in range(3):
+            t.check(matrix_hash(j("wd", f"rows.k{k}.ltm")) == matrix_hash(j(f"one.k{k}.ltm")),
+                    f"the recipe's term {k} differs from the one-pass bake's")
+        steps = {s_["node"]: s_["action"] for s_ in t.run_report(j("wd"))["stages"]}
+        t.check(steps.get("relight:" + os.path.splitext(os.path.basename(city))[0]) == "run" and
+                "quantize.k2" in steps, f"the factored recipe's steps: {steps}")
+        t.run("run", recipe, "--progress", "never")
+        again = {s_["node"]: s_["action"] for s_ in t.run_report(j("wd"))["stages"]}
+        t.check(set(again.values()) == {"skip"}, f"rerunning the factored recipe ran steps again: {again}")
 
         # 5. Refusals.
         p = t.run("relight", j("g32.ltm"), "--env", city, "-o", j("x.npy"), expect=1)
