@@ -21,7 +21,7 @@
 #include "stages/sample/scene_geometry.h"
 
 namespace ltb::sample {
-namespace {
+namespace usemtl_test {  // named: the unity build puts this file beside normals_test.cpp
 
 std::string Dir() {
   const std::string d = ::testing::TempDir() + "usemtl_test/";
@@ -346,5 +346,5 @@ TEST(UsemtlGeometry, CornellBox) {
       << g.status().message();
 }
 
-}  // namespace
+}  // namespace usemtl_test
 }  // namespace ltb::sample
