@@ -23,12 +23,14 @@ smooth normals, R = LTB_GLOSSY_CUBE_RES.
 Run:  /usr/bin/python3 bench/glossy_bench.py [BUILD_DIR]
 Knobs: LTB_GLOSSY_CUBE_RES (32), LTB_GLOSSY_SIZE (128), LTB_GLOSSY_GRID (100),
        LTB_GLOSSY_EXPONENT (32), LTB_GLOSSY_MAPS (comma-separated; default the bundled maps)
-Writes bench/results/glossy_bench.{md,json} and glossy_view_{brute,k1,k4,k8}.png (city).
+Writes bench/results/glossy_bench.{md,json}, glossy_view_{brute,k1,k4,k8}.png (city) and
+glossy_orbit_{000,180}deg.png (K = 8, 200 terms, 256x256, from two sides).
 """
 import datetime
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 import time
@@ -173,6 +175,8 @@ def main():
         rep = json.loads(text)
         res["frames"][k] = {"median_ms": rep["frames"]["median_ms"], "fps": rep["frames"]["fps"],
                             "relight_ms": rep["relight_ms"], "vertices": rep["vertices"]}
+    for deg, frame in (("000", 0), ("180", 18)):  # the K = 8 orbit's views from two sides (README)
+        shutil.copy(os.path.join(OUT, f"orbit_{frame:02d}.png"), os.path.join(RESULTS, f"glossy_orbit_{deg}deg.png"))
     meta = {"started": started, "machine": machine(), "commit": git_describe(), "load_before": load,
             "command": " ".join(f"{k}={os.environ[k]}" for k in KNOBS if k in os.environ),
             "scene": f"dragon_res3 + {GRID}x{GRID} ground grid, Phong({EXPONENT:g}), R = {R}, {SIZE}x{SIZE}"}

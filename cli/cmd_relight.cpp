@@ -121,6 +121,34 @@ class RelightCommand : public Command {
     return true;
   }
 
+  // --eye, --target, --up, --size and --orbit of a view (the triple-product path, a
+  // factored bake): kExitOk, or the usage error's code.
+  int ParseView(glm::dvec3* eye, glm::dvec3* target, glm::dvec3* up, uint32_t* width, uint32_t* height,
+                double* orbit_deg, uint32_t* orbit_frames) {
+    for (auto [text, dst, name] :
+         {std::tuple{&eye_, eye, "--eye"}, std::tuple{&target_, target, "--target"}, std::tuple{&up_, up, "--up"}}) {
+      if (!ParseVec3(*text, dst))
+        return ReportUsage(InvalidArgument(std::string(name) + " " + *text + ": expected X,Y,Z"));
+    }
+    unsigned w = 0, h = 0;
+    char tail = 0;
+    if (std::sscanf(size_.c_str(), "%ux%u%c", &w, &h, &tail) != 2 || w == 0 || h == 0 || w > 16384 || h > 16384) {
+      return ReportUsage(InvalidArgument("--size " + size_ + ": expected WIDTHxHEIGHT, each 1..16384, e.g. 512x384"));
+    }
+    *width = w;
+    *height = h;
+    if (!orbit_.empty()) {
+      double deg = 0;
+      unsigned n = 0;
+      if (std::sscanf(orbit_.c_str(), "%lf:%u%c", &deg, &n, &tail) != 2 || n == 0 || !std::isfinite(deg)) {
+        return ReportUsage(InvalidArgument("--orbit " + orbit_ + ": expected DEG:FRAMES, e.g. 10:36"));
+      }
+      *orbit_deg = deg;
+      *orbit_frames = n;
+    }
+    return kExitOk;
+  }
+
   int RunTriple() {
     triple::RenderOptions o;
     o.visibility = matrix_;
@@ -149,26 +177,9 @@ class RelightCommand : public Command {
     o.brdf_terms = brdf_terms_text_ == "all" ? triple::RenderOptions::kAll : std::stoull(brdf_terms_text_);
     if (eye_.empty())
       return ReportUsage(InvalidArgument("the triple-product path (--material, --method) needs --eye X,Y,Z"));
-    for (auto [text, dst, name] : {std::tuple{&eye_, &o.eye, "--eye"}, std::tuple{&target_, &o.target, "--target"},
-                                   std::tuple{&up_, &o.up, "--up"}}) {
-      if (!ParseVec3(*text, dst))
-        return ReportUsage(InvalidArgument(std::string(name) + " " + *text + ": expected X,Y,Z"));
-    }
-    unsigned w = 0, h = 0;
-    char tail = 0;
-    if (std::sscanf(size_.c_str(), "%ux%u%c", &w, &h, &tail) != 2) {
-      return ReportUsage(InvalidArgument("--size " + size_ + ": expected WIDTHxHEIGHT, e.g. 512x384"));
-    }
-    o.width = w;
-    o.height = h;
-    if (!orbit_.empty()) {
-      double deg = 0;
-      unsigned n = 0;
-      if (std::sscanf(orbit_.c_str(), "%lf:%u%c", &deg, &n, &tail) != 2 || n == 0 || !std::isfinite(deg)) {
-        return ReportUsage(InvalidArgument("--orbit " + orbit_ + ": expected DEG:FRAMES, e.g. 10:36"));
-      }
-      o.orbit_deg = deg;
-      o.orbit_frames = n;
+    if (int code = ParseView(&o.eye, &o.target, &o.up, &o.width, &o.height, &o.orbit_deg, &o.orbit_frames);
+        code != kExitOk) {
+      return code;
     }
     if (frames_ > 0 || !reference_.empty() || weighting_ != "area") {
       return ReportUsage(InvalidArgument(
@@ -213,26 +224,9 @@ class RelightCommand : public Command {
       return ReportUsage(InvalidArgument(
           "--sequence, --frames, --reference, --weighting and --method are not for a view of a factored bake"));
     }
-    for (auto [text, dst, name] : {std::tuple{&eye_, &o.eye, "--eye"}, std::tuple{&target_, &o.target, "--target"},
-                                   std::tuple{&up_, &o.up, "--up"}}) {
-      if (!ParseVec3(*text, dst))
-        return ReportUsage(InvalidArgument(std::string(name) + " " + *text + ": expected X,Y,Z"));
-    }
-    unsigned w = 0, h = 0;
-    char tail = 0;
-    if (std::sscanf(size_.c_str(), "%ux%u%c", &w, &h, &tail) != 2 || w == 0 || h == 0 || w > 16384 || h > 16384) {
-      return ReportUsage(InvalidArgument("--size " + size_ + ": expected WIDTHxHEIGHT, e.g. 512x384"));
-    }
-    o.width = w;
-    o.height = h;
-    if (!orbit_.empty()) {
-      double deg = 0;
-      unsigned n = 0;
-      if (std::sscanf(orbit_.c_str(), "%lf:%u%c", &deg, &n, &tail) != 2 || n == 0 || !std::isfinite(deg)) {
-        return ReportUsage(InvalidArgument("--orbit " + orbit_ + ": expected DEG:FRAMES, e.g. 10:36"));
-      }
-      o.orbit_deg = deg;
-      o.orbit_frames = n;
+    if (int code = ParseView(&o.eye, &o.target, &o.up, &o.width, &o.height, &o.orbit_deg, &o.orbit_frames);
+        code != kExitOk) {
+      return code;
     }
     StageFlags sf;
     if (int code = ResolveStageFlags(flags_, nullptr, &sf); code != kExitOk) return code;

@@ -301,6 +301,22 @@ Status ParseEnvs(const std::string& path, const std::string& dir, const toml::ta
   return Status::Ok();
 }
 
+// A view's "size": [width, height], each 1..16384; unchanged when absent.
+Status GetImageSize(const std::string& path, const toml::table& t, const char* table, uint64_t* width,
+                    uint64_t* height) {
+  const toml::node* sz = t.get("size");
+  if (sz == nullptr) return Status::Ok();
+  const toml::array* a = sz->as_array();
+  auto w = a && a->size() == 2 ? (*a)[0].value<int64_t>() : std::nullopt;
+  auto h = a && a->size() == 2 ? (*a)[1].value<int64_t>() : std::nullopt;
+  if (!w || !h || *w < 1 || *h < 1 || *w > 16384 || *h > 16384) {
+    return InvalidArgument(Where(path, *sz) + ": " + table + " \"size\" must be [width, height], each 1..16384");
+  }
+  *width = static_cast<uint64_t>(*w);
+  *height = static_cast<uint64_t>(*h);
+  return Status::Ok();
+}
+
 Status ParseRelight(const std::string& path, const std::string& dir, const toml::table& t, Recipe::Relight* r) {
   LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[relight]",
                                 {"matrix", "envs", "terms", "weighting", "clamp", "reference", "format", "exposure",
@@ -319,16 +335,7 @@ Status ParseRelight(const std::string& path, const std::string& dir, const toml:
   LTB_ASSIGN_OR_RETURN(r->target, GetVec3(path, t, "target", r->target));
   LTB_ASSIGN_OR_RETURN(r->up, GetVec3(path, t, "up", r->up));
   LTB_ASSIGN_OR_RETURN(r->fov, GetNumber(path, t, "fov", r->fov, 1e-3, 179.999));
-  if (const toml::node* sz = t.get("size")) {
-    const toml::array* a = sz->as_array();
-    auto w = a && a->size() == 2 ? (*a)[0].value<int64_t>() : std::nullopt;
-    auto h = a && a->size() == 2 ? (*a)[1].value<int64_t>() : std::nullopt;
-    if (!w || !h || *w < 1 || *h < 1 || *w > 16384 || *h > 16384) {
-      return InvalidArgument(Where(path, *sz) + ": [relight] \"size\" must be [width, height], each 1..16384");
-    }
-    r->width = static_cast<uint64_t>(*w);
-    r->height = static_cast<uint64_t>(*h);
-  }
+  LTB_RETURN_IF_ERROR(GetImageSize(path, t, "[relight]", &r->width, &r->height));
   LTB_ASSIGN_OR_RETURN(r->matrix, GetChoice(path, t, "matrix", r->matrix, {"final", "cpca"}));
   LTB_ASSIGN_OR_RETURN(r->terms, GetUnsigned(path, t, "terms", r->terms, 1, uint64_t{1} << 32));
   LTB_ASSIGN_OR_RETURN(r->weighting, GetChoice(path, t, "weighting", r->weighting, {"area", "transport", "none"}));
@@ -400,16 +407,7 @@ Status ParseTriple(const std::string& path, const std::string& dir, const toml::
   LTB_ASSIGN_OR_RETURN(r->target, GetVec3(path, t, "target", r->target));
   LTB_ASSIGN_OR_RETURN(r->up, GetVec3(path, t, "up", r->up));
   LTB_ASSIGN_OR_RETURN(r->fov, GetNumber(path, t, "fov", r->fov, 1e-3, 179.999));
-  if (const toml::node* sz = t.get("size")) {
-    const toml::array* a = sz->as_array();
-    auto w = a && a->size() == 2 ? (*a)[0].value<int64_t>() : std::nullopt;
-    auto h = a && a->size() == 2 ? (*a)[1].value<int64_t>() : std::nullopt;
-    if (!w || !h || *w < 1 || *h < 1 || *w > 16384 || *h > 16384) {
-      return InvalidArgument(Where(path, *sz) + ": [triple] \"size\" must be [width, height], each 1..16384");
-    }
-    r->width = static_cast<uint64_t>(*w);
-    r->height = static_cast<uint64_t>(*h);
-  }
+  LTB_RETURN_IF_ERROR(GetImageSize(path, t, "[triple]", &r->width, &r->height));
   LTB_ASSIGN_OR_RETURN(r->method, GetChoice(path, t, "method", r->method, {"sublinear", "linear", "pixel"}));
   for (auto [key, dst] : {std::pair{"terms", &r->terms}, std::pair{"brdf_terms", &r->brdf_terms}}) {
     const toml::node* n = t.get(key);
