@@ -71,6 +71,9 @@ class SampleCommand : public Command {
                     "vertex mode: bake the BRDF in-out factorisation's K terms, OUT.k0.ltm .. OUT.k{K-1}.ltm, so "
                     "glossy vertices relight from any view (relight --eye; docs/GLOSSY.md)")
         ->check(CLI::Range(1, 64));
+    app->add_option("--factor-grid", factor_grid_,
+                    "with --factor: cells a side of the parabolic maps of incident and view directions, I,V")
+        ->default_val("96,32");
     app->add_option("--factor-term", factor_term_,
                     "with --factor K: write only term T (0..K-1) into OUT as given; ltbake run bakes a term a step")
         ->check(CLI::Range(0, 63));
@@ -101,6 +104,17 @@ class SampleCommand : public Command {
     }
     if (!channel_.empty()) options_.channel = static_cast<int>(std::string("rgb").find(channel_));
     if (factor_term_ >= 0) options_.factor_term = static_cast<uint32_t>(factor_term_);
+    {
+      unsigned gi = 0, gv = 0;
+      char tail = 0;
+      if (std::sscanf(factor_grid_.c_str(), "%u,%u%c", &gi, &gv, &tail) != 2 || gi < 4 || gi > 512 || gv < 4 ||
+          gv > 256) {
+        return ReportUsage(
+            InvalidArgument("--factor-grid " + factor_grid_ + ": expected I,V with I in 4..512 and V in 4..256"));
+      }
+      options_.factor_incident_res = gi;
+      options_.factor_view_res = gv;
+    }
     if (channels_ != "rgb") return RunOne();
     const std::string set = options_.output;
     for (int c = 0; c < 3; ++c) {  // one container per channel: every later stage runs on each
@@ -177,6 +191,7 @@ class SampleCommand : public Command {
   std::string row_filter_;
   std::string channels_ = "mono", channel_;
   long long factor_term_ = -1;
+  std::string factor_grid_ = "96,32";
   long long cube_res_ = -1, spp_ = -1, bounces_ = -1, seed_ = -1;
   CommonFlags flags_;
   ShardFlags shard_flags_;

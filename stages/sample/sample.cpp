@@ -406,7 +406,7 @@ struct FactorPlan {
   std::vector<std::pair<std::string, std::vector<double>>> errors;
 };
 
-Result<FactorPlan> PlanFactors(const Prepared& p, uint32_t terms) {
+Result<FactorPlan> PlanFactors(const SampleOptions& o, const Prepared& p, uint32_t terms) {
   FactorPlan plan;
   plan.terms = terms;
   const auto& mats = p.scene.materials;
@@ -420,7 +420,8 @@ Result<FactorPlan> PlanFactors(const Prepared& p, uint32_t terms) {
                              "\"; sample --factor factors the Phong lobe only (the triple-product path renders the "
                              "others: docs/TRIPLE.md)");
     }
-    LTB_ASSIGN_OR_RETURN(plan.factors[m], sample::FactorPhong(mats[m].albedo, mats[m].ks, mats[m].exponent, terms));
+    LTB_ASSIGN_OR_RETURN(plan.factors[m], sample::FactorPhong(mats[m].albedo, mats[m].ks, mats[m].exponent, terms,
+                                                              o.factor_incident_res, o.factor_view_res));
     plan.errors.emplace_back(mats[m].name, plan.factors[m].error);
   }
   plan.tables.resize(mats.size());
@@ -458,15 +459,13 @@ void AddFactorMetadata(const SampleOptions& o, const Prepared& p, const FactorPl
     }
     materials.push_back(j);
   }
-  (*meta)["factor"] = {{"terms", plan.terms},
-                       {"view_res", view_res},
-                       {"map", "parabolic"},
-                       {"frame", "duff2017"},
-                       {"materials", materials}};
+  (*meta)["factor"] = {{"terms", plan.terms}, {"view_res", view_res}, {"incident_res", o.factor_incident_res},
+                       {"map", "parabolic"},  {"frame", "duff2017"},  {"materials", materials}};
   (*meta)["geometry"] = {{"scene", std::filesystem::absolute(o.scene).lexically_normal().string()},
                          {"scene_hash", p.geo.scene_hash},
                          {"geometry_hash", p.geo.geometry_hash}};
   (*meta)["provenance"]["parameters"]["factor"] = plan.terms;
+  (*meta)["provenance"]["parameters"]["factor_grid"] = {o.factor_incident_res, o.factor_view_res};
 }
 
 // Samples row blocks, one chunk of each array per block, from any number of threads, and
@@ -582,7 +581,7 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   // A factored bake (--factor K): K outputs OUT.k0.ltm ... from one pass (docs/GLOSSY.md).
   std::optional<FactorPlan> plan;
   if (o.factor > 0) {
-    LTB_ASSIGN_OR_RETURN(FactorPlan p, PlanFactors(*prep, o.factor));
+    LTB_ASSIGN_OR_RETURN(FactorPlan p, PlanFactors(o, *prep, o.factor));
     plan = std::move(p);
   }
   // --factor-term t (recipes): only term t, into OUT as given.

@@ -68,6 +68,9 @@ struct SampleOptions {
   uint32_t factor = 0;
   // --factor-term t: only term t of the K, into `output` as given (a recipe's step per term).
   std::optional<uint32_t> factor_term;
+  // --factor-grid I,V: the parabolic maps' cells a side for the incident and the view
+  // directions (docs/GLOSSY.md); finer for narrow lobes, coarser for speed.
+  uint32_t factor_incident_res = 96, factor_view_res = 32;
 };
 
 // OUT.ltm -> OUT.k3.ltm: term k of a factored bake.

@@ -77,8 +77,33 @@ with tempfile.TemporaryDirectory() as d:
                      (P("red_cpca.ltm"), P("white8.npy"))]:
         run("relight", mat, "--env", env, "-o", P("rgb_relit.npy"), "--terms", 96, *Q)
         check(np.load(P("rgb_relit.npy")).shape == (1024, 3), f"relight of the set {mat}: shape")
+    # Glossy vertices (docs/GLOSSY.md): a factored bake on coarse maps, two views of it.
+    ball = os.path.join(REPO, "data", "meshes", "bunny.obj")
+    glossy = write(P("glossy.toml"), f"""[output]
+mode = "vertex"
+objects = ["bunny"]
+[sampling]
+cube_res = 4
+spp = 1
+[[material]]
+name = "shiny"
+albedo = 0.3
+ks = 0.6
+exponent = 8.0
+[[object]]
+name = "bunny"
+type = "mesh"
+file = "{ball}"
+scale = 0.1
+rotate = [90.0, 0.0, 0.0]
+material = "shiny"
+""")
+    run("sample", glossy, "-o", P("glossy.ltm"), "--factor", 3, "--factor-grid", "16,8", *Q)
+    run("relight", P("glossy.ltm"), "--env", P("white4.npy"), "--eye", "0,-3,1", "--target", "0,0,0.5", "--size",
+        "24x24", "--orbit", "90:2", "-o", P("glossy_%d.npy"), *Q)
+    check(all(np.load(P(f"glossy_{k}.npy")).max() > 0 for k in range(2)), "glossy views: black")
     for f in [raw, rows, cols, cols4d, budget, final, P("cpca.ltm"), P("fused.ltm"), P("sparse.ltm"),
-              P("sparse_cpca.ltm"), P("red.ltm"), P("red_cpca.ltm"), P("rgb_final.r.ltm")]:
+              P("sparse_cpca.ltm"), P("red.ltm"), P("red_cpca.ltm"), P("rgb_final.r.ltm"), P("glossy.k2.ltm")]:
         run("verify", f)
         # Text mode without content: the recorded hash, no stats (it crashed on a missing key).
         check(info(f)["content_hash"] in run("inspect", "--no-content", f).stdout,
