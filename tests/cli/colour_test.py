@@ -15,7 +15,8 @@ forms, and content hashes recorded before colour existed.
    decode of the file's bytes (NumPy) times the material's tint.
 5. The set through every stage: row-transform, transpose, column-transform, quantize,
    cpca, relight, convert (a (3, rows, cols) .npy), inspect; a recipe with
-   [sample] channels = "rgb" bakes and reruns as a no-op.
+   [sample] channels = "rgb" bakes, reruns as a no-op, and in 2 shards a step makes the same
+   files.
 6. Refusals naming the files: a set with a missing channel, a channel file from another
    bake, a mono reference against a set, a coloured bake with bounces without
    --channels rgb, a coloured lobe that does not factor out.
@@ -340,6 +341,11 @@ terms = 100000
         t.run("run", recipe, "--progress", "never")
         again = {s_["node"]: s_["action"] for s_ in t.run_report(j("wd"))["stages"]}
         t.check(set(again.values()) == {"skip"}, f"rerunning the channel recipe ran steps again: {again}")
+        # The same recipe in 2 shards a step: the same files.
+        t.run("run", recipe, "--progress", "never", "--shards", 2, "--workdir", j("wd2"))
+        for c in "rgb":
+            t.check(matrix_hash(j("wd2", f"final.{c}.ltm")) == matrix_hash(j("wd", f"final.{c}.ltm")),
+                    f"the sharded channel recipe made another final.{c}.ltm")
 
         # 6. Refusals naming the files.
         os.rename(j("final.g.ltm"), j("final.g.bak"))
