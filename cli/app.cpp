@@ -22,7 +22,8 @@ namespace ltb::cli {
 
 namespace {
 
-// Runs the command, once per channel file when its input names a colour channel set.
+// Runs the command, once per member file when its input names a set (colour channels
+// X.r.ltm ..., a factored bake's terms X.k0.ltm ...; stages/common/channels.h).
 int RunCommand(Command& cmd) {
   std::vector<std::string*> paths = cmd.ChannelSetPaths();
   if (paths.empty()) return cmd.Run();

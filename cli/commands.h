@@ -13,10 +13,11 @@ class Command {
  public:
   virtual ~Command() = default;
   virtual int Run() = 0;
-  // The input (first) and output paths of a stage that runs once per file of a colour
-  // channel set (stages/common/channels.h): given X.ltm where X.r.ltm, X.g.ltm and X.b.ltm
-  // exist instead, LtbakeMain runs it on each, with each path's channel file. Empty: the
-  // command does not (sample, relight and convert handle sets themselves).
+  // The input (first) and output paths of a stage that runs once per file of a set
+  // (stages/common/channels.h): given X.ltm where X.r.ltm, X.g.ltm and X.b.ltm (or a
+  // factored bake's X.k0.ltm ...) exist instead, LtbakeMain runs it on each, with each
+  // path's member file. Empty: the command does not (sample, relight and convert handle
+  // sets themselves).
   virtual std::vector<std::string*> ChannelSetPaths() { return {}; }
 };
 

@@ -1,7 +1,8 @@
-// Colour channel sets (docs/COLOUR.md): `sample --channels rgb -o X.ltm` writes one
-// monochrome container per channel, X.r.ltm, X.g.ltm and X.b.ltm, each with a "channel"
-// metadata key; every later stage runs on each file, and a command given X.ltm where no
-// X.ltm exists but the channel files do takes the set.
+// Sets of containers (docs/COLOUR.md, docs/GLOSSY.md): `sample --channels rgb -o X.ltm`
+// writes one monochrome container per colour channel, X.r.ltm, X.g.ltm and X.b.ltm, and
+// `sample --factor K` one per term, X.k0.ltm ..; each file has a "channel" metadata key
+// naming its member. Every later stage runs on each file, and a command given X.ltm where
+// no X.ltm exists but the member files do takes the set.
 #pragma once
 
 #include <string>

@@ -242,6 +242,13 @@ def main():
         t.check(np.allclose(np.unique(refl[mask].round(6), axis=0), [[1.0, 0.5, 0.25]]),
                 f"pink scene: reflectance rows {np.unique(refl[mask].round(6), axis=0)}, expected [1, 0.5, 0.25]")
 
+        # A sparse bake (docs/SPARSE.md) writes the table too.
+        sample(pink, j("pinksparse.ltm"), "--sparse")
+        t.check("reflectance" in array_names(j("pinksparse.ltm")), "a coloured sparse bake has no reflectance table")
+        sp = relight(j("pinksparse.ltm"), white, j("pinksparse.npy"))
+        err = np.linalg.norm(sp - a) / np.linalg.norm(a)
+        t.check(err < 0.05, f"the coloured sparse bake relights {err:.4f} off the full one (bound 5%)")
+
         # 3. Colour bleeding: red near the wall, none far from it.
         bleed = t.write(j("bleed.toml"), BLEED)
         p = sample(bleed, j("bleed.ltm"), expect=None)
