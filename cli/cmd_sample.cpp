@@ -116,8 +116,12 @@ class SampleCommand : public Command {
       options_.factor_view_res = gv;
     }
     if (channels_ != "rgb") return RunOne();
-    const std::string set = options_.output;
-    for (int c = 0; c < 3; ++c) {  // one container per channel: every later stage runs on each
+    if (!options_.sparse.enabled) {  // the three channels from one pass
+      options_.rgb = true;
+      return RunOne();
+    }
+    const std::string set = options_.output;  // sparse: a pass per channel
+    for (int c = 0; c < 3; ++c) {             // one container per channel: every later stage runs on each
       options_.channel = c;
       options_.output = stages::ChannelPath(set, c);
       if (int code = RunOne(); code != kExitOk) return code;
@@ -138,10 +142,14 @@ class SampleCommand : public Command {
     if (!flags_.quiet) {
       char rate[64];
       std::snprintf(rate, sizeof rate, "%.3g", r->seconds > 0 ? r->rays / r->seconds : 0.0);
-      const std::string what = options_.factor > 0 && !options_.factor_term
-                                   ? stages::FactorPath(options_.output, 0) + " .. " +
-                                         stages::FactorPath(options_.output, options_.factor - 1)
-                                   : OutputName(options_.output, options_.shard);
+      std::string what = OutputName(options_.output, options_.shard);
+      if (options_.factor > 0 && !options_.factor_term) {
+        what =
+            stages::FactorPath(options_.output, 0) + " .. " + stages::FactorPath(options_.output, options_.factor - 1);
+      } else if (options_.rgb) {
+        what = stages::ChannelPath(options_.output, 0) + ", " + stages::ChannelPath(options_.output, 1) + ", " +
+               stages::ChannelPath(options_.output, 2);
+      }
       std::cout << "wrote " << what << ": " << r->rows << " rows x " << 6ull * r->cube_res * r->cube_res
                 << " texels (R = " << r->cube_res << ", spp " << r->spp << ", bounces " << r->bounces << ")";
       if (!row_filter_.empty()) std::cout << ", row-transformed (" << row_filter_ << ")";

@@ -101,6 +101,14 @@ Status CheckSparse(const SampleOptions& o, uint32_t r) {
 // otherwise an error that says to bake per channel.
 Status CheckColour(const SampleOptions& o, Prepared* p) {
   const SceneDesc& s = p->scene;
+  if (o.rgb) {  // the original scene: the sampler reads each channel's values
+    if (o.visibility || o.sparse.enabled || o.factor > 0 || o.channel >= 0) {
+      return InvalidArgument(
+          "--channels rgb in one pass does not combine with --visibility, --sparse, --factor or "
+          "--channel");
+    }
+    return Status::Ok();
+  }
   if (o.channel >= 0) {
     if (o.visibility) return InvalidArgument("--visibility bakes geometry (no colour); leave out --channel");
     p->scene = ChannelScene(s, o.channel);
@@ -490,7 +498,7 @@ struct BlockSampler {
     const uint64_t rows = p.rows, cols = 6ull * p.r * p.r;
     uint64_t r0 = chunk * block, n = std::min(block, rows - r0);
     thread_local RowScratch sc;
-    const uint64_t extra_terms = plan ? plan->terms - 1 : 0;
+    const uint64_t extra_terms = plan ? plan->terms - 1 : o.rgb ? 2 : 0;
     std::shared_ptr<BlockBuffers> buf = pool.Get(n, cols, extra_terms);
     if (!buf) {
       return Internal("out of memory for a block of " + std::to_string(n) + " rows x " + std::to_string(cols) +
@@ -514,7 +522,10 @@ struct BlockSampler {
         nor[3 * i + k] = static_cast<float>(rp.n[k]);
       }
       const std::vector<const ParabolicTable*>* f = plan ? &plan->tables[static_cast<size_t>(rp.material)] : nullptr;
-      if (f != nullptr && !f->empty()) {  // a glossy material of a factored bake: K terms from one set of rays
+      if (o.rgb) {  // the three channels from one set of rays
+        float* const out3[3] = {mat + i * cols, buf->extra.data() + i * cols, buf->extra.data() + (n + i) * cols};
+        sampler.TransportChannels(r0 + i, rp, out3, sc, cnt);
+      } else if (f != nullptr && !f->empty()) {  // a glossy material of a factored bake: K terms from one set of rays
         thread_local std::vector<float*> term_out;
         term_out.assign(1, mat + i * cols);
         for (uint64_t k = 0; k < extra_terms; ++k) term_out.push_back(buf->extra.data() + (k * n + i) * cols);
@@ -592,15 +603,19 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
     }
     out_term = {*o.factor_term};
   } else {
-    for (uint32_t k = 0; k < (plan ? plan->terms : 1); ++k) out_term.push_back(k);
+    for (uint32_t k = 0; k < (plan ? plan->terms : o.rgb ? 3 : 1); ++k) out_term.push_back(k);
   }
   const uint32_t outputs = static_cast<uint32_t>(out_term.size());
   std::vector<io::ContainerWriter> outs;
   for (uint32_t k : out_term) {
-    nlohmann::json meta = sample_internal::SampleMetadata(o, *prep, block);
+    SampleOptions ok = o;  // --channels rgb: output k is exactly what --channel k writes
+    if (o.rgb) ok.channel = static_cast<int>(k);
+    nlohmann::json meta = sample_internal::SampleMetadata(ok, *prep, block);
     sample_internal::AddReflectance(*prep, block, &meta);
     if (plan) AddFactorMetadata(o, *prep, *plan, k, &meta);
-    const std::string path = plan && !o.factor_term ? FactorPath(o.output, k) : o.output;
+    const std::string path = plan && !o.factor_term ? FactorPath(o.output, k)
+                             : o.rgb                ? ChannelPath(o.output, static_cast<int>(k))
+                                                    : o.output;
     LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(path, meta, wo, o.shard));
     outs.push_back(std::move(out));
   }

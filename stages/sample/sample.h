@@ -63,6 +63,9 @@ struct SampleOptions {
   // material's channel value, vertex colours multiplying the albedo), one container per
   // channel (docs/COLOUR.md); -1: the monochrome bake.
   int channel = -1;
+  // --channels rgb: the three channels' containers (OUT.r.ltm, OUT.g.ltm, OUT.b.ltm) from one
+  // pass, each the same file as --channel c bakes (docs/COLOUR.md).
+  bool rgb = false;
   // --factor K (vertex mode): bake the BRDF in-out factorisation's K terms, OUT.k0.ltm ..
   // OUT.k{K−1}.ltm, for glossy vertices seen from any view (docs/GLOSSY.md); 0: no.
   uint32_t factor = 0;

@@ -428,6 +428,107 @@ void Sampler::Transport(uint64_t row, const RowPoint& rp, float* out, RowScratch
   cnt.samples_below += samples_below;
 }
 
+Brdf Sampler::MakeBrdfChannel(const RowPoint& rp, int c) const {
+  const Material& m = s_.materials[rp.material];
+  const double albedo = m.albedo_rgb[c] * rp.colour[c];  // ChannelScene's m.albedo · the vertex colour
+  Brdf brdf{albedo / M_PI, 0, m.exponent, {}};
+  if (s_.mode == SceneDesc::Mode::kImage && m.ks_rgb[c] > 0) {
+    brdf.ks_norm = m.ks_rgb[c] * (m.exponent + 2) / (2 * M_PI);
+    brdf.reflect = 2 * glm::dot(rp.n, rp.wo) * rp.n - rp.wo;
+    if (m.exponent == std::floor(m.exponent) && m.exponent <= 4096) brdf.int_exponent = static_cast<int>(m.exponent);
+  }
+  return brdf;
+}
+
+void Sampler::TransportChannels(uint64_t row, const RowPoint& rp, float* const* out, RowScratch& sc,
+                                Counters& cnt) const {
+  const uint64_t cols = texels_.size(), step = TexelsPerBatch();
+  uint64_t below = 0, samples_below = 0, rays = 0;
+  Brdf b[3];
+  int glossy = -1;  // a channel whose lobe the rays are generated with (the lobe's shape is shared)
+  for (int c = 0; c < 3; ++c) {
+    b[c] = MakeBrdfChannel(rp, c);
+    if (b[c].ks_norm > 0) glossy = c;
+  }
+  Brdf gen = glossy >= 0 ? b[glossy] : b[0];
+  if (glossy < 0) gen.diffuse = 1.0;  // ray values w·cos; ·diffuse_c is Transport's product, bit for bit
+  std::vector<double>& acc = sc.sum_value;
+  acc.assign(cols * 3, 0.0);  // channel c at [c·cols, (c+1)·cols)
+  for (uint64_t c0 = 0; c0 < cols; c0 += step) {
+    GenerateRays(row, rp, gen, c0, std::min(cols, c0 + step), sc, &below, &samples_below);
+    g_.rays->Occluded(sc.batch, sc.n);
+    const float* tf = sc.batch.tfar.data();
+    const double* val = sc.ray_value.data();
+    const double* wc = sc.wc.data();
+    const double* gl = sc.gl.data();
+    const size_t texels = sc.n / spp_;
+    for (size_t m = 0; m < texels; ++m) {
+      const uint64_t t = sc.texel[m];
+      for (int c = 0; c < 3; ++c) {
+        double s = acc[c * cols + t];
+        for (uint64_t i = 0; i < spp_; ++i) {
+          const size_t slot = m * spp_ + i;
+          if (tf[slot] < 0) continue;  // occluded, or below the horizon
+          // Transport's values: w·cos·(diffuse + ks·lobe) for a lobe, w·cos·diffuse otherwise.
+          s += glossy >= 0 ? wc[slot] * (b[c].diffuse + b[c].ks_norm * gl[slot]) : val[slot] * b[c].diffuse;
+        }
+        acc[c * cols + t] = s;
+      }
+    }
+    rays += sc.active;
+  }
+  const double h = 2.0 / r_, stratum_area = h * h / spp_;
+  for (uint64_t k = 0; k < 3 * cols; ++k) acc[k] *= stratum_area;
+  if (bounces_ > 0) {
+    double* const accs[3] = {acc.data(), acc.data() + cols, acc.data() + 2 * cols};
+    rays += IndirectChannels(row, rp, b, Origin(rp), DefaultPaths(), accs);
+  }
+  for (int c = 0; c < 3; ++c)
+    for (uint64_t t = 0; t < cols; ++t) out[c][t] = static_cast<float>(acc[c * cols + t]);
+  cnt.rays += rays;
+  cnt.below += below;
+  cnt.samples_below += samples_below;
+}
+
+uint64_t Sampler::IndirectChannels(uint64_t row, const RowPoint& rp, const Brdf* brdf, const glm::dvec3& origin,
+                                   uint64_t paths, double* const* acc) const {
+  const uint64_t cols = texels_.size();
+  uint64_t rays = 0;
+  for (uint64_t k = 0; k < paths; ++k) {
+    Rng rng(seed_, row, cols + k);
+    glm::dvec3 d = CosineSample(rp.n, rng);
+    double beta[3];
+    for (int c = 0; c < 3; ++c) beta[c] = brdf[c].Eval(d) * M_PI;  // as Indirect, per channel
+    glm::dvec3 o = origin;
+    Hit hit = g_.rays->Intersect(o, d);
+    ++rays;
+    if (!hit.hit) continue;
+    for (uint32_t bounce = 0; bounce < bounces_; ++bounce) {
+      glm::dvec3 y = o + d * hit.t;
+      const glm::dvec3 facing = glm::dot(hit.normal, d) > 0 ? -hit.normal : hit.normal;
+      const glm::dvec3 ns = g_.ShadingNormal(hit);
+      const glm::dvec3 ny = glm::dot(ns, facing) < 0 ? -ns : ns;
+      const glm::dvec3& albedo = s_.materials[g_.geom_material[hit.geom_id]].albedo_rgb;
+      const glm::dvec3 colour = g_.HitColour(hit);
+      for (int c = 0; c < 3; ++c) {
+        beta[c] *= albedo[c];
+        beta[c] *= colour[c];
+      }
+      d = CosineSample(ny, rng);
+      if (ns != hit.normal && glm::dot(d, facing) <= 0) break;
+      o = y + ny * g_.epsilon;
+      hit = g_.rays->Intersect(o, d);
+      ++rays;
+      if (!hit.hit) {
+        const uint64_t col = cubemap::Column(cubemap::DirectionToTexel(d, r_), r_);
+        for (int c = 0; c < 3; ++c) acc[c][col] += beta[c] / static_cast<double>(paths);
+        break;
+      }
+    }
+  }
+  return rays;
+}
+
 void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vector<const ParabolicTable*>& f,
                                 float* const* out, RowScratch& sc, Counters& cnt) const {
   const size_t terms = f.size() + 1;

@@ -87,6 +87,13 @@ class Sampler {
   // One row of T (6R² values) for a valid point.
   void Transport(uint64_t row, const RowPoint& rp, float* out, RowScratch& sc, Counters& cnt) const;
 
+  // The three colour channels' rows from one set of rays (`sample --channels rgb`,
+  // docs/COLOUR.md): out[c] exactly what Transport writes for ChannelScene(scene, c) (the
+  // same rays, the same sums in the same order, bounces included). The scene is the
+  // original one (channel −1): each channel's albedo and ks are read from albedo_rgb and
+  // ks_rgb, vertex colours multiply the albedo.
+  void TransportChannels(uint64_t row, const RowPoint& rp, float* const* out, RowScratch& sc, Counters& cnt) const;
+
   // The K terms of a factored bake (`sample --factor K`, docs/GLOSSY.md) of one row from one
   // set of rays: out[0] exactly what Transport writes (the diffuse part), out[k] for
   // k = 1..K−1 the texels' ∫ V·cos·f_k(ω in the row's tangent frame) dω, f[k] the incident
@@ -134,6 +141,11 @@ class Sampler {
   void AccumulateVisibility(const RowScratch& sc, std::vector<double>& acc, std::vector<double>& total) const;
   uint64_t Indirect(uint64_t row, const RowPoint& rp, const Brdf& brdf, const glm::dvec3& origin, uint64_t paths,
                     double* acc) const;
+  // Channel c's BRDF at a row point (MakeBrdf of ChannelScene(scene, c)).
+  Brdf MakeBrdfChannel(const RowPoint& rp, int c) const;
+  // Indirect for the three channels from the same paths: acc[c] gains channel c's.
+  uint64_t IndirectChannels(uint64_t row, const RowPoint& rp, const Brdf* brdf, const glm::dvec3& origin,
+                            uint64_t paths, double* const* acc) const;
 
   const SceneDesc& s_;
   const Geometry& g_;
