@@ -149,19 +149,25 @@ class RelightCommand : public Command {
     return kExitOk;
   }
 
+  // The map and output options a view shares (triple::RenderOptions, stages::GlossyViewOptions).
+  template <typename ViewOptions>
+  void FillViewOptions(ViewOptions* o) const {
+    o->env = env_;
+    o->env_layout = *stages::ParseEnvLayout(layout_);  // checked by IsMember
+    o->clamp_env = clamp_;
+    o->rotate_deg = rotate_deg_;
+    o->output = output_;
+    o->vertex_output = vertex_output_;
+    o->exposure = exposure_;
+    o->fov_degrees = fov_;
+  }
+
   int RunTriple() {
     triple::RenderOptions o;
     o.visibility = matrix_;
     o.materials = materials_;
     o.scene = scene_;
-    o.env = env_;
-    o.env_layout = *stages::ParseEnvLayout(layout_);  // checked by IsMember
-    o.clamp_env = clamp_;
-    o.rotate_deg = rotate_deg_;
-    o.output = output_;
-    o.vertex_output = vertex_output_;
-    o.exposure = exposure_;
-    o.fov_degrees = fov_;
+    FillViewOptions(&o);
     if (!sequence_.empty()) {
       return ReportUsage(InvalidArgument("--sequence belongs to the matrix path, not the triple-product one"));
     }
@@ -208,14 +214,7 @@ class RelightCommand : public Command {
   int RunGlossy() {
     stages::GlossyViewOptions o;
     o.set = matrix_;
-    o.env = env_;
-    o.env_layout = *stages::ParseEnvLayout(layout_);  // checked by IsMember
-    o.clamp_env = clamp_;
-    o.rotate_deg = rotate_deg_;
-    o.output = output_;
-    o.vertex_output = vertex_output_;
-    o.exposure = exposure_;
-    o.fov_degrees = fov_;
+    FillViewOptions(&o);
     o.terms = terms_text_ == "all" ? stages::GlossyViewOptions::kAll : std::stoull(terms_text_);
     o.use_terms = brdf_terms_text_ == "all"
                       ? 0
