@@ -34,7 +34,8 @@ struct ViewFactors {
   std::string scene, geometry_hash;
 };
 
-Result<ViewFactors> ReadViewFactors(const std::string& path) {
+// `tables`: decode the view tables too (the other terms' files are only checked against the first's).
+Result<ViewFactors> ReadViewFactors(const std::string& path, bool tables) {
   LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(path));
   const nlohmann::json& j = r.metadata().json;
   ViewFactors v;
@@ -48,7 +49,7 @@ Result<ViewFactors> ReadViewFactors(const std::string& path) {
     }
     for (const auto& m : f.at("materials")) {
       std::vector<sample::ParabolicTable> g;
-      if (m.at("glossy").get<bool>()) {
+      if (tables && m.at("glossy").get<bool>()) {
         for (const auto& text : m.at("g")) {
           LTB_ASSIGN_OR_RETURN(std::vector<float> t, FloatsFromBase64(text.get<std::string>()));
           if (res == 0 || res > 1024 || t.size() != uint64_t{res} * res) {
@@ -113,13 +114,13 @@ Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progres
                            " is not one; for a fixed-view matrix leave out --eye, "
                            "for the triple-product path add --material (docs/GLOSSY.md)");
   }
-  LTB_ASSIGN_OR_RETURN(ViewFactors vf, ReadViewFactors(members.front().path));
+  LTB_ASSIGN_OR_RETURN(ViewFactors vf, ReadViewFactors(members.front().path, true));
   if (vf.terms != members.size()) {
     return InvalidArgument(members.front().path + ": says " + std::to_string(vf.terms) + " terms but the set has " +
                            std::to_string(members.size()));
   }
   for (size_t k = 1; k < members.size(); ++k) {  // every term from the same bake
-    LTB_ASSIGN_OR_RETURN(ViewFactors other, ReadViewFactors(members[k].path));
+    LTB_ASSIGN_OR_RETURN(ViewFactors other, ReadViewFactors(members[k].path, false));
     if (other.terms != vf.terms || other.geometry_hash != vf.geometry_hash) {
       return InvalidArgument(members[k].path + ": is not a term of the same bake as " + members.front().path + " (" +
                              std::to_string(other.terms) + " vs " + std::to_string(vf.terms) +
@@ -177,41 +178,30 @@ Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progres
   if (o.orbit_frames > 0 && !o.output.empty()) LTB_RETURN_IF_ERROR(triple::FramePath(o.output, 0).status());
   GlossyViewResult result;
   std::vector<float> b, image;
+  std::vector<triple::PixelHit> hits;
   std::vector<double> ms;
   for (uint32_t f = 0; f < frames; ++f) {
     if (progress.Cancelled()) return Cancelled("interrupted between frames; the frames written are kept");
-    const double angle = glm::radians(o.orbit_deg * f);
-    const glm::dvec3 rel = o.eye - o.target;
-    const glm::dvec3 eye = o.target + glm::dvec3(rel.x * std::cos(angle) - rel.y * std::sin(angle),
-                                                 rel.x * std::sin(angle) + rel.y * std::cos(angle), rel.z);
+    const glm::dvec3 eye = triple::OrbitEye(o.eye, o.target, o.orbit_deg, f);
     auto a = Clock::now();
     VertexRadiance(geo, vf, p, used, eye, o.jobs, &b);
-    // Primary rays (the sampler's pinhole camera, docs/SCENE.md), B interpolated.
-    const glm::dvec3 fwd = glm::normalize(o.target - eye);
-    const glm::dvec3 right = glm::normalize(glm::cross(fwd, o.up));
-    const glm::dvec3 up = glm::cross(right, fwd);
-    const double th = std::tan(glm::radians(o.fov_degrees) / 2), aspect = double(o.width) / o.height;
-    image.assign(uint64_t{o.width} * o.height * 3, 0.0f);
-    std::vector<uint64_t> lines(o.height);
-    for (uint32_t y = 0; y < o.height; ++y) lines[y] = y;
-    LTB_RETURN_IF_ERROR(ParallelFor(lines, o.jobs, Progress{}, "lines", [&](uint64_t y) -> Status {
-      for (uint32_t x = 0; x < o.width; ++x) {
-        const double px = (2.0 * (x + 0.5) / o.width - 1.0) * th * aspect, py = (1.0 - 2.0 * (y + 0.5) / o.height) * th;
-        const sample::Hit h = geo.rays->Intersect(eye, glm::normalize(fwd + px * right + py * up));
-        if (!h.hit || h.geom_id >= geo.row_meshes.size()) continue;
-        const sample::Geometry::RowMesh& rm = geo.row_meshes[h.geom_id];
-        if (h.prim_id >= rm.triangles.size()) continue;  // not a row object: background
-        const glm::uvec3& tri = rm.triangles[h.prim_id];
-        const double w[3] = {1 - h.u - h.v, h.u, h.v};
-        float* out = image.data() + (y * o.width + x) * 3;
-        for (int v = 0; v < 3; ++v) {
-          const float* bv = b.data() + 3 * (rm.first_row + tri[v]);
-          for (int c = 0; c < 3; ++c) out[c] += static_cast<float>(w[v] * std::max(0.0f, bv[c]));
-        }
+    LTB_RETURN_IF_ERROR(triple::TracePixels(
+        geo, sample::PinholeCamera(eye, o.target, o.up, o.fov_degrees, o.width, o.height), o.jobs, &hits));
+    // B interpolated across each hit triangle of a row object; the rest is background.
+    image.assign(hits.size() * 3, 0.0f);
+    for (size_t px = 0; px < hits.size(); ++px) {
+      const triple::PixelHit& h = hits[px];
+      if (h.geom < 0 || static_cast<uint64_t>(h.geom) >= geo.row_meshes.size()) continue;
+      const sample::Geometry::RowMesh& rm = geo.row_meshes[static_cast<size_t>(h.geom)];
+      if (h.prim >= rm.triangles.size()) continue;  // not a row object
+      const glm::uvec3& tri = rm.triangles[h.prim];
+      const double w[3] = {1.0 - h.u - h.v, h.u, h.v};
+      float* out = image.data() + px * 3;
+      for (int v = 0; v < 3; ++v) {
+        const float* bv = b.data() + 3 * (rm.first_row + tri[v]);
+        for (int c = 0; c < 3; ++c) out[c] += static_cast<float>(w[v] * std::max(0.0f, bv[c]));
       }
-      return Status::Ok();
-    }));
-    LTB_RETURN_IF_ERROR(geo.rays->error());
+    }
     ms.push_back(Ms(a, Clock::now()));
     if (f == 0 && !o.vertex_output.empty()) {
       LTB_RETURN_IF_ERROR(WriteImage(o.vertex_output, b.data(), geo.vertex_rows.size(), 0, 0, {}));

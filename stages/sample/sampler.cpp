@@ -132,7 +132,7 @@ double Brdf::Eval(const glm::dvec3& w) const {
 }
 
 Sampler::Sampler(const SceneDesc& s, const Geometry& g, uint32_t r, uint32_t spp, uint32_t bounces, uint64_t seed)
-    : s_(s), g_(g), r_(r), spp_(spp), bounces_(bounces), seed_(seed), texels_(TexelTable(r)) {
+    : s_(s), g_(g), r_(r), spp_(spp), bounces_(bounces), seed_(seed), camera_(s.camera), texels_(TexelTable(r)) {
   // Strata tile the texel exactly: kx · ky = spp, as square as spp allows.
   kx_ = static_cast<uint32_t>(std::sqrt(static_cast<double>(spp)));
   while (spp % kx_ != 0) --kx_;
@@ -155,13 +155,7 @@ Sampler::Sampler(const SceneDesc& s, const Geometry& g, uint32_t r, uint32_t spp
 RowPoint Sampler::Primary(uint64_t row) const {
   if (s_.mode == SceneDesc::Mode::kVertex) return g_.vertex_rows[row];
   const Camera& c = s_.camera;
-  uint64_t y = row / c.width, x = row % c.width;
-  glm::dvec3 f = glm::normalize(c.target - c.eye);
-  glm::dvec3 right = glm::normalize(glm::cross(f, c.up));
-  glm::dvec3 up = glm::cross(right, f);
-  double th = std::tan(glm::radians(c.fov_degrees) / 2), aspect = double(c.width) / c.height;
-  double px = (2.0 * (x + 0.5) / c.width - 1.0) * th * aspect, py = (1.0 - 2.0 * (y + 0.5) / c.height) * th;
-  glm::dvec3 d = glm::normalize(f + px * right + py * up);
+  const glm::dvec3 d = camera_.Direction(row % c.width, row / c.width);
   Hit h = g_.rays->Intersect(c.eye, d);
   RowPoint rp;
   if (!h.hit) return rp;
@@ -534,8 +528,8 @@ void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vec
   const size_t terms = f.size() + 1;
   const uint64_t cols = texels_.size(), step = TexelsPerBatch();
   uint64_t below = 0, samples_below = 0, rays = 0;
-  const double diffuse = MakeBrdf(rp).diffuse;
   Brdf unit = MakeBrdf(rp);
+  const double diffuse = unit.diffuse;
   unit.diffuse = 1.0;  // ray values w·cos (w·cos·1.0, then ·diffuse: Transport's product, bit for bit)
   std::vector<double>& acc = sc.sum_value;
   acc.assign(cols * terms, 0.0);  // term k at [k·cols, (k+1)·cols)

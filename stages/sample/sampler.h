@@ -151,6 +151,7 @@ class Sampler {
   const Geometry& g_;
   uint32_t r_, spp_, bounces_;
   uint64_t seed_;
+  PinholeCamera camera_;  // image mode's
   bool visibility_ = false;
   std::vector<TexelInfo> texels_;
   uint32_t kx_ = 1, ky_ = 1;

@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <glm/geometric.hpp>
+#include <glm/trigonometric.hpp>
 #include <map>
 #include <set>
 
@@ -67,6 +68,21 @@ Status CheckCamera(const std::string& path, const toml::table& cam, const Camera
 }
 
 }  // namespace
+
+PinholeCamera::PinholeCamera(const glm::dvec3& eye, const glm::dvec3& target, const glm::dvec3& up, double fov_degrees,
+                             uint64_t width, uint64_t height)
+    : eye_(eye), width_(width), height_(height) {
+  f_ = glm::normalize(target - eye);
+  right_ = glm::normalize(glm::cross(f_, up));
+  up_ = glm::cross(right_, f_);
+  th_ = std::tan(glm::radians(fov_degrees) / 2);
+  aspect_ = double(width) / height;
+}
+
+glm::dvec3 PinholeCamera::Direction(uint64_t x, uint64_t y) const {
+  const double px = (2.0 * (x + 0.5) / width_ - 1.0) * th_ * aspect_, py = (1.0 - 2.0 * (y + 0.5) / height_) * th_;
+  return glm::normalize(f_ + px * right_ + py * up_);
+}
 
 std::string FormatVec3(const glm::dvec3& v) {
   char b[96];

@@ -50,6 +50,24 @@ struct Camera {
   uint32_t width = 64, height = 64;
 };
 
+// The pinhole camera of image mode (docs/SCENE.md), also what the view renderers shoot
+// (relight --eye): the ray direction through the centre of pixel (x, y), row 0 at the top.
+class PinholeCamera {
+ public:
+  PinholeCamera(const glm::dvec3& eye, const glm::dvec3& target, const glm::dvec3& up, double fov_degrees,
+                uint64_t width, uint64_t height);
+  explicit PinholeCamera(const Camera& c) : PinholeCamera(c.eye, c.target, c.up, c.fov_degrees, c.width, c.height) {}
+  glm::dvec3 Direction(uint64_t x, uint64_t y) const;
+  const glm::dvec3& eye() const { return eye_; }
+  uint64_t width() const { return width_; }
+  uint64_t height() const { return height_; }
+
+ private:
+  glm::dvec3 eye_, f_, right_, up_;
+  double th_, aspect_;
+  uint64_t width_, height_;
+};
+
 struct Object {
   enum class Type { kPlane, kBox, kSphere, kMesh } type = Type::kPlane;
   std::string name;            // for vertex mode and messages

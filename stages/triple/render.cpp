@@ -647,27 +647,26 @@ Status LoadInputs(const RenderOptions& o, const Progress& progress, Renderer& rd
 }
 
 // The camera's primary hits: per pixel the geometry, triangle and barycentrics (geom = −1: none).
-struct PixelHit {
-  int64_t geom = -1;
-  uint32_t prim = 0;
-  float u = 0, v = 0;
-};
 
-Status TraceCamera(const Renderer& rd, const glm::dvec3& eye, std::vector<PixelHit>* hits) {
-  const RenderOptions& o = rd.o;
-  const glm::dvec3 f = glm::normalize(o.target - eye);
-  const glm::dvec3 right = glm::normalize(glm::cross(f, o.up));
-  const glm::dvec3 up = glm::cross(right, f);
-  const double th = std::tan(glm::radians(o.fov_degrees) / 2), aspect = double(o.width) / o.height;
-  hits->assign(uint64_t{o.width} * o.height, PixelHit{});
-  std::vector<uint64_t> lines(o.height);
+}  // namespace
+
+glm::dvec3 OrbitEye(const glm::dvec3& eye, const glm::dvec3& target, double deg_per_frame, uint32_t k) {
+  const double angle = glm::radians(deg_per_frame * k);
+  const glm::dvec3 rel = eye - target;
+  return target + glm::dvec3(rel.x * std::cos(angle) - rel.y * std::sin(angle),
+                             rel.x * std::sin(angle) + rel.y * std::cos(angle), rel.z);
+}
+
+Status TracePixels(const sample::Geometry& geo, const sample::PinholeCamera& camera, int jobs,
+                   std::vector<PixelHit>* hits) {
+  hits->assign(camera.width() * camera.height(), PixelHit{});
+  std::vector<uint64_t> lines(camera.height());
   std::iota(lines.begin(), lines.end(), 0);
-  LTB_RETURN_IF_ERROR(stages::ParallelFor(lines, o.jobs, Progress{}, "lines", [&](uint64_t y) -> Status {
-    for (uint64_t x = 0; x < o.width; ++x) {
-      const double px = (2.0 * (x + 0.5) / o.width - 1.0) * th * aspect, py = (1.0 - 2.0 * (y + 0.5) / o.height) * th;
-      const sample::Hit h = rd.geo.rays->Intersect(eye, glm::normalize(f + px * right + py * up));
+  LTB_RETURN_IF_ERROR(stages::ParallelFor(lines, jobs, Progress{}, "lines", [&](uint64_t y) -> Status {
+    for (uint64_t x = 0; x < camera.width(); ++x) {
+      const sample::Hit h = geo.rays->Intersect(camera.eye(), camera.Direction(x, y));
       if (!h.hit) continue;
-      PixelHit& ph = (*hits)[y * o.width + x];
+      PixelHit& ph = (*hits)[y * camera.width() + x];
       ph.geom = h.geom_id;
       ph.prim = h.prim_id;
       ph.u = static_cast<float>(h.u);
@@ -675,10 +674,8 @@ Status TraceCamera(const Renderer& rd, const glm::dvec3& eye, std::vector<PixelH
     }
     return Status::Ok();
   }));
-  return rd.geo.rays->error();
+  return geo.rays->error();
 }
-
-}  // namespace
 
 Result<std::string> FramePath(const std::string& pattern, uint32_t k) {
   const size_t pct = pattern.find('%');
@@ -805,12 +802,10 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
   const uint32_t rendered = o.output.empty() && !o.vertex_output.empty() ? 0 : frames;
   for (uint32_t k = 0; k < rendered; ++k) {
     if (progress.Cancelled()) return Cancelled("interrupted between frames; the frames written are kept");
-    const double angle = glm::radians(o.orbit_deg * k);
-    const glm::dvec3 rel = o.eye - o.target;
-    const glm::dvec3 eye = o.target + glm::dvec3(rel.x * std::cos(angle) - rel.y * std::sin(angle),
-                                                 rel.x * std::sin(angle) + rel.y * std::cos(angle), rel.z);
+    const glm::dvec3 eye = OrbitEye(o.eye, o.target, o.orbit_deg, k);
     auto a = Clock::now();
-    LTB_RETURN_IF_ERROR(TraceCamera(rd, eye, &hits));
+    LTB_RETURN_IF_ERROR(TracePixels(
+        rd.geo, sample::PinholeCamera(eye, o.target, o.up, o.fov_degrees, o.width, o.height), o.jobs, &hits));
     std::fill(needed.begin(), needed.end(), 0);
     uint64_t hit_pixels = 0, unshaded = 0;
     for (const PixelHit& h : hits) {
