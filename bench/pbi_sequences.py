@@ -24,10 +24,12 @@ the last run's CSV). Writes bench/results/NAME.{md,csv,png}.
 import csv
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from benchlib import machine  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
@@ -56,17 +58,6 @@ def matrix():
     if not os.path.exists(final):
         subprocess.run([LTB, "run", os.path.join(HERE, "pbi_bake.toml")], check=True)
     return final
-
-
-def machine():
-    cpu = ""
-    with open("/proc/cpuinfo") as f:
-        for line in f:
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 30
-    return f"{os.cpu_count()} CPUs ({cpu}), {mem:.1f} GiB, {platform.system()} {platform.release()}"
 
 
 def median(v):
