@@ -3,9 +3,10 @@
 
 Issue "colour", target: an RGB direct bake costs at most 1.05x the monochrome bake.
 
-Case "direct" (samples/medium.toml at LTB_COLOUR_SIZE² pixels, R = LTB_COLOUR_CUBE_RES):
- 1. `sample` of the grey scene (as bundled) and of a coloured copy (every albedo and ks
-    times one tint per material: the floor [1, 0.8, 0.55], the bunny [1, 0.35, 0.2]),
+Case "direct" (LTB_COLOUR_SCENE, default samples/medium.toml, at LTB_COLOUR_SIZE² pixels,
+R = LTB_COLOUR_CUBE_RES):
+ 1. `sample` of the grey scene and of a coloured copy (every albedo and ks times one tint
+    per material, in order of appearance: [1, 0.8, 0.55], [1, 0.35, 0.2], [0.3, 0.6, 1], ...),
     alternately LTB_COLOUR_REPEATS times each after one untimed warm-up of each: wall
     seconds (perf_counter around the child) and peak RSS (os.wait4); medians, min-max. The
     coloured monochrome bake writes the grey bake's matrix plus the reflectance table.
@@ -23,7 +24,8 @@ Case "cornell" (samples/cornell.toml, its materials from the OBJ's usemtl, one b
 
 Run:  /usr/bin/python3 bench/colour_bench.py [BUILD_DIR]
 Knobs: LTB_COLOUR_CASES (direct,cornell), LTB_COLOUR_REPEATS (3), LTB_COLOUR_SIZE (128),
-       LTB_COLOUR_CUBE_RES (32), LTB_COLOUR_FRAMES (50)
+       LTB_COLOUR_CUBE_RES (32), LTB_COLOUR_FRAMES (50), LTB_COLOUR_SCENE, LTB_COLOUR_MAP
+       (default the bundled city.exr), LTB_COLOUR_NAME (a suffix for the result files)
 Writes bench/results/colour_bench.{md,json}.
 """
 import datetime
@@ -45,12 +47,19 @@ BUILD = os.path.abspath(sys.argv[1] if len(sys.argv) > 1 else os.path.join(ROOT,
 LTB = os.path.join(BUILD, "ltbake")
 OUT = os.path.join(ROOT, "bench", "out", "colour")
 RESULTS = os.path.join(ROOT, "bench", "results")
-KNOBS = ["LTB_COLOUR_CASES", "LTB_COLOUR_REPEATS", "LTB_COLOUR_SIZE", "LTB_COLOUR_CUBE_RES", "LTB_COLOUR_FRAMES"]
+KNOBS = ["LTB_COLOUR_CASES", "LTB_COLOUR_REPEATS", "LTB_COLOUR_SIZE", "LTB_COLOUR_CUBE_RES", "LTB_COLOUR_FRAMES",
+         "LTB_COLOUR_SCENE", "LTB_COLOUR_MAP", "LTB_COLOUR_NAME"]
 CASES = os.environ.get("LTB_COLOUR_CASES", "direct,cornell").split(",")
 REPEATS = int(os.environ.get("LTB_COLOUR_REPEATS", "3"))
 SIZE = int(os.environ.get("LTB_COLOUR_SIZE", "128"))
 CUBE_RES = int(os.environ.get("LTB_COLOUR_CUBE_RES", "32"))
 FRAMES = int(os.environ.get("LTB_COLOUR_FRAMES", "50"))
+# The direct case's scene (image mode; its materials tinted in order of appearance by
+# PALETTE), the map of the relight timing and the Cornell images, a suffix for the results.
+SCENE = os.path.abspath(os.environ.get("LTB_COLOUR_SCENE", os.path.join(ROOT, "samples", "medium.toml")))
+MAP = os.environ.get("LTB_COLOUR_MAP", "")
+NAME = os.environ.get("LTB_COLOUR_NAME", "")
+PALETTE = [[1, 0.8, 0.55], [1, 0.35, 0.2], [0.3, 0.6, 1], [0.5, 1, 0.4]]
 Q = ["--progress", "never", "-q"]
 
 
@@ -94,7 +103,9 @@ def stats(xs):
 
 
 def first_map():
-    """city.exr of the bundled maps (scripts/find_envmaps.sh prints their folder), else the first."""
+    """LTB_COLOUR_MAP, else city.exr of the bundled maps (scripts/find_envmaps.sh prints their folder), else the first."""
+    if MAP:
+        return os.path.abspath(MAP)
     d = subprocess.run(["bash", os.path.join(ROOT, "scripts", "find_envmaps.sh")], capture_output=True,
                        text=True).stdout.strip()
     if not d or not os.path.isdir(d):
@@ -114,9 +125,8 @@ def write_scene(src, dst, tints, size=None, grey=False):
         text = re.sub(r"^height = \d+", f"height = {size}", text, flags=re.M)
     out, material = [], None
     for line in text.splitlines():
-        m = re.match(r'\s*name = "([^"]+)"', line)
-        if m:
-            material = m.group(1)
+        if re.match(r"\s*\[\[material\]\]", line):
+            material = len([1 for x in out if re.match(r"\s*\[\[material\]\]", x)])  # its order
         m = re.match(r"(\s*)(albedo|ks) = (.+?)(\s*#.*)?$", line)
         if m and grey and m.group(3).startswith("["):
             v = [float(x) for x in m.group(3).strip("[]").split(",")]
@@ -156,9 +166,8 @@ def compress(raw, d, name):
 def case_direct(envmap):
     d = os.path.join(OUT, "direct")
     os.makedirs(d, exist_ok=True)
-    medium = os.path.join(ROOT, "samples", "medium.toml")
-    grey = write_scene(medium, os.path.join(d, "grey.toml"), {}, SIZE)
-    col = write_scene(medium, os.path.join(d, "colour.toml"), {"floor": [1, 0.8, 0.55], "bunny": [1, 0.35, 0.2]}, SIZE)
+    grey = write_scene(SCENE, os.path.join(d, "grey.toml"), {}, SIZE)
+    col = write_scene(SCENE, os.path.join(d, "colour.toml"), dict(enumerate(PALETTE)), SIZE)
     outs = {"grey": os.path.join(d, "grey.ltm"), "colour_mono": os.path.join(d, "colour.ltm"),
             "colour_rgb": os.path.join(d, "rgb.ltm")}
     common = ["--cube-res", CUBE_RES, "--jobs", 2, *Q]
@@ -182,7 +191,7 @@ def case_direct(envmap):
                          "final_bytes": disk_bytes(final)}
         fps["ratio_ms"] = fps["colour_mono"]["median_ms"] / fps["grey"]["median_ms"]
         res["relight"] = fps
-    res["scene"] = f"samples/medium.toml at {SIZE}x{SIZE}, R = {CUBE_RES}"
+    res["scene"] = f"{os.path.relpath(SCENE, ROOT)} at {SIZE}x{SIZE}, R = {CUBE_RES}"
     return res
 
 
@@ -221,7 +230,7 @@ def case_cornell(envmap):
         images[name] = np.load(out)
         exposure = 1 / max(np.percentile(images[name], 99), 1e-12)
         Image.fromarray(tonemap(images[name], w, h, exposure)).save(
-            os.path.join(RESULTS, f"colour_cornell_{name}.png"))
+            os.path.join(RESULTS, f"colour_cornell{NAME}_{name}.png"))
     # The floor's red excess near the red wall and in the middle (positions of channel r).
     run("convert", files_of(outs["colour_rgb"])[0], os.path.join(d, "r.npy"), *Q)
     img = images["white"]
@@ -258,7 +267,7 @@ def main():
     meta = {"started": started, "machine": machine(), "commit": git_describe(), "load_before": load,
             "repeats": REPEATS, "envmap": envmap,
             "command": " ".join(f"{k}={os.environ[k]}" for k in KNOBS if k in os.environ)}
-    with open(os.path.join(RESULTS, "colour_bench.json"), "w") as f:
+    with open(os.path.join(RESULTS, f"colour_bench{NAME}.json"), "w") as f:
         json.dump({"meta": meta, "results": results}, f, indent=1)
     lines = ["# Colour: what it costs (bench/colour_bench.py)", "",
              f"{started}, {meta['machine']}, commit {meta['commit']}, load before "
@@ -282,7 +291,7 @@ def main():
             lines.append(f"- floor under a white map, r/g - 1: near the red wall {r['red_excess_near_wall']:.3f}, "
                          f"in the middle {r['red_excess_middle']:.3f}")
         lines.append("")
-    with open(os.path.join(RESULTS, "colour_bench.md"), "w") as f:
+    with open(os.path.join(RESULTS, f"colour_bench{NAME}.md"), "w") as f:
         f.write("\n".join(lines))
     print("\n".join(lines))
 

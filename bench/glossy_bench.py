@@ -44,11 +44,16 @@ BUILD = os.path.abspath(sys.argv[1] if len(sys.argv) > 1 else os.path.join(ROOT,
 LTB = os.path.join(BUILD, "ltbake")
 OUT = os.path.join(ROOT, "bench", "out", "glossy")
 RESULTS = os.path.join(ROOT, "bench", "results")
-KNOBS = ["LTB_GLOSSY_CUBE_RES", "LTB_GLOSSY_SIZE", "LTB_GLOSSY_GRID", "LTB_GLOSSY_EXPONENT", "LTB_GLOSSY_MAPS"]
+KNOBS = ["LTB_GLOSSY_CUBE_RES", "LTB_GLOSSY_SIZE", "LTB_GLOSSY_GRID", "LTB_GLOSSY_EXPONENT", "LTB_GLOSSY_MAPS",
+         "LTB_GLOSSY_MESH", "LTB_GLOSSY_NAME"]
 R = int(os.environ.get("LTB_GLOSSY_CUBE_RES", "32"))
 SIZE = int(os.environ.get("LTB_GLOSSY_SIZE", "128"))
 GRID = int(os.environ.get("LTB_GLOSSY_GRID", "100"))
 EXPONENT = float(os.environ.get("LTB_GLOSSY_EXPONENT", "32"))
+# "dragon" (data/meshes/dragon_res3.ply) or "torus" (generated here: 160 x 80 vertices, a
+# mesh no bundled sample has); LTB_GLOSSY_NAME suffixes the result files (e.g. "_unseen").
+MESH = os.environ.get("LTB_GLOSSY_MESH", "dragon")
+NAME = os.environ.get("LTB_GLOSSY_NAME", "")
 KS = (1, 2, 4, 8)
 EYE, TARGET, FOV = "0,-2.6,1.3", "0,0,0.35", 35.0
 
@@ -77,12 +82,28 @@ material = "floor"
 name = "dragon"
 type = "mesh"
 file = "{dragon}"
-scale = 7.0
-rotate = [90.0, 0.0, 0.0]
-translate = [0.0, 0.0, -0.37]
+{placement}
 normals = "smooth"
 material = "glossy"
 """
+PLACEMENT = {"dragon": "scale = 7.0\nrotate = [90.0, 0.0, 0.0]\ntranslate = [0.0, 0.0, -0.37]",
+             "torus": "rotate = [60.0, 0.0, 20.0]\ntranslate = [0.0, 0.0, 0.45]"}
+
+
+def write_torus(path, nu=160, nv=80, big=0.55, small=0.2):
+    """A torus of nu x nv vertices (quads as two triangles), z up, centred on the origin."""
+    import math
+    with open(path, "w") as f:
+        for i in range(nu):
+            for j in range(nv):
+                u, v = 2 * math.pi * i / nu, 2 * math.pi * j / nv
+                f.write("v %.7f %.7f %.7f\n" % ((big + small * math.cos(v)) * math.cos(u),
+                                               (big + small * math.cos(v)) * math.sin(u), small * math.sin(v)))
+        for i in range(nu):
+            for j in range(nv):
+                a, b = i * nv + j, ((i + 1) % nu) * nv + j
+                c, d = ((i + 1) % nu) * nv + (j + 1) % nv, i * nv + (j + 1) % nv
+                f.write("f %d %d %d\nf %d %d %d\n" % (a + 1, b + 1, c + 1, a + 1, c + 1, d + 1))
 
 
 def run(*args):
@@ -119,7 +140,10 @@ def main():
     if not os.path.exists(grid):
         ground_grid.write_grid(grid, GRID, 6.0)
     dragon = os.path.join(ROOT, "data", "meshes", "dragon_res3.ply")
-    fmt = dict(r=R, exponent=EXPONENT, grid=grid, dragon=dragon)
+    if MESH == "torus":
+        dragon = os.path.join(OUT, "torus.obj")
+        write_torus(dragon)
+    fmt = dict(r=R, exponent=EXPONENT, grid=grid, dragon=dragon, placement=PLACEMENT[MESH])
     vscene = os.path.join(OUT, "vertex.toml")
     with open(vscene, "w") as f:
         f.write(SCENE.format(mode="vertex", extra='objects = ["dragon", "ground"]', **fmt))
@@ -163,11 +187,11 @@ def main():
             img = np.load(vnpy).astype(np.float64)
             both = (img.sum(1) > 0) & (ref.sum(1) > 0)
             res["errors"][name(m)][k] = float(np.linalg.norm(img[both] - ref[both]) / np.linalg.norm(ref[both]))
-        if name(m) == "city":
+        if name(m) == ("city" if any(name(x) == "city" for x in maps()) else name(maps()[0])):
             exposure = 1 / max(np.percentile(ref, 99), 1e-12)
-            tonemap_png(bnpy, os.path.join(RESULTS, "glossy_view_brute.png"), exposure)
+            tonemap_png(bnpy, os.path.join(RESULTS, f"glossy_view{NAME}_brute.png"), exposure)
             for k in (1, 4, 8):
-                tonemap_png(os.path.join(OUT, f"view_city_k{k}.npy"), os.path.join(RESULTS, f"glossy_view_k{k}.png"),
+                tonemap_png(os.path.join(OUT, f"view_{name(m)}_k{k}.npy"), os.path.join(RESULTS, f"glossy_view{NAME}_k{k}.png"),
                             exposure)
     # The floor of the comparison: the same scene with a diffuse dragon (ks = 0), whose K = 1
     # bake is exact, against its own brute force: vertex interpolation, per-vertex normals
@@ -201,11 +225,13 @@ def main():
         res["frames"][k] = {"median_ms": rep["frames"]["median_ms"], "fps": rep["frames"]["fps"],
                             "relight_ms": rep["relight_ms"], "vertices": rep["vertices"]}
     for deg, frame in (("000", 0), ("180", 18)):  # the K = 8 orbit's views from two sides (README)
-        shutil.copy(os.path.join(OUT, f"orbit_{frame:02d}.png"), os.path.join(RESULTS, f"glossy_orbit_{deg}deg.png"))
+        shutil.copy(os.path.join(OUT, f"orbit_{frame:02d}.png"), os.path.join(RESULTS, f"glossy_orbit{NAME}_{deg}deg.png"))
     meta = {"started": started, "machine": machine(), "commit": git_describe(), "load_before": load,
             "command": " ".join(f"{k}={os.environ[k]}" for k in KNOBS if k in os.environ),
-            "scene": f"dragon_res3 + {GRID}x{GRID} ground grid, Phong({EXPONENT:g}), R = {R}, {SIZE}x{SIZE}"}
-    with open(os.path.join(RESULTS, "glossy_bench.json"), "w") as f:
+            "scene": f"{'dragon_res3' if MESH == 'dragon' else 'a generated torus (12,800 vertices)'} + {GRID}x{GRID} "
+                     f"ground grid, Phong({EXPONENT:g}), R = {R}, {SIZE}x{SIZE}; maps: "
+                     + ", ".join(name(m) for m in maps())}
+    with open(os.path.join(RESULTS, f"glossy_bench{NAME}.json"), "w") as f:
         json.dump({"meta": meta, "results": res}, f, indent=1)
     lines = ["# Glossy vertices from any view (bench/glossy_bench.py)", "",
              f"{started}, {meta['machine']}, commit {meta['commit']}, load before {load[0]:.2f}.", "",
@@ -224,14 +250,14 @@ def main():
     med = {k: float(np.median([e[k] for e in res["errors"].values()])) for k in KS}
     lines.append("| median | " + " | ".join(f"{med[k]:.4f}" for k in KS) + " |")
     fl = res["floor"]
-    lines += ["", "The comparison's floor (a diffuse dragon, K = 1 exact, against its own brute force: vertex "
+    lines += ["", "The comparison's floor (the object diffuse, K = 1 exact, against its own brute force: vertex "
               "interpolation, per-vertex normals, Monte Carlo noise): " +
               ", ".join(f"{mname} {e:.4f}" for mname, e in fl.items()) + f"; median {np.median(list(fl.values())):.4f}"]
     lines += ["", "Views along an orbit (256x256, 200 lighting terms, RGB):", ""]
     for k, fr in res["frames"].items():
         lines.append(f"- K = {k}: {fr['median_ms']:.2f} ms a view (median of 36), **{fr['fps']:.0f} views/s**; "
                      f"the K terms relit once in {fr['relight_ms']:.1f} ms ({fr['vertices']} vertices)")
-    with open(os.path.join(RESULTS, "glossy_bench.md"), "w") as f:
+    with open(os.path.join(RESULTS, f"glossy_bench{NAME}.md"), "w") as f:
         f.write("\n".join(lines) + "\n")
     print("\n".join(lines))
 

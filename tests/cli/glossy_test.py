@@ -180,7 +180,7 @@ def main():
             st = info(j(f"lam.k{k}.ltm"))["arrays"][0]["stats"]
             t.check(st["max"] == 0 and st["min"] == 0, f"Lambertian term {k} is not zero: {st}")
 
-        # 2. The printed errors against NumPy's SVD.
+        # 2. The printed errors against NumPy's singular values.
         got = printed_errors(p.stdout)
         want = numpy_errors(0.3, 0.6, 32.0)
         print("factorisation error, Phong(32), K = 1..8: ltbake", got, "NumPy", [round(x, 4) for x in want])
