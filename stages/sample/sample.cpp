@@ -114,7 +114,13 @@ Status CheckColour(const SampleOptions& o, Prepared* p) {
     p->scene = ChannelScene(s, o.channel);
     return Status::Ok();
   }
-  if (o.visibility || !s.HasColour()) return Status::Ok();
+  // Colour that reaches a row: a material some geometry uses that is not grey, or vertex colours.
+  bool coloured = false;
+  for (size_t g = 0; g < p->geo.geom_material.size(); ++g) {
+    coloured = coloured || !s.materials[static_cast<size_t>(p->geo.geom_material[g])].Grey() ||
+               s.objects[static_cast<size_t>(p->geo.geom_object[g])].colours == sample::Object::Colours::kFile;
+  }
+  if (o.visibility || !coloured) return Status::Ok();
   const std::string fix = "; bake one matrix per channel with --channels rgb (docs/COLOUR.md)";
   if (p->bounces > 0) {
     return InvalidArgument(o.scene + ": the scene has colour and --bounces " + std::to_string(p->bounces) +

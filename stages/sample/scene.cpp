@@ -397,14 +397,6 @@ void SplitColour(Material* m) {
   }
 }
 
-bool SceneDesc::HasColour() const {
-  for (const Material& m : materials)
-    if (!m.Grey()) return true;
-  for (const Object& o : objects)
-    if (o.colours == Object::Colours::kFile) return true;
-  return false;
-}
-
 SceneDesc ChannelScene(const SceneDesc& s, int channel) {
   SceneDesc c = s;
   c.channel = channel;

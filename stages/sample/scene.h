@@ -107,9 +107,6 @@ struct SceneDesc {
   // -1: the monochrome bake (materials' scalar albedo and ks); 0, 1, 2: the scene as
   // channel r, g or b sees it (ChannelScene): vertex colours multiply the albedo there.
   int channel = -1;
-  // Whether any material is not grey or any object takes vertex colours: the monochrome
-  // bake then writes a per-row reflectance table (docs/COLOUR.md).
-  bool HasColour() const;
 };
 
 // The scene as channel c (0 r, 1 g, 2 b) sees it: every material's albedo and ks are its

@@ -207,6 +207,13 @@ def main():
             t.check("channel" not in json.dumps(meta["provenance"]),
                     f"bounces {bounces}: a grey scene's provenance names a channel")
 
+        # A coloured material no object uses changes nothing.
+        unused = t.write(j("unused.toml"), BALL.format(bounces=1, floor="0.8", ball="0.5", ks="0.3") +
+                         '[[material]]\nname = "red"\nalbedo = [0.9, 0.1, 0.1]\n')
+        sample(unused, j("unused.ltm"))
+        t.check(matrix_hash(j("unused.ltm")) == matrix_hash(j("scalar1.ltm")) and
+                "reflectance" not in array_names(j("unused.ltm")), "an unused coloured material changed the bake")
+
         # 2. A red material under a constant white map: (r, 0, 0).
         red = t.write(j("red.toml"), BALL.format(bounces=0, floor="[0.7, 0.0, 0.0]", ball="[0.5, 0.0, 0.0]",
                                                  ks="[0.3, 0.0, 0.0]"))
