@@ -1,15 +1,55 @@
 #include "format/io/atomic_file.h"
 
+#include <sys/stat.h>
+
 #include <cerrno>
+#include <climits>
 #include <cstdio>
+#include <cstdlib>
 #include <utility>
 
 namespace ltb::io {
 
+namespace {
+
+constexpr const char* kReplaceOnly =
+    "ltbake writes its outputs only as regular files and replaces nothing else (remove it, or name another output "
+    "path)";
+
+}  // namespace
+
+Result<std::string> ReplaceableOutput(const std::string& path) {
+  struct stat st;
+  if (::lstat(path.c_str(), &st) != 0) {
+    if (errno == ENOENT) return path;
+    return IoError(path + ": cannot stat the output path", errno);
+  }
+  if (S_ISREG(st.st_mode)) return path;
+  if (!S_ISLNK(st.st_mode)) {
+    return InvalidArgument(path + ": is " + FileKind(st.st_mode) + ", not a regular file; " + kReplaceOnly);
+  }
+  char resolved[PATH_MAX];
+  if (::realpath(path.c_str(), resolved) == nullptr) {
+    int err = errno;
+    if (err == ENOENT) {
+      return InvalidArgument(path + ": is a symbolic link to a file that does not exist; " + kReplaceOnly);
+    }
+    return IoError(path + ": cannot resolve the symbolic link", err);
+  }
+  const std::string target = resolved;
+  if (::stat(target.c_str(), &st) != 0) return IoError(path + ": cannot stat " + target, errno);
+  if (!S_ISREG(st.st_mode)) {
+    return InvalidArgument(path + ": is a symbolic link to " + target + ", which is " + FileKind(st.st_mode) +
+                           ", not a regular file; " + kReplaceOnly);
+  }
+  return target;
+}
+
 Result<AtomicFile> AtomicFile::Create(const std::string& path) {
   AtomicFile f;
   f.path_ = path;
-  f.temp_ = path + ".partial";
+  LTB_ASSIGN_OR_RETURN(f.target_, ReplaceableOutput(path));
+  f.temp_ = f.target_ + ".partial";
   if (std::remove(f.temp_.c_str()) != 0 && errno != ENOENT) {
     return IoError(f.temp_ + ": cannot remove the partial file a killed writer left", errno);
   }
@@ -18,7 +58,10 @@ Result<AtomicFile> AtomicFile::Create(const std::string& path) {
 }
 
 AtomicFile::AtomicFile(AtomicFile&& other) noexcept
-    : file_(std::move(other.file_)), path_(std::move(other.path_)), temp_(std::move(other.temp_)) {
+    : file_(std::move(other.file_)),
+      path_(std::move(other.path_)),
+      target_(std::move(other.target_)),
+      temp_(std::move(other.temp_)) {
   other.temp_.clear();
 }
 
@@ -27,6 +70,7 @@ AtomicFile& AtomicFile::operator=(AtomicFile&& other) noexcept {
     Discard();
     file_ = std::move(other.file_);
     path_ = std::move(other.path_);
+    target_ = std::move(other.target_);
     temp_ = std::move(other.temp_);
     other.temp_.clear();
   }
@@ -46,13 +90,25 @@ Status AtomicFile::Commit() {
   if (temp_.empty()) return FailedPrecondition(path_ + ": AtomicFile committed twice or never created");
   Status s = file_.DataSync();
   if (s.ok()) s = file_.Close();
-  if (s.ok() && std::rename(temp_.c_str(), path_.c_str()) != 0) s = IoError(path_ + ": rename from " + temp_, errno);
+  // Again right before the rename: what was at path may have changed while the data was
+  // written (a FIFO made there, a link pointed elsewhere).
+  if (s.ok()) {
+    auto target = ReplaceableOutput(path_);
+    if (!target.ok()) {
+      s = target.status();
+    } else if (*target != target_) {
+      s = FailedPrecondition(path_ + ": now points to " + *target + ", not to " + target_ +
+                             " as when this output was started; nothing was replaced (run the command again)");
+    }
+  }
+  if (s.ok() && std::rename(temp_.c_str(), target_.c_str()) != 0)
+    s = IoError(target_ + ": rename from " + temp_, errno);
   if (!s.ok()) {
     Discard();
     return s;
   }
   temp_.clear();
-  return SyncParentDirectory(path_);
+  return SyncParentDirectory(target_);
 }
 
 Status WriteFileAtomically(const std::string& path, format::ByteSpan bytes) {

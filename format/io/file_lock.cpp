@@ -13,6 +13,7 @@
 #include <thread>
 #include <utility>
 
+#include "format/io/atomic_file.h"
 #include "format/io/file.h"
 
 namespace ltb::io {
@@ -161,6 +162,9 @@ Result<FileLock> FileLock::Acquire(const std::string& lock_path, const LockOptio
 std::string OutputLockPath(const std::string& output) { return output + ".lock"; }
 
 Result<FileLock> LockOutput(const std::string& output) {
+  // An output that could not be replaced gets no lock file beside it either (`-o /dev/full`
+  // must not create /dev/full.lock).
+  LTB_RETURN_IF_ERROR(ReplaceableOutput(output).status());
   LockOptions o;
   o.busy_message = [&output](const std::string& holder) {
     return output + " is in use by " + holder + " (another ltbake writing it); wait for it or choose another output";

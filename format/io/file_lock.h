@@ -57,7 +57,8 @@ std::string OutputLockPath(const std::string& output);
 
 // Takes the lock of an output before anything is opened for writing. A second writer gets
 // kFailedPrecondition: "OUTPUT is in use by PID N (another ltbake writing it); wait for it or
-// choose another output", and has touched nothing but the lock file's descriptor.
+// choose another output", and has touched nothing but the lock file's descriptor. An output
+// path that holds a directory, FIFO, device or socket is refused first (io::ReplaceableOutput).
 Result<FileLock> LockOutput(const std::string& output);
 
 // The PID recorded in a lock file, or 0 (no file, no PID yet).

@@ -11,6 +11,7 @@
 #include <sstream>
 #include <string>
 
+#include "format/io/file_lock.h"
 #include "test_util.h"
 
 namespace ltb {
@@ -101,6 +102,72 @@ TEST(AtomicFile, ErrorsNameThePath) {
   EXPECT_NE(s.message().find(taken), std::string::npos) << s.message();
   EXPECT_FALSE(fs::exists(taken + ".partial"));
   EXPECT_TRUE(fs::is_directory(taken + "/inside"));
+}
+
+// Outputs never replace what is not a regular file: a device, FIFO or directory at the path is
+// refused before anything is written (no temporary, no lock file beside it), and stays what it
+// was. Before this check `relight --csv /dev/full` turned the device into a regular file.
+TEST(AtomicFile, RefusesToReplaceADeviceAFifoOrADirectory) {
+  test::TempDir dir;
+  const std::string fifo = dir.File("pipe.csv");
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0644), 0);
+  const std::string empty_dir = dir.File("empty");
+  ASSERT_TRUE(fs::create_directory(empty_dir));
+  const std::string device_link = dir.File("null.npy");
+  fs::create_symlink("/dev/null", device_link);
+  struct Case {
+    std::string path, kind;
+  };
+  for (const Case& c : {Case{fifo, "a FIFO"}, Case{empty_dir, "a directory"}, Case{"/dev/null", "a character device"},
+                        Case{device_link, "/dev/null, which is a character device"}}) {
+    auto f = io::AtomicFile::Create(c.path);
+    ASSERT_FALSE(f.ok()) << c.path;
+    EXPECT_EQ(f.status().code(), StatusCode::kInvalidArgument) << f.status().message();
+    EXPECT_NE(f.status().message().find(c.path + ": is "), std::string::npos) << f.status().message();
+    EXPECT_NE(f.status().message().find(c.kind), std::string::npos) << f.status().message();
+    EXPECT_FALSE(fs::exists(c.path + ".partial")) << c.path;
+    auto lock = io::LockOutput(c.path);
+    EXPECT_FALSE(lock.ok()) << c.path;
+    EXPECT_FALSE(fs::exists(c.path + ".lock")) << c.path;
+    EXPECT_EQ(io::WriteFileAtomically(c.path, std::string("x")).code(), StatusCode::kInvalidArgument);
+  }
+  EXPECT_TRUE(fs::is_fifo(fifo));
+  EXPECT_TRUE(fs::is_directory(empty_dir));
+  EXPECT_TRUE(fs::is_symlink(device_link));
+  EXPECT_TRUE(fs::is_character_file("/dev/null"));
+}
+
+// A symbolic link to a regular file is followed: the file it names gets the new content, the
+// link stays a link. A link to nothing is refused.
+TEST(AtomicFile, FollowsASymbolicLinkToARegularFileAndRefusesADanglingOne) {
+  test::TempDir dir;
+  const std::string target = dir.File("real.json"), link = dir.File("link.json");
+  WriteText(target, "old");
+  fs::create_symlink(target, link);
+  ASSERT_TRUE(io::WriteFileAtomically(link, std::string("new")).ok());
+  EXPECT_TRUE(fs::is_symlink(link));
+  EXPECT_EQ(ReadAll(target), "new");
+  EXPECT_FALSE(fs::exists(target + ".partial"));
+  const std::string dangling = dir.File("dangling.json");
+  fs::create_symlink(dir.File("absent.json"), dangling);
+  Status s = io::WriteFileAtomically(dangling, std::string("x"));
+  EXPECT_EQ(s.code(), StatusCode::kInvalidArgument) << s.message();
+  EXPECT_NE(s.message().find("does not exist"), std::string::npos) << s.message();
+  EXPECT_FALSE(fs::exists(dir.File("absent.json")));
+}
+
+// What is at the path is checked again before the rename: a FIFO made there while the data
+// was written is not replaced.
+TEST(AtomicFile, ChecksThePathAgainBeforeTheRename) {
+  test::TempDir dir;
+  const std::string path = dir.File("out.csv");
+  auto f = io::AtomicFile::Create(path);
+  ASSERT_TRUE(f.ok());
+  ASSERT_EQ(::mkfifo(path.c_str(), 0644), 0);
+  Status s = f->Commit();
+  EXPECT_EQ(s.code(), StatusCode::kInvalidArgument) << s.message();
+  EXPECT_TRUE(fs::is_fifo(path));
+  EXPECT_FALSE(fs::exists(path + ".partial"));
 }
 
 }  // namespace
