@@ -95,6 +95,9 @@ class ConvertCommand : public Command {
     auto r = stages::RunConvert(options_, bar.hook());
     bar.Done();
     if (!r.ok()) return ReportFailure(r.status());
+    if (!r->restarted_because.empty()) {
+      std::cerr << "ltbake convert: started over (--overwrite): " << r->restarted_because << "\n";
+    }
     if (!flags_.quiet) {
       std::cout << "wrote " << options_.output << ": ";
       if (r->channels) std::cout << r->channels << " channels x ";

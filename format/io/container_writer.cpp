@@ -26,6 +26,7 @@ ContainerWriter& ContainerWriter::operator=(ContainerWriter&& o) noexcept {
     direct_ = File();  // the old file's descriptors close before its lock goes
     file_ = std::move(o.file_);
     lock_ = std::move(o.lock_);
+    resumed_reader_ = std::move(o.resumed_reader_);
     metadata_ = std::move(o.metadata_);
     header_ = o.header_;
     resume_ = o.resume_;
@@ -459,6 +460,52 @@ Status ContainerWriter::Discard() {
   if (!p.empty() && std::remove(p.c_str()) != 0 && errno != ENOENT && s.ok()) s = IoError(p + ": remove", errno);
   *this = ContainerWriter();
   return s;
+}
+
+Status ContainerWriter::CheckResumedChunk(uint32_t array, uint64_t chunk, ByteSpan data) const {
+  std::shared_ptr<const ContainerReader> reader;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (committed_.count(Key(array, chunk)) == 0 || hashed_.count(Key(array, chunk)) != 0) return Status::Ok();
+    if (!resumed_reader_) {
+      auto r = ContainerReader::Open(path());
+      if (!r.ok()) return r.status().WithContext("reading back a chunk an earlier run committed");
+      resumed_reader_ = std::make_shared<const ContainerReader>(std::move(r).value());
+    }
+    reader = resumed_reader_;
+  }
+  auto c = reader->ReadChunk(array, chunk);
+  if (!c.ok()) return c.status().WithContext("reading back a chunk an earlier run committed");
+  const ArraySpec& a = metadata_.arrays[array];
+  const ChunkExtent e = a.Extent(chunk);
+  const ByteSpan had = c->bytes();
+  if (had.size() == data.size() && std::memcmp(had.data(), data.data(), data.size()) == 0) return Status::Ok();
+  const uint64_t item = DTypeSize(a.dtype);
+  uint64_t i = 0;
+  const uint64_t n = std::min(had.size(), data.size()) / item;
+  while (i < n && std::memcmp(had.data() + i * item, data.data() + i * item, item) == 0) ++i;
+  // Element i of the chunk in its layout: rows layout row-major, cols layout column-major.
+  const bool rows_layout = a.layout == Layout::kRows;
+  const uint64_t width = rows_layout ? e.cols : e.rows;
+  const uint64_t row = e.row0 + (rows_layout ? i / std::max<uint64_t>(1, width) : i % std::max<uint64_t>(1, width));
+  const uint64_t col = e.col0 + (rows_layout ? i % std::max<uint64_t>(1, width) : i / std::max<uint64_t>(1, width));
+  std::string values;
+  if (a.dtype == DType::kF32 && i < n) {
+    float x, y;
+    std::memcpy(&x, had.data() + i * item, 4);
+    std::memcpy(&y, data.data() + i * item, 4);
+    char buf[96];
+    std::snprintf(buf, sizeof(buf), ": committed %.9g, this run's input %.9g", static_cast<double>(x),
+                  static_cast<double>(y));
+    values = buf;
+  }
+  return FailedPrecondition(path() + ": array \"" + a.name + "\" chunk " + std::to_string(chunk) + " (rows " +
+                            std::to_string(e.row0) + "-" + std::to_string(e.row0 + e.rows - 1) + ", columns " +
+                            std::to_string(e.col0) + "-" + std::to_string(e.col0 + e.cols - 1) +
+                            "), committed by an earlier interrupted run, differs from this run's input at row " +
+                            std::to_string(row) + ", column " + std::to_string(col) + values +
+                            ": the input changed since that run, so the file cannot be resumed; remove it, or rerun "
+                            "with --overwrite to start over");
 }
 
 Status ContainerWriter::HashResumedChunks() {

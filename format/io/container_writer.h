@@ -35,6 +35,8 @@
 
 namespace ltb::io {
 
+class ContainerReader;
+
 struct WriterOptions {
   // An existing file at the path with other metadata: fail (false) or replace it (true).
   bool overwrite_mismatch = false;
@@ -102,6 +104,14 @@ class ContainerWriter {
   // format::kMaxSparseElements elements is refused (kInvalidArgument).
   Status Put(uint32_t array, uint64_t chunk, format::ByteSpan data, const format::EncodeOptions& options = {});
 
+  // For producers whose input is not a container (a .npy, an in-memory array): a resumed
+  // file is theirs only if its committed chunks hold what this run would write. Ok when
+  // `chunk` was not found committed on resume, or holds exactly `data` (the dense chunk, as
+  // Put takes it); otherwise kFailedPrecondition naming the file, the chunk, the first
+  // element that differs (committed and new values) and what to do: the input changed
+  // since the earlier run. Thread-safe. Reads the committed chunk back.
+  Status CheckResumedChunk(uint32_t array, uint64_t chunk, format::ByteSpan data) const;
+
   // Seals the file (content-hash frame + index + trailer + fdatasync). Fails, naming the first missing chunk,
   // when a chunk is missing. A no-op on an already sealed file.
   Status Finish();
@@ -124,6 +134,8 @@ class ContainerWriter {
   Status HashResumedChunks();
 
   FileLock lock_;  // first: released after the file is closed
+  // A reader of the chunks found on resume (CheckResumedChunk), opened on first use.
+  mutable std::shared_ptr<const ContainerReader> resumed_reader_;
   File file_;
   format::Metadata metadata_;
   format::FileHeader header_;

@@ -183,7 +183,69 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
   wo.overwrite_mismatch = o.overwrite;
   LTB_ASSIGN_OR_RETURN(io::ContainerWriter writer, io::ContainerWriter::Open(o.output, meta, wo));
 
+  // Column blocks gather strided values: map the input once for that.
+  io::MappedRegion whole;
+  if (o.layout == Layout::kCols) {
+    LTB_ASSIGN_OR_RETURN(
+        whole,
+        io::MappedRegion::Map(in.file.fd(), 0, in.header.data_offset + in.rows * in.cols * in.header.itemsize, false));
+  }
+  // One chunk's values from the input, in the output's layout.
+  auto read_chunk = [&](uint64_t chunk, std::vector<float>& values) -> Status {
+    ChunkExtent e = spec.Extent(chunk);
+    uint64_t n = e.Elements();
+    values.assign(n, 0.0f);
+    uint64_t item = in.header.itemsize;
+    if (o.layout == Layout::kRows) {
+      uint64_t first = e.row0 * in.cols;
+      uint64_t offset = in.header.data_offset + first * item;
+      if (item == 4) {
+        return in.file.ReadAt(offset, MutableByteSpan(reinterpret_cast<std::byte*>(values.data()), n * 4));
+      }
+      std::vector<double> src(n);
+      LTB_RETURN_IF_ERROR(in.file.ReadAt(offset, MutableByteSpan(reinterpret_cast<std::byte*>(src.data()), n * 8)));
+      return NarrowToF32(src.data(), values.data(), n, o.input, first, in.cols, false, in.rows);
+    }
+    const std::byte* base = whole.bytes().data() + in.header.data_offset;
+    for (uint64_t c = 0; c < e.cols; ++c) {
+      for (uint64_t r = 0; r < in.rows; ++r) {
+        const std::byte* p = base + (r * in.cols + e.col0 + c) * item;
+        if (item == 4) {
+          std::memcpy(&values[c * in.rows + r], p, 4);
+        } else {
+          double v;
+          std::memcpy(&v, p, 8);
+          LTB_RETURN_IF_ERROR(
+              NarrowToF32(&v, &values[c * in.rows + r], 1, o.input, r * in.cols + e.col0 + c, in.cols, false, in.rows));
+        }
+      }
+    }
+    return Status::Ok();
+  };
+
   ConvertResult result;
+  // A resumed output is this input's only if its committed chunks hold this input's values
+  // (the metadata names the source by file name and size, not by content): a changed
+  // .npy is refused, or with --overwrite converted again from the start.
+  if (writer.resume_info().resumed) {
+    std::vector<uint64_t> committed;
+    for (uint64_t c = 0; c < spec.ChunkCount(); ++c) {
+      if (writer.Has(0, c)) committed.push_back(c);
+    }
+    Status same = ParallelFor(committed, jobs, progress, "chunks checked", [&](uint64_t chunk) -> Status {
+      std::vector<float> values;
+      LTB_RETURN_IF_ERROR(read_chunk(chunk, values));
+      return writer.CheckResumedChunk(0, chunk,
+                                      ByteSpan(reinterpret_cast<const std::byte*>(values.data()), values.size() * 4));
+    });
+    if (!same.ok()) {
+      if (!o.overwrite || same.code() != StatusCode::kFailedPrecondition) return same;
+      result.restarted_because = same.message().substr(0, same.message().find("; remove it"));
+      LTB_RETURN_IF_ERROR(writer.Discard());
+      LTB_ASSIGN_OR_RETURN(writer, io::ContainerWriter::Open(o.output, meta, wo));
+    }
+  }
+
   result.rows = in.rows;
   result.cols = in.cols;
   result.chunks_total = spec.ChunkCount();
@@ -191,48 +253,14 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
   result.discarded_tail_bytes = writer.resume_info().discarded_tail_bytes;
   std::vector<uint64_t> missing = writer.Missing(0);
 
-  // Column blocks gather strided values: map the input once for that.
-  io::MappedRegion whole;
-  if (o.layout == Layout::kCols && !missing.empty()) {
-    LTB_ASSIGN_OR_RETURN(
-        whole,
-        io::MappedRegion::Map(in.file.fd(), 0, in.header.data_offset + in.rows * in.cols * in.header.itemsize, false));
-  }
   EncodeOptions eo;
   eo.zstd = o.zstd;
   std::atomic<uint64_t> zeros{0}, zstds{0}, written{0};
   Status s = ParallelFor(missing, jobs, progress, "chunks", [&](uint64_t chunk) -> Status {
     ChunkExtent e = spec.Extent(chunk);
     uint64_t n = e.Elements();
-    std::vector<float> values(n);
-    uint64_t item = in.header.itemsize;
-    if (o.layout == Layout::kRows) {
-      uint64_t first = e.row0 * in.cols;
-      uint64_t offset = in.header.data_offset + first * item;
-      if (item == 4) {
-        LTB_RETURN_IF_ERROR(
-            in.file.ReadAt(offset, MutableByteSpan(reinterpret_cast<std::byte*>(values.data()), n * 4)));
-      } else {
-        std::vector<double> src(n);
-        LTB_RETURN_IF_ERROR(in.file.ReadAt(offset, MutableByteSpan(reinterpret_cast<std::byte*>(src.data()), n * 8)));
-        LTB_RETURN_IF_ERROR(NarrowToF32(src.data(), values.data(), n, o.input, first, in.cols, false, in.rows));
-      }
-    } else {
-      const std::byte* base = whole.bytes().data() + in.header.data_offset;
-      for (uint64_t c = 0; c < e.cols; ++c) {
-        for (uint64_t r = 0; r < in.rows; ++r) {
-          const std::byte* p = base + (r * in.cols + e.col0 + c) * item;
-          if (item == 4) {
-            std::memcpy(&values[c * in.rows + r], p, 4);
-          } else {
-            double v;
-            std::memcpy(&v, p, 8);
-            LTB_RETURN_IF_ERROR(NarrowToF32(&v, &values[c * in.rows + r], 1, o.input, r * in.cols + e.col0 + c, in.cols,
-                                            false, in.rows));
-          }
-        }
-      }
-    }
+    std::vector<float> values;
+    LTB_RETURN_IF_ERROR(read_chunk(chunk, values));
     const ByteSpan bytes(reinterpret_cast<const std::byte*>(values.data()), n * 4);
     EncodedChunk enc = EncodeChunk(bytes, eo);
     if (enc.encoding == Encoding::kZero) zeros++;

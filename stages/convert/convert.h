@@ -43,6 +43,9 @@ struct ConvertResult {
   uint64_t zero_chunks = 0;
   uint64_t zstd_chunks = 0;
   uint64_t bytes_out = 0;
+  // Set when --overwrite restarted an output whose committed chunks no longer match the
+  // input: the check's message (which chunk, which values).
+  std::string restarted_because;
 };
 
 Result<ConvertResult> RunConvert(const ConvertOptions& options, const Progress& progress);
