@@ -105,6 +105,8 @@ void VertexRadiance(const sample::Geometry& geo, const ViewFactors& vf, const st
 
 Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progress& progress) {
   auto t0 = Clock::now();
+  LTB_RETURN_IF_ERROR(sample::ValidateView(o.eye, o.target, o.up, o.fov_degrees)
+                          .WithContext("the view (--eye, --target, --up, --fov)"));
   LTB_ASSIGN_OR_RETURN(std::vector<SetMember> members, ChannelFiles(o.set));
   if (members.empty() || members.front().name != "k0") {
     return InvalidArgument(o.set +
@@ -185,8 +187,11 @@ Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progres
     const glm::dvec3 eye = triple::OrbitEye(o.eye, o.target, o.orbit_deg, f);
     auto a = Clock::now();
     VertexRadiance(geo, vf, p, used, eye, o.jobs, &b);
-    LTB_RETURN_IF_ERROR(triple::TracePixels(
-        geo, sample::PinholeCamera(eye, o.target, o.up, o.fov_degrees, o.width, o.height), o.jobs, &hits));
+    auto camera = sample::PinholeCamera::Create(eye, o.target, o.up, o.fov_degrees, o.width, o.height);
+    if (!camera.ok()) {
+      return camera.status().WithContext("the view (--eye, --target, --up, --fov), frame " + std::to_string(f));
+    }
+    LTB_RETURN_IF_ERROR(triple::TracePixels(geo, *camera, o.jobs, &hits));
     // B interpolated across each hit triangle of a row object; the rest is background.
     image.assign(hits.size() * 3, 0.0f);
     for (size_t px = 0; px < hits.size(); ++px) {

@@ -26,48 +26,72 @@ using tomlf::GetUnsigned;
 using tomlf::GetVec3;
 using tomlf::Where;
 
-// The camera must give Embree a well-defined frame: a view direction (eye != target), a
-// non-zero up that is not parallel to it, all of it finite once formed.
+// The camera must give Embree a well-defined frame (ValidateView); its message gets the
+// scene file's line of the key it is about.
 Status CheckCamera(const std::string& path, const toml::table& cam, const Camera& c) {
-  auto where = [&](const char* key) {
-    const toml::node* n = cam.get(key);
-    return (n != nullptr ? Where(path, *n) : Where(path, cam)) + ": [camera] ";
-  };
-  const glm::dvec3 d = c.target - c.eye;
-  const double len = glm::length(d);
-  if (!(len > 0) || !std::isfinite(len)) {
-    const char* key = cam.contains("target") ? "target" : "eye";
-    if (len == 0) {
-      return InvalidArgument(where(key) + "eye " + FormatVec3(c.eye) + " equals target " + FormatVec3(c.target) +
-                             ": the camera has no view direction; move the eye or the target");
-    }
-    return InvalidArgument(where(key) + "eye " + FormatVec3(c.eye) + " and target " + FormatVec3(c.target) +
-                           " are too far apart to form a view direction");
-  }
-  const double up = glm::length(c.up);
-  if (!(up > 0) || !std::isfinite(up)) {
-    return InvalidArgument(where("up") + "up is " + FormatVec3(c.up) +
-                           "; it must be a non-zero vector, not parallel to the "
-                           "view direction (e.g. [0, 0, 1])");
-  }
-  const glm::dvec3 f = d / len;
-  const double s = glm::length(glm::cross(f, c.up / up));  // sine of the angle between them
-  if (!(s > 1e-6)) {
-    return InvalidArgument(where("up") + "up " + FormatVec3(c.up) + " is parallel to the view direction " +
-                           FormatVec3(f) + " (from eye to target); choose an up that is not");
-  }
-  for (const auto& [key, v] : {std::pair{"eye", c.eye}, std::pair{"target", c.target}}) {
+  Status s = ValidateView(c.eye, c.target, c.up, c.fov_degrees);
+  if (s.ok()) return s;
+  const std::string& m = s.message();
+  std::string key = m.substr(0, m.find(' '));  // "eye", "target", "up" or "fov"
+  if (m.find(" equals target ") != std::string::npos && cam.contains("target")) key = "target";
+  const toml::node* n = cam.get(key);
+  return InvalidArgument((n != nullptr ? Where(path, *n) : Where(path, cam)) + ": [camera] " + m);
+}
+
+}  // namespace
+
+Status ValidateView(const glm::dvec3& eye, const glm::dvec3& target, const glm::dvec3& up, double fov_degrees) {
+  char lim[32];
+  std::snprintf(lim, sizeof lim, "%g", kMaxTraceCoordinate);
+  for (const auto& [key, v] : {std::pair{"eye", eye}, std::pair{"target", target}, std::pair{"up", up}}) {
     for (int i = 0; i < 3; ++i) {
-      if (!std::isfinite(static_cast<float>(v[i]))) {
-        return InvalidArgument(where(key) + key + " " + FormatVec3(v) +
-                               " is outside what single-precision ray tracing holds; use smaller coordinates");
+      if (!std::isfinite(v[i]) || std::fabs(v[i]) > kMaxTraceCoordinate) {
+        return InvalidArgument(std::string(key) + " " + FormatVec3(v) + " is outside what ray tracing holds (each " +
+                               "coordinate finite and within ±" + lim + "); use smaller coordinates");
       }
     }
+  }
+  if (!(fov_degrees > 0 && fov_degrees < 180)) {
+    char b[48];
+    std::snprintf(b, sizeof b, "%g", fov_degrees);
+    return InvalidArgument(std::string("fov ") + b + ": the vertical field of view must be in (0, 180) degrees");
+  }
+  const glm::dvec3 d = target - eye;
+  const double len = glm::length(d);
+  if (!(len > 0) || !std::isfinite(len)) {
+    return InvalidArgument("eye " + FormatVec3(eye) + " equals target " + FormatVec3(target) +
+                           ": the camera has no view direction; move the eye or the target");
+  }
+  const double up_len = glm::length(up);
+  if (!(up_len > 0) || !std::isfinite(up_len)) {
+    return InvalidArgument("up is " + FormatVec3(up) +
+                           "; it must be a non-zero vector, not parallel to the view direction (e.g. [0, 0, 1])");
+  }
+  const glm::dvec3 f = d / len;
+  const double sine = glm::length(glm::cross(f, up / up_len));  // of the angle between them
+  if (!(sine > 1e-6)) {
+    return InvalidArgument("up " + FormatVec3(up) + " is parallel to the view direction " + FormatVec3(f) +
+                           " (from eye to target); choose an up that is not");
+  }
+  // The frame in single precision, as the rays get it: a tiny but nonzero view direction
+  // (eye and target 1e-300 apart) must not become NaN there.
+  const glm::vec3 ff = glm::vec3(f), uf = glm::vec3(up / up_len);
+  if (!(glm::length(glm::cross(ff, uf)) > 0)) {
+    return InvalidArgument("up " + FormatVec3(up) + " is too close to the view direction " + FormatVec3(f) +
+                           "; choose an up that is not");
   }
   return Status::Ok();
 }
 
-}  // namespace
+Result<PinholeCamera> PinholeCamera::Create(const glm::dvec3& eye, const glm::dvec3& target, const glm::dvec3& up,
+                                            double fov_degrees, uint64_t width, uint64_t height) {
+  LTB_RETURN_IF_ERROR(ValidateView(eye, target, up, fov_degrees));
+  if (width == 0 || height == 0) {
+    return InvalidArgument("image size " + std::to_string(width) + "x" + std::to_string(height) +
+                           ": both sides must be at least 1 pixel");
+  }
+  return PinholeCamera(eye, target, up, fov_degrees, width, height);
+}
 
 PinholeCamera::PinholeCamera(const glm::dvec3& eye, const glm::dvec3& target, const glm::dvec3& up, double fov_degrees,
                              uint64_t width, uint64_t height)

@@ -36,7 +36,14 @@ Status HashFile(const std::string& path, XXH3_state_t* st) {
 
 namespace {
 
-bool FloatFinite(double x) { return std::isfinite(static_cast<float>(x)); }
+// Within what Embree traces (sample::kMaxTraceCoordinate): rays start on the geometry.
+bool Traceable(double x) { return std::fabs(x) <= kMaxTraceCoordinate; }
+
+std::string TraceLimit() {
+  char b[32];
+  std::snprintf(b, sizeof b, "%g", kMaxTraceCoordinate);
+  return b;
+}
 
 bool IsRowObject(const SceneDesc& s, const Object& o) {
   return s.mode == SceneDesc::Mode::kVertex &&
@@ -250,10 +257,12 @@ Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
       }
       glm::dvec3 c = glm::dvec3(sample::ObjectTransform(o) * glm::dvec4(o.center, 1.0));
       double r = o.radius * sc.x;
-      if (!FloatFinite(c.x) || !FloatFinite(c.y) || !FloatFinite(c.z) || !FloatFinite(r) || !(r > 0)) {
+      if (!Traceable(c.x) || !Traceable(c.y) || !Traceable(c.z) || !Traceable(r) || !(r > 0) ||
+          !Traceable(std::fabs(c.x) + r) || !Traceable(std::fabs(c.y) + r) || !Traceable(std::fabs(c.z) + r)) {
         return InvalidArgument(where + ": after its transform the sphere has centre " + FormatVec3(c) + " and radius " +
-                               std::to_string(r) +
-                               ", outside what single-precision ray tracing holds; reduce "
+                               std::to_string(r) + ", outside what ray tracing holds (each coordinate within ±" +
+                               TraceLimit() +
+                               "); reduce "
                                "\"scale\", \"translate\", \"center\" or \"radius\"");
       }
       LTB_RETURN_IF_ERROR(g.rays->AddSphere(c, r));
@@ -281,10 +290,10 @@ Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
       sample::ApplyTransform(sample::ObjectTransform(o), &mesh);
       for (size_t i = 0; i < mesh.positions.size(); ++i) {
         const glm::dvec3& p = mesh.positions[i];
-        if (!FloatFinite(p.x) || !FloatFinite(p.y) || !FloatFinite(p.z)) {
+        if (!Traceable(p.x) || !Traceable(p.y) || !Traceable(p.z)) {
           return InvalidArgument(where + ": vertex " + std::to_string(i) + " is " + FormatVec3(p) +
-                                 " after the object's transform, outside what single-precision ray tracing holds; "
-                                 "reduce \"scale\" or \"translate\"");
+                                 " after the object's transform, outside what ray tracing holds (each coordinate " +
+                                 "within ±" + TraceLimit() + "); reduce \"scale\" or \"translate\"");
         }
       }
       if (mesh.triangles.empty()) {

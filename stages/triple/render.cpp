@@ -700,10 +700,8 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
     return InvalidArgument("--size " + std::to_string(o.width) + "x" + std::to_string(o.height) +
                            " is empty or above 2^26 pixels");
   }
-  if (!(o.fov_degrees > 0 && o.fov_degrees < 180)) return InvalidArgument("--fov must be in (0, 180) degrees");
-  if (glm::length(o.target - o.eye) == 0 || glm::length(glm::cross(o.target - o.eye, o.up)) == 0) {
-    return InvalidArgument("--eye equals --target, or the view is parallel to --up");
-  }
+  LTB_RETURN_IF_ERROR(sample::ValidateView(o.eye, o.target, o.up, o.fov_degrees)
+                          .WithContext("the view (--eye, --target, --up, --fov)"));
   if (o.light_terms == 0) return InvalidArgument("--terms must be at least 1 (or all)");
   const uint32_t frames = std::max<uint32_t>(1, o.orbit_frames);
   if (o.orbit_frames > 0 && !o.output.empty()) LTB_RETURN_IF_ERROR(FramePath(o.output, 0).status());
@@ -804,8 +802,11 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
     if (progress.Cancelled()) return Cancelled("interrupted between frames; the frames written are kept");
     const glm::dvec3 eye = OrbitEye(o.eye, o.target, o.orbit_deg, k);
     auto a = Clock::now();
-    LTB_RETURN_IF_ERROR(TracePixels(
-        rd.geo, sample::PinholeCamera(eye, o.target, o.up, o.fov_degrees, o.width, o.height), o.jobs, &hits));
+    auto camera = sample::PinholeCamera::Create(eye, o.target, o.up, o.fov_degrees, o.width, o.height);
+    if (!camera.ok()) {
+      return camera.status().WithContext("the view (--eye, --target, --up, --fov), frame " + std::to_string(k));
+    }
+    LTB_RETURN_IF_ERROR(TracePixels(rd.geo, *camera, o.jobs, &hits));
     std::fill(needed.begin(), needed.end(), 0);
     uint64_t hit_pixels = 0, unshaded = 0;
     for (const PixelHit& h : hits) {
