@@ -122,7 +122,8 @@ Params Resolve(const SampleOptions& o, const Prepared& p, const RowPoints& rows)
   pr.cols = 6ull * p.r * p.r;
   const uint64_t v = rows.valid.size();
   pr.dense = v == 0 ? 0 : std::clamp<uint64_t>(static_cast<uint64_t>(std::llround(so.dense_fraction * v)), 1, v);
-  pr.dense_block = std::clamp<uint64_t>((2u << 20) / (pr.cols * 4), 1, 64);
+  // At most 64 dense rows a chunk, and never more than there are (a 16x16 image has ~25).
+  pr.dense_block = std::clamp<uint64_t>((2u << 20) / (pr.cols * 4), 1, std::clamp<uint64_t>(pr.dense, 1, 64));
   uint64_t first = std::max<uint64_t>(1, static_cast<uint64_t>(std::llround(so.initial_fraction * v)));
   first = std::min(pr.dense, (first + pr.dense_block - 1) / pr.dense_block * pr.dense_block);
   for (uint64_t done = 0; done < pr.dense;) {
