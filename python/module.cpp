@@ -110,6 +110,21 @@ void Translate(const StatusError& e) {
   }
 }
 
+// The CLI's rule for --jobs (cli/common.cpp): 1..1024 worker threads. A bad value raises
+// ValueError naming it, instead of reaching the thread pool (jobs=100000 ended the interpreter
+// with std::terminate when the threads could not be created).
+constexpr int kMaxJobs = 1024;
+void CheckJobs(int jobs) {
+  if (jobs < 1 || jobs > kMaxJobs) {
+    throw py::value_error("jobs=" + std::to_string(jobs) + ": expected 1.." + std::to_string(kMaxJobs) +
+                          " worker threads (as ltbake --jobs)");
+  }
+}
+
+void CheckMemLimit(uint64_t mem_limit) {
+  if (mem_limit == 0) throw py::value_error("mem_limit=0: give a memory budget in bytes, e.g. 1 << 30");
+}
+
 py::dtype DTypeOf(format::DType t) {
   switch (t) {
     case format::DType::kF32:
@@ -191,6 +206,7 @@ class Reader {
   // into a new C-order array, `jobs` chunks at a time. The pieces a raw chunk contributes
   // are prefetched before they are copied.
   py::array ReadRegion(uint32_t array, uint64_t r0, uint64_t r1, uint64_t c0, uint64_t c1, int jobs) {
+    CheckJobs(jobs);
     const format::ArraySpec& spec = CheckArray(array);
     if (r0 > r1 || r1 > spec.rows || c0 > c1 || c1 > spec.cols) throw py::index_error("region out of range");
     const uint64_t nr = r1 - r0, nc = c1 - c0, item = format::DTypeSize(spec.dtype);
@@ -390,8 +406,26 @@ class Writer {
     CheckWithoutGil([&] { return writer_.Put(array, chunk, span, eo); });
   }
 
+  // Raises FormatError unless a chunk an earlier (interrupted) write committed holds `data`
+  // (the input changed since); nothing to check for a chunk this writer put or lacks.
+  void Check(uint32_t array, uint64_t chunk, py::array data) {
+    const auto& arrays = writer_.metadata().arrays;
+    if (array >= arrays.size()) throw py::index_error("array out of range");
+    if (chunk >= arrays[array].ChunkCount()) throw py::index_error("chunk out of range");
+    if (!(data.flags() & py::array::c_style) || !data.dtype().is(DTypeOf(arrays[array].dtype))) {
+      Throw(InvalidArgument("chunk data must be C-contiguous " + std::string(format::DTypeName(arrays[array].dtype))));
+    }
+    const format::ByteSpan span(static_cast<const std::byte*>(data.data()), static_cast<uint64_t>(data.nbytes()));
+    CheckWithoutGil([&] { return writer_.CheckResumedChunk(array, chunk, span); });
+  }
+
   void Finish() {
     CheckWithoutGil([&] { return writer_.Finish(); });
+  }
+
+  // Closes and removes the file (a restart under overwrite=True).
+  void Discard() {
+    CheckWithoutGil([&] { return writer_.Discard(); });
   }
 
  private:
@@ -399,6 +433,7 @@ class Writer {
 };
 
 py::dict VerifyReport(const std::string& path, int jobs) {
+  CheckJobs(jobs);
   io::VerifyReport r;
   {
     py::gil_scoped_release nogil;
@@ -420,6 +455,7 @@ py::dict VerifyReport(const std::string& path, int jobs) {
 }
 
 std::string Inspect(const std::string& path, bool content, bool chunk_list, int jobs) {
+  CheckJobs(jobs);
   stages::InspectOptions o;
   o.content = content;
   o.chunk_list = chunk_list;
@@ -435,6 +471,8 @@ py::array FloatArray(std::vector<float> v, std::vector<py::ssize_t> shape) {
 
 py::tuple Relight(const std::string& matrix, const std::string& env, uint64_t terms, const std::string& weighting,
                   double rotate_deg, bool clamp_env, bool keep_negative, int jobs, uint64_t mem_limit) {
+  CheckJobs(jobs);
+  CheckMemLimit(mem_limit);
   stages::RelightOptions o;
   o.matrix = matrix;
   o.env = env;
@@ -461,6 +499,8 @@ py::array Envmap(const std::string& path, uint64_t cube_res, bool clamp, uint64_
 }
 
 void Convert(const std::string& input, const std::string& output, bool pixel_basis, int jobs, uint64_t mem_limit) {
+  CheckJobs(jobs);
+  CheckMemLimit(mem_limit);
   stages::ConvertOptions o;
   o.input = input;
   o.output = output;
@@ -545,6 +585,8 @@ PYBIND11_MODULE(_ltbake, m) {
            py::arg("overwrite") = false)
       .def("has", &Writer::Has)
       .def("put", &Writer::Put, py::arg("array"), py::arg("chunk"), py::arg("data"), py::arg("zstd") = false)
+      .def("check", &Writer::Check, py::arg("array"), py::arg("chunk"), py::arg("data"))
+      .def("discard", &Writer::Discard)
       .def("finish", &Writer::Finish);
 
   m.def("block_for_target_bytes", [](uint64_t rows, uint64_t cols, const std::string& layout, uint64_t target) {

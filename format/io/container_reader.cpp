@@ -71,6 +71,7 @@ Result<ContainerReader> ContainerReader::Open(const std::string& path) {
         r.problems_.push_back("index: " + s.message() + " (read the file by scanning its frames instead)");
         r.chunk_frames_.clear();
         r.by_key_.clear();
+        r.duplicated_.clear();
         r.committed_.assign(r.metadata_.arrays.size(), 0);
       }
     }
@@ -190,7 +191,9 @@ void ContainerReader::AddFrame(const IndexEntry& e) {
   }
   uint64_t key = Key(h.array, h.chunk_index);
   if (by_key_.count(key) != 0) {
-    problems_.push_back(where + ": " + ChunkName(h.array, h.chunk_index) + " committed twice (first copy kept)");
+    problems_.push_back(where + ": " + ChunkName(h.array, h.chunk_index) +
+                        " committed twice (neither copy is read: which one is right is unknown)");
+    duplicated_.insert(key);
     return;
   }
   by_key_[key] = chunk_frames_.size();
@@ -227,6 +230,12 @@ Result<const IndexEntry*> ContainerReader::Locate(uint32_t array, uint64_t chunk
   }
   const IndexEntry* e = Find(array, chunk);
   *where = path() + ": " + ChunkName(array, chunk);
+  if (duplicated_.count(Key(array, chunk)) != 0) {
+    return DataLoss(*where +
+                    " is committed twice in the file (a damaged or forged file: no ltbake writer does that); which "
+                    "copy is right is unknown, so neither is read. Run `ltbake verify " +
+                    path() + "` and rewrite the file with the stage that made it");
+  }
   if (e == nullptr) {
     return NotFound(*where +
                     " is missing (never committed; the file is incomplete — rerun the stage that writes it to resume)");

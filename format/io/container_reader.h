@@ -10,6 +10,7 @@
 #include <optional>
 #include <string>
 #include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
 #include "format/array_spec.h"
@@ -139,6 +140,7 @@ class ContainerReader {
   uint64_t scan_end_ = 0;
   std::vector<format::IndexEntry> chunk_frames_;
   std::unordered_map<uint64_t, size_t> by_key_;  // (array << 40 | chunk) -> chunk_frames_ slot
+  std::unordered_set<uint64_t> duplicated_;      // keys committed more than once: never read
   std::vector<uint64_t> committed_;
   std::vector<std::string> problems_;
   std::vector<std::shared_ptr<const ContainerReader>> parts_;  // a manifest's shards

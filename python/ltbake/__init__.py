@@ -65,6 +65,8 @@ class _Core:
         self.path = path
         self.max_bytes = int(max_bytes)
         self.jobs = int(jobs)
+        if not 1 <= self.jobs <= 1024:
+            raise ValueError(f"jobs={jobs}: expected 1..1024 worker threads (as ltbake --jobs)")
         self._reader = _ltbake.Reader(path, bool(checksums))
 
     @property
@@ -315,7 +317,9 @@ def write(path, data, layout="rows", chunk_size=8 << 20, zstd=False, metadata=No
     it saves 10%. ``metadata``: extra keys for the metadata (not "arrays" or "shard").
     ``cube_res``: the columns are a 6R² cubemap; ``image=(W, H)``: the rows are pixels.
     Interrupted, a rerun with the same arguments resumes; the file is complete only when
-    this returns. Returns the path."""
+    this returns. A rerun whose data differ from the chunks an earlier write committed
+    raises FormatError ("the input changed since"): ``overwrite=True`` then starts over for
+    an array (an iterator's blocks cannot be read twice: remove the file). Returns the path."""
     path = _os.fspath(path)
     if layout not in ("rows", "cols"):
         raise ValueError(f"layout is 'rows' or 'cols', not {layout!r}")
@@ -346,6 +350,25 @@ def write(path, data, layout="rows", chunk_size=8 << 20, zstd=False, metadata=No
             raise FormatError(f"{path}: metadata key {k!r} is ltbake's own")
         meta[k] = v
     w = _ltbake.Writer(path, _json.dumps(meta), bool(overwrite))
+    try:
+        _write_chunks(w, data, (rows, cols), layout, block, zstd, path)
+    except FormatError as e:
+        # A file an earlier write left whose committed chunks hold other values: with
+        # overwrite=True and an array (which can be read again) start over; an iterator's
+        # blocks are gone, so the file must be removed first.
+        if not (overwrite and hasattr(data, "shape") and "the input changed since" in str(e)):
+            raise
+        w.discard()
+        w = _ltbake.Writer(path, _json.dumps(meta), True)
+        _write_chunks(w, data, (rows, cols), layout, block, zstd, path)
+    w.finish()
+    return path
+
+
+def _write_chunks(w, data, shape, layout, block, zstd, path):
+    """Puts every chunk of `data` that `w` lacks; a chunk an interrupted earlier write
+    committed must hold the same values (FormatError otherwise: the input changed)."""
+    rows, cols = shape
     rows_layout = layout == "rows"
     n = rows if rows_layout else cols
     nchunks = (n + block - 1) // block
@@ -367,16 +390,17 @@ def write(path, data, layout="rows", chunk_size=8 << 20, zstd=False, metadata=No
             else:
                 part, rest = joined[:, :need], joined[:, need:]
                 values = _as_f32(part, path, 0, chunk * block).T
-            if not w.has(0, chunk):
-                w.put(0, chunk, _np.ascontiguousarray(values, dtype=_np.float32), bool(zstd))
+            values = _np.ascontiguousarray(values, dtype=_np.float32)
+            if w.has(0, chunk):
+                w.check(0, chunk, values)
+            else:
+                w.put(0, chunk, values, bool(zstd))
             buf = [rest] if size(rest) else []
             have -= need
             chunk += 1
     if chunk != nchunks:
         raise FormatError(f"{path}: the blocks held {chunk * block + have} {layout}, the shape says {n}; the "
                           f"file stays incomplete (rerun to resume)")
-    w.finish()
-    return path
 
 
 def verify(path, jobs=2, allow_incomplete=False):

@@ -353,3 +353,77 @@ def test_cmake_install_puts_an_importable_package_in_dist_packages(tmp_path):
     out = subprocess.run(["/usr/bin/python3", "-c", "import ltbake, sys; print(ltbake.__file__, ltbake.__version__)"],
                          env={**os.environ, "PYTHONPATH": site}, capture_output=True, text=True, check=True).stdout
     assert out.startswith(site)
+
+
+# --- integrity at the edges (issue 36) -----------------------------------------------------
+def test_write_refuses_to_resume_data_that_changed(tmp_path):
+    """A rerun of write() whose data differ from the committed chunks raises instead of
+    keeping the old values; overwrite=True starts over for an array."""
+    path = str(tmp_path / "w.ltm")
+    a = np.random.default_rng(7).random((200, 24), dtype=np.float32)
+    ltbake.write(path, a, chunk_size=4096)
+    ltbake.write(path, a, chunk_size=4096)  # unchanged: resumes, nothing to write
+    b = a.copy()
+    b[150, 3] = -2.0
+    with pytest.raises(ltbake.FormatError, match=r"row 150, column 3.*the input changed since"):
+        ltbake.write(path, b, chunk_size=4096)
+    with ltbake.open(path) as c:
+        assert np.array_equal(bits(c[:, :]), bits(a))
+    ltbake.write(path, b, chunk_size=4096, overwrite=True)
+    with ltbake.open(path) as c:
+        assert np.array_equal(bits(c[:, :]), bits(b))
+    # Blocks from an iterator cannot be read twice: a change is an error even with overwrite.
+    ltbake.write(path, iter([b[:100], b[100:]]), shape=b.shape, chunk_size=4096, overwrite=True)
+    with pytest.raises(ltbake.FormatError, match="the input changed since"):
+        ltbake.write(path, iter([a[:100], a[100:]]), shape=a.shape, chunk_size=4096, overwrite=True)
+
+
+def _frames(buf):
+    """(offset, header) of each chunk frame (docs/FORMAT.md "Frames"), by scanning from the
+    first 64-byte-aligned LTMF magic after the metadata."""
+    off = buf.index(b"LTMF", 64)
+    out = []
+    while off + 64 <= len(buf) and buf[off:off + 4] == b"LTMF":
+        typ = int.from_bytes(buf[off + 4:off + 6], "little")
+        length = int.from_bytes(buf[off + 8:off + 16], "little")
+        if typ == 1:
+            out.append(off)
+        elif typ != 3:
+            break
+        off += 64 + (length + 63) // 64 * 64
+    return out, off
+
+
+def test_a_chunk_committed_twice_is_never_read(tmp_path):
+    """A forged file holding (array 0, chunk 0) twice, with other values in the second copy:
+    Python raises IntegrityError on reading it (it returned the first copy), as verify fails."""
+    xxhash = pytest.importorskip("xxhash")
+    path = str(tmp_path / "dup.ltm")
+    a = np.arange(2 * 64, dtype=np.float32).reshape(2, 64)
+    ltbake.write(path, a, chunk_size=256)  # one row a chunk: chunks 0 and 1
+    buf = bytearray(open(path, "rb").read())
+    frames, end = _frames(buf)
+    assert len(frames) == 2
+    del buf[end:]  # drop the content hash, index and trailer: a reader scans the frames
+    second = frames[1]
+    buf[second + 24:second + 32] = (0).to_bytes(8, "little")  # chunk_index 1 -> 0
+    buf[second + 56:second + 64] = xxhash.xxh3_64_intdigest(bytes(buf[second:second + 56])).to_bytes(8, "little")
+    open(path, "wb").write(bytes(buf))
+    assert cli("verify", path, expect=1)
+    with ltbake.open(path) as c:
+        assert any("committed twice" in p for p in c.problems)
+        with pytest.raises(ltbake.IntegrityError, match="committed twice"):
+            c[0, :]
+
+
+@pytest.mark.parametrize("jobs", [0, -1, 1025, 100000])
+def test_jobs_out_of_range_raise(tmp_path, jobs):
+    """jobs as the CLI takes it (1..1024): a ValueError, never std::terminate."""
+    path = str(tmp_path / "j.ltm")
+    ltbake.write(path, np.ones((4, 6), np.float32))
+    with pytest.raises(ValueError, match=f"jobs={jobs}"):
+        ltbake.verify(path, jobs=jobs)
+    with pytest.raises(ValueError, match=f"jobs={jobs}"):
+        ltbake.inspect(path, jobs=jobs)
+    with pytest.raises(ValueError, match=f"jobs={jobs}"):
+        ltbake.open(path, jobs=jobs)
