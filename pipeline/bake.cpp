@@ -23,8 +23,10 @@
 #include "pipeline/sharded_step.h"
 #include "pipeline/stage_table.h"
 #include "pipeline/workdir.h"
+#include "stages/column_transform/column_transform.h"
 #include "stages/sample/sample.h"
 #include "stages/sample/scene.h"
+#include "stages/wavelet/wavelet.h"
 
 namespace ltb::pipeline {
 namespace {
@@ -41,6 +43,31 @@ bool Shardable(const Node& n) {
   const bool sparse = sample.is_object() && sample.contains("sparse");
   return !n.image && !sparse && s != nullptr && s->shardable;
 }
+
+}  // namespace
+
+std::string ContinueCommand(const BakeOptions& o, const std::string& recipe_path) {
+  const BakeOptions defaults;
+  const EngineOptions engine_defaults;
+  std::vector<std::string> c = {"ltbake", "run", recipe_path};
+  auto add = [&c](const std::string& flag, const std::string& value) { c.insert(c.end(), {flag, value}); };
+  if (!o.workdir.empty()) add("--workdir", o.workdir);
+  if (!o.from.empty()) add("--from", o.from);
+  if (!o.until.empty()) add("--until", o.until);
+  if (o.jobs != defaults.jobs) add("--jobs", std::to_string(o.jobs));
+  if (o.mem_limit != defaults.mem_limit) add("--mem-limit", o.mem_limit);
+  const EngineOptions& e = o.cluster;
+  if (e.engine != engine_defaults.engine) add("--engine", e.engine);
+  if (e.shards != engine_defaults.shards) add("--shards", std::to_string(e.shards));
+  if (!e.partition.empty()) add("--partition", e.partition);
+  if (e.cpus_per_task != engine_defaults.cpus_per_task) add("--cpus-per-task", std::to_string(e.cpus_per_task));
+  if (!e.mem.empty()) add("--mem", e.mem);
+  for (const auto& a : e.sbatch_args) c.push_back("--sbatch-arg=" + a);
+  if (e.retries != engine_defaults.retries) add("--retries", std::to_string(e.retries));
+  return ShellQuote(c);
+}
+
+namespace {
 
 StepEnd Interrupted(int sig, std::string failure) {
   return {BakeEnd::kInterrupted, sig == SIGTERM ? SIGTERM : SIGINT, std::move(failure), {}};
@@ -71,6 +98,13 @@ class Bake {
   bool Forced(const Node& n) const;
   Result<std::string> ContentHashOf(const Node& n, const std::string& path) const;
   json InputsOf(const Node& n, const std::map<std::string, FileHash>& hashes) const;
+  // Hashes again the files outside the work directory that step n reads (the scene and its
+  // meshes, an environment map): they may have changed since the run was planned.
+  Status RefreshSourceHashes(const Node& n);
+  // After step n ran: a source file whose hash differs from the one taken just before it
+  // ran changed while it ran, so what it read is unknown; its record says so, and the next
+  // run does the step again.
+  Status CheckSourcesUnchanged(const Node& n, const json& before, json& e);
   std::vector<std::string> Command(const Node& n, bool overwrite) const;
   void DeleteUnneeded(size_t upto);
   Status SaveReport();
@@ -147,6 +181,31 @@ json Bake::InputsOf(const Node& n, const std::map<std::string, FileHash>& hashes
     in["env"] = it->second;
   }
   return in;
+}
+
+Status Bake::RefreshSourceHashes(const Node& n) {
+  if (n.image) env_hash_.erase(n.env);
+  if (ReadsScene(n) && !(o_.dry_run && !r_.inline_scene.empty())) {
+    auto h = stages::SceneHash(scene_file_);
+    if (!h.ok()) return h.status().WithContext("scene of recipe " + r_.path);
+    scene_hash_ = *h;
+  }
+  return Status::Ok();
+}
+
+Status Bake::CheckSourcesUnchanged(const Node& n, const json& before, json& e) {
+  LTB_RETURN_IF_ERROR(RefreshSourceHashes(n));
+  const json after = InputsOf(n, hash_of_);
+  for (const char* key : {"scene", "env"}) {
+    if (!before.contains(key) || after.value(key, json()) == before[key]) continue;
+    const std::string what = std::string(key) == "env" ? "environment map " + n.env : "scene " + scene_file_;
+    e["inputs"][key] = "changed while the step ran (" + before[key].get<std::string>() + " before, " +
+                       after.value(key, std::string()) + " after)";
+    e["warning"] = "the " + what + " changed while " + n.name +
+                   " ran, so which version it read is unknown: the next run does this step again";
+    if (o_.say) o_.say("ltbake run: warning: " + e["warning"].get<std::string>());
+  }
+  return Status::Ok();
 }
 
 // This run's entries, then the records of nodes it has not reached (or does not have:
@@ -251,13 +310,30 @@ Status Bake::PrepareGraph() {
   if (g_.targets.size() && fs::exists(scene_file_, ec)) {
     auto scene = sample::ParseScene(scene_file_);
     if (!scene.ok()) return scene.status().WithContext("scene of recipe " + r_.path);
-    bool column_stages = false;
-    for (const Node& n : g_.nodes) column_stages = column_stages || n.name == "column-transform";
-    if (scene->mode == sample::SceneDesc::Mode::kVertex && column_stages) {
-      return InvalidArgument(r_.path + ": the scene " + scene_file_ +
-                             " has vertex rows (mode = \"vertex\"), which have no image for column-transform and "
-                             "quantize to work on; compress vertex bakes with cpca: targets = [\"cpca\"] and a [cpca] "
-                             "table");
+    bool column_stages = false;  // "column-transform", or a set's "column-transform.k0", ...
+    for (const Node& n : g_.nodes) {
+      column_stages =
+          column_stages || std::find(n.stages.begin(), n.stages.end(), "column-transform") != n.stages.end();
+    }
+    const std::string& depth = r_.column_transform.depth;
+    const std::string at = r_.column_transform.depth_where.empty() ? r_.path : r_.column_transform.depth_where;
+    if (scene->mode == sample::SceneDesc::Mode::kVertex && column_stages && depth != "none") {
+      return InvalidArgument(at + ": the scene " + scene_file_ +
+                             " has vertex rows (mode = \"vertex\"), which have no image for the adaptive column "
+                             "transform (depth = \"" +
+                             depth +
+                             "\"); set [column-transform] depth = \"none\" (the 2D method), or compress vertex bakes "
+                             "with cpca: targets = [\"cpca\"] and a [cpca] table");
+    }
+    if (scene->mode == sample::SceneDesc::Mode::kImage && column_stages) {
+      auto mode = stages::ParseDepthMode(depth);
+      const int deepest = wavelet::MaxDepth(scene->camera.width, scene->camera.height);
+      if (mode.ok() && mode->kind == stages::DepthMode::Kind::kFixed && mode->fixed > deepest) {
+        return InvalidArgument(
+            at + ": [column-transform] depth = " + depth + ": the scene's " + std::to_string(scene->camera.width) +
+            "x" + std::to_string(scene->camera.height) + " image has at most " + std::to_string(deepest) +
+            " analysis steps; give a depth of 0.." + std::to_string(deepest) + ", or \"adaptive\" or \"full\"");
+      }
     }
   }
   for (const Node& n : g_.nodes) {
@@ -370,9 +446,9 @@ StepEnd Bake::RunChildStep(const Node& n, const std::vector<std::string>& cmd, c
       (child->term_signal == SIGTERM)) {
     e["status"] = "interrupted";
     const bool term = child->exit_code == 143 || child->term_signal == SIGTERM || sig == SIGTERM;
-    return Interrupted(
-        term ? SIGTERM : SIGINT,
-        "interrupted during " + n.name + "; what it committed is kept: rerun `ltbake run " + r_.path + "` to resume");
+    return Interrupted(term ? SIGTERM : SIGINT, "interrupted during " + n.name +
+                                                    "; what it committed is kept: rerun `" +
+                                                    ContinueCommand(o_, r_.path) + "` to resume");
   }
   if (child->exit_code == 0) return {};
   e["status"] = "failed";
@@ -391,7 +467,8 @@ StepEnd Bake::RunChildStep(const Node& n, const std::vector<std::string>& cmd, c
   return {BakeEnd::kFailed,
           0,
           "stage " + n.name + " failed (exit " + std::to_string(child->exit_code) + "):" + why + "\n  log: " + log +
-              "\n  re-run just this stage: " + ShellQuote(cmd) + "\n  or resume the whole bake: ltbake run " + r_.path,
+              "\n  re-run just this stage: " + ShellQuote(cmd) +
+              "\n  or resume the whole bake: " + ContinueCommand(o_, r_.path),
           {}};
 }
 
@@ -428,12 +505,13 @@ Result<StepEnd> Bake::RunStep(size_t i, const Plan& plan) {
   const Node& n = g_.nodes[i];
   const std::string out_path = Path(n.output);
   if (int sig = o_.pending_signal ? o_.pending_signal() : 0; sig != 0) {
-    return Interrupted(sig, "interrupted before " + n.name + "; rerun `ltbake run " + r_.path + "` to go on");
+    return Interrupted(sig, "interrupted before " + n.name + "; rerun `" + ContinueCommand(o_, r_.path) + "` to go on");
   }
   if (BeforeFrom(n)) {
     LTB_RETURN_IF_ERROR(GivenStep(n));
     return StepEnd{};
   }
+  LTB_RETURN_IF_ERROR(RefreshSourceHashes(n));
   json inputs = InputsOf(n, hash_of_);
   OutputState out = InspectOutput(n, out_path);
   const json* rec = previous_.count(n.name) ? &previous_[n.name] : nullptr;
@@ -497,7 +575,7 @@ Result<StepEnd> Bake::RunStep(size_t i, const Plan& plan) {
     si.node = &n;
     si.output = out_path;
     si.logs = Path("logs");
-    si.recipe = r_.path;
+    si.resume_command = ContinueCommand(o_, r_.path);
     si.record = rec;
     si.trust_record = rec != nullptr && d.action != Action::kRedo && rec->value("params", json()) == n.params &&
                       rec->value("inputs", json()) == inputs && rec->value("nshards", uint64_t{0}) == o_.cluster.shards;
@@ -510,9 +588,10 @@ Result<StepEnd> Bake::RunStep(size_t i, const Plan& plan) {
   const int sig = o_.pending_signal ? o_.pending_signal() : 0;
   StepEnd done = RecordDone(n, ran.content_hash, e);
   if (done.end != BakeEnd::kOk) return done;
+  LTB_RETURN_IF_ERROR(CheckSourcesUnchanged(n, inputs, e));
   DeleteUnneeded(i);
   if (sig != 0) {  // the stage finished just as the signal came: stop here
-    return Interrupted(sig, "interrupted after " + n.name + "; rerun `ltbake run " + r_.path + "` to go on");
+    return Interrupted(sig, "interrupted after " + n.name + "; rerun `" + ContinueCommand(o_, r_.path) + "` to go on");
   }
   if (Status s = SaveReport(); !s.ok()) return s.WithContext("writing the run report");
   return StepEnd{};

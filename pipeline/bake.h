@@ -84,6 +84,12 @@ struct BakeOutcome {
   std::string failure;            // what failed, the log and the command that re-runs just that stage
 };
 
+// The command that continues this run where it stopped: `ltbake run RECIPE` with every
+// option that changes where or how it runs (--workdir, --from, --until, --jobs, --mem-limit,
+// the engine's), shell-quoted; --force and --dry-run are left out (a rerun should resume,
+// not redo). Every hint that says "rerun" prints this.
+std::string ContinueCommand(const BakeOptions& options, const std::string& recipe_path);
+
 // Errors (a bad recipe, a work directory of another bake, an input that does not exist)
 // come back as a Status; stage failures and interruptions as an outcome with its exit code.
 Result<BakeOutcome> RunBake(const BakeOptions& options);

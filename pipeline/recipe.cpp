@@ -221,6 +221,7 @@ Status ParseColumnTransform(const std::string& path, const toml::table& t, Recip
     }
     auto mode = stages::ParseDepthMode(c->depth);
     if (!mode.ok()) return mode.status().WithContext(Where(path, *d) + ": \"depth\"");
+    c->depth_where = Where(path, *d);
   }
   int given = t.contains("keep") + t.contains("terms") + t.contains("budget") + t.contains("target_error");
   if (given > 1) {
@@ -335,6 +336,10 @@ Status ParseRelight(const std::string& path, const std::string& dir, const toml:
   LTB_ASSIGN_OR_RETURN(r->target, GetVec3(path, t, "target", r->target));
   LTB_ASSIGN_OR_RETURN(r->up, GetVec3(path, t, "up", r->up));
   LTB_ASSIGN_OR_RETURN(r->fov, GetNumber(path, t, "fov", r->fov, 1e-3, 179.999));
+  if (r->eye) {  // the view every renderer checks (sample::ValidateView), here before anything runs
+    Status view = sample::ValidateView(*r->eye, r->target, r->up, r->fov);
+    if (!view.ok()) return view.WithContext(Where(path, *t.get("eye")) + ": [relight] view");
+  }
   LTB_RETURN_IF_ERROR(GetImageSize(path, t, "[relight]", &r->width, &r->height));
   LTB_ASSIGN_OR_RETURN(r->matrix, GetChoice(path, t, "matrix", r->matrix, {"final", "cpca"}));
   LTB_ASSIGN_OR_RETURN(r->terms, GetUnsigned(path, t, "terms", r->terms, 1, uint64_t{1} << 32));
@@ -407,6 +412,11 @@ Status ParseTriple(const std::string& path, const std::string& dir, const toml::
   LTB_ASSIGN_OR_RETURN(r->target, GetVec3(path, t, "target", r->target));
   LTB_ASSIGN_OR_RETURN(r->up, GetVec3(path, t, "up", r->up));
   LTB_ASSIGN_OR_RETURN(r->fov, GetNumber(path, t, "fov", r->fov, 1e-3, 179.999));
+  {
+    Status view = sample::ValidateView(r->eye, r->target, r->up, r->fov);
+    const toml::node* at = t.contains("eye") ? t.get("eye") : nullptr;
+    if (!view.ok()) return view.WithContext((at != nullptr ? Where(path, *at) : Where(path, t)) + ": [triple] view");
+  }
   LTB_RETURN_IF_ERROR(GetImageSize(path, t, "[triple]", &r->width, &r->height));
   LTB_ASSIGN_OR_RETURN(r->method, GetChoice(path, t, "method", r->method, {"sublinear", "linear", "pixel"}));
   for (auto [key, dst] : {std::pair{"terms", &r->terms}, std::pair{"brdf_terms", &r->brdf_terms}}) {

@@ -66,6 +66,7 @@ struct Recipe {
   struct ColumnTransform {
     std::string filter = "legall53";
     std::string depth = "adaptive";
+    std::string depth_where;  // "recipe.toml:12" when the recipe gives depth (for messages)
     // At most one of: keep (fraction of each column's terms), terms (per column), budget,
     // target_error (relative RMS error); none given means budget = "5%".
     std::optional<double> keep;

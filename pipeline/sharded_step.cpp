@@ -65,7 +65,7 @@ json ShardRecords(const BakeOptions& o, const std::string& output, uint64_t coun
 
 // The failure of some shards: which, their logs and errors, and the commands that re-run them.
 std::string ShardFailure(const Node& n, const std::vector<std::string>& stage, uint64_t count,
-                         const std::vector<const ShardRun*>& failed, const std::string& recipe) {
+                         const std::vector<const ShardRun*>& failed, const std::string& resume_command) {
   std::string why;
   for (const ShardRun* r : failed) {
     why += "\n  shard " + std::to_string(r->index) + " (" + std::to_string(r->attempts) + " attempt" +
@@ -76,7 +76,7 @@ std::string ShardFailure(const Node& n, const std::vector<std::string>& stage, u
   one.insert(one.end(), {"--shard", std::to_string(failed.front()->index), "--nshards", std::to_string(count)});
   return "stage " + n.name + ": " + std::to_string(failed.size()) + " of " + std::to_string(count) +
          " shards failed:" + why + "\n  re-run one shard: " + ShellQuote(one) +
-         "\n  or resume the whole bake (runs only the shards not done): ltbake run " + recipe;
+         "\n  or resume the whole bake (runs only the shards not done): " + resume_command;
 }
 
 StepEnd Failed(json& e, std::string failure) {
@@ -134,11 +134,11 @@ StepEnd RunShardedStep(const BakeOptions& o, const ShardedStepInput& in, json& e
     e["status"] = "interrupted";
     return {BakeEnd::kInterrupted,
             ran->signal == SIGINT ? SIGINT : SIGTERM,
-            "interrupted during " + n.name + "; the shards it finished are kept: rerun `ltbake run " + in.recipe +
+            "interrupted during " + n.name + "; the shards it finished are kept: rerun `" + in.resume_command +
                 "` to run only the others",
             {}};
   }
-  if (!failed.empty()) return Failed(e, ShardFailure(n, stage, count, failed, in.recipe));
+  if (!failed.empty()) return Failed(e, ShardFailure(n, stage, count, failed, in.resume_command));
   // Every shard is done: validate them and write the manifest.
   io::CommitOptions co;
   co.overwrite = in.overwrite;

@@ -23,7 +23,7 @@ struct ShardedStepInput {
   const Node* node = nullptr;
   std::string output;                      // the step's output path (the manifest)
   std::string logs;                        // the work directory's logs/
-  std::string recipe;                      // the recipe's path, for the messages
+  std::string resume_command;              // `ltbake run ...` that continues this run (ContinueCommand)
   const nlohmann::json* record = nullptr;  // the step's entry in the last run.json
   bool trust_record = false;               // same parameters, inputs and shard count as that entry
   bool overwrite = false;
