@@ -107,6 +107,7 @@ Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progres
   auto t0 = Clock::now();
   LTB_RETURN_IF_ERROR(sample::ValidateView(o.eye, o.target, o.up, o.fov_degrees)
                           .WithContext("the view (--eye, --target, --up, --fov)"));
+  LTB_RETURN_IF_ERROR(triple::CheckViewMemory(o.width, o.height, o.mem_limit));
   LTB_ASSIGN_OR_RETURN(std::vector<SetMember> members, ChannelFiles(o.set));
   if (members.empty() || members.front().name != "k0") {
     return InvalidArgument(o.set +

@@ -657,6 +657,22 @@ glm::dvec3 OrbitEye(const glm::dvec3& eye, const glm::dvec3& target, double deg_
                              rel.x * std::sin(angle) + rel.y * std::cos(angle), rel.z);
 }
 
+Status CheckViewMemory(uint64_t width, uint64_t height, uint64_t mem_limit) {
+  const uint64_t pixels = width * height;  // both at most 2^16 (the size parser's limit)
+  if (mem_limit == 0 || pixels <= mem_limit / kViewBytesPerPixel) return Status::Ok();
+  const uint64_t side = static_cast<uint64_t>(std::sqrt(static_cast<double>(mem_limit / kViewBytesPerPixel)));
+  auto mib = [](uint64_t bytes) {
+    char b[48];
+    std::snprintf(b, sizeof b, "%.1f MiB", static_cast<double>(bytes) / (1 << 20));
+    return std::string(b);
+  };
+  return InvalidArgument("--size " + std::to_string(width) + "x" + std::to_string(height) + " needs about " +
+                         mib(pixels * kViewBytesPerPixel) + " of image buffers (" + std::to_string(kViewBytesPerPixel) +
+                         " bytes a pixel), over --mem-limit " + mib(mem_limit) +
+                         "; the largest square view that fits is " + std::to_string(side) + "x" + std::to_string(side) +
+                         ": lower --size or raise --mem-limit");
+}
+
 Status TracePixels(const sample::Geometry& geo, const sample::PinholeCamera& camera, int jobs,
                    std::vector<PixelHit>* hits) {
   hits->assign(camera.width() * camera.height(), PixelHit{});
@@ -702,6 +718,7 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
   }
   LTB_RETURN_IF_ERROR(sample::ValidateView(o.eye, o.target, o.up, o.fov_degrees)
                           .WithContext("the view (--eye, --target, --up, --fov)"));
+  LTB_RETURN_IF_ERROR(CheckViewMemory(o.width, o.height, o.mem_limit));
   if (o.light_terms == 0) return InvalidArgument("--terms must be at least 1 (or all)");
   const uint32_t frames = std::max<uint32_t>(1, o.orbit_frames);
   if (o.orbit_frames > 0 && !o.output.empty()) LTB_RETURN_IF_ERROR(FramePath(o.output, 0).status());

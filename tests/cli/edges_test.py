@@ -9,6 +9,7 @@ an Embree abort or a half-written file.
 2. `convert m.npy m.ltm` after m.npy's values changed (same shape) refuses to resume the old
    file (naming the chunk and both values); --overwrite converts the new values.
 4. A failed step's hint to resume the whole bake is the full command, --workdir included.
+12. A view whose image buffers exceed --mem-limit is refused with the size that fits.
 6. Views Embree cannot trace (eye = target, zero or parallel up, an eye at 1e30, fov nan) are
    refused by relight of a factored bake, and meshes beyond the traceable range by sample,
    in image and vertex mode: exit 1 with the value, never 134 (Embree's assertion).
@@ -174,6 +175,11 @@ def hostile_views(d, j):
         t.check(p.returncode in (1, 2), f"relight {change}: exit {p.returncode}\n{p.stderr}")
         t.check(part in p.stderr, f"relight {change}: stderr lacks {part!r}:\n{p.stderr}")
         t.check(not os.path.exists(j("bad.npy")), f"relight {change}: wrote an image")
+    # 12. The view's image buffers count against --mem-limit (16384² took 12 GiB under 64MiB).
+    args = [a if a != "8x8" else "16384x16384" for a in ok_view]
+    p = t.run("relight", j("g.ltm"), "--env", env, *args, "--mem-limit", "64MiB", "-o", j("big.npy"), expect=None)
+    says(p, "--size 16384x16384", "over --mem-limit 64.0 MiB", "largest square view that fits is 1182x1182",
+         what="a view over --mem-limit")
     # Meshes beyond what Embree traces: refused with the vertex, in both modes.
     for mode, scale in (("image", 1e25), ("vertex", 1e20)):
         sc = t.write(j(f"far_{mode}.toml"), scene_text(mode, j("octa.obj"), scale=scale))
