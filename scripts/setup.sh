@@ -30,7 +30,6 @@ PACKAGES=(
   python3-dev pybind11-dev python3-pytest  # the Python module (import ltbake; docs/PYTHON.md) and its tests
   nodejs                           # converting the sample meshes (npm is checked below)
   ffmpeg                           # relight --sequence -o relit.mp4 (docs/SEQUENCE.md)
-  libcpp-httplib-dev               # ltbake view: the local relighting page's HTTP server
   slurm-wlm munge slurm-client     # cluster test: a single-node Slurm on localhost (tests/cluster, docs/cluster.md)
 )
 

@@ -13,6 +13,8 @@ an Embree abort or a half-written file.
 6. Views Embree cannot trace (eye = target, zero or parallel up, an eye at 1e30, fov nan) are
    refused by relight of a factored bake, and meshes beyond the traceable range by sample,
    in image and vertex mode: exit 1 with the value, never 134 (Embree's assertion).
+14. `ltbake view` under load: every request gets a status (503 when busy), slow clients
+    hold no worker and get 408.
 13. `sample --sparse` of a scene with fewer than 64 dense rows works.
 15. Recipes: a vertex scene through column-transform without depth = "none", a depth the
     image cannot take, and [triple] eye = target are refused before anything runs, naming
@@ -22,10 +24,15 @@ usage: edges_test.py PATH_TO_LTBAKE
 """
 import json
 import os
+import select
+import signal
+import socket
 import stat
+import subprocess
 import struct
 import sys
 import tempfile
+import threading
 
 import numpy as np
 
@@ -233,6 +240,79 @@ def resume_hint(d, j):
     t.check(want in p.stderr, f"the resume hint is not the full command {want!r}:\n{p.stderr}")
 
 
+def http_get(port, target, timeout=60):
+    """(status, body) of a GET, or (None, error text) when no HTTP answer came."""
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=timeout) as c:
+            c.sendall(f"GET {target} HTTP/1.1\r\nHost: x\r\n\r\n".encode())
+            data = b""
+            while True:
+                b = c.recv(65536)
+                if not b:
+                    break
+                data += b
+        head = data.split(b"\r\n", 1)[0].split()
+        return (int(head[1]) if len(head) > 1 else None), data
+    except OSError as e:
+        return None, str(e)
+
+
+def view_under_load(d, j):
+    """14. `ltbake view` answers every request under load: 200 at once each get a status
+    (200, or 503 when its queue is full), and clients that send their request a byte at a time
+    hold no worker (a normal request is answered while they dribble; they get 408)."""
+    view = subprocess.Popen([t.LTBAKE, "view", j("m.ltm"), "--env", j("sky.hdr")], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        url = view.stdout.readline().strip()
+        port = int(url.rsplit(":", 1)[1].strip("/"))
+        results = [None] * 200
+        def one(i):
+            results[i] = http_get(port, f"/frame.png?rotate={i}")[0]
+        threads = [threading.Thread(target=one, args=(i,)) for i in range(200)]
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join()
+        codes = {c: results.count(c) for c in set(results)}
+        t.check(set(codes) <= {200, 503} and codes.get(200, 0) > 0, f"200 concurrent requests: {codes}")
+        # Slow clients: 20 connections sending a byte every 0.2 s (at most 300 bytes, 60 s).
+        slow = []
+        for _ in range(20):
+            c = socket.create_connection(("127.0.0.1", port), timeout=120)
+            c.sendall(b"GET /frame.png?rotate=1")
+            slow.append(c)
+        ended = [None] * len(slow)
+        def dribble(k):
+            c = slow[k]
+            try:
+                for _ in range(300):
+                    c.sendall(b"0")
+                    r, _, _ = select.select([c], [], [], 0.2)
+                    if r:
+                        ended[k] = c.recv(64).split(b"\r\n", 1)[0].decode(errors="replace")
+                        return
+                ended[k] = "still reading after 300 bytes"
+            except OSError as e:
+                ended[k] = f"closed: {e}"
+        dribblers = [threading.Thread(target=dribble, args=(k,)) for k in range(len(slow))]
+        for th in dribblers:
+            th.start()
+        code, body = http_get(port, "/stats", timeout=60)
+        t.check(code == 200, f"a normal request among 20 slow clients: {code} {body[:200]!r}")
+        t.check(all(e is None for e in ended), f"slow clients were answered before the normal one: {ended}")
+        for th in dribblers:
+            th.join()
+        for c in slow:
+            c.close()
+        t.check(all(e is not None and " 408 " in e + " " for e in ended), f"slow clients did not get 408: {ended}")
+        code, _ = http_get(port, "/frame.png?rotate=5%00abc")
+        t.check(code == 400, f"rotate=5%00abc: {code}, expected 400")
+    finally:
+        view.send_signal(signal.SIGINT)
+        view.wait(timeout=60)
+
+
 def main():
     with tempfile.TemporaryDirectory() as d:
         j = lambda *p: os.path.join(d, *p)  # noqa: E731
@@ -242,6 +322,7 @@ def main():
         sparse_small(d, j)
         recipes(d, j)
         resume_hint(d, j)
+        view_under_load(d, j)
     t.finish()
 
 
