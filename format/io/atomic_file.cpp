@@ -8,6 +8,8 @@
 #include <cstdlib>
 #include <utility>
 
+#include "format/io/io_trace.h"
+
 namespace ltb::io {
 
 namespace {
@@ -50,8 +52,10 @@ Result<AtomicFile> AtomicFile::Create(const std::string& path) {
   f.path_ = path;
   LTB_ASSIGN_OR_RETURN(f.target_, ReplaceableOutput(path));
   f.temp_ = f.target_ + ".partial";
-  if (std::remove(f.temp_.c_str()) != 0 && errno != ENOENT) {
-    return IoError(f.temp_ + ": cannot remove the partial file a killed writer left", errno);
+  if (std::remove(f.temp_.c_str()) != 0) {
+    if (errno != ENOENT) return IoError(f.temp_ + ": cannot remove the partial file a killed writer left", errno);
+  } else {
+    RecordIo({IoOp::Kind::kRemove, f.temp_, {}, 0, {}});
   }
   LTB_ASSIGN_OR_RETURN(f.file_, File::Open(f.temp_, File::Mode::kCreateExclusive));
   return f;
@@ -82,13 +86,13 @@ AtomicFile::~AtomicFile() { Discard(); }
 void AtomicFile::Discard() {
   if (temp_.empty()) return;
   (void)file_.Close();
-  std::remove(temp_.c_str());
+  if (std::remove(temp_.c_str()) == 0) RecordIo({IoOp::Kind::kRemove, temp_, {}, 0, {}});
   temp_.clear();
 }
 
 Status AtomicFile::Commit() {
   if (temp_.empty()) return FailedPrecondition(path_ + ": AtomicFile committed twice or never created");
-  Status s = file_.DataSync();
+  Status s = BarrierSkipped(kBarrierAtomicDataSync) ? Status::Ok() : file_.DataSync();
   if (s.ok()) s = file_.Close();
   // Again right before the rename: what was at path may have changed while the data was
   // written (a FIFO made there, a link pointed elsewhere).
@@ -101,14 +105,17 @@ Status AtomicFile::Commit() {
                              " as when this output was started; nothing was replaced (run the command again)");
     }
   }
-  if (s.ok() && std::rename(temp_.c_str(), target_.c_str()) != 0)
+  if (s.ok() && std::rename(temp_.c_str(), target_.c_str()) != 0) {
     s = IoError(target_ + ": rename from " + temp_, errno);
+  } else if (s.ok()) {
+    RecordIo({IoOp::Kind::kRename, temp_, target_, 0, {}});
+  }
   if (!s.ok()) {
     Discard();
     return s;
   }
   temp_.clear();
-  return SyncParentDirectory(target_);
+  return BarrierSkipped(kBarrierAtomicDirSync) ? Status::Ok() : SyncParentDirectory(target_);
 }
 
 Status WriteFileAtomically(const std::string& path, format::ByteSpan bytes) {

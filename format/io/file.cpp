@@ -6,6 +6,8 @@
 
 #include <cerrno>
 
+#include "format/io/io_trace.h"
+
 namespace ltb::io {
 
 File::~File() {
@@ -123,6 +125,7 @@ Result<File> File::Open(const std::string& path, Mode mode, bool inherit) {
     ::close(fd);
     return IoError(path + ": fcntl(F_SETFL)", err);
   }
+  if (mode == Mode::kCreate || mode == Mode::kCreateExclusive) RecordIo({IoOp::Kind::kCreate, path, {}, 0, {}});
   File f;
   f.fd_ = fd;
   f.path_ = path;
@@ -164,6 +167,7 @@ Status File::WriteAt(uint64_t offset, format::ByteSpan data) const {
     }
     done += static_cast<size_t>(n);
   }
+  if (Recording()) RecordIo({IoOp::Kind::kWrite, path_, {}, offset, std::vector<std::byte>(data.begin(), data.end())});
   return Status::Ok();
 }
 
@@ -171,11 +175,13 @@ Status File::Truncate(uint64_t size) const {
   if (::ftruncate(fd_, static_cast<off_t>(size)) != 0) {
     return IoError(path_ + ": truncate to " + std::to_string(size) + " bytes", errno);
   }
+  RecordIo({IoOp::Kind::kTruncate, path_, {}, size, {}});
   return Status::Ok();
 }
 
 Status File::DataSync() const {
   if (::fdatasync(fd_) != 0) return IoError(path_ + ": fdatasync", errno);
+  RecordIo({IoOp::Kind::kSync, path_, {}, 0, {}});
   return Status::Ok();
 }
 
@@ -197,6 +203,7 @@ Status SyncParentDirectory(const std::string& path) {
   int err = errno;
   ::close(fd);
   if (rc != 0) return IoError(dir + ": fsync directory", err);
+  RecordIo({IoOp::Kind::kSyncDir, dir, {}, 0, {}});
   return Status::Ok();
 }
 
