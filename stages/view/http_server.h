@@ -36,7 +36,7 @@ struct HttpResponse {
 
 struct HttpServerOptions {
   int workers = 4;                        // handler threads
-  uint64_t max_connections = 64;          // connections being read at once; more get 503
+  uint64_t max_connections = 256;         // connections being read at once; more get 503
   double request_seconds = 5.0;           // from accept to the end of the request's head
   double write_seconds = 10.0;            // to write a response
   uint64_t max_request_bytes = 16 << 10;  // request line and headers
