@@ -520,7 +520,7 @@ Status ContainerWriter::CheckResumedChunk(uint32_t array, uint64_t chunk, ByteSp
   return FailedPrecondition(path() + ": array \"" + a.name + "\" chunk " + std::to_string(chunk) + " (rows " +
                             std::to_string(e.row0) + "-" + std::to_string(e.row0 + e.rows - 1) + ", columns " +
                             std::to_string(e.col0) + "-" + std::to_string(e.col0 + e.cols - 1) +
-                            "), committed by an earlier interrupted run, differs from this run's input at row " +
+                            "), committed by an earlier run, differs from this run's input at row " +
                             std::to_string(row) + ", column " + std::to_string(col) + values +
                             ": the input changed since that run, so the file cannot be resumed; remove it, or rerun "
                             "with --overwrite to start over");
