@@ -52,7 +52,8 @@ def main():
 
     def record(group, what, p, ok_codes=(0, 1)):
         code = "hang" if p is None else p.returncode
-        key = (group, "ok" if code in ok_codes else f"exit {code}")
+        names = {0: "accepted", 1: "refused", 2: "usage error"}
+        key = (group, names[code] if code in ok_codes else f"BAD exit {code}")
         tally[key] = tally.get(key, 0) + 1
         if code not in ok_codes:
             bad.append(f"{group}: {what}: {code}: {'' if p is None else p.stderr.strip()[-300:]}")
