@@ -55,7 +55,7 @@ Result<std::unique_ptr<RayScene>> RayScene::Create() {
   return s;
 }
 
-Status RayScene::AddMesh(const TriangleMesh& mesh) {
+Status RayScene::AddMesh(const mesh::TriangleMesh& mesh) {
   RTCGeometry g = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_TRIANGLE);
   auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
                                                         3 * sizeof(float), mesh.positions.size()));

@@ -13,7 +13,7 @@
 
 #include "format/progress.h"
 #include "format/status.h"
-#include "stages/sample/geometry.h"
+#include "stages/mesh/triangle_mesh.h"
 
 namespace ltb::sample {
 
@@ -51,7 +51,7 @@ class RayScene {
 
   static Result<std::unique_ptr<RayScene>> Create();
   // Geometry ids are assigned in the order of these calls, from 0.
-  Status AddMesh(const TriangleMesh& mesh);
+  Status AddMesh(const mesh::TriangleMesh& mesh);
   Status AddSphere(const glm::dvec3& center, double radius);
   // Builds the BVH; Cancelled when `progress` asks to stop while it builds.
   Status Commit(const Progress& progress = Progress{});

@@ -11,8 +11,8 @@
 #include <glm/vec3.hpp>
 #include <vector>
 
+#include "stages/mesh/triangle_mesh.h"
 #include "stages/sample/brdf_factor.h"
-#include "stages/sample/geometry.h"
 #include "stages/sample/ray_scene.h"
 #include "stages/sample/scene.h"
 #include "stages/sample/scene_geometry.h"

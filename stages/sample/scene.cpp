@@ -108,12 +108,6 @@ glm::dvec3 PinholeCamera::Direction(uint64_t x, uint64_t y) const {
   return glm::normalize(f_ + px * right_ + py * up_);
 }
 
-std::string FormatVec3(const glm::dvec3& v) {
-  char b[96];
-  std::snprintf(b, sizeof b, "[%.9g, %.9g, %.9g]", v.x, v.y, v.z);
-  return b;
-}
-
 namespace {
 
 // [output]: the mode and, for vertex mode, the objects whose vertices are rows.

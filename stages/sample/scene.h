@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "format/status.h"
+#include "stages/mesh/triangle_mesh.h"
 
 namespace ltb::sample {
 
@@ -137,7 +138,7 @@ SceneDesc ChannelScene(const SceneDesc& s, int channel);
 // path that is a directory or not a regular file is refused as such.
 Result<SceneDesc> ParseScene(const std::string& path);
 
-// "[x, y, z]" with 9 significant digits, for messages.
-std::string FormatVec3(const glm::dvec3& v);
+// "[x, y, z]" with 9 significant digits, for messages (stages/mesh/triangle_mesh.h).
+using mesh::FormatVec3;
 
 }  // namespace ltb::sample

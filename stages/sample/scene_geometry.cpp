@@ -7,15 +7,26 @@
 #include <cstdio>
 #include <fstream>
 #include <glm/geometric.hpp>
+#include <glm/gtc/matrix_transform.hpp>
 #include <limits>
 #include <memory>
 #include <tuple>
 
 #include "format/version.h"
-#include "stages/sample/geometry.h"
+#include "stages/mesh/triangle_mesh.h"
 #include "stages/sample/sample.h"
 
 namespace ltb::sample {
+
+glm::dmat4 ObjectTransform(const Object& o) {
+  glm::dmat4 m(1.0);
+  m = glm::translate(m, o.translate);
+  m = glm::rotate(m, glm::radians(o.rotate_degrees.z), glm::dvec3(0, 0, 1));
+  m = glm::rotate(m, glm::radians(o.rotate_degrees.y), glm::dvec3(0, 1, 0));
+  m = glm::rotate(m, glm::radians(o.rotate_degrees.x), glm::dvec3(1, 0, 0));
+  m = glm::scale(m, o.scale);
+  return m;
+}
 
 using namespace ltb::format;
 
@@ -54,8 +65,8 @@ bool IsRowObject(const SceneDesc& s, const Object& o) {
 // transform: one per vertex, with the file's normal for normals = "file", else the
 // area-weighted one; the material vertex_material[i] (empty: the object's); the vertex
 // colour. Returns the object's first row (the rows so far, whether or not it adds any).
-uint64_t AddRows(const SceneDesc& s, const Object& o, const TriangleMesh& mesh, const std::vector<int>& vertex_material,
-                 Geometry* g) {
+uint64_t AddRows(const SceneDesc& s, const Object& o, const mesh::TriangleMesh& mesh,
+                 const std::vector<int>& vertex_material, Geometry* g) {
   const uint64_t first_row = g->vertex_rows.size();
   if (!IsRowObject(s, o)) return first_row;
   const std::vector<glm::dvec3>& n = o.normals == Object::Normals::kFile ? mesh.file_normals : mesh.normals;
@@ -72,7 +83,7 @@ uint64_t AddRows(const SceneDesc& s, const Object& o, const TriangleMesh& mesh, 
 // image mode, bounce hits in both modes) for "smooth" or "file", an empty entry otherwise
 // (the geometric normal); its vertex colours; its Geometry::RowMesh (`first_row`: the
 // object's); its material and object.
-void AddEntries(const SceneDesc& s, size_t object, int material, const TriangleMesh& mesh,
+void AddEntries(const SceneDesc& s, size_t object, int material, const mesh::TriangleMesh& mesh,
                 const std::vector<glm::uvec3>& triangles, uint64_t first_row, Geometry* g) {
   const Object& o = s.objects[object];
   const bool file = o.normals == Object::Normals::kFile;
@@ -99,7 +110,7 @@ void AddEntries(const SceneDesc& s, size_t object, int material, const TriangleM
 // usemtl = true: the scene material of each of the mesh's usemtl groups that holds a
 // triangle (-1 for the others): group 0 (the faces before any usemtl) the object's, every
 // other the [[material]] its name names; a name no [[material]] defines is an error.
-Result<std::vector<int>> GroupMaterials(const SceneDesc& s, const Object& o, const TriangleMesh& mesh,
+Result<std::vector<int>> GroupMaterials(const SceneDesc& s, const Object& o, const mesh::TriangleMesh& mesh,
                                         const std::string& where) {
   std::vector<char> used(mesh.group_names.size(), 0);
   for (uint32_t k : mesh.triangle_group) used[k] = 1;
@@ -127,7 +138,8 @@ Result<std::vector<int>> GroupMaterials(const SceneDesc& s, const Object& o, con
 // one geometry, or with usemtl = true one per material its triangles use, in order of first
 // appearance, each with all the vertices (Embree copies them) and that material's triangles;
 // a vertex row's material is then that of the first triangle (in file order) using it.
-Status AddMeshObject(const SceneDesc& s, size_t object, const std::string& where, TriangleMesh* mesh, Geometry* g) {
+Status AddMeshObject(const SceneDesc& s, size_t object, const std::string& where, mesh::TriangleMesh* mesh,
+                     Geometry* g) {
   const Object& o = s.objects[object];
   if (!o.usemtl) {
     LTB_RETURN_IF_ERROR(g->rays->AddMesh(*mesh));
@@ -274,20 +286,20 @@ Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
       g.geom_material.push_back(o.material);
       g.geom_object.push_back(static_cast<int>(object));
     } else {
-      sample::TriangleMesh mesh;
+      mesh::TriangleMesh mesh;
       if (o.type == Object::Type::kMesh) {
-        auto loaded = sample::LoadMeshFile(o.file, progress, o.normals == Object::Normals::kFile,
-                                           o.colours == Object::Colours::kFile, o.usemtl);
+        auto loaded = mesh::LoadMeshFile(o.file, progress, o.normals == Object::Normals::kFile,
+                                         o.colours == Object::Colours::kFile, o.usemtl);
         if (!loaded.ok()) return loaded.status().WithContext(where);
         mesh = std::move(loaded).value();
         if (hs.ok()) hs = HashFile(o.file, st);
       } else if (o.type == Object::Type::kPlane) {
-        mesh = sample::MakePlane(o.size);
+        mesh = mesh::MakePlane(o.size);
       } else {
-        mesh = sample::MakeBox(o.size, o.center);
+        mesh = mesh::MakeBox(o.size, o.center);
       }
       g.degenerate += mesh.degenerate_dropped;
-      sample::ApplyTransform(sample::ObjectTransform(o), &mesh);
+      mesh::ApplyTransform(sample::ObjectTransform(o), &mesh);
       for (size_t i = 0; i < mesh.positions.size(); ++i) {
         const glm::dvec3& p = mesh.positions[i];
         if (!Traceable(p.x) || !Traceable(p.y) || !Traceable(p.z)) {

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdint>
+#include <glm/mat4x4.hpp>
 #include <glm/vec3.hpp>
 #include <memory>
 #include <string>
@@ -14,6 +15,9 @@
 #include "stages/sample/scene.h"
 
 namespace ltb::sample {
+
+// An object's placement: scale, rotate (degrees about x, then y, then z), translate.
+glm::dmat4 ObjectTransform(const Object& o);
 
 // A row's point: p, normal n (facing the camera in image mode), direction to the viewer
 // ω_o and material; valid = false for a pixel that sees no geometry.

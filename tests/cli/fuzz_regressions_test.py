@@ -73,7 +73,7 @@ def main():
         # (134 bytes: virtual, the release build exits 1 at 11 MB) or decode 409 MB of
         # buffers (548 bytes: 16,843,009 faces declared, libdraco's corner table) before
         # failing. The second was open until the header's counts were checked against the
-        # file's size before libdraco runs (stages/sample/draco_header.cpp, 2026-11-25).
+        # file's size before libdraco runs (stages/mesh/draco_header.cpp, 2026-11-25).
         mesh_case(d, "reserve-5.7g.drc", bytes.fromhex(
             "445241434f0100010110f50100000000002d5555555555555555555555555555555555555555555555555555555555555555"
             "555555555555555555555555555555555555555555555555555555555555555555555555555555555555555555555555555555"

@@ -2,7 +2,7 @@
 
 - The bunny written as OBJ, OFF, binary STL and ASCII PLY (converted here from the OBJ)
   gives the same transport matrix: same triangles in the same order (our own readers;
-  tests/sample/mesh_reader_test.cpp compares OBJ and STL with OpenMesh).
+  tests/mesh/mesh_reader_test.cpp compares OBJ and STL with OpenMesh).
 - The Draco file (16-bit quantised positions) gives nearly the same row sums.
 - A square OBJ with one quad face matches the built-in plane (polygons are triangulated).
 - Zero-area faces are dropped and counted.

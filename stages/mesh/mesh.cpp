@@ -1,5 +1,3 @@
-#include "stages/sample/geometry.h"
-
 #include <draco/compression/decode.h>
 
 #include <cerrno>
@@ -13,10 +11,11 @@
 #include <glm/gtc/matrix_transform.hpp>
 #include <glm/matrix.hpp>
 
-#include "stages/sample/draco_header.h"
-#include "stages/sample/mesh_reader.h"
+#include "stages/mesh/draco_header.h"
+#include "stages/mesh/mesh_reader.h"
+#include "stages/mesh/triangle_mesh.h"
 
-namespace ltb::sample {
+namespace ltb::mesh {
 namespace {
 
 std::string Lower(std::string s) {
@@ -260,6 +259,12 @@ Result<TriangleMesh> LoadMeshFile(const std::string& path, const Progress& progr
   return r;
 }
 
+std::string FormatVec3(const glm::dvec3& v) {
+  char b[96];
+  std::snprintf(b, sizeof b, "[%.9g, %.9g, %.9g]", v.x, v.y, v.z);
+  return b;
+}
+
 TriangleMesh MakePlane(const glm::dvec3& size) {
   TriangleMesh m;
   double x = size.x / 2, y = size.y / 2;
@@ -288,16 +293,6 @@ TriangleMesh MakeBox(const glm::dvec3& size, const glm::dvec3& c) {
     m.triangles.push_back({base, base + 2, base + 3});
   }
   Finalize(&m);
-  return m;
-}
-
-glm::dmat4 ObjectTransform(const Object& o) {
-  glm::dmat4 m(1.0);
-  m = glm::translate(m, o.translate);
-  m = glm::rotate(m, glm::radians(o.rotate_degrees.z), glm::dvec3(0, 0, 1));
-  m = glm::rotate(m, glm::radians(o.rotate_degrees.y), glm::dvec3(0, 1, 0));
-  m = glm::rotate(m, glm::radians(o.rotate_degrees.x), glm::dvec3(1, 0, 0));
-  m = glm::scale(m, o.scale);
   return m;
 }
 
@@ -353,4 +348,4 @@ void Finalize(TriangleMesh* m) {
   }
 }
 
-}  // namespace ltb::sample
+}  // namespace ltb::mesh

@@ -15,13 +15,14 @@
 #include <string>
 #include <vector>
 
-#include "stages/sample/geometry.h"
-#include "stages/sample/mesh_reader.h"
+#include "stages/mesh/mesh_reader.h"
+#include "stages/mesh/triangle_mesh.h"
 #include "stages/sample/scene.h"
 #include "stages/sample/scene_geometry.h"
 
 namespace ltb::sample {
-namespace usemtl_test {  // named: the unity build puts this file beside normals_test.cpp
+using namespace ::ltb::mesh;  // the readers under test (stages/mesh), placed by the scene code
+namespace usemtl_test {       // named: the unity build puts this file beside normals_test.cpp
 
 std::string Dir() {
   const std::string d = ::testing::TempDir() + "usemtl_test/";

@@ -1,6 +1,6 @@
-// Triangle geometry for the sampler: mesh files (our own readers for OFF, PLY, OBJ and
-// STL, stages/sample/mesh_reader.h; Draco for .drc), built-in primitives and object
-// transforms.
+// Triangle meshes: mesh files (our own readers for OFF, PLY, OBJ and STL,
+// stages/mesh/mesh_reader.h; Draco for .drc), built-in primitives and transforms. Knows
+// nothing of scenes (stages/sample places meshes in one).
 #pragma once
 
 #include <cstdint>
@@ -11,9 +11,8 @@
 
 #include "format/progress.h"
 #include "format/status.h"
-#include "stages/sample/scene.h"
 
-namespace ltb::sample {
+namespace ltb::mesh {
 
 struct TriangleMesh {
   std::vector<glm::dvec3> positions;
@@ -52,11 +51,12 @@ struct TriangleMesh {
 Result<TriangleMesh> LoadMeshFile(const std::string& path, const Progress& progress = Progress{},
                                   bool file_normals = false, bool file_colours = false, bool groups = false);
 
+// "[1, 2, 3]" (each %.9g), for messages.
+std::string FormatVec3(const glm::dvec3& v);
+
 TriangleMesh MakePlane(const glm::dvec3& size);  // size.x × size.y at z = 0, normal +z
 TriangleMesh MakeBox(const glm::dvec3& size, const glm::dvec3& center);
 
-// Scale, rotate (degrees about x, then y, then z), translate.
-glm::dmat4 ObjectTransform(const Object& o);
 // Positions by m; file normals by the inverse transpose of m's 3×3 part, renormalised (so
 // they stay perpendicular to the surface under a non-uniform scale); then Finalize.
 void ApplyTransform(const glm::dmat4& m, TriangleMesh* mesh);
@@ -64,4 +64,4 @@ void ApplyTransform(const glm::dmat4& m, TriangleMesh* mesh);
 // has groups, and recomputes vertex normals.
 void Finalize(TriangleMesh* mesh);
 
-}  // namespace ltb::sample
+}  // namespace ltb::mesh

@@ -1,5 +1,5 @@
 // Internal to the mesh readers (mesh_reader.cpp, obj_reader.cpp, stl_reader.cpp): the
-// small text and arithmetic helpers they share. Not part of the sample library's API.
+// small text and arithmetic helpers they share. Not part of the mesh library's API.
 #pragma once
 
 #include <charconv>
@@ -8,7 +8,7 @@
 #include <string>
 #include <string_view>
 
-namespace ltb::sample::mesh_text {
+namespace ltb::mesh::mesh_text {
 
 inline constexpr size_t kPiece = size_t{1} << 20;     // bytes read at a time
 inline constexpr size_t kMaxLine = size_t{64} << 20;  // a longer line (or statement) is refused
@@ -61,4 +61,4 @@ inline std::string Bytes(uint64_t n) {
   return n == std::numeric_limits<uint64_t>::max() ? std::string("more than 2^64") : std::to_string(n);
 }
 
-}  // namespace ltb::sample::mesh_text
+}  // namespace ltb::mesh::mesh_text

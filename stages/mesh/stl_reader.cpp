@@ -9,10 +9,10 @@
 #include <string>
 #include <vector>
 
-#include "stages/sample/mesh_reader.h"
-#include "stages/sample/mesh_text.h"
+#include "stages/mesh/mesh_reader.h"
+#include "stages/mesh/mesh_text.h"
 
-namespace ltb::sample {
+namespace ltb::mesh {
 
 using namespace mesh_text;
 
@@ -248,4 +248,4 @@ Result<TriangleMesh> ReadStl(MeshInput& in, const Progress& progress) {
   return r;
 }
 
-}  // namespace ltb::sample
+}  // namespace ltb::mesh

@@ -11,7 +11,7 @@
 // PLY, ushort / char PLY, big-endian PLY, OBJ "v x y z r g b" and Draco COLOR attributes
 // (encoded by libdraco here) against values known in closed form; and every way of lacking
 // a colour or having a bad one is an error naming the file, the line or byte and the value.
-#include "stages/sample/mesh_reader.h"
+#include "stages/mesh/mesh_reader.h"
 
 #include <draco/compression/encode.h>
 #include <draco/mesh/triangle_soup_mesh_builder.h>
@@ -30,9 +30,11 @@
 #include <string>
 #include <vector>
 
-#include "stages/sample/geometry.h"
+#include "stages/mesh/triangle_mesh.h"
+#include "stages/sample/scene_geometry.h"
 
 namespace ltb::sample {
+using namespace ::ltb::mesh;  // the readers under test (stages/mesh), placed by the scene code
 namespace {
 
 // The unit cube [0,1]³: vertex v has coordinates (v&1, v>>1&1, v>>2&1); six outward quads.

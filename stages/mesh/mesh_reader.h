@@ -13,9 +13,9 @@
 
 #include "format/progress.h"
 #include "format/status.h"
-#include "stages/sample/geometry.h"
+#include "stages/mesh/triangle_mesh.h"
 
-namespace ltb::sample {
+namespace ltb::mesh {
 
 // Bytes of a mesh file, read in pieces (a regular file), or bytes already in memory
 // (tests, fuzzers). Lines end at '\n'; a trailing '\r' is dropped.
@@ -103,4 +103,4 @@ Result<TriangleMesh> ReadStl(MeshInput& in, const Progress& progress);
 // c <= 0.04045, ((c + 0.055) / 1.055)^2.4 above. How 8-bit (integer) colours are read.
 double SrgbToLinear(double c);
 
-}  // namespace ltb::sample
+}  // namespace ltb::mesh

@@ -14,10 +14,10 @@
 #include <string>
 #include <vector>
 
-#include "stages/sample/mesh_reader.h"
-#include "stages/sample/mesh_text.h"
+#include "stages/mesh/mesh_reader.h"
+#include "stages/mesh/mesh_text.h"
 
-namespace ltb::sample {
+namespace ltb::mesh {
 
 using namespace mesh_text;
 
@@ -415,4 +415,4 @@ Result<TriangleMesh> ReadObj(MeshInput& in, const Progress& progress, bool norma
   return m;
 }
 
-}  // namespace ltb::sample
+}  // namespace ltb::mesh

@@ -16,11 +16,13 @@
 #include <string>
 #include <vector>
 
-#include "stages/sample/geometry.h"
-#include "stages/sample/mesh_reader.h"
+#include "stages/mesh/mesh_reader.h"
+#include "stages/mesh/triangle_mesh.h"
 #include "stages/sample/scene.h"
+#include "stages/sample/scene_geometry.h"
 
 namespace ltb::sample {
+using namespace ::ltb::mesh;  // the readers under test (stages/mesh), placed by the scene code
 namespace {
 
 // A triangle with a stored normal per vertex, deliberately not unit length and not all equal.

@@ -1,8 +1,8 @@
-#include "stages/sample/draco_header.h"
+#include "stages/mesh/draco_header.h"
 
 #include <cstring>
 
-namespace ltb::sample {
+namespace ltb::mesh {
 namespace {
 
 // Bitstream versions as libdraco compares them: major * 256 + minor.
@@ -142,4 +142,4 @@ Status CheckDracoCounts(const std::string& path, std::span<const unsigned char> 
       std::to_string(kDracoMaxFacesPerByte) + " faces per byte, so the file is corrupt (re-export or re-encode it)");
 }
 
-}  // namespace ltb::sample
+}  // namespace ltb::mesh

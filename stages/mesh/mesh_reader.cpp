@@ -1,4 +1,4 @@
-#include "stages/sample/mesh_reader.h"
+#include "stages/mesh/mesh_reader.h"
 
 #include <fcntl.h>
 #include <sys/stat.h>
@@ -12,9 +12,9 @@
 #include <cstring>
 #include <limits>
 
-#include "stages/sample/mesh_text.h"
+#include "stages/mesh/mesh_text.h"
 
-namespace ltb::sample {
+namespace ltb::mesh {
 
 using namespace mesh_text;
 
@@ -982,4 +982,4 @@ Result<TriangleMesh> ReadPly(MeshInput& in, const Progress& progress, bool norma
   return m;
 }
 
-}  // namespace ltb::sample
+}  // namespace ltb::mesh

@@ -15,7 +15,7 @@
 
 #include "format/status.h"
 
-namespace ltb::sample {
+namespace ltb::mesh {
 
 struct DracoCounts {
   int version_major = 0, version_minor = 0;
@@ -38,4 +38,4 @@ inline constexpr uint64_t kDracoMaxFacesPerByte = 1024;
 // times the file's size (vertices count as faces: each face has at most three).
 Status CheckDracoCounts(const std::string& path, std::span<const unsigned char> file);
 
-}  // namespace ltb::sample
+}  // namespace ltb::mesh

@@ -4,7 +4,7 @@
 // older bitstream versions (fixed-width counts before 2.0, a new-vertex count before 2.2)
 // sit exactly at and one past the faces-per-byte limit; the 548-byte fuzzer file that
 // made libdraco take ~400 MB is refused by LoadMeshFile before libdraco sees it.
-#include "stages/sample/draco_header.h"
+#include "stages/mesh/draco_header.h"
 
 #include <draco/compression/encode.h>
 #include <draco/mesh/triangle_soup_mesh_builder.h>
@@ -16,9 +16,10 @@
 #include <string>
 #include <vector>
 
-#include "stages/sample/geometry.h"
+#include "stages/mesh/triangle_mesh.h"
 
 namespace ltb::sample {
+using namespace ::ltb::mesh;  // the readers under test (stages/mesh), placed by the scene code
 namespace {
 
 using Bytes = std::vector<unsigned char>;
