@@ -9,12 +9,12 @@
 #include <sstream>
 
 #include "format/bits.h"
+#include "stages/brdf/brdf.h"
 #include "stages/column_transform/column_transform.h"
 #include "stages/common/quantity.h"
 #include "stages/common/toml_fields.h"
 #include "stages/relight/sequence_spec.h"
 #include "stages/sample/scene.h"
-#include "stages/triple/material.h"
 
 namespace ltb::pipeline {
 namespace {
@@ -403,7 +403,7 @@ Status ParseTriple(const std::string& path, const std::string& dir, const toml::
   for (const auto& item : *mats->as_array()) {
     auto text = item.value<std::string>();
     if (!text) return InvalidArgument(Where(path, *mats) + ": \"materials\" must be a list of strings");
-    auto brdf = triple::ParseBrdf(*text);
+    auto brdf = brdf::ParseBrdf(*text);
     if (!brdf.ok()) return brdf.status().WithContext(Where(path, *mats) + ": \"materials\"");
     r->materials.push_back(*text);
   }

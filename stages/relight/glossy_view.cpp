@@ -9,13 +9,13 @@
 #include <optional>
 
 #include "format/io/container_reader.h"
+#include "stages/brdf/brdf_factor.h"
 #include "stages/common/base64.h"
 #include "stages/common/channels.h"
 #include "stages/common/parallel_for.h"
 #include "stages/relight/environment.h"
 #include "stages/relight/image_io.h"
 #include "stages/relight/relight_matrix.h"
-#include "stages/sample/brdf_factor.h"
 #include "stages/sample/scene.h"
 #include "stages/sample/scene_geometry.h"
 #include "stages/triple/render.h"
@@ -30,7 +30,7 @@ double Ms(Clock::time_point a, Clock::time_point b) { return std::chrono::durati
 // rest 0), from the first term's metadata.
 struct ViewFactors {
   uint32_t terms = 0;
-  std::vector<std::vector<sample::ParabolicTable>> g;
+  std::vector<std::vector<brdf::ParabolicTable>> g;
   std::string scene, geometry_hash;
 };
 
@@ -48,7 +48,7 @@ Result<ViewFactors> ReadViewFactors(const std::string& path, bool tables) {
                              f.at("frame").get<std::string>() + "\" frame, which this renderer does not read");
     }
     for (const auto& m : f.at("materials")) {
-      std::vector<sample::ParabolicTable> g;
+      std::vector<brdf::ParabolicTable> g;
       if (tables && m.at("glossy").get<bool>()) {
         for (const auto& text : m.at("g")) {
           LTB_ASSIGN_OR_RETURN(std::vector<float> t, FloatsFromBase64(text.get<std::string>()));
@@ -88,10 +88,9 @@ void VertexRadiance(const sample::Geometry& geo, const ViewFactors& vf, const st
       for (int c = 0; c < 3; ++c) out[c] = p[0][3 * i + c];  // g_0 = 1 (the diffuse term)
       if (g.empty()) continue;
       glm::dvec3 t, bt;
-      sample::TangentFrame(rp.n, &t, &bt);
+      brdf::TangentFrame(rp.n, &t, &bt);
       const glm::dvec3 wo = eye - rp.p;
-      const sample::ParabolicCoords pc(g.front().res,
-                                       glm::dvec3(glm::dot(t, wo), glm::dot(bt, wo), glm::dot(rp.n, wo)));
+      const brdf::ParabolicCoords pc(g.front().res, glm::dvec3(glm::dot(t, wo), glm::dot(bt, wo), glm::dot(rp.n, wo)));
       for (uint32_t k = 1; k < used; ++k) {
         const double gk = g[k].At(pc);
         for (int c = 0; c < 3; ++c) out[c] += static_cast<float>(gk * p[k][3 * i + c]);

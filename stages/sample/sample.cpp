@@ -33,11 +33,11 @@
 namespace ltb::stages {
 
 using namespace ltb::format;
-using sample::Brdf;
+using brdf::ParabolicTable;
 using sample::BuildGeometry;
 using sample::Counters;
 using sample::Geometry;
-using sample::ParabolicTable;
+using sample::PhongLobe;
 using sample::RowPoint;
 using sample::RowScratch;
 using sample::Sampler;
@@ -222,7 +222,7 @@ Result<BareTraceResult> TraceBare(const SampleOptions& o) {
       RowPoint rp = sampler.Primary(row);
       if (!rp.valid) continue;
       uint64_t below = 0, samples_below = 0;
-      const Brdf brdf = sampler.MakeBrdf(rp);
+      const PhongLobe brdf = sampler.MakeBrdf(rp);
       const uint64_t cols = 6ull * p->r * p->r, step = sampler.TexelsPerBatch();
       for (uint64_t c0 = 0; c0 < cols; c0 += step) {  // the same batches RunSample traces
         sampler.GenerateRays(row, rp, brdf, c0, std::min(cols, c0 + step), sc, &below, &samples_below);
@@ -415,8 +415,8 @@ class BufferPool {
 // reads (empty for a diffuse material: its terms 1..K−1 are 0).
 struct FactorPlan {
   uint32_t terms = 0;
-  std::vector<sample::BrdfFactors> factors;
-  std::vector<std::vector<const sample::ParabolicTable*>> tables;
+  std::vector<brdf::BrdfFactors> factors;
+  std::vector<std::vector<const brdf::ParabolicTable*>> tables;
   std::vector<std::pair<std::string, std::vector<double>>> errors;
 };
 
@@ -434,8 +434,8 @@ Result<FactorPlan> PlanFactors(const SampleOptions& o, const Prepared& p, uint32
                              "\"; sample --factor factors the Phong lobe only (the triple-product path renders the "
                              "others: docs/TRIPLE.md)");
     }
-    LTB_ASSIGN_OR_RETURN(plan.factors[m], sample::FactorPhong(mats[m].albedo, mats[m].ks, mats[m].exponent, terms,
-                                                              o.factor_incident_res, o.factor_view_res));
+    LTB_ASSIGN_OR_RETURN(plan.factors[m], brdf::FactorPhong(mats[m].albedo, mats[m].ks, mats[m].exponent, terms,
+                                                            o.factor_incident_res, o.factor_view_res));
     plan.errors.emplace_back(mats[m].name, plan.factors[m].error);
   }
   plan.tables.resize(mats.size());
@@ -458,7 +458,7 @@ void AddFactorMetadata(const SampleOptions& o, const Prepared& p, const FactorPl
   uint32_t view_res = 0;
   for (size_t m = 0; m < p.scene.materials.size(); ++m) {
     const sample::Material& mat = p.scene.materials[m];
-    const sample::BrdfFactors& f = plan.factors[m];
+    const brdf::BrdfFactors& f = plan.factors[m];
     nlohmann::json j = {{"name", mat.name},
                         {"albedo", mat.albedo},
                         {"ks", mat.ks},
@@ -467,7 +467,7 @@ void AddFactorMetadata(const SampleOptions& o, const Prepared& p, const FactorPl
     if (!f.g.empty()) {
       view_res = f.g.front().res;
       nlohmann::json g = nlohmann::json::array();
-      for (const sample::ParabolicTable& t : f.g) g.push_back(FloatsToBase64(t.value));
+      for (const brdf::ParabolicTable& t : f.g) g.push_back(FloatsToBase64(t.value));
       j["g"] = g;
       j["error"] = f.error;
     }

@@ -93,7 +93,7 @@ inline uint64_t Mix(uint64_t z) {
 // The glossy lobe max(0, r·d)^e of slots [0, n) into gl, from x = max(0, r·d) in pw
 // (overwritten), by squaring over the exponent's bits in the outer loop so the lane loops
 // vectorise.
-void GlossyLobe(const Brdf& brdf, RowScratch& sc, size_t n) {
+void GlossyLobe(const PhongLobe& brdf, RowScratch& sc, size_t n) {
   double* __restrict gl = sc.gl.data();
   double* __restrict x = sc.pw.data();
   if (brdf.int_exponent >= 0) {
@@ -122,7 +122,7 @@ inline void Splat(T* __restrict p, T x, uint64_t spp) {
 
 }  // namespace
 
-double Brdf::Eval(const glm::dvec3& w) const {
+double PhongLobe::Eval(const glm::dvec3& w) const {
   double f = diffuse;
   if (ks_norm > 0) {
     double c = glm::dot(reflect, w);
@@ -171,12 +171,12 @@ RowPoint Sampler::Primary(uint64_t row) const {
 
 uint64_t Sampler::TexelsPerBatch() const { return std::max<uint64_t>(1, kBatchRays / spp_); }
 
-Brdf Sampler::MakeBrdf(const RowPoint& rp) const {
+PhongLobe Sampler::MakeBrdf(const RowPoint& rp) const {
   const Material& m = s_.materials[rp.material];
   // Vertex colours multiply the albedo in a channel's bake; the monochrome bake leaves
   // them to the reflectance table (docs/COLOUR.md).
   const double albedo = s_.channel >= 0 ? m.albedo * rp.colour[s_.channel] : m.albedo;
-  Brdf brdf{albedo / M_PI, 0, m.exponent, {}};
+  PhongLobe brdf{albedo / M_PI, 0, m.exponent, {}};
   if (s_.mode == SceneDesc::Mode::kImage && m.ks > 0) {
     brdf.ks_norm = m.ks * (m.exponent + 2) / (2 * M_PI);
     brdf.reflect = 2 * glm::dot(rp.n, rp.wo) * rp.n - rp.wo;
@@ -185,8 +185,8 @@ Brdf Sampler::MakeBrdf(const RowPoint& rp) const {
   return brdf;
 }
 
-void Sampler::GenerateRays(uint64_t row, const RowPoint& rp, const Brdf& brdf, uint64_t c0, uint64_t c1, RowScratch& sc,
-                           uint64_t* below, uint64_t* samples_below, const uint8_t* select) const {
+void Sampler::GenerateRays(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, uint64_t c0, uint64_t c1,
+                           RowScratch& sc, uint64_t* below, uint64_t* samples_below, const uint8_t* select) const {
   if (spp_ == 4) {
     GenerateRaysT<4>(row, rp, brdf, c0, c1, sc, below, samples_below, select);
   } else {
@@ -195,7 +195,7 @@ void Sampler::GenerateRays(uint64_t row, const RowPoint& rp, const Brdf& brdf, u
 }
 
 template <uint32_t kSpp>
-void Sampler::GenerateRaysT(uint64_t row, const RowPoint& rp, const Brdf& brdf, uint64_t c0, uint64_t c1,
+void Sampler::GenerateRaysT(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, uint64_t c0, uint64_t c1,
                             RowScratch& sc, uint64_t* below, uint64_t* samples_below, const uint8_t* select) const {
   const uint64_t spp = kSpp ? kSpp : spp_;
   const uint64_t slots = (c1 - c0) * spp;
@@ -294,8 +294,8 @@ void Sampler::GenerateRaysT(uint64_t row, const RowPoint& rp, const Brdf& brdf, 
 // BRDF the value waits for the lobe (wc and x = max(0, r·d) are kept).
 // SplitMix64 is counter-based: draw k of the (row, texel) stream is Mix(s0 + (k+2)·G).
 template <uint32_t kSpp, int kKind>
-void Sampler::DirectionsT(size_t n0, size_t n1, double na, double nb, double nc, const TexelInfo& t, const Brdf& brdf,
-                          RowScratch& sc) const {
+void Sampler::DirectionsT(size_t n0, size_t n1, double na, double nb, double nc, const TexelInfo& t,
+                          const PhongLobe& brdf, RowScratch& sc) const {
   const uint64_t spp = kSpp ? kSpp : spp_;
   const double h = 2.0 / r_, hx = h / kx_, hy = h / ky_;
   const double ax = t.a.x, ay = t.a.y, az = t.a.z, bx = t.b.x, by = t.b.y, bz = t.b.z;
@@ -387,7 +387,7 @@ void Sampler::AccumulateVisibility(const RowScratch& sc, std::vector<double>& ac
 
 void Sampler::Transport(uint64_t row, const RowPoint& rp, float* out, RowScratch& sc, Counters& cnt) const {
   uint64_t below = 0, samples_below = 0, rays = 0;
-  const Brdf brdf = MakeBrdf(rp);
+  const PhongLobe brdf = MakeBrdf(rp);
   const uint64_t cols = texels_.size(), step = TexelsPerBatch();
   std::vector<double>& acc = sc.sum_value;
   acc.assign(cols, 0.0);
@@ -422,10 +422,10 @@ void Sampler::Transport(uint64_t row, const RowPoint& rp, float* out, RowScratch
   cnt.samples_below += samples_below;
 }
 
-Brdf Sampler::MakeBrdfChannel(const RowPoint& rp, int c) const {
+PhongLobe Sampler::MakeBrdfChannel(const RowPoint& rp, int c) const {
   const Material& m = s_.materials[rp.material];
   const double albedo = m.albedo_rgb[c] * rp.colour[c];  // ChannelScene's m.albedo · the vertex colour
-  Brdf brdf{albedo / M_PI, 0, m.exponent, {}};
+  PhongLobe brdf{albedo / M_PI, 0, m.exponent, {}};
   if (s_.mode == SceneDesc::Mode::kImage && m.ks_rgb[c] > 0) {
     brdf.ks_norm = m.ks_rgb[c] * (m.exponent + 2) / (2 * M_PI);
     brdf.reflect = 2 * glm::dot(rp.n, rp.wo) * rp.n - rp.wo;
@@ -438,13 +438,13 @@ void Sampler::TransportChannels(uint64_t row, const RowPoint& rp, float* const* 
                                 Counters& cnt) const {
   const uint64_t cols = texels_.size(), step = TexelsPerBatch();
   uint64_t below = 0, samples_below = 0, rays = 0;
-  Brdf b[3];
+  PhongLobe b[3];
   int glossy = -1;  // a channel whose lobe the rays are generated with (the lobe's shape is shared)
   for (int c = 0; c < 3; ++c) {
     b[c] = MakeBrdfChannel(rp, c);
     if (b[c].ks_norm > 0) glossy = c;
   }
-  Brdf gen = glossy >= 0 ? b[glossy] : b[0];
+  PhongLobe gen = glossy >= 0 ? b[glossy] : b[0];
   if (glossy < 0) gen.diffuse = 1.0;  // ray values w·cos; ·diffuse_c is Transport's product, bit for bit
   std::vector<double>& acc = sc.sum_value;
   acc.assign(cols * 3, 0.0);  // channel c at [c·cols, (c+1)·cols)
@@ -484,7 +484,7 @@ void Sampler::TransportChannels(uint64_t row, const RowPoint& rp, float* const* 
   cnt.samples_below += samples_below;
 }
 
-uint64_t Sampler::IndirectChannels(uint64_t row, const RowPoint& rp, const Brdf* brdf, const glm::dvec3& origin,
+uint64_t Sampler::IndirectChannels(uint64_t row, const RowPoint& rp, const PhongLobe* brdf, const glm::dvec3& origin,
                                    uint64_t paths, double* const* acc) const {
   const uint64_t cols = texels_.size();
   uint64_t rays = 0;
@@ -523,18 +523,18 @@ uint64_t Sampler::IndirectChannels(uint64_t row, const RowPoint& rp, const Brdf*
   return rays;
 }
 
-void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vector<const ParabolicTable*>& f,
+void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vector<const brdf::ParabolicTable*>& f,
                                 float* const* out, RowScratch& sc, Counters& cnt) const {
   const size_t terms = f.size() + 1;
   const uint64_t cols = texels_.size(), step = TexelsPerBatch();
   uint64_t below = 0, samples_below = 0, rays = 0;
-  Brdf unit = MakeBrdf(rp);
+  PhongLobe unit = MakeBrdf(rp);
   const double diffuse = unit.diffuse;
   unit.diffuse = 1.0;  // ray values w·cos (w·cos·1.0, then ·diffuse: Transport's product, bit for bit)
   std::vector<double>& acc = sc.sum_value;
   acc.assign(cols * terms, 0.0);  // term k at [k·cols, (k+1)·cols)
   glm::dvec3 t, b;
-  TangentFrame(rp.n, &t, &b);
+  brdf::TangentFrame(rp.n, &t, &b);
   const uint32_t res = f.empty() ? 0 : f.front()->res;
   for (uint64_t c0 = 0; c0 < cols; c0 += step) {
     GenerateRays(row, rp, unit, c0, std::min(cols, c0 + step), sc, &below, &samples_below);
@@ -550,7 +550,7 @@ void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vec
         if (tf[slot] < 0) continue;  // occluded, or below the horizon
         s0 += val[slot] * diffuse;
         const glm::dvec3 d(sc.batch.dir_x[slot], sc.batch.dir_y[slot], sc.batch.dir_z[slot]);
-        const ParabolicCoords pc(res, glm::dvec3(glm::dot(t, d), glm::dot(b, d), glm::dot(rp.n, d)));
+        const brdf::ParabolicCoords pc(res, glm::dvec3(glm::dot(t, d), glm::dot(b, d), glm::dot(rp.n, d)));
         for (size_t k = 1; k < terms; ++k) acc[k * cols + c] += val[slot] * f[k - 1]->At(pc);
       }
       acc[c] = s0;
@@ -568,7 +568,7 @@ void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vec
 uint64_t Sampler::DirectSelected(uint64_t row, const RowPoint& rp, const uint8_t* select, double* out,
                                  RowScratch& sc) const {
   uint64_t below = 0, samples_below = 0, rays = 0;
-  const Brdf brdf = MakeBrdf(rp);
+  const PhongLobe brdf = MakeBrdf(rp);
   const uint64_t cols = texels_.size(), step = TexelsPerBatch();
   std::vector<double>& acc = sc.sum_value;
   acc.assign(cols, 0.0);
@@ -593,7 +593,7 @@ uint64_t Sampler::DirectSelected(uint64_t row, const RowPoint& rp, const uint8_t
 
 void Sampler::Unoccluded(uint64_t row, const RowPoint& rp, double* out, RowScratch& sc) const {
   uint64_t below = 0, samples_below = 0;
-  const Brdf brdf = MakeBrdf(rp);
+  const PhongLobe brdf = MakeBrdf(rp);
   const uint64_t cols = texels_.size(), step = TexelsPerBatch();
   std::vector<double>& acc = sc.sum_value;
   acc.assign(cols, 0.0);
@@ -611,8 +611,8 @@ uint64_t Sampler::IndirectTerm(uint64_t row, const RowPoint& rp, uint64_t paths,
 
 // Paths that bounce at least once before escaping; each escaping path adds its
 // throughput to the texel it leaves through. Diffuse at the bounces.
-uint64_t Sampler::Indirect(uint64_t row, const RowPoint& rp, const Brdf& brdf, const glm::dvec3& origin, uint64_t paths,
-                           double* acc) const {
+uint64_t Sampler::Indirect(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, const glm::dvec3& origin,
+                           uint64_t paths, double* acc) const {
   const uint64_t cols = texels_.size();
   uint64_t rays = 0;
   for (uint64_t k = 0; k < paths; ++k) {

@@ -11,8 +11,8 @@
 #include <glm/vec3.hpp>
 #include <vector>
 
+#include "stages/brdf/brdf_factor.h"
 #include "stages/mesh/triangle_mesh.h"
-#include "stages/sample/brdf_factor.h"
 #include "stages/sample/ray_scene.h"
 #include "stages/sample/scene.h"
 #include "stages/sample/scene_geometry.h"
@@ -27,7 +27,9 @@ struct TexelInfo {
   double cos_limit;  // skip the texel when n·centre < cos_limit (wholly below the horizon)
 };
 
-struct Brdf {
+// A row point's Phong lobe as the sampler evaluates it per ray (the BRDF model itself is
+// stages/brdf).
+struct PhongLobe {
   double diffuse;  // albedo / π
   double ks_norm;  // ks (n+2) / (2π), 0 when not glossy
   double exponent;
@@ -72,12 +74,12 @@ class Sampler {
   // being generated and being traced.
   uint64_t TexelsPerBatch() const;
 
-  Brdf MakeBrdf(const RowPoint& rp) const;
+  PhongLobe MakeBrdf(const RowPoint& rp) const;
 
   // The occlusion rays of texels [c0, c1) of one row (a valid point) into sc, with each
   // ray's value w·f·cos; texels wholly below the horizon get none, nor (when select is
   // given) texels c with select[c] == 0. *below counts the texels that got no rays.
-  void GenerateRays(uint64_t row, const RowPoint& rp, const Brdf& brdf, uint64_t c0, uint64_t c1, RowScratch& sc,
+  void GenerateRays(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, uint64_t c0, uint64_t c1, RowScratch& sc,
                     uint64_t* below, uint64_t* samples_below, const uint8_t* select = nullptr) const;
 
   // Sums of the unoccluded rays' values into acc, per texel in stratum order (the order
@@ -98,7 +100,7 @@ class Sampler {
   // set of rays: out[0] exactly what Transport writes (the diffuse part), out[k] for
   // k = 1..K−1 the texels' ∫ V·cos·f_k(ω in the row's tangent frame) dω, f[k] the incident
   // factor tables of the row's material (f_k / cos θ). bounces must be 0.
-  void TransportFactored(uint64_t row, const RowPoint& rp, const std::vector<const ParabolicTable*>& f,
+  void TransportFactored(uint64_t row, const RowPoint& rp, const std::vector<const brdf::ParabolicTable*>& f,
                          float* const* out, RowScratch& sc, Counters& cnt) const;
 
   // Sparse sampling (docs/SPARSE.md). The direct term of the texels c with select[c] != 0
@@ -126,25 +128,25 @@ class Sampler {
  private:
   // kSpp: spp_ when known at compile time (the common 4), else 0.
   template <uint32_t kSpp>
-  void GenerateRaysT(uint64_t row, const RowPoint& rp, const Brdf& brdf, uint64_t c0, uint64_t c1, RowScratch& sc,
+  void GenerateRaysT(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, uint64_t c0, uint64_t c1, RowScratch& sc,
                      uint64_t* below, uint64_t* samples_below, const uint8_t* select) const;
   // kKind: what a ray's value is — kDiffuse w·cos·albedo/π, kGlossy w·cos (the lobe follows),
   // kSolidAngle w alone (visibility).
   enum Kind : int { kDiffuse = 0, kGlossy = 1, kSolidAngle = 2 };
   template <uint32_t kSpp, int kKind>
-  void DirectionsT(size_t n0, size_t n1, double na, double nb, double nc, const TexelInfo& t, const Brdf& brdf,
+  void DirectionsT(size_t n0, size_t n1, double na, double nb, double nc, const TexelInfo& t, const PhongLobe& brdf,
                    RowScratch& sc) const;
   template <uint32_t kSpp>
   void AccumulateT(const RowScratch& sc, std::vector<double>& acc) const;
   // Visibility mode: per texel of the batch, Σ w of its unoccluded samples into acc and Σ w
   // of all its samples (below the horizon included) into total.
   void AccumulateVisibility(const RowScratch& sc, std::vector<double>& acc, std::vector<double>& total) const;
-  uint64_t Indirect(uint64_t row, const RowPoint& rp, const Brdf& brdf, const glm::dvec3& origin, uint64_t paths,
+  uint64_t Indirect(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, const glm::dvec3& origin, uint64_t paths,
                     double* acc) const;
   // Channel c's BRDF at a row point (MakeBrdf of ChannelScene(scene, c)).
-  Brdf MakeBrdfChannel(const RowPoint& rp, int c) const;
+  PhongLobe MakeBrdfChannel(const RowPoint& rp, int c) const;
   // Indirect for the three channels from the same paths: acc[c] gains channel c's.
-  uint64_t IndirectChannels(uint64_t row, const RowPoint& rp, const Brdf* brdf, const glm::dvec3& origin,
+  uint64_t IndirectChannels(uint64_t row, const RowPoint& rp, const PhongLobe* brdf, const glm::dvec3& origin,
                             uint64_t paths, double* const* acc) const;
 
   const SceneDesc& s_;

@@ -17,7 +17,7 @@
 
 #include "format/status.h"
 
-namespace ltb::sample {
+namespace ltb::brdf {
 
 // A unit normal's tangent frame (t, b, n), the same function at bake and at render: any
 // frame does for an isotropic BRDF, as long as both use it (Duff et al. 2017, branchless).
@@ -67,4 +67,4 @@ double PhongCos(double albedo, double ks, double exponent, const glm::dvec3& w, 
 Result<BrdfFactors> FactorPhong(double albedo, double ks, double exponent, uint32_t terms, uint32_t incident_res = 96,
                                 uint32_t view_res = 32);
 
-}  // namespace ltb::sample
+}  // namespace ltb::brdf

@@ -1,8 +1,8 @@
-// The BRDF in-out factorisation's pieces (stages/sample/brdf_factor.h) and the base64 of its
+// The BRDF in-out factorisation's pieces (stages/brdf/brdf_factor.h) and the base64 of its
 // view tables (stages/common/base64.h), against closed forms: RFC 4648's test vectors, an
 // orthonormal frame, the hemisphere's solid angle 2π, a Lambertian BRDF's exact rank one,
 // and the reported errors against the residual measured on the grid the SVD used.
-#include "stages/sample/brdf_factor.h"
+#include "stages/brdf/brdf_factor.h"
 
 #include <gtest/gtest.h>
 
@@ -13,7 +13,7 @@
 
 #include "stages/common/base64.h"
 
-namespace ltb::sample {
+namespace ltb::brdf {
 namespace {
 
 TEST(Base64, Rfc4648Vectors) {
@@ -121,4 +121,4 @@ TEST(BrdfFactor, ReportedErrorIsTheGridResidual) {
 }
 
 }  // namespace
-}  // namespace ltb::sample
+}  // namespace ltb::brdf

@@ -1,11 +1,11 @@
-#include "stages/sample/brdf_factor.h"
+#include "stages/brdf/brdf_factor.h"
 
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <glm/geometric.hpp>
 
-namespace ltb::sample {
+namespace ltb::brdf {
 
 void TangentFrame(const glm::dvec3& n, glm::dvec3* t, glm::dvec3* b) {
   const double sign = std::copysign(1.0, n.z);
@@ -179,4 +179,4 @@ Result<BrdfFactors> FactorPhong(double albedo, double ks, double exponent, uint3
   return out;
 }
 
-}  // namespace ltb::sample
+}  // namespace ltb::brdf
