@@ -16,6 +16,7 @@
 #include "stages/relight/environment.h"
 #include "stages/relight/image_io.h"
 #include "stages/relight/relight_matrix.h"
+#include "stages/sample/camera.h"
 #include "stages/sample/scene.h"
 #include "stages/sample/scene_geometry.h"
 #include "stages/triple/render.h"
@@ -106,7 +107,7 @@ Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progres
   auto t0 = Clock::now();
   LTB_RETURN_IF_ERROR(sample::ValidateView(o.eye, o.target, o.up, o.fov_degrees)
                           .WithContext("the view (--eye, --target, --up, --fov)"));
-  LTB_RETURN_IF_ERROR(triple::CheckViewMemory(o.width, o.height, o.mem_limit));
+  LTB_RETURN_IF_ERROR(sample::CheckViewMemory(o.width, o.height, o.mem_limit));
   LTB_ASSIGN_OR_RETURN(std::vector<SetMember> members, ChannelFiles(o.set));
   if (members.empty() || members.front().name != "k0") {
     return InvalidArgument(o.set +
@@ -180,22 +181,22 @@ Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progres
   if (o.orbit_frames > 0 && !o.output.empty()) LTB_RETURN_IF_ERROR(triple::FramePath(o.output, 0).status());
   GlossyViewResult result;
   std::vector<float> b, image;
-  std::vector<triple::PixelHit> hits;
+  std::vector<sample::PixelHit> hits;
   std::vector<double> ms;
   for (uint32_t f = 0; f < frames; ++f) {
     if (progress.Cancelled()) return Cancelled("interrupted between frames; the frames written are kept");
-    const glm::dvec3 eye = triple::OrbitEye(o.eye, o.target, o.orbit_deg, f);
+    const glm::dvec3 eye = sample::OrbitEye(o.eye, o.target, o.orbit_deg, f);
     auto a = Clock::now();
     VertexRadiance(geo, vf, p, used, eye, o.jobs, &b);
     auto camera = sample::PinholeCamera::Create(eye, o.target, o.up, o.fov_degrees, o.width, o.height);
     if (!camera.ok()) {
       return camera.status().WithContext("the view (--eye, --target, --up, --fov), frame " + std::to_string(f));
     }
-    LTB_RETURN_IF_ERROR(triple::TracePixels(geo, *camera, o.jobs, &hits));
+    LTB_RETURN_IF_ERROR(sample::TracePixels(geo, *camera, o.jobs, &hits));
     // B interpolated across each hit triangle of a row object; the rest is background.
     image.assign(hits.size() * 3, 0.0f);
     for (size_t px = 0; px < hits.size(); ++px) {
-      const triple::PixelHit& h = hits[px];
+      const sample::PixelHit& h = hits[px];
       if (h.geom < 0 || static_cast<uint64_t>(h.geom) >= geo.row_meshes.size()) continue;
       const sample::Geometry::RowMesh& rm = geo.row_meshes[static_cast<size_t>(h.geom)];
       if (h.prim >= rm.triangles.size()) continue;  // not a row object

@@ -646,52 +646,7 @@ Status LoadInputs(const RenderOptions& o, const Progress& progress, Renderer& rd
   return Status::Ok();
 }
 
-// The camera's primary hits: per pixel the geometry, triangle and barycentrics (geom = −1: none).
-
 }  // namespace
-
-glm::dvec3 OrbitEye(const glm::dvec3& eye, const glm::dvec3& target, double deg_per_frame, uint32_t k) {
-  const double angle = glm::radians(deg_per_frame * k);
-  const glm::dvec3 rel = eye - target;
-  return target + glm::dvec3(rel.x * std::cos(angle) - rel.y * std::sin(angle),
-                             rel.x * std::sin(angle) + rel.y * std::cos(angle), rel.z);
-}
-
-Status CheckViewMemory(uint64_t width, uint64_t height, uint64_t mem_limit) {
-  const uint64_t pixels = width * height;  // both at most 2^16 (the size parser's limit)
-  if (mem_limit == 0 || pixels <= mem_limit / kViewBytesPerPixel) return Status::Ok();
-  const uint64_t side = static_cast<uint64_t>(std::sqrt(static_cast<double>(mem_limit / kViewBytesPerPixel)));
-  auto mib = [](uint64_t bytes) {
-    char b[48];
-    std::snprintf(b, sizeof b, "%.1f MiB", static_cast<double>(bytes) / (1 << 20));
-    return std::string(b);
-  };
-  return InvalidArgument("--size " + std::to_string(width) + "x" + std::to_string(height) + " needs about " +
-                         mib(pixels * kViewBytesPerPixel) + " of image buffers (" + std::to_string(kViewBytesPerPixel) +
-                         " bytes a pixel), over --mem-limit " + mib(mem_limit) +
-                         "; the largest square view that fits is " + std::to_string(side) + "x" + std::to_string(side) +
-                         ": lower --size or raise --mem-limit");
-}
-
-Status TracePixels(const sample::Geometry& geo, const sample::PinholeCamera& camera, int jobs,
-                   std::vector<PixelHit>* hits) {
-  hits->assign(camera.width() * camera.height(), PixelHit{});
-  std::vector<uint64_t> lines(camera.height());
-  std::iota(lines.begin(), lines.end(), 0);
-  LTB_RETURN_IF_ERROR(stages::ParallelFor(lines, jobs, Progress{}, "lines", [&](uint64_t y) -> Status {
-    for (uint64_t x = 0; x < camera.width(); ++x) {
-      const sample::Hit h = geo.rays->Intersect(camera.eye(), camera.Direction(x, y));
-      if (!h.hit) continue;
-      PixelHit& ph = (*hits)[y * camera.width() + x];
-      ph.geom = h.geom_id;
-      ph.prim = h.prim_id;
-      ph.u = static_cast<float>(h.u);
-      ph.v = static_cast<float>(h.v);
-    }
-    return Status::Ok();
-  }));
-  return geo.rays->error();
-}
 
 Result<std::string> FramePath(const std::string& pattern, uint32_t k) {
   const size_t pct = pattern.find('%');
@@ -718,7 +673,7 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
   }
   LTB_RETURN_IF_ERROR(sample::ValidateView(o.eye, o.target, o.up, o.fov_degrees)
                           .WithContext("the view (--eye, --target, --up, --fov)"));
-  LTB_RETURN_IF_ERROR(CheckViewMemory(o.width, o.height, o.mem_limit));
+  LTB_RETURN_IF_ERROR(sample::CheckViewMemory(o.width, o.height, o.mem_limit));
   if (o.light_terms == 0) return InvalidArgument("--terms must be at least 1 (or all)");
   const uint32_t frames = std::max<uint32_t>(1, o.orbit_frames);
   if (o.orbit_frames > 0 && !o.output.empty()) LTB_RETURN_IF_ERROR(FramePath(o.output, 0).status());
@@ -811,22 +766,22 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
     result.vertex_values = values;
   }
   const uint64_t pixels = uint64_t{o.width} * o.height;
-  std::vector<PixelHit> hits;
+  std::vector<sample::PixelHit> hits;
   std::vector<float> image(pixels * 3);
   // Frames are rendered unless only the vertex values were asked for.
   const uint32_t rendered = o.output.empty() && !o.vertex_output.empty() ? 0 : frames;
   for (uint32_t k = 0; k < rendered; ++k) {
     if (progress.Cancelled()) return Cancelled("interrupted between frames; the frames written are kept");
-    const glm::dvec3 eye = OrbitEye(o.eye, o.target, o.orbit_deg, k);
+    const glm::dvec3 eye = sample::OrbitEye(o.eye, o.target, o.orbit_deg, k);
     auto a = Clock::now();
     auto camera = sample::PinholeCamera::Create(eye, o.target, o.up, o.fov_degrees, o.width, o.height);
     if (!camera.ok()) {
       return camera.status().WithContext("the view (--eye, --target, --up, --fov), frame " + std::to_string(k));
     }
-    LTB_RETURN_IF_ERROR(TracePixels(rd.geo, *camera, o.jobs, &hits));
+    LTB_RETURN_IF_ERROR(sample::TracePixels(rd.geo, *camera, o.jobs, &hits));
     std::fill(needed.begin(), needed.end(), 0);
     uint64_t hit_pixels = 0, unshaded = 0;
-    for (const PixelHit& h : hits) {
+    for (const sample::PixelHit& h : hits) {
       if (h.geom < 0) continue;
       ++hit_pixels;
       const sample::Geometry::RowMesh& m = rd.geo.row_meshes[static_cast<size_t>(h.geom)];
@@ -843,7 +798,7 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
     LTB_RETURN_IF_ERROR(evaluate(eye));
     auto c = Clock::now();
     for (uint64_t p = 0; p < pixels; ++p) {
-      const PixelHit& h = hits[p];
+      const sample::PixelHit& h = hits[p];
       float rgb[3] = {0, 0, 0};
       if (h.geom >= 0) {
         const sample::Geometry::RowMesh& m = rd.geo.row_meshes[static_cast<size_t>(h.geom)];

@@ -21,11 +21,6 @@
 #include "format/status.h"
 #include "stages/relight/envmap.h"
 
-namespace ltb::sample {
-struct Geometry;
-class PinholeCamera;
-}  // namespace ltb::sample
-
 namespace ltb::triple {
 
 enum class TripleMethod {
@@ -72,28 +67,6 @@ struct RenderResult {
 };
 
 Result<RenderResult> RunTripleRender(const RenderOptions& options, const Progress& progress);
-
-// What a pixel's primary ray hit: the Embree geometry (−1: nothing), the triangle and the
-// barycentrics.
-struct PixelHit {
-  int64_t geom = -1;
-  uint32_t prim = 0;
-  float u = 0, v = 0;
-};
-// The memory a view of width x height pixels takes in the renderers (the hit of each pixel,
-// its RGB value and the writer's buffers), measured: 48 bytes a pixel (a 16384² glossy view
-// took 12.0 GiB, an 8192² triple one 3.0 GiB). kInvalidArgument when that is over mem_limit
-// (0: no limit), naming the size, the bytes it needs and the largest square view that fits.
-inline constexpr uint64_t kViewBytesPerPixel = 48;
-Status CheckViewMemory(uint64_t width, uint64_t height, uint64_t mem_limit);
-
-// One primary ray per pixel through the camera, lines in parallel (the triple-product and
-// the factored-bake views).
-Status TracePixels(const sample::Geometry& geo, const sample::PinholeCamera& camera, int jobs,
-                   std::vector<PixelHit>* hits);
-// Frame k of an orbit: the eye turned by k·deg_per_frame degrees about the +Z axis through
-// the target.
-glm::dvec3 OrbitEye(const glm::dvec3& eye, const glm::dvec3& target, double deg_per_frame, uint32_t k);
 
 // "name_%04d.png" with frame k: the one integer conversion of an orbit's -o pattern (an
 // error that shows one when there is none).
