@@ -4,9 +4,9 @@
 #include <cmath>
 #include <cstdio>
 #include <glm/geometric.hpp>
+#include <numbers>
 #include <string>
 #include <vector>
-#include <numbers>
 
 namespace ltb::brdf {
 
