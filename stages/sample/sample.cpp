@@ -28,7 +28,7 @@
 #include "stages/sample/sampler.h"
 #include "stages/sample/scene.h"
 #include "stages/sample/scene_geometry.h"
-#include "stages/triple/haar_triple.h"
+#include "stages/wavelet/haar_face.h"
 
 namespace ltb::stages {
 
@@ -556,7 +556,7 @@ struct BlockSampler {
       matrix_encoding.zstd = o.row_zstd;
     }
     if (o.visibility) {  // each row's V, Haar-transformed per face; stored sparse
-      triple::HaarRowsInPlace(mat, n, p.r);
+      wavelet::HaarRowsInPlace(mat, n, p.r);
       matrix_encoding.sparse = true;
       matrix_encoding.zstd = true;
     }

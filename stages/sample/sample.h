@@ -54,7 +54,7 @@ struct SampleOptions {
   // The visibility field of the triple-product path (docs/TRIPLE.md) instead of T: vertex
   // mode only, no bounces, no fused row-transform; each row is V(x, ω) per texel (the
   // fraction of the texel's solid angle above the horizon and unoccluded), Haar-transformed
-  // per face in the layout of stages/triple/haar_triple.h and stored sparse + zstd.
+  // per face in the layout of stages/wavelet/haar_face.h and stored sparse + zstd.
   bool visibility = false;
   // Write shard `index` of `count` (io::ShardPath(output, ...)) instead of the whole output.
   io::ShardSpec shard;
