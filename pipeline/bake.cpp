@@ -135,8 +135,9 @@ bool Bake::BeforeFrom(const Node& n) const {
   return true;
 }
 
-// Steps that ray-cast the scene file: their output depends on its (and its meshes') hash.
-bool ReadsScene(const Node& n) { return n.stages.front() == "sample" || n.stages.front() == "visibility"; }
+// Steps that ray-cast the scene file (the stage table's reads_scene): their output depends
+// on its (and its meshes') hash.
+bool ReadsScene(const Node& n) { return pipeline::ReadsScene(n.stages); }
 
 bool Bake::Forced(const Node& n) const {
   for (const auto& s : n.stages)

@@ -94,12 +94,10 @@ Status AddTripleNodes(const Recipe& r, const std::string& stage,
 // every member (relight takes the set).
 void ExpandSet(const std::function<std::string(const std::string&)>& path, const std::vector<std::string>& names,
                const std::function<std::vector<std::string>(size_t)>& sample_args, Graph* g) {
-  static const std::set<std::string> kPerMember = {"sample",           "row-transform", "transpose",
-                                                   "column-transform", "quantize",      "cpca"};
   auto per_member = [&](const Node& n) {
     if (n.image || n.stages.empty() || n.params.contains("visibility")) return false;
     for (const std::string& s : n.stages)
-      if (!kPerMember.count(s)) return false;
+      if (const StageInfo* info = FindStage(s); info == nullptr || !info->per_set_member) return false;
     return true;
   };
   std::set<std::string> split;  // work files made per member

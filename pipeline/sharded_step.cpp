@@ -10,6 +10,7 @@
 #include "format/io/manifest.h"
 #include "pipeline/process.h"
 #include "pipeline/shards.h"
+#include "pipeline/stage_table.h"
 
 namespace ltb::pipeline {
 namespace {
@@ -94,9 +95,10 @@ StepEnd RunShardedStep(const BakeOptions& o, const ShardedStepInput& in, json& e
   stage.insert(stage.end(), n.args.begin(), n.args.end());
   stage.insert(stage.end(), {"-o", in.output, "--mem-limit", o.mem_limit, "--progress", "never"});
   if (in.overwrite) stage.push_back("--overwrite");
-  // A transpose shard reads a slice of every row block; its checksum pass would read all
-  // of them, in every shard. The commit of its input has just checked every checksum.
-  if (n.stages.front() == "transpose") stage.push_back("--no-verify-input");
+  // The stage's own shard flags (the stage table's shard_args).
+  if (const StageInfo* info = FindStage(n.stages.front())) {
+    for (std::string_view a : info->shard_args) stage.emplace_back(a);
+  }
   e["engine"] = o.cluster.engine;
   e["nshards"] = count;
   e["command"] = ShellQuote(stage) + " --shard I --nshards " + std::to_string(count) + " --jobs J";

@@ -130,28 +130,46 @@ StageCommand Visibility(const Recipe& r, const StageContext& ctx) {
 
 const std::vector<StageInfo>& StageTable() {
   static const std::vector<StageInfo> table = {
-      {"sample", "raw.ltm", {}, true, "ray-cast the transport matrix of the scene (Embree)", Sample},
-      {"row-transform", "rows.ltm", {"sample"}, true, "2D wavelets per cube face along each row", RowTransform},
-      {"transpose", "cols.ltm", {"row-transform"}, true, "row blocks to column blocks, out of core", Transpose},
+      {"sample", "raw.ltm", {}, true, "ray-cast the transport matrix of the scene (Embree)", Sample, true, true},
+      {"row-transform", "rows.ltm", {"sample"}, true, "2D wavelets per cube face along each row", RowTransform, true},
+      // A transpose shard reads a slice of every row block; its checksum pass would read all
+      // of them, in every shard. The commit of its input has just checked every checksum.
+      {"transpose",
+       "cols.ltm",
+       {"row-transform"},
+       true,
+       "row blocks to column blocks, out of core",
+       Transpose,
+       true,
+       false,
+       {"--no-verify-input"}},
       {"column-transform",
        "cols4d.ltm",
        {"transpose"},
        true,
        "adaptive 4D: each column image at its best depth, its largest terms kept",
-       ColumnTransform},
-      {"quantize", "final.ltm", {"column-transform"}, true, "quantize the kept coefficients", Quantize},
-      {"cpca", "cpca.ltm", {"row-transform"}, false, "clustered PCA of the row-transformed matrix", Cpca},
+       ColumnTransform,
+       true},
+      {"quantize", "final.ltm", {"column-transform"}, true, "quantize the kept coefficients", Quantize, true},
+      {"cpca", "cpca.ltm", {"row-transform"}, false, "clustered PCA of the row-transformed matrix", Cpca, true},
       {"relight", "", {}, false, "relight under each environment map, with its error", nullptr},
       {"visibility",
        "vis.ltm",
        {},
        true,
        "triple products: the visibility field per vertex (sample --visibility)",
-       Visibility},
+       Visibility,
+       false,
+       true},
       {"material", "", {}, false, "triple products: a material field per [triple] materials entry", nullptr},
       {"triple", "", {"visibility", "material"}, false, "triple products: a view of the scene under each map", nullptr},
   };
   return table;
+}
+
+bool ReadsScene(const std::vector<std::string>& stages) {
+  const StageInfo* s = stages.empty() ? nullptr : FindStage(stages.front());
+  return s != nullptr && s->reads_scene;
 }
 
 const StageInfo* FindStage(std::string_view name) {

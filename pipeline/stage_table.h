@@ -39,7 +39,15 @@ struct StageInfo {
   // The step's command from the recipe; empty for relight and triple (one step per map) and
   // material (one per material), built by the graph.
   std::function<StageCommand(const Recipe&, const StageContext&)> command;
+  // A colour or factor set (docs/COLOUR.md, docs/GLOSSY.md) runs one step per member file.
+  bool per_set_member = false;
+  // Ray-casts the scene file: its step depends on the scene's (and its meshes') hash.
+  bool reads_scene = false;
+  // Flags every shard of it gets (docs/cluster.md).
+  std::vector<std::string_view> shard_args = {};
 };
+// Whether the step running `stages` (a node's) reads the scene (its first stage's row says).
+bool ReadsScene(const std::vector<std::string>& stages);
 
 // Every stage, in graph order (an input before the stages that read it).
 const std::vector<StageInfo>& StageTable();

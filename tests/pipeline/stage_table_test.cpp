@@ -59,5 +59,29 @@ TEST(StageTable, DefaultCommandsReadWhatTheirNeedsMake) {
   EXPECT_EQ(StageNeeds(r, "relight"), (std::vector<std::string>{"cpca", "row-transform"}));
 }
 
+// The properties that used to live outside the table (the graph's per-set-member list, the
+// reads-the-scene rule, the shard flags) are the rows' fields, and consistent with the rest
+// of the row.
+TEST(StageTable, SetMembersSceneReadsAndShardFlagsAreFieldsOfTheRows) {
+  std::set<std::string> per_member, scene;
+  for (const StageInfo& s : StageTable()) {
+    if (s.per_set_member) {
+      per_member.insert(std::string(s.name));
+      EXPECT_TRUE(s.command) << s.name << ": a per-member step needs its command from the table";
+      EXPECT_FALSE(s.output.empty()) << s.name << ": a per-member step makes one file a member";
+    }
+    if (s.reads_scene) scene.insert(std::string(s.name));
+    if (!s.shard_args.empty()) EXPECT_TRUE(s.shardable) << s.name << " has shard flags but cannot run as shards";
+  }
+  EXPECT_EQ(per_member,
+            (std::set<std::string>{"sample", "row-transform", "transpose", "column-transform", "quantize", "cpca"}));
+  EXPECT_EQ(scene, (std::set<std::string>{"sample", "visibility"}));
+  EXPECT_TRUE(ReadsScene({"sample", "row-transform"}));  // the fused step
+  EXPECT_FALSE(ReadsScene({"transpose"}));
+  EXPECT_FALSE(ReadsScene({}));
+  ASSERT_EQ(FindStage("transpose")->shard_args.size(), 1u);
+  EXPECT_EQ(FindStage("transpose")->shard_args[0], "--no-verify-input");
+}
+
 }  // namespace
 }  // namespace ltb::pipeline
