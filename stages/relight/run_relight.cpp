@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <memory>
 #include <numbers>
 #include <optional>
@@ -19,6 +20,12 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 double Ms(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
+
+std::string Shortest(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%g", v);
+  return buf;
+}
 
 // The frames relight renders, sharing their buffers: `cube` holds the last frame's
 // lighting in the basis, `terms` its kept terms, `image` its output, `fixes` what the
@@ -137,12 +144,25 @@ Status MeasureErrors(const RelightOptions& o, const Environment& env, const Ligh
 
 }  // namespace
 
+Status CheckRelightNumbers(const RelightOptions& o) {
+  if (!(std::fabs(o.rotate_deg) <= RelightOptions::kMaxRotateDegrees)) {
+    return InvalidArgument("--rotate " + Shortest(o.rotate_deg) + ": expected degrees within ±" +
+                           Shortest(RelightOptions::kMaxRotateDegrees));
+  }
+  if (!(o.exposure >= 0 && o.exposure <= kMaxExposure)) {
+    return InvalidArgument("--exposure " + Shortest(o.exposure) + ": expected 0 (automatic) .. " +
+                           Shortest(kMaxExposure));
+  }
+  return Status::Ok();
+}
+
 nlohmann::json TermsJson(uint64_t terms) {
   return terms == RelightOptions::kAllTerms ? nlohmann::json("all") : nlohmann::json(terms);
 }
 
 Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progress) {
   if (o.terms == 0) return InvalidArgument("--terms must be at least 1 (or all)");
+  LTB_RETURN_IF_ERROR(CheckRelightNumbers(o));
   EnvLoadOptions eo;
   eo.clamp = o.clamp_env;
   eo.layout = o.env_layout;
@@ -161,6 +181,10 @@ Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progre
   report["load_matrix_ms"] = Ms(t0, t1);
   report["load_env_ms"] = Ms(t1, t2);
   if (env.clamped()) report["clamped_values"] = env.clamped();
+  if (o.rotate_deg != 0 && !env.rotates()) {
+    return InvalidArgument("--rotate " + Shortest(o.rotate_deg) + ": " + o.env +
+                           " is a cubemap .npy, which cannot rotate; pass the .exr or .hdr map it was converted from");
+  }
   const double rotation = o.rotate_deg * std::numbers::pi / 180.0;
 
   Frames frames(o, env, basis, m);

@@ -80,6 +80,20 @@ with tempfile.TemporaryDirectory() as d:
     for bad in ("0", "-3", "some", "1.5"):
         r = run("relight", p("c0.ltm"), "--env", env, "-o", p("never.npy"), "--terms", bad, expect=2)
         check("--terms" in r.stderr and not os.path.exists(p("never.npy")), f"--terms {bad}: {r.stderr}")
+    # Numbers in flags (stages/common/quantity.h ParseDecimal, which the view server uses too):
+    # non-finite, hexadecimal, trailing text and out-of-range values are usage errors that
+    # name the flag and quote the value, before anything is read or written.
+    for flag, bad in (("--rotate", "nan"), ("--rotate", "inf"), ("--rotate", "-inf"), ("--rotate", "1e20"),
+                      ("--rotate", "0x10"), ("--rotate", "5abc"), ("--rotate", " 5"), ("--exposure", "nan"),
+                      ("--exposure", "inf"), ("--exposure", "-1"), ("--exposure", "1e13")):
+        r = run("relight", p("c0.ltm"), "--env", env, "-o", p("never.png"), flag, bad, expect=2)
+        check(f'{flag}: "{bad}"' in r.stderr and not os.path.exists(p("never.png")), f"{flag} {bad!r}: {r.stderr}")
+    # A cubemap .npy cannot rotate: --rotate with one is refused, not ignored.
+    r = run("relight", p("c0.ltm"), "--env", env, "-o", p("never.npy"), "--rotate", "30", expect=1)
+    check("--rotate 30" in r.stderr and "cannot rotate" in r.stderr and not os.path.exists(p("never.npy")),
+          f"--rotate with a cubemap .npy: {r.stderr}")
+    check(relight(p("c0.ltm"), p("b0r.npy"), "--terms", "all", "--rotate", "0", "--exposure", "2.5e-1") != {},
+          "--rotate 0 --exposure 2.5e-1 should be accepted")
 
     # 2. adaptive (Eq. 8): equals decoded matrix × the same N-term lighting.
     Lw = haar_faces(L, R)
