@@ -172,6 +172,19 @@ with tempfile.TemporaryDirectory() as d:
     np.save(p("bad_nan.npy"), Lbad)
     r = run("relight", p("cq.ltm"), "--env", p("bad_nan.npy"), "-o", p("x.npy"), expect=1)
     check("texel 5 channel 1" in r.stderr, f"NaN texel should be named: {r.stderr}")
+    # A tiny negative texel (what `convert`'s cancellation used to write) is named in full, not
+    # as -0.000000, and --clamp applies to a cubemap .npy as to a map: the texel becomes 0.
+    Lneg = L.copy()
+    Lneg[9, 2] = -5.551115123125783e-17
+    np.save(p("neg.npy"), Lneg)
+    r = run("relight", p("c0.ltm"), "--env", p("neg.npy"), "-o", p("x.npy"), expect=1)
+    check("texel 9 channel 2 is -5.55111512e-17 (negative)" in r.stderr and "--clamp" in r.stderr,
+          f"a negative texel should be named in full with the fix: {r.stderr}")
+    rep = json.loads(run("relight", p("c0.ltm"), "--env", p("neg.npy"), "-o", p("bneg.npy"), "--terms", "all", "--clamp",
+                         "--json", *q).stdout or "{}")
+    want = T.astype(np.float64) @ np.maximum(Lneg, 0).astype(np.float64)
+    err = np.abs(np.load(p("bneg.npy")) - want).max() / np.abs(want).max() if os.path.exists(p("bneg.npy")) else 1
+    check(rep.get("clamped_values") == 1 and err < 1e-5, f"--clamp with a cubemap .npy: {rep}, error {err}")
     r = run("relight", p("cq.ltm"), "--env", env, "-o", p("x.png"), "--weighting", "sideways", expect=2)
     r = run("relight", p("cols.ltm"), "--env", env, "-o", p("x.npy"), "--mem-limit", "10KiB", expect=1)
     check("--mem-limit" in r.stderr, f"a matrix over --mem-limit should be refused naming it: {r.stderr}")

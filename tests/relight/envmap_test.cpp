@@ -38,6 +38,7 @@
 
 #include "format/npy.h"
 #include "stages/common/cubemap.h"
+#include "stages/relight/environment.h"
 #include "stages/relight/relight.h"
 
 namespace ltb::stages {
@@ -1025,6 +1026,58 @@ TEST_F(EnvMapTest, CubemapNpyIsCheckedAgainstTheFile) {
       << shape.status().message();
   auto big_r = ReadCubemapNpy(write("r.npy", "<f4", {n, 3}, n * 12), uint64_t(1) << 33);
   ASSERT_FALSE(big_r.ok());
+}
+
+TEST_F(EnvMapTest, CubemapNpyValuesAreNamedInFullOrClampedLikeMaps) {
+  // A float64 cubemap holding what a map may not: a tiny negative (what cancellation used to
+  // leave in `convert`'s output), NaN, ±Inf and a finite value beyond float32's range.
+  const uint64_t R = 2, n = 6 * R * R;
+  std::vector<double> v(n * 3, 0.25);
+  v[7] = -5.5511151231257827e-17;
+  v[8] = std::nan("");
+  v[20] = std::numeric_limits<double>::infinity();
+  v[21] = -std::numeric_limits<double>::infinity();
+  v[30] = 1e39;
+  v[31] = -2.0;
+  std::vector<std::byte> h = format::EncodeNpyHeader("<f8", {n, 3});
+  {
+    std::ofstream f(Path("bad.npy"), std::ios::binary);
+    f.write(reinterpret_cast<const char*>(h.data()), std::streamsize(h.size()));
+    f.write(reinterpret_cast<const char*>(v.data()), std::streamsize(v.size() * sizeof(double)));
+  }
+  auto refused = Environment::Open(Path("bad.npy"), R, {});
+  ASSERT_FALSE(refused.ok());
+  const std::string& m = refused.status().message();
+  // The first one in file order, in %.9g (not "-0.000000"), how many, the most negative, the fix.
+  EXPECT_NE(m.find("texel 2 channel 1 is -5.55111512e-17 (negative); 6 values in all, the most negative -inf"),
+            std::string::npos)
+      << m;
+  EXPECT_NE(m.find("--clamp"), std::string::npos) << m;
+  v[7] = 0.25, v[8] = 0.25, v[20] = 0.25, v[21] = 0.25, v[31] = 0.25;  // only 1e39 left
+  {
+    std::ofstream f(Path("big.npy"), std::ios::binary);
+    f.write(reinterpret_cast<const char*>(h.data()), std::streamsize(h.size()));
+    f.write(reinterpret_cast<const char*>(v.data()), std::streamsize(v.size() * sizeof(double)));
+  }
+  auto big = ReadCubemapNpy(Path("big.npy"), R);
+  ASSERT_FALSE(big.ok());
+  EXPECT_NE(big.status().message().find("texel 10 channel 0 is 1e+39 (beyond float32's largest value"),
+            std::string::npos)
+      << big.status().message();
+  // --clamp (EnvLoadOptions::clamp) fixes them as it does a map's pixels, and counts them.
+  EnvLoadOptions o;
+  o.clamp = true;
+  auto env = Environment::Open(Path("bad.npy"), R, o);
+  ASSERT_TRUE(env.ok()) << env.status().message();
+  EXPECT_EQ(env->clamped(), 6u);
+  std::vector<float> cube;
+  env->Cubemap(0.0, &cube);
+  ASSERT_EQ(cube.size(), n * 3);
+  const float top = std::numeric_limits<float>::max();
+  for (uint64_t i = 0; i < n * 3; ++i) {
+    const float want = i == 7 || i == 8 || i == 21 || i == 31 ? 0.0f : i == 20 || i == 30 ? top : 0.25f;
+    EXPECT_EQ(cube[i], want) << "value " << i;
+  }
 }
 
 TEST_F(EnvMapTest, ReadsCompressedHalfLuminanceAndOffsetExrs) {
