@@ -189,6 +189,30 @@ with tempfile.TemporaryDirectory() as d:
     r = run("relight", p("cols.ltm"), "--env", env, "-o", p("x.npy"), "--mem-limit", "10KiB", expect=1)
     check("--mem-limit" in r.stderr, f"a matrix over --mem-limit should be refused naming it: {r.stderr}")
 
+    # 6b. The documented workflow on a map that is black outside a window (as an OpenEXR display
+    # window larger than its data window reads): `convert` writes no negative texel (cancellation
+    # in prefix sums used to leave ±3e-16 over the black part, which relight then refused), and
+    # relighting from the .npy equals relighting from the map.
+    Hm, Wm = 128, 256
+    win = np.zeros((Hm, Wm, 3))
+    win[Hm // 5:Hm // 2, Wm // 4:Wm // 2] = g.uniform(0.5, 1.5, (Hm // 2 - Hm // 5, Wm // 2 - Wm // 4, 3))
+    mx = win.max(-1)
+    ex = np.where(mx > 0, np.floor(np.log2(np.where(mx > 0, mx, 1))) + 1, 0).astype(int)
+    rgbe = np.zeros((Hm, Wm, 4), np.uint8)
+    rgbe[..., :3] = np.floor(win * np.where(mx > 0, 2.0 ** (8 - ex), 0)[..., None]).astype(np.uint8)
+    rgbe[..., 3] = np.where(mx > 0, ex + 128, 0)
+    with open(p("win.hdr"), "wb") as f:
+        f.write(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y %d +X %d\n" % (Hm, Wm) + rgbe.tobytes())
+    run("convert", p("win.hdr"), p("win.npy"), "--cube-res", R, *q)
+    cube = np.load(p("win.npy"))
+    check(cube.min() >= 0 and (cube == 0).sum() > 0 and cube.max() > 0,
+          f"convert of a windowed map: min texel {cube.min()}, {(cube < 0).sum()} negative, {(cube == 0).sum()} zero")
+    for envfile, out in ((p("win.hdr"), p("bwh.npy")), (p("win.npy"), p("bwn.npy"))):
+        run("relight", p("c0.ltm"), "--env", envfile, "-o", out, "--terms", "all", *q)
+    if os.path.exists(p("bwh.npy")) and os.path.exists(p("bwn.npy")):
+        a, b = np.load(p("bwh.npy")), np.load(p("bwn.npy"))
+        check(np.array_equal(a, b), f"relight from win.npy differs from win.hdr by {np.abs(a - b).max()}")
+
     # 7. A real environment map (blender-data, CC0) through convert and relight.
     import subprocess
     envdir = subprocess.run(["bash", os.path.join(os.path.dirname(os.path.abspath(__file__)), "../../scripts/find_envmaps.sh")],
