@@ -567,4 +567,31 @@ OutputFixes FinishRelitImage(const std::vector<uint8_t>& mask, bool keep_negativ
   return fixes;
 }
 
+Status CheckRelitImageFinite(const std::vector<float>& image, uint64_t width, const std::string& env) {
+  for (uint64_t i = 0; i < image.size(); ++i) {
+    if (std::isfinite(image[i])) continue;
+    const uint64_t row = i / 3;
+    const std::string where = width > 0
+                                  ? "pixel (" + std::to_string(row % width) + ", " + std::to_string(row / width) + ")"
+                                  : "row " + std::to_string(row);
+    return InvalidArgument("relight: the relit image's " + where + " channel " + "RGB"[i % 3] + " is " + Num(image[i]) +
+                           ", beyond float32's largest value (3.40282347e+38): " + env +
+                           " is too bright to relight in float32; scale the map down (e.g. by 2^-64) and the image "
+                           "up after");
+  }
+  return Status::Ok();
+}
+
+int LightingExponent(const std::vector<float>& cubemap) {
+  float peak = 0;
+  for (float v : cubemap) peak = std::max(peak, std::abs(v));
+  constexpr int kHeadroom = 64;
+  return std::isfinite(peak) && peak > std::ldexp(1.0f, kHeadroom) ? std::ilogb(peak) - kHeadroom + 1 : 0;
+}
+
+void ScaleByPowerOfTwo(std::vector<float>* values, int k) {
+  if (k == 0) return;
+  for (float& v : *values) v = std::ldexp(v, k);
+}
+
 }  // namespace ltb::stages

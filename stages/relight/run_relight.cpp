@@ -40,15 +40,21 @@ struct Frames {
   // The output policy (mask-0 rows black, negatives clamped unless kept).
   OutputFixes Finish(std::vector<float>* img) const { return FinishRelitImage(m.mask(), o.keep_negative, img); }
 
-  // One frame: resample, transform, select, relight.
+  // One frame: resample, transform, select, relight. A map near float32's largest value is
+  // relit at 2^-exponent (LightingExponent) and the image scaled back; an image beyond
+  // float32 is an error, never written.
   Status Render(double rot, double* lighting_ms, double* relight_ms) {
     auto a = Clock::now();
     env.Cubemap(rot, &cube);
+    exponent = LightingExponent(cube);
+    ScaleByPowerOfTwo(&cube, -exponent);
     basis.ToBasis(cube.data());
     LTB_RETURN_IF_ERROR(basis.SelectTerms(cube.data(), o.terms, o.weighting, norms(), &terms));
     auto b = Clock::now();
     LTB_RETURN_IF_ERROR(m.Relight(terms, &image));
+    ScaleByPowerOfTwo(&image, exponent);
     fixes = Finish(&image);
+    LTB_RETURN_IF_ERROR(CheckRelitImageFinite(image, m.width(), o.env));
     auto c = Clock::now();
     if (lighting_ms) *lighting_ms = Ms(a, b);
     if (relight_ms) *relight_ms = Ms(b, c);
@@ -59,9 +65,10 @@ struct Frames {
   const Environment& env;
   const LightingBasis& basis;
   RelightMatrix& m;
-  std::vector<float> cube, image;
-  LightTerms terms;
+  std::vector<float> cube, image;  // `cube`: the lighting at 2^-exponent, in the basis
+  LightTerms terms;                // at 2^-exponent
   OutputFixes fixes;
+  int exponent = 0;
 };
 
 // What a term is in this matrix's column basis, and how much of the map it keeps.
@@ -95,11 +102,11 @@ Status TimeFrames(const RelightOptions& o, const Environment& env, double rotati
   return Status::Ok();
 }
 
-// The errors of the written image (`first`, from `first_terms`) against the uncompressed
+// The errors of the written image (`first`, from `first_terms` at 2^-exponent) against the uncompressed
 // reference matrix o.reference: in all, of the lighting approximation alone, and of the
 // compressed matrix alone.
 Status MeasureErrors(const RelightOptions& o, const Environment& env, const LightingBasis& basis, RelightMatrix& m,
-                     const Frames& frames, const std::vector<float>& first, const LightTerms& first_terms,
+                     const Frames& frames, const std::vector<float>& first, const LightTerms& first_terms, int exponent,
                      double rotation, const Progress& progress, nlohmann::json* report) {
   const uint64_t rows = m.rows();
   // The reference goes through RelightMatrix too (streamed from its row blocks), so a channel
@@ -107,9 +114,13 @@ Status MeasureErrors(const RelightOptions& o, const Environment& env, const Ligh
   LTB_ASSIGN_OR_RETURN(RelightMatrix ref, RelightMatrix::Open(o.reference, o.mem_limit, o.jobs, progress, nullptr));
   const LightingBasis& ref_basis = ref.basis();
   LTB_RETURN_IF_ERROR(CheckSameBake(ref, m));
-  // Exact: the full lighting in the reference's basis.
+  // Exact: the full lighting in the reference's basis. All at 2^-exponent, as `first_terms`
+  // (the errors are relative), `first` too.
   std::vector<float> full;
   env.Cubemap(rotation, &full);
+  ScaleByPowerOfTwo(&full, -exponent);
+  std::vector<float> first_scaled = first;
+  ScaleByPowerOfTwo(&first_scaled, -exponent);
   std::vector<float> full_ref = full;
   ref_basis.ToBasis(full_ref.data());
   std::vector<float> exact;
@@ -130,7 +141,7 @@ Status MeasureErrors(const RelightOptions& o, const Environment& env, const Ligh
     if (e.rel_h1 >= 0) j["rel_h1"] = e.rel_h1;
     return j;
   };
-  (*report)["error"] = metrics(first);
+  (*report)["error"] = metrics(first_scaled);
   (*report)["error_lighting_only"] = metrics(light_only);
   // Matrix alone: every lighting term through the compressed matrix.
   std::vector<float> all = full;
@@ -202,10 +213,12 @@ Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progre
   }
   std::vector<float> first = frames.image;
   LightTerms first_terms = frames.terms;
+  const int first_exponent = frames.exponent;
 
   if (o.frames > 0) LTB_RETURN_IF_ERROR(TimeFrames(o, env, rotation, progress, &frames, &report));
   if (!o.reference.empty()) {
-    LTB_RETURN_IF_ERROR(MeasureErrors(o, env, basis, m, frames, first, first_terms, rotation, progress, &report));
+    LTB_RETURN_IF_ERROR(
+        MeasureErrors(o, env, basis, m, frames, first, first_terms, first_exponent, rotation, progress, &report));
   }
   RelightResult result{std::move(report), {}};
   if (o.return_image) result.image = std::move(first);

@@ -269,6 +269,7 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
 
     out = inc.image();
     FinishRelitImage(m.mask(), o.keep_negative, &out);
+    LTB_RETURN_IF_ERROR(CheckRelitImageFinite(out, m.width(), o.env).WithContext("frame " + std::to_string(f)));
     if (exposure <= 0 && m.width() > 0) exposure = AutoExposure(out.data(), rows);  // fixed from frame 0 on
     if (video) {
       if (!mp4) {

@@ -96,6 +96,7 @@ Result<std::unique_ptr<ViewSession>> ViewSession::Open(const ViewOptions& o) {
     return FailedPrecondition(o.env + ": a cubemap .npy cannot rotate; view needs an .exr or .hdr map");
   }
   std::unique_ptr<ViewSession> s(new ViewSession(std::move(m), std::move(env)));
+  s->env_path_ = o.env;
   if (!o.reference.empty()) {
     LTB_ASSIGN_OR_RETURN(RelightMatrix r, RelightMatrix::Open(o.reference, o.mem_limit, o.jobs, Progress{}, nullptr));
     LTB_RETURN_IF_ERROR(CheckSameBake(r, s->m_));
@@ -116,6 +117,7 @@ Result<std::string> ViewSession::Render(const FrameRequest& q) {
   const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - a).count();
   std::vector<float> out = relighter_->image();
   FinishRelitImage(m_.mask(), false, &out);
+  LTB_RETURN_IF_ERROR(CheckRelitImageFinite(out, m_.width(), env_path_));
   const double exposure = q.exposure > 0 ? q.exposure : AutoExposure(out.data(), m_.rows());
   const FrameUpdate& u = relighter_->update();
   nlohmann::json bands = nlohmann::json::array();

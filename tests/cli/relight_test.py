@@ -277,4 +277,30 @@ with tempfile.TemporaryDirectory() as d:
         check(err <= 1e-4 * np.abs(want).max(), f"mask {extra}: differs from D·L with black background by {err}")
         check(rep.get("output", {}).get("masked_rows") == int(bg.sum()), f"mask {extra}: report {rep.get('output')}")
 
+    # 9. Maps near float32's largest value (docs/RELIGHT.md "Numbers"): an RGBE map at exponent
+    # 255 (mantissa 255: 255·2^119 = 1.69e38) converts to finite texels, and relights the tiny
+    # bake exactly: 2^126 times the image of the same map at exponent 129 (255·2^-7), bit for bit
+    # (the lighting is relit at 2^-64 and scaled back; its Haar coefficients used to overflow
+    # float32 and leave NaN in the image). A bake whose image would pass float32 under it (the
+    # random T, Σ T ≈ 48 a pixel) is an error naming the map, and writes nothing.
+    def flat_hdr(path, e):
+        with open(path, "wb") as f:
+            f.write(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 32 +X 64\n" + bytes([255, 255, 255, e]) * (64 * 32))
+    flat_hdr(p("e255.hdr"), 255)
+    flat_hdr(p("e129.hdr"), 129)
+    run("convert", p("e255.hdr"), p("e255.npy"), "--cube-res", R, *q)
+    cube = np.load(p("e255.npy"))
+    check(np.all(np.isfinite(cube)) and np.allclose(cube, 255 * 2.0 ** 119, rtol=1e-6),
+          f"convert of an exponent-255 map: {np.isfinite(cube).sum()} finite of {cube.size}, max {cube.max()}")
+    for e in (129, 255):
+        run("relight", fin, "--env", p(f"e{e}.hdr"), "-o", p(f"be{e}.npy"), "--terms", "all", *q)
+    if os.path.exists(p("be129.npy")) and os.path.exists(p("be255.npy")):
+        small, big = np.load(p("be129.npy")), np.load(p("be255.npy"))
+        check(np.all(np.isfinite(big)) and big.max() > 1e37 and np.array_equal(big, np.ldexp(small, 126)),
+              f"tiny bake under the exponent-255 map: {np.isnan(big).sum()} NaN, {np.isinf(big).sum()} Inf, "
+              f"max |big - 2^126·small| {np.nanmax(np.abs(big - np.ldexp(small, 126)))}")
+    r = run("relight", p("raw.ltm"), "--env", p("e255.hdr"), "-o", p("never.exr"), "--terms", "all", *q, expect=1)
+    check("e255.hdr is too bright to relight in float32" in r.stderr and not os.path.exists(p("never.exr")),
+          f"an image beyond float32: {r.stderr}")
+
 finish()

@@ -770,6 +770,43 @@ TEST_F(EnvMapTest, NonNegativeMapsGiveNonNegativeTexelsWithoutCancellation) {
   }
 }
 
+TEST_F(EnvMapTest, MapsNearFloat32sLargestValueGiveFiniteTexels) {
+  // A texel is an average of the map, so it is at most the map's largest value; rounding
+  // above a map at float32's largest value used to make it +Inf (every texel of a constant
+  // 3.4028235e38 angular map). Constant maps at 3e38 and FLT_MAX in three layouts, and an RGBE
+  // .hdr at exponent 255 (mantissa 255: 255·2^119 = 1.69e38) through `convert`'s path.
+  const float top = std::numeric_limits<float>::max();
+  for (float value : {3e38f, top}) {
+    for (EnvLayout layout : {EnvLayout::kLatLong, EnvLayout::kHCross, EnvLayout::kAngular}) {
+      EnvMap env;
+      env.layout = layout;
+      env.width = 64;
+      env.height = layout == EnvLayout::kLatLong ? 32 : layout == EnvLayout::kHCross ? 48 : 64;
+      env.path = "bright";
+      env.rgb.assign(env.width * env.height * 3, value);
+      for (uint64_t r : {4, 8}) {
+        auto rs = CubemapResampler::Create(env, r);
+        ASSERT_TRUE(rs.ok()) << rs.status().ToString();
+        for (double rotation : {0.0, 0.3}) {
+          std::vector<float> out(6 * r * r * 3);
+          rs->Resample(rotation, out.data());
+          for (size_t i = 0; i < out.size(); ++i) {
+            ASSERT_TRUE(std::isfinite(out[i])) << EnvLayoutName(layout) << " " << value << " R=" << r << " value " << i;
+            ASSERT_LE(out[i], value);
+            ASSERT_NEAR(out[i], value, 1e-6 * value) << EnvLayoutName(layout) << " R=" << r;
+          }
+        }
+      }
+    }
+  }
+  const float rgbe255 = std::ldexp(255.0f, 119);
+  WriteHdrFlat(Path("e255.hdr"), 64, 32, Pixels(64 * 32 * 3, rgbe255));
+  ASSERT_TRUE(ConvertEnvToNpy(Path("e255.hdr"), Path("e255.npy"), 8, {}).ok());
+  auto cube = ReadCubemapNpy(Path("e255.npy"), 8);
+  ASSERT_TRUE(cube.ok()) << cube.status().message();
+  for (float v : *cube) ASSERT_NEAR(v, rgbe255, 1e-6 * rgbe255);
+}
+
 TEST_F(EnvMapTest, BandsTileTheSphere) {
   // The bands (a texel's part of a working row) hold each texel's exact solid angle, at odd
   // R (a texel centred on each pole: bands around the whole circle) and even R (a corner
