@@ -2,11 +2,13 @@
 //                      [--reference RAW.ltm] [--frames N] [--rotate DEG] [--json]
 // ltbake relight VIS.ltm --material MAT.ltm... --eye X,Y,Z --env ENV -o IMAGE [--method M]
 //                      (the triple-product path, docs/TRIPLE.md)
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <glm/vec3.hpp>
 #include <iomanip>
 #include <iostream>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <tuple>
@@ -17,6 +19,7 @@
 #include "stages/common/quantity.h"
 #include "stages/relight/envmap.h"
 #include "stages/relight/glossy_view.h"
+#include "stages/relight/image_io.h"
 #include "stages/relight/relight.h"
 #include "stages/relight/run_relight.h"
 #include "stages/relight/run_sequence.h"
@@ -53,14 +56,19 @@ class RelightCommand : public Command {
     app->add_option("--frames", frames_, "time this many frames of the environment rotating once about +Z")
         ->default_val(0)
         ->check(CLI::Range(0, 1 << 20));
-    app->add_option("--rotate", rotate_deg_, "rotate the environment about +Z by this many degrees")->default_val(0.0);
+    app->add_option("--rotate", rotate_text_,
+                    "rotate the environment about +Z by this many degrees (within ±1e6; an .exr or .hdr map)")
+        ->default_val("0")
+        ->check(DecimalCheck(-stages::RelightOptions::kMaxRotateDegrees, stages::RelightOptions::kMaxRotateDegrees));
     app->add_option("--env-layout", layout_, "auto, latlong, hcross, vcross, faces or angular (light probe)")
         ->default_val("auto")
         ->check(CLI::IsMember({"auto", "latlong", "hcross", "vcross", "faces", "angular"}));
     app->add_flag("--clamp", clamp_, "clamp negative, NaN and infinite radiance to valid values (counted)");
     app->add_flag("--no-clamp-output", keep_negative_,
                   "keep negative radiance in the relit image (by default clamped to 0: compression ringing)");
-    app->add_option("--exposure", exposure_, "PNG exposure (0: automatic)")->default_val(0.0);
+    app->add_option("--exposure", exposure_text_, "PNG exposure, 0..1e12 (0: automatic)")
+        ->default_val("0")
+        ->check(DecimalCheck(0, stages::kMaxExposure));
     app->add_flag("--json", json_, "print timings and metrics as JSON");
     // The triple-product path (MATRIX is a visibility field, sample --visibility).
     app->add_option("--material", materials_,
@@ -100,21 +108,28 @@ class RelightCommand : public Command {
     AddCommonFlags(app, &flags_);
   }
 
+  // A flag's value that DecimalCheck passed, read by the same parser.
+  static double Decimal(const std::string& text) {
+    return *stages::ParseDecimal(text, -std::numeric_limits<double>::max(), std::numeric_limits<double>::max());
+  }
+
   bool Triple() const {
     return !materials_.empty() || method_ == "sublinear" || method_ == "linear" || method_ == "pixel";
   }
 
-  // "X,Y,Z" -> vector; false when it is not three finite numbers.
+  // Camera coordinates: anything a scene could hold, with room to square it.
+  static constexpr double kMaxCoordinate = 1e30;
+
+  // "X,Y,Z" -> vector; false when it is not three decimal numbers within ±kMaxCoordinate.
   static bool ParseVec3(const std::string& text, glm::dvec3* out) {
     double v[3];
     size_t pos = 0;
     for (int k = 0; k < 3; ++k) {
       const size_t end = k < 2 ? text.find(',', pos) : text.size();
       if (end == std::string::npos) return false;
-      const std::string part = text.substr(pos, end - pos);
-      char* stop = nullptr;
-      v[k] = std::strtod(part.c_str(), &stop);
-      if (part.empty() || *stop != '\0' || !std::isfinite(v[k])) return false;
+      auto parsed = stages::ParseDecimal(text.substr(pos, end - pos), -kMaxCoordinate, kMaxCoordinate);
+      if (!parsed.ok()) return false;
+      v[k] = *parsed;
       pos = end + 1;
     }
     *out = glm::dvec3(v[0], v[1], v[2]);
@@ -138,12 +153,15 @@ class RelightCommand : public Command {
     *width = w;
     *height = h;
     if (!orbit_.empty()) {
-      double deg = 0;
+      const size_t colon = orbit_.find(':');
+      auto deg = stages::ParseDecimal(orbit_.substr(0, colon), -360, 360);
       unsigned n = 0;
-      if (std::sscanf(orbit_.c_str(), "%lf:%u%c", &deg, &n, &tail) != 2 || n == 0 || !std::isfinite(deg)) {
-        return ReportUsage(InvalidArgument("--orbit " + orbit_ + ": expected DEG:FRAMES, e.g. 10:36"));
+      if (colon == std::string::npos || !deg.ok() || std::sscanf(orbit_.c_str() + colon + 1, "%u%c", &n, &tail) != 1 ||
+          n == 0 || !std::isdigit(static_cast<unsigned char>(orbit_[colon + 1]))) {
+        return ReportUsage(
+            InvalidArgument("--orbit " + orbit_ + ": expected DEG:FRAMES, DEG in [-360, 360], e.g. 10:36"));
       }
-      *orbit_deg = deg;
+      *orbit_deg = *deg;
       *orbit_frames = n;
     }
     return kExitOk;
@@ -155,10 +173,10 @@ class RelightCommand : public Command {
     o->env = env_;
     o->env_layout = *stages::ParseEnvLayout(layout_);  // checked by IsMember
     o->clamp_env = clamp_;
-    o->rotate_deg = rotate_deg_;
+    o->rotate_deg = Decimal(rotate_text_);
     o->output = output_;
     o->vertex_output = vertex_output_;
-    o->exposure = exposure_;
+    o->exposure = Decimal(exposure_text_);
     o->fov_degrees = fov_;
   }
 
@@ -300,8 +318,8 @@ class RelightCommand : public Command {
     // "all": every nonzero coefficient (SelectTerms keeps min(N, nonzeros)).
     o->terms = terms_text_ == "all" ? stages::RelightOptions::kAllTerms : std::stoull(terms_text_);
     o->frames = frames_;
-    o->rotate_deg = rotate_deg_;
-    o->exposure = exposure_;
+    o->rotate_deg = Decimal(rotate_text_);
+    o->exposure = Decimal(exposure_text_);
     o->keep_negative = keep_negative_;
     o->clamp_env = clamp_;
     o->env_layout = *stages::ParseEnvLayout(layout_);  // checked by IsMember
@@ -360,7 +378,7 @@ class RelightCommand : public Command {
                     brdf_terms_text_ = "all", orbit_, scene_, vertex_output_;
   double fov_ = 40, fps_ = 25;
   int frames_ = 0;
-  double rotate_deg_ = 0, exposure_ = 0;
+  std::string rotate_text_ = "0", exposure_text_ = "0";
   bool clamp_ = false, json_ = false, keep_negative_ = false;
   CommonFlags flags_;
 };

@@ -120,6 +120,10 @@ CLI::Validator SizeCheck() { return ParsedCheck(stages::ParseByteSize, "SIZE"); 
 CLI::Validator FractionCheck() { return ParsedCheck(stages::ParseFraction, "FRACTION"); }
 CLI::Validator BudgetCheck() { return ParsedCheck(stages::ParseBudget, "BUDGET"); }
 
+CLI::Validator DecimalCheck(double min, double max) {
+  return ParsedCheck([min, max](const std::string& text) { return stages::ParseDecimal(text, min, max); }, "NUMBER");
+}
+
 CLI::Validator PowerOfTwoCheck(uint64_t max) {
   return CLI::Validator(
       [max](std::string& text) -> std::string {

@@ -74,6 +74,10 @@ std::string HumanBytes(uint64_t bytes);
 CLI::Validator SizeCheck();
 // A power of two in [1, max].
 CLI::Validator PowerOfTwoCheck(uint64_t max);
+// A decimal number in [min, max], as stages::ParseDecimal takes it ("-12.5", "2e3"; not
+// "nan", "inf", "0x10" or "1e20" when max is smaller). Give the option a std::string and read
+// it with stages::ParseDecimal after parsing, so that the flag and the check agree.
+CLI::Validator DecimalCheck(double min, double max);
 // A fraction in (0, 1], as stages::ParseFraction takes it ("0.05", "5%").
 CLI::Validator FractionCheck();
 // A nonzero budget, as stages::ParseBudget takes it ("2%", "150000", "64MiB").

@@ -2,6 +2,7 @@
 
 #include <cctype>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <utility>
 
@@ -43,7 +44,69 @@ double UnitBytes(const std::string& unit) {
   return 0;
 }
 
+// The text as a message shows it: quoted, at most 40 bytes, bytes outside printable ASCII
+// as \xNN (a query's "%00" is a NUL byte).
+std::string Quoted(const std::string& text) {
+  std::string out = "\"";
+  for (size_t i = 0; i < text.size() && i < 40; ++i) {
+    const unsigned char c = static_cast<unsigned char>(text[i]);
+    if (c >= 0x20 && c < 0x7f && c != '"' && c != '\\') {
+      out += static_cast<char>(c);
+    } else {
+      char buf[8];
+      std::snprintf(buf, sizeof buf, "\\x%02X", c);
+      out += buf;
+    }
+  }
+  if (text.size() > 40) out += "...";
+  return out + "\"";
+}
+
+std::string Shortest(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%g", v);
+  return buf;
+}
+
+// Whether text is exactly [+-] digits [. digits] [(e|E) [+-] digits], with a digit before
+// or after the point.
+bool IsDecimal(const std::string& text) {
+  size_t i = 0, n = text.size();
+  auto digits = [&] {
+    const size_t start = i;
+    while (i < n && text[i] >= '0' && text[i] <= '9') ++i;
+    return i - start;
+  };
+  if (i < n && (text[i] == '+' || text[i] == '-')) ++i;
+  size_t mantissa = digits();
+  if (i < n && text[i] == '.') {
+    ++i;
+    mantissa += digits();
+  }
+  if (mantissa == 0) return false;
+  if (i < n && (text[i] == 'e' || text[i] == 'E')) {
+    ++i;
+    if (i < n && (text[i] == '+' || text[i] == '-')) ++i;
+    if (digits() == 0) return false;
+  }
+  return i == n;
+}
+
 }  // namespace
+
+Result<double> ParseDecimal(const std::string& text, double min, double max) {
+  const std::string range = "[" + Shortest(min) + ", " + Shortest(max) + "]";
+  if (!IsDecimal(text)) {
+    return InvalidArgument(Quoted(text) + " is not a decimal number (expected one in " + range +
+                           ", written like 12, 0.5, -3 or 2.5e3)");
+  }
+  // The syntax is checked, so strtod reads all of it (and, for this syntax, only decimal).
+  const double v = std::strtod(text.c_str(), nullptr);
+  if (!std::isfinite(v) || !(v >= min && v <= max)) {
+    return InvalidArgument(Quoted(text) + " is outside " + range);
+  }
+  return v;
+}
 
 Result<uint64_t> ParseByteSize(const std::string& text) {
   double v = 0;

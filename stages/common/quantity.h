@@ -1,5 +1,6 @@
-// Quantities given as text on the command line and in recipes: byte sizes, fractions and
-// nonzero budgets. One parser each, so that "64K" or "2%" means the same in every flag.
+// Quantities given as text on the command line, in recipes and in the view server's
+// queries: decimal numbers, byte sizes, fractions and nonzero budgets. One parser each, so
+// that "64K", "2%" or "-12.5" means the same in every flag and parameter.
 #pragma once
 
 #include <cstdint>
@@ -8,6 +9,14 @@
 #include "format/status.h"
 
 namespace ltb::stages {
+
+// A real number written in decimal, and within [min, max]: an optional sign, digits with an
+// optional point (at least one digit), an optional exponent (e or E, optional sign, digits),
+// and nothing else: no spaces, no NUL or other byte after it, no hexadecimal ("0x10"), no
+// "inf" or "nan". A number too large for a double (1e999) is out of range. The message
+// quotes the text (bytes outside printable ASCII as \xNN) and the range; callers put the flag
+// or parameter's name in front: "--rotate: \"1e20\" is outside [-1e+06, 1e+06]".
+Result<double> ParseDecimal(const std::string& text, double min, double max);
 
 // Bytes: a number and an optional unit. K, M, G, T (also k, KiB, MiB, GiB, TiB) are powers
 // of 1024; KB, MB, GB, TB powers of 1000; B or no unit: bytes. At least 1 byte, at most 8 EiB.

@@ -11,7 +11,7 @@ Result<Environment> Environment::Open(const std::string& path, uint64_t cube_res
   Environment e;
   e.cube_res_ = cube_res;
   if (path.ends_with(".npy")) {
-    LTB_ASSIGN_OR_RETURN(std::vector<float> m, ReadCubemapNpy(path, cube_res));
+    LTB_ASSIGN_OR_RETURN(std::vector<float> m, ReadCubemapNpy(path, cube_res, o.clamp, &e.clamped_));
     e.fixed_ = std::move(m);
     return e;
   }

@@ -14,7 +14,8 @@
 #include "stages/relight/image_readers.h"
 
 // The image readers are in image_readers.{h,cpp}, hdr_reader.cpp and exr_reader.cpp, the
-// layouts' geometry in env_layout.{h,cpp}, the resampler in resampler.{h,cpp}.
+// layouts' geometry in env_layout.{h,cpp}, the resampler in resampler.{h,cpp} (its working grid
+// in working_grid.{h,cpp}).
 
 namespace ltb::stages {
 

@@ -94,6 +94,19 @@ Status WriteImage(const std::string& path, const float* rgb, uint64_t rows, uint
     return InvalidArgument(path + ": the matrix rows are not an image (" + std::to_string(rows) +
                            " rows); write .npy instead");
   }
+  // Never a non-finite value in an image.
+  for (uint64_t i = 0; i < rows * 3; ++i) {
+    if (std::isfinite(rgb[i])) continue;
+    const uint64_t r = i / 3;
+    const std::string where = width > 0 && width * height == rows
+                                  ? "pixel (" + std::to_string(r % width) + ", " + std::to_string(r / width) + ")"
+                                  : "row " + std::to_string(r);
+    return InvalidArgument(path + ": not written: its " + where + " channel " + "RGB"[i % 3] + " would be " +
+                           (std::isnan(rgb[i]) ? "NaN"
+                            : rgb[i] > 0       ? "+Inf"
+                                               : "-Inf") +
+                           " (the lighting is too bright to relight in float32? scale the map down)");
+  }
   // One writer per output: a second relight into the same path would remove this one's
   // partial file under it.
   LTB_ASSIGN_OR_RETURN(io::FileLock lock, io::LockOutput(path));

@@ -11,9 +11,12 @@
 
 namespace ltb::stages {
 
+// The largest PNG exposure a flag or a query takes.
+inline constexpr double kMaxExposure = 1e12;
+
 struct ImageWriteOptions {
-  // PNG only: radiance is multiplied by `exposure` before the sRGB curve; 0 picks the
-  // exposure that maps the 99th percentile of luminance to 0.9.
+  // PNG only: radiance is multiplied by `exposure` (0..kMaxExposure) before the sRGB curve;
+  // 0 picks the exposure that maps the 99th percentile of luminance to 0.9.
   double exposure = 0;
 };
 

@@ -2,7 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
+#include <limits>
 #include <mutex>
 #include <numeric>
 #include <optional>
@@ -359,7 +361,16 @@ Result<std::vector<float>> RelightStreaming(const std::string& path, const float
   return std::vector<float>(acc.begin(), acc.end());
 }
 
-Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t r) {
+namespace {
+// A value as messages show it: %.9g (enough for any float; -5.55e-17, not "-0.000000").
+std::string Num(double v) {
+  char buf[48];
+  std::snprintf(buf, sizeof buf, "%.9g", v);
+  return buf;
+}
+}  // namespace
+
+Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t r, bool clamp, uint64_t* clamped) {
   LTB_RETURN_IF_ERROR(io::RequireRegularFile(path, "name a 6R² × 3 cubemap .npy file"));
   LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(path, io::File::Mode::kRead));
   LTB_ASSIGN_OR_RETURN(uint64_t size, f.Size());
@@ -389,12 +400,15 @@ Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t r) {
   }
   // The output is no larger than the file; the values are read in strips of 1 MiB.
   std::vector<float> out(n * 3);
+  constexpr double kFloatMax = std::numeric_limits<float>::max();
+  uint64_t bad = 0, first = 0;
+  double first_value = 0, most_negative = 0;
   const uint64_t per_strip = (uint64_t(1) << 20) / h->itemsize;
   std::vector<std::byte> raw(std::min(n * 3, per_strip) * h->itemsize);
-  for (uint64_t first = 0; first < n * 3; first += per_strip) {
-    const uint64_t count = std::min(per_strip, n * 3 - first);
+  for (uint64_t strip = 0; strip < n * 3; strip += per_strip) {
+    const uint64_t count = std::min(per_strip, n * 3 - strip);
     LTB_RETURN_IF_ERROR(
-        f.ReadAt(h->data_offset + first * h->itemsize, format::MutableByteSpan(raw.data(), count * h->itemsize)));
+        f.ReadAt(h->data_offset + strip * h->itemsize, format::MutableByteSpan(raw.data(), count * h->itemsize)));
     for (uint64_t k = 0; k < count; ++k) {
       double v;
       if (h->itemsize == 4) {
@@ -404,15 +418,32 @@ Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t r) {
       } else {
         std::memcpy(&v, raw.data() + k * 8, 8);
       }
-      const uint64_t i = first + k;
-      if (!std::isfinite(v) || v < 0) {
-        return InvalidArgument(path + ": texel " + std::to_string(i / 3) + " channel " + std::to_string(i % 3) +
-                               " is " + std::to_string(v) + "; radiance must be finite and non-negative");
+      const uint64_t i = strip + k;
+      if (v >= 0 && v <= kFloatMax) {
+        out[i] = static_cast<float>(v);
+        continue;
       }
-      out[i] = static_cast<float>(v);
+      if (clamp) {
+        out[i] = std::isnan(v) || v < 0 ? 0.0f : static_cast<float>(kFloatMax);
+        if (clamped != nullptr) ++*clamped;
+        continue;
+      }
+      if (bad++ == 0) first = i, first_value = v;
+      if (v < most_negative) most_negative = v;
     }
   }
-  return out;
+  if (bad == 0) return out;
+  const char* kind = std::isnan(first_value)   ? "NaN"
+                     : std::isinf(first_value) ? (first_value > 0 ? "infinite" : "negative and infinite")
+                     : first_value < 0         ? "negative"
+                                               : "beyond float32's largest value, 3.40282347e+38";
+  std::string msg = path + ": texel " + std::to_string(first / 3) + " channel " + std::to_string(first % 3) + " is " +
+                    Num(first_value) + " (" + kind + ")";
+  if (bad > 1) msg += "; " + std::to_string(bad) + " values in all";
+  if (most_negative < 0) msg += ", the most negative " + Num(most_negative);
+  return InvalidArgument(msg +
+                         "; radiance must be finite and non-negative — fix the cubemap, or pass --clamp to set NaN "
+                         "and negative values to 0 and larger ones to the largest finite float");
 }
 
 ImageErrors CompareImages(const float* image, const float* ref, uint64_t rows, uint64_t width, uint64_t height) {
@@ -534,6 +565,33 @@ OutputFixes FinishRelitImage(const std::vector<uint8_t>& mask, bool keep_negativ
     }
   }
   return fixes;
+}
+
+Status CheckRelitImageFinite(const std::vector<float>& image, uint64_t width, const std::string& env) {
+  for (uint64_t i = 0; i < image.size(); ++i) {
+    if (std::isfinite(image[i])) continue;
+    const uint64_t row = i / 3;
+    const std::string where = width > 0
+                                  ? "pixel (" + std::to_string(row % width) + ", " + std::to_string(row / width) + ")"
+                                  : "row " + std::to_string(row);
+    return InvalidArgument("relight: the relit image's " + where + " channel " + "RGB"[i % 3] + " is " + Num(image[i]) +
+                           ", beyond float32's largest value (3.40282347e+38): " + env +
+                           " is too bright to relight in float32; scale the map down (e.g. by 2^-64) and the image "
+                           "up after");
+  }
+  return Status::Ok();
+}
+
+int LightingExponent(const std::vector<float>& cubemap) {
+  float peak = 0;
+  for (float v : cubemap) peak = std::max(peak, std::abs(v));
+  constexpr int kHeadroom = 64;
+  return std::isfinite(peak) && peak > std::ldexp(1.0f, kHeadroom) ? std::ilogb(peak) - kHeadroom + 1 : 0;
+}
+
+void ScaleByPowerOfTwo(std::vector<float>* values, int k) {
+  if (k == 0) return;
+  for (float& v : *values) v = std::ldexp(v, k);
 }
 
 }  // namespace ltb::stages

@@ -114,10 +114,16 @@ class Relighter {
 Result<std::vector<float>> RelightStreaming(const std::string& path, const float* lighting, int jobs,
                                             const Progress& progress);
 
-// A 6R² × 3 cubemap of radiance from .npy (float32 or float64, C order), checked finite
-// and non-negative. Only a regular file is opened; the declared shape must be (6R², 3) and
-// its size (checked arithmetic) must fit the file before anything is allocated.
-Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t cube_res);
+// A 6R² × 3 cubemap of radiance from .npy (float32 or float64, C order), checked finite,
+// non-negative and (float64) within float32's range; the first value that is not is named
+// with its texel, channel and value (%.9g), with how many there are. With `clamp`
+// (--clamp, as for maps: EnvLoadOptions::clamp) they are fixed instead and counted in
+// `clamped`: NaN and negatives (−Inf included) become 0, +Inf and float64 values above
+// float32's largest become the largest finite float. Only a regular file is opened; the
+// declared shape must be (6R², 3) and its size (checked arithmetic) must fit the file
+// before anything is allocated.
+Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t cube_res, bool clamp = false,
+                                          uint64_t* clamped = nullptr);
 
 // Error metrics of an RGB image (rows × 3) against a reference.
 struct ImageErrors {
@@ -149,5 +155,18 @@ struct OutputFixes {
   uint64_t clamped_values = 0;  // negative values set to 0
 };
 OutputFixes FinishRelitImage(const std::vector<uint8_t>& mask, bool keep_negative, std::vector<float>* image);
+
+// Ok when every value of a relit image (rows × 3) is finite; else an InvalidArgument naming
+// the first pixel (x, y of an image `width` wide; a row of a vertex bake, width 0), its
+// channel and value, and the lighting `env` whose radiance is too large to relight in float32.
+Status CheckRelitImageFinite(const std::vector<float>& image, uint64_t width, const std::string& env);
+
+// Relighting holds the lighting's wavelet coefficients (up to R × a texel) and the sums of
+// Eq. 8 in float32: a map near float32's largest value (3.4e38) would overflow them. The
+// power of two k ≥ 0 to relight a cubemap at (× 2^-k, exact) so that its largest value is at
+// most 2^64; the image is scaled back by 2^k after (and checked: CheckRelitImageFinite).
+int LightingExponent(const std::vector<float>& cubemap);
+// v · 2^k for every value (exact unless it leaves float32's range).
+void ScaleByPowerOfTwo(std::vector<float>* values, int k);
 
 }  // namespace ltb::stages

@@ -1,8 +1,6 @@
-// CubemapResampler (resampler.h): the source reduced to a working lat-long grid held as
-// prefix sums, the texel edges cut into pieces per working row, and Resample.
+// CubemapResampler (resampler.h): the texel edges cut into pieces per working row of the
+// working grid (working_grid.h), the pieces gathered into bands, and Resample.
 #include "stages/relight/resampler.h"
-
-#include <sys/mman.h>
 
 #include <algorithm>
 #include <cmath>
@@ -16,294 +14,18 @@
 #include "stages/relight/env_layout.h"
 #include "stages/relight/envmap.h"
 #include "stages/relight/image_readers.h"
+#include "stages/relight/working_grid.h"
 
 namespace ltb::stages {
 
-using envmap_internal::AngularDirection;
-using envmap_internal::DirectionToAngular;
-using envmap_internal::FaceGeometry;
-using envmap_internal::FacesOf;
+using envmap_internal::BuildWorkingGrid;
 using envmap_internal::kPi;
-using envmap_internal::kRowsPerPoll;
+using envmap_internal::PollCancel;
 using envmap_internal::Size;
+using envmap_internal::WorkingGrid;
+using envmap_internal::WorkingTable;
 
 namespace {
-
-// cos a − cos b without cancellation for nearby angles.
-double CosDiff(double a, double b) { return 2.0 * std::sin(0.5 * (a + b)) * std::sin(0.5 * (b - a)); }
-
-// Exact 1-D overlaps between a source grid of n_src equal cells and a target grid of n_dst
-// equal cells over [0, 1]: for each target cell, (source cell, overlap [a, b]) with a and b
-// as fractions. Integer arithmetic in units of 1/(n_src·n_dst), so aligned grids are exact.
-struct Overlap {
-  uint64_t src;
-  double a, b;
-};
-std::vector<std::vector<Overlap>> Overlaps(uint64_t n_src, uint64_t n_dst) {
-  std::vector<std::vector<Overlap>> out(n_dst);
-  const double unit = 1.0 / (double(n_src) * double(n_dst));
-  uint64_t i = 0;
-  for (uint64_t j = 0; j < n_dst; ++j) {
-    const uint64_t lo = j * n_src, hi = (j + 1) * n_src;
-    while (i < n_src && (i + 1) * n_dst <= lo) ++i;
-    for (uint64_t k = i; k < n_src && k * n_dst < hi; ++k) {
-      const uint64_t a = std::max(lo, k * n_dst), b = std::min(hi, (k + 1) * n_dst);
-      if (b > a) out[j].push_back({k, a * unit, b * unit});
-    }
-  }
-  return out;
-}
-
-// A zeroed table of `count` doubles. Resample reads ~150·R² places of it per frame:
-// on 2 MB pages (transparent huge pages, where the kernel grants them) the TLB covers the
-// whole table, about 20% faster per frame than 4 KB pages. Shared: copies of a resampler
-// share the (immutable) table.
-std::shared_ptr<double[]> AllocateTable(uint64_t count) {
-  constexpr size_t kHuge = size_t(2) << 20;
-  const size_t bytes = count * sizeof(double);
-  const size_t align = bytes >= 2 * kHuge ? kHuge : 64;
-  const size_t rounded = (bytes + align - 1) / align * align;
-  void* p = std::aligned_alloc(align, rounded);
-  if (p == nullptr) return nullptr;
-#ifdef MADV_HUGEPAGE
-  if (align == kHuge) madvise(p, rounded, MADV_HUGEPAGE);  // advice only: failure is harmless
-#endif
-  std::memset(p, 0, rounded);
-  return std::shared_ptr<double[]>(static_cast<double*>(p), [](double* q) { std::free(q); });
-}
-
-// Largest divisor g of n with n / g >= target (1 when n < target).
-uint64_t GroupFor(uint64_t n, uint64_t target) {
-  for (uint64_t g = std::max<uint64_t>(1, n / std::max<uint64_t>(1, target)); g > 1; --g) {
-    if (n % g == 0 && n / g >= target) return g;
-  }
-  return 1;
-}
-
-// Sub-samples of a source (cube-face texels, angular-map pixels) splatted into the working
-// lat-long grid: each adds its radiance × solid angle to the working pixel holding its
-// centre direction; Finish divides by the solid angle gathered, and gives a pixel no
-// sub-sample reached (thin ones near the poles) the source at its centre direction.
-struct WorkingSplat {
-  uint64_t hw, ww;
-  std::vector<double> ldw, dw;
-  WorkingSplat(uint64_t rows, uint64_t cols) : hw(rows), ww(cols), ldw(rows * cols * 3, 0.0), dw(rows * cols, 0.0) {}
-  void Add(const glm::dvec3& d, const float* L, double domega) {
-    double lu, lv;
-    DirectionToLatLong(d, &lu, &lv);
-    const uint64_t I = std::min<uint64_t>(uint64_t(lu * ww), ww - 1);
-    const uint64_t J = std::min<uint64_t>(uint64_t(lv * hw), hw - 1);
-    dw[J * ww + I] += domega;
-    for (int c = 0; c < 3; ++c) ldw[(J * ww + I) * 3 + c] += L[c] * domega;
-  }
-  // at(direction) -> const float*: the source pixel holding a direction.
-  template <typename At>
-  void Finish(std::vector<double>* work, At at) const {
-    work->assign(hw * ww * 3, 0.0);
-    for (uint64_t J = 0; J < hw; ++J)
-      for (uint64_t I = 0; I < ww; ++I) {
-        const uint64_t px = J * ww + I;
-        if (dw[px] > 0) {
-          for (int c = 0; c < 3; ++c) (*work)[px * 3 + c] = ldw[px * 3 + c] / dw[px];
-        } else {
-          const float* L = at(LatLongDirection((I + 0.5) / ww, (J + 0.5) / hw));
-          for (int c = 0; c < 3; ++c) (*work)[px * 3 + c] = L[c];
-        }
-      }
-  }
-};
-
-// "interrupted" when cancellation is asked for; polled every few rows (`i`) of each pass
-// (a huge source or R = 512 takes seconds).
-Status PollCancel(const Progress& progress, const std::string& path, uint64_t R, uint64_t i, const char* pass) {
-  if (i % kRowsPerPoll != 0 || !progress.Cancelled()) return Status::Ok();
-  return Cancelled(path + ": interrupted while resampling to the R = " + std::to_string(R) + " cubemap (" + pass + ")");
-}
-
-// The source reduced to the working lat-long grid: hw × ww × 3 values (`work`), and the
-// source's power (Σ radiance × solid angle).
-struct WorkingGrid {
-  uint64_t hw = 0, ww = 0;
-  uint64_t target_rows = 0, target_cols = 0;
-  double power[3] = {0, 0, 0};
-  std::vector<double> work;
-};
-
-// A lat-long source: a separable exact area average.
-Status LatLongToWorking(const EnvMap& env, uint64_t R, const Progress& progress, WorkingGrid* g) {
-  const uint64_t W = env.width, H = env.height;
-  // Rows: whole groups of source rows when that lands at or above the target; a source with
-  // fewer rows keeps them (each piece of a texel edge is exact over a row of any height).
-  if (H >= g->target_rows) {
-    g->hw = H / GroupFor(H, g->target_rows);
-    if (g->hw > 4 * g->target_rows) g->hw = g->target_rows;  // no usable divisor: fractional rows
-  } else {
-    g->hw = H;
-  }
-  if (W >= g->target_cols) {
-    g->ww = W / GroupFor(W, g->target_cols);
-    if (g->ww > 4 * g->target_cols) g->ww = g->target_cols;
-  } else {
-    g->ww = W;
-  }
-  for (uint64_t j = 0; j < H; ++j) {
-    LTB_RETURN_IF_ERROR(PollCancel(progress, env.path, R, j, "source power"));
-    double omega = CosDiff(kPi * j / H, kPi * (j + 1) / H) * 2.0 * kPi / W;
-    double s[3] = {0, 0, 0};
-    for (uint64_t i = 0; i < W; ++i)
-      for (int c = 0; c < 3; ++c) s[c] += env.rgb[(j * W + i) * 3 + c];
-    for (int c = 0; c < 3; ++c) g->power[c] += s[c] * omega;
-  }
-  // Separable exact area average: θ overlaps weigh by Δcos θ, φ overlaps by length.
-  auto rows = Overlaps(H, g->hw), cols = Overlaps(W, g->ww);
-  std::vector<double>& work = g->work;
-  work.assign(g->hw * g->ww * 3, 0.0);
-  std::vector<double> row(W * 3);
-  for (uint64_t J = 0; J < g->hw; ++J) {
-    LTB_RETURN_IF_ERROR(PollCancel(progress, env.path, R, J, "working grid"));
-    std::fill(row.begin(), row.end(), 0.0);
-    double wsum = 0;
-    for (const Overlap& o : rows[J]) {
-      const double wt = CosDiff(kPi * o.a, kPi * o.b);
-      wsum += wt;
-      const float* src = &env.rgb[o.src * W * 3];
-      for (uint64_t k = 0; k < W * 3; ++k) row[k] += wt * src[k];
-    }
-    for (uint64_t I = 0; I < g->ww; ++I) {
-      double s[3] = {0, 0, 0}, lsum = 0;
-      for (const Overlap& o : cols[I]) {
-        const double wt = o.b - o.a;
-        lsum += wt;
-        for (int c = 0; c < 3; ++c) s[c] += wt * row[o.src * 3 + c];
-      }
-      for (int c = 0; c < 3; ++c) work[(J * g->ww + I) * 3 + c] = s[c] / (wsum * lsum);
-    }
-  }
-  return Status::Ok();
-}
-
-// Cube faces (a cross or six faces): sub-texels splatted into the working grid.
-Status FacesToWorking(const EnvMap& env, uint64_t R, const Progress& progress, WorkingGrid* g) {
-  const FaceGeometry fg = FacesOf(env);
-  const uint64_t F = fg.size;
-  if (F == 0) return InvalidArgument(env.path + ": " + Size(env.width, env.height) + " holds no cube faces");
-  g->hw = g->target_rows;
-  g->ww = g->target_cols;
-  auto source = [&](int f, uint64_t s, uint64_t t) {
-    return &env.rgb[((fg.y0[f] + t) * env.width + fg.x0[f] + s) * 3];
-  };
-  for (int f = 0; f < 6; ++f)
-    for (uint64_t t = 0; t < F; ++t) {
-      LTB_RETURN_IF_ERROR(PollCancel(progress, env.path, R, t, "source power"));
-      for (uint64_t s = 0; s < F; ++s) {
-        const double omega = cubemap::TexelSolidAngle({f, uint32_t(s), uint32_t(t)}, uint32_t(F));
-        for (int c = 0; c < 3; ++c) g->power[c] += source(f, s, t)[c] * omega;
-      }
-    }
-  // Splat k×k sub-texels of each source texel (exact solid angles) into the working pixel
-  // holding their centre; sub-texels about half a working row across at the face centre.
-  uint64_t k = std::max<uint64_t>(1, uint64_t(std::ceil(4.0 * g->hw / (kPi * F))));
-  while (k > 1 && 6 * F * F * k * k > (1ull << 25)) --k;
-  const uint64_t m = k * F;
-  std::vector<double> corner((m + 1) * (m + 1));
-  for (uint64_t q = 0; q <= m; ++q)
-    for (uint64_t p = 0; p <= m; ++p) {
-      const double x = -1.0 + 2.0 * p / m, y = -1.0 + 2.0 * q / m;
-      corner[q * (m + 1) + p] = std::atan2(x * y, std::sqrt(x * x + y * y + 1.0));
-    }
-  WorkingSplat splat(g->hw, g->ww);
-  for (int f = 0; f < 6; ++f)
-    for (uint64_t q = 0; q < m; ++q) {
-      LTB_RETURN_IF_ERROR(PollCancel(progress, env.path, R, q, "working grid"));
-      const double v = -1.0 + 2.0 * (q + 0.5) / m;
-      for (uint64_t p = 0; p < m; ++p) {
-        const double u = -1.0 + 2.0 * (p + 0.5) / m;
-        const double domega = corner[(q + 1) * (m + 1) + p + 1] - corner[(q + 1) * (m + 1) + p] -
-                              corner[q * (m + 1) + p + 1] + corner[q * (m + 1) + p];
-        splat.Add(cubemap::FaceDirection(f, u, v), source(f, p / k, q / k), domega);
-      }
-    }
-  splat.Finish(&g->work, [&](const glm::dvec3& d) {
-    const cubemap::Texel x = cubemap::DirectionToTexel(d, uint32_t(F));
-    return source(x.face, x.s, x.t);
-  });
-  return Status::Ok();
-}
-
-// An angular map: as for cube faces, k×k sub-pixels of each source pixel splatted into the
-// working pixel holding their centre direction, each weighing its solid angle
-// π·sin(πr)/r·du·dv (the map is equi-angular in r: dω = sin θ dθ dφ with θ = πr).
-// Sub-pixels about half a working row across (a pixel spans 2π/W in θ).
-Status AngularToWorking(const EnvMap& env, uint64_t R, const Progress& progress, WorkingGrid* g) {
-  const uint64_t W = env.width;
-  g->hw = g->target_rows;
-  g->ww = g->target_cols;
-  uint64_t k = std::max<uint64_t>(1, uint64_t(std::ceil(4.0 * double(g->hw) / double(W))));
-  while (k > 1 && W * W * k * k > (1ull << 25)) --k;
-  const double du = 2.0 / double(W * k);
-  WorkingSplat splat(g->hw, g->ww);
-  for (uint64_t y = 0; y < W * k; ++y) {
-    LTB_RETURN_IF_ERROR(PollCancel(progress, env.path, R, y, "working grid"));
-    const double v = 1.0 - (double(y) + 0.5) * du;
-    for (uint64_t x = 0; x < W * k; ++x) {
-      const double u = -1.0 + (double(x) + 0.5) * du;
-      const double r = std::sqrt(u * u + v * v);
-      if (r > 1.0) continue;
-      const double domega = (r > 0 ? kPi * std::sin(kPi * r) / r : kPi * kPi) * du * du;
-      const float* L = &env.rgb[((y / k) * W + x / k) * 3];
-      splat.Add(AngularDirection(u, v), L, domega);
-      for (int c = 0; c < 3; ++c) g->power[c] += L[c] * domega;
-    }
-  }
-  splat.Finish(&g->work, [&](const glm::dvec3& d) {
-    uint64_t x, y;
-    DirectionToAngular(d, W, &x, &y);
-    return &env.rgb[(y * W + x) * 3];
-  });
-  return Status::Ok();
-}
-
-// The working grid of any layout.
-Result<WorkingGrid> BuildWorkingGrid(const EnvMap& env, uint64_t R, const Progress& progress) {
-  // Working grid targets: 16R rows (about a fifth of the smallest texel's side, 0.94/R rad at
-  // the cube corners; for a lat-long source at least 512, so that a 1024 × 512 map keeps its
-  // pixels, and the texel averages stay exact, at every R), twice as many columns (as wide as
-  // rows are high at the equator); both halved while the prefix table would pass 2^22 pixels
-  // (100 MB).
-  WorkingGrid g;
-  g.target_rows = env.layout == EnvLayout::kLatLong ? std::max<uint64_t>(16 * R, 512) : 16 * R;
-  g.target_cols = 2 * g.target_rows;
-  while (g.target_rows * g.target_cols > (1ull << 22) && g.target_rows > 1) {
-    g.target_rows /= 2;
-    g.target_cols /= 2;
-  }
-  if (env.layout == EnvLayout::kLatLong) {
-    LTB_RETURN_IF_ERROR(LatLongToWorking(env, R, progress, &g));
-  } else if (env.layout == EnvLayout::kHCross || env.layout == EnvLayout::kVCross || env.layout == EnvLayout::kFaces) {
-    LTB_RETURN_IF_ERROR(FacesToWorking(env, R, progress, &g));
-  } else if (env.layout == EnvLayout::kAngular) {
-    LTB_RETURN_IF_ERROR(AngularToWorking(env, R, progress, &g));
-  } else {
-    return InvalidArgument(env.path + ": environment map layout is unresolved (auto)");
-  }
-  return g;
-}
-
-// Prefix sums per working row (radiance × working columns): hw × (ww + 1) × 3, + 1 pad.
-Result<std::shared_ptr<double[]>> PrefixSums(const std::string& path, const WorkingGrid& g) {
-  const uint64_t ww = g.ww, hw = g.hw;
-  std::shared_ptr<double[]> table = AllocateTable(hw * (ww + 1) * 3 + 1);  // + 1: the last 4-lane load
-  if (table == nullptr) {
-    return InvalidArgument(path + ": no memory for the " + std::to_string(hw) + " x " + std::to_string(ww) +
-                           " working grid");
-  }
-  for (uint64_t J = 0; J < hw; ++J) {
-    double* P = table.get() + J * (ww + 1) * 3;
-    for (uint64_t I = 0; I < ww; ++I)
-      for (int c = 0; c < 3; ++c) P[(I + 1) * 3 + c] = P[I * 3 + c] + g.work[(J * ww + I) * 3 + c];
-  }
-  return table;
-}
 
 // The seam: working column where pieces of texel edges are cut, so that each lies in
 // [kSeamColumn, kSeamColumn + ww). Not a multiple of a column's fraction that any meridian
@@ -398,6 +120,21 @@ double LiftNear(double c, double near, double ww) { return c + ww * std::round((
 
 }  // namespace
 
+// A piece of a texel edge inside one working row, traversed towards increasing column c (a
+// piece along a meridian, w = 0: towards increasing z), between the texel above it (left of
+// a meridian piece) and the one below (right of it).
+struct CubemapResampler::RawPiece {
+  double c = 0;  // working column where it starts, in [kSeamColumn, kSeamColumn + ww)
+  double w = 0;  // width in working columns (0 along a meridian)
+  double z0 = 0, z1 = 0;
+  float kw = 0;  // K(w) (resampler.h, Edge)
+  uint32_t row = 0, up = 0, down = 0;
+};
+// The texel the seam meridian (c = kSeamColumn) passes through in a row (once per stretch).
+struct CubemapResampler::SeamCell {
+  uint32_t row = 0, texel = 0;
+};
+
 Result<CubemapResampler> CubemapResampler::Create(const EnvMap& env, uint64_t cube_res, const Progress& progress) {
   // The tables are bounded by R (and the working grid by 2^22 pixels), but a row of the
   // source is held in double: a lat-long map of extreme width may not fit. No exception
@@ -430,12 +167,26 @@ Result<CubemapResampler> CubemapResampler::CreateUnchecked(const EnvMap& env, ui
   rs.hw_ = grid.hw;
   rs.ww_ = grid.ww;
   for (int c = 0; c < 3; ++c) rs.power_[c] = grid.power[c];
-  LTB_ASSIGN_OR_RETURN(rs.prefix_, PrefixSums(env.path, grid));
+  for (uint64_t i = 0; i < grid.work.size(); ++i) rs.peak_[i % 3] = std::max(rs.peak_[i % 3], grid.work[i]);
+  LTB_ASSIGN_OR_RETURN(rs.values_, WorkingTable(env.path, grid));
   grid.work = {};
 
-  std::vector<double> dsum(n, 0.0);
-  LTB_RETURN_IF_ERROR(rs.BuildPieces(env.path, progress, &dsum));
-  rs.Normalise(dsum);
+  // Row boundaries in z, exactly antisymmetric (the equator exactly 0 when it is one).
+  const uint64_t hw = rs.hw_;
+  std::vector<double> zrow(hw + 1);
+  for (uint64_t J = 0; J <= hw; ++J) zrow[J] = std::cos(kPi * double(J) / double(hw));
+  for (uint64_t J = 0; 2 * J <= hw; ++J) zrow[hw - J] = -zrow[J];
+  zrow[0] = 1.0;
+  zrow[hw] = -1.0;
+  if (hw % 2 == 0) zrow[hw / 2] = 0.0;
+  std::vector<RawPiece> pieces;
+  std::vector<SeamCell> seam;
+  LTB_RETURN_IF_ERROR(CutTexelEdges(R, rs.ww_, hw, env.path, progress, zrow, &pieces, &seam));
+  rs.pieces_ = pieces.size();
+  std::sort(pieces.begin(), pieces.end(), [](const RawPiece& a, const RawPiece& b) { return a.row < b.row; });
+  std::sort(seam.begin(), seam.end(), [](const SeamCell& a, const SeamCell& b) { return a.row < b.row; });
+  LTB_RETURN_IF_ERROR(rs.BuildBands(env.path, progress, zrow, pieces, seam));
+  rs.Normalise();
   return rs;
 }
 
@@ -443,35 +194,28 @@ Result<CubemapResampler> CubemapResampler::CreateUnchecked(const EnvMap& env, ui
 // face; an edge on a cube edge once) cut where it crosses a working row's boundary or the
 // seam, then halved until the cubic Hermite K of each piece is within kPieceTolerance of a
 // working pixel's area (1 column × the row's height in z; at most a pixel of a 32R × 16R grid)
-// of the exact K half-way along it. And the seam terms: the texels the seam meridian passes
-// through, per row.
-Status CubemapResampler::BuildPieces(const std::string& path, const Progress& progress, std::vector<double>* dsum) {
+// of the exact K half-way along it. And the cells of the seam meridian: the texel it passes
+// through in each row, and for how long.
+Status CubemapResampler::CutTexelEdges(uint64_t R, uint64_t ww, uint64_t hw, const std::string& path,
+                                       const Progress& progress, const std::vector<double>& zrow,
+                                       std::vector<RawPiece>* out, std::vector<SeamCell>* seam) {
   constexpr double kPieceTolerance = 1e-5;
-  const uint64_t R = r_, ww = ww_, hw = hw_;
-  const double wwd = double(ww), scale = 2.0 * kPi / wwd;
+  const double wwd = double(ww);
   const uint32_t r32 = uint32_t(R);
-  // Row boundaries in z, exactly antisymmetric (the equator exactly 0 when it is one).
-  std::vector<double> zrow(hw + 1);
-  for (uint64_t J = 0; J <= hw; ++J) zrow[J] = std::cos(kPi * double(J) / double(hw));
-  for (uint64_t J = 0; 2 * J <= hw; ++J) zrow[hw - J] = -zrow[J];
-  zrow[0] = 1.0;
-  zrow[hw] = -1.0;
-  if (hw % 2 == 0) zrow[hw / 2] = 0.0;
-
-  std::vector<Piece> pieces;
-  std::vector<uint32_t> piece_row;
-  auto emit = [&](uint64_t J, double c, double w, double dz, double kw, uint32_t up, uint32_t down) {
+  std::vector<RawPiece>& pieces = *out;
+  auto emit = [&](uint64_t J, double c, double w, double z0, double z1, double kw, uint32_t up, uint32_t down) {
     c -= wwd * std::floor((c - kSeamColumn) / wwd);
     if (c >= kSeamColumn + wwd) c -= wwd;
-    Piece p;
+    RawPiece p;
     p.c = c;
-    p.dz = dz * scale;
-    p.w = float(w);
-    p.kw = float(kw * scale);
+    p.w = w;
+    p.z0 = z0;
+    p.z1 = z1;
+    p.kw = float(kw);
+    p.row = uint32_t(J);
     p.up = up;
     p.down = down;
     pieces.push_back(p);
-    piece_row.push_back(uint32_t(J));
   };
   // A piece of a non-meridian edge from (c0, z0) to (c1, z1) inside row J, halved while its
   // Hermite K is off by more than the tolerance.
@@ -485,15 +229,20 @@ Status CubemapResampler::BuildPieces(const std::string& path, const Progress& pr
     const double pixel =
         std::min(1.0, wwd / (32.0 * double(R))) * std::min(zrow[J] - zrow[J + 1], kPi / (16.0 * double(R)));
     if (depth < 40 && w > 0.5 * kPieceTolerance) {
-      // The Hermite error, t²(w − t)²/24 times the fourth derivative of K, peaks mid-way.
-      if (std::abs(arc.K(c0, z1, 0.5 * w) - HermiteK(dz, w, kw, 0.5 * w)) > kPieceTolerance * pixel) {
+      // The Hermite error, t²(w − t)²/24 times the fourth derivative of K somewhere along the
+      // piece, peaks mid-way where that derivative is even about the middle, and a quarter of
+      // the way in where it is odd (a piece over the arc's apex, before it was cut there): both.
+      auto off = [&](double t) {
+        return std::abs(arc.K(c0, z1, t) - HermiteK(dz, w, kw, t)) > kPieceTolerance * pixel;
+      };
+      if (off(0.5 * w) || off(0.25 * w) || off(0.75 * w)) {
         const double cm = 0.5 * (c0 + c1), zm = arc.Z(cm);
         self(self, arc, J, c0, z0, cm, zm, up, down, depth + 1);
         self(self, arc, J, cm, zm, c1, z1, up, down, depth + 1);
         return;
       }
     }
-    emit(J, c0, w, dz, kw, up, down);
+    emit(J, c0, w, z0, z1, kw, up, down);
   };
   // The row boundaries strictly between z values a and b, in the order met from a to b.
   std::vector<uint64_t> crossed;
@@ -551,7 +300,7 @@ Status CubemapResampler::BuildPieces(const std::string& path, const Progress& pr
             double z0 = zlo;
             for (size_t i = 0; i <= crossed.size(); ++i) {
               const double z1 = i < crossed.size() ? zrow[crossed[i]] : zhi;
-              if (z1 > z0) emit(RowHolding(zrow, 0.5 * (z0 + z1)), c, 0.0, z1 - z0, 0.0, up, down);
+              if (z1 > z0) emit(RowHolding(zrow, 0.5 * (z0 + z1)), c, 0.0, z0, z1, 0.0, up, down);
               z0 = z1;
             }
             continue;
@@ -579,7 +328,9 @@ Status CubemapResampler::BuildPieces(const std::string& path, const Progress& pr
             if (c > c_a && c < c_b) apex = c;
           }
           if (apex > c_a) {
+            // Cut there too: each piece is then monotone in z.
             const double z_apex = arc.Z(apex);
+            marks.push_back({apex, z_apex});
             cut_rows(c_a, z_a, apex, z_apex);
             cut_rows(apex, z_apex, c_b, z_b);
           } else {
@@ -619,50 +370,174 @@ Status CubemapResampler::BuildPieces(const std::string& path, const Progress& pr
     const double z1 = zrow[J];
     for (; next < seam_crossings.size() && seam_crossings[next].z < z1; ++next) {
       const double z = std::max(z0, seam_crossings[next].z);
-      if (z > z0) seam_.push_back({uint32_t(J), current, (z - z0) * scale});
+      if (z > z0) seam->push_back({uint32_t(J), current});
       z0 = z;
       current = seam_crossings[next].above;
     }
-    if (z1 > z0) seam_.push_back({uint32_t(J), current, (z1 - z0) * scale});
+    if (z1 > z0) seam->push_back({uint32_t(J), current});
   }
-
-  // By row, then column (Resample reads each row's prefix sums in order).
-  std::vector<uint64_t> order(pieces.size());
-  for (uint64_t i = 0; i < order.size(); ++i) order[i] = i;
-  std::sort(order.begin(), order.end(), [&](uint64_t x, uint64_t y) {
-    return piece_row[x] != piece_row[y] ? piece_row[x] < piece_row[y] : pieces[x].c < pieces[y].c;
-  });
-  pieces_.resize(pieces.size());
-  row_first_.assign(hw + 1, 0);
-  for (uint64_t i = 0; i < order.size(); ++i) {
-    pieces_[i] = pieces[order[i]];
-    ++row_first_[piece_row[order[i]] + 1];
-  }
-  for (uint64_t J = 0; J < hw; ++J) row_first_[J + 1] += row_first_[J];
-  // Each texel's solid angle as the pieces see it: the same sums over a map of ones, whose
-  // prefix function is S(x) = x (x = c at rotation 0; the seam terms see the row total ww).
-  for (const Piece& p : pieces_) {
-    const double v = p.dz * p.c + double(p.kw);
-    (*dsum)[p.up] += v;
-    (*dsum)[p.down] -= v;
-  }
-  for (const SeamTerm& s : seam_) (*dsum)[s.texel] += s.weight * wwd;
   return Status::Ok();
 }
 
-void CubemapResampler::Normalise(const std::vector<double>& dsum) {
-  const uint64_t R = r_, n = 6 * R * R, ww = ww_, hw = hw_;
-  texel_scale_.resize(n);
-  for (uint64_t t = 0; t < n; ++t) {
-    if (dsum[t] > 0) {
-      texel_scale_[t] = 1.0 / dsum[t];
-      continue;
+// Bands: the pieces (and the seam's cells) grouped by row and texel. The ends of a band's
+// pieces cut the row's circle into arcs; over each arc the band covers either the whole
+// height of the row, or none of it, or the part a piece of it bounds: present when one of its
+// pieces spans the arc, else when the texel holds the arc's midpoint at the row's middle
+// height (no edge of the texel crosses the row there). The band's own coordinate starts
+// after its widest absent arc (at its first end when it covers the whole circle), so that its
+// spans and edges are contiguous; a texel is convex, so each column meets it in one interval
+// of z, bounded by at most one top and one bottom piece.
+Status CubemapResampler::BuildBands(const std::string& path, const Progress& progress, const std::vector<double>& zrow,
+                                    const std::vector<RawPiece>& pieces, const std::vector<SeamCell>& seam) {
+  const uint64_t n = 6 * r_ * r_;
+  const double wwd = double(ww_);
+  const uint32_t r32 = uint32_t(r_);
+  constexpr uint32_t kSeamRef = UINT32_MAX;
+  constexpr double kSameEnd = 1e-9;  // columns: ends closer than this are one
+  struct Ref {
+    uint64_t key;    // row · 6R² + texel
+    uint32_t piece;  // kSeamRef: a seam cell
+    uint32_t top;    // the texel lies below the piece
+  };
+  // Row by row (pieces and seam cells come sorted by row), so that the references are one
+  // row's at a time.
+  uint64_t non_meridian = 0;
+  for (const RawPiece& p : pieces) non_meridian += p.w > 0;
+  edges_.reserve(2 * non_meridian);
+  std::vector<Ref> refs;
+  size_t next_piece = 0, next_seam = 0;
+  std::vector<double> ends;
+  std::vector<char> present;
+  uint64_t groups = 0;
+  for (uint32_t J = 0; J < hw_; ++J) {
+    refs.clear();
+    for (; next_piece < pieces.size() && pieces[next_piece].row == J; ++next_piece) {
+      const RawPiece& p = pieces[next_piece];
+      refs.push_back({uint64_t(p.row) * n + p.up, uint32_t(next_piece), 0});
+      refs.push_back({uint64_t(p.row) * n + p.down, uint32_t(next_piece), 1});
     }
-    texel_scale_[t] = 1.0;
-    double u, v;
-    DirectionToLatLong(cubemap::TexelCenter(cubemap::ColumnToTexel(t, R), uint32_t(R)), &u, &v);
-    empty_.push_back({t, uint32_t(std::min<uint64_t>(uint64_t(v * hw), hw - 1)), u * ww});
+    for (; next_seam < seam.size() && seam[next_seam].row == J; ++next_seam) {
+      refs.push_back({uint64_t(J) * n + seam[next_seam].texel, kSeamRef, 0});
+    }
+    std::sort(refs.begin(), refs.end(), [](const Ref& a, const Ref& b) {
+      return a.key != b.key ? a.key < b.key : a.top != b.top ? a.top > b.top : a.piece < b.piece;
+    });
+    for (size_t g = 0; g < refs.size();) {
+      size_t e = g;
+      while (e < refs.size() && refs[e].key == refs[g].key) ++e;
+      LTB_RETURN_IF_ERROR(PollCancel(progress, path, r_, groups++, "bands"));
+      const uint32_t row = uint32_t(refs[g].key / n), texel = uint32_t(refs[g].key % n);
+      const double ztop = zrow[row], zbottom = zrow[row + 1], zmid = 0.5 * (ztop + zbottom);
+      // The ends on the circle [kSeamColumn, kSeamColumn + ww).
+      ends.clear();
+      for (size_t k = g; k < e; ++k) {
+        if (refs[k].piece == kSeamRef) continue;
+        const RawPiece& p = pieces[refs[k].piece];
+        ends.push_back(p.c);
+        double end = p.c + p.w;
+        if (end >= kSeamColumn + wwd) end -= wwd;
+        ends.push_back(end);
+      }
+      std::sort(ends.begin(), ends.end());
+      size_t m = 0;
+      for (double x : ends) {
+        if (m == 0 || x - ends[m - 1] > kSameEnd) ends[m++] = x;
+      }
+      ends.resize(m);
+      if (m > 1 && ends[0] + wwd - ends[m - 1] <= kSameEnd) ends.pop_back(), --m;
+      if (m == 0) ends.push_back(kSeamColumn);  // no piece: one arc, the whole circle
+      const size_t arcs = ends.size();
+      auto arc_start = [&](size_t k) { return ends[k]; };
+      auto arc_end = [&](size_t k) { return k + 1 < arcs ? ends[k + 1] : ends[0] + wwd; };
+      present.assign(arcs, 0);
+      for (size_t k = 0; k < arcs; ++k) {
+        const double mid = 0.5 * (arc_start(k) + arc_end(k));
+        bool spanned = false;
+        for (size_t q = g; q < e && !spanned; ++q) {
+          if (refs[q].piece == kSeamRef) continue;
+          const RawPiece& p = pieces[refs[q].piece];
+          for (double x : {mid, mid - wwd}) spanned |= p.w > 0 && x >= p.c && x <= p.c + p.w;
+        }
+        if (!spanned) {
+          const double phi = kPi - 2.0 * kPi * mid / wwd, rho = std::sqrt(std::max(0.0, 1.0 - zmid * zmid));
+          const glm::dvec3 d(rho * std::cos(phi), rho * std::sin(phi), zmid);
+          spanned = cubemap::Column(cubemap::DirectionToTexel(d, r32), r32) == texel;
+        }
+        present[k] = spanned;
+      }
+      size_t first = 0;  // the arc the band's coordinate starts with
+      double widest = -1;
+      for (size_t k = 0; k < arcs; ++k) {
+        if (!present[k] && arc_end(k) - arc_start(k) > widest) {
+          widest = arc_end(k) - arc_start(k);
+          first = (k + 1) % arcs;
+        }
+      }
+      const double origin = arc_start(first);
+      Band band;
+      band.texel = texel;
+      band.row = row;
+      band.height = ztop - zbottom;
+      band.first_span = uint32_t(spans_.size());
+      for (size_t i = 0; i < arcs; ++i) {
+        const size_t k = (first + i) % arcs;
+        if (!present[k]) continue;
+        const double lift = k < first ? wwd : 0.0, a = arc_start(k) + lift, b = arc_end(k) + lift;
+        if (spans_.size() > band.first_span && a - spans_.back().b <= kSameEnd) {
+          spans_.back().b = b;
+        } else {
+          spans_.push_back({a, b});
+        }
+      }
+      band.spans = uint32_t(spans_.size() - band.first_span);
+      if (band.spans == 0) {
+        g = e;
+        continue;
+      }
+      band.first_edge = uint32_t(edges_.size());
+      for (size_t k = g; k < e; ++k) {  // top pieces first (the sort's order)
+        if (refs[k].piece == kSeamRef) continue;
+        const RawPiece& p = pieces[refs[k].piece];
+        if (!(p.w > 0)) continue;  // along a meridian: it bounds the spans, not the height
+        Edge edge;
+        edge.c = p.c < origin - kSameEnd ? p.c + wwd : p.c;
+        // The Hermite cubic (HermiteK) in powers of t.
+        const double dz = p.z1 - p.z0, kw = p.kw, inv = 1.0 / p.w, dzw = dz * p.w;
+        edge.h = refs[k].top ? ztop - p.z1 : p.z1 - zbottom;
+        edge.dz = dz;
+        edge.a2 = (3.0 * kw - 2.0 * dzw) * inv * inv;
+        edge.a3 = (dzw - 2.0 * kw) * inv * inv * inv;
+        edge.w = p.w;
+        edges_.push_back(edge);
+        ++(refs[k].top ? band.top_edges : band.bottom_edges);
+      }
+      const double lo = spans_[band.first_span].a, hi = spans_.back().b;
+      widest_band_ = std::max<uint64_t>(widest_band_, uint64_t(std::floor(hi) - std::floor(lo)) + 2);
+      bands_.push_back(band);
+      g = e;
+    }
   }
+  // By row, then first column, and the spans and edges in that order: Integrate then reads
+  // the working grid and every table in order.
+  std::sort(bands_.begin(), bands_.end(), [&](const Band& x, const Band& y) {
+    return x.row != y.row ? x.row < y.row : spans_[x.first_span].a < spans_[y.first_span].a;
+  });
+  std::vector<Span> spans;
+  spans.reserve(spans_.size());
+  for (Band& b : bands_) {
+    spans.insert(spans.end(), spans_.begin() + b.first_span, spans_.begin() + b.first_span + b.spans);
+    b.first_span = uint32_t(spans.size() - b.spans);
+  }
+  spans_ = std::move(spans);
+  std::vector<Edge> edges;
+  edges.reserve(edges_.size());
+  for (Band& b : bands_) {
+    const uint32_t count = b.top_edges + b.bottom_edges;
+    edges.insert(edges.end(), edges_.begin() + b.first_edge, edges_.begin() + b.first_edge + count);
+    b.first_edge = uint32_t(edges.size() - count);
+  }
+  edges_ = std::move(edges);
+  return Status::Ok();
 }
 
 namespace {
@@ -671,6 +546,104 @@ namespace {
 using Vec4 = double __attribute__((vector_size(32)));
 inline void Load(const double* p, Vec4* v) { std::memcpy(v, p, sizeof *v); }
 }  // namespace
+
+// Per band: the area of the band in each column it covers (the spans' full height, less what
+// its top and bottom pieces cut off), then Σ L·max(area, 0) over those columns: a sum of
+// non-negative terms. Column j of the band's coordinate x = c + shift is working column
+// j mod ww.
+void CubemapResampler::Integrate(double shift, const double* values, double* acc) const {
+  thread_local std::vector<double> area;
+  area.resize(widest_band_ + 2);
+  const int64_t ww = int64_t(ww_);
+  Vec4* const out = reinterpret_cast<Vec4*>(acc);
+  for (const Band& b : bands_) {
+    const Span* spans = spans_.data() + b.first_span;
+    const int64_t j0 = int64_t(std::floor(spans[0].a + shift));
+    const int64_t cols =
+        std::min<int64_t>(int64_t(std::floor(spans[b.spans - 1].b + shift)) - j0 + 1, int64_t(area.size()));
+    std::fill_n(area.data(), cols, 0.0);
+    auto at = [&](int64_t j) -> double& { return area[std::clamp<int64_t>(j - j0, 0, cols - 1)]; };
+    for (uint32_t k = 0; k < b.spans; ++k) {
+      // The span's full height in each column it covers: a fraction of it in the first and last.
+      const double x0 = spans[k].a + shift, x1 = spans[k].b + shift;
+      const int64_t ja = int64_t(std::floor(x0)), jb = std::min(int64_t(std::floor(x1)), j0 + cols - 1);
+      if (jb <= ja) {
+        at(ja) += b.height * (x1 - x0);
+        continue;
+      }
+      at(ja) += b.height * (double(ja + 1) - x0);
+      double* const mid = area.data() + (ja - j0);
+      for (int64_t j = 1; j < jb - ja; ++j) mid[j] += b.height;
+      at(jb) += b.height * (x1 - double(jb));
+    }
+    const Edge* edges = edges_.data() + b.first_edge;
+    for (uint32_t k = 0; k < b.top_edges + b.bottom_edges; ++k) {
+      const Edge& e = edges[k];
+      const bool top = k < b.top_edges;
+      const double x = e.c + shift, w = e.w, dz = e.dz, a2 = e.a2, a3 = e.a3;
+      double t_prev = 0, k_prev = 0;
+      for (int64_t j = int64_t(std::floor(x));; ++j) {
+        const double t = std::min(w, double(j + 1) - x);
+        const double kt = t * (dz + t * (a2 + t * a3));
+        const double dt = t - t_prev, dk = kt - k_prev;
+        at(j) -= top ? dt * e.h + dk : dt * e.h - dk;
+        if (t >= w) break;
+        t_prev = t;
+        k_prev = kt;
+      }
+    }
+    Vec4 sum = {0, 0, 0, 0};
+    if (values == nullptr) {
+      for (int64_t k = 0; k < cols; ++k) sum += std::max(area[k], 0.0);
+    } else {
+      // Two runs: up to the row's end, then on from its column 0. Two sums, to overlap the
+      // loads. Lane 3 is the next column's R: ignored.
+      const double* row = values + uint64_t(b.row) * ww_ * 3;
+      const int64_t c0 = j0 % ww, first = std::min(cols, ww - c0);
+      Vec4 other = {0, 0, 0, 0};
+      auto add = [&](const double* p, const double* a, int64_t count) {
+        int64_t k = 0;
+        for (; k + 1 < count; k += 2) {
+          Vec4 v, u;
+          Load(p + 3 * k, &v);
+          Load(p + 3 * k + 3, &u);
+          sum += std::max(a[k], 0.0) * v;
+          other += std::max(a[k + 1], 0.0) * u;
+        }
+        if (k < count) {
+          Vec4 v;
+          Load(p + 3 * k, &v);
+          sum += std::max(a[k], 0.0) * v;
+        }
+      };
+      add(row + 3 * c0, area.data(), first);
+      for (int64_t done = first; done < cols; done += ww) add(row, area.data() + done, std::min(ww, cols - done));
+      sum += other;
+    }
+    out[b.texel] += sum;
+  }
+}
+
+void CubemapResampler::Normalise() {
+  const uint64_t R = r_, n = 6 * R * R, ww = ww_, hw = hw_;
+  std::vector<Vec4> area(n, Vec4{0, 0, 0, 0});
+  Integrate(0.0, nullptr, reinterpret_cast<double*>(area.data()));
+  const double* d = reinterpret_cast<const double*>(area.data());
+  const double scale = 2.0 * kPi / double(ww);  // dω = dz·dφ, a column is 2π/ww of φ
+  texel_scale_.resize(n);
+  for (uint64_t t = 0; t < n; ++t) {
+    if (d[4 * t] > 0) {
+      texel_scale_[t] = 1.0 / d[4 * t];
+      solid_angle_error_ = std::max(solid_angle_error_, std::abs(d[4 * t] * scale / omega_[t] - 1.0));
+      continue;
+    }
+    texel_scale_[t] = 1.0;
+    solid_angle_error_ = 1.0;
+    double u, v;
+    DirectionToLatLong(cubemap::TexelCenter(cubemap::ColumnToTexel(t, R), uint32_t(R)), &u, &v);
+    empty_.push_back({t, uint32_t(std::min<uint64_t>(uint64_t(v * hw), hw - 1)), u * ww});
+  }
+}
 
 void CubemapResampler::Resample(double rotation, float* out) const {
   const uint64_t n = 6 * r_ * r_, ww = ww_;
@@ -683,85 +656,22 @@ void CubemapResampler::Resample(double rotation, float* out) const {
   turns -= std::floor(turns);
   double shift = turns * wwd;
   if (!(shift >= 0.0 && shift < wwd)) shift = 0.0;
-  const size_t stride = (ww + 1) * 3;
-  const int64_t last = int64_t(ww) - 1;
-  for (uint64_t J = 0; J < hw_; ++J) {
-    const double* P = prefix_.get() + J * stride;
-    Vec4 total;
-    Load(P + ww * 3, &total);
-    const Piece* piece = pieces_.data() + row_first_[J];
-    const Piece* end = pieces_.data() + row_first_[J + 1];
-    for (; piece != end; ++piece) {
-      // S at the piece's start x = c + shift (∫_0^x of the row, extended periodically: each
-      // pass of ww adds the row total), then Σ L·ΔK over the columns it crosses. Lane 3 is
-      // the next column's R: ignored.
-      double x = piece->c + shift;
-      Vec4 wrap = {0, 0, 0, 0};
-      while (x >= wwd) {
-        x -= wwd;
-        wrap += total;
-      }
-      const int64_t i = std::min<int64_t>(int64_t(x), last);
-      const double f = x - double(i);
-      Vec4 p0, p1;
-      Load(P + 3 * i, &p0);
-      Load(P + 3 * i + 3, &p1);
-      const Vec4 li = p1 - p0;
-      Vec4 v = piece->dz * (p0 + f * li + wrap);
-      const double w = piece->w, kw = piece->kw, t1 = 1.0 - f;
-      if (t1 >= w) {
-        v += kw * li;
-      } else {
-        // K(t) = t·(dz + t·(a2 + t·a3)), the Hermite cubic (HermiteK) in powers of t.
-        const double dz = piece->dz, inv = 1.0 / w, dzw = dz * w;
-        const double a3 = (dzw - 2.0 * kw) * inv * inv * inv, a2 = (3.0 * kw - 2.0 * dzw) * inv * inv;
-        double k_prev = t1 * (dz + t1 * (a2 + t1 * a3));
-        v += k_prev * li;
-        int64_t j = i + 2;
-        Vec4 q0 = p1, q1;
-        for (double t = t1 + 1.0;; t += 1.0, ++j) {
-          if (j > int64_t(ww)) {  // past the row's end: on from column 0
-            j -= int64_t(ww);
-            Load(P, &q0);
-          }
-          Load(P + 3 * j, &q1);
-          if (t >= w) {
-            v += (kw - k_prev) * (q1 - q0);
-            break;
-          }
-          const double k_next = t * (dz + t * (a2 + t * a3));
-          v += (k_next - k_prev) * (q1 - q0);
-          k_prev = k_next;
-          q0 = q1;
-        }
-      }
-      acc[piece->up] += v;
-      acc[piece->down] -= v;
-    }
-  }
-  for (const SeamTerm& s : seam_) {
-    Vec4 total;
-    Load(prefix_.get() + s.row * stride + ww * 3, &total);
-    acc[s.texel] += s.weight * total;
-  }
+  Integrate(shift, values_.get(), reinterpret_cast<double*>(acc));
   for (const EmptyTexel& e : empty_) {
     double x = e.column + shift;
     if (x >= wwd) x -= wwd;
     const uint64_t i = std::min<uint64_t>(uint64_t(x), ww - 1);
-    const double* p = prefix_.get() + e.row * stride + i * 3;
-    Vec4 p0, p1;
-    Load(p, &p0);
-    Load(p + 3, &p1);
-    acc[e.texel] = p1 - p0;
+    Load(values_.get() + (e.row * ww + i) * 3, &acc[e.texel]);
   }
   // Texel radiance = Σ L dΩ / Σ dΩ, then one factor per channel so that Σ texel·Ω_texel
-  // equals the source's power.
+  // equals the source's power; a texel is an average of the working grid, so at most its
+  // largest value (which keeps a map near float32's largest value finite).
   Vec4 sum = {0, 0, 0, 0};
   for (uint64_t t = 0; t < n; ++t) sum += acc[t] * (texel_scale_[t] * omega_[t]);
   double g[3];
   for (int c = 0; c < 3; ++c) g[c] = sum[c] > 0 ? power_[c] / sum[c] : 1.0;
   for (uint64_t t = 0; t < n; ++t)
-    for (int c = 0; c < 3; ++c) out[t * 3 + c] = float(acc[t][c] * texel_scale_[t] * g[c]);
+    for (int c = 0; c < 3; ++c) out[t * 3 + c] = float(std::min(acc[t][c] * texel_scale_[t] * g[c], peak_[c]));
 }
 
 }  // namespace ltb::stages

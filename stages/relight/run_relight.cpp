@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <memory>
 #include <numbers>
 #include <optional>
@@ -20,6 +21,12 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double Ms(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
 
+std::string Shortest(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%g", v);
+  return buf;
+}
+
 // The frames relight renders, sharing their buffers: `cube` holds the last frame's
 // lighting in the basis, `terms` its kept terms, `image` its output, `fixes` what the
 // output policy changed in it.
@@ -33,15 +40,21 @@ struct Frames {
   // The output policy (mask-0 rows black, negatives clamped unless kept).
   OutputFixes Finish(std::vector<float>* img) const { return FinishRelitImage(m.mask(), o.keep_negative, img); }
 
-  // One frame: resample, transform, select, relight.
+  // One frame: resample, transform, select, relight. A map near float32's largest value is
+  // relit at 2^-exponent (LightingExponent) and the image scaled back; an image beyond
+  // float32 is an error, never written.
   Status Render(double rot, double* lighting_ms, double* relight_ms) {
     auto a = Clock::now();
     env.Cubemap(rot, &cube);
+    exponent = LightingExponent(cube);
+    ScaleByPowerOfTwo(&cube, -exponent);
     basis.ToBasis(cube.data());
     LTB_RETURN_IF_ERROR(basis.SelectTerms(cube.data(), o.terms, o.weighting, norms(), &terms));
     auto b = Clock::now();
     LTB_RETURN_IF_ERROR(m.Relight(terms, &image));
+    ScaleByPowerOfTwo(&image, exponent);
     fixes = Finish(&image);
+    LTB_RETURN_IF_ERROR(CheckRelitImageFinite(image, m.width(), o.env));
     auto c = Clock::now();
     if (lighting_ms) *lighting_ms = Ms(a, b);
     if (relight_ms) *relight_ms = Ms(b, c);
@@ -52,9 +65,10 @@ struct Frames {
   const Environment& env;
   const LightingBasis& basis;
   RelightMatrix& m;
-  std::vector<float> cube, image;
-  LightTerms terms;
+  std::vector<float> cube, image;  // `cube`: the lighting at 2^-exponent, in the basis
+  LightTerms terms;                // at 2^-exponent
   OutputFixes fixes;
+  int exponent = 0;
 };
 
 // What a term is in this matrix's column basis, and how much of the map it keeps.
@@ -88,11 +102,11 @@ Status TimeFrames(const RelightOptions& o, const Environment& env, double rotati
   return Status::Ok();
 }
 
-// The errors of the written image (`first`, from `first_terms`) against the uncompressed
+// The errors of the written image (`first`, from `first_terms` at 2^-exponent) against the uncompressed
 // reference matrix o.reference: in all, of the lighting approximation alone, and of the
 // compressed matrix alone.
 Status MeasureErrors(const RelightOptions& o, const Environment& env, const LightingBasis& basis, RelightMatrix& m,
-                     const Frames& frames, const std::vector<float>& first, const LightTerms& first_terms,
+                     const Frames& frames, const std::vector<float>& first, const LightTerms& first_terms, int exponent,
                      double rotation, const Progress& progress, nlohmann::json* report) {
   const uint64_t rows = m.rows();
   // The reference goes through RelightMatrix too (streamed from its row blocks), so a channel
@@ -100,9 +114,13 @@ Status MeasureErrors(const RelightOptions& o, const Environment& env, const Ligh
   LTB_ASSIGN_OR_RETURN(RelightMatrix ref, RelightMatrix::Open(o.reference, o.mem_limit, o.jobs, progress, nullptr));
   const LightingBasis& ref_basis = ref.basis();
   LTB_RETURN_IF_ERROR(CheckSameBake(ref, m));
-  // Exact: the full lighting in the reference's basis.
+  // Exact: the full lighting in the reference's basis. All at 2^-exponent, as `first_terms`
+  // (the errors are relative), `first` too.
   std::vector<float> full;
   env.Cubemap(rotation, &full);
+  ScaleByPowerOfTwo(&full, -exponent);
+  std::vector<float> first_scaled = first;
+  ScaleByPowerOfTwo(&first_scaled, -exponent);
   std::vector<float> full_ref = full;
   ref_basis.ToBasis(full_ref.data());
   std::vector<float> exact;
@@ -123,7 +141,7 @@ Status MeasureErrors(const RelightOptions& o, const Environment& env, const Ligh
     if (e.rel_h1 >= 0) j["rel_h1"] = e.rel_h1;
     return j;
   };
-  (*report)["error"] = metrics(first);
+  (*report)["error"] = metrics(first_scaled);
   (*report)["error_lighting_only"] = metrics(light_only);
   // Matrix alone: every lighting term through the compressed matrix.
   std::vector<float> all = full;
@@ -137,12 +155,25 @@ Status MeasureErrors(const RelightOptions& o, const Environment& env, const Ligh
 
 }  // namespace
 
+Status CheckRelightNumbers(const RelightOptions& o) {
+  if (!(std::fabs(o.rotate_deg) <= RelightOptions::kMaxRotateDegrees)) {
+    return InvalidArgument("--rotate " + Shortest(o.rotate_deg) + ": expected degrees within ±" +
+                           Shortest(RelightOptions::kMaxRotateDegrees));
+  }
+  if (!(o.exposure >= 0 && o.exposure <= kMaxExposure)) {
+    return InvalidArgument("--exposure " + Shortest(o.exposure) + ": expected 0 (automatic) .. " +
+                           Shortest(kMaxExposure));
+  }
+  return Status::Ok();
+}
+
 nlohmann::json TermsJson(uint64_t terms) {
   return terms == RelightOptions::kAllTerms ? nlohmann::json("all") : nlohmann::json(terms);
 }
 
 Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progress) {
   if (o.terms == 0) return InvalidArgument("--terms must be at least 1 (or all)");
+  LTB_RETURN_IF_ERROR(CheckRelightNumbers(o));
   EnvLoadOptions eo;
   eo.clamp = o.clamp_env;
   eo.layout = o.env_layout;
@@ -161,6 +192,10 @@ Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progre
   report["load_matrix_ms"] = Ms(t0, t1);
   report["load_env_ms"] = Ms(t1, t2);
   if (env.clamped()) report["clamped_values"] = env.clamped();
+  if (o.rotate_deg != 0 && !env.rotates()) {
+    return InvalidArgument("--rotate " + Shortest(o.rotate_deg) + ": " + o.env +
+                           " is a cubemap .npy, which cannot rotate; pass the .exr or .hdr map it was converted from");
+  }
   const double rotation = o.rotate_deg * std::numbers::pi / 180.0;
 
   Frames frames(o, env, basis, m);
@@ -178,10 +213,12 @@ Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progre
   }
   std::vector<float> first = frames.image;
   LightTerms first_terms = frames.terms;
+  const int first_exponent = frames.exponent;
 
   if (o.frames > 0) LTB_RETURN_IF_ERROR(TimeFrames(o, env, rotation, progress, &frames, &report));
   if (!o.reference.empty()) {
-    LTB_RETURN_IF_ERROR(MeasureErrors(o, env, basis, m, frames, first, first_terms, rotation, progress, &report));
+    LTB_RETURN_IF_ERROR(
+        MeasureErrors(o, env, basis, m, frames, first, first_terms, first_exponent, rotation, progress, &report));
   }
   RelightResult result{std::move(report), {}};
   if (o.return_image) result.image = std::move(first);

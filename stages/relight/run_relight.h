@@ -27,10 +27,13 @@ struct RelightOptions {
   static constexpr uint64_t kAllTerms = std::numeric_limits<uint64_t>::max();
   uint64_t terms = 100;  // ≥ 1; kAllTerms keeps every nonzero coefficient
   Weighting weighting = Weighting::kArea;
-  std::string reference;       // uncompressed matrix for the error metrics (empty: none)
-  int frames = 0;              // timing frames, the environment rotating once about +Z
-  double rotate_deg = 0;       // rotation of the environment about +Z for the written image
-  double exposure = 0;         // PNG exposure (0: automatic)
+  std::string reference;  // uncompressed matrix for the error metrics (empty: none)
+  int frames = 0;         // timing frames, the environment rotating once about +Z
+  // Rotation of the environment about +Z for the written image, within ±kMaxRotateDegrees
+  // (beyond that a double no longer holds a fraction of a turn).
+  static constexpr double kMaxRotateDegrees = 1e6;
+  double rotate_deg = 0;
+  double exposure = 0;         // PNG exposure, 0..kMaxExposure (image_io.h; 0: automatic)
   bool keep_negative = false;  // --no-clamp-output
   EnvLayout env_layout = EnvLayout::kAuto;
   bool clamp_env = false;
@@ -52,6 +55,11 @@ struct RelightResult {
 
 // How reports spell a terms count: N, or "all" for RelightOptions::kAllTerms.
 nlohmann::json TermsJson(uint64_t terms);
+
+// rotate_deg finite and within ±kMaxRotateDegrees, exposure in [0, kMaxExposure]: an
+// InvalidArgument naming the flag and the value otherwise (a caller other than the CLI, whose
+// flags are checked while parsing, may pass anything).
+Status CheckRelightNumbers(const RelightOptions& o);
 
 // Cancelled (progress.Cancelled()) between timing frames, after the image is written.
 Result<RelightResult> RunRelight(const RelightOptions& options, const Progress& progress);

@@ -195,6 +195,7 @@ Status IncrementalRelighter::Frame(const std::vector<float>& cube) {
 Result<RelightResult> RunRelightSequence(const RelightOptions& o, const SequenceOptions& so, const Progress& progress) {
   if (o.terms == 0) return InvalidArgument("--terms must be at least 1 (or all)");
   if (o.frames > 0) return InvalidArgument("--frames times a rotation of one image; with --sequence drop it");
+  LTB_RETURN_IF_ERROR(CheckRelightNumbers(o));
   LTB_ASSIGN_OR_RETURN(std::vector<SequenceSegment> segments, ParseSequence(so.spec));
   const bool video = o.output.ends_with(".mp4");
   if (!video) {
@@ -268,6 +269,7 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
 
     out = inc.image();
     FinishRelitImage(m.mask(), o.keep_negative, &out);
+    LTB_RETURN_IF_ERROR(CheckRelitImageFinite(out, m.width(), o.env).WithContext("frame " + std::to_string(f)));
     if (exposure <= 0 && m.width() > 0) exposure = AutoExposure(out.data(), rows);  // fixed from frame 0 on
     if (video) {
       if (!mp4) {

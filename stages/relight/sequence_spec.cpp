@@ -3,6 +3,8 @@
 #include <cmath>
 #include <cstdlib>
 
+#include "stages/common/quantity.h"
+
 namespace ltb::stages {
 namespace {
 
@@ -46,11 +48,9 @@ Result<std::vector<SequenceSegment>> ParseSequence(const std::string& spec) {
       const size_t c = rest.find(':');
       if (c == std::string::npos) return bad(seg, "expected rotate:DEG_PER_FRAME:FRAMES");
       const std::string deg = rest.substr(0, c);
-      char* stop = nullptr;
-      s.degrees = std::strtod(deg.c_str(), &stop);
-      if (deg.empty() || *stop != '\0' || !std::isfinite(s.degrees) || std::fabs(s.degrees) > 360) {
-        return bad(seg, "the degrees per frame \"" + deg + "\" are not a number in [-360, 360]");
-      }
+      auto degrees = ParseDecimal(deg, -360, 360);
+      if (!degrees.ok()) return bad(seg, "the degrees per frame: " + degrees.status().message());
+      s.degrees = *degrees;
       if (!ParseCount(rest.substr(c + 1), &s.frames)) {
         return bad(seg, "the frame count \"" + rest.substr(c + 1) + "\" is not an integer in [1, 1000000]");
       }

@@ -5,17 +5,11 @@
 #include <numbers>
 
 #include "stages/common/cubemap.h"
+#include "stages/common/quantity.h"
 #include "stages/relight/image_io.h"
 
 namespace ltb::stages::view {
 namespace {
-
-bool ParseDouble(const std::string& s, double* out) {
-  if (s.empty() || s.size() > 32) return false;
-  char* stop = nullptr;
-  *out = std::strtod(s.c_str(), &stop);
-  return *stop == '\0' && std::isfinite(*out);
-}
 
 // Marks the face texels a lighting column's basis function covers — the whole face for the
 // scaling function, else the block of side R/2^l of a level-l detail (Mallat layout) — with
@@ -60,9 +54,9 @@ Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>&
   for (const auto& [key, value] : params) {
     const std::string shown = value.size() > 40 ? value.substr(0, 40) + "..." : value;
     if (key == "rotate") {
-      if (!ParseDouble(value, &r.rotate_deg) || std::fabs(r.rotate_deg) > 1e6) {
-        return InvalidArgument("rotate=" + shown + ": expected degrees, a number within ±1e6");
-      }
+      auto v = ParseDecimal(value, -RelightOptions::kMaxRotateDegrees, RelightOptions::kMaxRotateDegrees);
+      if (!v.ok()) return InvalidArgument("rotate: " + v.status().message() + " (degrees)");
+      r.rotate_deg = *v;
     } else if (key == "terms") {
       if (value == "all") {
         r.terms = RelightOptions::kAllTerms;
@@ -77,9 +71,9 @@ Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>&
       if (!m.ok()) return InvalidArgument("method=" + shown + ": expected nwa, bi or pbi");
       r.method = *m;
     } else if (key == "exposure") {
-      if (!ParseDouble(value, &r.exposure) || r.exposure < 0 || r.exposure > 1e12) {
-        return InvalidArgument("exposure=" + shown + ": expected a number >= 0 (0: automatic)");
-      }
+      auto v = ParseDecimal(value, 0, kMaxExposure);
+      if (!v.ok()) return InvalidArgument("exposure: " + v.status().message() + " (0: automatic)");
+      r.exposure = *v;
     } else {
       return InvalidArgument("unknown parameter \"" + (key.size() > 40 ? key.substr(0, 40) + "..." : key) +
                              "\" (rotate, terms, method, exposure)");
@@ -102,6 +96,7 @@ Result<std::unique_ptr<ViewSession>> ViewSession::Open(const ViewOptions& o) {
     return FailedPrecondition(o.env + ": a cubemap .npy cannot rotate; view needs an .exr or .hdr map");
   }
   std::unique_ptr<ViewSession> s(new ViewSession(std::move(m), std::move(env)));
+  s->env_path_ = o.env;
   if (!o.reference.empty()) {
     LTB_ASSIGN_OR_RETURN(RelightMatrix r, RelightMatrix::Open(o.reference, o.mem_limit, o.jobs, Progress{}, nullptr));
     LTB_RETURN_IF_ERROR(CheckSameBake(r, s->m_));
@@ -122,6 +117,7 @@ Result<std::string> ViewSession::Render(const FrameRequest& q) {
   const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - a).count();
   std::vector<float> out = relighter_->image();
   FinishRelitImage(m_.mask(), false, &out);
+  LTB_RETURN_IF_ERROR(CheckRelitImageFinite(out, m_.width(), env_path_));
   const double exposure = q.exposure > 0 ? q.exposure : AutoExposure(out.data(), m_.rows());
   const FrameUpdate& u = relighter_->update();
   nlohmann::json bands = nlohmann::json::array();

@@ -60,6 +60,7 @@ class ViewSession {
   ViewSession(RelightMatrix m, Environment env) : m_(std::move(m)), env_(std::move(env)) {}
   RelightMatrix m_;
   Environment env_;
+  std::string env_path_;
   std::optional<RelightMatrix> reference_;
   FrameRequest defaults_, last_;
   std::unique_ptr<IncrementalRelighter> relighter_;

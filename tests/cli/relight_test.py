@@ -80,6 +80,20 @@ with tempfile.TemporaryDirectory() as d:
     for bad in ("0", "-3", "some", "1.5"):
         r = run("relight", p("c0.ltm"), "--env", env, "-o", p("never.npy"), "--terms", bad, expect=2)
         check("--terms" in r.stderr and not os.path.exists(p("never.npy")), f"--terms {bad}: {r.stderr}")
+    # Numbers in flags (stages/common/quantity.h ParseDecimal, which the view server uses too):
+    # non-finite, hexadecimal, trailing text and out-of-range values are usage errors that
+    # name the flag and quote the value, before anything is read or written.
+    for flag, bad in (("--rotate", "nan"), ("--rotate", "inf"), ("--rotate", "-inf"), ("--rotate", "1e20"),
+                      ("--rotate", "0x10"), ("--rotate", "5abc"), ("--rotate", " 5"), ("--exposure", "nan"),
+                      ("--exposure", "inf"), ("--exposure", "-1"), ("--exposure", "1e13")):
+        r = run("relight", p("c0.ltm"), "--env", env, "-o", p("never.png"), flag, bad, expect=2)
+        check(f'{flag}: "{bad}"' in r.stderr and not os.path.exists(p("never.png")), f"{flag} {bad!r}: {r.stderr}")
+    # A cubemap .npy cannot rotate: --rotate with one is refused, not ignored.
+    r = run("relight", p("c0.ltm"), "--env", env, "-o", p("never.npy"), "--rotate", "30", expect=1)
+    check("--rotate 30" in r.stderr and "cannot rotate" in r.stderr and not os.path.exists(p("never.npy")),
+          f"--rotate with a cubemap .npy: {r.stderr}")
+    check(relight(p("c0.ltm"), p("b0r.npy"), "--terms", "all", "--rotate", "0", "--exposure", "2.5e-1") != {},
+          "--rotate 0 --exposure 2.5e-1 should be accepted")
 
     # 2. adaptive (Eq. 8): equals decoded matrix × the same N-term lighting.
     Lw = haar_faces(L, R)
@@ -158,9 +172,46 @@ with tempfile.TemporaryDirectory() as d:
     np.save(p("bad_nan.npy"), Lbad)
     r = run("relight", p("cq.ltm"), "--env", p("bad_nan.npy"), "-o", p("x.npy"), expect=1)
     check("texel 5 channel 1" in r.stderr, f"NaN texel should be named: {r.stderr}")
+    # A tiny negative texel (what `convert`'s cancellation used to write) is named in full, not
+    # as -0.000000, and --clamp applies to a cubemap .npy as to a map: the texel becomes 0.
+    Lneg = L.copy()
+    Lneg[9, 2] = -5.551115123125783e-17
+    np.save(p("neg.npy"), Lneg)
+    r = run("relight", p("c0.ltm"), "--env", p("neg.npy"), "-o", p("x.npy"), expect=1)
+    check("texel 9 channel 2 is -5.55111512e-17 (negative)" in r.stderr and "--clamp" in r.stderr,
+          f"a negative texel should be named in full with the fix: {r.stderr}")
+    rep = json.loads(run("relight", p("c0.ltm"), "--env", p("neg.npy"), "-o", p("bneg.npy"), "--terms", "all", "--clamp",
+                         "--json", *q).stdout or "{}")
+    want = T.astype(np.float64) @ np.maximum(Lneg, 0).astype(np.float64)
+    err = np.abs(np.load(p("bneg.npy")) - want).max() / np.abs(want).max() if os.path.exists(p("bneg.npy")) else 1
+    check(rep.get("clamped_values") == 1 and err < 1e-5, f"--clamp with a cubemap .npy: {rep}, error {err}")
     r = run("relight", p("cq.ltm"), "--env", env, "-o", p("x.png"), "--weighting", "sideways", expect=2)
     r = run("relight", p("cols.ltm"), "--env", env, "-o", p("x.npy"), "--mem-limit", "10KiB", expect=1)
     check("--mem-limit" in r.stderr, f"a matrix over --mem-limit should be refused naming it: {r.stderr}")
+
+    # 6b. The documented workflow on a map that is black outside a window (as an OpenEXR display
+    # window larger than its data window reads): `convert` writes no negative texel (cancellation
+    # in prefix sums used to leave ±3e-16 over the black part, which relight then refused), and
+    # relighting from the .npy equals relighting from the map.
+    Hm, Wm = 128, 256
+    win = np.zeros((Hm, Wm, 3))
+    win[Hm // 5:Hm // 2, Wm // 4:Wm // 2] = g.uniform(0.5, 1.5, (Hm // 2 - Hm // 5, Wm // 2 - Wm // 4, 3))
+    mx = win.max(-1)
+    ex = np.where(mx > 0, np.floor(np.log2(np.where(mx > 0, mx, 1))) + 1, 0).astype(int)
+    rgbe = np.zeros((Hm, Wm, 4), np.uint8)
+    rgbe[..., :3] = np.floor(win * np.where(mx > 0, 2.0 ** (8 - ex), 0)[..., None]).astype(np.uint8)
+    rgbe[..., 3] = np.where(mx > 0, ex + 128, 0)
+    with open(p("win.hdr"), "wb") as f:
+        f.write(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y %d +X %d\n" % (Hm, Wm) + rgbe.tobytes())
+    run("convert", p("win.hdr"), p("win.npy"), "--cube-res", R, *q)
+    cube = np.load(p("win.npy"))
+    check(cube.min() >= 0 and (cube == 0).sum() > 0 and cube.max() > 0,
+          f"convert of a windowed map: min texel {cube.min()}, {(cube < 0).sum()} negative, {(cube == 0).sum()} zero")
+    for envfile, out in ((p("win.hdr"), p("bwh.npy")), (p("win.npy"), p("bwn.npy"))):
+        run("relight", p("c0.ltm"), "--env", envfile, "-o", out, "--terms", "all", *q)
+    if os.path.exists(p("bwh.npy")) and os.path.exists(p("bwn.npy")):
+        a, b = np.load(p("bwh.npy")), np.load(p("bwn.npy"))
+        check(np.array_equal(a, b), f"relight from win.npy differs from win.hdr by {np.abs(a - b).max()}")
 
     # 7. A real environment map (blender-data, CC0) through convert and relight.
     import subprocess
@@ -225,5 +276,31 @@ with tempfile.TemporaryDirectory() as d:
         err = np.abs(img - expect).max()
         check(err <= 1e-4 * np.abs(want).max(), f"mask {extra}: differs from D·L with black background by {err}")
         check(rep.get("output", {}).get("masked_rows") == int(bg.sum()), f"mask {extra}: report {rep.get('output')}")
+
+    # 9. Maps near float32's largest value (docs/RELIGHT.md "Numbers"): an RGBE map at exponent
+    # 255 (mantissa 255: 255·2^119 = 1.69e38) converts to finite texels, and relights the tiny
+    # bake exactly: 2^126 times the image of the same map at exponent 129 (255·2^-7), bit for bit
+    # (the lighting is relit at 2^-64 and scaled back; its Haar coefficients used to overflow
+    # float32 and leave NaN in the image). A bake whose image would pass float32 under it (the
+    # random T, Σ T ≈ 48 a pixel) is an error naming the map, and writes nothing.
+    def flat_hdr(path, e):
+        with open(path, "wb") as f:
+            f.write(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 32 +X 64\n" + bytes([255, 255, 255, e]) * (64 * 32))
+    flat_hdr(p("e255.hdr"), 255)
+    flat_hdr(p("e129.hdr"), 129)
+    run("convert", p("e255.hdr"), p("e255.npy"), "--cube-res", R, *q)
+    cube = np.load(p("e255.npy"))
+    check(np.all(np.isfinite(cube)) and np.allclose(cube, 255 * 2.0 ** 119, rtol=1e-6),
+          f"convert of an exponent-255 map: {np.isfinite(cube).sum()} finite of {cube.size}, max {cube.max()}")
+    for e in (129, 255):
+        run("relight", fin, "--env", p(f"e{e}.hdr"), "-o", p(f"be{e}.npy"), "--terms", "all", *q)
+    if os.path.exists(p("be129.npy")) and os.path.exists(p("be255.npy")):
+        small, big = np.load(p("be129.npy")), np.load(p("be255.npy"))
+        check(np.all(np.isfinite(big)) and big.max() > 1e37 and np.array_equal(big, np.ldexp(small, 126)),
+              f"tiny bake under the exponent-255 map: {np.isnan(big).sum()} NaN, {np.isinf(big).sum()} Inf, "
+              f"max |big - 2^126·small| {np.nanmax(np.abs(big - np.ldexp(small, 126)))}")
+    r = run("relight", p("raw.ltm"), "--env", p("e255.hdr"), "-o", p("never.exr"), "--terms", "all", *q, expect=1)
+    check("e255.hdr is too bright to relight in float32" in r.stderr and not os.path.exists(p("never.exr")),
+          f"an image beyond float32: {r.stderr}")
 
 finish()

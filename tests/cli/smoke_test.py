@@ -168,6 +168,19 @@ material = "shiny"
                 check(False, f"view: {path} was accepted")
             except urllib.error.HTTPError as e:
                 check(e.code == code, f"view: {path} gave {e.code}, expected {code}")
+        # Numbers go through the flags' parser (stages/common/quantity.h): decimal only, the
+        # whole value (a NUL byte ends nothing), finite and in range; the 400 names the
+        # parameter and quotes the value.
+        for query, name, shown in (("rotate=5%00abc", "rotate", '"5\\x00abc"'), ("rotate=0x10", "rotate", '"0x10"'),
+                                   ("rotate=nan", "rotate", '"nan"'), ("rotate=1e20", "rotate", '"1e20"'),
+                                   ("exposure=inf", "exposure", '"inf"'), ("exposure=-1", "exposure", '"-1"')):
+            try:
+                urllib.request.urlopen(url + "frame.png?" + query, timeout=60)
+                check(False, f"view: {query} was accepted")
+            except urllib.error.HTTPError as e:
+                body = e.read().decode("utf-8", "replace")
+                check(e.code == 400 and body.startswith(name) and shown in body,
+                      f"view: {query} gave {e.code} {body!r}, expected 400 naming {name} and {shown}")
     finally:
         view.send_signal(signal.SIGINT)
         try:

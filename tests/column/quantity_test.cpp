@@ -38,6 +38,54 @@ TEST(Quantity, BadSizesNameTheText) {
   }
 }
 
+TEST(Quantity, DecimalsAreWholeFiniteDecimalTextInRange) {
+  const std::pair<const char*, double> good[] = {{"0", 0.0},       {"-12.5", -12.5},  {"+3", 3.0},    {".5", 0.5},
+                                                 {"5.", 5.0},      {"2.5e3", 2500.0}, {"1E-2", 0.01}, {"-1e+6", -1e6},
+                                                 {"1000000", 1e6}, {"-0", 0.0}};
+  for (const auto& [text, value] : good) {
+    auto r = ParseDecimal(text, -1e6, 1e6);
+    ASSERT_TRUE(r.ok()) << text << ": " << r.status().message();
+    EXPECT_EQ(*r, value) << text;
+  }
+  // Not decimal text: strtod would take most of these (hexadecimal, inf, nan, leading space,
+  // a prefix before a NUL or other bytes).
+  const std::string nul("5\0abc", 5);
+  for (const std::string& text : {std::string("nan"),
+                                  std::string("NaN"),
+                                  std::string("inf"),
+                                  std::string("-inf"),
+                                  std::string("infinity"),
+                                  std::string("0x10"),
+                                  std::string("0X1p3"),
+                                  std::string(" 5"),
+                                  std::string("5 "),
+                                  std::string("5abc"),
+                                  nul,
+                                  std::string(""),
+                                  std::string("."),
+                                  std::string("-"),
+                                  std::string("e5"),
+                                  std::string("1e"),
+                                  std::string("1e+"),
+                                  std::string("1,5"),
+                                  std::string("--1"),
+                                  std::string("1.2.3")}) {
+    auto r = ParseDecimal(text, -1e6, 1e6);
+    ASSERT_FALSE(r.ok()) << text;
+    EXPECT_NE(r.status().message().find("is not a decimal number"), std::string::npos) << r.status().message();
+  }
+  auto shown = ParseDecimal(nul, -1e6, 1e6);
+  EXPECT_NE(shown.status().message().find("\"5\\x00abc\""), std::string::npos) << shown.status().message();
+  // Decimal but out of range (1e999 overflows a double), with the range in the message.
+  for (const char* text : {"1e20", "-1000000.5", "1e999", "-1e999"}) {
+    auto r = ParseDecimal(text, -1e6, 1e6);
+    ASSERT_FALSE(r.ok()) << text;
+    EXPECT_EQ(r.status().message(), std::string("\"") + text + "\" is outside [-1e+06, 1e+06]");
+  }
+  EXPECT_FALSE(ParseDecimal("-0.5", 0, 1).ok());
+  EXPECT_EQ(*ParseDecimal("1e-400", 0, 1), 0.0);  // underflows to zero: in range
+}
+
 TEST(Quantity, FractionsAsNumbersOrPercent) {
   EXPECT_DOUBLE_EQ(*ParseFraction("0.05"), 0.05);
   EXPECT_DOUBLE_EQ(*ParseFraction("5%"), 0.05);

@@ -38,6 +38,7 @@
 
 #include "format/npy.h"
 #include "stages/common/cubemap.h"
+#include "stages/relight/environment.h"
 #include "stages/relight/relight.h"
 
 namespace ltb::stages {
@@ -682,6 +683,150 @@ TEST_F(EnvMapTest, PeakyMapTexelsMatchAnExactOracle) {
   }
 }
 
+TEST_F(EnvMapTest, NonNegativeMapsGiveNonNegativeTexelsWithoutCancellation) {
+  // Texel averages of a non-negative map are sums of radiance × non-negative areas
+  // (resampler.h), so they cannot go negative, and a texel depends only on the pixels it
+  // covers. Two maps that broke the prefix-sum formulation: (a) black outside a window, as an
+  // OpenEXR file whose display window is larger than its data window reads (texels over the
+  // black part came out at ±1e-14): every texel >= 0, and one that lies wholly in the black
+  // part (its boundary, sampled here, at least 1e-3 rad away from the window) exactly 0; (b) a
+  // 1e30 pixel in a background of ~1 (texels beside it in its row came out at -1.7e12 or 0):
+  // against LatLongTexelOracle by linearity, the background and the spike each through the
+  // oracle (each column's cumulative sums then hold no 1e30 beside values of ~1, and a texel
+  // away from the spike gets exactly 0 from it).
+  const int w = 1024, h = 512, x0 = 200, x1 = 700, y0 = 100, y1 = 400;
+  std::mt19937 rng(29);
+  std::uniform_real_distribution<float> dist(0.5f, 1.5f);
+  Pixels window(size_t(w) * h * 3, 0.0f), background(size_t(w) * h * 3), spike(size_t(w) * h * 3, 0.0f);
+  for (int y = y0; y < y1; ++y)
+    for (int x = x0; x < x1; ++x)
+      for (int c = 0; c < 3; ++c) window[(size_t(y) * w + x) * 3 + c] = dist(rng);
+  for (float& v : background) v = dist(rng);
+  Pixels hot = background;
+  for (int c = 0; c < 3; ++c) hot[(size_t(200) * w + 300) * 3 + c] = spike[(size_t(200) * w + 300) * 3 + c] = 1e30f;
+  const LatLongTexelOracle background_oracle(w, h, background), spike_oracle(w, h, spike);
+  // Whether texel (f, s, t) of the map rotated by `rotation` lies wholly outside the window:
+  // its boundary is, and so is its centre (a texel is smaller than the black part around it).
+  auto in_black = [&](const cubemap::Texel& x, int r, double rotation) {
+    const double theta0 = kPi * y0 / h, theta1 = kPi * y1 / h, margin = 1e-3;
+    auto outside = [&](const glm::dvec3& d) {
+      const glm::dvec3 n = glm::normalize(d);
+      const double theta = std::acos(n.z);
+      // The source column of this direction: φ_src = φ − rotation, u = (π − φ_src)/2π.
+      double u = (kPi - (std::atan2(n.y, n.x) - rotation)) / (2 * kPi);
+      u -= std::floor(u);
+      const double dphi = 2 * kPi * std::min(std::abs(u * w - x0), std::abs(u * w - x1)) / w;
+      const bool inside_u = u * w > x0 && u * w < x1;
+      return theta < theta0 - margin || theta > theta1 + margin || (!inside_u && dphi * std::sin(theta) > margin);
+    };
+    for (int k = 0; k <= 64; ++k)
+      for (int side = 0; side < 4; ++side) {
+        const double a = 2.0 * (side < 2 ? x.s + k / 64.0 : x.s + side - 2) / r - 1;
+        const double b = 2.0 * (side < 2 ? x.t + side : x.t + k / 64.0) / r - 1;
+        if (!outside(cubemap::FaceDirection(x.face, a, b))) return false;
+      }
+    return outside(cubemap::FaceDirection(x.face, 2.0 * (x.s + 0.5) / r - 1, 2.0 * (x.t + 0.5) / r - 1));
+  };
+  for (uint64_t r : {8, 32}) {
+    auto a = CubemapResampler::Create(LatLongEnv(w, h, window, "window"), r);
+    auto b = CubemapResampler::Create(LatLongEnv(w, h, hot, "hot"), r);
+    ASSERT_TRUE(a.ok() && b.ok());
+    for (double rotation : {0.0, 0.7}) {
+      std::vector<float> out_a(6 * r * r * 3), out_b(6 * r * r * 3);
+      a->Resample(rotation, out_a.data());
+      b->Resample(rotation, out_b.data());
+      double worst = 0, min_a = 0, min_b = 0;
+      int black = 0, near_spike = 0;
+      for (uint64_t t = 0; t < 6 * r * r; ++t) {
+        const cubemap::Texel x = cubemap::ColumnToTexel(t, uint32_t(r));
+        const bool dark = in_black(x, int(r), rotation);
+        black += dark;
+        double rb[3], rs[3];
+        background_oracle.TexelAverage(x.face, x.s, x.t, int(r), rotation, rb);
+        spike_oracle.TexelAverage(x.face, x.s, x.t, int(r), rotation, rs);
+        near_spike += rs[0] != 0;
+        for (int c = 0; c < 3; ++c) {
+          const double va = out_a[t * 3 + c], vb = out_b[t * 3 + c];
+          min_a = std::min(min_a, va);
+          min_b = std::min(min_b, vb);
+          if (dark) {
+            ASSERT_EQ(va, 0.0) << "R=" << r << " rotation " << rotation << ": texel " << t << " sees only black";
+          }
+          if (rs[c] == 0) worst = std::max(worst, std::abs(vb - rb[c]) / rb[c]);
+        }
+      }
+      std::printf(
+          "[ envmap ] R=%d rotation %.1f: black outside a window: min texel %.3g (%d texels wholly black: 0); a 1e30 "
+          "pixel: min texel %.3g, worst texel away from it %.2e (%d touch it)\n",
+          int(r), rotation, min_a, black, min_b, worst, near_spike);
+      EXPECT_GE(min_a, 0.0);
+      EXPECT_GE(min_b, 0.0);
+      EXPECT_GT(black, int(r * r));
+      // As PeakyMapTexelsMatchAnExactOracle: the Hermite fit of the pieces, within 1e-5 of a
+      // working pixel's area per column, is what is left (2.7e-5 worst measured there).
+      EXPECT_LT(worst, 1e-3) << "R=" << r << " rotation " << rotation;
+      EXPECT_GE(near_spike, 1);
+    }
+  }
+}
+
+TEST_F(EnvMapTest, MapsNearFloat32sLargestValueGiveFiniteTexels) {
+  // A texel is an average of the map, so it is at most the map's largest value; rounding
+  // above a map at float32's largest value used to make it +Inf (every texel of a constant
+  // 3.4028235e38 angular map). Constant maps at 3e38 and FLT_MAX in three layouts, and an RGBE
+  // .hdr at exponent 255 (mantissa 255: 255·2^119 = 1.69e38) through `convert`'s path.
+  const float top = std::numeric_limits<float>::max();
+  for (float value : {3e38f, top}) {
+    for (EnvLayout layout : {EnvLayout::kLatLong, EnvLayout::kHCross, EnvLayout::kAngular}) {
+      EnvMap env;
+      env.layout = layout;
+      env.width = 64;
+      env.height = layout == EnvLayout::kLatLong ? 32 : layout == EnvLayout::kHCross ? 48 : 64;
+      env.path = "bright";
+      env.rgb.assign(env.width * env.height * 3, value);
+      for (uint64_t r : {4, 8}) {
+        auto rs = CubemapResampler::Create(env, r);
+        ASSERT_TRUE(rs.ok()) << rs.status().ToString();
+        for (double rotation : {0.0, 0.3}) {
+          std::vector<float> out(6 * r * r * 3);
+          rs->Resample(rotation, out.data());
+          for (size_t i = 0; i < out.size(); ++i) {
+            ASSERT_TRUE(std::isfinite(out[i])) << EnvLayoutName(layout) << " " << value << " R=" << r << " value " << i;
+            ASSERT_LE(out[i], value);
+            ASSERT_NEAR(out[i], value, 1e-6 * value) << EnvLayoutName(layout) << " R=" << r;
+          }
+        }
+      }
+    }
+  }
+  const float rgbe255 = std::ldexp(255.0f, 119);
+  WriteHdrFlat(Path("e255.hdr"), 64, 32, Pixels(64 * 32 * 3, rgbe255));
+  ASSERT_TRUE(ConvertEnvToNpy(Path("e255.hdr"), Path("e255.npy"), 8, {}).ok());
+  auto cube = ReadCubemapNpy(Path("e255.npy"), 8);
+  ASSERT_TRUE(cube.ok()) << cube.status().message();
+  for (float v : *cube) ASSERT_NEAR(v, rgbe255, 1e-6 * rgbe255);
+}
+
+TEST_F(EnvMapTest, BandsTileTheSphere) {
+  // The bands (a texel's part of a working row) hold each texel's exact solid angle, at odd
+  // R (a texel centred on each pole: bands around the whole circle) and even R (a corner
+  // there), on working grids coarser than the cubemap (64 × 32 and 90 × 45 at R = 32) and on
+  // a fine one. What may differ is the Hermite fit of the pieces: within 1e-5 of a pixel of
+  // the 32R × 16R grid, (2π/32R)(π/16R), per piece; ~16 pieces around a texel of Ω ≈ 4π/6R²
+  // make 1e-5 · 16 · (2π²/512R²) / (4π/6R²) = 2.9e-6. (Measured: 2.3e-7 at 64 × 32, R = 32;
+  // 8.8e-9 at 1024 × 512. A band built wrongly, e.g. a piece over an arc's apex fitted by one
+  // cubic, is off by 2.4e-4 at R = 1.)
+  for (auto [w, h] : {std::pair{64, 32}, {1024, 512}, {90, 45}}) {
+    for (uint64_t r : {1, 2, 3, 5, 8, 32}) {
+      EnvMap env = LatLongEnv(w, h, Pixels(size_t(w) * h * 3, 1.0f), "ones");
+      auto rs = CubemapResampler::Create(env, r);
+      ASSERT_TRUE(rs.ok()) << rs.status().ToString();
+      EXPECT_EQ(rs->empty_texels(), 0u);
+      EXPECT_LT(rs->SolidAngleError(), 2.9e-6) << w << "x" << h << " R=" << r;
+    }
+  }
+}
+
 // Not in the suite (2 s): the figure docs/ENVMAPS.md quotes for sharp content, a
 // 2048 × 1024 map of random 8 × 8-pixel blocks at R = 32 against LatLongTexelOracle (run with
 // --gtest_also_run_disabled_tests --gtest_filter='*RandomBlocks*').
@@ -1025,6 +1170,58 @@ TEST_F(EnvMapTest, CubemapNpyIsCheckedAgainstTheFile) {
       << shape.status().message();
   auto big_r = ReadCubemapNpy(write("r.npy", "<f4", {n, 3}, n * 12), uint64_t(1) << 33);
   ASSERT_FALSE(big_r.ok());
+}
+
+TEST_F(EnvMapTest, CubemapNpyValuesAreNamedInFullOrClampedLikeMaps) {
+  // A float64 cubemap holding what a map may not: a tiny negative (what cancellation used to
+  // leave in `convert`'s output), NaN, ±Inf and a finite value beyond float32's range.
+  const uint64_t R = 2, n = 6 * R * R;
+  std::vector<double> v(n * 3, 0.25);
+  v[7] = -5.5511151231257827e-17;
+  v[8] = std::nan("");
+  v[20] = std::numeric_limits<double>::infinity();
+  v[21] = -std::numeric_limits<double>::infinity();
+  v[30] = 1e39;
+  v[31] = -2.0;
+  std::vector<std::byte> h = format::EncodeNpyHeader("<f8", {n, 3});
+  {
+    std::ofstream f(Path("bad.npy"), std::ios::binary);
+    f.write(reinterpret_cast<const char*>(h.data()), std::streamsize(h.size()));
+    f.write(reinterpret_cast<const char*>(v.data()), std::streamsize(v.size() * sizeof(double)));
+  }
+  auto refused = Environment::Open(Path("bad.npy"), R, {});
+  ASSERT_FALSE(refused.ok());
+  const std::string& m = refused.status().message();
+  // The first one in file order, in %.9g (not "-0.000000"), how many, the most negative, the fix.
+  EXPECT_NE(m.find("texel 2 channel 1 is -5.55111512e-17 (negative); 6 values in all, the most negative -inf"),
+            std::string::npos)
+      << m;
+  EXPECT_NE(m.find("--clamp"), std::string::npos) << m;
+  v[7] = 0.25, v[8] = 0.25, v[20] = 0.25, v[21] = 0.25, v[31] = 0.25;  // only 1e39 left
+  {
+    std::ofstream f(Path("big.npy"), std::ios::binary);
+    f.write(reinterpret_cast<const char*>(h.data()), std::streamsize(h.size()));
+    f.write(reinterpret_cast<const char*>(v.data()), std::streamsize(v.size() * sizeof(double)));
+  }
+  auto big = ReadCubemapNpy(Path("big.npy"), R);
+  ASSERT_FALSE(big.ok());
+  EXPECT_NE(big.status().message().find("texel 10 channel 0 is 1e+39 (beyond float32's largest value"),
+            std::string::npos)
+      << big.status().message();
+  // --clamp (EnvLoadOptions::clamp) fixes them as it does a map's pixels, and counts them.
+  EnvLoadOptions o;
+  o.clamp = true;
+  auto env = Environment::Open(Path("bad.npy"), R, o);
+  ASSERT_TRUE(env.ok()) << env.status().message();
+  EXPECT_EQ(env->clamped(), 6u);
+  std::vector<float> cube;
+  env->Cubemap(0.0, &cube);
+  ASSERT_EQ(cube.size(), n * 3);
+  const float top = std::numeric_limits<float>::max();
+  for (uint64_t i = 0; i < n * 3; ++i) {
+    const float want = i == 7 || i == 8 || i == 21 || i == 31 ? 0.0f : i == 20 || i == 30 ? top : 0.25f;
+    EXPECT_EQ(cube[i], want) << "value " << i;
+  }
 }
 
 TEST_F(EnvMapTest, ReadsCompressedHalfLuminanceAndOffsetExrs) {

@@ -2,7 +2,8 @@
 // columns) written by RunConvert, a ready cubemap L as .npy; the relit image with every
 // term is T·L computed here in double; with N terms it is T·L_N for the N brightest texels,
 // and the report's share of the map's energy is theirs; a cancel between timing frames is
-// a Cancelled status after the image is written.
+// a Cancelled status after the image is written; lighting near float32's largest value is
+// relit exactly (at 2^-k) or refused.
 #include "stages/relight/run_relight.h"
 
 #include <gtest/gtest.h>
@@ -20,6 +21,7 @@
 
 #include "format/npy.h"
 #include "stages/convert/convert.h"
+#include "stages/row_transform/row_transform.h"
 
 namespace ltb::stages {
 namespace {
@@ -149,6 +151,71 @@ TEST_F(RunRelightTest, AReferenceOfAnotherShapeIsRefused) {
   auto r = RunRelight(o, Progress{});
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.status().message().find("is not the same bake"), std::string::npos) << r.status().message();
+}
+
+TEST_F(RunRelightTest, LightingNearFloat32sLargestValueRelightsExactlyOrIsRefused) {
+  // Lighting near float32's largest value: its wavelet coefficients (a face's sum / R) and the
+  // relighting's sums overflowed float32, and the image came out Inf or NaN with no error.
+  // Relit at 2^-k and scaled back (a power of two is exact), the image of L·2^127 is the image
+  // of L times 2^127, bit for bit, and so are the errors against a reference; an image beyond
+  // float32 is an error naming the map, and nothing is written. A dim transport (T·2^-8) so
+  // that the image of L·2^127 fits, through Haar rows (the lighting's wavelet transform).
+  std::vector<float> dim = T_;
+  for (float& v : dim) v = std::ldexp(v, -8);
+  WriteNpy(Path("Td.npy"), dim, kRows, kCols);
+  ConvertOptions c;
+  c.input = Path("Td.npy");
+  c.output = Path("raw_dim.ltm");
+  c.cube_res = kR;
+  c.image_width = kW;
+  c.image_height = kH;
+  ASSERT_TRUE(RunConvert(c, Progress{}).ok());
+  RowTransformOptions rt;
+  rt.input = Path("raw_dim.ltm");
+  rt.output = Path("rows_dim.ltm");
+  rt.jobs = 1;
+  rt.direct_io = false;
+  auto rows = RunRowTransform(rt, Progress{});
+  ASSERT_TRUE(rows.ok()) << rows.status().message();
+  // Every texel in [1, 2), and 2^127 times that: [1.7e38, 3.4e38), each face's Haar scaling
+  // coefficient (sum / 2) beyond float32.
+  std::mt19937 g(11);
+  std::uniform_real_distribution<float> u(1.0f, 2.0f);
+  std::vector<float> base(kCols * 3), big(kCols * 3);
+  for (size_t i = 0; i < base.size(); ++i) base[i] = u(g), big[i] = std::ldexp(base[i], 127);
+  WriteNpy(Path("Lbase.npy"), base, kCols, 3);
+  WriteNpy(Path("Lbig.npy"), big, kCols, 3);
+
+  RelightOptions o = Options(RelightOptions::kAllTerms);
+  o.env = Path("Lbase.npy");
+  o.matrix = Path("rows_dim.ltm");
+  o.reference = Path("raw_dim.ltm");
+  o.output = Path("small.npy");
+  auto small = RunRelight(o, Progress{});
+  ASSERT_TRUE(small.ok()) << small.status().message();
+  o.env = Path("Lbig.npy");
+  o.output = Path("big.npy");
+  auto r = RunRelight(o, Progress{});
+  ASSERT_TRUE(r.ok()) << r.status().message();
+  const std::vector<float> a = ReadNpy(Path("small.npy"), kRows * 3), b = ReadNpy(Path("big.npy"), kRows * 3);
+  for (size_t i = 0; i < a.size(); ++i) {
+    ASSERT_TRUE(std::isfinite(b[i])) << i;
+    EXPECT_EQ(b[i], std::ldexp(a[i], 127)) << i;
+  }
+  EXPECT_EQ(r->report["error"]["rel_l2"], small->report["error"]["rel_l2"]);
+  EXPECT_LT(r->report["error"]["rel_l2"].get<double>(), 1e-6);
+
+  // The full transport under them: T·L ≈ 24 · 0.5 · 1.5 · 2^127 per pixel, beyond float32.
+  o = Options(RelightOptions::kAllTerms);
+  o.env = Path("Lbig.npy");
+  o.output = Path("over.npy");
+  auto over = RunRelight(o, Progress{});
+  ASSERT_FALSE(over.ok());
+  EXPECT_NE(over.status().message().find("Lbig.npy is too bright to relight in float32"), std::string::npos)
+      << over.status().message();
+  EXPECT_NE(over.status().message().find("is inf, beyond float32's largest value"), std::string::npos)
+      << over.status().message();
+  EXPECT_FALSE(std::filesystem::exists(Path("over.npy")));
 }
 
 }  // namespace
