@@ -347,7 +347,7 @@ Status ParseRelight(const std::string& path, const std::string& dir, const toml:
   LTB_ASSIGN_OR_RETURN(r->clamp, GetBool(path, t, "clamp", r->clamp));
   LTB_ASSIGN_OR_RETURN(r->reference, GetBool(path, t, "reference", r->reference));
   LTB_ASSIGN_OR_RETURN(r->format, GetChoice(path, t, "format", r->format, {"png", "exr", "mp4"}));
-  LTB_ASSIGN_OR_RETURN(r->exposure, GetNumber(path, t, "exposure", r->exposure, -64, 64));
+  LTB_ASSIGN_OR_RETURN(r->exposure, GetNumber(path, t, "exposure", r->exposure, 0, 64));
   LTB_ASSIGN_OR_RETURN(r->method, GetChoice(path, t, "method", r->method, {"pbi", "bi", "nwa"}));
   if (r->eye && (t.contains("sequence") || t.contains("reference") || t.contains("weighting"))) {
     return InvalidArgument(Where(path, *t.get("eye")) +
@@ -431,7 +431,7 @@ Status ParseTriple(const std::string& path, const std::string& dir, const toml::
   }
   LTB_ASSIGN_OR_RETURN(r->clamp, GetBool(path, t, "clamp", r->clamp));
   LTB_ASSIGN_OR_RETURN(r->format, GetChoice(path, t, "format", r->format, {"png", "exr", "npy"}));
-  LTB_ASSIGN_OR_RETURN(r->exposure, GetNumber(path, t, "exposure", r->exposure, -64, 64));
+  LTB_ASSIGN_OR_RETURN(r->exposure, GetNumber(path, t, "exposure", r->exposure, 0, 64));
   return Status::Ok();
 }
 

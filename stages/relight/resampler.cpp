@@ -352,7 +352,7 @@ Status CubemapResampler::CutTexelEdges(uint64_t R, uint64_t ww, uint64_t hw, con
         }
       }
 
-  // Seam terms: walking up the seam meridian from the south pole, the texel changes where an
+  // Seam cells: walking up the seam meridian from the south pole, the texel changes where an
   // edge crosses it (from the texel below that edge to the one above), split at row boundaries.
   std::sort(seam_crossings.begin(), seam_crossings.end(),
             [](const SeamCrossing& x, const SeamCrossing& y) { return x.z < y.z; });

@@ -249,7 +249,7 @@ Result<WorkingGrid> BuildWorkingGrid(const EnvMap& env, uint64_t R, const Progre
   // Working grid targets: 16R rows (about a fifth of the smallest texel's side, 0.94/R rad at
   // the cube corners; for a lat-long source at least 512, so that a 1024 × 512 map keeps its
   // pixels, and the texel averages stay exact, at every R), twice as many columns (as wide as
-  // rows are high at the equator); both halved while the prefix table would pass 2^22 pixels
+  // rows are high at the equator); both halved while the table would pass 2^22 pixels
   // (100 MB).
   WorkingGrid g;
   g.target_rows = env.layout == EnvLayout::kLatLong ? std::max<uint64_t>(16 * R, 512) : 16 * R;

@@ -243,6 +243,9 @@ with tempfile.TemporaryDirectory() as d:
               os.path.join(d, "wpct"), "--dry-run")
     check("--keep 0.05" in pct.stdout + pct.stderr, f"keep = \"5%\": plan lacks --keep 0.05:\n{pct.stdout}")
     bad("relight without envs", BASE + "[relight]\nterms = 10\n", 2, "needs \"envs\"")
+    # exposure is relight's --exposure (a multiplier, 0 automatic), which refuses negatives.
+    bad("negative exposure", BASE + '[relight]\nenvs = ["a.exr"]\nexposure = -2.0\n', 2, '"exposure"', "-2",
+        "outside [0, 64]")
     # [quantize]: error_ratio (one step, the default 1.1) or bits (per-column), not both;
     # scaling, dither and seed only with bits.
     bad("bits and error_ratio", BASE + "error_ratio = 1.2\n", 2, "error_ratio", "bits", "not both")

@@ -690,10 +690,10 @@ TEST_F(EnvMapTest, NonNegativeMapsGiveNonNegativeTexelsWithoutCancellation) {
   // OpenEXR file whose display window is larger than its data window reads (texels over the
   // black part came out at ±1e-14): every texel >= 0, and one that lies wholly in the black
   // part (its boundary, sampled here, at least 1e-3 rad away from the window) exactly 0; (b) a
-  // 1e30 pixel in a background of ~1 (texels beside it in its row came out at -1.7e12 or 0):
-  // against LatLongTexelOracle by linearity, the background and the spike each through the
-  // oracle (each column's cumulative sums then hold no 1e30 beside values of ~1, and a texel
-  // away from the spike gets exactly 0 from it).
+  // 1e30 pixel in a background of ~1 (texels beside it in its row came out at -1.7e12 at
+  // R = 32, 0 at R = 8), against LatLongTexelOracle by linearity: the background and the spike
+  // each through the oracle (each column's cumulative sums then hold no 1e30 beside values of
+  // ~1, and a texel away from the spike gets exactly 0 from it).
   const int w = 1024, h = 512, x0 = 200, x1 = 700, y0 = 100, y1 = 400;
   std::mt19937 rng(29);
   std::uniform_real_distribution<float> dist(0.5f, 1.5f);
@@ -732,6 +732,7 @@ TEST_F(EnvMapTest, NonNegativeMapsGiveNonNegativeTexelsWithoutCancellation) {
     auto b = CubemapResampler::Create(LatLongEnv(w, h, hot, "hot"), r);
     ASSERT_TRUE(a.ok() && b.ok());
     for (double rotation : {0.0, 0.7}) {
+      if (r == 32 && rotation == 0.0) continue;  // the oracle's time: R = 32 once, off the columns
       std::vector<float> out_a(6 * r * r * 3), out_b(6 * r * r * 3);
       a->Resample(rotation, out_a.data());
       b->Resample(rotation, out_b.data());
