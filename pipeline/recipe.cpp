@@ -403,8 +403,8 @@ Status ParseTriple(const std::string& path, const std::string& dir, const toml::
   for (const auto& item : *mats->as_array()) {
     auto text = item.value<std::string>();
     if (!text) return InvalidArgument(Where(path, *mats) + ": \"materials\" must be a list of strings");
-    auto brdf = brdf::ParseBrdf(*text);
-    if (!brdf.ok()) return brdf.status().WithContext(Where(path, *mats) + ": \"materials\"");
+    auto parsed = brdf::ParseBrdf(*text);
+    if (!parsed.ok()) return parsed.status().WithContext(Where(path, *mats) + ": \"materials\"");
     r->materials.push_back(*text);
   }
   LTB_RETURN_IF_ERROR(ParseEnvs(path, dir, t, "[triple]", &r->envs));
