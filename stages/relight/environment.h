@@ -1,10 +1,11 @@
 // The lighting of a relight: an environment map resampled to the bake's cubemap (and
 // rotatable about +Z per frame), or a ready 6R² × 3 cubemap .npy (fixed). Shared by
-// `relight` (run_relight.cpp) and the triple-product renderer (stages/triple/render.h).
+// `relight` (run_relight.cpp), the glossy and triple-product views, sequences and `view`.
 #pragma once
 
 #include <cstdint>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -13,19 +14,40 @@
 
 namespace ltb::stages {
 
+// How a map that is not lat-long becomes a cubemap (a lat-long map is exact either way).
+enum class EnvResampling {
+  // Exact texel averages at every call (stages/relight/exact_cubemap.h): for a frame
+  // resampled once (about a second for a 2048² probe at R = 32).
+  kExact,
+  // The working-grid resampler (resampler.h): milliseconds a frame at any rotation, for
+  // sequences and the viewer; within ~2% a texel of the exact averages on a peaky map.
+  kPerFrame,
+};
+
 class Environment {
  public:
-  static Result<Environment> Open(const std::string& path, uint64_t cube_res, const EnvLoadOptions& o);
+  Environment() = default;
+  Environment(Environment&& o) noexcept;
+  Environment& operator=(Environment&& o) noexcept;
+  static Result<Environment> Open(const std::string& path, uint64_t cube_res, const EnvLoadOptions& o,
+                                  EnvResampling resampling = EnvResampling::kExact);
   // 6R² × 3 radiance for a rotation about +Z in radians (a .npy cubemap cannot rotate).
-  void Cubemap(double rotation, std::vector<float>* out) const;
-  bool rotates() const { return resampler_ != nullptr; }
+  // Fails only when the exact path is cancelled (EnvLoadOptions::progress).
+  Status Cubemap(double rotation, std::vector<float>* out) const;
+  bool rotates() const { return resampler_ != nullptr || exact_ != nullptr; }
   uint64_t clamped() const { return clamped_; }
 
  private:
   uint64_t cube_res_ = 0;
   std::vector<float> fixed_;
   std::unique_ptr<CubemapResampler> resampler_;
+  std::shared_ptr<const EnvMap> exact_;  // the source, for EnvResampling::kExact of a non-lat-long map
+  Progress progress_;
   uint64_t clamped_ = 0;
+  // The last exact cubemap (a glossy set asks for the same one per member).
+  mutable std::mutex last_mutex_;
+  mutable double last_rotation_ = 0;
+  mutable std::vector<float> last_;
 };
 
 }  // namespace ltb::stages

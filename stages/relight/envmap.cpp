@@ -11,6 +11,7 @@
 #include "format/io/atomic_file.h"
 #include "format/npy.h"
 #include "stages/relight/env_layout.h"
+#include "stages/relight/exact_cubemap.h"
 #include "stages/relight/image_readers.h"
 
 // The image readers are in image_readers.{h,cpp}, hdr_reader.cpp and exr_reader.cpp, the
@@ -254,6 +255,9 @@ Result<std::vector<float>> EnvToCubemap(const std::string& in, uint64_t cube_res
   }
   LTB_ASSIGN_OR_RETURN(EnvMap env, LoadEnvMap(in, options));
   if (clamped != nullptr) *clamped = env.clamped;
+  // Exact texel averages for every layout: the resampler for a lat-long map (exact there),
+  // the clipped pixels (exact_cubemap.h) for the others.
+  if (env.layout != EnvLayout::kLatLong) return ExactCubemap(env, cube_res, 0.0, options.progress);
   LTB_ASSIGN_OR_RETURN(CubemapResampler rs, CubemapResampler::Create(env, cube_res, options.progress));
   std::vector<float> cube(6 * cube_res * cube_res * 3);
   rs.Resample(0.0, cube.data());

@@ -166,7 +166,7 @@ Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progres
       if (env->clamped()) report["clamped_values"] = env->clamped();
     }
     std::vector<float> cube;
-    env->Cubemap(o.rotate_deg * std::numbers::pi / 180.0, &cube);
+    LTB_RETURN_IF_ERROR(env->Cubemap(o.rotate_deg * std::numbers::pi / 180.0, &cube));
     auto a = Clock::now();
     m.basis().ToBasis(cube.data());
     LightTerms terms;

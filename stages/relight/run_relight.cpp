@@ -45,7 +45,7 @@ struct Frames {
   // float32 is an error, never written.
   Status Render(double rot, double* lighting_ms, double* relight_ms) {
     auto a = Clock::now();
-    env.Cubemap(rot, &cube);
+    LTB_RETURN_IF_ERROR(env.Cubemap(rot, &cube));
     exponent = LightingExponent(cube);
     ScaleByPowerOfTwo(&cube, -exponent);
     basis.ToBasis(cube.data());
@@ -117,7 +117,7 @@ Status MeasureErrors(const RelightOptions& o, const Environment& env, const Ligh
   // Exact: the full lighting in the reference's basis. All at 2^-exponent, as `first_terms`
   // (the errors are relative), `first` too.
   std::vector<float> full;
-  env.Cubemap(rotation, &full);
+  LTB_RETURN_IF_ERROR(env.Cubemap(rotation, &full));
   ScaleByPowerOfTwo(&full, -exponent);
   std::vector<float> first_scaled = first;
   ScaleByPowerOfTwo(&first_scaled, -exponent);

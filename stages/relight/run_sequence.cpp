@@ -105,7 +105,7 @@ Result<const Environment*> LightingSequence::Load(uint32_t map) {
     std::rotate(cache_.begin() + i, cache_.begin() + i + 1, cache_.end());  // most recent last
     return cache_.back().second.get();
   }
-  LTB_ASSIGN_OR_RETURN(Environment e, Environment::Open(paths_[map], cube_res_, options_));
+  LTB_ASSIGN_OR_RETURN(Environment e, Environment::Open(paths_[map], cube_res_, options_, EnvResampling::kPerFrame));
   if (cache_.size() == 2) cache_.erase(cache_.begin());
   cache_.emplace_back(map, std::make_unique<Environment>(std::move(e)));
   return cache_.back().second.get();
@@ -114,11 +114,11 @@ Result<const Environment*> LightingSequence::Load(uint32_t map) {
 Status LightingSequence::Cubemap(uint64_t frame, std::vector<float>* out) {
   const Frame& f = frames_[frame];
   LTB_ASSIGN_OR_RETURN(const Environment* a, Load(f.a));
-  a->Cubemap(f.rotation, out);
+  LTB_RETURN_IF_ERROR(a->Cubemap(f.rotation, out));
   if (f.b == f.a || f.t == 0.0f) return Status::Ok();
   LTB_ASSIGN_OR_RETURN(const Environment* b, Load(f.b));
   std::vector<float> other;
-  b->Cubemap(f.rotation, &other);
+  LTB_RETURN_IF_ERROR(b->Cubemap(f.rotation, &other));
   for (size_t i = 0; i < out->size(); ++i) (*out)[i] = (1.0f - f.t) * (*out)[i] + f.t * other[i];
   return Status::Ok();
 }

@@ -699,7 +699,7 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
   eo.max_bytes = o.mem_limit;
   eo.progress = progress;
   LTB_ASSIGN_OR_RETURN(stages::Environment env, stages::Environment::Open(o.env, rd.res, eo));
-  env.Cubemap(o.rotate_deg * std::numbers::pi / 180, &rd.light_cube);
+  LTB_RETURN_IF_ERROR(env.Cubemap(o.rotate_deg * std::numbers::pi / 180, &rd.light_cube));
   auto t1 = Clock::now();
   report["load_ms"] = Ms(t0, t1);
   MakeLighting(rd.light_cube, rd.res, o.method == TripleMethod::kPixel ? RenderOptions::kAll : o.light_terms,

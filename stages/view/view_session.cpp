@@ -91,7 +91,7 @@ Result<std::unique_ptr<ViewSession>> ViewSession::Open(const ViewOptions& o) {
   eo.clamp = o.clamp_env;
   eo.layout = o.env_layout;
   eo.max_bytes = o.mem_limit;
-  LTB_ASSIGN_OR_RETURN(Environment env, Environment::Open(o.env, m.basis().cube_res(), eo));
+  LTB_ASSIGN_OR_RETURN(Environment env, Environment::Open(o.env, m.basis().cube_res(), eo, EnvResampling::kPerFrame));
   if (!env.rotates()) {
     return FailedPrecondition(o.env + ": a cubemap .npy cannot rotate; view needs an .exr or .hdr map");
   }
@@ -112,7 +112,7 @@ Result<std::string> ViewSession::Render(const FrameRequest& q) {
   if (!relighter_ || q.method != last_.method || q.terms != last_.terms) {
     relighter_ = std::make_unique<IncrementalRelighter>(m_, q.method, q.terms, Weighting::kArea);
   }
-  env_.Cubemap(q.rotate_deg * std::numbers::pi / 180.0, &cube_);
+  LTB_RETURN_IF_ERROR(env_.Cubemap(q.rotate_deg * std::numbers::pi / 180.0, &cube_));
   LTB_RETURN_IF_ERROR(relighter_->Frame(cube_));
   const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - a).count();
   std::vector<float> out = relighter_->image();

@@ -1216,7 +1216,7 @@ TEST_F(EnvMapTest, CubemapNpyValuesAreNamedInFullOrClampedLikeMaps) {
   ASSERT_TRUE(env.ok()) << env.status().message();
   EXPECT_EQ(env->clamped(), 6u);
   std::vector<float> cube;
-  env->Cubemap(0.0, &cube);
+  ASSERT_TRUE(env->Cubemap(0.0, &cube).ok());
   ASSERT_EQ(cube.size(), n * 3);
   const float top = std::numeric_limits<float>::max();
   for (uint64_t i = 0; i < n * 3; ++i) {
