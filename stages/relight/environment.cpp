@@ -1,6 +1,7 @@
 #include "stages/relight/environment.h"
 
 #include <algorithm>
+#include <cmath>
 #include <utility>
 
 #include "stages/relight/exact_cubemap.h"
@@ -16,10 +17,12 @@ Result<Environment> Environment::Open(const std::string& path, uint64_t cube_res
   if (path.ends_with(".npy")) {
     LTB_ASSIGN_OR_RETURN(std::vector<float> m, ReadCubemapNpy(path, cube_res, o.clamp, &e.clamped_));
     e.fixed_ = std::move(m);
+    for (float v : e.fixed_) e.peak_ = std::max(e.peak_, std::fabs(v));
     return e;
   }
   LTB_ASSIGN_OR_RETURN(EnvMap map, LoadEnvMap(path, o));
   e.clamped_ = map.clamped;
+  for (float v : map.rgb) e.peak_ = std::max(e.peak_, std::fabs(v));  // NaN (outside an angular disk) is skipped
   if (resampling == EnvResampling::kExact && map.layout != EnvLayout::kLatLong) {
     e.exact_ = std::make_shared<const EnvMap>(std::move(map));
     return e;
@@ -38,6 +41,7 @@ Environment& Environment::operator=(Environment&& o) noexcept {
   exact_ = std::move(o.exact_);
   progress_ = o.progress_;
   clamped_ = o.clamped_;
+  peak_ = o.peak_;
   last_rotation_ = o.last_rotation_;
   last_ = std::move(o.last_);
   return *this;

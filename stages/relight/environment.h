@@ -36,6 +36,8 @@ class Environment {
   Status Cubemap(double rotation, std::vector<float>* out) const;
   bool rotates() const { return resampler_ != nullptr || exact_ != nullptr; }
   uint64_t clamped() const { return clamped_; }
+  // The largest value of the source (of the .npy): no texel of any rotation is larger.
+  float peak() const { return peak_; }
 
  private:
   uint64_t cube_res_ = 0;
@@ -44,6 +46,7 @@ class Environment {
   std::shared_ptr<const EnvMap> exact_;  // the source, for EnvResampling::kExact of a non-lat-long map
   Progress progress_;
   uint64_t clamped_ = 0;
+  float peak_ = 0;
   // The last exact cubemap (a glossy set asks for the same one per member).
   mutable std::mutex last_mutex_;
   mutable double last_rotation_ = 0;

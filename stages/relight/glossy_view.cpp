@@ -167,6 +167,8 @@ Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progres
     }
     std::vector<float> cube;
     LTB_RETURN_IF_ERROR(env->Cubemap(o.rotate_deg * std::numbers::pi / 180.0, &cube));
+    // A map near float32's largest value: P_k at 2^-k, B scaled back (and checked) below.
+    ScaleByPowerOfTwo(&cube, -LightingExponent(env->peak()));
     auto a = Clock::now();
     m.basis().ToBasis(cube.data());
     LightTerms terms;
@@ -188,6 +190,8 @@ Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progres
     const glm::dvec3 eye = sample::OrbitEye(o.eye, o.target, o.orbit_deg, f);
     auto a = Clock::now();
     VertexRadiance(geo, vf, p, used, eye, o.jobs, &b);
+    ScaleByPowerOfTwo(&b, LightingExponent(env->peak()));
+    LTB_RETURN_IF_ERROR(CheckRelitImageFinite(b, 0, o.env).WithContext("frame " + std::to_string(f)));
     auto camera = sample::PinholeCamera::Create(eye, o.target, o.up, o.fov_degrees, o.width, o.height);
     if (!camera.ok()) {
       return camera.status().WithContext("the view (--eye, --target, --up, --fov), frame " + std::to_string(f));

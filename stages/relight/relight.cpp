@@ -585,6 +585,10 @@ Status CheckRelitImageFinite(const std::vector<float>& image, uint64_t width, co
 int LightingExponent(const std::vector<float>& cubemap) {
   float peak = 0;
   for (float v : cubemap) peak = std::max(peak, std::abs(v));
+  return LightingExponent(peak);
+}
+
+int LightingExponent(float peak) {
   constexpr int kHeadroom = 64;
   return std::isfinite(peak) && peak > std::ldexp(1.0f, kHeadroom) ? std::ilogb(peak) - kHeadroom + 1 : 0;
 }

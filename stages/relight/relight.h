@@ -166,6 +166,9 @@ Status CheckRelitImageFinite(const std::vector<float>& image, uint64_t width, co
 // power of two k ≥ 0 to relight a cubemap at (× 2^-k, exact) so that its largest value is at
 // most 2^64; the image is scaled back by 2^k after (and checked: CheckRelitImageFinite).
 int LightingExponent(const std::vector<float>& cubemap);
+// The same for lighting whose values are at most `peak` (a source map's largest value bounds
+// every texel of every rotation of it): one exponent for a whole sequence or view.
+int LightingExponent(float peak);
 // v · 2^k for every value (exact unless it leaves float32's range).
 void ScaleByPowerOfTwo(std::vector<float>* values, int k);
 

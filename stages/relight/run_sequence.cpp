@@ -95,7 +95,13 @@ Result<LightingSequence> LightingSequence::Open(const std::vector<SequenceSegmen
       }
     }
   }
-  LTB_RETURN_IF_ERROR(seq.Load(0).status());  // --env: its errors before any frame
+  // Every map's largest value, for one exponent (the first map last: it stays cached).
+  float peak = 0;
+  for (uint32_t i = uint32_t(seq.paths_.size()); i-- > 0;) {
+    LTB_ASSIGN_OR_RETURN(const Environment* e, seq.Load(i));  // --env: its errors before any frame
+    peak = std::max(peak, e->peak());
+  }
+  seq.exponent_ = LightingExponent(peak);
   return seq;
 }
 
@@ -262,12 +268,14 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
     }
     auto a = SeqClock::now();
     LTB_RETURN_IF_ERROR(seq.Cubemap(f, &cube));
+    ScaleByPowerOfTwo(&cube, -seq.exponent());  // a map near float32's largest value: relit at 2^-k
     LTB_RETURN_IF_ERROR(inc.Frame(cube));
     const double frame_ms = SeqMs(a, SeqClock::now());
     ms_all.push_back(frame_ms);
     const FrameUpdate& u = inc.update();
 
     out = inc.image();
+    ScaleByPowerOfTwo(&out, seq.exponent());
     FinishRelitImage(m.mask(), o.keep_negative, &out);
     LTB_RETURN_IF_ERROR(CheckRelitImageFinite(out, m.width(), o.env).WithContext("frame " + std::to_string(f)));
     if (exposure <= 0 && m.width() > 0) exposure = AutoExposure(out.data(), rows);  // fixed from frame 0 on
@@ -285,7 +293,8 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
 
     if (!so.applied_output.empty()) {
       LTB_ASSIGN_OR_RETURN(std::string path, FramePath(so.applied_output, f));
-      const std::vector<float>& applied = inc.lighting().applied();
+      std::vector<float> applied = inc.lighting().applied();
+      ScaleByPowerOfTwo(&applied, seq.exponent());
       LTB_RETURN_IF_ERROR(WriteImage(path, applied.data(), applied.size() / 3, 0, 0));
     }
     nlohmann::json fr = {{"frame", f},
@@ -313,6 +322,7 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
       std::vector<float> full = cube;
       ref->basis().ToBasis(full.data());
       LTB_RETURN_IF_ERROR(ref->RelightDense(full, &exact));
+      ScaleByPowerOfTwo(&exact, seq.exponent());
       FinishRelitImage(m.mask(), o.keep_negative, &exact);
       auto [l2, l1] = RelErrors(out.data(), exact.data(), rows, nullptr);
       fr["rel_l2"] = l2;

@@ -31,6 +31,9 @@ class LightingSequence {
   uint64_t frames() const { return frames_.size(); }
   Status Cubemap(uint64_t frame, std::vector<float>* out);
   double Rotation(uint64_t frame) const { return frames_[frame].rotation; }
+  // The power of two k to relight every frame at (× 2^-k; LightingExponent of the largest
+  // value of any of its maps): one k for the whole sequence, so the incremental images add up.
+  int exponent() const { return exponent_; }
 
  private:
   struct Frame {
@@ -44,6 +47,7 @@ class LightingSequence {
   EnvLoadOptions options_;
   std::vector<std::pair<uint32_t, std::unique_ptr<Environment>>> cache_;  // most recent last, at most 2
   std::vector<Frame> frames_;
+  int exponent_ = 0;
 };
 
 class RelightMatrix;

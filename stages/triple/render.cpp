@@ -18,6 +18,7 @@
 #include "stages/common/parallel_for.h"
 #include "stages/relight/environment.h"
 #include "stages/relight/image_io.h"
+#include "stages/relight/relight.h"
 #include "stages/sample/ray_scene.h"
 #include "stages/sample/scene.h"
 #include "stages/sample/scene_geometry.h"
@@ -761,6 +762,8 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
     std::fill(needed.begin(), needed.end(), 1);
     auto a = Clock::now();
     LTB_RETURN_IF_ERROR(evaluate(o.eye));
+    // The lighting and B are in double; B beyond float32 is an error, never written.
+    LTB_RETURN_IF_ERROR(stages::CheckRelitImageFinite(values, 0, o.env));
     report["vertex_output_ms"] = Ms(a, Clock::now());
     LTB_RETURN_IF_ERROR(stages::WriteImage(o.vertex_output, values.data(), rows, rows, 1));
     result.vertex_values = values;
@@ -796,6 +799,7 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
     auto b = Clock::now();
     brdf_terms_sum = 0;
     LTB_RETURN_IF_ERROR(evaluate(eye));
+    LTB_RETURN_IF_ERROR(stages::CheckRelitImageFinite(values, 0, o.env).WithContext("frame " + std::to_string(k)));
     auto c = Clock::now();
     for (uint64_t p = 0; p < pixels; ++p) {
       const sample::PixelHit& h = hits[p];

@@ -113,9 +113,14 @@ Result<std::string> ViewSession::Render(const FrameRequest& q) {
     relighter_ = std::make_unique<IncrementalRelighter>(m_, q.method, q.terms, Weighting::kArea);
   }
   LTB_RETURN_IF_ERROR(env_.Cubemap(q.rotate_deg * std::numbers::pi / 180.0, &cube_));
+  // A map near float32's largest value is relit at 2^-k (one k for the session: the
+  // incremental image adds up across frames) and the image scaled back.
+  const int exponent = LightingExponent(env_.peak());
+  ScaleByPowerOfTwo(&cube_, -exponent);
   LTB_RETURN_IF_ERROR(relighter_->Frame(cube_));
   const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - a).count();
   std::vector<float> out = relighter_->image();
+  ScaleByPowerOfTwo(&out, exponent);
   FinishRelitImage(m_.mask(), false, &out);
   LTB_RETURN_IF_ERROR(CheckRelitImageFinite(out, m_.width(), env_path_));
   const double exposure = q.exposure > 0 ? q.exposure : AutoExposure(out.data(), m_.rows());
@@ -140,6 +145,7 @@ Result<std::string> ViewSession::Render(const FrameRequest& q) {
     std::vector<float> full = cube_, exact;
     reference_->basis().ToBasis(full.data());
     LTB_RETURN_IF_ERROR(reference_->RelightDense(full, &exact));
+    ScaleByPowerOfTwo(&exact, exponent);
     FinishRelitImage(m_.mask(), false, &exact);
     stats_["rel_l2"] = CompareImages(out.data(), exact.data(), m_.rows(), m_.width(), m_.height()).rel_l2;
   }

@@ -313,6 +313,29 @@ def view_under_load(d, j):
         view.wait(timeout=60)
 
 
+def view_bright(d, j):
+    """8. `ltbake view` under a map near float32's largest value (RGBE exponent 255) relights
+    at 2^-k and scales back, as relight does: a frame, not an error."""
+    write_hdr(j("e255.hdr"), 64, 32, (255, 255, 255, 255))
+    # In the Haar basis (row-transform) at R = 8 the lighting's coefficients reach 8× a texel,
+    # beyond float32 unscaled (the image was NaN); a transport of 2^-20 (each row sums to
+    # ~2^-20·3R²) keeps the image within float32.
+    dim = np.random.default_rng(5).random((W * H, 6 * 8 * 8), dtype=np.float32) * np.float32(2.0 ** -20)
+    np.save(j("dim.npy"), dim)
+    t.run("convert", j("dim.npy"), j("dim.ltm"), "--cube-res", 8, "--image", f"{W}x{H}", "-q")
+    t.run("row-transform", j("dim.ltm"), "-o", j("dimw.ltm"), "-q")
+    view = subprocess.Popen([t.LTBAKE, "view", j("dimw.ltm"), "--env", j("e255.hdr")], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        url = view.stdout.readline().strip()
+        port = int(url.rsplit(":", 1)[1].strip("/"))
+        code, body = http_get(port, "/frame.png?rotate=3")
+        t.check(code == 200 and b"\r\n\r\n\x89PNG" in body, f"view of an exponent-255 map: {code} {body[:200]!r}")
+    finally:
+        view.send_signal(signal.SIGINT)
+        view.wait(timeout=60)
+
+
 def main():
     with tempfile.TemporaryDirectory() as d:
         j = lambda *p: os.path.join(d, *p)  # noqa: E731
@@ -323,6 +346,7 @@ def main():
         recipes(d, j)
         resume_hint(d, j)
         view_under_load(d, j)
+        view_bright(d, j)
     t.finish()
 
 

@@ -226,6 +226,16 @@ def main():
         a, b = np.load(j("fin_view.npy")), np.load(j("raw_view.npy"))
         e = np.linalg.norm(a - b) / np.linalg.norm(b)
         t.check(e < 0.01, f"the quantized set renders {e:.4f} off the raw set")
+        # A map near float32's largest value (RGBE exponent 255: 255·2^119) through the quantized
+        # (Haar) set, whose lighting coefficients would pass float32, is relit at 2^-k and scaled
+        # back: 2^126 times the view under the same map at exponent 129, bit for bit.
+        for e in (129, 255):
+            with open(j(f"e{e}.hdr"), "wb") as f:
+                f.write(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 32 +X 64\n" + bytes([255, 255, 255, e]) * (64 * 32))
+            t.run("relight", j("final.ltm"), "--env", j(f"e{e}.hdr"), *VIEW, "-o", j(f"bright{e}.npy"), "-q")
+        small, big = np.load(j("bright129.npy")), np.load(j("bright255.npy"))
+        t.check(np.all(np.isfinite(big)) and big.max() > 1e37 and np.array_equal(big, np.ldexp(small, 126)),
+                f"glossy view under an exponent-255 map: {np.isnan(big).sum()} NaN, max {big.max()}")
         t.run("cpca", j("rows.ltm"), "-o", j("cpca.ltm"), "--clusters", 4, "--basis", 8, "-q")
         t.run("relight", j("cpca.ltm"), "--env", city, "--clamp", "--terms", "all", *VIEW, "-o", j("cpca_view.npy"),
               "-q")

@@ -299,6 +299,13 @@ with tempfile.TemporaryDirectory() as d:
         check(np.all(np.isfinite(big)) and big.max() > 1e37 and np.array_equal(big, np.ldexp(small, 126)),
               f"tiny bake under the exponent-255 map: {np.isnan(big).sum()} NaN, {np.isinf(big).sum()} Inf, "
               f"max |big - 2^126·small| {np.nanmax(np.abs(big - np.ldexp(small, 126)))}")
+    # The same through --sequence: one exponent for every frame (the incremental image adds up).
+    for e in (129, 255):
+        run("relight", fin, "--env", p(f"e{e}.hdr"), "-o", p(f"se{e}_%d.npy"), "--sequence", "rotate:10:3", *q)
+    for k in range(3):
+        small, big = np.load(p(f"se129_{k}.npy")), np.load(p(f"se255_{k}.npy"))
+        check(np.all(np.isfinite(big)) and np.array_equal(big, np.ldexp(small, 126)),
+              f"sequence frame {k} under the exponent-255 map: {np.isnan(big).sum()} NaN, max {np.nanmax(big)}")
     r = run("relight", p("raw.ltm"), "--env", p("e255.hdr"), "-o", p("never.exr"), "--terms", "all", *q, expect=1)
     check("e255.hdr is too bright to relight in float32" in r.stderr and not os.path.exists(p("never.exr")),
           f"an image beyond float32: {r.stderr}")

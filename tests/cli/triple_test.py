@@ -403,6 +403,17 @@ file = "sphere.obj"
     imgs = [np.load(frames % k) for k in range(4)]
     check(all(i.shape == (32 * 24, 3) for i in imgs), f"orbit frames are height·width × 3: {[i.shape for i in imgs]}")
     check(rel(imgs[0], imgs[1]) > 1e-3, "the orbit moves the eye")
+    # A map near float32's largest value (an RGBE map at exponent 255: 255·2^119) renders at
+    # 2^-k and is scaled back: exactly 2^126 times the image of the same map at exponent 129,
+    # bit for bit (every step is linear in the light; docs/RELIGHT.md "Numbers").
+    for e in (129, 255):
+        with open(os.path.join(d, f"e{e}.hdr"), "wb") as f:
+            f.write(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 32 +X 64\n" + bytes([255, 255, 255, e]) * (64 * 32))
+        run("relight", visd, "--material", lam, "--env", os.path.join(d, f"e{e}.hdr"), "--eye", eye, "--size", "16x12",
+            "-o", os.path.join(d, f"bright{e}.npy"))
+    small, big = np.load(os.path.join(d, "bright129.npy")), np.load(os.path.join(d, "bright255.npy"))
+    check(np.all(np.isfinite(big)) and big.max() > 1e37 and np.array_equal(big, np.ldexp(small, 126)),
+          f"triple view under an exponent-255 map: {np.isnan(big).sum()} NaN, max {big.max()}")
     p = run("relight", visd, "--env", env_npy, "--eye", eye, "--method", "linear", "-o", os.path.join(d, "y.png"),
             expect=1)
     check("albedo" in p.stderr and "ltbake material --brdf lambert" in p.stderr,
