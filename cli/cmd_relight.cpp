@@ -78,7 +78,9 @@ class RelightCommand : public Command {
                     "a factored bake (sample --factor) or the triple-product path: the camera position X,Y,Z");
     app->add_option("--target", target_, "triple-product path: the point looked at X,Y,Z")->default_val("0,0,0");
     app->add_option("--up", up_, "triple-product path: the camera's up X,Y,Z")->default_val("0,0,1");
-    app->add_option("--fov", fov_, "triple-product path: vertical field of view in degrees")->default_val(40.0);
+    app->add_option("--fov", fov_text_, "triple-product path: vertical field of view in degrees, in (0, 180)")
+        ->default_val("40")
+        ->check(DecimalCheck(0, 180));
     app->add_option("--size", size_, "triple-product path: image WIDTHxHEIGHT")->default_val("256x256");
     app->add_option("--method", method_,
                     "with --sequence: nwa (each frame on its own), bi (basic incremental) or pbi (per-band "
@@ -94,7 +96,9 @@ class RelightCommand : public Command {
     app->add_option("--applied-lighting", applied_,
                     "with --sequence: a pattern like -o's (.npy) for each frame's applied lighting (6R² x 3, in the "
                     "matrix's column basis)");
-    app->add_option("--fps", fps_, "with --sequence and an .mp4 output: frames per second")->default_val(25.0);
+    app->add_option("--fps", fps_text_, "with --sequence and an .mp4 output: frames per second, in (0, 1000]")
+        ->default_val("25")
+        ->check(DecimalCheck(0, 1000));
     app->add_option("--brdf-terms", brdf_terms_text_,
                     "triple-product path: wavelet terms kept of each sampled BRDF row (largest first), N or all")
         ->default_val("all")
@@ -177,7 +181,7 @@ class RelightCommand : public Command {
     o->output = output_;
     o->vertex_output = vertex_output_;
     o->exposure = Decimal(exposure_text_);
-    o->fov_degrees = fov_;
+    o->fov_degrees = Decimal(fov_text_);
   }
 
   int RunTriple() {
@@ -337,7 +341,7 @@ class RelightCommand : public Command {
     so.spec = sequence_;
     so.method = *stages::ParseSequenceMethod(method_.empty() ? "pbi" : method_);  // checked by IsMember
     so.csv = csv_;
-    so.fps = fps_;
+    so.fps = Decimal(fps_text_);
     so.applied_output = applied_;
     return Report([&](const Progress& p) { return stages::RunRelightSequence(o, so, p); },
                   [&](const nlohmann::json& report) {
@@ -376,7 +380,7 @@ class RelightCommand : public Command {
   std::vector<std::string> materials_;
   std::string eye_, target_ = "0,0,0", up_ = "0,0,1", size_ = "256x256", method_, sequence_, csv_, applied_,
                     brdf_terms_text_ = "all", orbit_, scene_, vertex_output_;
-  double fov_ = 40, fps_ = 25;
+  std::string fov_text_ = "40", fps_text_ = "25";
   int frames_ = 0;
   std::string rotate_text_ = "0", exposure_text_ = "0";
   bool clamp_ = false, json_ = false, keep_negative_ = false;

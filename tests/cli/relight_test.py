@@ -85,7 +85,8 @@ with tempfile.TemporaryDirectory() as d:
     # name the flag and quote the value, before anything is read or written.
     for flag, bad in (("--rotate", "nan"), ("--rotate", "inf"), ("--rotate", "-inf"), ("--rotate", "1e20"),
                       ("--rotate", "0x10"), ("--rotate", "5abc"), ("--rotate", " 5"), ("--exposure", "nan"),
-                      ("--exposure", "inf"), ("--exposure", "-1"), ("--exposure", "1e13")):
+                      ("--exposure", "inf"), ("--exposure", "-1"), ("--exposure", "1e13"), ("--fov", "nan"),
+                      ("--fov", "0x10"), ("--fov", "200"), ("--fps", "inf"), ("--fps", "2000"), ("--fps", "25fps")):
         r = run("relight", p("c0.ltm"), "--env", env, "-o", p("never.png"), flag, bad, expect=2)
         check(f'{flag}: "{bad}"' in r.stderr and not os.path.exists(p("never.png")), f"{flag} {bad!r}: {r.stderr}")
     # A cubemap .npy cannot rotate: --rotate with one is refused, not ignored.
