@@ -295,7 +295,8 @@ TEST(ExactCubemap, PeakyCrossAndAngularMapsAtAnyRotationMatchAQuadtreeOracle) {
       env.width = env.height = W;
       env.path = "angular";
       env.rgb.assign(W * W * 3, 1.0f);
-      for (auto [x, y] : picked) {
+      for (const auto& xy : picked) {
+        const uint64_t x = xy.first, y = xy.second;  // (a lambda cannot capture a structured binding in clang 14)
         for (int c = 0; c < 3; ++c) env.rgb[(y * W + x) * 3 + c] = float(B);
         auto u = [=](double a) { return -1 + h * (double(x) + a); };
         auto v = [=](double b) { return 1 - h * (double(y) + b); };
