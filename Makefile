@@ -70,7 +70,7 @@ test-fast: build
 # its compiler (CMake reads CC/CXX only when it first configures): remove it to switch.
 ASAN_CC     ?= clang
 ASAN_CXX    ?= clang++
-ASAN_TARGETS ?= ltbake ltb_format_tests ltb_damage_tests ltb_column_tests ltb_envmap_tests ltb_cpca_tests \
+ASAN_TARGETS ?= ltbake ltb_format_tests ltb_damage_tests ltb_column_tests ltb_images_tests ltb_cpca_tests \
                 ltb_face_kernel_tests ltb_wavelet_tests ltb_sample_tests ltb_mesh_reader_tests ltb_stage_table_tests \
                 ltb_triple_tests ltb_bake_tests
 asan: setup

@@ -6,7 +6,7 @@
 #include "cli/common.h"
 #include "format/io/file_lock.h"
 #include "stages/convert/convert.h"
-#include "stages/relight/envmap.h"
+#include "stages/images/envmap.h"
 
 namespace ltb::cli {
 namespace {

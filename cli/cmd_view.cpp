@@ -5,7 +5,7 @@
 
 #include "cli/commands.h"
 #include "cli/common.h"
-#include "stages/relight/envmap.h"
+#include "stages/images/envmap.h"
 #include "stages/view/server.h"
 
 namespace ltb::cli {

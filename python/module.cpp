@@ -35,8 +35,8 @@
 #include "format/version.h"
 #include "stages/common/basis.h"
 #include "stages/convert/convert.h"
+#include "stages/images/envmap.h"
 #include "stages/inspect/inspect.h"
-#include "stages/relight/envmap.h"
 #include "stages/relight/run_relight.h"
 
 namespace py = pybind11;

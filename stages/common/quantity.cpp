@@ -94,6 +94,12 @@ bool IsDecimal(const std::string& text) {
 
 }  // namespace
 
+std::string MessageNumber(double v) {
+  char buf[48];
+  std::snprintf(buf, sizeof buf, "%.9g", v);
+  return buf;
+}
+
 Result<double> ParseDecimal(const std::string& text, double min, double max) {
   const std::string range = "[" + Shortest(min) + ", " + Shortest(max) + "]";
   if (!IsDecimal(text)) {

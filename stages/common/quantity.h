@@ -18,6 +18,9 @@ namespace ltb::stages {
 // or parameter's name in front: "--rotate: \"1e20\" is outside [-1e+06, 1e+06]".
 Result<double> ParseDecimal(const std::string& text, double min, double max);
 
+// A value as messages show it: %.9g (enough for any float; -5.55e-17, not "-0.000000").
+std::string MessageNumber(double v);
+
 // Bytes: a number and an optional unit. K, M, G, T (also k, KiB, MiB, GiB, TiB) are powers
 // of 1024; KB, MB, GB, TB powers of 1000; B or no unit: bytes. At least 1 byte, at most 8 EiB.
 Result<uint64_t> ParseByteSize(const std::string& text);

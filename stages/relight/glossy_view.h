@@ -13,7 +13,7 @@
 
 #include "format/progress.h"
 #include "format/status.h"
-#include "stages/relight/envmap.h"
+#include "stages/images/envmap.h"
 
 namespace ltb::stages {
 

@@ -114,17 +114,6 @@ class Relighter {
 Result<std::vector<float>> RelightStreaming(const std::string& path, const float* lighting, int jobs,
                                             const Progress& progress);
 
-// A 6R² × 3 cubemap of radiance from .npy (float32 or float64, C order), checked finite,
-// non-negative and (float64) within float32's range; the first value that is not is named
-// with its texel, channel and value (%.9g), with how many there are. With `clamp`
-// (--clamp, as for maps: EnvLoadOptions::clamp) they are fixed instead and counted in
-// `clamped`: NaN and negatives (−Inf included) become 0, +Inf and float64 values above
-// float32's largest become the largest finite float. Only a regular file is opened; the
-// declared shape must be (6R², 3) and its size (checked arithmetic) must fit the file
-// before anything is allocated.
-Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t cube_res, bool clamp = false,
-                                          uint64_t* clamped = nullptr);
-
 // Error metrics of an RGB image (rows × 3) against a reference.
 struct ImageErrors {
   double rel_l2 = 0;   // ‖B − R‖ / ‖R‖

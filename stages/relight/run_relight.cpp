@@ -11,8 +11,8 @@
 #include "format/io/container_reader.h"
 #include "stages/common/basis.h"
 #include "stages/cpca/cpca_model.h"
-#include "stages/relight/environment.h"
-#include "stages/relight/image_io.h"
+#include "stages/images/environment.h"
+#include "stages/images/image_io.h"
 #include "stages/relight/relight_matrix.h"
 
 namespace ltb::stages {

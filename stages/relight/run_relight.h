@@ -15,7 +15,7 @@
 
 #include "format/progress.h"
 #include "format/status.h"
-#include "stages/relight/envmap.h"
+#include "stages/images/envmap.h"
 #include "stages/relight/relight.h"
 
 namespace ltb::stages {

@@ -14,9 +14,9 @@
 #include "format/io/atomic_file.h"
 #include "format/io/file.h"
 #include "stages/common/cubemap.h"
-#include "stages/relight/image_io.h"
+#include "stages/images/image_io.h"
+#include "stages/images/video.h"
 #include "stages/relight/relight_matrix.h"
-#include "stages/relight/video.h"
 
 namespace ltb::stages {
 namespace {

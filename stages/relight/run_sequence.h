@@ -12,7 +12,7 @@
 
 #include "format/progress.h"
 #include "format/status.h"
-#include "stages/relight/environment.h"
+#include "stages/images/environment.h"
 #include "stages/relight/incremental.h"
 #include "stages/relight/run_relight.h"
 #include "stages/relight/sequence_spec.h"

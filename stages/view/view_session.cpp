@@ -6,7 +6,7 @@
 
 #include "stages/common/cubemap.h"
 #include "stages/common/quantity.h"
-#include "stages/relight/image_io.h"
+#include "stages/images/image_io.h"
 
 namespace ltb::stages::view {
 namespace {

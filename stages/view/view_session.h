@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "format/status.h"
-#include "stages/relight/environment.h"
+#include "stages/images/environment.h"
 #include "stages/relight/relight_matrix.h"
 #include "stages/relight/run_sequence.h"
 

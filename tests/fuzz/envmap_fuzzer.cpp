@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "stages/relight/envmap.h"
+#include "stages/images/envmap.h"
 #include "tests/fuzz/fuzz_file.h"
 
 #ifndef LTB_FUZZ_EXT

@@ -1,4 +1,4 @@
-#include "stages/relight/video.h"
+#include "stages/images/video.h"
 
 #include <fcntl.h>
 #include <signal.h>

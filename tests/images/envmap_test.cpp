@@ -6,7 +6,7 @@
 // refusal (or clamping) of NaN, negative and infinite values; clear errors for wrong sizes,
 // truncated, garbage and missing files; the .hdr reader against stb_image; a real
 // blender-data map, with the timings docs/ENVMAPS.md quotes.
-#include "stages/relight/envmap.h"
+#include "stages/images/envmap.h"
 
 #include <ImfChannelList.h>
 #include <ImfFrameBuffer.h>
@@ -38,7 +38,7 @@
 
 #include "format/npy.h"
 #include "stages/common/cubemap.h"
-#include "stages/relight/environment.h"
+#include "stages/images/environment.h"
 #include "stages/relight/relight.h"
 
 namespace ltb::stages {

@@ -14,7 +14,7 @@
 
 namespace ltb::stages {
 
-struct EnvMap;  // stages/relight/envmap.h
+struct EnvMap;  // stages/images/envmap.h
 
 // 6R² × 3 floats (texel-major, as CubemapResampler::Resample): texel t is
 //   Σ_pixels L_p · Ω(p ∩ t) / Σ_pixels Ω(p ∩ t),

@@ -1,6 +1,6 @@
 // Exact texel averages of a cube-face or angular map (exact_cubemap.h): each source pixel,
 // as a spherical polygon, clipped against the texels of every cube face it reaches.
-#include "stages/relight/exact_cubemap.h"
+#include "stages/images/exact_cubemap.h"
 
 #include <algorithm>
 #include <array>
@@ -10,9 +10,9 @@
 #include <string>
 
 #include "stages/common/cubemap.h"
-#include "stages/relight/env_layout.h"
-#include "stages/relight/envmap.h"
-#include "stages/relight/image_readers.h"
+#include "stages/images/env_layout.h"
+#include "stages/images/envmap.h"
+#include "stages/images/image_readers.h"
 
 namespace ltb::stages {
 namespace {

@@ -7,7 +7,7 @@
 #include <vector>
 
 #include "format/npy.h"
-#include "stages/relight/envmap.h"
+#include "stages/images/envmap.h"
 
 int main(int argc, char** argv) {
   if (argc != 5) {

@@ -1,6 +1,6 @@
 // The working lat-long grid of the resampler (working_grid.h): a lat-long source averaged
 // exactly onto it, crosses, faces and angular maps splatted into it.
-#include "stages/relight/working_grid.h"
+#include "stages/images/working_grid.h"
 
 #include <sys/mman.h>
 
@@ -11,8 +11,8 @@
 #include <glm/geometric.hpp>
 
 #include "stages/common/cubemap.h"
-#include "stages/relight/env_layout.h"
-#include "stages/relight/image_readers.h"
+#include "stages/images/env_layout.h"
+#include "stages/images/image_readers.h"
 
 namespace ltb::stages::envmap_internal {
 namespace {

@@ -1,4 +1,4 @@
-// Internal to the envmap library (stages/relight/envmap.h is the public header): the working
+// Internal to the envmap library (stages/images/envmap.h is the public header): the working
 // lat-long grid CubemapResampler integrates over (docs/ENVMAPS.md "Resampling", step 1).
 #pragma once
 
@@ -9,7 +9,7 @@
 
 #include "format/progress.h"
 #include "format/status.h"
-#include "stages/relight/envmap.h"
+#include "stages/images/envmap.h"
 
 namespace ltb::stages::envmap_internal {
 

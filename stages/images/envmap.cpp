@@ -1,4 +1,4 @@
-#include "stages/relight/envmap.h"
+#include "stages/images/envmap.h"
 
 #include <algorithm>
 #include <cctype>
@@ -10,9 +10,10 @@
 
 #include "format/io/atomic_file.h"
 #include "format/npy.h"
-#include "stages/relight/env_layout.h"
-#include "stages/relight/exact_cubemap.h"
-#include "stages/relight/image_readers.h"
+#include "stages/common/quantity.h"
+#include "stages/images/env_layout.h"
+#include "stages/images/exact_cubemap.h"
+#include "stages/images/image_readers.h"
 
 // The image readers are in image_readers.{h,cpp}, hdr_reader.cpp and exr_reader.cpp, the
 // layouts' geometry in env_layout.{h,cpp}, the resampler in resampler.{h,cpp} (its working grid
@@ -35,11 +36,7 @@ namespace {
 constexpr const char* kFaceNames[6] = {"px", "nx", "py", "ny", "pz", "nz"};
 constexpr const char* kPlaceholder = "{face}";
 
-std::string Num(double v) {
-  char buf[48];
-  std::snprintf(buf, sizeof buf, "%.9g", v);
-  return buf;
-}
+std::string Num(double v) { return MessageNumber(v); }
 
 bool EndsWithNoCase(const std::string& s, const std::string& suffix) {
   if (s.size() < suffix.size()) return false;

@@ -1,4 +1,4 @@
-#include "stages/relight/image_readers.h"
+#include "stages/images/image_readers.h"
 
 #include <algorithm>
 #include <cstdio>

@@ -1,4 +1,4 @@
-// Internal to the envmap library (stages/relight/envmap.h is the public header): the .exr
+// Internal to the envmap library (stages/images/envmap.h is the public header): the .exr
 // and .hdr readers (image_readers.cpp, hdr_reader.cpp, exr_reader.cpp) and the size and
 // memory helpers the loader and the resampler share. Hostile files: every size is checked
 // with overflow-safe arithmetic against the cap, the file and the memory limit before
@@ -11,7 +11,7 @@
 
 #include "format/io/file.h"
 #include "format/status.h"
-#include "stages/relight/envmap.h"
+#include "stages/images/envmap.h"
 
 namespace ltb::stages::envmap_internal {
 

@@ -1,7 +1,7 @@
-// Exact texel averages of cube-face and angular maps (stages/relight/exact_cubemap.h) against
+// Exact texel averages of cube-face and angular maps (stages/images/exact_cubemap.h) against
 // oracles of the test's own: closed-form rectangle overlaps for a cross at rotation 0, and a
 // quadtree over each bright pixel with a rigorous bound of what it cannot place at any rotation.
-#include "stages/relight/exact_cubemap.h"
+#include "stages/images/exact_cubemap.h"
 
 #include <gtest/gtest.h>
 
@@ -15,8 +15,8 @@
 #include <vector>
 
 #include "stages/common/cubemap.h"
-#include "stages/relight/envmap.h"
-#include "stages/relight/resampler.h"
+#include "stages/images/envmap.h"
+#include "stages/images/resampler.h"
 
 namespace exact_cubemap_test {
 namespace {

@@ -1,4 +1,4 @@
-#include "stages/relight/image_io.h"
+#include "stages/images/image_io.h"
 
 #include <OpenEXR/ImfChannelList.h>
 #include <OpenEXR/ImfFrameBuffer.h>

@@ -1,6 +1,6 @@
 // CubemapResampler (resampler.h): the texel edges cut into pieces per working row of the
 // working grid (working_grid.h), the pieces gathered into bands, and Resample.
-#include "stages/relight/resampler.h"
+#include "stages/images/resampler.h"
 
 #include <algorithm>
 #include <cmath>
@@ -11,10 +11,10 @@
 #include <utility>
 
 #include "stages/common/cubemap.h"
-#include "stages/relight/env_layout.h"
-#include "stages/relight/envmap.h"
-#include "stages/relight/image_readers.h"
-#include "stages/relight/working_grid.h"
+#include "stages/images/env_layout.h"
+#include "stages/images/envmap.h"
+#include "stages/images/image_readers.h"
+#include "stages/images/working_grid.h"
 
 namespace ltb::stages {
 

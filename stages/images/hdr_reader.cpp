@@ -7,7 +7,7 @@
 #include <exception>
 
 #include "format/bytes.h"
-#include "stages/relight/image_readers.h"
+#include "stages/images/image_readers.h"
 
 namespace ltb::stages::envmap_internal {
 namespace {

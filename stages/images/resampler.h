@@ -1,4 +1,4 @@
-// Area-correct resampling of an environment map (stages/relight/envmap.h) to ltbake's
+// Area-correct resampling of an environment map (stages/images/envmap.h) to ltbake's
 // cubemap (docs/CUBEMAP.md), rotated about +Z, for relighting (docs/ENVMAPS.md).
 #pragma once
 
@@ -12,7 +12,7 @@
 
 namespace ltb::stages {
 
-struct EnvMap;  // stages/relight/envmap.h
+struct EnvMap;  // stages/images/envmap.h
 
 // Area-correct resampling of an environment map to a cubemap with R×R faces: 6R² texels ×
 // 3 floats (texel-major, out[(f·R² + t·R + s)·3 + c]) of radiance, each texel the average of

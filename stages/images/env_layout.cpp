@@ -1,4 +1,4 @@
-#include "stages/relight/env_layout.h"
+#include "stages/images/env_layout.h"
 
 #include <algorithm>
 #include <cmath>

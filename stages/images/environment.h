@@ -10,13 +10,24 @@
 #include <vector>
 
 #include "format/status.h"
-#include "stages/relight/envmap.h"
+#include "stages/images/envmap.h"
 
 namespace ltb::stages {
 
+// A 6R² × 3 cubemap of radiance from .npy (float32 or float64, C order), checked finite,
+// non-negative and (float64) within float32's range; the first value that is not is named
+// with its texel, channel and value (%.9g), with how many there are. With `clamp`
+// (--clamp, as for maps: EnvLoadOptions::clamp) they are fixed instead and counted in
+// `clamped`: NaN and negatives (−Inf included) become 0, +Inf and float64 values above
+// float32's largest become the largest finite float. Only a regular file is opened; the
+// declared shape must be (6R², 3) and its size (checked arithmetic) must fit the file
+// before anything is allocated.
+Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t cube_res, bool clamp = false,
+                                          uint64_t* clamped = nullptr);
+
 // How a map that is not lat-long becomes a cubemap (a lat-long map is exact either way).
 enum class EnvResampling {
-  // Exact texel averages at every call (stages/relight/exact_cubemap.h): for a frame
+  // Exact texel averages at every call (stages/images/exact_cubemap.h): for a frame
   // resampled once (about a second for a 2048² probe at R = 32).
   kExact,
   // The working-grid resampler (resampler.h): milliseconds a frame at any rotation, for

@@ -15,7 +15,7 @@
 
 #include "format/progress.h"
 #include "format/status.h"
-#include "stages/relight/resampler.h"
+#include "stages/images/resampler.h"
 
 namespace ltb::stages {
 

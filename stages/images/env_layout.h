@@ -1,4 +1,4 @@
-// Internal to the envmap library (stages/relight/envmap.h is the public header): where the
+// Internal to the envmap library (stages/images/envmap.h is the public header): where the
 // faces of a cross or a face strip lie, and the angular (light-probe) map's projection;
 // used by the loader's value check and by the resampler.
 #pragma once
@@ -7,7 +7,7 @@
 #include <glm/vec3.hpp>
 #include <numbers>
 
-#include "stages/relight/envmap.h"
+#include "stages/images/envmap.h"
 
 namespace ltb::stages::envmap_internal {
 
