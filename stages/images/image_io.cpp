@@ -7,6 +7,7 @@
 #include <stb/stb_image_write.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <vector>
@@ -15,6 +16,7 @@
 #include "format/io/file.h"
 #include "format/io/file_lock.h"
 #include "format/npy.h"
+#include "stages/common/quantity.h"
 
 namespace ltb::stages {
 
@@ -118,6 +120,64 @@ Status WriteImage(const std::string& path, const float* rgb, uint64_t rows, uint
                       : png ? WritePng(tmp, rgb, width, height, options.exposure)
                             : WriteNpy(f.file(), rgb, rows));
   return f.Commit();
+}
+
+namespace {
+const char* Whose(FramePattern kind) { return kind == FramePattern::kSequence ? "a sequence's" : "an orbit's"; }
+}  // namespace
+
+Result<std::string> FramePath(const std::string& pattern, uint64_t frame, FramePattern kind) {
+  const std::string video = kind == FramePattern::kSequence ? ", or an .mp4" : "";
+  std::string out;
+  int conversions = 0;
+  for (size_t i = 0; i < pattern.size(); ++i) {
+    if (pattern[i] != '%') {
+      out += pattern[i];
+      continue;
+    }
+    if (i + 1 < pattern.size() && pattern[i + 1] == '%') {
+      out += '%';
+      ++i;
+      continue;
+    }
+    size_t j = i + 1;
+    bool zero = j < pattern.size() && pattern[j] == '0';
+    if (zero) ++j;
+    size_t width_start = j;
+    while (j < pattern.size() && std::isdigit(static_cast<unsigned char>(pattern[j]))) ++j;
+    if (j >= pattern.size() || pattern[j] != 'd' || j - width_start > 2) {
+      return InvalidArgument("-o " + pattern + ": " + Whose(kind) +
+                             " output is a pattern with one %d or %0Nd (N < 100)" + video +
+                             "; write %% for a literal %");
+    }
+    const int width = j > width_start ? std::stoi(pattern.substr(width_start, j - width_start)) : 0;
+    std::string num = std::to_string(frame);
+    if (static_cast<int>(num.size()) < width) num.insert(0, width - num.size(), zero ? '0' : ' ');
+    out += num;
+    ++conversions;
+    i = j;
+  }
+  if (conversions != 1) {
+    return InvalidArgument(
+        "-o " + pattern + ": " + Whose(kind) +
+        " frames are one file each: give a pattern with one %d or %04d (e.g. frames/relit_%04d.png)" + video);
+  }
+  return out;
+}
+
+Status CheckRelitImageFinite(const std::vector<float>& image, uint64_t width, const std::string& env) {
+  for (uint64_t i = 0; i < image.size(); ++i) {
+    if (std::isfinite(image[i])) continue;
+    const uint64_t row = i / 3;
+    const std::string where = width > 0
+                                  ? "pixel (" + std::to_string(row % width) + ", " + std::to_string(row / width) + ")"
+                                  : "row " + std::to_string(row);
+    return InvalidArgument("relight: the relit image's " + where + " channel " + "RGB"[i % 3] + " is " +
+                           MessageNumber(image[i]) + ", beyond float32's largest value (3.40282347e+38): " + env +
+                           " is too bright to relight in float32; scale the map down (e.g. by 2^-64) and the image "
+                           "up after");
+  }
+  return Status::Ok();
 }
 
 }  // namespace ltb::stages

@@ -31,4 +31,15 @@ std::string EncodePng(const uint8_t* srgb, uint64_t width, uint64_t height);
 Status WriteImage(const std::string& path, const float* rgb, uint64_t rows, uint64_t width, uint64_t height,
                   const ImageWriteOptions& options = {});
 
+// The path of frame `frame` from an -o pattern with one integer conversion (%d, %04d, %0Nd
+// for N < 100; %% for a literal %), or an error naming the pattern: a lighting sequence's
+// (which may be an .mp4 instead) or an orbit's (triple-product and glossy views).
+enum class FramePattern { kSequence, kOrbit };
+Result<std::string> FramePath(const std::string& pattern, uint64_t frame, FramePattern kind = FramePattern::kSequence);
+
+// Ok when every value of a relit image (rows × 3) is finite; else an InvalidArgument naming
+// the first pixel (x, y of an image `width` wide; a row of a vertex bake, width 0), its
+// channel and value, and the lighting `env` whose radiance is too large to relight in float32.
+Status CheckRelitImageFinite(const std::vector<float>& image, uint64_t width, const std::string& env);
+
 }  // namespace ltb::stages

@@ -19,7 +19,6 @@
 #include "stages/sample/camera.h"
 #include "stages/sample/scene.h"
 #include "stages/sample/scene_geometry.h"
-#include "stages/triple/render.h"
 
 namespace ltb::stages {
 namespace {
@@ -180,7 +179,8 @@ Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progres
   report["relight_ms"] = relight_ms;
   // Views.
   const uint32_t frames = std::max<uint32_t>(1, o.orbit_frames);
-  if (o.orbit_frames > 0 && !o.output.empty()) LTB_RETURN_IF_ERROR(triple::FramePath(o.output, 0).status());
+  if (o.orbit_frames > 0 && !o.output.empty())
+    LTB_RETURN_IF_ERROR(FramePath(o.output, 0, FramePattern::kOrbit).status());
   GlossyViewResult result;
   std::vector<float> b, image;
   std::vector<sample::PixelHit> hits;
@@ -219,7 +219,7 @@ Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progres
     if (!o.output.empty()) {
       std::string path = o.output;
       if (o.orbit_frames > 0) {
-        LTB_ASSIGN_OR_RETURN(std::string frame_path, triple::FramePath(o.output, f));
+        LTB_ASSIGN_OR_RETURN(std::string frame_path, FramePath(o.output, f, FramePattern::kOrbit));
         path = frame_path;
       }
       LTB_RETURN_IF_ERROR(

@@ -15,7 +15,6 @@
 #include "stages/column_transform/column_codec.h"
 #include "stages/common/basis.h"
 #include "stages/common/parallel_for.h"
-#include "stages/common/quantity.h"
 
 namespace ltb::stages {
 
@@ -362,10 +361,6 @@ Result<std::vector<float>> RelightStreaming(const std::string& path, const float
   return std::vector<float>(acc.begin(), acc.end());
 }
 
-namespace {
-std::string Num(double v) { return MessageNumber(v); }
-}  // namespace
-
 ImageErrors CompareImages(const float* image, const float* ref, uint64_t rows, uint64_t width, uint64_t height) {
   ImageErrors e;
   double d2 = 0, r2 = 0, peak = 0;
@@ -485,21 +480,6 @@ OutputFixes FinishRelitImage(const std::vector<uint8_t>& mask, bool keep_negativ
     }
   }
   return fixes;
-}
-
-Status CheckRelitImageFinite(const std::vector<float>& image, uint64_t width, const std::string& env) {
-  for (uint64_t i = 0; i < image.size(); ++i) {
-    if (std::isfinite(image[i])) continue;
-    const uint64_t row = i / 3;
-    const std::string where = width > 0
-                                  ? "pixel (" + std::to_string(row % width) + ", " + std::to_string(row / width) + ")"
-                                  : "row " + std::to_string(row);
-    return InvalidArgument("relight: the relit image's " + where + " channel " + "RGB"[i % 3] + " is " + Num(image[i]) +
-                           ", beyond float32's largest value (3.40282347e+38): " + env +
-                           " is too bright to relight in float32; scale the map down (e.g. by 2^-64) and the image "
-                           "up after");
-  }
-  return Status::Ok();
 }
 
 int LightingExponent(const std::vector<float>& cubemap) {

@@ -145,11 +145,6 @@ struct OutputFixes {
 };
 OutputFixes FinishRelitImage(const std::vector<uint8_t>& mask, bool keep_negative, std::vector<float>* image);
 
-// Ok when every value of a relit image (rows × 3) is finite; else an InvalidArgument naming
-// the first pixel (x, y of an image `width` wide; a row of a vertex bake, width 0), its
-// channel and value, and the lighting `env` whose radiance is too large to relight in float32.
-Status CheckRelitImageFinite(const std::vector<float>& image, uint64_t width, const std::string& env);
-
 // Relighting holds the lighting's wavelet coefficients (up to R × a texel) and the sums of
 // Eq. 8 in float32: a map near float32's largest value (3.4e38) would overflow them. The
 // power of two k ≥ 0 to relight a cubemap at (× 2^-k, exact) so that its largest value is at

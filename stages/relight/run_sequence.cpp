@@ -129,44 +129,6 @@ Status LightingSequence::Cubemap(uint64_t frame, std::vector<float>* out) {
   return Status::Ok();
 }
 
-Result<std::string> FramePath(const std::string& pattern, uint64_t frame) {
-  std::string out;
-  int conversions = 0;
-  for (size_t i = 0; i < pattern.size(); ++i) {
-    if (pattern[i] != '%') {
-      out += pattern[i];
-      continue;
-    }
-    if (i + 1 < pattern.size() && pattern[i + 1] == '%') {
-      out += '%';
-      ++i;
-      continue;
-    }
-    size_t j = i + 1;
-    bool zero = j < pattern.size() && pattern[j] == '0';
-    if (zero) ++j;
-    size_t width_start = j;
-    while (j < pattern.size() && std::isdigit(static_cast<unsigned char>(pattern[j]))) ++j;
-    if (j >= pattern.size() || pattern[j] != 'd' || j - width_start > 2) {
-      return InvalidArgument("-o " + pattern +
-                             ": a sequence's output is a pattern with one %d or %0Nd (N < 100), or "
-                             "an .mp4; write %% for a literal %");
-    }
-    const int width = j > width_start ? std::stoi(pattern.substr(width_start, j - width_start)) : 0;
-    std::string num = std::to_string(frame);
-    if (static_cast<int>(num.size()) < width) num.insert(0, width - num.size(), zero ? '0' : ' ');
-    out += num;
-    ++conversions;
-    i = j;
-  }
-  if (conversions != 1) {
-    return InvalidArgument("-o " + pattern +
-                           ": a sequence writes one file per frame: give a pattern with one %d or "
-                           "%04d (e.g. frames/relit_%04d.png), or an .mp4");
-  }
-  return out;
-}
-
 IncrementalRelighter::IncrementalRelighter(RelightMatrix& matrix, SequenceMethod method, uint64_t terms,
                                            Weighting weighting)
     : m_(matrix),

@@ -92,7 +92,4 @@ struct SequenceOptions {
 Result<RelightResult> RunRelightSequence(const RelightOptions& options, const SequenceOptions& sequence,
                                          const Progress& progress);
 
-// The frame's path from a pattern, or an error naming the pattern.
-Result<std::string> FramePath(const std::string& pattern, uint64_t frame);
-
 }  // namespace ltb::stages

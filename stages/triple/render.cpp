@@ -18,7 +18,6 @@
 #include "stages/common/parallel_for.h"
 #include "stages/images/environment.h"
 #include "stages/images/image_io.h"
-#include "stages/relight/relight.h"
 #include "stages/sample/ray_scene.h"
 #include "stages/sample/scene.h"
 #include "stages/sample/scene_geometry.h"
@@ -649,24 +648,6 @@ Status LoadInputs(const RenderOptions& o, const Progress& progress, Renderer& rd
 
 }  // namespace
 
-Result<std::string> FramePath(const std::string& pattern, uint32_t k) {
-  const size_t pct = pattern.find('%');
-  size_t end = pct;
-  if (pct != std::string::npos) {
-    end = pct + 1;
-    while (end < pattern.size() && std::isdigit(static_cast<unsigned char>(pattern[end]))) ++end;
-  }
-  if (pct == std::string::npos || end >= pattern.size() || pattern[end] != 'd' ||
-      pattern.find('%', end + 1) != std::string::npos) {
-    return InvalidArgument("-o " + pattern +
-                           ": an orbit writes one image a frame; give a pattern with one %d, e.g. "
-                           "frames/view_%04d.png");
-  }
-  char buf[64];
-  std::snprintf(buf, sizeof buf, pattern.substr(pct, end + 1 - pct).c_str(), static_cast<int>(k));
-  return pattern.substr(0, pct) + buf + pattern.substr(end + 1);
-}
-
 Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& progress) {
   if (o.width == 0 || o.height == 0 || uint64_t{o.width} * o.height > (1u << 26)) {
     return InvalidArgument("--size " + std::to_string(o.width) + "x" + std::to_string(o.height) +
@@ -677,7 +658,8 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
   LTB_RETURN_IF_ERROR(sample::CheckViewMemory(o.width, o.height, o.mem_limit));
   if (o.light_terms == 0) return InvalidArgument("--terms must be at least 1 (or all)");
   const uint32_t frames = std::max<uint32_t>(1, o.orbit_frames);
-  if (o.orbit_frames > 0 && !o.output.empty()) LTB_RETURN_IF_ERROR(FramePath(o.output, 0).status());
+  if (o.orbit_frames > 0 && !o.output.empty())
+    LTB_RETURN_IF_ERROR(stages::FramePath(o.output, 0, stages::FramePattern::kOrbit).status());
   nlohmann::json report = {
       {"method", TripleMethodName(o.method)},
       {"visibility", o.visibility},
@@ -831,7 +813,7 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
     if (!o.output.empty()) {
       std::string path = o.output;
       if (o.orbit_frames > 0) {
-        LTB_ASSIGN_OR_RETURN(path, FramePath(o.output, k));
+        LTB_ASSIGN_OR_RETURN(path, stages::FramePath(o.output, k, stages::FramePattern::kOrbit));
       }
       LTB_RETURN_IF_ERROR(stages::WriteImage(path, image.data(), pixels, o.width, o.height, {.exposure = o.exposure}));
     }

@@ -68,8 +68,4 @@ struct RenderResult {
 
 Result<RenderResult> RunTripleRender(const RenderOptions& options, const Progress& progress);
 
-// "name_%04d.png" with frame k: the one integer conversion of an orbit's -o pattern (an
-// error that shows one when there is none).
-Result<std::string> FramePath(const std::string& pattern, uint32_t k);
-
 }  // namespace ltb::triple
