@@ -1,4 +1,4 @@
-// Internal to the mesh readers (mesh_reader.cpp, obj_reader.cpp, stl_reader.cpp): the
+// Internal to the mesh readers (mesh_reader.cpp, ply_reader.cpp, obj_reader.cpp, stl_reader.cpp): the
 // small text and arithmetic helpers they share. Not part of the mesh library's API.
 #pragma once
 
@@ -7,6 +7,9 @@
 #include <limits>
 #include <string>
 #include <string_view>
+#include <vector>
+
+#include "stages/mesh/triangle_mesh.h"
 
 namespace ltb::mesh::mesh_text {
 
@@ -60,5 +63,16 @@ inline bool MulAdd(uint64_t a, uint64_t b, uint64_t c, uint64_t* out) {
 inline std::string Bytes(uint64_t n) {
   return n == std::numeric_limits<uint64_t>::max() ? std::string("more than 2^64") : std::to_string(n);
 }
+
+// Defined in mesh_reader.cpp, shared by the OFF and PLY readers.
+// Appends the polygon's fan triangles, or counts it as degenerate (fewer than 3 vertices, or
+// a vertex repeated). `stamp[v]` holds the last polygon that used v.
+void AddPolygon(const std::vector<uint32_t>& f, uint64_t face, std::vector<uint64_t>* stamp, TriangleMesh* m);
+// A colour component must be finite and >= 0 (a float one may exceed 1: it scales an albedo).
+bool ValidColour(double c);
+// A value for a message: the shortest text that reads back to it (-0.25, 1e-09, nan).
+std::string Number(double d);
+// "the file declares N vertices: 0..N-1" (or none), for an index out of range.
+std::string VertexRange(uint64_t nv);
 
 }  // namespace ltb::mesh::mesh_text
