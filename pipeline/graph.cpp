@@ -4,6 +4,7 @@
 #include <cctype>
 #include <filesystem>
 #include <functional>
+#include <map>
 #include <set>
 
 #include "pipeline/stage_table.h"
@@ -193,15 +194,26 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
       return s;
     }() + ")");
   }
-  const bool fuse = needed.count("sample") && needed.count("row-transform") && !r.Keeps("raw") &&
-                    !g.targets.count("sample") && o.from != "row-transform";
+  // Stages that run inside the stage they need (StageInfo::fused_args): needed -> fused.
+  std::map<std::string, const StageInfo*> fused_into;
+  std::set<std::string> fused;
+  for (const StageInfo& info : StageTable()) {
+    if (!info.fused_args || info.needs.size() != 1) continue;
+    const std::string stage(info.name), host(info.needs[0]);
+    const std::string host_output(FindStage(host)->output);
+    const std::string kept = host_output.substr(0, host_output.rfind('.'));  // "raw" for raw.ltm
+    if (needed.count(stage) && needed.count(host) && !r.Keeps(kept) && !g.targets.count(host) && o.from != stage) {
+      fused_into[host] = &info;
+      fused.insert(stage);
+    }
+  }
 
   auto path = [&](const std::string& file) { return (fs::path(workdir) / file).string(); };
   const StageContext ctx{path, scene_file};
   for (const StageInfo& info : StageTable()) {
     const std::string stage(info.name);
     if (!needed.count(stage)) continue;
-    if (stage == "row-transform" && fuse) continue;  // done by the fused node
+    if (fused.count(stage)) continue;  // done by the step of the stage it runs in
     Node n;
     n.name = stage;
     n.stages = {stage};
@@ -212,14 +224,15 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
       n.args = std::move(c.args);
       n.output = info.output;
     }
-    if (stage == "sample" && fuse) {  // sample + row-transform in one step: no raw.ltm
-      n.name = "sample+row-transform";
-      n.stages = {"sample", "row-transform"};
-      n.output = "rows.ltm";
-      n.params = {{"sample", n.params},
-                  {"row-transform", {{"filter", r.row_transform.filter}, {"zstd", r.row_transform.zstd}}}};
-      n.args.insert(n.args.end(), {"--row-transform", r.row_transform.filter});
-      if (r.row_transform.zstd) n.args.push_back("--row-zstd");
+    if (auto it = fused_into.find(stage); it != fused_into.end()) {  // e.g. sample + row-transform: no raw.ltm
+      const StageInfo& inner = *it->second;
+      const std::string inner_name(inner.name);
+      n.name = stage + "+" + inner_name;
+      n.stages = {stage, inner_name};
+      n.output = inner.output;
+      n.params = {{stage, n.params}, {inner_name, inner.command(r, ctx).params}};
+      const std::vector<std::string> extra = inner.fused_args(r);
+      n.args.insert(n.args.end(), extra.begin(), extra.end());
     }
     if (info.command) {
       g.nodes.push_back(std::move(n));
@@ -288,7 +301,8 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
   for (const Node& n : g.nodes) {
     bool target = false;
     for (const auto& s : n.stages) target = target || g.targets.count(s);
-    if (n.name == "sample+row-transform") target = g.targets.count("row-transform") > 0;
+    if (n.stages.size() > 1)
+      target = g.targets.count(n.stages.back()) > 0;  // a fused step makes its inner stage's output
     std::string stem = fs::path(n.output).stem().string();
     // The triple path's fields are what every later view reads: kept like final and cpca.
     if (target || n.image || r.Keeps(stem) || stem == "final" || stem == "cpca" || stem == "vis" ||

@@ -56,6 +56,13 @@ StageCommand RowTransform(const Recipe& r, const StageContext& ctx) {
   return c;
 }
 
+// Row-transform inside sample (`sample --row-transform FILTER`): rows.ltm without raw.ltm.
+std::vector<std::string> RowTransformInSample(const Recipe& r) {
+  std::vector<std::string> a = {"--row-transform", r.row_transform.filter};
+  if (r.row_transform.zstd) a.push_back("--row-zstd");
+  return a;
+}
+
 StageCommand Transpose(const Recipe& r, const StageContext& ctx) {
   StageCommand c;
   c.inputs = {"rows.ltm"};
@@ -131,7 +138,16 @@ StageCommand Visibility(const Recipe& r, const StageContext& ctx) {
 const std::vector<StageInfo>& StageTable() {
   static const std::vector<StageInfo> table = {
       {"sample", "raw.ltm", {}, true, "ray-cast the transport matrix of the scene (Embree)", Sample, true, true},
-      {"row-transform", "rows.ltm", {"sample"}, true, "2D wavelets per cube face along each row", RowTransform, true},
+      {"row-transform",
+       "rows.ltm",
+       {"sample"},
+       true,
+       "2D wavelets per cube face along each row",
+       RowTransform,
+       true,
+       false,
+       {},
+       RowTransformInSample},
       // A transpose shard reads a slice of every row block; its checksum pass would read all
       // of them, in every shard. The commit of its input has just checked every checksum.
       {"transpose",

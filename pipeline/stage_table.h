@@ -45,6 +45,11 @@ struct StageInfo {
   bool reads_scene = false;
   // Flags every shard of it gets (docs/cluster.md).
   std::vector<std::string_view> shard_args = {};
+  // Set for a stage that runs inside the one stage it needs, as one step, when that stage's
+  // output is not kept (`keep`) and that stage is no target (sample + row-transform: no
+  // raw.ltm): the flags the needed stage's command then also takes. The fused step is named
+  // "NEEDED+STAGE", writes this stage's output and records both stages' params.
+  std::function<std::vector<std::string>(const Recipe&)> fused_args = nullptr;
 };
 // Whether the step running `stages` (a node's) reads the scene (its first stage's row says).
 bool ReadsScene(const std::vector<std::string>& stages);

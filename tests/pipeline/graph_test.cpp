@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <string>
 #include <vector>
 
@@ -34,6 +35,15 @@ TEST(Graph, QuantizeFusesSampleAndRowTransform) {
   EXPECT_TRUE(g->wanted.count("final.ltm") && g->wanted.count("cols4d.ltm") && !g->wanted.count("raw.ltm"));
   EXPECT_EQ(g->nodes[0].args[0], "sample");
   EXPECT_EQ(g->nodes[0].args[1], "/work/scene.toml");
+  // The fused step from the table (StageInfo::fused_args): both stages' params, sample's
+  // command with the row-transform flags.
+  EXPECT_EQ(g->nodes[0].stages, (std::vector<std::string>{"sample", "row-transform"}));
+  EXPECT_EQ(g->nodes[0].params["row-transform"], (nlohmann::json{{"filter", "haar"}, {"zstd", false}}));
+  EXPECT_TRUE(g->nodes[0].params.contains("sample"));
+  const auto& a = g->nodes[0].args;
+  const auto at = std::find(a.begin(), a.end(), "--row-transform");
+  ASSERT_NE(at, a.end());
+  EXPECT_EQ(*(at + 1), "haar");
 }
 
 TEST(Graph, KeepingRawSplitsTheFusedStep) {

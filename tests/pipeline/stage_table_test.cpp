@@ -79,6 +79,9 @@ TEST(StageTable, SetMembersSceneReadsAndShardFlagsAreFieldsOfTheRows) {
   EXPECT_TRUE(ReadsScene({"sample", "row-transform"}));  // the fused step
   EXPECT_FALSE(ReadsScene({"transpose"}));
   EXPECT_FALSE(ReadsScene({}));
+  for (const StageInfo& s : StageTable()) {  // only row-transform runs inside another stage
+    EXPECT_EQ(bool(s.fused_args), s.name == "row-transform") << s.name;
+  }
   ASSERT_EQ(FindStage("transpose")->shard_args.size(), 1u);
   EXPECT_EQ(FindStage("transpose")->shard_args[0], "--no-verify-input");
 }
