@@ -14,6 +14,7 @@
 #include "format/io/array_summary.h"
 #include "format/io/atomic_file.h"
 #include "format/io/container_reader.h"
+#include "format/io/file_hash.h"
 #include "format/io/file_lock.h"
 #include "format/version.h"
 #include "pipeline/graph.h"
@@ -156,7 +157,7 @@ std::vector<std::string> Bake::Command(const Node& n, bool overwrite) const {
 }
 
 Result<std::string> Bake::ContentHashOf(const Node& n, const std::string& path) const {
-  if (n.image) return HashFileBytes(path);
+  if (n.image) return io::HashFileHex(path);
   LTB_ASSIGN_OR_RETURN(io::ContainerReader reader, io::ContainerReader::Open(path));
   // The stage's writer recorded it while writing (a manifest: its shards' writers did).
   if (std::string recorded = reader.RecordedContentHash(0); !recorded.empty()) return recorded;
@@ -176,7 +177,7 @@ json Bake::InputsOf(const Node& n, const std::map<std::string, FileHash>& hashes
     // Hashed once per run: every planning round and the step itself ask again.
     auto it = env_hash_.find(n.env);
     if (it == env_hash_.end()) {
-      auto h = HashFileBytes(n.env);
+      auto h = io::HashFileHex(n.env);
       it = env_hash_.emplace(n.env, h.ok() ? *h : std::string("unreadable")).first;
     }
     in["env"] = it->second;

@@ -12,31 +12,13 @@
 #include "format/io/atomic_file.h"
 #include "format/io/container_reader.h"
 #include "format/io/file.h"
+#include "format/io/file_hash.h"
 #include "format/io/manifest.h"
 #include "stages/common/basis.h"
 
 namespace ltb::pipeline {
 
 namespace fs = std::filesystem;
-
-Result<std::string> HashFileBytes(const std::string& path) {
-  // A FIFO or a device would block the read or never end: refused before opening.
-  LTB_RETURN_IF_ERROR(io::RequireRegularFile(path));
-  std::ifstream f(path, std::ios::binary);
-  if (!f) return NotFound(path + ": cannot open");
-  XXH3_state_t* st = XXH3_createState();
-  XXH3_64bits_reset(st);
-  std::vector<char> buf(1 << 16);
-  while (f) {
-    f.read(buf.data(), static_cast<std::streamsize>(buf.size()));
-    XXH3_64bits_update(st, buf.data(), static_cast<size_t>(f.gcount()));
-  }
-  uint64_t h = XXH3_64bits_digest(st);
-  XXH3_freeState(st);
-  char b[17];
-  std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(h));
-  return std::string(b);
-}
 
 std::string Now() {
   std::time_t t = std::time(nullptr);
@@ -52,7 +34,7 @@ OutputState InspectOutput(const Node& n, const std::string& path) {
   s.exists = true;
   s.bytes = fs::file_size(path, ec);
   if (n.image) {
-    auto h = HashFileBytes(path);
+    auto h = io::HashFileHex(path);
     s.complete = h.ok();
     if (h.ok()) s.fingerprint = *h;
     return s;

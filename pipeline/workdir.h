@@ -30,9 +30,6 @@ struct OutputState {
 // Looks at `path`, the output of `n` (a container, a stage manifest, or an image).
 OutputState InspectOutput(const Node& n, const std::string& path);
 
-// xxh3-64 of a regular file's bytes, as 16 hex digits (images, environment maps).
-Result<std::string> HashFileBytes(const std::string& path);
-
 // The local time, ISO 8601 with the UTC offset ("2026-11-26T01:43:35+0000").
 std::string Now();
 

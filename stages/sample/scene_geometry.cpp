@@ -1,7 +1,5 @@
 #include "stages/sample/scene_geometry.h"
 
-#include <xxhash.h>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -12,6 +10,7 @@
 #include <memory>
 #include <tuple>
 
+#include "format/io/file_hash.h"
 #include "format/version.h"
 #include "stages/mesh/triangle_mesh.h"
 #include "stages/sample/sample.h"
@@ -29,21 +28,6 @@ glm::dmat4 ObjectTransform(const Object& o) {
 }
 
 using namespace ltb::format;
-
-namespace {
-
-Status HashFile(const std::string& path, XXH3_state_t* st) {
-  std::ifstream f(path, std::ios::binary);
-  if (!f) return NotFound(path + ": cannot open");
-  std::vector<char> buf(1 << 16);
-  while (f) {
-    f.read(buf.data(), static_cast<std::streamsize>(buf.size()));
-    XXH3_64bits_update(st, buf.data(), static_cast<size_t>(f.gcount()));
-  }
-  return Status::Ok();
-}
-
-}  // namespace
 
 namespace {
 
@@ -183,9 +167,8 @@ Status AddMeshObject(const SceneDesc& s, size_t object, const std::string& where
 // Geometry::geometry_hash: every object's type, transform, shape parameters, normals mode and
 // mesh file bytes, in order, then the vertex rows and their triangles.
 std::string GeometryHash(const SceneDesc& s, const Geometry& g) {
-  XXH3_state_t* st = XXH3_createState();
-  XXH3_64bits_reset(st);
-  auto add = [&](const void* p, size_t n) { XXH3_64bits_update(st, p, n); };
+  io::StreamHash st;
+  auto add = [&](const void* p, size_t n) { st.AddBytes(p, n); };
   for (const Object& o : s.objects) {
     const int type = static_cast<int>(o.type);
     add(&type, sizeof type);
@@ -196,7 +179,7 @@ std::string GeometryHash(const SceneDesc& s, const Geometry& g) {
     add(&o.radius, sizeof o.radius);
     const int normals = static_cast<int>(o.normals);
     add(&normals, sizeof normals);
-    if (o.type == Object::Type::kMesh) (void)HashFile(o.file, st);  // read once already: it opens
+    if (o.type == Object::Type::kMesh) (void)st.AddFile(o.file);  // read once already: it opens
     if (o.usemtl) {  // only when set: the hashes of scenes without it stay what they were
       static const char kUsemtl[] = "usemtl";
       add(kUsemtl, sizeof kUsemtl);
@@ -226,9 +209,7 @@ std::string GeometryHash(const SceneDesc& s, const Geometry& g) {
     });
     add(all.data(), all.size() * sizeof(glm::uvec3));
   }
-  const uint64_t h = XXH3_64bits_digest(st);
-  XXH3_freeState(st);
-  return Hex64(h).substr(2);
+  return st.Hex();
 }
 
 }  // namespace
@@ -254,10 +235,8 @@ glm::dvec3 Geometry::HitColour(const Hit& h) const {
 Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
   Geometry g;
   LTB_ASSIGN_OR_RETURN(g.rays, RayScene::Create());
-  std::unique_ptr<XXH3_state_t, XXH_errorcode (*)(XXH3_state_t*)> state(XXH3_createState(), &XXH3_freeState);
-  XXH3_state_t* st = state.get();
-  XXH3_64bits_reset(st);
-  Status hs = HashFile(s.path, st);
+  io::StreamHash st;
+  Status hs = st.AddFile(s.path);
   glm::dvec3 lo(std::numeric_limits<double>::infinity()), hi(-std::numeric_limits<double>::infinity());
   for (size_t object = 0; object < s.objects.size(); ++object) {
     const Object& o = s.objects[object];
@@ -292,7 +271,7 @@ Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
                                          o.colours == Object::Colours::kFile, o.usemtl);
         if (!loaded.ok()) return loaded.status().WithContext(where);
         mesh = std::move(loaded).value();
-        if (hs.ok()) hs = HashFile(o.file, st);
+        if (hs.ok()) hs = st.AddFile(o.file);
       } else if (o.type == Object::Type::kPlane) {
         mesh = mesh::MakePlane(o.size);
       } else {
@@ -327,9 +306,8 @@ Result<Geometry> BuildGeometry(const SceneDesc& s, const Progress& progress) {
       }
     }
   }
-  uint64_t h = XXH3_64bits_digest(st);
   LTB_RETURN_IF_ERROR(hs);
-  g.scene_hash = Hex64(h).substr(2);
+  g.scene_hash = st.Hex();
   g.geometry_hash = GeometryHash(s, g);
   LTB_RETURN_IF_ERROR(g.rays->Commit(progress));
   g.epsilon = std::max(1e-6, 1e-5 * glm::length(hi - lo));
@@ -344,16 +322,13 @@ using namespace ltb::format;
 
 Result<std::string> SceneHash(const std::string& scene_path) {
   LTB_ASSIGN_OR_RETURN(sample::SceneDesc scene, sample::ParseScene(scene_path));
-  XXH3_state_t* st = XXH3_createState();
-  XXH3_64bits_reset(st);
-  Status s = sample::HashFile(scene.path, st);  // the same bytes, in the same order, as BuildGeometry
+  io::StreamHash st;
+  Status s = st.AddFile(scene.path);  // the same bytes, in the same order, as BuildGeometry
   for (const sample::Object& obj : scene.objects) {
-    if (s.ok() && obj.type == sample::Object::Type::kMesh) s = sample::HashFile(obj.file, st);
+    if (s.ok() && obj.type == sample::Object::Type::kMesh) s = st.AddFile(obj.file);
   }
-  uint64_t h = XXH3_64bits_digest(st);
-  XXH3_freeState(st);
   LTB_RETURN_IF_ERROR(s);
-  return Hex64(h).substr(2);
+  return st.Hex();
 }
 
 }  // namespace ltb::stages

@@ -1,6 +1,7 @@
-"""Kill-and-resume: an `ltbake convert` writer is SIGKILLed at random moments until 20 (times
-LTB_TEST_SCALE, at least 4) have landed
-mid-write. Each
+"""Kill-and-resume: an `ltbake convert` writer is SIGKILLed at random points of its write until
+20 (times LTB_TEST_SCALE, at least 4) have landed mid-write. A point is a size the output has
+reached (a random fraction of the finished file's), so the kills land mid-write however fast
+or loaded the machine is (a random delay after the start landed 7 of 40 times under load). Each
 time the partial file must verify (committed chunks intact), list only whole chunks, and
 a resumed run must append only the missing chunks and end with the same content_hash as
 an uninterrupted write. A last trial kills the same file five times in a row.
@@ -66,15 +67,22 @@ with tempfile.TemporaryDirectory() as d:
     mid_write = 0
     committed_sum = 0
 
-    def kill_once(delay):
-        """Starts a writer and SIGKILLs it `delay` seconds after its output file appears
-        (timing from process start would mostly measure start-up on a loaded machine)."""
-        existed = os.path.exists(out)
+    ref_bytes = os.path.getsize(ref)
+
+    def size_of(path):
+        try:
+            return os.path.getsize(path)
+        except OSError:
+            return 0
+
+    def kill_once(fraction):
+        """Starts a writer (or a resume) and SIGKILLs it once its output has grown to
+        `fraction` of the finished file's size: a condition, not a time."""
+        target = fraction * ref_bytes
         p = subprocess.Popen([LTBAKE, "convert", src, out, *flags], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-        deadline = time.monotonic() + 10
-        while not existed and not os.path.exists(out) and p.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.0005)
-        time.sleep(delay)
+        deadline = time.monotonic() + 120
+        while size_of(out) < target and p.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.0002)
         p.send_signal(signal.SIGKILL)
         p.wait()
         return p.returncode
@@ -112,9 +120,9 @@ with tempfile.TemporaryDirectory() as d:
         attempts += 1
         if os.path.exists(out):
             os.remove(out)
-        delay = rng.uniform(0.0, full)
-        kill_once(delay)
-        tag = f"attempt {attempts} (kill at {delay:.3f}s)"
+        fraction = rng.uniform(0.02, 0.9)
+        kill_once(fraction)
+        tag = f"attempt {attempts} (kill at {fraction:.0%} of the file)"
         n = check_partial(tag)
         landed = n is not None and 0 < n < total
         if n is not None and n == total and not json.loads(ltbake("inspect", out, "--json", "--no-content").stdout)["complete"]:
@@ -131,8 +139,8 @@ with tempfile.TemporaryDirectory() as d:
     # Repeated kills of one file, then a final resume.
     os.remove(out)
     history = []
-    for k in range(5):
-        kill_once(rng.uniform(0.0, full / 3))
+    for k in range(5):  # each kill a little further on than where the last one left the file
+        kill_once(min(0.95, size_of(out) / ref_bytes + rng.uniform(0.02, 0.15)))
         history.append(check_partial(f"chain kill {k}"))
     resume("chain", history[-1])
     info = json.loads(ltbake("inspect", out, "--json").stdout)

@@ -71,7 +71,9 @@ TEST(StageTable, SetMembersSceneReadsAndShardFlagsAreFieldsOfTheRows) {
       EXPECT_FALSE(s.output.empty()) << s.name << ": a per-member step makes one file a member";
     }
     if (s.reads_scene) scene.insert(std::string(s.name));
-    if (!s.shard_args.empty()) EXPECT_TRUE(s.shardable) << s.name << " has shard flags but cannot run as shards";
+    if (!s.shard_args.empty()) {
+      EXPECT_TRUE(s.shardable) << s.name << " has shard flags but cannot run as shards";
+    }
   }
   EXPECT_EQ(per_member,
             (std::set<std::string>{"sample", "row-transform", "transpose", "column-transform", "quantize", "cpca"}));
