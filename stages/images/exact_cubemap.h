@@ -28,10 +28,11 @@ struct EnvMap;  // stages/images/envmap.h
 // Van Oosterom & Strackee): exact up to rounding at any rotation. Angular maps: pixel edges
 // are straight in the map, not on the sphere; a pixel inside one texel goes whole, with its
 // solid angle by Gauss–Legendre quadrature of π·sin(πr)/r; a pixel across a texel edge is
-// split into parts of side ≤ 1/64 of a texel's (2 × 2 to 16 × 16), each taken as the
-// spherical quadrilateral of its corners (its sides bow from great circles: an error falling
-// as the square of the part's side, measured in docs/ENVMAPS.md). Pixels
-// across the disk's rim (the direction behind the probe) go by sub-sample centres.
+// split into m × m parts (1 ≤ m ≤ 16, of side ≤ √(1.4e-4·T) for the smallest texel side T),
+// each taken as the spherical quadrilateral of its corners: their sides bow from great
+// circles, an error falling as the square of the part's side, under 3e-4 a texel (measured
+// in docs/ENVMAPS.md). Pixels across the disk's rim (the direction behind the probe) go by
+// sub-sample centres.
 //
 // Layout kLatLong is refused (CubemapResampler is exact for it). Cost: O(source pixels) plus
 // a clip for each pixel across a texel edge; a 2048² probe at R = 32 takes about a second.
