@@ -113,29 +113,14 @@ Result<Environment> Environment::Open(const std::string& path, uint64_t cube_res
   return e;
 }
 
-Environment::Environment(Environment&& o) noexcept { *this = std::move(o); }
-
-Environment& Environment::operator=(Environment&& o) noexcept {
-  cube_res_ = o.cube_res_;
-  fixed_ = std::move(o.fixed_);
-  resampler_ = std::move(o.resampler_);
-  exact_ = std::move(o.exact_);
-  progress_ = o.progress_;
-  clamped_ = o.clamped_;
-  peak_ = o.peak_;
-  last_rotation_ = o.last_rotation_;
-  last_ = std::move(o.last_);
-  return *this;
-}
-
 Status Environment::Cubemap(double rotation, std::vector<float>* out) const {
   if (exact_) {
-    std::lock_guard<std::mutex> lock(last_mutex_);
-    if (last_.empty() || last_rotation_ != rotation) {
-      LTB_ASSIGN_OR_RETURN(last_, ExactCubemap(*exact_, cube_res_, rotation, progress_));
-      last_rotation_ = rotation;
+    std::lock_guard<std::mutex> lock(last_->mutex);
+    if (last_->cube.empty() || last_->rotation != rotation) {
+      LTB_ASSIGN_OR_RETURN(last_->cube, ExactCubemap(*exact_, cube_res_, rotation, progress_));
+      last_->rotation = rotation;
     }
-    *out = last_;
+    *out = last_->cube;
     return Status::Ok();
   }
   out->resize(6 * cube_res_ * cube_res_ * 3);

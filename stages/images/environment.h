@@ -37,9 +37,6 @@ enum class EnvResampling {
 
 class Environment {
  public:
-  Environment() = default;
-  Environment(Environment&& o) noexcept;
-  Environment& operator=(Environment&& o) noexcept;
   static Result<Environment> Open(const std::string& path, uint64_t cube_res, const EnvLoadOptions& o,
                                   EnvResampling resampling = EnvResampling::kExact);
   // 6R² × 3 radiance for a rotation about +Z in radians (a .npy cubemap cannot rotate).
@@ -58,10 +55,14 @@ class Environment {
   Progress progress_;
   uint64_t clamped_ = 0;
   float peak_ = 0;
-  // The last exact cubemap (a glossy set asks for the same one per member).
-  mutable std::mutex last_mutex_;
-  mutable double last_rotation_ = 0;
-  mutable std::vector<float> last_;
+  // The last exact cubemap (a glossy set asks for the same one per member); behind a pointer
+  // so that the environment moves as a value.
+  struct LastExact {
+    std::mutex mutex;
+    double rotation = 0;
+    std::vector<float> cube;
+  };
+  std::unique_ptr<LastExact> last_ = std::make_unique<LastExact>();
 };
 
 }  // namespace ltb::stages
