@@ -5,6 +5,7 @@
 // a normal is an error naming the file and the vertex; the scene key's bad values name
 // the line, the value and what is accepted.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <cmath>
 #include <cstdio>
@@ -32,7 +33,7 @@ const double kNrm[3][3] = {{0, 0, 2}, {0, 3, 4}, {-1, 0, 1}};
 glm::dvec3 Unit(const double* n) { return glm::normalize(glm::dvec3(n[0], n[1], n[2])); }
 
 std::string Write(const std::string& name, const std::string& bytes) {
-  std::string path = ::testing::TempDir() + "normals_" + name;
+  std::string path = ::testing::TempDir() + "normals_" + std::to_string(::getpid()) + "_" + name;
   std::ofstream(path, std::ios::binary) << bytes;
   return path;
 }
@@ -211,7 +212,7 @@ TEST(FileNormals, DracoNormalAttributeEncodedFromPly) {
     GTEST_SKIP() << "draco_encoder is not installed (Debian: draco-tools); the Draco normals case is not run";
   }
   const std::string ply = Write("d.ply", PlyAscii(true));
-  const std::string drc = ::testing::TempDir() + "normals_d.drc";
+  const std::string drc = ::testing::TempDir() + "normals_" + std::to_string(::getpid()) + "_d.drc";
   std::remove(drc.c_str());
   // -cl 0 and default quantisation (11 bits positions, 8 bits normals): the decoder's
   // normals are octahedrally quantised, within ~1e-2 of the unit normals.
@@ -229,7 +230,7 @@ TEST(FileNormals, DracoNormalAttributeEncodedFromPly) {
     EXPECT_NEAR(glm::length(r->file_normals[i] - Unit(kNrm[k])), 0, 2e-2) << "point " << i;
   }
   // Encoded without the normals: "file" is an error.
-  const std::string bare = ::testing::TempDir() + "normals_bare.drc";
+  const std::string bare = ::testing::TempDir() + "normals_" + std::to_string(::getpid()) + "_bare.drc";
   ASSERT_EQ(std::system(("draco_encoder -i '" + ply + "' -o '" + bare + "' -qn -1 >/dev/null 2>&1").c_str()), 0);
   auto b = LoadMeshFile(bare, Progress{}, true);
   ASSERT_FALSE(b.ok());

@@ -8,6 +8,7 @@
 // errors (a usemtl name no [[material]] defines, naming the OBJ line; usemtl on a PLY mesh,
 // a plane, a non-boolean); and the Cornell box of embree3's models with its materials.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <filesystem>
 #include <fstream>
@@ -25,7 +26,9 @@ using namespace ::ltb::mesh;  // the readers under test (stages/mesh), placed by
 namespace usemtl_test {       // named: the unity build puts this file beside normals_test.cpp
 
 std::string Dir() {
-  const std::string d = ::testing::TempDir() + "usemtl_test/";
+  // One directory a process: ctest runs each test in its own process, two at a time, and
+  // two tests rewriting the same split.obj changed each other's geometry hash.
+  const std::string d = ::testing::TempDir() + "usemtl_test_" + std::to_string(::getpid()) + "/";
   std::filesystem::create_directories(d);
   return d;
 }
