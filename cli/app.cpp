@@ -24,7 +24,7 @@ namespace {
 
 // Runs the command, once per member file when its input names a set (colour channels
 // X.r.ltm ..., a factored bake's terms X.k0.ltm ...; stages/common/channels.h).
-int RunCommand(Command& cmd) {
+int RunOverMembers(Command& cmd) {
   std::vector<std::string*> paths = cmd.ChannelSetPaths();
   if (paths.empty()) return cmd.Run();
   auto members = stages::ChannelFiles(*paths.front());
@@ -95,7 +95,7 @@ int LtbakeMain(int argc, char** argv) {
     return kExitUsage;
   }
   InstallSignalHandlers();
-  return RunCommand(*commands.at(chosen.front()));
+  return RunOverMembers(*commands.at(chosen.front()));
 }
 
 }  // namespace ltb::cli

@@ -3,6 +3,7 @@
 import os
 import subprocess
 import sys
+import time
 
 LTBAKE = sys.argv[1] if len(sys.argv) > 1 else "ltbake"
 failures = []
@@ -29,7 +30,10 @@ def check(cond, what):
 
 def run(*args, expect=0, timeout=900):
     """Runs `ltbake ARGS`; an exit code other than `expect` (None: any) is a failure."""
+    start = time.monotonic()
     p = subprocess.run([LTBAKE, *map(str, args)], capture_output=True, text=True, timeout=timeout)
+    if os.environ.get("LTB_TEST_TIMES"):  # where a suite's time goes (tests/README.md)
+        print(f"[{time.monotonic() - start:7.2f} s] ltbake {' '.join(map(str, args))}", file=sys.stderr)
     if expect is not None and p.returncode != expect:
         failures.append(f"ltbake {' '.join(map(str, args))}: exit {p.returncode}, expected {expect}\n{p.stdout}{p.stderr}")
     return p

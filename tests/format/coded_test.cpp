@@ -68,15 +68,15 @@ std::vector<int32_t> WaveletLike(uint64_t line, uint64_t width, uint64_t lines, 
   return v;
 }
 
-struct Shape {
+struct CodedShape {
   uint64_t line, width, lines;
 };
 
 TEST(CodedPayload, RoundTripsEveryShapeAndDensity) {
-  const Shape shapes[] = {{1, 1, 1},  {1, 1, 5},   {7, 3, 4},    {16, 1, 3},   {33, 33, 4},   {100, 9, 6}, {64, 8, 3},
+  const CodedShape shapes[] = {{1, 1, 1},  {1, 1, 5},   {7, 3, 4},    {16, 1, 3},   {33, 33, 4},   {100, 9, 6}, {64, 8, 3},
                           {65, 8, 3}, {17, 16, 5}, {300, 16, 4}, {256, 16, 9}, {1000, 31, 2}, {9, 2, 40},  {24, 5, 3}};
   std::mt19937 rng(7);
-  for (const Shape& s : shapes) {
+  for (const CodedShape& s : shapes) {
     const uint64_t n = s.line * s.lines;
     for (int pattern = 0; pattern < 7; ++pattern) {
       SCOPED_TRACE("line " + std::to_string(s.line) + " width " + std::to_string(s.width) + " lines " +
