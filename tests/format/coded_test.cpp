@@ -73,8 +73,9 @@ struct CodedShape {
 };
 
 TEST(CodedPayload, RoundTripsEveryShapeAndDensity) {
-  const CodedShape shapes[] = {{1, 1, 1},  {1, 1, 5},   {7, 3, 4},    {16, 1, 3},   {33, 33, 4},   {100, 9, 6}, {64, 8, 3},
-                          {65, 8, 3}, {17, 16, 5}, {300, 16, 4}, {256, 16, 9}, {1000, 31, 2}, {9, 2, 40},  {24, 5, 3}};
+  const CodedShape shapes[] = {{1, 1, 1},    {1, 1, 5},     {7, 3, 4},  {16, 1, 3},  {33, 33, 4},
+                               {100, 9, 6},  {64, 8, 3},    {65, 8, 3}, {17, 16, 5}, {300, 16, 4},
+                               {256, 16, 9}, {1000, 31, 2}, {9, 2, 40}, {24, 5, 3}};
   std::mt19937 rng(7);
   for (const CodedShape& s : shapes) {
     const uint64_t n = s.line * s.lines;
