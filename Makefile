@@ -6,11 +6,11 @@ JOBS        ?= 2
 CMAKE_FLAGS ?=
 # Unity builds (several sources per compiler run): each header is parsed once per batch
 # instead of once per file, which cuts a cache-less build's CPU time by about a quarter
-# (tests/README.md). UNITY=OFF for one compiler run per file (e.g. while editing one file).
+# (bench/results/suite_times.md). UNITY=OFF for one compiler run per file (e.g. while editing one file).
 UNITY       ?= ON
 # Ninja starts a target's compiles as soon as their inputs exist instead of after every
 # library it links (the Makefile generator's order), which keeps both cores busy: the
-# sanitizer tree builds in 5.4 min instead of 7.6 (tests/README.md). A tree configured
+# sanitizer tree builds in 5.4 min instead of 7.6 (bench/results/suite_times.md). A tree configured
 # before keeps its generator (CMake refuses to switch one).
 GENERATOR   ?= Ninja
 gen = $(if $(wildcard $(1)/CMakeCache.txt),,-G "$(GENERATOR)")
@@ -47,7 +47,7 @@ demo: build
 # The sanitizer tree builds while the release tests run (scripts/run_tests.sh).
 # The release tree builds only the gtests whose code its flags change (SIMD kernels, -march);
 # the sanitizer tree builds and runs every gtest, so the portable ones compile once (~100 s
-# of CPU less on the critical path; tests/README.md).
+# of CPU less on the critical path; bench/results/suite_times.md).
 TEST_SCALE ?= 0.4
 test: UNIT_TESTS = kernels
 test: build
@@ -65,7 +65,7 @@ test-fast: build
 
 # The sanitizer tree builds only what its tests run (-O1, line tables only: fast to build,
 # still symbolised reports), with clang (ASAN_CC/ASAN_CXX; installed by setup.sh for the
-# fuzzers too): its sanitizer tree builds and runs faster than g++'s (tests/README.md). The
+# fuzzers too): its sanitizer tree builds and runs faster than g++'s (bench/results/suite_times.md). The
 # release tree stays g++, so the suite sees both compilers. A tree configured before keeps
 # its compiler (CMake reads CC/CXX only when it first configures): remove it to switch.
 ASAN_CC     ?= clang
@@ -82,7 +82,7 @@ asan: setup
 # The benchmarks are not part of `make build` (nor of `make test`); this builds them.
 bench-build: build
 	cmake --build $(BUILD) -j $(JOBS) --target ltm_io_bench ltb_row_transform_bench ltb_sample_bench \
-	      ltb_transpose_bench ltb_column_transform_bench
+	      ltb_transpose_bench ltb_column_transform_bench ltb_envmap_bench
 
 bench: bench-build
 	@bash bench/run_container_io.sh $(BUILD)

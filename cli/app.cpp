@@ -1,6 +1,7 @@
 // The ltbake command line: parses the subcommand and hands over to it.
 #include <iostream>
 #include <map>
+#include <stdexcept>
 
 #include "cli/commands.h"
 #include "cli/common.h"
@@ -43,59 +44,109 @@ int RunOverMembers(Command& cmd) {
 
 }  // namespace
 
-int LtbakeMain(int argc, char** argv) {
+const std::vector<CommandInfo>& CommandList() {
+  static const std::vector<CommandInfo> list = {
+      {"inspect", RegisterInspect, false},
+      {"verify", RegisterVerify, false},
+      {"convert", RegisterConvert, false},
+      {"row-transform", RegisterRowTransform, true},
+      {"transpose", RegisterTranspose, true},
+      {"sample", RegisterSample, true},
+      {"column-transform", RegisterColumnTransform, true},
+      {"quantize", RegisterQuantize, true},
+      {"cpca", RegisterCpca, true},
+      {"relight", RegisterRelight, true},
+      {"run", RegisterRun, false},
+      {"commit", RegisterCommit, false},
+      {"merge", RegisterMerge, false},
+      {"material", RegisterMaterial, false},
+      {"view", RegisterView, false},
+  };
+  return list;
+}
+
+namespace {
+
+// The command line: the top-level flags and every command's subcommand.
+struct CommandLine {
   CLI::App app{
       "ltbake: bake and compress light transport matrices for all-frequency relighting.\n"
       "Exit codes: 0 ok, 1 failed, 2 usage error, 130/143 interrupted (state committed; rerun resumes)."};
-  app.name("ltbake");
-  app.require_subcommand(0, 1);
   bool version = false;
-  app.add_flag("--version", version, "print the tool version and the .ltm format versions it reads and writes");
-
   std::map<CLI::App*, std::unique_ptr<Command>> commands;
-  for (auto reg : {RegisterInspect, RegisterVerify, RegisterConvert, RegisterRowTransform, RegisterTranspose,
-                   RegisterSample, RegisterColumnTransform, RegisterQuantize, RegisterCpca, RegisterRelight,
-                   RegisterRun, RegisterCommit, RegisterMerge, RegisterMaterial, RegisterView}) {
-    auto cmd = reg(&app);
-    commands[app.get_subcommands({}).back()] = std::move(cmd);
+
+  CommandLine() {
+    app.name("ltbake");
+    app.require_subcommand(0, 1);
+    app.add_flag("--version", version, "print the tool version and the .ltm format versions it reads and writes");
+    for (const CommandInfo& c : CommandList()) {
+      auto cmd = c.add(&app);
+      CLI::App* sub = app.get_subcommands({}).back();
+      if (sub->get_name() != c.name) {
+        throw std::logic_error(std::string("command list: '") + c.name + "' registers '" + sub->get_name() + "'");
+      }
+      commands[sub] = std::move(cmd);
+    }
   }
 
-  if (argc > 1 && argv[1][0] != '-') {
-    std::string name = argv[1];
-    bool known = false;
+  // "" when argv[1] is no flag and names a command (or is absent), else the usage error.
+  std::string UnknownCommand(int argc, char** argv) const {
+    if (argc <= 1 || argv[1][0] == '-') return "";
+    const std::string name = argv[1];
     std::string names;
-    for (const auto* sub : app.get_subcommands({})) {
-      known = known || sub->get_name() == name;
-      names += (names.empty() ? "" : ", ") + sub->get_name();
+    for (const CommandInfo& c : CommandList()) {
+      if (name == c.name) return "";
+      names += (names.empty() ? "" : ", ") + std::string(c.name);
     }
-    if (!known) {
-      std::cerr << "ltbake: usage error: unknown command '" << name << "' (commands: " << names << ")\n"
-                << "Run 'ltbake --help' for usage.\n";
-      return kExitUsage;
-    }
+    return "unknown command '" + name + "' (commands: " + names + ")";
+  }
+};
+
+}  // namespace
+
+std::string ParseOnly(const std::vector<std::string>& args) {
+  CommandLine cl;
+  std::vector<std::string> storage = {"ltbake"};
+  storage.insert(storage.end(), args.begin(), args.end());
+  std::vector<char*> argv;
+  for (auto& a : storage) argv.push_back(a.data());
+  if (std::string e = cl.UnknownCommand(static_cast<int>(argv.size()), argv.data()); !e.empty()) return e;
+  try {
+    cl.app.parse(static_cast<int>(argv.size()), argv.data());
+  } catch (const CLI::ParseError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+int LtbakeMain(int argc, char** argv) {
+  CommandLine cl;
+  if (std::string e = cl.UnknownCommand(argc, argv); !e.empty()) {
+    std::cerr << "ltbake: usage error: " << e << "\nRun 'ltbake --help' for usage.\n";
+    return kExitUsage;
   }
   try {
-    app.parse(argc, argv);
+    cl.app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
-    return app.exit(e);  // help goes to stdout, exit 0
+    return cl.app.exit(e);  // help goes to stdout, exit 0
   } catch (const CLI::CallForAllHelp& e) {
-    return app.exit(e);
+    return cl.app.exit(e);
   } catch (const CLI::ParseError& e) {
     std::cerr << "ltbake: usage error: " << e.what() << "\n"
               << "Run 'ltbake --help' (or 'ltbake COMMAND --help') for usage.\n";
     return kExitUsage;
   }
-  if (version) {
+  if (cl.version) {
     PrintVersion();
     return kExitOk;
   }
-  auto chosen = app.get_subcommands();
+  auto chosen = cl.app.get_subcommands();
   if (chosen.empty()) {
-    std::cerr << "ltbake: usage error: no command given\n" << app.help();
+    std::cerr << "ltbake: usage error: no command given\n" << cl.app.help();
     return kExitUsage;
   }
   InstallSignalHandlers();
-  return RunOverMembers(*commands.at(chosen.front()));
+  return RunOverMembers(*cl.commands.at(chosen.front()));
 }
 
 }  // namespace ltb::cli

@@ -7,6 +7,7 @@
 
 #include "cli/commands.h"
 #include "cli/common.h"
+#include "format/json_text.h"
 #include "stages/column_transform/column_transform.h"
 
 namespace ltb::cli {
@@ -114,7 +115,7 @@ class ColumnTransformCommand : public Command {
         j["lambda"] = r->lambda;
         j["histogram_bytes"] = r->histogram_bytes;
       }
-      std::cout << j.dump(2) << "\n";
+      std::cout << JsonText(j, 2) << "\n";
     } else if (!flags_.quiet) {
       std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": " << r->cols << " columns of "
                 << r->width << "x" << r->height << ", depths " << r->min_depth << ".." << r->max_depth;

@@ -5,6 +5,7 @@
 
 #include "cli/commands.h"
 #include "cli/common.h"
+#include "format/json_text.h"
 #include "stages/cpca/cpca.h"
 
 namespace ltb::cli {
@@ -106,7 +107,7 @@ class CpcaCommand : public Command {
                           {"rows_streamed", r->rows_streamed},
                           {"seconds_dense", r->seconds_dense},
                           {"seconds_final", r->seconds_final}};
-      std::cout << j.dump(2) << "\n";
+      std::cout << JsonText(j, 2) << "\n";
     } else if (!flags_.quiet) {
       std::cout << "wrote " << options_.output << ": " << r->rows << " rows of " << r->dims << " in " << r->clusters
                 << " clusters x " << r->basis << " directions, " << r->iterations << " passes, relative RMS error "

@@ -5,6 +5,7 @@
 
 #include "cli/commands.h"
 #include "cli/common.h"
+#include "format/json_text.h"
 #include "stages/inspect/inspect.h"
 
 namespace ltb::cli {
@@ -37,7 +38,7 @@ class InspectCommand : public Command {
     if (!out_or.ok()) return ReportFailure(out_or.status());
     const json& out = *out_or;
     if (json_) {
-      std::cout << out.dump(2) << "\n";
+      std::cout << JsonText(out, 2) << "\n";
     } else {
       PrintText(out);
     }
@@ -50,12 +51,12 @@ class InspectCommand : public Command {
               << HumanBytes(out["file_bytes"]) << ", " << (out["complete"].get<bool>() ? "complete" : "INCOMPLETE")
               << (out["sealed"].get<bool>() ? " (sealed)" : " (not sealed)") << "\n";
     if (out.contains("manifest")) {
-      std::cout << "  stage manifest of " << out["manifest"]["nshards"] << " shards:";
+      std::cout << "  stage manifest of " << JsonText(out["manifest"]["nshards"]) << " shards:";
       for (const json& s : out["manifest"]["shards"]) std::cout << " " << s["file"].get<std::string>();
       std::cout << "\n";
     }
     if (out.contains("shard")) {
-      std::cout << "  shard " << out["shard"]["index"] << " of " << out["shard"]["count"]
+      std::cout << "  shard " << JsonText(out["shard"]["index"]) << " of " << JsonText(out["shard"]["count"])
                 << " (holds only its own chunks; `ltbake commit` joins the shards)\n";
     }
     {
@@ -68,13 +69,15 @@ class InspectCommand : public Command {
     }
     for (const json& a : out["arrays"]) {
       const json& c = a["chunks"];
-      std::cout << "  " << a["name"].get<std::string>() << ": " << a["shape"][0] << " x " << a["shape"][1] << " "
-                << a["dtype"].get<std::string>() << ", layout " << a["layout"].get<std::string>() << " (block "
-                << a["block"] << "), chunks " << c["committed"] << "/" << c["expected"] << " (raw " << c["raw"]
-                << ", zero " << c["zero"] << ", zstd " << c["zstd"]
-                << (c.contains("sparse") ? ", sparse " + c["sparse"].dump() + ", sparse+zstd " +
-                                               c["sparse_zstd"].dump() + ", sparse-coded " + c["sparse_coded"].dump()
-                                         : std::string())
+      std::cout << "  " << a["name"].get<std::string>() << ": " << JsonText(a["shape"][0]) << " x "
+                << JsonText(a["shape"][1]) << " " << a["dtype"].get<std::string>() << ", layout "
+                << a["layout"].get<std::string>() << " (block " << JsonText(a["block"]) << "), chunks "
+                << JsonText(c["committed"]) << "/" << JsonText(c["expected"]) << " (raw " << JsonText(c["raw"])
+                << ", zero " << JsonText(c["zero"]) << ", zstd " << JsonText(c["zstd"])
+                << (c.contains("sparse")
+                        ? ", sparse " + JsonText(c["sparse"]) + ", sparse+zstd " + JsonText(c["sparse_zstd"]) +
+                              ", sparse-coded " + JsonText(c["sparse_coded"])
+                        : std::string())
                 << "), stored " << HumanBytes(c["stored_bytes"]) << "\n";
       if (a.contains("content_hash")) {
         std::cout << "    content_hash: "
@@ -92,11 +95,12 @@ class InspectCommand : public Command {
         char nz[32];
         std::snprintf(nz, sizeof nz, "%.2f%%", 100 * s["nonzero_fraction"].get<double>());
         std::cout << "    stats: min " << num(s["min"]) << ", max " << num(s["max"]) << ", mean " << num(s["mean"])
-                  << ", nonzero " << nz << ", NaN " << s["nan_count"] << ", Inf " << s["inf_count"] << "\n";
+                  << ", nonzero " << nz << ", NaN " << JsonText(s["nan_count"]) << ", Inf " << JsonText(s["inf_count"])
+                  << "\n";
       }
     }
-    if (!out["basis"].is_null()) std::cout << "  basis: " << out["basis"].dump() << "\n";
-    if (!out["provenance"].is_null()) std::cout << "  provenance: " << out["provenance"].dump() << "\n";
+    if (!out["basis"].is_null()) std::cout << "  basis: " << JsonText(out["basis"]) << "\n";
+    if (!out["provenance"].is_null()) std::cout << "  provenance: " << JsonText(out["provenance"]) << "\n";
     if (out.contains("channel")) {
       std::cout << "  colour channel: " << out["channel"].value("name", std::string("?"))
                 << " of a set (docs/COLOUR.md)\n";
@@ -104,24 +108,25 @@ class InspectCommand : public Command {
     if (out.contains("column_transform")) {
       const json& c = out["column_transform"];
       std::cout << "  column transform: filter " << c.value("filter", "?") << ", depth " << c.value("depth", "?")
-                << ", " << c["nonzeros_kept"] << " nonzeros kept, relative RMS error " << c["relative_rms_error"]
-                << "\n    columns per depth:";
-      for (size_t d = 0; d < c["depth_histogram"].size(); ++d) std::cout << " " << d << ":" << c["depth_histogram"][d];
-      std::cout << " (and " << c["empty_columns"] << " empty)\n";
+                << ", " << JsonText(c["nonzeros_kept"]) << " nonzeros kept, relative RMS error "
+                << JsonText(c["relative_rms_error"]) << "\n    columns per depth:";
+      for (size_t d = 0; d < c["depth_histogram"].size(); ++d)
+        std::cout << " " << d << ":" << JsonText(c["depth_histogram"][d]);
+      std::cout << " (and " << JsonText(c["empty_columns"]) << " empty)\n";
     }
     if (out.contains("quantization")) {
       const json& q = out["quantization"];
-      std::cout << "  quantization: " << q["bits"] << " bits, scaling " << q.value("scaling", "?") << ", "
-                << q["nonzeros"] << " nonzeros, matrix payload " << HumanBytes(q["matrix_bytes"]) << " ("
+      std::cout << "  quantization: " << JsonText(q["bits"]) << " bits, scaling " << q.value("scaling", "?") << ", "
+                << JsonText(q["nonzeros"]) << " nonzeros, matrix payload " << HumanBytes(q["matrix_bytes"]) << " ("
                 << q["bytes_per_nonzero"].get<double>() << " bytes per nonzero; the whole file: `on disk` above)\n";
     }
     if (out.contains("cpca")) {
       const json& c = out["cpca"];
-      std::cout << "  cpca: " << c.value("clusters", json()).dump() << " clusters x "
-                << c.value("basis_dim", json()).dump() << " directions, " << c.value("rows", json()).dump()
-                << " rows of " << c.value("dims", json()).dump() << ", " << c.value("iterations", json()).dump()
-                << " passes, relative RMS error " << c.value("relative_rms_error", json()).dump() << ", empty clusters "
-                << c.value("empty_clusters", json()).dump() << "\n";
+      std::cout << "  cpca: " << JsonText(c.value("clusters", json())) << " clusters x "
+                << JsonText(c.value("basis_dim", json())) << " directions, " << JsonText(c.value("rows", json()))
+                << " rows of " << JsonText(c.value("dims", json())) << ", " << JsonText(c.value("iterations", json()))
+                << " passes, relative RMS error " << JsonText(c.value("relative_rms_error", json()))
+                << ", empty clusters " << JsonText(c.value("empty_clusters", json())) << "\n";
     }
     if (out.contains("sparse")) {
       const json& sp = out["sparse"];
@@ -130,23 +135,24 @@ class InspectCommand : public Command {
           line, sizeof line,
           "  sparse bake: %s dense rows, %s sparse (%s of them traced in full); traced %.2f%% of the "
           "entries; rays phase 1 %s, phase 2 %s; thread-seconds phase 1 %.3g, phase 2 %.3g\n",
-          sp["rows"]["dense"].dump().c_str(),
+          JsonText(sp["rows"]["dense"]).c_str(),
           std::to_string(sp["rows"]["sparse"].get<uint64_t>() + sp["rows"]["traced_in_full"].get<uint64_t>()).c_str(),
-          sp["rows"]["traced_in_full"].dump().c_str(), 100 * sp["traced_fraction"].get<double>(),
-          sp["rays"]["dense"].dump().c_str(), sp["rays"]["sparse"].dump().c_str(), sp["seconds"]["dense"].get<double>(),
-          sp["seconds"]["sparse"].get<double>());
+          JsonText(sp["rows"]["traced_in_full"]).c_str(), 100 * sp["traced_fraction"].get<double>(),
+          JsonText(sp["rays"]["dense"]).c_str(), JsonText(sp["rays"]["sparse"]).c_str(),
+          sp["seconds"]["dense"].get<double>(), sp["seconds"]["sparse"].get<double>());
       std::cout << line;
     }
     if (out["uncommitted_tail_bytes"].get<uint64_t>() > 0) {
-      std::cout << "  uncommitted tail: " << out["uncommitted_tail_bytes"]
+      std::cout << "  uncommitted tail: " << JsonText(out["uncommitted_tail_bytes"])
                 << " bytes (a chunk in flight when the writer stopped; a rerun discards it)\n";
     }
     for (const json& p : out["problems"]) std::cout << "  problem: " << p.get<std::string>() << "\n";
     if (out.contains("chunk_list")) {
       std::cout << "  chunks (array index offset encoding stored decoded checksum):\n";
       for (const json& c : out["chunk_list"]) {
-        std::cout << "    " << c["array"].get<std::string>() << " " << c["index"] << " " << c["offset"] << " "
-                  << c["encoding"].get<std::string>() << " " << c["stored_bytes"] << " " << c["decoded_bytes"] << " "
+        std::cout << "    " << c["array"].get<std::string>() << " " << JsonText(c["index"]) << " "
+                  << JsonText(c["offset"]) << " " << c["encoding"].get<std::string>() << " "
+                  << JsonText(c["stored_bytes"]) << " " << JsonText(c["decoded_bytes"]) << " "
                   << c["checksum"].get<std::string>() << "\n";
       }
     }

@@ -5,6 +5,7 @@
 
 #include "cli/commands.h"
 #include "cli/common.h"
+#include "format/json_text.h"
 #include "stages/triple/material.h"
 
 namespace ltb::cli {
@@ -57,7 +58,7 @@ class MaterialCommand : public Command {
                                 {"chunks_already_committed", r->chunks_already_committed},
                                 {"file_bytes", r->file_bytes}};
     if (json_) {
-      std::cout << out.dump(2) << "\n";
+      std::cout << JsonText(out, 2) << "\n";
     } else if (!flags_.quiet) {
       std::cout << "wrote " << options_.output << ": " << r->rows << " sampled directions x " << r->cols
                 << " Haar coefficients, " << r->terms_kept << " kept (" << HumanBytes(r->file_bytes) << ")\n";

@@ -7,6 +7,7 @@
 
 #include "cli/commands.h"
 #include "cli/common.h"
+#include "format/json_text.h"
 #include "stages/quantize/quantize.h"
 
 namespace ltb::cli {
@@ -93,7 +94,7 @@ class QuantizeCommand : public Command {
         j["rms_error_ratio"] = num(ratio);
         j["relative_rms_error"] = num(rel);
       }
-      std::cout << j.dump(2) << "\n";
+      std::cout << JsonText(j, 2) << "\n";
     } else if (!flags_.quiet) {
       std::cout << "wrote " << OutputName(options_.output, options_.shard) << ": ";
       if (step_mode) {

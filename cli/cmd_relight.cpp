@@ -16,6 +16,7 @@
 
 #include "cli/commands.h"
 #include "cli/common.h"
+#include "format/json_text.h"
 #include "stages/common/quantity.h"
 #include "stages/images/envmap.h"
 #include "stages/images/image_io.h"
@@ -367,7 +368,7 @@ class RelightCommand : public Command {
     if (!r.ok()) return ReportFailure(r.status());
     bar.Done();
     if (json_) {
-      std::cout << r->report.dump(2) << "\n";
+      std::cout << JsonText(r->report, 2) << "\n";
     } else if (!flags_.quiet) {
       text(r->report);
     }

@@ -5,6 +5,7 @@
 #include "cli/commands.h"
 #include "cli/common.h"
 #include "format/io/manifest.h"
+#include "format/json_text.h"
 
 namespace ltb::cli {
 namespace {
@@ -38,12 +39,12 @@ class CommitCommand : public Command {
       for (const auto& s : r->shards) {
         shards.push_back({{"index", s.index}, {"path", s.path}, {"bytes", s.bytes}, {"content_hash", s.content_hash}});
       }
-      std::cout << nlohmann::json{{"manifest", output_},
-                                  {"nshards", nshards_},
-                                  {"content_hash", r->content_hash},
-                                  {"bytes", r->bytes},
-                                  {"shards", shards}}
-                       .dump(2)
+      std::cout << JsonText(nlohmann::json{{"manifest", output_},
+                                           {"nshards", nshards_},
+                                           {"content_hash", r->content_hash},
+                                           {"bytes", r->bytes},
+                                           {"shards", shards}},
+                            2)
                 << "\n";
     } else if (!flags_.quiet) {
       std::cout << "committed " << output_ << ": " << nshards_ << " shards, " << r->bytes << " bytes, content_hash "

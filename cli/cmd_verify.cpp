@@ -5,6 +5,7 @@
 #include "cli/commands.h"
 #include "cli/common.h"
 #include "format/io/verifier.h"
+#include "format/json_text.h"
 
 namespace ltb::cli {
 namespace {
@@ -61,7 +62,7 @@ class VerifyCommand : public Command {
       if (flags_.verbose)
         for (const auto& n : r.notes) std::cout << "  note: " << n << "\n";
     }
-    if (json_) std::cout << list.dump(2) << "\n";
+    if (json_) std::cout << JsonText(list, 2) << "\n";
     return all_good ? kExitOk : kExitFailed;
   }
 

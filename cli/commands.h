@@ -38,6 +38,22 @@ std::unique_ptr<Command> RegisterMaterial(CLI::App* parent);
 std::unique_ptr<Command> RegisterView(CLI::App* parent);
 
 // The whole ltbake command line (main and the ltbake-<stage> executables call it).
+// Every ltbake command: the one list that dispatch, `ltbake --help` (in this order) and the
+// stage executables read. A command with `stage_executable` is also installed as
+// ltbake-<name>, a link CMake makes from LTB_STAGE_LINKS, which a test
+// (tests/pipeline/stage_commands_test.cpp) checks against this list.
+struct CommandInfo {
+  const char* name;  // its subcommand's name (checked when the command line is built)
+  std::unique_ptr<Command> (*add)(CLI::App* parent);
+  bool stage_executable;
+};
+const std::vector<CommandInfo>& CommandList();
+
 int LtbakeMain(int argc, char** argv);
+
+// Parses `args` (what follows "ltbake") exactly as LtbakeMain does, flags' checks included,
+// and runs nothing: "" when they parse, else the usage error. For code that builds command
+// lines for ltbake (the steps of a bake) and for their tests.
+std::string ParseOnly(const std::vector<std::string>& args);
 
 }  // namespace ltb::cli

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <set>
 
+#include "format/json_text.h"
+
 namespace ltb::format {
 
 const char* DTypeName(DType t) {
@@ -106,7 +108,7 @@ int Metadata::FindArray(const std::string& name) const {
 namespace {
 
 Result<uint64_t> GetUnsigned(const nlohmann::json& j, const std::string& where) {
-  if (!j.is_number_unsigned()) return InvalidArgument(where + " must be a non-negative integer, got " + j.dump());
+  if (!j.is_number_unsigned()) return InvalidArgument(where + " must be a non-negative integer, got " + JsonText(j));
   return j.get<uint64_t>();
 }
 
@@ -231,12 +233,12 @@ Result<nlohmann::json> ShardMetadataJson(const nlohmann::json& whole, uint64_t i
 
 Result<Metadata> ParseMetadata(ByteSpan bytes) {
   const char* begin = reinterpret_cast<const char*>(bytes.data());
-  nlohmann::json j = nlohmann::json::parse(begin, begin + bytes.size(), nullptr, /*allow_exceptions=*/false);
-  if (j.is_discarded()) return DataLoss("metadata is not valid JSON");
-  return MetadataFromJson(std::move(j));
+  auto j = ParseJson(std::string_view(begin, bytes.size()));
+  if (!j.ok()) return DataLoss("metadata is not valid JSON: " + j.status().message());
+  return MetadataFromJson(std::move(*j));
 }
 
-std::string SerializeMetadata(const nlohmann::json& json) { return json.dump(); }
+std::string SerializeMetadata(const nlohmann::json& json) { return JsonText(json); }
 
 uint64_t BlockForTargetBytes(uint64_t rows, uint64_t cols, DType dtype, Layout layout, uint64_t target_bytes) {
   uint64_t extent = layout == Layout::kRows ? rows : cols;

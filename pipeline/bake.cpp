@@ -10,12 +10,14 @@
 #include <fstream>
 #include <map>
 #include <set>
+#include <sstream>
 
 #include "format/io/array_summary.h"
 #include "format/io/atomic_file.h"
 #include "format/io/container_reader.h"
 #include "format/io/file_hash.h"
 #include "format/io/file_lock.h"
+#include "format/json_text.h"
 #include "format/version.h"
 #include "pipeline/graph.h"
 #include "pipeline/plan.h"
@@ -148,11 +150,7 @@ bool Bake::Forced(const Node& n) const {
 
 std::vector<std::string> Bake::Command(const Node& n, bool overwrite) const {
   std::vector<std::string> c = {o_.ltbake};
-  c.insert(c.end(), n.args.begin(), n.args.end());
-  c.insert(c.end(), {"-o", Path(n.output)});
-  if (!n.image) c.insert(c.end(), {"--mem-limit", o_.mem_limit});
-  c.insert(c.end(), {"--jobs", std::to_string(o_.jobs), "--progress", o_.progress ? "always" : "never"});
-  if (overwrite && !n.image) c.push_back("--overwrite");
+  for (std::string& a : StepArgs(n, Path(n.output), o_, overwrite)) c.push_back(std::move(a));
   return c;
 }
 
@@ -221,7 +219,7 @@ Status Bake::SaveReport() {
   }
   report_["stages"] = all;
   report_["updated"] = Now();
-  return io::WriteFileAtomically(Path(kRunReport), report_.dump(2) + "\n");
+  return io::WriteFileAtomically(Path(kRunReport), JsonText(report_, 2) + "\n");
 }
 
 // Removes intermediates that are not kept once nothing left in this run reads them.
@@ -273,14 +271,15 @@ Status Bake::OpenWorkdir() {
 Status Bake::ReadPreviousReport() {
   std::error_code ec;
   if (!workdir_existed_ || !fs::exists(Path(kRunReport), ec)) return Status::Ok();
-  json prev;
-  std::ifstream in(Path(kRunReport));
-  try {
-    prev = json::parse(in);
-  } catch (const std::exception& e) {
-    return DataLoss(Path(kRunReport) + ": is not valid JSON (" + e.what() +
+  std::ifstream in(Path(kRunReport), std::ios::binary);
+  std::ostringstream text;
+  text << in.rdbuf();
+  auto parsed = ParseJson(text.str());
+  if (!parsed.ok()) {
+    return DataLoss(Path(kRunReport) + ": is not valid JSON (" + parsed.status().message() +
                     "); move it away to start this bake afresh");
   }
+  const json prev = std::move(*parsed);
   std::string other = prev.value("recipe", json::object()).value("name", "");
   if (other != r_.name && forced_.size() < StageNames().size()) {
     return FailedPrecondition("work directory " + workdir_ + " holds the bake of another recipe (\"" + other +
@@ -438,10 +437,7 @@ StepEnd Bake::RunChildStep(const Node& n, const std::vector<std::string>& cmd, c
   e["peak_rss_bytes"] = child->peak_rss_bytes;
   e["exit_code"] = child->exit_code;
   if (n.image) {
-    try {
-      e["metrics"] = json::parse(child->stdout_text);
-    } catch (const std::exception&) {
-    }
+    if (auto metrics = ParseJson(child->stdout_text); metrics.ok()) e["metrics"] = std::move(*metrics);
   }
   const int sig = o_.pending_signal ? o_.pending_signal() : 0;
   if (child->exit_code == 130 || child->exit_code == 143 || (child->term_signal == SIGINT) ||

@@ -331,4 +331,22 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
   return g;
 }
 
+std::vector<std::string> StepArgs(const Node& n, const std::string& output, const BakeOptions& o, bool overwrite,
+                                  bool shard) {
+  std::vector<std::string> c(n.args.begin(), n.args.end());
+  c.insert(c.end(), {"-o", output});
+  if (shard) {
+    c.insert(c.end(), {"--mem-limit", o.mem_limit, "--progress", "never"});
+    if (overwrite) c.push_back("--overwrite");
+    if (const StageInfo* info = FindStage(n.stages.front())) {
+      for (std::string_view a : info->shard_args) c.emplace_back(a);
+    }
+    return c;
+  }
+  if (!n.image) c.insert(c.end(), {"--mem-limit", o.mem_limit});
+  c.insert(c.end(), {"--jobs", std::to_string(o.jobs), "--progress", o.progress ? "always" : "never"});
+  if (overwrite && !n.image) c.push_back("--overwrite");
+  return c;
+}
+
 }  // namespace ltb::pipeline

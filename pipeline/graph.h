@@ -42,4 +42,12 @@ int StageIndex(const std::string& s);
 Result<Graph> BuildGraph(const Recipe& recipe, const BakeOptions& options, const std::string& workdir,
                          const std::string& scene_file);
 
+// What a step runs after the executable: its stage command, -o `output` and the flags every
+// step gets (--mem-limit, --jobs, --progress, --overwrite). `shard`: the command of each of
+// its shards instead (no --jobs, progress never, the stage table's shard_args; the engine
+// adds --shard, --nshards and --jobs). Bake and the sharded steps run exactly this, and
+// tests/pipeline/stage_commands_test.cpp parses it through the real command line.
+std::vector<std::string> StepArgs(const Node& n, const std::string& output, const BakeOptions& o, bool overwrite,
+                                  bool shard = false);
+
 }  // namespace ltb::pipeline

@@ -2,6 +2,8 @@
 
 #include <set>
 
+#include "format/json_text.h"
+
 namespace ltb::pipeline {
 
 using nlohmann::json;
@@ -53,7 +55,7 @@ std::string ParamDiff(const json& before, const json& now, const std::string& pr
     }
     return out;
   }
-  auto show = [](const json& v) { return v.is_null() ? std::string("(default)") : v.dump(); };
+  auto show = [](const json& v) { return v.is_null() ? std::string("(default)") : JsonText(v); };
   return prefix + " " + show(before) + " -> " + show(now);
 }
 

@@ -92,13 +92,7 @@ StepEnd RunShardedStep(const BakeOptions& o, const ShardedStepInput& in, json& e
   const uint64_t count = o.cluster.shards;
   // The stage command of every shard: the step's command without --jobs (each engine sets it).
   std::vector<std::string> stage = {o.ltbake};
-  stage.insert(stage.end(), n.args.begin(), n.args.end());
-  stage.insert(stage.end(), {"-o", in.output, "--mem-limit", o.mem_limit, "--progress", "never"});
-  if (in.overwrite) stage.push_back("--overwrite");
-  // The stage's own shard flags (the stage table's shard_args).
-  if (const StageInfo* info = FindStage(n.stages.front())) {
-    for (std::string_view a : info->shard_args) stage.emplace_back(a);
-  }
+  for (std::string& a : StepArgs(n, in.output, o, in.overwrite, /*shard=*/true)) stage.push_back(std::move(a));
   e["engine"] = o.cluster.engine;
   e["nshards"] = count;
   e["command"] = ShellQuote(stage) + " --shard I --nshards " + std::to_string(count) + " --jobs J";

@@ -31,6 +31,7 @@
 #include "format/io/container_writer.h"
 #include "format/io/mapped_region.h"
 #include "format/io/verifier.h"
+#include "format/json_text.h"
 #include "format/layout.h"
 #include "format/version.h"
 #include "stages/common/basis.h"
@@ -377,8 +378,9 @@ class Reader {
 class Writer {
  public:
   Writer(const std::string& path, const std::string& metadata_json, bool overwrite) {
-    nlohmann::json meta = nlohmann::json::parse(metadata_json, nullptr, false);
-    if (meta.is_discarded()) Throw(InvalidArgument(path + ": metadata is not valid JSON"));
+    auto parsed = ParseJson(metadata_json);
+    if (!parsed.ok()) Throw(InvalidArgument(path + ": metadata is not valid JSON: " + parsed.status().message()));
+    nlohmann::json meta = std::move(*parsed);
     io::WriterOptions wo;
     wo.overwrite_mismatch = overwrite;
     writer_ = WithoutGil([&] { return io::ContainerWriter::Open(path, meta, wo); });
@@ -460,7 +462,7 @@ std::string Inspect(const std::string& path, bool content, bool chunk_list, int 
   o.content = content;
   o.chunk_list = chunk_list;
   o.jobs = jobs;
-  return WithoutGil([&] { return stages::InspectContainer(path, o, Progress{}); }).dump();
+  return JsonText(WithoutGil([&] { return stages::InspectContainer(path, o, Progress{}); }));
 }
 
 py::array FloatArray(std::vector<float> v, std::vector<py::ssize_t> shape) {
@@ -486,7 +488,7 @@ py::tuple Relight(const std::string& matrix, const std::string& env, uint64_t te
   o.return_image = true;
   stages::RelightResult res = WithoutGil([&] { return stages::RunRelight(o, Progress{}); });
   const py::ssize_t rows = static_cast<py::ssize_t>(res.image.size() / 3);
-  return py::make_tuple(FloatArray(std::move(res.image), {rows, 3}), res.report.dump());
+  return py::make_tuple(FloatArray(std::move(res.image), {rows, 3}), JsonText(res.report));
 }
 
 py::array Envmap(const std::string& path, uint64_t cube_res, bool clamp, uint64_t max_bytes) {
@@ -545,7 +547,7 @@ PYBIND11_MODULE(_ltbake, m) {
   py::class_<Reader>(m, "Reader")
       .def(py::init<const std::string&, bool>(), py::arg("path"), py::arg("checksums") = true)
       .def_property_readonly("path", [](const Reader& r) { return r.reader().path(); })
-      .def_property_readonly("metadata_json", [](const Reader& r) { return r.reader().metadata().json.dump(); })
+      .def_property_readonly("metadata_json", [](const Reader& r) { return JsonText(r.reader().metadata().json); })
       .def_property_readonly("file_size", [](const Reader& r) { return r.reader().file_size(); })
       .def_property_readonly("sealed", [](const Reader& r) { return r.reader().sealed(); })
       .def_property_readonly("complete", [](const Reader& r) { return r.reader().complete(); })
@@ -596,9 +598,9 @@ PYBIND11_MODULE(_ltbake, m) {
   // The "basis" entry of an axis, as the stages write it: "generic", "cubemap" (a = R),
   // "image" (a = W, b = H).
   m.def("axis_basis_json", [](const std::string& kind, uint64_t a, uint64_t b) {
-    if (kind == "cubemap") return stages::PixelCubemapCols(a).dump();
-    if (kind == "image") return stages::ImageRows(a, b).dump();
-    return stages::GenericAxis().dump();
+    if (kind == "cubemap") return JsonText(stages::PixelCubemapCols(a));
+    if (kind == "image") return JsonText(stages::ImageRows(a, b));
+    return JsonText(stages::GenericAxis());
   });
   m.def("verify_report", &VerifyReport, py::arg("path"), py::arg("jobs") = 2);
   m.def("inspect_json", &Inspect, py::arg("path"), py::arg("content") = true, py::arg("chunk_list") = false,

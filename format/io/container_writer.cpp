@@ -14,6 +14,7 @@
 #include "format/io/container_reader.h"
 #include "format/io/frame_scan.h"
 #include "format/io/io_trace.h"
+#include "format/json_text.h"
 #include "format/version.h"
 
 namespace ltb::io {
@@ -95,7 +96,7 @@ std::string FirstKeyDifference(const nlohmann::json& file, const nlohmann::json&
   for (auto it = wanted.begin(); it != wanted.end(); ++it) {
     if (!file.contains(it.key())) return "key \"" + it.key() + "\" is not in the file";
     if (file[it.key()] != it.value()) {
-      std::string a = file[it.key()].dump(), b = it.value().dump();
+      std::string a = JsonText(file[it.key()]), b = JsonText(it.value());
       if (a.size() > 200) a = a.substr(0, 200) + "...";
       if (b.size() > 200) b = b.substr(0, 200) + "...";
       return "\"" + it.key() + "\": file has " + a + ", this run wants " + b;

@@ -15,6 +15,7 @@
 #include "format/io/container_writer.h"
 #include "format/io/file.h"
 #include "format/io/file_lock.h"
+#include "format/json_text.h"
 
 namespace ltb::io {
 
@@ -36,8 +37,8 @@ std::string FirstJsonDifference(const nlohmann::json& a, const nlohmann::json& b
     for (auto it = b.begin(); it != b.end(); ++it) keys.insert(it.key());
     for (const std::string& k : keys) {
       const std::string path = at.empty() ? k : at + "." + k;
-      if (!a.contains(k)) return path + ": absent here, " + b[k].dump() + " expected";
-      if (!b.contains(k)) return path + ": " + a[k].dump() + " here, absent in the others";
+      if (!a.contains(k)) return path + ": absent here, " + JsonText(b[k]) + " expected";
+      if (!b.contains(k)) return path + ": " + JsonText(a[k]) + " here, absent in the others";
       if (a[k] != b[k]) return FirstJsonDifference(a[k], b[k], path);
     }
     return "";
@@ -47,7 +48,7 @@ std::string FirstJsonDifference(const nlohmann::json& a, const nlohmann::json& b
       if (a[i] != b[i]) return FirstJsonDifference(a[i], b[i], at + "[" + std::to_string(i) + "]");
     return "";
   }
-  std::string va = a.dump(), vb = b.dump();
+  std::string va = JsonText(a), vb = JsonText(b);
   if (va.size() > 120) va = va.substr(0, 117) + "...";
   if (vb.size() > 120) vb = vb.substr(0, 117) + "...";
   return (at.empty() ? std::string("metadata") : at) + ": " + va + " here, " + vb + " expected";
@@ -156,14 +157,15 @@ Result<ManifestInfo> ReadManifest(const std::string& path) {
   LTB_RETURN_IF_ERROR(f.ReadAt(0, MutableByteSpan(reinterpret_cast<std::byte*>(text.data()), text.size())));
   if (text.compare(0, kMagicLength, kManifestMagic) != 0)
     return DataLoss(path + ": not a stage manifest (no magic line)");
-  nlohmann::json j = nlohmann::json::parse(text.begin() + kMagicLength, text.end(), nullptr, false);
+  auto parsed = ParseJson(std::string_view(text).substr(kMagicLength));
+  nlohmann::json j = parsed.ok() ? std::move(*parsed) : nlohmann::json(nlohmann::json::value_t::discarded);
   auto bad = [&](const std::string& what) {
     return DataLoss(path + ": manifest " + what + "; commit the shards again (`ltbake commit`) or rerun the stage");
   };
   if (j.is_discarded() || !j.is_object()) return bad("is not valid JSON after its magic line");
   if (!j.contains("version") || !j["version"].is_number_unsigned()) return bad("lacks \"version\"");
   if (j["version"].get<uint64_t>() != 1) {
-    return Unimplemented(path + ": manifest version " + j["version"].dump() +
+    return Unimplemented(path + ": manifest version " + JsonText(j["version"]) +
                          " is newer than this build reads (1); upgrade ltbake");
   }
   for (const char* key : {"metadata", "nshards", "content_hash", "shards"})
@@ -173,7 +175,7 @@ Result<ManifestInfo> ReadManifest(const std::string& path) {
   info.metadata = j["metadata"];
   if (!j["nshards"].is_number_unsigned() || j["nshards"].get<uint64_t>() == 0 ||
       j["nshards"].get<uint64_t>() > kMaxShards) {
-    return bad("nshards is " + j["nshards"].dump() + " (expected 1.." + std::to_string(kMaxShards) + ")");
+    return bad("nshards is " + JsonText(j["nshards"]) + " (expected 1.." + std::to_string(kMaxShards) + ")");
   }
   info.count = j["nshards"].get<uint64_t>();
   if (!j["content_hash"].is_string()) return bad("content_hash is not a string");
@@ -381,7 +383,7 @@ Result<CommitResult> CommitShards(const std::string& output, uint64_t count, con
                              {"content_hash", result.content_hash},
                              {"metadata", whole},
                              {"shards", shards}};
-  LTB_RETURN_IF_ERROR(WriteFileAtomically(output, std::string(kManifestMagic) + manifest.dump(1) + "\n"));
+  LTB_RETURN_IF_ERROR(WriteFileAtomically(output, std::string(kManifestMagic) + JsonText(manifest, 1) + "\n"));
   return result;
 }
 

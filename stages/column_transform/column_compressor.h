@@ -112,6 +112,11 @@ class ColumnCompressor {
   void SelectTerms(size_t lane, int depth, uint64_t terms, std::vector<uint32_t>* kept);
   void UpdateKeys(size_t lane, int depth);
   void UpdateKeysGroup(int depth, const bool* lanes);  // UpdateKeys for lanes[k], in one pass
+  // Its two passes over lanes lane[0..m) (column_keys.cpp): rebuilt from scratch, or updated
+  // over the previous low band rw_w × rw_h; sub_w × sub_h is this depth's low band.
+  void RebuildKeyLanes(int depth, const size_t* lane, size_t m, const float* rw, uint64_t sub_w, uint64_t sub_h);
+  void UpdateKeyLanes(int depth, const size_t* lane, size_t m, const float* rw, uint64_t rw_w, uint64_t rw_h,
+                      uint64_t sub_w, uint64_t sub_h);
   // The kept set of a kTerms selection as a cut: keys > t, and the first `ties` keys
   // equal to t in position order (n kept in all). False when that set needs the
   // explicit path (other selections, or kept terms the rounding-residue trim may drop).

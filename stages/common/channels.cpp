@@ -3,6 +3,7 @@
 #include <filesystem>
 
 #include "format/io/container_reader.h"
+#include "format/json_text.h"
 
 namespace ltb::stages {
 
@@ -58,7 +59,7 @@ Result<std::vector<SetMember>> ChannelFiles(const std::string& path) {
     }
     for (const auto& n : *list) {
       if (!n.is_string() || n.get<std::string>().empty() || n.get<std::string>().find('/') != std::string::npos) {
-        return InvalidArgument(first + ": a set member name is " + n.dump() + ", not a plain name");
+        return InvalidArgument(first + ": a set member name is " + JsonText(n) + ", not a plain name");
       }
       names.push_back(n.get<std::string>());
     }

@@ -6,6 +6,7 @@
 #include "format/bytes.h"
 #include "format/io/atomic_file.h"
 #include "format/io/file.h"
+#include "format/json_text.h"
 
 namespace ltb::stages {
 
@@ -16,7 +17,7 @@ constexpr char kMagic[8] = {'L', 'T', 'B', 'C', 'P', 'C', 'A', '1'};
 }
 
 Status WriteCpcaCheckpoint(const std::string& path, const CpcaCheckpoint& cp) {
-  const std::string header = cp.header.dump();
+  const std::string header = JsonText(cp.header);
   std::vector<std::byte> buf(8 + 8 + header.size() + 8 + cp.values.size() * 8 + 8);
   std::byte* p = buf.data();
   std::memcpy(p, kMagic, 8);
@@ -51,9 +52,9 @@ Result<std::optional<CpcaCheckpoint>> ReadCpcaCheckpoint(const std::string& path
   const uint64_t hlen = LoadU64(buf.data() + 8);
   if (hlen > size - 32) return bad("header length " + std::to_string(hlen));
   CpcaCheckpoint cp;
-  cp.header = nlohmann::json::parse(reinterpret_cast<const char*>(buf.data() + 16),
-                                    reinterpret_cast<const char*>(buf.data() + 16 + hlen), nullptr, false);
-  if (cp.header.is_discarded() || !cp.header.is_object()) return bad("header is not a JSON object");
+  auto header = ParseJson(std::string_view(reinterpret_cast<const char*>(buf.data() + 16), hlen));
+  if (!header.ok() || !header->is_object()) return bad("header is not a JSON object");
+  cp.header = std::move(*header);
   const uint64_t nv = LoadU64(buf.data() + 16 + hlen);
   if (nv > max_values || 16 + hlen + 8 + nv * 8 + 8 != size) return bad("value count " + std::to_string(nv));
   cp.values.resize(nv);

@@ -12,6 +12,7 @@
 
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
+#include "format/json_text.h"
 #include "stages/common/basis.h"
 #include "stages/common/parallel_for.h"
 #include "stages/wavelet/face_kernel.h"
@@ -190,7 +191,7 @@ Result<RowTransformResult> RunRowTransform(const RowTransformOptions& o, const P
   if (!cube->has_value()) {
     return FailedPrecondition(
         o.input + ": its columns are not declared a cubemap (basis.cols is " +
-        meta.json.value("basis", nlohmann::json::object()).value("cols", nlohmann::json()).dump() +
+        JsonText(meta.json.value("basis", nlohmann::json::object()).value("cols", nlohmann::json())) +
         "); row-transform needs pixel-basis cubemap columns: produce the matrix with `ltbake sample` "
         "or declare it with `ltbake convert IN.npy OUT.ltm --cube-res R`");
   }

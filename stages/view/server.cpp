@@ -2,6 +2,7 @@
 
 #include <mutex>
 
+#include "format/json_text.h"
 #include "stages/view/http_server.h"
 
 namespace ltb::stages::view {
@@ -12,7 +13,7 @@ Status Serve(const ViewOptions& o, const std::function<void(const std::string& u
   std::mutex mu;  // one frame at a time: the approximation carries from frame to frame
   const FrameRequest& d = session->defaults();
   const std::string page =
-      PageHtml(nlohmann::json{{"terms", TermsJson(d.terms)}, {"method", SequenceMethodName(d.method)}}.dump());
+      PageHtml(JsonText(nlohmann::json{{"terms", TermsJson(d.terms)}, {"method", SequenceMethodName(d.method)}}));
   auto fail = [](int code, const std::string& message) {
     HttpResponse r;
     r.status = code;
@@ -31,13 +32,13 @@ Status Serve(const ViewOptions& o, const std::function<void(const std::string& u
       std::lock_guard<std::mutex> lock(mu);
       auto png = session->Render(*q);
       if (!png.ok()) return fail(500, png.status().message());
-      res.headers.push_back({"X-Ltb-Stats", session->stats().dump()});
+      res.headers.push_back({"X-Ltb-Stats", JsonText(session->stats())});
       res.content_type = "image/png";
       res.body = std::move(*png);
     } else if (req.path == "/stats") {
       std::lock_guard<std::mutex> lock(mu);
       res.content_type = "application/json";
-      res.body = session->stats().dump();
+      res.body = JsonText(session->stats());
     } else if (req.path == "/env.png") {
       std::lock_guard<std::mutex> lock(mu);
       res.content_type = "image/png";

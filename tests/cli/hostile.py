@@ -14,6 +14,7 @@ Every case asserts
 import os
 import signal
 import subprocess
+import sys
 import time
 
 import ltbtest
@@ -55,6 +56,8 @@ def run_hostile(args, names=(), expect=(1,), time_limit=60.0, extra_mib=0.0, wha
         time.sleep(0.01)
     p.returncode = os.waitstatus_to_exitcode(status)
     elapsed = time.monotonic() - start
+    if os.environ.get("LTB_TEST_TIMES"):  # where a suite's time goes (tests/README.md)
+        print(f"[{elapsed:7.2f} s] {label}", file=sys.stderr)
     global last_cpu_seconds
     last_cpu_seconds = rusage.ru_utime + rusage.ru_stime
     t1.join()

@@ -14,6 +14,7 @@
 #include "format/io/container_reader.h"
 #include "format/io/container_writer.h"
 #include "format/io/verifier.h"
+#include "format/json_text.h"
 #include "test_util.h"
 
 namespace ltb {
@@ -182,7 +183,7 @@ TEST(Sections, SkipsUnknownOptionalFrameAndKeepsUnknownMetadataKeys) {
   ASSERT_EQ(v.notes.size(), 1u);
   EXPECT_NE(v.notes[0].find("optional frame of unknown type 77"), std::string::npos);
   // A writer resumes past it and seals the file.
-  auto w = io::ContainerWriter::Open(path, nlohmann::json::parse(meta));
+  auto w = io::ContainerWriter::Open(path, *ParseJson(meta));
   ASSERT_TRUE(w.ok()) << w.status().message();
   EXPECT_EQ(w->resume_info().committed_chunks, 2u);
   ASSERT_TRUE(w->Finish().ok());

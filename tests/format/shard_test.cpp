@@ -12,6 +12,7 @@
 #include "format/io/container_writer.h"
 #include "format/io/manifest.h"
 #include "format/io/verifier.h"
+#include "format/json_text.h"
 #include "test_util.h"
 
 namespace ltb {
@@ -439,11 +440,11 @@ TEST(Manifest, AManifestAsAShardIsRefusedNotRecursedInto) {
   auto text = test::ReadFileBytes(out);
   std::string s(text.begin(), text.end());
   const size_t nl = s.find('\n');
-  nlohmann::json j = nlohmann::json::parse(s.substr(nl + 1));
+  nlohmann::json j = *ParseJson(s.substr(nl + 1));
   auto write = [&](const std::string& path, const std::string& shard1) {
     j["shards"][1]["path"] = shard1;
     std::ofstream f(path, std::ios::binary | std::ios::trunc);
-    f << s.substr(0, nl + 1) << j.dump();
+    f << s.substr(0, nl + 1) << JsonText(j);
   };
   write(dir.File("self.ltm"), "self.ltm");
   write(dir.File("a.ltm"), "b.ltm");
