@@ -1,3 +1,5 @@
+// Over 700 lines: one fitter (seeding, passes, growth, encoding) whose steps share its state;
+// the maths without state is cpca_math.cpp, the checkpoint cpca_checkpoint.cpp.
 #include "stages/cpca/cpca_fit.h"
 
 #include <algorithm>

@@ -1,3 +1,5 @@
+// Over 700 lines: the two phases share the checkpoint and the row bookkeeping; the ray-free
+// parts are in sparse_rows.cpp and the lasso in l1_solver.cpp.
 // `ltbake sample --sparse` (docs/SPARSE.md; Huang & Ramamoorthi 2010, §4–§5).
 //
 // Phase 1 places dense rows in rounds — a uniformly random first round, then rounds drawn
