@@ -157,12 +157,12 @@ Result<ManifestInfo> ReadManifest(const std::string& path) {
   LTB_RETURN_IF_ERROR(f.ReadAt(0, MutableByteSpan(reinterpret_cast<std::byte*>(text.data()), text.size())));
   if (text.compare(0, kMagicLength, kManifestMagic) != 0)
     return DataLoss(path + ": not a stage manifest (no magic line)");
-  auto parsed = ParseJson(std::string_view(text).substr(kMagicLength));
-  nlohmann::json j = parsed.ok() ? std::move(*parsed) : nlohmann::json(nlohmann::json::value_t::discarded);
   auto bad = [&](const std::string& what) {
     return DataLoss(path + ": manifest " + what + "; commit the shards again (`ltbake commit`) or rerun the stage");
   };
-  if (j.is_discarded() || !j.is_object()) return bad("is not valid JSON after its magic line");
+  auto parsed = ParseJson(std::string_view(text).substr(kMagicLength));
+  if (!parsed.ok() || !parsed->is_object()) return bad("is not valid JSON after its magic line");
+  nlohmann::json j = std::move(*parsed);
   if (!j.contains("version") || !j["version"].is_number_unsigned()) return bad("lacks \"version\"");
   if (j["version"].get<uint64_t>() != 1) {
     return Unimplemented(path + ": manifest version " + JsonText(j["version"]) +
