@@ -160,15 +160,13 @@ Status IncrementalRelighter::Frame(const std::vector<float>& cube) {
   return Status::Ok();
 }
 
-Result<RelightResult> RunRelightSequence(const RelightOptions& o, const SequenceOptions& so, const Progress& progress) {
-  if (o.terms == 0) return InvalidArgument("--terms must be at least 1 (or all)");
-  if (o.frames > 0) return InvalidArgument("--frames times a rotation of one image; with --sequence drop it");
-  LTB_RETURN_IF_ERROR(CheckRelightNumbers(o));
-  LTB_ASSIGN_OR_RETURN(std::vector<SequenceSegment> segments, ParseSequence(so.spec));
-  const bool video = o.output.ends_with(".mp4");
-  if (!video) {
+namespace {
+
+// --output's frame directory made (frames go into one of their own more often than not) and
+// --applied-lighting's pattern checked, before any frame is relit.
+Status PrepareSequenceOutputs(const RelightOptions& o, const SequenceOptions& so) {
+  if (!o.output.ends_with(".mp4")) {
     LTB_ASSIGN_OR_RETURN(std::string first, FramePath(o.output, 0));
-    // Frames go into a directory of their own more often than not: make it.
     const std::filesystem::path dir = std::filesystem::path(first).parent_path();
     std::error_code ec;
     if (!dir.empty()) std::filesystem::create_directories(dir, ec);
@@ -180,6 +178,107 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
     }
     LTB_RETURN_IF_ERROR(FramePath(so.applied_output, 0).status());
   }
+  return Status::Ok();
+}
+
+// One frame's report entry: its times, its term budget and every band's update.
+nlohmann::json FrameJson(uint64_t f, double frame_ms, const IncrementalRelighter& inc, double rotation) {
+  const FrameUpdate& u = inc.update();
+  nlohmann::json fr = {{"frame", f},
+                       {"ms", frame_ms},
+                       {"lighting_ms", inc.lighting_ms()},
+                       {"relight_ms", inc.relight_ms()},
+                       {"terms", u.budget_terms},
+                       {"columns_touched", u.terms.column.size()},
+                       {"rotate_deg", rotation * 180.0 / std::numbers::pi}};
+  nlohmann::json bands = nlohmann::json::array();
+  for (size_t k = 0; k < u.bands.size(); ++k) {
+    bands.push_back({{"band", k},
+                     {"terms", u.bands[k].terms},
+                     {"update", u.bands[k].incremental ? "incremental" : "reset"},
+                     {"reset_terms", u.bands[k].reset_terms}});
+  }
+  fr["bands"] = std::move(bands);
+  return fr;
+}
+
+// Frame f's image (into the video or its own file) and, with --applied-lighting, the lighting
+// it was relit with (`applied_scaled`, at 2^-exponent).
+Status WriteSequenceFrame(const RelightOptions& o, const SequenceOptions& so, uint64_t f, const std::vector<float>& out,
+                          const RelightMatrix& m, double exposure, const std::vector<float>& applied_scaled,
+                          int exponent, std::optional<Mp4Writer>* mp4) {
+  if (o.output.ends_with(".mp4")) {
+    if (!*mp4) {
+      LTB_ASSIGN_OR_RETURN(Mp4Writer w, Mp4Writer::Open(o.output, m.width(), m.height(), so.fps));
+      mp4->emplace(std::move(w));
+    }
+    std::vector<uint8_t> px = ToSrgb8(out.data(), m.rows(), exposure);
+    LTB_RETURN_IF_ERROR((*mp4)->Add(px.data()));
+  } else {
+    LTB_ASSIGN_OR_RETURN(std::string path, FramePath(o.output, f));
+    LTB_RETURN_IF_ERROR(WriteImage(path, out.data(), m.rows(), m.width(), m.height(), {.exposure = exposure}));
+  }
+
+  if (!so.applied_output.empty()) {
+    LTB_ASSIGN_OR_RETURN(std::string path, FramePath(so.applied_output, f));
+    std::vector<float> applied = applied_scaled;
+    ScaleByPowerOfTwo(&applied, exponent);
+    LTB_RETURN_IF_ERROR(WriteImage(path, applied.data(), applied.size() / 3, 0, 0));
+  }
+  return Status::Ok();
+}
+
+// The run's summary: frame times (median and mean), output, exposure and memory overhead.
+nlohmann::json SequenceSummary(const std::vector<double>& ms_all, uint64_t frames, const IncrementalRelighter& inc,
+                               const std::string& output, double exposure) {
+  std::vector<double> sorted = ms_all;
+  std::sort(sorted.begin(), sorted.end());
+  double mean_ms = 0;
+  for (double v : ms_all) mean_ms += v / static_cast<double>(ms_all.size());
+  return {{"frames", frames},
+          {"bands", inc.lighting().bands()},
+          {"median_ms", sorted[sorted.size() / 2]},
+          {"mean_ms", mean_ms},
+          {"output", output},
+          {"exposure", exposure},
+          {"memory_overhead_bytes", inc.overhead_bytes()}};
+}
+
+// --csv: one line a frame (the report's frames), written atomically.
+Status WriteSequenceCsv(const std::string& path, const nlohmann::json& frames) {
+  std::ostringstream csv;
+  csv << "frame,ms,relight_ms,terms,columns_touched,rel_l2,l1_area,lighting_rel_l2,lighting_l1_area,bands\n";
+  csv.precision(9);
+  for (const auto& fr : frames) {
+    csv << fr["frame"].get<uint64_t>() << ',' << fr["ms"].get<double>() << ',' << fr["relight_ms"].get<double>() << ','
+        << fr["terms"].get<uint64_t>() << ',' << fr["columns_touched"].get<uint64_t>() << ',';
+    for (const char* k : {"rel_l2", "l1_area"}) {
+      if (!fr[k].is_null()) csv << fr[k].get<double>();
+      csv << ',';
+    }
+    csv << fr["lighting_rel_l2"].get<double>() << ',' << fr["lighting_l1_area"].get<double>() << ',';
+    bool first_band = true;
+    for (const auto& bd : fr["bands"]) {  // per band: terms and i (incremental) or r (reset)
+      csv << (first_band ? "" : " ") << bd["terms"].get<uint64_t>() << (bd["update"] == "incremental" ? 'i' : 'r');
+      first_band = false;
+    }
+    csv << '\n';
+  }
+  LTB_ASSIGN_OR_RETURN(io::AtomicFile file, io::AtomicFile::Create(path));
+  const std::string text = csv.str();
+  LTB_RETURN_IF_ERROR(file.file().WriteAt(0, std::as_bytes(std::span(text.data(), text.size()))));
+  LTB_RETURN_IF_ERROR(file.Commit());
+  return Status::Ok();
+}
+
+}  // namespace
+
+Result<RelightResult> RunRelightSequence(const RelightOptions& o, const SequenceOptions& so, const Progress& progress) {
+  if (o.terms == 0) return InvalidArgument("--terms must be at least 1 (or all)");
+  if (o.frames > 0) return InvalidArgument("--frames times a rotation of one image; with --sequence drop it");
+  LTB_RETURN_IF_ERROR(CheckRelightNumbers(o));
+  LTB_ASSIGN_OR_RETURN(std::vector<SequenceSegment> segments, ParseSequence(so.spec));
+  LTB_RETURN_IF_ERROR(PrepareSequenceOutputs(o, so));
   EnvLoadOptions eo;
   eo.clamp = o.clamp_env;
   eo.layout = o.env_layout;
@@ -234,46 +333,14 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
     LTB_RETURN_IF_ERROR(inc.Frame(cube));
     const double frame_ms = SeqMs(a, SeqClock::now());
     ms_all.push_back(frame_ms);
-    const FrameUpdate& u = inc.update();
 
     out = inc.image();
     ScaleByPowerOfTwo(&out, seq.exponent());
     FinishRelitImage(m.mask(), o.keep_negative, &out);
     LTB_RETURN_IF_ERROR(CheckRelitImageFinite(out, m.width(), o.env).WithContext("frame " + std::to_string(f)));
     if (exposure <= 0 && m.width() > 0) exposure = AutoExposure(out.data(), rows);  // fixed from frame 0 on
-    if (video) {
-      if (!mp4) {
-        LTB_ASSIGN_OR_RETURN(Mp4Writer w, Mp4Writer::Open(o.output, m.width(), m.height(), so.fps));
-        mp4.emplace(std::move(w));
-      }
-      std::vector<uint8_t> px = ToSrgb8(out.data(), rows, exposure);
-      LTB_RETURN_IF_ERROR(mp4->Add(px.data()));
-    } else {
-      LTB_ASSIGN_OR_RETURN(std::string path, FramePath(o.output, f));
-      LTB_RETURN_IF_ERROR(WriteImage(path, out.data(), rows, m.width(), m.height(), {.exposure = exposure}));
-    }
-
-    if (!so.applied_output.empty()) {
-      LTB_ASSIGN_OR_RETURN(std::string path, FramePath(so.applied_output, f));
-      std::vector<float> applied = inc.lighting().applied();
-      ScaleByPowerOfTwo(&applied, seq.exponent());
-      LTB_RETURN_IF_ERROR(WriteImage(path, applied.data(), applied.size() / 3, 0, 0));
-    }
-    nlohmann::json fr = {{"frame", f},
-                         {"ms", frame_ms},
-                         {"lighting_ms", inc.lighting_ms()},
-                         {"relight_ms", inc.relight_ms()},
-                         {"terms", u.budget_terms},
-                         {"columns_touched", u.terms.column.size()},
-                         {"rotate_deg", seq.Rotation(f) * 180.0 / std::numbers::pi}};
-    nlohmann::json bands = nlohmann::json::array();
-    for (size_t k = 0; k < u.bands.size(); ++k) {
-      bands.push_back({{"band", k},
-                       {"terms", u.bands[k].terms},
-                       {"update", u.bands[k].incremental ? "incremental" : "reset"},
-                       {"reset_terms", u.bands[k].reset_terms}});
-    }
-    fr["bands"] = std::move(bands);
+    LTB_RETURN_IF_ERROR(WriteSequenceFrame(o, so, f, out, m, exposure, inc.lighting().applied(), seq.exponent(), &mp4));
+    nlohmann::json fr = FrameJson(f, frame_ms, inc, seq.Rotation(f));
     // The applied lighting against the frame's true lighting, in pixels (area-weighted L1).
     applied_px = inc.lighting().applied();
     basis.ToPixels(applied_px.data());
@@ -301,17 +368,7 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
   }
   if (mp4) LTB_RETURN_IF_ERROR(mp4->Finish());
 
-  std::vector<double> sorted = ms_all;
-  std::sort(sorted.begin(), sorted.end());
-  double mean_ms = 0;
-  for (double v : ms_all) mean_ms += v / static_cast<double>(ms_all.size());
-  nlohmann::json summary = {{"frames", seq.frames()},
-                            {"bands", inc.lighting().bands()},
-                            {"median_ms", sorted[sorted.size() / 2]},
-                            {"mean_ms", mean_ms},
-                            {"output", o.output},
-                            {"exposure", exposure},
-                            {"memory_overhead_bytes", inc.overhead_bytes()}};
+  nlohmann::json summary = SequenceSummary(ms_all, seq.frames(), inc, o.output, exposure);
   if (measured > 0) {
     summary["mean_rel_l2"] = sum_l2 / static_cast<double>(measured);
     summary["mean_l1_area"] = sum_l1 / static_cast<double>(measured);
@@ -320,30 +377,7 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
   report["frames"] = std::move(frames);
   report["summary"] = std::move(summary);
 
-  if (!so.csv.empty()) {
-    std::ostringstream csv;
-    csv << "frame,ms,relight_ms,terms,columns_touched,rel_l2,l1_area,lighting_rel_l2,lighting_l1_area,bands\n";
-    csv.precision(9);
-    for (const auto& fr : report["frames"]) {
-      csv << fr["frame"].get<uint64_t>() << ',' << fr["ms"].get<double>() << ',' << fr["relight_ms"].get<double>()
-          << ',' << fr["terms"].get<uint64_t>() << ',' << fr["columns_touched"].get<uint64_t>() << ',';
-      for (const char* k : {"rel_l2", "l1_area"}) {
-        if (!fr[k].is_null()) csv << fr[k].get<double>();
-        csv << ',';
-      }
-      csv << fr["lighting_rel_l2"].get<double>() << ',' << fr["lighting_l1_area"].get<double>() << ',';
-      bool first_band = true;
-      for (const auto& bd : fr["bands"]) {  // per band: terms and i (incremental) or r (reset)
-        csv << (first_band ? "" : " ") << bd["terms"].get<uint64_t>() << (bd["update"] == "incremental" ? 'i' : 'r');
-        first_band = false;
-      }
-      csv << '\n';
-    }
-    LTB_ASSIGN_OR_RETURN(io::AtomicFile file, io::AtomicFile::Create(so.csv));
-    const std::string text = csv.str();
-    LTB_RETURN_IF_ERROR(file.file().WriteAt(0, std::as_bytes(std::span(text.data(), text.size()))));
-    LTB_RETURN_IF_ERROR(file.Commit());
-  }
+  if (!so.csv.empty()) LTB_RETURN_IF_ERROR(WriteSequenceCsv(so.csv, report["frames"]));
   return RelightResult{std::move(report), {}};
 }
 
