@@ -149,6 +149,66 @@ void ExpandSet(const std::function<std::string(const std::string&)>& path, const
   g->wanted = std::move(wanted);
 }
 
+// One relight step per [relight] map: relit-NAME.FORMAT from final.ltm or cpca.ltm (a view with
+// eye/target, a sequence, a reference error against rows.ltm as the table asks).
+Status AddRelightNodes(const Recipe& r, const std::function<std::string(const std::string&)>& path, Graph* g) {
+  const auto& rl = r.relight;
+  std::string matrix = rl.matrix == "cpca" ? "cpca.ltm" : "final.ltm";
+  for (const EnvMap& env : rl.envs) {
+    if (env.path.find("{face}") != std::string::npos) {
+      return InvalidArgument(r.path + ": [relight] envs: " + env.path +
+                             ": six-file {face} maps are not supported in recipes; convert it to one cubemap first "
+                             "(ltbake convert MAP.exr MAP.npy --cube-res R) and name that file");
+    }
+    Node m;
+    m.name = "relight:" + env.name;
+    m.stages = {"relight"};
+    m.image = true;
+    m.env = env.path;
+    m.inputs = {matrix};
+    m.output = "relit-" + env.name + "." + rl.format;
+    m.params = {{"env", env.path},     {"terms", rl.terms},       {"weighting", rl.weighting}, {"clamp", rl.clamp},
+                {"format", rl.format}, {"exposure", rl.exposure}, {"reference", rl.reference}};
+    m.args = {"relight",     path(matrix),
+              "--env",       env.path,
+              "--terms",     std::to_string(rl.terms),
+              "--weighting", rl.weighting,
+              "--exposure",  Shortest(rl.exposure),
+              "--json"};
+    if (rl.clamp) m.args.push_back("--clamp");
+    if (rl.eye) {  // a view of a factored bake (docs/GLOSSY.md)
+      m.params["eye"] = {rl.eye->x, rl.eye->y, rl.eye->z};
+      m.params["target"] = {rl.target.x, rl.target.y, rl.target.z};
+      m.params["up"] = {rl.up.x, rl.up.y, rl.up.z};
+      m.params["fov"] = rl.fov;
+      m.params["size"] = {rl.width, rl.height};
+      // relight --eye takes neither --weighting nor --json's matrix-path keys: rebuilt here.
+      m.args = {"relight",    path(matrix),
+                "--env",      env.path,
+                "--terms",    std::to_string(rl.terms),
+                "--eye",      Vec3Text(*rl.eye),
+                "--target",   Vec3Text(rl.target),
+                "--up",       Vec3Text(rl.up),
+                "--fov",      Shortest(rl.fov),
+                "--size",     std::to_string(rl.width) + "x" + std::to_string(rl.height),
+                "--exposure", Shortest(rl.exposure),
+                "--json"};
+      if (rl.clamp) m.args.push_back("--clamp");
+    }
+    if (!rl.sequence.empty()) {
+      m.params["sequence"] = rl.sequence;
+      m.params["method"] = rl.method;
+      m.args.insert(m.args.end(), {"--sequence", rl.sequence, "--method", rl.method});
+    }
+    if (rl.reference) {
+      m.inputs.push_back("rows.ltm");
+      m.args.insert(m.args.end(), {"--reference", path("rows.ltm")});
+    }
+    g->nodes.push_back(std::move(m));
+  }
+  return Status::Ok();
+}
+
 }  // namespace
 
 int StageIndex(const std::string& s) {
@@ -156,10 +216,11 @@ int StageIndex(const std::string& s) {
   return static_cast<int>(std::find(n.begin(), n.end(), s) - n.begin());
 }
 
-Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::string& workdir,
-                         const std::string& scene_file) {
-  Graph g;
-  auto valid_stage = [&](const std::string& s, const char* flag) -> Status {
+namespace {
+
+// --from, --until and --force name stages of the table (or "all" for --force).
+Status CheckStageFlags(const BakeOptions& o) {
+  auto valid_stage = [](const std::string& s, const char* flag) -> Status {
     if (s.empty() || StageIndex(s) < static_cast<int>(StageNames().size())) return Status::Ok();
     std::string names;
     for (const auto& n : StageNames()) names += (names.empty() ? "" : ", ") + n;
@@ -170,6 +231,15 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
   for (const auto& f : o.force) {
     if (f != "all") LTB_RETURN_IF_ERROR(valid_stage(f, "--force"));
   }
+  return Status::Ok();
+}
+
+}  // namespace
+
+Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::string& workdir,
+                         const std::string& scene_file) {
+  Graph g;
+  LTB_RETURN_IF_ERROR(CheckStageFlags(o));
   if (!o.until.empty()) {
     g.targets = {o.until};
   } else {
@@ -242,60 +312,7 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
       LTB_RETURN_IF_ERROR(AddTripleNodes(r, stage, path, &g));
       continue;
     }
-    const auto& rl = r.relight;
-    std::string matrix = rl.matrix == "cpca" ? "cpca.ltm" : "final.ltm";
-    for (const EnvMap& env : rl.envs) {
-      if (env.path.find("{face}") != std::string::npos) {
-        return InvalidArgument(r.path + ": [relight] envs: " + env.path +
-                               ": six-file {face} maps are not supported in recipes; convert it to one cubemap first "
-                               "(ltbake convert MAP.exr MAP.npy --cube-res R) and name that file");
-      }
-      Node m;
-      m.name = "relight:" + env.name;
-      m.stages = {"relight"};
-      m.image = true;
-      m.env = env.path;
-      m.inputs = {matrix};
-      m.output = "relit-" + env.name + "." + rl.format;
-      m.params = {{"env", env.path},     {"terms", rl.terms},       {"weighting", rl.weighting}, {"clamp", rl.clamp},
-                  {"format", rl.format}, {"exposure", rl.exposure}, {"reference", rl.reference}};
-      m.args = {"relight",     path(matrix),
-                "--env",       env.path,
-                "--terms",     std::to_string(rl.terms),
-                "--weighting", rl.weighting,
-                "--exposure",  Shortest(rl.exposure),
-                "--json"};
-      if (rl.clamp) m.args.push_back("--clamp");
-      if (rl.eye) {  // a view of a factored bake (docs/GLOSSY.md)
-        m.params["eye"] = {rl.eye->x, rl.eye->y, rl.eye->z};
-        m.params["target"] = {rl.target.x, rl.target.y, rl.target.z};
-        m.params["up"] = {rl.up.x, rl.up.y, rl.up.z};
-        m.params["fov"] = rl.fov;
-        m.params["size"] = {rl.width, rl.height};
-        // relight --eye takes neither --weighting nor --json's matrix-path keys: rebuilt here.
-        m.args = {"relight",    path(matrix),
-                  "--env",      env.path,
-                  "--terms",    std::to_string(rl.terms),
-                  "--eye",      Vec3Text(*rl.eye),
-                  "--target",   Vec3Text(rl.target),
-                  "--up",       Vec3Text(rl.up),
-                  "--fov",      Shortest(rl.fov),
-                  "--size",     std::to_string(rl.width) + "x" + std::to_string(rl.height),
-                  "--exposure", Shortest(rl.exposure),
-                  "--json"};
-        if (rl.clamp) m.args.push_back("--clamp");
-      }
-      if (!rl.sequence.empty()) {
-        m.params["sequence"] = rl.sequence;
-        m.params["method"] = rl.method;
-        m.args.insert(m.args.end(), {"--sequence", rl.sequence, "--method", rl.method});
-      }
-      if (rl.reference) {
-        m.inputs.push_back("rows.ltm");
-        m.args.insert(m.args.end(), {"--reference", path("rows.ltm")});
-      }
-      g.nodes.push_back(std::move(m));
-    }
+    LTB_RETURN_IF_ERROR(AddRelightNodes(r, path, &g));
   }
   // Files to leave on disk: the targets' outputs and the kept intermediates.
   for (const Node& n : g.nodes) {
