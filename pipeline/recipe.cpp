@@ -435,6 +435,45 @@ Status ParseTriple(const std::string& path, const std::string& dir, const toml::
   return Status::Ok();
 }
 
+// [quantize]: one step for the matrix (error_ratio) or per-column maxima (bits, with their
+// scaling, dither and seed).
+Status ParseQuantize(const std::string& path, const toml::table& t, Recipe::Quantize* q) {
+  LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[quantize]", {"error_ratio", "bits", "scaling", "dither", "seed"}));
+  if (t.contains("bits") && t.contains("error_ratio")) {
+    return InvalidArgument(path +
+                           ": [quantize] takes error_ratio (one step for the matrix) or bits (per-column "
+                           "maxima), not both");
+  }
+  LTB_ASSIGN_OR_RETURN(q->error_ratio, GetNumber(path, t, "error_ratio", q->error_ratio, 1.000001, 100));
+  if (t.contains("bits")) {
+    LTB_ASSIGN_OR_RETURN(uint64_t bits, GetUnsigned(path, t, "bits", 9, 2, 24));
+    q->bits = bits;
+  }
+  LTB_ASSIGN_OR_RETURN(q->scaling, GetChoice(path, t, "scaling", q->scaling, {"level", "none"}));
+  LTB_ASSIGN_OR_RETURN(q->dither, GetBool(path, t, "dither", q->dither));
+  LTB_ASSIGN_OR_RETURN(q->seed, GetUnsigned(path, t, "seed", q->seed, 0, uint64_t{1} << 62));
+  for (const char* k : {"scaling", "dither", "seed"}) {
+    if (t.contains(k) && !t.contains("bits")) {
+      return InvalidArgument(path + ": [quantize] " + k +
+                             " goes with bits (per-column quantization); the default "
+                             "error_ratio mode has one step and no " +
+                             k);
+    }
+  }
+  return Status::Ok();
+}
+
+// [cpca]: clusters, basis size, iterations and seed.
+Status ParseCpca(const std::string& path, const toml::table& t, Recipe::Cpca* c) {
+  LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[cpca]", {"clusters", "basis", "max_iterations", "seed"}));
+  c->present = true;
+  LTB_ASSIGN_OR_RETURN(c->clusters, GetUnsigned(path, t, "clusters", c->clusters, 1, 1 << 20));
+  LTB_ASSIGN_OR_RETURN(c->basis, GetUnsigned(path, t, "basis", c->basis, 0, 1 << 16));
+  LTB_ASSIGN_OR_RETURN(c->max_iterations, GetUnsigned(path, t, "max_iterations", c->max_iterations, 1, 100000));
+  LTB_ASSIGN_OR_RETURN(c->seed, GetUnsigned(path, t, "seed", c->seed, 0, uint64_t{1} << 62));
+  return Status::Ok();
+}
+
 }  // namespace
 
 Result<Recipe> ParseRecipe(const std::string& path_in) {
@@ -499,41 +538,9 @@ Result<Recipe> ParseRecipe(const std::string& path_in) {
   LTB_ASSIGN_OR_RETURN(const toml::table* ct, table("column-transform"));
   LTB_RETURN_IF_ERROR(ParseColumnTransform(path, ct ? *ct : kEmpty, &r.column_transform));
   LTB_ASSIGN_OR_RETURN(const toml::table* q, table("quantize"));
-  if (q) {
-    LTB_RETURN_IF_ERROR(CheckKeys(path, *q, "[quantize]", {"error_ratio", "bits", "scaling", "dither", "seed"}));
-    if (q->contains("bits") && q->contains("error_ratio")) {
-      return InvalidArgument(path +
-                             ": [quantize] takes error_ratio (one step for the matrix) or bits (per-column "
-                             "maxima), not both");
-    }
-    LTB_ASSIGN_OR_RETURN(r.quantize.error_ratio,
-                         GetNumber(path, *q, "error_ratio", r.quantize.error_ratio, 1.000001, 100));
-    if (q->contains("bits")) {
-      LTB_ASSIGN_OR_RETURN(uint64_t bits, GetUnsigned(path, *q, "bits", 9, 2, 24));
-      r.quantize.bits = bits;
-    }
-    LTB_ASSIGN_OR_RETURN(r.quantize.scaling, GetChoice(path, *q, "scaling", r.quantize.scaling, {"level", "none"}));
-    LTB_ASSIGN_OR_RETURN(r.quantize.dither, GetBool(path, *q, "dither", r.quantize.dither));
-    LTB_ASSIGN_OR_RETURN(r.quantize.seed, GetUnsigned(path, *q, "seed", r.quantize.seed, 0, uint64_t{1} << 62));
-    for (const char* k : {"scaling", "dither", "seed"}) {
-      if (q->contains(k) && !q->contains("bits")) {
-        return InvalidArgument(path + ": [quantize] " + k +
-                               " goes with bits (per-column quantization); the default "
-                               "error_ratio mode has one step and no " +
-                               k);
-      }
-    }
-  }
+  if (q) LTB_RETURN_IF_ERROR(ParseQuantize(path, *q, &r.quantize));
   LTB_ASSIGN_OR_RETURN(const toml::table* cpca, table("cpca"));
-  if (cpca) {
-    LTB_RETURN_IF_ERROR(CheckKeys(path, *cpca, "[cpca]", {"clusters", "basis", "max_iterations", "seed"}));
-    r.cpca.present = true;
-    LTB_ASSIGN_OR_RETURN(r.cpca.clusters, GetUnsigned(path, *cpca, "clusters", r.cpca.clusters, 1, 1 << 20));
-    LTB_ASSIGN_OR_RETURN(r.cpca.basis, GetUnsigned(path, *cpca, "basis", r.cpca.basis, 0, 1 << 16));
-    LTB_ASSIGN_OR_RETURN(r.cpca.max_iterations,
-                         GetUnsigned(path, *cpca, "max_iterations", r.cpca.max_iterations, 1, 100000));
-    LTB_ASSIGN_OR_RETURN(r.cpca.seed, GetUnsigned(path, *cpca, "seed", r.cpca.seed, 0, uint64_t{1} << 62));
-  }
+  if (cpca) LTB_RETURN_IF_ERROR(ParseCpca(path, *cpca, &r.cpca));
   LTB_ASSIGN_OR_RETURN(const toml::table* relight, table("relight"));
   if (relight) LTB_RETURN_IF_ERROR(ParseRelight(path, r.dir, *relight, &r.relight));
   LTB_ASSIGN_OR_RETURN(const toml::table* tri, table("triple"));
