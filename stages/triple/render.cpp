@@ -456,9 +456,70 @@ Status LoadInputs(const RenderOptions& o, const Progress& progress, Renderer& rd
   return Status::Ok();
 }
 
-}  // namespace
+// B at one vertex seen from `eye`, by the chosen method, into b; returns the BRDF terms used
+// (0 for the pixel method).
+uint64_t ShadeVertex(Renderer& rd, TripleMethod method, uint64_t row, const glm::dvec3& eye,
+                     const std::vector<uint32_t>& texels, Scratch& s, double b[3]) {
+  if (method == TripleMethod::kPixel) {
+    rd.ScatterV(row, s);
+    rd.Pixel(row, eye, texels, s, b);
+    rd.ClearV(row, s);
+    return 0;
+  }
+  const uint32_t stamp = s.NextStamp();
+  rd.RhoParts(row, eye, &s.parts);
+  rd.ScatterRho(s.parts, s, stamp);
+  const uint64_t terms = s.rho_terms.size();
+  if (method == TripleMethod::kLinear) {
+    rd.ScatterV(row, s);
+    rd.Linear(s, b);
+    rd.ClearV(row, s);
+  } else {
+    rd.ScatterStampedV(row, s, stamp);
+    rd.Sublinear(s, stamp, b);
+  }
+  rd.ClearRho(s);
+  return terms;
+}
 
-Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& progress) {
+// The vertices of every triangle a pixel sees (needed = 1), counting the pixels that hit
+// something and those that hit a mesh without vertex shading.
+void MarkSeenVertices(const sample::Geometry& geo, const std::vector<sample::PixelHit>& hits,
+                      std::vector<uint8_t>* needed, uint64_t* hit_pixels, uint64_t* unshaded) {
+  for (const sample::PixelHit& h : hits) {
+    if (h.geom < 0) continue;
+    ++*hit_pixels;
+    const sample::Geometry::RowMesh& m = geo.row_meshes[static_cast<size_t>(h.geom)];
+    if (m.triangles.empty()) {
+      ++*unshaded;
+      continue;
+    }
+    const glm::uvec3& t = m.triangles[h.prim];
+    for (int c = 0; c < 3; ++c) (*needed)[m.first_row + t[c]] = 1;
+  }
+}
+
+// Each pixel: its triangle's vertex values interpolated barycentrically, clamped at 0.
+void InterpolateImage(const sample::Geometry& geo, const std::vector<sample::PixelHit>& hits,
+                      const std::vector<float>& values, std::vector<float>* image) {
+  for (uint64_t p = 0; p < hits.size(); ++p) {
+    const sample::PixelHit& h = hits[p];
+    float rgb[3] = {0, 0, 0};
+    if (h.geom >= 0) {
+      const sample::Geometry::RowMesh& m = geo.row_meshes[static_cast<size_t>(h.geom)];
+      if (!m.triangles.empty()) {
+        const glm::uvec3& t = m.triangles[h.prim];
+        const float w[3] = {1 - h.u - h.v, h.u, h.v};
+        for (int q = 0; q < 3; ++q)
+          for (int ch = 0; ch < 3; ++ch) rgb[ch] += w[q] * values[(m.first_row + t[q]) * 3 + ch];
+      }
+    }
+    for (int ch = 0; ch < 3; ++ch) (*image)[p * 3 + ch] = std::max(0.0f, rgb[ch]);
+  }
+}
+
+// The size, view, memory, terms and --output pattern, before anything is read.
+Status CheckRenderOptions(const RenderOptions& o) {
   if (o.width == 0 || o.height == 0 || uint64_t{o.width} * o.height > (1u << 26)) {
     return InvalidArgument("--size " + std::to_string(o.width) + "x" + std::to_string(o.height) +
                            " is empty or above 2^26 pixels");
@@ -467,9 +528,25 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
                           .WithContext("the view (--eye, --target, --up, --fov)"));
   LTB_RETURN_IF_ERROR(sample::CheckViewMemory(o.width, o.height, o.mem_limit));
   if (o.light_terms == 0) return InvalidArgument("--terms must be at least 1 (or all)");
-  const uint32_t frames = std::max<uint32_t>(1, o.orbit_frames);
   if (o.orbit_frames > 0 && !o.output.empty())
     LTB_RETURN_IF_ERROR(stages::FramePath(o.output, 0, stages::FramePattern::kOrbit).status());
+  return Status::Ok();
+}
+
+// Frame k's image: --output itself, or its %04d frame with --orbit-frames.
+Status WriteFrame(const RenderOptions& o, uint32_t k, const std::vector<float>& image) {
+  std::string path = o.output;
+  if (o.orbit_frames > 0) {
+    LTB_ASSIGN_OR_RETURN(path, stages::FramePath(o.output, k, stages::FramePattern::kOrbit));
+  }
+  return stages::WriteImage(path, image.data(), image.size() / 3, o.width, o.height, {.exposure = o.exposure});
+}
+
+}  // namespace
+
+Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& progress) {
+  LTB_RETURN_IF_ERROR(CheckRenderOptions(o));
+  const uint32_t frames = std::max<uint32_t>(1, o.orbit_frames);
   nlohmann::json report = {
       {"method", TripleMethodName(o.method)},
       {"visibility", o.visibility},
@@ -522,25 +599,7 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
                                  for (uint64_t row = r0; row < std::min(rows, r0 + 256); ++row) {
                                    if (!needed[row]) continue;
                                    double b[3];
-                                   if (o.method == TripleMethod::kPixel) {
-                                     rd.ScatterV(row, s);
-                                     rd.Pixel(row, eye, texels, s, b);
-                                     rd.ClearV(row, s);
-                                   } else {
-                                     const uint32_t stamp = s.NextStamp();
-                                     rd.RhoParts(row, eye, &s.parts);
-                                     rd.ScatterRho(s.parts, s, stamp);
-                                     terms += s.rho_terms.size();
-                                     if (o.method == TripleMethod::kLinear) {
-                                       rd.ScatterV(row, s);
-                                       rd.Linear(s, b);
-                                       rd.ClearV(row, s);
-                                     } else {
-                                       rd.ScatterStampedV(row, s, stamp);
-                                       rd.Sublinear(s, stamp, b);
-                                     }
-                                     rd.ClearRho(s);
-                                   }
+                                   terms += ShadeVertex(rd, o.method, row, eye, texels, s, b);
                                    for (int ch = 0; ch < 3; ++ch) values[row * 3 + ch] = static_cast<float>(b[ch]);
                                  }
                                  brdf_terms_sum += terms;
@@ -576,37 +635,14 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
     LTB_RETURN_IF_ERROR(sample::TracePixels(rd.geo, *camera, o.jobs, &hits));
     std::fill(needed.begin(), needed.end(), 0);
     uint64_t hit_pixels = 0, unshaded = 0;
-    for (const sample::PixelHit& h : hits) {
-      if (h.geom < 0) continue;
-      ++hit_pixels;
-      const sample::Geometry::RowMesh& m = rd.geo.row_meshes[static_cast<size_t>(h.geom)];
-      if (m.triangles.empty()) {
-        ++unshaded;
-        continue;
-      }
-      const glm::uvec3& t = m.triangles[h.prim];
-      for (int c = 0; c < 3; ++c) needed[m.first_row + t[c]] = 1;
-    }
+    MarkSeenVertices(rd.geo, hits, &needed, &hit_pixels, &unshaded);
     const uint64_t visible = static_cast<uint64_t>(std::count(needed.begin(), needed.end(), uint8_t{1}));
     auto b = Clock::now();
     brdf_terms_sum = 0;
     LTB_RETURN_IF_ERROR(evaluate(eye));
     LTB_RETURN_IF_ERROR(stages::CheckRelitImageFinite(values, 0, o.env).WithContext("frame " + std::to_string(k)));
     auto c = Clock::now();
-    for (uint64_t p = 0; p < pixels; ++p) {
-      const sample::PixelHit& h = hits[p];
-      float rgb[3] = {0, 0, 0};
-      if (h.geom >= 0) {
-        const sample::Geometry::RowMesh& m = rd.geo.row_meshes[static_cast<size_t>(h.geom)];
-        if (!m.triangles.empty()) {
-          const glm::uvec3& t = m.triangles[h.prim];
-          const float w[3] = {1 - h.u - h.v, h.u, h.v};
-          for (int q = 0; q < 3; ++q)
-            for (int ch = 0; ch < 3; ++ch) rgb[ch] += w[q] * values[(m.first_row + t[q]) * 3 + ch];
-        }
-      }
-      for (int ch = 0; ch < 3; ++ch) image[p * 3 + ch] = std::max(0.0f, rgb[ch]);
-    }
+    InterpolateImage(rd.geo, hits, values, &image);
     auto d = Clock::now();
     nlohmann::json fr = {{"frame", k},
                          {"eye", {eye.x, eye.y, eye.z}},
@@ -620,13 +656,7 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
       fr["brdf_terms_per_vertex"] = static_cast<double>(brdf_terms_sum.load()) / static_cast<double>(visible);
     }
     frame_reports.push_back(fr);
-    if (!o.output.empty()) {
-      std::string path = o.output;
-      if (o.orbit_frames > 0) {
-        LTB_ASSIGN_OR_RETURN(path, stages::FramePath(o.output, k, stages::FramePattern::kOrbit));
-      }
-      LTB_RETURN_IF_ERROR(stages::WriteImage(path, image.data(), pixels, o.width, o.height, {.exposure = o.exposure}));
-    }
+    if (!o.output.empty()) LTB_RETURN_IF_ERROR(WriteFrame(o, k, image));
     if (k == 0) result.image = image;
   }
   report["frames"] = frame_reports;
