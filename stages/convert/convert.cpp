@@ -133,20 +133,9 @@ Status NarrowToF32(const double* src, float* dst, uint64_t n, const std::string&
   return Status::Ok();
 }
 
-Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress) {
-  LTB_ASSIGN_OR_RETURN(NpyInput in, OpenNpy(o.input));
-  int jobs = std::max(1, o.jobs);
-  // Buffers per worker: f32 chunk + source bytes + zstd bound: about 3-4 chunk sizes.
-  uint64_t chunk_bytes = std::max<uint64_t>(1, std::min(o.chunk_bytes, o.mem_limit / (4 * jobs)));
-  ArraySpec spec;
-  spec.name = "matrix";
-  spec.dtype = DType::kF32;
-  spec.rows = in.rows;
-  spec.cols = in.cols;
-  spec.layout = o.layout;
-  spec.block = BlockForTargetBytes(in.rows, in.cols, DType::kF32, o.layout, chunk_bytes);
-  LTB_RETURN_IF_ERROR(spec.Validate().WithContext(o.output));
-
+// The output's metadata: the matrix array, the bases --cube-res and --image-size name (checked
+// against the input's shape) and the source's provenance.
+Result<nlohmann::json> NpyMetadata(const ConvertOptions& o, const NpyInput& in, const ArraySpec& spec) {
   nlohmann::json rows_basis = GenericAxis(), cols_basis = GenericAxis();
   if (o.cube_res != 0) {
     if (!IsPowerOfTwo(o.cube_res) || o.cube_res > (1u << 16)) {
@@ -167,7 +156,7 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
     }
     rows_basis = ImageRows(o.image_width, o.image_height);
   }
-  nlohmann::json meta = {
+  return nlohmann::json{
       {"arrays", {spec.ToJson()}},
       {"basis", {{"rows", rows_basis}, {"cols", cols_basis}}},
       {"provenance",
@@ -179,6 +168,58 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
           {"source_bytes", in.header.data_offset + in.rows * in.cols * in.header.itemsize},
           {"zstd", o.zstd}}}}},
   };
+}
+
+// One chunk's values from the input, in the output's layout (a column layout reads the whole
+// input's mapping, `whole`).
+Status ReadNpyChunk(const NpyInput& in, const ArraySpec& spec, const io::MappedRegion& whole, const std::string& input,
+                    uint64_t chunk, std::vector<float>& values) {
+  ChunkExtent e = spec.Extent(chunk);
+  uint64_t n = e.Elements();
+  values.assign(n, 0.0f);
+  uint64_t item = in.header.itemsize;
+  if (spec.layout == Layout::kRows) {
+    uint64_t first = e.row0 * in.cols;
+    uint64_t offset = in.header.data_offset + first * item;
+    if (item == 4) {
+      return in.file.ReadAt(offset, MutableByteSpan(reinterpret_cast<std::byte*>(values.data()), n * 4));
+    }
+    std::vector<double> src(n);
+    LTB_RETURN_IF_ERROR(in.file.ReadAt(offset, MutableByteSpan(reinterpret_cast<std::byte*>(src.data()), n * 8)));
+    return NarrowToF32(src.data(), values.data(), n, input, first, in.cols, false, in.rows);
+  }
+  const std::byte* base = whole.bytes().data() + in.header.data_offset;
+  for (uint64_t c = 0; c < e.cols; ++c) {
+    for (uint64_t r = 0; r < in.rows; ++r) {
+      const std::byte* p = base + (r * in.cols + e.col0 + c) * item;
+      if (item == 4) {
+        std::memcpy(&values[c * in.rows + r], p, 4);
+      } else {
+        double v;
+        std::memcpy(&v, p, 8);
+        LTB_RETURN_IF_ERROR(
+            NarrowToF32(&v, &values[c * in.rows + r], 1, input, r * in.cols + e.col0 + c, in.cols, false, in.rows));
+      }
+    }
+  }
+  return Status::Ok();
+}
+
+Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress) {
+  LTB_ASSIGN_OR_RETURN(NpyInput in, OpenNpy(o.input));
+  int jobs = std::max(1, o.jobs);
+  // Buffers per worker: f32 chunk + source bytes + zstd bound: about 3-4 chunk sizes.
+  uint64_t chunk_bytes = std::max<uint64_t>(1, std::min(o.chunk_bytes, o.mem_limit / (4 * jobs)));
+  ArraySpec spec;
+  spec.name = "matrix";
+  spec.dtype = DType::kF32;
+  spec.rows = in.rows;
+  spec.cols = in.cols;
+  spec.layout = o.layout;
+  spec.block = BlockForTargetBytes(in.rows, in.cols, DType::kF32, o.layout, chunk_bytes);
+  LTB_RETURN_IF_ERROR(spec.Validate().WithContext(o.output));
+
+  LTB_ASSIGN_OR_RETURN(const nlohmann::json meta, NpyMetadata(o, in, spec));
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
   LTB_ASSIGN_OR_RETURN(io::ContainerWriter writer, io::ContainerWriter::Open(o.output, meta, wo));
@@ -190,37 +231,8 @@ Result<ConvertResult> NpyToLtm(const ConvertOptions& o, const Progress& progress
         whole,
         io::MappedRegion::Map(in.file.fd(), 0, in.header.data_offset + in.rows * in.cols * in.header.itemsize, false));
   }
-  // One chunk's values from the input, in the output's layout.
   auto read_chunk = [&](uint64_t chunk, std::vector<float>& values) -> Status {
-    ChunkExtent e = spec.Extent(chunk);
-    uint64_t n = e.Elements();
-    values.assign(n, 0.0f);
-    uint64_t item = in.header.itemsize;
-    if (o.layout == Layout::kRows) {
-      uint64_t first = e.row0 * in.cols;
-      uint64_t offset = in.header.data_offset + first * item;
-      if (item == 4) {
-        return in.file.ReadAt(offset, MutableByteSpan(reinterpret_cast<std::byte*>(values.data()), n * 4));
-      }
-      std::vector<double> src(n);
-      LTB_RETURN_IF_ERROR(in.file.ReadAt(offset, MutableByteSpan(reinterpret_cast<std::byte*>(src.data()), n * 8)));
-      return NarrowToF32(src.data(), values.data(), n, o.input, first, in.cols, false, in.rows);
-    }
-    const std::byte* base = whole.bytes().data() + in.header.data_offset;
-    for (uint64_t c = 0; c < e.cols; ++c) {
-      for (uint64_t r = 0; r < in.rows; ++r) {
-        const std::byte* p = base + (r * in.cols + e.col0 + c) * item;
-        if (item == 4) {
-          std::memcpy(&values[c * in.rows + r], p, 4);
-        } else {
-          double v;
-          std::memcpy(&v, p, 8);
-          LTB_RETURN_IF_ERROR(
-              NarrowToF32(&v, &values[c * in.rows + r], 1, o.input, r * in.cols + e.col0 + c, in.cols, false, in.rows));
-        }
-      }
-    }
-    return Status::Ok();
+    return ReadNpyChunk(in, spec, whole, o.input, chunk, values);
   };
 
   ConvertResult result;
