@@ -100,19 +100,14 @@ void VertexRadiance(const sample::Geometry& geo, const ViewFactors& vf, const st
   });
 }
 
-}  // namespace
-
-Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progress& progress) {
-  auto t0 = Clock::now();
-  LTB_RETURN_IF_ERROR(sample::ValidateView(o.eye, o.target, o.up, o.fov_degrees)
-                          .WithContext("the view (--eye, --target, --up, --fov)"));
-  LTB_RETURN_IF_ERROR(sample::CheckViewMemory(o.width, o.height, o.mem_limit));
-  LTB_ASSIGN_OR_RETURN(std::vector<SetMember> members, ChannelFiles(o.set));
+// The factored set's first term's factors, checked against the set: K members k0..k(K-1), all
+// of one bake (same term count and geometry).
+Result<ViewFactors> ReadFactorSet(const std::string& set, const std::vector<SetMember>& members) {
   if (members.empty() || members.front().name != "k0") {
-    return InvalidArgument(o.set +
+    return InvalidArgument(set +
                            ": --eye without --material renders a factored bake (sample --factor K: X.k0.ltm, "
                            "X.k1.ltm, ...), and " +
-                           o.set +
+                           set +
                            " is not one; for a fixed-view matrix leave out --eye, "
                            "for the triple-product path add --material (docs/GLOSSY.md)");
   }
@@ -129,6 +124,37 @@ Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progres
                              " terms, or another geometry); rebake the set");
     }
   }
+  return vf;
+}
+
+// B interpolated across each hit triangle of a row object; the rest is background.
+void ShadeImage(const sample::Geometry& geo, const std::vector<sample::PixelHit>& hits, const std::vector<float>& b,
+                std::vector<float>* image) {
+  image->assign(hits.size() * 3, 0.0f);
+  for (size_t px = 0; px < hits.size(); ++px) {
+    const sample::PixelHit& h = hits[px];
+    if (h.geom < 0 || static_cast<uint64_t>(h.geom) >= geo.row_meshes.size()) continue;
+    const sample::Geometry::RowMesh& rm = geo.row_meshes[static_cast<size_t>(h.geom)];
+    if (h.prim >= rm.triangles.size()) continue;  // not a row object
+    const glm::uvec3& tri = rm.triangles[h.prim];
+    const double w[3] = {1.0 - h.u - h.v, h.u, h.v};
+    float* out = image->data() + px * 3;
+    for (int v = 0; v < 3; ++v) {
+      const float* bv = b.data() + 3 * (rm.first_row + tri[v]);
+      for (int c = 0; c < 3; ++c) out[c] += static_cast<float>(w[v] * std::max(0.0f, bv[c]));
+    }
+  }
+}
+
+}  // namespace
+
+Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progress& progress) {
+  auto t0 = Clock::now();
+  LTB_RETURN_IF_ERROR(sample::ValidateView(o.eye, o.target, o.up, o.fov_degrees)
+                          .WithContext("the view (--eye, --target, --up, --fov)"));
+  LTB_RETURN_IF_ERROR(sample::CheckViewMemory(o.width, o.height, o.mem_limit));
+  LTB_ASSIGN_OR_RETURN(std::vector<SetMember> members, ChannelFiles(o.set));
+  LTB_ASSIGN_OR_RETURN(ViewFactors vf, ReadFactorSet(o.set, members));
   const uint32_t used = o.use_terms == 0 ? vf.terms : std::min(o.use_terms, vf.terms);
   // The geometry the bake saw (its rows, normals and materials) for the primary rays.
   LTB_ASSIGN_OR_RETURN(sample::SceneDesc scene, sample::ParseScene(vf.scene));
@@ -197,21 +223,7 @@ Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progres
       return camera.status().WithContext("the view (--eye, --target, --up, --fov), frame " + std::to_string(f));
     }
     LTB_RETURN_IF_ERROR(sample::TracePixels(geo, *camera, o.jobs, &hits));
-    // B interpolated across each hit triangle of a row object; the rest is background.
-    image.assign(hits.size() * 3, 0.0f);
-    for (size_t px = 0; px < hits.size(); ++px) {
-      const sample::PixelHit& h = hits[px];
-      if (h.geom < 0 || static_cast<uint64_t>(h.geom) >= geo.row_meshes.size()) continue;
-      const sample::Geometry::RowMesh& rm = geo.row_meshes[static_cast<size_t>(h.geom)];
-      if (h.prim >= rm.triangles.size()) continue;  // not a row object
-      const glm::uvec3& tri = rm.triangles[h.prim];
-      const double w[3] = {1.0 - h.u - h.v, h.u, h.v};
-      float* out = image.data() + px * 3;
-      for (int v = 0; v < 3; ++v) {
-        const float* bv = b.data() + 3 * (rm.first_row + tri[v]);
-        for (int c = 0; c < 3; ++c) out[c] += static_cast<float>(w[v] * std::max(0.0f, bv[c]));
-      }
-    }
+    ShadeImage(geo, hits, b, &image);
     ms.push_back(Ms(a, Clock::now()));
     if (f == 0 && !o.vertex_output.empty()) {
       LTB_RETURN_IF_ERROR(WriteImage(o.vertex_output, b.data(), geo.vertex_rows.size(), 0, 0, {}));
