@@ -66,6 +66,53 @@ std::string ShellQuote(const std::vector<std::string>& argv) {
   return out;
 }
 
+namespace {
+
+// In the forked child: dies with the parent, default SIGINT/SIGTERM, stdout and stderr into
+// the pipes, then exec. Only async-signal-safe calls until exec.
+[[noreturn]] void ExecChild(pid_t parent, int out_fd, int err_fd, char* const* args) {
+  ::prctl(PR_SET_PDEATHSIG, SIGKILL);
+  if (::getppid() != parent) ::_exit(127);  // the parent died before prctl took effect
+  struct sigaction sa {};
+  sa.sa_handler = SIG_DFL;
+  ::sigaction(SIGINT, &sa, nullptr);
+  ::sigaction(SIGTERM, &sa, nullptr);
+  ::dup2(out_fd, 1);
+  ::dup2(err_fd, 2);
+  ::execv(args[0], args);
+  const char msg[] = "ltbake: error: cannot execute the stage program\n";
+  (void)!::write(2, msg, sizeof msg - 1);
+  ::_exit(127);
+}
+
+// The child's stderr, split into lines (a \r starts a progress line over): each complete
+// "ltbake: error: " line's message into errors; `line` carries the unfinished one.
+void CollectErrorLines(std::string_view text, std::string* line, std::vector<std::string>* errors) {
+  for (char c : text) {
+    if (c == '\r') {
+      line->clear();
+    } else if (c == '\n') {
+      if (line->rfind("ltbake: error: ", 0) == 0) errors->push_back(line->substr(15));
+      line->clear();
+    } else {
+      *line += c;
+    }
+  }
+}
+
+// The reaped child's resource use and how it ended.
+void SetUsageAndStatus(const struct rusage& ru, int status, ChildResult* result) {
+  result->peak_rss_bytes = static_cast<uint64_t>(ru.ru_maxrss) * 1024;
+  result->user_seconds = static_cast<double>(ru.ru_utime.tv_sec) + 1e-6 * static_cast<double>(ru.ru_utime.tv_usec);
+  result->system_seconds = static_cast<double>(ru.ru_stime.tv_sec) + 1e-6 * static_cast<double>(ru.ru_stime.tv_usec);
+  result->disk_read_bytes = static_cast<uint64_t>(ru.ru_inblock) * 512;
+  result->disk_write_bytes = static_cast<uint64_t>(ru.ru_oublock) * 512;
+  if (WIFEXITED(status)) result->exit_code = WEXITSTATUS(status);
+  if (WIFSIGNALED(status)) result->term_signal = WTERMSIG(status);
+}
+
+}  // namespace
+
 Result<ChildResult> RunChild(const std::vector<std::string>& argv, const ChildIo& io) {
   if (argv.empty()) return InvalidArgument("RunChild: empty command");
   LogSink log(io.log_path);
@@ -93,19 +140,7 @@ Result<ChildResult> RunChild(const std::vector<std::string>& argv, const ChildIo
     return IoError("fork", e);
   }
   if (pid == 0) {
-    // In the child: only async-signal-safe calls until exec.
-    ::prctl(PR_SET_PDEATHSIG, SIGKILL);
-    if (::getppid() != parent) ::_exit(127);  // the parent died before prctl took effect
-    struct sigaction sa {};
-    sa.sa_handler = SIG_DFL;
-    ::sigaction(SIGINT, &sa, nullptr);
-    ::sigaction(SIGTERM, &sa, nullptr);
-    ::dup2(out_pipe[1], 1);
-    ::dup2(err_pipe[1], 2);
-    ::execv(args[0], args.data());
-    const char msg[] = "ltbake: error: cannot execute the stage program\n";
-    (void)!::write(2, msg, sizeof msg - 1);
-    ::_exit(127);
+    ExecChild(parent, out_pipe[1], err_pipe[1], args.data());
   }
   ::close(out_pipe[1]);
   ::close(err_pipe[1]);
@@ -157,16 +192,7 @@ Result<ChildResult> RunChild(const std::vector<std::string>& argv, const ChildIo
         if (io.on_stdout) io.on_stdout(text);
       } else {
         if (io.on_stderr) io.on_stderr(text);
-        for (char c : text) {
-          if (c == '\r') {
-            err_line.clear();
-          } else if (c == '\n') {
-            if (err_line.rfind("ltbake: error: ", 0) == 0) result.errors.push_back(err_line.substr(15));
-            err_line.clear();
-          } else {
-            err_line += c;
-          }
-        }
+        CollectErrorLines(text, &err_line, &result.errors);
       }
     }
   }
@@ -189,13 +215,7 @@ Result<ChildResult> RunChild(const std::vector<std::string>& argv, const ChildIo
   if (w < 0) return IoError("wait4 for " + argv[0], errno);
   if (err_line.rfind("ltbake: error: ", 0) == 0) result.errors.push_back(err_line.substr(15));
   result.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  result.peak_rss_bytes = static_cast<uint64_t>(ru.ru_maxrss) * 1024;
-  result.user_seconds = static_cast<double>(ru.ru_utime.tv_sec) + 1e-6 * static_cast<double>(ru.ru_utime.tv_usec);
-  result.system_seconds = static_cast<double>(ru.ru_stime.tv_sec) + 1e-6 * static_cast<double>(ru.ru_stime.tv_usec);
-  result.disk_read_bytes = static_cast<uint64_t>(ru.ru_inblock) * 512;
-  result.disk_write_bytes = static_cast<uint64_t>(ru.ru_oublock) * 512;
-  if (WIFEXITED(status)) result.exit_code = WEXITSTATUS(status);
-  if (WIFSIGNALED(status)) result.term_signal = WTERMSIG(status);
+  SetUsageAndStatus(ru, status, &result);
   return result;
 }
 
