@@ -236,6 +236,8 @@ std::vector<uint64_t> ContainerWriter::Missing(uint32_t array) const {
   return out;
 }
 
+// Over 120 lines: the payload's checks, then the write whose order (payload, then the header
+// that commits it) is the container's crash contract, read top to bottom in one place.
 Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChunk& encoded,
                                std::optional<uint64_t> hash_sum) {
   if (array >= metadata_.arrays.size()) return InvalidArgument(path() + ": no array " + std::to_string(array));

@@ -394,6 +394,8 @@ Status CpcaFitter::Initialise(Model* m) {
   return InitialDirections(x, id, m);
 }
 
+// Over 120 lines: one streaming pass over the rows (assign, accumulate, keep the worst rows)
+// whose lambdas share the per-cluster accumulators.
 Result<double> CpcaFitter::Pass(Model* m, uint64_t n, uint64_t pass_index, bool dense_only) {
   const uint64_t d = pr_.d, k = pr_.k, p = pr_.p;
   const uint64_t block = PassBlockRows(d), group = std::max<uint64_t>(1, pr_.group_blocks);

@@ -196,6 +196,8 @@ Result<CubemapResampler> CubemapResampler::CreateUnchecked(const EnvMap& env, ui
 // working pixel's area (1 column × the row's height in z; at most a pixel of a 32R × 16R grid)
 // of the exact K half-way along it. And the cells of the seam meridian: the texel it passes
 // through in each row, and for how long.
+// Over 120 lines: one walk over every texel edge; its emit, arc and boundary lambdas share the
+// piece list, the seam crossings and the row table.
 Status CubemapResampler::CutTexelEdges(uint64_t R, uint64_t ww, uint64_t hw, const std::string& path,
                                        const Progress& progress, const std::vector<double>& zrow,
                                        std::vector<RawPiece>* out, std::vector<SeamCell>* seam) {
@@ -387,6 +389,8 @@ Status CubemapResampler::CutTexelEdges(uint64_t R, uint64_t ww, uint64_t hw, con
 // after its widest absent arc (at its first end when it covers the whole circle), so that its
 // spans and edges are contiguous; a texel is convex, so each column meets it in one interval
 // of z, bounded by at most one top and one bottom piece.
+// Over 120 lines: one pass from the sorted piece references to the bands, each step reading
+// the previous step's locals.
 Status CubemapResampler::BuildBands(const std::string& path, const Progress& progress, const std::vector<double>& zrow,
                                     const std::vector<RawPiece>& pieces, const std::vector<SeamCell>& seam) {
   const uint64_t n = 6 * r_ * r_;

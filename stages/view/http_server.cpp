@@ -250,6 +250,8 @@ HttpServer::~HttpServer() {
   if (fd_ >= 0) ::close(fd_);
 }
 
+// Over 120 lines: one poll loop whose deadline, read, hand-off and accept steps share the
+// connection list and the work queue.
 Status HttpServer::Serve(const Handler& handler, const std::function<bool()>& stop) {
   std::mutex mu;
   std::condition_variable cv;
