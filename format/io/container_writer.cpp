@@ -236,25 +236,27 @@ std::vector<uint64_t> ContainerWriter::Missing(uint32_t array) const {
   return out;
 }
 
-// Over 120 lines: the payload's checks, then the write whose order (payload, then the header
-// that commits it) is the container's crash contract, read top to bottom in one place.
-Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChunk& encoded,
-                               std::optional<uint64_t> hash_sum) {
-  if (array >= metadata_.arrays.size()) return InvalidArgument(path() + ": no array " + std::to_string(array));
-  const ArraySpec& a = metadata_.arrays[array];
+namespace {
+
+// The chunk's place (its array, its index, this shard's share) and its encoding (decoded
+// size, a coded or sparse payload's dtype and line length), before anything is written.
+Status CheckChunkFits(const std::string& path, const format::Metadata& m, uint32_t array, uint64_t chunk,
+                      const EncodedChunk& encoded) {
+  if (array >= m.arrays.size()) return InvalidArgument(path + ": no array " + std::to_string(array));
+  const ArraySpec& a = m.arrays[array];
   if (chunk >= a.ChunkCount()) {
-    return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name + "\" out of range (" +
+    return InvalidArgument(path + ": chunk " + std::to_string(chunk) + " of array \"" + a.name + "\" out of range (" +
                            std::to_string(a.ChunkCount()) + " chunks)");
   }
-  if (!metadata_.Owns(array, chunk)) {
-    const auto& [b, e] = metadata_.shard->chunks[array];
-    return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name +
-                           "\" does not belong to shard " + std::to_string(metadata_.shard->index) + " of " +
-                           std::to_string(metadata_.shard->count) + " (it owns chunks " + std::to_string(b) + "-" +
+  if (!m.Owns(array, chunk)) {
+    const auto& [b, e] = m.shard->chunks[array];
+    return InvalidArgument(path + ": chunk " + std::to_string(chunk) + " of array \"" + a.name +
+                           "\" does not belong to shard " + std::to_string(m.shard->index) + " of " +
+                           std::to_string(m.shard->count) + " (it owns chunks " + std::to_string(b) + "-" +
                            std::to_string(e) + ")");
   }
   if (encoded.decoded_length != a.ChunkBytes(chunk)) {
-    return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name + "\" has " +
+    return InvalidArgument(path + ": chunk " + std::to_string(chunk) + " of array \"" + a.name + "\" has " +
                            std::to_string(encoded.decoded_length) + " bytes, expected " +
                            std::to_string(a.ChunkBytes(chunk)));
   }
@@ -262,26 +264,34 @@ Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChun
     // A coded payload is read back as i32 lines of the array's line length.
     const uint64_t line = CodedLineLength(a.layout, a.Extent(chunk));
     if (encoded.dtype != DType::kI32 || a.dtype != DType::kI32 || encoded.line_length != line) {
-      return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name +
-                             "\" was coded as " + DTypeName(encoded.dtype) + " lines of " +
-                             std::to_string(encoded.line_length) + ", the array is " + DTypeName(a.dtype) +
-                             " with lines of " + std::to_string(line));
+      return InvalidArgument(path + ": chunk " + std::to_string(chunk) + " of array \"" + a.name + "\" was coded as " +
+                             DTypeName(encoded.dtype) + " lines of " + std::to_string(encoded.line_length) +
+                             ", the array is " + DTypeName(a.dtype) + " with lines of " + std::to_string(line));
     }
   }
   if (encoded.encoding == Encoding::kSparse || encoded.encoding == Encoding::kSparseZstd ||
       encoded.encoding == Encoding::kCoded) {
     // A sparse payload is read back with the array's dtype and 32-bit indices.
     if (encoded.dtype != a.dtype) {
-      return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name +
+      return InvalidArgument(path + ": chunk " + std::to_string(chunk) + " of array \"" + a.name +
                              "\" was sparse-encoded as " + DTypeName(encoded.dtype) + ", the array is " +
                              DTypeName(a.dtype));
     }
     if (a.Extent(chunk).Elements() > kMaxSparseElements) {
-      return InvalidArgument(path() + ": chunk " + std::to_string(chunk) + " of array \"" + a.name + "\" has " +
+      return InvalidArgument(path + ": chunk " + std::to_string(chunk) + " of array \"" + a.name + "\" has " +
                              std::to_string(a.Extent(chunk).Elements()) +
                              " elements, more than a sparse chunk holds (" + std::to_string(kMaxSparseElements) + ")");
     }
   }
+  return Status::Ok();
+}
+
+}  // namespace
+
+Status ContainerWriter::Append(uint32_t array, uint64_t chunk, const EncodedChunk& encoded,
+                               std::optional<uint64_t> hash_sum) {
+  LTB_RETURN_IF_ERROR(CheckChunkFits(path(), metadata_, array, chunk, encoded));
+  const ArraySpec& a = metadata_.arrays[array];
   if (!hash_sum) {
     // Decoded here, outside the lock, as a reader would decode it.
     if (encoded.encoding == Encoding::kZero) {
