@@ -28,6 +28,22 @@ std::string MaterialFile(const std::string& spec) {
 
 std::string Vec3Text(const glm::dvec3& v) { return Shortest(v.x) + "," + Shortest(v.y) + "," + Shortest(v.z); }
 
+// An image step of `stage` ([relight] or [triple]) under one map of its table, reading `input`.
+Result<Node> EnvNode(const Recipe& r, const std::string& stage, const EnvMap& env, const std::string& input) {
+  if (env.path.find("{face}") != std::string::npos) {
+    return InvalidArgument(r.path + ": [" + stage + "] envs: " + env.path +
+                           ": six-file {face} maps are not supported in recipes; convert it to one cubemap first "
+                           "(ltbake convert MAP.exr MAP.npy --cube-res R) and name that file");
+  }
+  Node m;
+  m.name = stage + ":" + env.name;
+  m.stages = {stage};
+  m.image = true;
+  m.env = env.path;
+  m.inputs = {input};
+  return m;
+}
+
 // The triple-product path's steps: one `ltbake material` per [triple] materials entry, or
 // one `ltbake relight vis.ltm --material ...` view per map.
 Status AddTripleNodes(const Recipe& r, const std::string& stage,
@@ -47,16 +63,7 @@ Status AddTripleNodes(const Recipe& r, const std::string& stage,
     return Status::Ok();
   }
   for (const EnvMap& env : t.envs) {
-    if (env.path.find("{face}") != std::string::npos) {
-      return InvalidArgument(r.path + ": [triple] envs: " + env.path +
-                             ": six-file {face} maps are not supported in recipes; convert it to one cubemap first");
-    }
-    Node m;
-    m.name = "triple:" + env.name;
-    m.stages = {"triple"};
-    m.image = true;
-    m.env = env.path;
-    m.inputs = {"vis.ltm"};
+    LTB_ASSIGN_OR_RETURN(Node m, EnvNode(r, "triple", env, "vis.ltm"));
     m.output = "view-" + env.name + "." + t.format;
     m.args = {"relight", path("vis.ltm")};
     for (const std::string& spec : t.materials) {
@@ -155,17 +162,7 @@ Status AddRelightNodes(const Recipe& r, const std::function<std::string(const st
   const auto& rl = r.relight;
   std::string matrix = rl.matrix == "cpca" ? "cpca.ltm" : "final.ltm";
   for (const EnvMap& env : rl.envs) {
-    if (env.path.find("{face}") != std::string::npos) {
-      return InvalidArgument(r.path + ": [relight] envs: " + env.path +
-                             ": six-file {face} maps are not supported in recipes; convert it to one cubemap first "
-                             "(ltbake convert MAP.exr MAP.npy --cube-res R) and name that file");
-    }
-    Node m;
-    m.name = "relight:" + env.name;
-    m.stages = {"relight"};
-    m.image = true;
-    m.env = env.path;
-    m.inputs = {matrix};
+    LTB_ASSIGN_OR_RETURN(Node m, EnvNode(r, "relight", env, matrix));
     m.output = "relit-" + env.name + "." + rl.format;
     m.params = {{"env", env.path},     {"terms", rl.terms},       {"weighting", rl.weighting}, {"clamp", rl.clamp},
                 {"format", rl.format}, {"exposure", rl.exposure}, {"reference", rl.reference}};
