@@ -18,7 +18,7 @@ gen = $(if $(wildcard $(1)/CMakeCache.txt),,-G "$(GENERATOR)")
 # `make test`, whose sanitizer tree runs the portable ones (see the test target).
 UNIT_TESTS  ?= all
 
-.PHONY: all setup samples configure build demo test test-serial test-fast asan bench bench-build bench-row-transform bench-transpose \
+.PHONY: all setup samples configure build demo install test test-serial test-fast asan bench bench-build bench-row-transform bench-transpose \
         bench-sample fuzz clean
 
 all: build
@@ -37,9 +37,23 @@ configure: setup
 build: configure samples
 	cmake --build $(BUILD) -j $(JOBS)
 
-# The main job on bundled data; prints where its outputs are.
-demo: build
+# The main job on bundled data; prints where its outputs are. Builds only what the demo runs
+# (ltbake and its stage links; no tests, no Python module).
+demo: configure samples
+	cmake --build $(BUILD) -j $(JOBS) --target ltbake
 	@bash scripts/demo.sh $(BUILD)
+
+# ltbake, its stage executables (ltbake-<stage>) and the Python module under PREFIX:
+# PREFIX/bin and PREFIX/lib/python3.X/dist-packages (README "Install").
+PREFIX      ?= /usr/local
+install: configure
+	cmake --build $(BUILD) -j $(JOBS) --target ltbake ltb_python
+	cmake --install $(BUILD) --prefix "$(PREFIX)"
+	@py="$(PREFIX)/$$(sed -n 's/^LTB_PYTHON_INSTALL_DIR:STRING=//p' $(BUILD)/CMakeCache.txt)"; \
+	 echo "installed ltbake and its stage executables in $(PREFIX)/bin, the Python module in $$py"; \
+	 case ":$$PATH:" in *":$(PREFIX)/bin:"*) ;; *) echo "  put them on PATH:  export PATH=\"$(PREFIX)/bin:\$$PATH\"";; esac; \
+	 case "$$py" in /usr/lib/python3/dist-packages|/usr/local/lib/python3*) ;; \
+	   *) echo "  Python (Debian's /usr/bin/python3, which has NumPy): PYTHONPATH=\"$$py\" /usr/bin/python3";; esac
 
 # The whole suite (tests/README.md): every test in the release tree, then the sanitizer
 # tree's unit tests, smoke run and hostile-input suites. TEST_SCALE scales the repetition

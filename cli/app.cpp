@@ -7,6 +7,7 @@
 #include "cli/common.h"
 #include "format/version.h"
 #include "stages/common/channels.h"
+#include "stages/common/suggest.h"
 
 namespace {
 
@@ -94,11 +95,15 @@ struct CommandLine {
     if (argc <= 1 || argv[1][0] == '-') return "";
     const std::string name = argv[1];
     std::string names;
+    std::vector<std::string> all;
     for (const CommandInfo& c : CommandList()) {
       if (name == c.name) return "";
       names += (names.empty() ? "" : ", ") + std::string(c.name);
+      all.emplace_back(c.name);
     }
-    return "unknown command '" + name + "' (commands: " + names + ")";
+    const std::string nearest = Nearest(name, all);
+    const std::string hint = nearest.empty() ? "" : "; did you mean '" + nearest + "'?";
+    return "unknown command '" + name + "'" + hint + " (commands: " + names + ")";
   }
 };
 
@@ -120,6 +125,12 @@ std::string ParseOnly(const std::vector<std::string>& args) {
 }
 
 int LtbakeMain(int argc, char** argv) {
+  // `ltbake --list-commands` (for the build's stage links and shell completion; not in
+  // --help): every command, one a line, then " stage" when it is also ltbake-<name>.
+  if (argc == 2 && std::string(argv[1]) == "--list-commands") {
+    for (const CommandInfo& c : CommandList()) std::cout << c.name << (c.stage_executable ? " stage\n" : "\n");
+    return kExitOk;
+  }
   CommandLine cl;
   if (std::string e = cl.UnknownCommand(argc, argv); !e.empty()) {
     std::cerr << "ltbake: usage error: " << e << "\nRun 'ltbake --help' for usage.\n";
@@ -140,6 +151,7 @@ int LtbakeMain(int argc, char** argv) {
     PrintVersion();
     return kExitOk;
   }
+
   auto chosen = cl.app.get_subcommands();
   if (chosen.empty()) {
     std::cerr << "ltbake: usage error: no command given\n" << cl.app.help();

@@ -39,9 +39,9 @@ std::unique_ptr<Command> RegisterView(CLI::App* parent);
 
 // The whole ltbake command line (main and the ltbake-<stage> executables call it).
 // Every ltbake command: the one list that dispatch, `ltbake --help` (in this order) and the
-// stage executables read. A command with `stage_executable` is also installed as
-// ltbake-<name>, a link CMake makes from LTB_STAGE_LINKS, which a test
-// (tests/pipeline/stage_commands_test.cpp) checks against this list.
+// stage executables read. A command with `stage_executable` is also ltbake-<name>, a link
+// that the build and `cmake --install` make from `ltbake --list-commands`
+// (scripts/stage_links.cmake); tests/pipeline/stage_commands_test.cpp checks the links.
 struct CommandInfo {
   const char* name;  // its subcommand's name (checked when the command line is built)
   std::unique_ptr<Command> (*add)(CLI::App* parent);

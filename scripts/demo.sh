@@ -63,6 +63,10 @@ echo "  logs/      each stage's log"
 echo "  rows.ltm   sampled and row-transformed in one pass (Haar per cube face): 65536 pixels x 384 lights"
 echo "  cols.ltm   after transpose (one chunk per light: its 256x256 image); cols.inspect.json"
 echo "  cols4d.ltm after column-transform (adaptive depth per light image, 5% of terms)"
-echo "  final.ltm  after quantize (9 bits): what relighting reads"
+echo "  final.ltm  after quantize (one quantizer step for the matrix, at most 10% more RMS error): what relighting reads"
 echo "  relit-sunset.png, relit-forest.png   relit images (errors against rows.ltm printed above, and in run.json)"
 echo "  preview-sky.png, preview-zenith-texel.png, preview-sky-compressed.png"
+echo
+bin=$(cd "$BUILD" && pwd)
+echo "ltbake is $bin/ltbake (not on PATH): export PATH=\"$bin:\$PATH\" to run the commands above as"
+echo "'ltbake ...', or install it with its stage executables and the Python module: make install PREFIX=\$HOME/.local"

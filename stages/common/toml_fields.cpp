@@ -5,6 +5,8 @@
 #include <filesystem>
 #include <sstream>
 
+#include "stages/common/suggest.h"
+
 namespace ltb::tomlf {
 
 namespace {
@@ -36,11 +38,14 @@ std::string Where(const std::string& path, const toml::node& n) {
 
 Status CheckKeys(const std::string& path, const toml::table& table, const std::string& what,
                  const std::set<std::string>& allowed) {
+  const std::vector<std::string> known_keys(allowed.begin(), allowed.end());
   std::string bad;
   for (const auto& [key, node] : table) {
     if (allowed.count(std::string(key.str())) == 0) {
+      const std::string nearest = Nearest(key.str(), known_keys);
       bad += (bad.empty() ? "" : ", ") + std::string("\"") + std::string(key.str()) + "\" (line " +
-             std::to_string(node.source().begin.line) + ")";
+             std::to_string(node.source().begin.line) + (nearest.empty() ? "" : "; did you mean \"" + nearest + "\"?") +
+             ")";
     }
   }
   if (bad.empty()) return Status::Ok();

@@ -232,7 +232,7 @@ with tempfile.TemporaryDirectory() as d:
     bad("missing scene", 'scene = "nowhere.toml"\n', 1, os.path.join(d, "nowhere.toml"), "does not exist")
     bad("unknown top-level key", "colour = 3\n" + BASE, 2, '"colour" (line 1)', "the recipe")
     bad("unknown key in [quantize]", BASE + "colour = 3\n", 2, '"colour" (line 5)', "[quantize]")
-    bad("unknown key in table", BASE + "[sample]\nspp = 4\nsp = 3\n", 2, '"sp" (line 7)', "[sample]")
+    bad("unknown key in table", BASE + "[sample]\nspp = 4\nsp = 3\n", 2, '"sp" (line 7; did you mean "spp"?)', "[sample]")
     bad("cube_res", BASE + "[sample]\ncube_res = 12\n", 2, "bad.toml:6", "12", "not a power of two")
     bad("two budgets", BASE + "[column-transform]\nkeep = 0.1\nterms = 4\n", 2, "more than one of")
     bad("bad filter", BASE + '[row-transform]\nfilter = "db9"\n', 2, '"db9"', "haar")

@@ -190,11 +190,15 @@ format = "npy"
 TEST_F(StageCommands, ARenamedFlagIsCaught) {
   EXPECT_EQ(cli::ParseOnly({"quantize", "in.ltm", "-o", "out.ltm", "--bits", "9"}), "");
   EXPECT_NE(cli::ParseOnly({"quantize", "in.ltm", "-o", "out.ltm", "--bit", "9"}), "");
-  EXPECT_NE(cli::ParseOnly({"quantise", "in.ltm"}).find("unknown command"), std::string::npos);
+  EXPECT_NE(cli::ParseOnly({"quantise", "in.ltm"}).find("unknown command 'quantise'; did you mean 'quantize'?"),
+            std::string::npos);
+  // No suggestion for a name three edits or more from every command.
+  EXPECT_EQ(cli::ParseOnly({"frobnicate"}).find("did you mean"), std::string::npos);
 }
 
 // The command list is what the binary dispatches, and its stage executables are the links
-// the build made next to ltbake (CMakeLists.txt LTB_STAGE_LINKS), no more, no fewer.
+// the build made next to ltbake from `ltbake --list-commands` (scripts/stage_links.cmake),
+// no more, no fewer.
 TEST(CommandList, StageExecutablesAreTheLinksNextToLtbake) {
   const fs::path bin = fs::path(LTB_LTBAKE).parent_path();
   std::set<std::string> want, have;

@@ -1,0 +1,31 @@
+# Makes the stage executables: a link ltbake-<stage> -> ltbake beside LTBAKE for every command
+# that `ltbake --list-commands` marks "stage" (the command list in cli/app.cpp is the only
+# place they are named), and removes ltbake-* links no longer on it. Run by the build after
+# ltbake links and by `cmake --install` in the installed bin folder:
+#   cmake -DLTBAKE=path/to/ltbake -P scripts/stage_links.cmake
+if(NOT LTBAKE OR NOT EXISTS "${LTBAKE}")
+  message(FATAL_ERROR "stage_links.cmake: no ltbake at '${LTBAKE}' (pass -DLTBAKE=path)")
+endif()
+execute_process(COMMAND "${LTBAKE}" --list-commands OUTPUT_VARIABLE listing RESULT_VARIABLE rc)
+if(NOT rc EQUAL 0)
+  message(FATAL_ERROR "stage_links.cmake: '${LTBAKE} --list-commands' exited ${rc}")
+endif()
+get_filename_component(bin "${LTBAKE}" DIRECTORY)
+get_filename_component(target "${LTBAKE}" NAME)
+file(GLOB old "${bin}/ltbake-*")
+foreach(f IN LISTS old)
+  if(IS_SYMLINK "${f}")
+    file(REMOVE "${f}")
+  endif()
+endforeach()
+string(REPLACE "\n" ";" lines "${listing}")
+set(made 0)
+foreach(line IN LISTS lines)
+  if(line MATCHES "^([a-z0-9-]+) stage$")
+    file(CREATE_LINK "${target}" "${bin}/ltbake-${CMAKE_MATCH_1}" SYMBOLIC)
+    math(EXPR made "${made} + 1")
+  endif()
+endforeach()
+if(made EQUAL 0)
+  message(FATAL_ERROR "stage_links.cmake: '${LTBAKE} --list-commands' named no stage")
+endif()

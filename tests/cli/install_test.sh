@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# `cmake --install` (what `make install PREFIX=...` runs) into a fresh prefix: ltbake, a link
+# ltbake-<stage> for each stage executable the build tree has (the build's links are checked
+# against the command list by tests/pipeline/stage_commands_test.cpp), no stale ltbake-* link
+# left from an earlier install, each link running its stage, and `import ltbake` from the
+# installed package.
+#   install_test.sh BUILD_DIR
+set -euo pipefail
+build=$1
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+fail() { echo "install_test: $*" >&2; exit 1; }
+
+mkdir -p "$tmp/prefix/bin"
+ln -s ltbake "$tmp/prefix/bin/ltbake-retired"  # a stage an earlier version had
+cmake --install "$build" --prefix "$tmp/prefix" > "$tmp/install.log" || { cat "$tmp/install.log"; fail "install failed"; }
+bin=$tmp/prefix/bin
+[ -x "$bin/ltbake" ] && [ ! -L "$bin/ltbake" ] || fail "no ltbake binary in $bin"
+[ ! -e "$bin/ltbake-retired" ] && [ ! -L "$bin/ltbake-retired" ] || fail "the stale link ltbake-retired was kept"
+
+want=$(cd "$build" && find . -maxdepth 1 -name 'ltbake-*' -type l -printf '%f\n' | sort)
+have=$(cd "$bin" && find . -maxdepth 1 -name 'ltbake-*' -type l -printf '%f\n' | sort)
+[ -n "$want" ] || fail "the build tree $build has no ltbake-* links"
+[ "$want" = "$have" ] || fail "installed links differ from the build tree's: want [$want], have [$have]"
+for link in $have; do
+  [ "$(readlink "$bin/$link")" = ltbake ] || fail "$link points to $(readlink "$bin/$link"), not ltbake"
+  stage=${link#ltbake-}
+  out=$("$bin/$link" --help) || fail "$link --help exited $?"
+  grep -q -- "$stage" <<< "$out" || fail "$link --help does not describe '$stage': $out"
+done
+# A path a user has on PATH: the installed binary runs on its own (no build tree needed).
+PATH="$bin:$PATH" ltbake --version | grep -q '^ltbake ' || fail "installed ltbake --version failed"
+
+py=$(find "$tmp/prefix/lib" -path '*-packages/ltbake/__init__.py' | head -1)
+[ -n "$py" ] || fail "no Python package under $tmp/prefix/lib: $(cat "$tmp/install.log")"
+site=$(dirname "$(dirname "$py")")
+got=$(cd "$tmp" && PYTHONPATH="$site" /usr/bin/python3 -c 'import ltbake; print(ltbake.__file__)')
+[ "$got" = "$py" ] || fail "import ltbake found $got, not the installed $py"
+echo "install_test: ok ($(wc -w <<< "$have") stage executables, Python package in $site)"
