@@ -44,6 +44,14 @@ Result<Node> EnvNode(const Recipe& r, const std::string& stage, const EnvMap& en
   return m;
 }
 
+// A table's env_layout other than "auto" is passed on (and is a parameter of the step); the
+// default leaves both as they were before the key existed.
+void AddEnvLayout(const EnvMap& env, Node* m) {
+  if (env.layout == "auto") return;
+  m->params["env_layout"] = env.layout;
+  m->args.insert(m->args.end(), {"--env-layout", env.layout});
+}
+
 // The triple-product path's steps: one `ltbake material` per [triple] materials entry, or
 // one `ltbake relight vis.ltm --material ...` view per map.
 Status AddTripleNodes(const Recipe& r, const std::string& stage,
@@ -91,6 +99,7 @@ Status AddTripleNodes(const Recipe& r, const std::string& stage,
          "--brdf-terms", t.brdf_terms,       "--exposure", Shortest(t.exposure),
          "--json"});
     if (t.clamp) m.args.push_back("--clamp");
+    AddEnvLayout(env, &m);
     g->nodes.push_back(std::move(m));
   }
   return Status::Ok();
@@ -192,6 +201,7 @@ Status AddRelightNodes(const Recipe& r, const std::function<std::string(const st
                 "--json"};
       if (rl.clamp) m.args.push_back("--clamp");
     }
+    AddEnvLayout(env, &m);
     if (!rl.sequence.empty()) {
       m.params["sequence"] = rl.sequence;
       m.params["method"] = rl.method;

@@ -4,15 +4,19 @@
 
 #include <algorithm>
 #include <bit>
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <sstream>
 
 #include "format/bits.h"
+#include "format/io/file.h"
+#include "format/npy.h"
 #include "stages/brdf/brdf.h"
 #include "stages/column_transform/column_transform.h"
 #include "stages/common/quantity.h"
 #include "stages/common/toml_fields.h"
+#include "stages/images/envmap.h"
 #include "stages/relight/sequence_spec.h"
 #include "stages/sample/scene.h"
 
@@ -269,6 +273,43 @@ Status ParseColumnTransform(const std::string& path, const toml::table& t, Recip
   return Status::Ok();
 }
 
+// A map's shape, read when the recipe is (docs/RECIPE.md: a bad plan is refused before
+// anything runs): an image's size must fit its layout (stages::CheckEnvMapShape; no pixel
+// is decoded), a .npy cubemap must be a float (6R², 3) array for a power-of-two R (the
+// R of the matrix it lights is checked by relight).
+Status CheckEnvShape(const EnvMap& e, const std::string& table) {
+  if (fs::path(e.path).extension() == ".npy") {
+    if (e.layout != "auto") {
+      return InvalidArgument(table + " envs: " + e.path + " is a cubemap .npy; env_layout = \"" + e.layout +
+                             "\" is for images (.exr, .hdr)");
+    }
+    LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(e.path, io::File::Mode::kRead));
+    LTB_ASSIGN_OR_RETURN(const uint64_t size, f.Size());
+    std::vector<std::byte> head(std::min<uint64_t>(size, format::kMaxNpyHeaderBytes + 12));
+    LTB_RETURN_IF_ERROR(f.ReadAt(0, head));
+    auto h = format::ParseNpyHeader(head);
+    if (!h.ok()) return h.status().WithContext(table + " envs: " + e.path);
+    const uint64_t n = h->shape.empty() ? 0 : h->shape[0];
+    const uint64_t r = n % 6 == 0 ? static_cast<uint64_t>(std::llround(std::sqrt(double(n / 6)))) : 0;
+    if (h->fortran_order || h->shape.size() != 2 || h->shape[1] != 3 || r == 0 || 6 * r * r != n || !IsPowerOfTwo(r) ||
+        (h->descr != "<f4" && h->descr != "<f8")) {
+      return InvalidArgument(table + " envs: " + e.path + " is not a cubemap .npy (a C-order float32/float64 array " +
+                             "of shape (6R², 3), R a power of two; `ltbake convert env.exr env.npy --cube-res R` " +
+                             "writes one)");
+    }
+    return Status::Ok();
+  }
+  stages::EnvLoadOptions o;
+  o.layout = *stages::ParseEnvLayout(e.layout);  // one of GetChoice's names
+  auto layout = stages::CheckEnvMapShape(e.path, o);
+  if (layout.ok()) return Status::Ok();
+  std::string message = layout.status().message();
+  if (message.find("--env-layout") != std::string::npos) {
+    message += " (in a recipe: env_layout = \"...\" in " + table + ")";
+  }
+  return InvalidArgument(table + " envs: " + message);
+}
+
 // The "envs" list of [relight] or [triple]: absolute paths, each named by its file stem.
 Status ParseEnvs(const std::string& path, const std::string& dir, const toml::table& t, const std::string& table,
                  std::vector<EnvMap>* out) {
@@ -278,6 +319,9 @@ Status ParseEnvs(const std::string& path, const std::string& dir, const toml::ta
                            " needs \"envs\", a list of environment maps "
                            "(.exr/.hdr lat-long or cross, or a 6R²×3 .npy cubemap)");
   }
+  LTB_ASSIGN_OR_RETURN(
+      const std::string layout,
+      GetChoice(path, t, "env_layout", "auto", {"auto", "latlong", "hcross", "vcross", "faces", "angular"}));
   for (const auto& item : *envs->as_array()) {
     auto text = item.value<std::string>();
     if (!text) return InvalidArgument(Where(path, *envs) + ": \"envs\" must be a list of file paths");
@@ -288,9 +332,11 @@ Status ParseEnvs(const std::string& path, const std::string& dir, const toml::ta
     for (char& ch : e.name) {
       if (!std::isalnum(static_cast<unsigned char>(ch)) && ch != '-' && ch != '_' && ch != '.') ch = '_';
     }
+    e.layout = layout;
     if (e.path.find("{face}") == std::string::npos) {
       LTB_RETURN_IF_ERROR(CheckRegular(Where(path, *envs), "environment map", e.path));
     }
+    if (Status shape = CheckEnvShape(e, table); !shape.ok()) return shape.WithContext(Where(path, *envs));
     for (const EnvMap& other : *out) {
       if (other.name == e.name) {
         return InvalidArgument(Where(path, *envs) + ": two environment maps are named \"" + e.name +
@@ -320,8 +366,8 @@ Status GetImageSize(const std::string& path, const toml::table& t, const char* t
 
 Status ParseRelight(const std::string& path, const std::string& dir, const toml::table& t, Recipe::Relight* r) {
   LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[relight]",
-                                {"matrix", "envs", "terms", "weighting", "clamp", "reference", "format", "exposure",
-                                 "sequence", "method", "eye", "target", "up", "fov", "size"}));
+                                {"matrix", "envs", "env_layout", "terms", "weighting", "clamp", "reference", "format",
+                                 "exposure", "sequence", "method", "eye", "target", "up", "fov", "size"}));
   r->present = true;
   if (t.contains("eye")) {
     LTB_ASSIGN_OR_RETURN(glm::dvec3 eye, GetVec3(path, t, "eye", glm::dvec3(0)));
@@ -382,8 +428,8 @@ Status ParseRelight(const std::string& path, const std::string& dir, const toml:
 
 Status ParseTriple(const std::string& path, const std::string& dir, const toml::table& t, Recipe::Triple* r) {
   LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[triple]",
-                                {"cube_res", "spp", "materials", "envs", "eye", "target", "up", "fov", "size", "method",
-                                 "terms", "brdf_terms", "clamp", "format", "exposure"}));
+                                {"cube_res", "spp", "materials", "envs", "env_layout", "eye", "target", "up", "fov",
+                                 "size", "method", "terms", "brdf_terms", "clamp", "format", "exposure"}));
   r->present = true;
   LTB_ASSIGN_OR_RETURN(r->cube_res, GetUnsigned(path, t, "cube_res", r->cube_res, 1, 512));
   if (!IsPowerOfTwo(r->cube_res)) {

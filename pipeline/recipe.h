@@ -28,6 +28,8 @@ inline const std::vector<std::string>& IntermediateNames() {
 struct EnvMap {
   std::string name;  // output image stem: relit-<name>.<format>
   std::string path;  // absolute, ${VAR}s expanded
+  // The table's env_layout (relight --env-layout): "auto" reads the layout from the size.
+  std::string layout = "auto";
 };
 
 struct Recipe {

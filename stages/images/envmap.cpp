@@ -25,10 +25,12 @@ using envmap_internal::AllocatePixels;
 using envmap_internal::CheckMemory;
 using envmap_internal::CrossFace;
 using envmap_internal::Image;
+using envmap_internal::ImageSize;
 using envmap_internal::InAngularDisk;
 using envmap_internal::kPi;
 using envmap_internal::kRowsPerPoll;
 using envmap_internal::ReadImage;
+using envmap_internal::ReadImageSize;
 using envmap_internal::Size;
 
 namespace {
@@ -115,6 +117,34 @@ std::string AcceptedLayouts(uint64_t w, uint64_t h) {
   return s + "; --env-layout latlong reads a lat-long map of any other size";
 }
 
+// The layout of a single-image map of w × h: o.layout when the size fits it, else what
+// auto-detection reads from the size; an error names the size and the layouts accepted.
+Result<EnvLayout> ResolveLayout(const std::string& path, uint64_t w, uint64_t h, EnvLayout requested) {
+  EnvLayout layout = requested;
+  if (layout == EnvLayout::kAuto) {
+    if (w == 2 * h) {
+      layout = EnvLayout::kLatLong;
+    } else if (3 * w == 4 * h) {
+      layout = EnvLayout::kHCross;
+    } else if (4 * w == 3 * h) {
+      layout = EnvLayout::kVCross;
+    } else {
+      return InvalidArgument(path + ": " + Size(w, h) + " is not an environment map shape ltbake recognises; " +
+                             AcceptedLayouts(w, h));
+    }
+  } else if (layout == EnvLayout::kHCross && 3 * w != 4 * h) {
+    return InvalidArgument(path + ": " + Size(w, h) + " is not a horizontal cross (4F x 3F, width:height = 4:3)");
+  } else if (layout == EnvLayout::kVCross && 4 * w != 3 * h) {
+    return InvalidArgument(path + ": " + Size(w, h) + " is not a vertical cross (3F x 4F, width:height = 3:4)");
+  } else if (layout == EnvLayout::kAngular && w != h) {
+    return InvalidArgument(path + ": " + Size(w, h) + " is not an angular map (a square image holding the disk)");
+  } else if (layout == EnvLayout::kFaces && h != 6 * w) {
+    return InvalidArgument(path + ": " + Size(w, h) +
+                           " is not a strip of six faces (F x 6F); for six files use a path with {face}");
+  }
+  return layout;
+}
+
 Result<EnvMap> LoadFaces(const std::string& path, const EnvLoadOptions& o) {
   EnvMap env;
   env.layout = EnvLayout::kFaces;
@@ -194,28 +224,7 @@ Result<EnvMap> LoadEnvMap(const std::string& path, const EnvLoadOptions& o) {
   }
   LTB_ASSIGN_OR_RETURN(Image img, ReadImage(path, o));
   const uint64_t w = img.width, h = img.height;
-  EnvLayout layout = o.layout;
-  if (layout == EnvLayout::kAuto) {
-    if (w == 2 * h) {
-      layout = EnvLayout::kLatLong;
-    } else if (3 * w == 4 * h) {
-      layout = EnvLayout::kHCross;
-    } else if (4 * w == 3 * h) {
-      layout = EnvLayout::kVCross;
-    } else {
-      return InvalidArgument(path + ": " + Size(w, h) + " is not an environment map shape ltbake recognises; " +
-                             AcceptedLayouts(w, h));
-    }
-  } else if (layout == EnvLayout::kHCross && 3 * w != 4 * h) {
-    return InvalidArgument(path + ": " + Size(w, h) + " is not a horizontal cross (4F x 3F, width:height = 4:3)");
-  } else if (layout == EnvLayout::kVCross && 4 * w != 3 * h) {
-    return InvalidArgument(path + ": " + Size(w, h) + " is not a vertical cross (3F x 4F, width:height = 3:4)");
-  } else if (layout == EnvLayout::kAngular && w != h) {
-    return InvalidArgument(path + ": " + Size(w, h) + " is not an angular map (a square image holding the disk)");
-  } else if (layout == EnvLayout::kFaces && h != 6 * w) {
-    return InvalidArgument(path + ": " + Size(w, h) +
-                           " is not a strip of six faces (F x 6F); for six files use a path with {face}");
-  }
+  LTB_ASSIGN_OR_RETURN(const EnvLayout layout, ResolveLayout(path, w, h, o.layout));
   EnvMap env;
   env.layout = layout;
   env.width = w;
@@ -225,6 +234,33 @@ Result<EnvMap> LoadEnvMap(const std::string& path, const EnvLoadOptions& o) {
   LTB_RETURN_IF_ERROR(CheckValues(&img, path, layout, face, o.clamp, &env.clamped, o.progress));
   env.rgb = std::move(img.rgb);
   return env;
+}
+
+Result<EnvLayout> CheckEnvMapShape(const std::string& path, const EnvLoadOptions& o) {
+  if (path.find(kPlaceholder) == std::string::npos) {
+    LTB_ASSIGN_OR_RETURN(const ImageSize size, ReadImageSize(path, o));
+    return ResolveLayout(path, size.width, size.height, o.layout);
+  }
+  if (o.layout != EnvLayout::kAuto && o.layout != EnvLayout::kFaces) {
+    return InvalidArgument(path + ": a {face} path names six face files; --env-layout " + EnvLayoutName(o.layout) +
+                           " needs one image");
+  }
+  uint64_t first = 0;
+  for (int f = 0; f < 6; ++f) {
+    std::string p = path;
+    for (size_t at; (at = p.find(kPlaceholder)) != std::string::npos;)
+      p.replace(at, std::strlen(kPlaceholder), kFaceNames[f]);
+    LTB_ASSIGN_OR_RETURN(const ImageSize size, ReadImageSize(p, o));
+    if (size.width != size.height) {
+      return InvalidArgument(p + ": a cube face must be square, this one is " + Size(size.width, size.height));
+    }
+    if (f == 0) first = size.width;
+    if (size.width != first) {
+      return InvalidArgument(p + ": face is " + Size(size.width, size.height) + ", the +X face is " +
+                             Size(first, first) + "; all six faces must have the same size");
+    }
+  }
+  return EnvLayout::kFaces;
 }
 
 glm::dvec3 LatLongDirection(double u, double v) {

@@ -81,6 +81,12 @@ struct EnvMap {
 // (a FIFO, device or directory is refused without blocking); no exception escapes.
 Result<EnvMap> LoadEnvMap(const std::string& path, const EnvLoadOptions& options);
 
+// What LoadEnvMap would make of `path`'s shape, without decoding a pixel (for checks before
+// a bake runs: `ltbake run` reads every map of a recipe so): the files' sizes checked as
+// LoadEnvMap checks them, and the layout (options.layout, or the one auto-detection picks),
+// with LoadEnvMap's message when the shape fits no layout. Pixel values are not checked.
+Result<EnvLayout> CheckEnvMapShape(const std::string& path, const EnvLoadOptions& options);
+
 // The lat-long convention (Blender/Cycles equirectangular): column fraction u ∈ [0, 1),
 // row fraction v ∈ [0, 1] from the top: φ = π − 2πu (= atan2(y, x)), θ = πv (= acos z),
 // direction (sin θ cos φ, sin θ sin φ, cos θ); z is up, the image centre looks along +X.

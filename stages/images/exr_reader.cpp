@@ -301,7 +301,27 @@ Status ReadExrStrips(const std::string& path, Imf::InputFile& file, const Imath:
   return Status::Ok();
 }
 
+// The data window's size, refused when empty or beyond kMaxPixels.
+Result<ImageSize> CheckExrWindow(const std::string& path, const Imath::Box2i& dw) {
+  const int64_t w = int64_t(dw.max.x) - dw.min.x + 1, h = int64_t(dw.max.y) - dw.min.y + 1;
+  uint64_t pixels = 0;
+  if (w <= 0 || h <= 0 || format::MulOverflows(uint64_t(w), uint64_t(h), &pixels) || pixels > kMaxPixels) {
+    return InvalidArgument(path + ": OpenEXR " + WindowText(dw) + " is " + std::to_string(w) + "x" + std::to_string(h) +
+                           ", empty or beyond " + std::to_string(kMaxPixels) + " pixels (16384 x 16384)");
+  }
+  return ImageSize{uint64_t(w), uint64_t(h)};
+}
+
 }  // namespace
+
+Result<ImageSize> ReadExrSize(const std::string& path) {
+  try {
+    Imf::InputFile file(path.c_str());
+    return CheckExrWindow(path, file.header().dataWindow());
+  } catch (const std::exception& e) {
+    return DataLoss(path + ": OpenEXR could not read its header: " + e.what());
+  }
+}
 
 // OpenEXR through the library (every compression it knows, scanline or tiled, part 0):
 // R, G, B (A ignored) as float; luminance-chroma (Y, RY, BY) through RgbaInputFile;
@@ -312,13 +332,10 @@ Result<Image> ReadExr(const std::string& path, const EnvLoadOptions& o) {
     Imf::InputFile file(path.c_str());
     const Imf::Header& header = file.header();
     const Imath::Box2i dw = header.dataWindow();
-    const int64_t w = int64_t(dw.max.x) - dw.min.x + 1, h = int64_t(dw.max.y) - dw.min.y + 1;
-    uint64_t pixels = 0;
+    LTB_ASSIGN_OR_RETURN(const ImageSize size, CheckExrWindow(path, dw));
+    const int64_t w = int64_t(size.width), h = int64_t(size.height);
+    const uint64_t pixels = size.width * size.height;
     const std::string window = WindowText(dw);
-    if (w <= 0 || h <= 0 || format::MulOverflows(uint64_t(w), uint64_t(h), &pixels) || pixels > kMaxPixels) {
-      return InvalidArgument(path + ": OpenEXR " + window + " is " + std::to_string(w) + "x" + std::to_string(h) +
-                             ", empty or beyond " + std::to_string(kMaxPixels) + " pixels (16384 x 16384)");
-    }
     // The chunk table (read and, when damaged, rebuilt from the chunks by OpenEXR) must cover
     // the whole window: a window patched larger than the data fails here, before the pixels
     // are allocated.

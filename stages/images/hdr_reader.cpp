@@ -213,6 +213,12 @@ Status DecodeFlatScanline(HdrScanlines& in, uint64_t y, uint64_t width, std::vec
 // either run-length encoded per component (the "new" format, widths 8..32767) or flat RGBE
 // with the original (1,1,1,n) repeat records. RGBE -> float as in Greg Ward's rgbe.c and
 // stb_image: mantissa · 2^(e − 136), 0 when e = 0.
+Result<ImageSize> ReadHdrSize(const std::string& path, const std::vector<uint8_t>& buf, const EnvLoadOptions& o) {
+  uint64_t pos = 0;
+  LTB_ASSIGN_OR_RETURN(HdrHeader hh, ReadHdrHeader(path, buf, o, &pos));
+  return ImageSize{hh.w, hh.h};
+}
+
 Result<Image> ReadHdr(const std::string& path, const std::vector<uint8_t>& buf, const EnvLoadOptions& o) {
   uint64_t pos = 0;
   LTB_ASSIGN_OR_RETURN(HdrHeader hh, ReadHdrHeader(path, buf, o, &pos));

@@ -70,25 +70,44 @@ Result<std::vector<uint8_t>> ReadWholeFile(const std::string& path, uint64_t max
 
 }  // namespace
 
-Result<Image> ReadImage(const std::string& path, const EnvLoadOptions& o) {
+namespace {
+
+enum class ImageKind { kExr, kHdr };
+
+// Which reader a file is for, from its magic bytes (only a regular file is opened); an
+// .exr's header sizes are checked here, before OpenEXR allocates what they declare.
+Result<ImageKind> Sniff(const std::string& path, const EnvLoadOptions& o) {
   LTB_RETURN_IF_ERROR(io::RequireRegularFile(path, "name a .exr or .hdr image file"));
-  {
-    LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(path, io::File::Mode::kRead));
-    LTB_ASSIGN_OR_RETURN(uint64_t size, f.Size());
-    std::byte magic[4] = {};
-    LTB_RETURN_IF_ERROR(f.ReadAt(0, format::MutableByteSpan(magic, std::min<uint64_t>(size, 4))));
-    if (size >= 4 && magic[0] == std::byte{0x76} && magic[1] == std::byte{0x2f} && magic[2] == std::byte{0x31} &&
-        magic[3] == std::byte{0x01}) {
-      LTB_RETURN_IF_ERROR(CheckExrHeaderSizes(path, f, size, o.max_bytes));
-      return ReadExr(path, o);
-    }
-    if (size < 2 || magic[0] != std::byte{'#'} || magic[1] != std::byte{'?'}) {
-      std::string what = size == 0 ? "the file is empty" : "it has neither the OpenEXR magic (76 2f 31 01) nor \"#?\"";
-      return InvalidArgument(path + ": not an OpenEXR (.exr) or Radiance (.hdr) image: " + what);
-    }
+  LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(path, io::File::Mode::kRead));
+  LTB_ASSIGN_OR_RETURN(uint64_t size, f.Size());
+  std::byte magic[4] = {};
+  LTB_RETURN_IF_ERROR(f.ReadAt(0, format::MutableByteSpan(magic, std::min<uint64_t>(size, 4))));
+  if (size >= 4 && magic[0] == std::byte{0x76} && magic[1] == std::byte{0x2f} && magic[2] == std::byte{0x31} &&
+      magic[3] == std::byte{0x01}) {
+    LTB_RETURN_IF_ERROR(CheckExrHeaderSizes(path, f, size, o.max_bytes));
+    return ImageKind::kExr;
   }
+  if (size < 2 || magic[0] != std::byte{'#'} || magic[1] != std::byte{'?'}) {
+    std::string what = size == 0 ? "the file is empty" : "it has neither the OpenEXR magic (76 2f 31 01) nor \"#?\"";
+    return InvalidArgument(path + ": not an OpenEXR (.exr) or Radiance (.hdr) image: " + what);
+  }
+  return ImageKind::kHdr;
+}
+
+}  // namespace
+
+Result<Image> ReadImage(const std::string& path, const EnvLoadOptions& o) {
+  LTB_ASSIGN_OR_RETURN(const ImageKind kind, Sniff(path, o));
+  if (kind == ImageKind::kExr) return ReadExr(path, o);
   LTB_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, ReadWholeFile(path, o.max_bytes));
   return ReadHdr(path, bytes, o);
+}
+
+Result<ImageSize> ReadImageSize(const std::string& path, const EnvLoadOptions& o) {
+  LTB_ASSIGN_OR_RETURN(const ImageKind kind, Sniff(path, o));
+  if (kind == ImageKind::kExr) return ReadExrSize(path);
+  LTB_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, ReadWholeFile(path, o.max_bytes));
+  return ReadHdrSize(path, bytes, o);
 }
 
 }  // namespace ltb::stages::envmap_internal

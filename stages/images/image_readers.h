@@ -49,11 +49,21 @@ Status CheckMemory(uint64_t pixels, uint64_t extra, uint64_t max_bytes, const st
 // One .exr or .hdr file, recognised by its magic bytes (only a regular file is opened).
 Result<Image> ReadImage(const std::string& path, const EnvLoadOptions& o);
 
+// The width and height the .exr or .hdr file declares, after the checks ReadImage makes
+// before it allocates pixels, without decoding any: an .exr's header alone; an .hdr is read
+// whole (the checks of its declared size need the pixel data's length) but not decoded.
+struct ImageSize {
+  uint64_t width = 0, height = 0;
+};
+Result<ImageSize> ReadImageSize(const std::string& path, const EnvLoadOptions& o);
+
 // The readers ReadImage dispatches to.
 // Radiance RGBE (.hdr), from the whole file's bytes (hdr_reader.cpp).
 Result<Image> ReadHdr(const std::string& path, const std::vector<uint8_t>& buf, const EnvLoadOptions& o);
+Result<ImageSize> ReadHdrSize(const std::string& path, const std::vector<uint8_t>& buf, const EnvLoadOptions& o);
 // OpenEXR through the library (exr_reader.cpp), after CheckExrHeaderSizes passed.
 Result<Image> ReadExr(const std::string& path, const EnvLoadOptions& o);
+Result<ImageSize> ReadExrSize(const std::string& path);
 // Walks the OpenEXR header(s) of `f` (`size` bytes) before OpenEXR reads them (exr_reader.cpp).
 Status CheckExrHeaderSizes(const std::string& path, io::File& f, uint64_t size, uint64_t max_bytes);
 

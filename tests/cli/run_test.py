@@ -23,6 +23,8 @@ import sys
 import tempfile
 import time
 
+import numpy as np
+
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from ltbtest import LTBAKE, check, finish, run, run_report, write  # noqa: E402
 
@@ -259,6 +261,28 @@ with tempfile.TemporaryDirectory() as d:
                        (BASE.replace("bits = 9", "error_ratio = 1.25"), "--error-ratio 1.25")):
         plan = run("run", write(os.path.join(d, "er.toml"), text), "--workdir", os.path.join(d, "wer"), "--dry-run")
         check(want in plan.stdout + plan.stderr, f"quantize plan lacks {want}:\n{plan.stdout}")
+    # Every map's shape is read with the recipe (its header), before anything runs; env_layout
+    # is relight's --env-layout. Radiance files with flat RGBE scanlines (1.0 everywhere).
+    def hdr(name, w, h):
+        with open(os.path.join(d, name), "wb") as f:
+            f.write(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y %d +X %d\n" % (h, w) + bytes([128, 128, 128, 129]) * (w * h))
+        return os.path.join(d, name)
+    probe, latlong = hdr("probe.hdr", 16, 16), hdr("ll.hdr", 32, 16)
+    wmaps = os.path.join(d, "wmaps")
+    bad("square map, no layout", BASE + f'[relight]\nenvs = ["{latlong}", "{probe}"]\n', 2, probe, "16x16",
+        "--env-layout angular", 'env_layout = "..." in [relight]', args=("--workdir", wmaps))
+    check(not os.path.exists(os.path.join(wmaps, "rows.ltm")), "a recipe with a bad map ran a stage")
+    bad("lat-long read as a cross", BASE + f'[relight]\nenvs = ["{latlong}"]\nenv_layout = "hcross"\n', 2, latlong,
+        "32x16 is not a horizontal cross")
+    bad("env_layout choice", BASE + f'[relight]\nenvs = ["{probe}"]\nenv_layout = "mirrorball"\n', 2,
+        '"env_layout" is "mirrorball"', "angular")
+    np.save(os.path.join(d, "odd.npy"), np.ones((6 * 8 * 8 + 6, 3), np.float32))
+    bad("npy not a cubemap", BASE + f'[relight]\nenvs = ["{os.path.join(d, "odd.npy")}"]\n', 2, "odd.npy",
+        "is not a cubemap .npy", "(6R², 3)")
+    with_relight = BASE.replace("[quantize]", 'targets = ["quantize", "relight"]\n[quantize]')
+    plan = run("run", write(os.path.join(d, "probe.toml"), with_relight + f'[relight]\nenvs = ["{probe}"]\nenv_layout = "angular"\n'),
+               "--workdir", wmaps, "--dry-run")
+    check("--env-layout angular" in plan.stdout, f"env_layout = \"angular\": plan lacks --env-layout:\n{plan.stdout}")
     os.environ.pop("LTBAKE_NO_SUCH_VAR", None)
     bad("unset variable", BASE + '[relight]\nenvs = ["${LTBAKE_NO_SUCH_VAR}/a.exr"]\n', 2, "LTBAKE_NO_SUCH_VAR",
         "not set")
