@@ -7,6 +7,7 @@
 #include "cli/commands.h"
 #include "cli/common.h"
 #include "stages/common/channels.h"
+#include "stages/common/quantity.h"
 #include "stages/sample/sample.h"
 #include "stages/sample/scene.h"
 
@@ -60,6 +61,11 @@ class SampleCommand : public Command {
                     "with --sparse: a sparse row whose fit misses its own traced texels by more than this (relative "
                     "L2) is traced in full instead")
         ->default_val(0.15);
+    app->add_option("--tolerance", tolerance_,
+                    "converged sampling (docs/SAMPLE.md): trace each row in passes of --spp rays a texel until "
+                    "its estimated relative L2 error is at most this (\"0.5%\" or 0.005), or --max-passes");
+    app->add_option("--max-passes", options_.max_passes, "with --tolerance: passes a row may take, at most (1..255)")
+        ->default_val(16);
     app->add_option("--channels", channels_,
                     "mono: one matrix (a scene with colour gets a per-row reflectance table); rgb: one matrix per "
                     "colour channel, OUT.r.ltm, OUT.g.ltm, OUT.b.ltm (docs/COLOUR.md)")
@@ -93,6 +99,13 @@ class SampleCommand : public Command {
     if (bounces_ >= 0) options_.bounces = static_cast<uint32_t>(bounces_);
     if (seed_ >= 0) options_.seed = static_cast<uint64_t>(seed_);
     if (radius_) options_.sparse.radius = *radius_;
+    if (!tolerance_.empty()) {
+      auto t = stages::ParseFraction(tolerance_);
+      if (!t.ok()) return ReportUsage(t.status().WithContext("--tolerance"));
+      options_.tolerance = *t;
+    } else if (options_.max_passes != 16) {
+      return ReportUsage(InvalidArgument("--max-passes goes with --tolerance"));
+    }
     if (features_)
       options_.sparse.features = static_cast<uint32_t>(std::clamp<long long>(*features_, 0, (1ll << 32) - 1));
     options_.jobs = sf.jobs;
@@ -162,6 +175,7 @@ class SampleCommand : public Command {
                 << r->samples_below_horizon << " samples below it"
                 << "\n  degenerate triangles dropped: " << r->degenerate_triangles << "\n";
       if (r->sparse) PrintSparse(*r->sparse);
+      if (options_.tolerance) PrintConverged(*r);
       for (const auto& [name, errors] : r->factor_errors) {
         std::cout << "  factorisation of material \"" << name << "\": relative L2 error of rho*cos for K = 1..";
         std::cout << errors.size() << ":";
@@ -174,6 +188,23 @@ class SampleCommand : public Command {
       }
     }
     return kExitOk;
+  }
+
+  void PrintConverged(const stages::SampleResult& r) const {
+    uint64_t rows = 0, passes = 0;
+    std::string hist;
+    for (size_t k = 0; k < r.pass_histogram.size(); ++k) {
+      rows += r.pass_histogram[k];
+      passes += (k + 1) * r.pass_histogram[k];
+      if (r.pass_histogram[k] != 0) hist += " " + std::to_string(k + 1) + ":" + std::to_string(r.pass_histogram[k]);
+    }
+    char line[256];
+    std::snprintf(line, sizeof line,
+                  "  converged: tolerance %.4g, %.2f passes a row on average (at most %u), largest estimated error "
+                  "%.4g\n",
+                  *options_.tolerance, rows ? static_cast<double>(passes) / rows : 0.0, options_.max_passes,
+                  r.max_rel_error);
+    std::cout << line << "  rows per passes (passes:rows, this run):" << hist << "\n";
   }
 
   static void PrintSparse(const stages::SparseStats& s) {
@@ -195,6 +226,7 @@ class SampleCommand : public Command {
 
   stages::SampleOptions options_;
   std::optional<double> radius_;
+  std::string tolerance_;
   std::optional<long long> features_;
   std::string row_filter_;
   std::string channels_ = "mono", channel_;

@@ -23,6 +23,7 @@
 #include "stages/common/parallel_for.h"
 #include "stages/mesh/triangle_mesh.h"
 #include "stages/row_transform/row_transform.h"
+#include "stages/sample/converged.h"
 #include "stages/sample/ray_scene.h"
 #include "stages/sample/sample_internal.h"
 #include "stages/sample/sampler.h"
@@ -94,6 +95,32 @@ Status CheckSparse(const SampleOptions& o, uint32_t r) {
   return Status::Ok();
 }
 
+// --tolerance: a relative error in (0, 1), at least two samples a texel (the error is
+// estimated from their spread), passes in 1..255; not yet with the modes that trace rows
+// their own way.
+Status CheckConverged(const SampleOptions& o, uint32_t spp) {
+  if (!o.tolerance) return Status::Ok();
+  const double t = *o.tolerance;
+  if (!(t > 0 && t < 1)) {
+    std::ostringstream os;
+    os << t;
+    return InvalidArgument("--tolerance " + os.str() + " is not a relative error in (0, 1) (e.g. 0.5% or 0.005)");
+  }
+  if (spp < 2) {
+    return InvalidArgument("--tolerance estimates each texel's error from the spread of its samples: --spp " +
+                           std::to_string(spp) + " must be at least 2");
+  }
+  if (o.max_passes < 1 || o.max_passes > 255) {
+    return InvalidArgument("--max-passes " + std::to_string(o.max_passes) + " is not in 1..255");
+  }
+  if (o.sparse.enabled || o.visibility || o.rgb || o.factor > 0) {
+    return InvalidArgument(
+        "--tolerance (converged sampling) does not yet combine with --sparse, --visibility, --channels rgb or "
+        "--factor (docs/SAMPLE.md \"Converged sampling\")");
+  }
+  return Status::Ok();
+}
+
 // Once the geometry is built. --channel: the scene as that channel sees it. A monochrome
 // bake of a scene with colour:
 // the reflectance table when the colour factors out of T (no bounces, and in image mode,
@@ -160,6 +187,7 @@ Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress
   }
   if (p->spp == 0) return InvalidArgument("--spp must be at least 1");
   LTB_RETURN_IF_ERROR(CheckSparse(o, p->r));
+  LTB_RETURN_IF_ERROR(CheckConverged(o, p->spp));
   if (o.visibility) {
     if (p->scene.mode != SceneDesc::Mode::kVertex) {
       return InvalidArgument(o.scene +
@@ -342,12 +370,12 @@ Status WriteReflectance(const Prepared& p, const Sampler& sampler, uint64_t bloc
 
 namespace {
 
-// Row blocks with any array missing in any output (a shard: among the blocks it owns; the
-// four arrays share the row blocking, so they share the shard's chunk range).
-std::vector<uint64_t> MissingBlocks(std::vector<io::ContainerWriter>& outs) {
+// Row blocks with any of the first `arrays` arrays missing in any output (a shard: among the
+// blocks it owns; the arrays share the row blocking, so they share the shard's chunk range).
+std::vector<uint64_t> MissingBlocks(std::vector<io::ContainerWriter>& outs, uint32_t arrays) {
   std::vector<uint64_t> todo;
   for (io::ContainerWriter& out : outs) {
-    for (uint32_t a = 0; a < 4; ++a) {
+    for (uint32_t a = 0; a < arrays; ++a) {
       std::vector<uint64_t> m = out.Missing(a);
       todo.insert(todo.end(), m.begin(), m.end());
     }
@@ -368,6 +396,10 @@ struct BlockBuffers {
   std::vector<float> extra;  // a factored bake's terms 1..K−1, one block after the other
   std::vector<float> pos, nor;
   std::vector<uint8_t> mask;
+  // A converged bake's side tables: passes, rays and estimated relative error per row.
+  std::vector<uint8_t> passes;
+  std::vector<uint64_t> rays;
+  std::vector<float> error;
 };
 
 // Block buffers come back here once their chunks are written, so the next block reuses
@@ -398,6 +430,9 @@ class BufferPool {
     b->pos.assign(rows * 3, 0.0f);
     b->nor.assign(rows * 3, 0.0f);
     b->mask.assign(rows, 0);
+    b->passes.assign(rows, 0);
+    b->rays.assign(rows, 0);
+    b->error.assign(rows, 0.0f);
     return std::shared_ptr<BlockBuffers>(b.release(), [this](BlockBuffers* p) {
       std::lock_guard<std::mutex> lock(mu_);
       free_.emplace_back(p);
@@ -482,6 +517,18 @@ void AddFactorMetadata(const SampleOptions& o, const Prepared& p, const FactorPl
   (*meta)["provenance"]["parameters"]["factor_grid"] = {o.factor_incident_res, o.factor_view_res};
 }
 
+// A converged bake's side tables (after the four every sample output has) and parameters.
+void AddConvergedMetadata(const SampleOptions& o, const Prepared& p, uint64_t block, nlohmann::json* meta) {
+  if (!o.tolerance) return;
+  for (const ArraySpec& a : {sample_internal::RowArray("sample_passes", DType::kU8, p.rows, 1, block),
+                             sample_internal::RowArray("sample_rays", DType::kU64, p.rows, 1, block),
+                             sample_internal::RowArray("sample_error", DType::kF32, p.rows, 1, block)}) {
+    (*meta)["arrays"].push_back(a.ToJson());
+  }
+  (*meta)["provenance"]["parameters"]["tolerance"] = *o.tolerance;
+  (*meta)["provenance"]["parameters"]["max_passes"] = o.max_passes;
+}
+
 // Samples row blocks, one chunk of each array per block, from any number of threads, and
 // hands the chunks to the writer thread; counts what it did. Progress in rays; the total
 // is extrapolated from the rays per row seen so far.
@@ -497,8 +544,13 @@ struct BlockSampler {
   BufferPool& pool;
   const Progress& progress;
   uint64_t block, rows_todo;
+  // Converged sampling (--tolerance): one sampler per pass; empty: one Transport per row.
+  std::vector<const sample::Sampler*> passes;
   Counters cnt;
   std::atomic<uint64_t> valid{0}, written{0}, rows_done{0};
+  std::mutex converged_mu;
+  std::vector<uint64_t> pass_histogram;  // under converged_mu
+  double max_rel_error = 0;              // under converged_mu
 
   Status Run(uint64_t chunk) {
     const uint64_t rows = p.rows, cols = 6ull * p.r * p.r;
@@ -536,6 +588,14 @@ struct BlockSampler {
         term_out.assign(1, mat + i * cols);
         for (uint64_t k = 0; k < extra_terms; ++k) term_out.push_back(buf->extra.data() + (k * n + i) * cols);
         sampler.TransportFactored(r0 + i, rp, *f, term_out.data(), sc, cnt);
+      } else if (!passes.empty()) {  // converged sampling: passes until the row's error is within tolerance
+        thread_local sample::ConvergedScratch cs;
+        const sample::ConvergedRow cr =
+            sample::TraceConverged(passes, r0 + i, rp, *o.tolerance, mat + i * cols, sc, cs);
+        buf->passes[i] = static_cast<uint8_t>(cr.passes);
+        buf->rays[i] = cr.rays;
+        buf->error[i] = static_cast<float>(cr.rel_error);
+        cnt.rays += cr.rays;
       } else {  // terms 1..K−1 of a diffuse material are 0 (the buffers start at 0)
         sampler.Transport(r0 + i, rp, mat + i * cols, sc, cnt);
       }
@@ -563,11 +623,23 @@ struct BlockSampler {
     auto bytes = [](const auto* v, uint64_t count) {
       return ByteSpan(reinterpret_cast<const std::byte*>(v), count * sizeof(v[0]));
     };
+    if (!passes.empty()) {
+      std::lock_guard<std::mutex> lock(converged_mu);
+      for (uint64_t i = 0; i < n; ++i) {
+        if (buf->passes[i] == 0) continue;  // no geometry
+        pass_histogram.resize(std::max<size_t>(pass_histogram.size(), buf->passes[i]), 0);
+        pass_histogram[buf->passes[i] - 1]++;
+        max_rel_error = std::max(max_rel_error, static_cast<double>(buf->error[i]));
+      }
+    }
+    const uint32_t arrays = passes.empty() ? 4 : 7;
     for (size_t k = 0; k < outs.size(); ++k) {
       const uint32_t term = out_term[k];
       const float* m = term == 0 ? mat : buf->extra.data() + (term - 1) * n * cols;
-      const ByteSpan parts[4] = {bytes(m, n * cols), bytes(buf->mask.data(), n), bytes(pos, n * 3), bytes(nor, n * 3)};
-      for (uint32_t a = 0; a < 4; ++a) {
+      const ByteSpan parts[7] = {bytes(m, n * cols),         bytes(buf->mask.data(), n),   bytes(pos, n * 3),
+                                 bytes(nor, n * 3),          bytes(buf->passes.data(), n), bytes(buf->rays.data(), n),
+                                 bytes(buf->error.data(), n)};
+      for (uint32_t a = 0; a < arrays; ++a) {
         if (outs[k].Has(a, chunk)) continue;
         // The writer thread encodes and writes; buf goes back to the pool after the last part.
         LTB_RETURN_IF_ERROR(writers[k]->Submit(a, chunk, parts[a], buf, a == 0 ? matrix_encoding : EncodeOptions{}));
@@ -617,6 +689,7 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
     SampleOptions ok = o;  // --channels rgb: output k is exactly what --channel k writes
     if (o.rgb) ok.channel = static_cast<int>(k);
     nlohmann::json meta = sample_internal::SampleMetadata(ok, *prep, block);
+    AddConvergedMetadata(o, *prep, block, &meta);
     sample_internal::AddReflectance(*prep, block, &meta);
     if (plan) AddFactorMetadata(o, *prep, *plan, k, &meta);
     const std::string path = plan && !o.factor_term ? FactorPath(o.output, k)
@@ -634,12 +707,24 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   result.degenerate_triangles = geo.degenerate;
   if (plan) result.factor_errors = plan->errors;
   const uint64_t nchunks = (rows + block - 1) / block;
-  result.chunks_total = nchunks * 4 * outputs;
+  const uint32_t block_arrays = o.tolerance ? 7 : 4;  // the arrays BlockSampler writes per block
+  result.chunks_total = nchunks * block_arrays * outputs;
   for (const io::ContainerWriter& out : outs) result.chunks_already_committed += out.resume_info().committed_chunks;
 
-  const std::vector<uint64_t> todo = MissingBlocks(outs);
+  const std::vector<uint64_t> todo = MissingBlocks(outs, block_arrays);
   Sampler sampler(prep->scene, geo, r, prep->spp, prep->bounces, prep->seed);
   sampler.SetVisibility(o.visibility);
+  // Converged sampling: pass k traces with its own seed (pass 0 with the bake's).
+  std::vector<std::unique_ptr<Sampler>> pass_samplers;
+  std::vector<const Sampler*> passes;
+  if (o.tolerance) {
+    passes.push_back(&sampler);
+    for (uint32_t k = 1; k < o.max_passes; ++k) {
+      pass_samplers.push_back(
+          std::make_unique<Sampler>(prep->scene, geo, r, prep->spp, prep->bounces, sample::PassSeed(prep->seed, k)));
+      passes.push_back(pass_samplers.back().get());
+    }
+  }
   // The tracing threads hand their chunks to one writer thread per output through a
   // bounded queue (a quarter of --mem-limit, at most kMaxWriteQueueBytes, shared by the
   // outputs); the pool outlives the writers, which return the buffers to it.
@@ -658,7 +743,8 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
                   pool,
                   progress,
                   block,
-                  std::min(rows, todo.size() * block)};
+                  std::min(rows, todo.size() * block),
+                  passes};
   Status s = ParallelFor(todo, o.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
                          [&](uint64_t chunk) -> Status { return bs.Run(chunk); });
   // Also after a failure or an interrupt: the chunks already queued are written and commit.
@@ -678,6 +764,8 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   result.texels_below_horizon = bs.cnt.below;
   result.samples_below_horizon = bs.cnt.samples_below;
   result.valid_rows = bs.valid;
+  result.pass_histogram = bs.pass_histogram;
+  result.max_rel_error = bs.max_rel_error;
   LTB_RETURN_IF_ERROR(s);
   for (io::ContainerWriter& out : outs) {
     LTB_RETURN_IF_ERROR(sample_internal::WriteReflectance(*prep, sampler, block, out, progress));

@@ -59,6 +59,11 @@ struct SampleOptions {
   // Write shard `index` of `count` (io::ShardPath(output, ...)) instead of the whole output.
   io::ShardSpec shard;
   SparseOptions sparse;
+  // Converged sampling (--tolerance, docs/SAMPLE.md "Converged sampling"): each row is
+  // traced in passes of spp rays per texel until the estimated relative L2 error of the
+  // passes' mean is at most `tolerance`, or `max_passes` were traced. Unset: one pass.
+  std::optional<double> tolerance;
+  uint32_t max_passes = 16;
   // --channel r|g|b (0, 1, 2): bake the scene as that colour channel sees it (every
   // material's channel value, vertex colours multiplying the albedo), one container per
   // channel (docs/COLOUR.md); -1: the monochrome bake.
@@ -110,6 +115,10 @@ struct SampleResult {
   uint64_t write_queue_waits = 0;  // times a tracing thread waited for room in it
   double seconds = 0;
   std::optional<SparseStats> sparse;
+  // A converged bake (--tolerance): rows by the passes they took (index p − 1) in this run,
+  // and the largest estimated relative error of a row written.
+  std::vector<uint64_t> pass_histogram;
+  double max_rel_error = 0;
   // A factored bake: per glossy material, the relative L2 error of ρ·cos with K = 1..max(K, 8).
   std::vector<std::pair<std::string, std::vector<double>>> factor_errors;
 };

@@ -565,6 +565,45 @@ void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vec
   cnt.samples_below += samples_below;
 }
 
+uint64_t Sampler::DirectWithVariance(uint64_t row, const RowPoint& rp, double* est, double* var, RowScratch& sc) const {
+  uint64_t below = 0, samples_below = 0, rays = 0;
+  const PhongLobe brdf = MakeBrdf(rp);
+  const uint64_t cols = texels_.size(), step = TexelsPerBatch(), spp = spp_;
+  std::fill_n(est, cols, 0.0);
+  std::fill_n(var, cols, 0.0);
+  // Sample i of a texel alone estimates its integral as value_i · h² (the stratum's area
+  // times spp); the texel's estimate is their mean, as Transport's Σ value · h²/spp. Its
+  // variance, (1/n²) Σ σ_i² over the n strata, is estimated from neighbouring pairs: E(v_a −
+  // v_b)² = σ_a² + σ_b² + (μ_a − μ_b)², which overstates it by the pairs' difference in mean
+  // only (the whole texel's spread, as an estimate for independent samples would take,
+  // overstates it by all of the integrand's variation across the texel).
+  const double h = 2.0 / r_, texel_area = h * h, n = static_cast<double>(spp);
+  for (uint64_t c0 = 0; c0 < cols; c0 += step) {
+    GenerateRays(row, rp, brdf, c0, std::min(cols, c0 + step), sc, &below, &samples_below);
+    g_.rays->Occluded(sc.batch, sc.n);
+    rays += sc.active;
+    const float* tf = sc.batch.tfar.data();
+    const double* val = sc.ray_value.data();
+    const size_t texels = sc.n / spp;
+    for (size_t m = 0; m < texels; ++m) {
+      double s1 = 0, d2 = 0;
+      for (uint64_t i = 0; i < spp; ++i) {
+        const double v = tf[m * spp + i] >= 0 ? val[m * spp + i] * texel_area : 0.0;  // occluded or inactive: 0
+        s1 += v;
+        // Slots 2j and 2j + 1: neighbouring strata (stratum_x_ runs fastest).
+        if (i % 2 == 1) {
+          const double u = tf[m * spp + i - 1] >= 0 ? val[m * spp + i - 1] * texel_area : 0.0;
+          d2 += (v - u) * (v - u);
+        }
+      }
+      const uint64_t c = sc.texel[m];
+      est[c] = s1 / n;
+      var[c] = d2 * (n / (2.0 * static_cast<double>(spp / 2))) / (n * n);
+    }
+  }
+  return rays;
+}
+
 uint64_t Sampler::DirectSelected(uint64_t row, const RowPoint& rp, const uint8_t* select, double* out,
                                  RowScratch& sc) const {
   uint64_t below = 0, samples_below = 0, rays = 0;

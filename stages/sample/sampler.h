@@ -107,6 +107,12 @@ class Sampler {
   // into out[c] (the others are left alone), estimated exactly as Transport estimates it
   // (the same rays, summed in the same order). Returns the rays traced.
   uint64_t DirectSelected(uint64_t row, const RowPoint& rp, const uint8_t* select, double* out, RowScratch& sc) const;
+  // Converged sampling (`sample --tolerance`, docs/SAMPLE.md): the direct term of every
+  // texel into est (as Transport estimates it, without bounces) and the variance of each
+  // texel's estimate into var, from the differences of neighbouring strata's samples (each
+  // sample alone an estimate of the texel's integral; an overestimate by the strata's
+  // difference in mean). spp must be at least 2. Returns the rays traced.
+  uint64_t DirectWithVariance(uint64_t row, const RowPoint& rp, double* est, double* var, RowScratch& sc) const;
   // Every texel's direct term with V = 1, from the same samples and without tracing: a
   // texel that Transport finds wholly unoccluded has exactly this value, a texel wholly
   // below the horizon 0.
@@ -117,6 +123,7 @@ class Sampler {
   uint64_t DefaultPaths() const { return std::max<uint64_t>(1, spp_ * texels_.size() / 2); }
   uint32_t bounces() const { return bounces_; }
   uint32_t cube_res() const { return r_; }
+  uint32_t spp() const { return spp_; }
   // Whether texel c is wholly below the horizon of normal n (no ray of it is ever traced).
   bool BelowHorizon(const glm::dvec3& n, uint64_t c) const {
     return n.x * centre_x_[c] + n.y * centre_y_[c] + n.z * centre_z_[c] <= cos_limit_[c];

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "cli/commands.h"
+#include "format/npy.h"
 #include "pipeline/graph.h"
 #include "pipeline/recipe.h"
 #include "pipeline/stage_table.h"
@@ -28,8 +29,13 @@ class StageCommands : public ::testing::Test {
   void SetUp() override {
     dir_ = fs::temp_directory_path() / ("ltb_stage_commands_" + std::to_string(getpid()));
     fs::create_directories(dir_);
-    std::ofstream(dir_ / "sky.npy") << "a map only needs to exist for the recipe parser";
-    std::ofstream(dir_ / "dusk.npy") << "a second map";
+    // The recipe reader checks a map's shape (a cubemap .npy's header), not its values.
+    for (const char* name : {"sky.npy", "dusk.npy"}) {
+      std::vector<std::byte> header = format::EncodeNpyHeader("<f4", {6, 3});  // R = 1
+      std::ofstream out(dir_ / name, std::ios::binary);
+      out.write(reinterpret_cast<const char*>(header.data()), static_cast<std::streamsize>(header.size()));
+      out.write(std::string(72, '\0').data(), 72);
+    }
   }
   void TearDown() override { fs::remove_all(dir_); }
 
