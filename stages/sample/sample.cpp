@@ -396,6 +396,16 @@ struct BlockBuffers {
   std::vector<float> extra;  // a factored bake's terms 1..K−1, one block after the other
   std::vector<float> pos, nor;
   std::vector<uint8_t> mask;
+  // Converged sampling: the samplers of passes 1..max_passes−1, each with its own seed (pass 0
+  // is the bake's own sampler); none without --tolerance.
+  std::vector<std::unique_ptr<Sampler>> PassSamplers(const SampleOptions& o, const Prepared& p) {
+    std::vector<std::unique_ptr<Sampler>> out;
+    for (uint32_t k = 1; o.tolerance && k < o.max_passes; ++k) {
+      out.push_back(std::make_unique<Sampler>(p.scene, p.geo, p.r, p.spp, p.bounces, sample::PassSeed(p.seed, k)));
+    }
+    return out;
+  }
+
   // A converged bake's side tables: passes, rays and estimated relative error per row.
   std::vector<uint8_t> passes;
   std::vector<uint64_t> rays;
@@ -714,17 +724,10 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   const std::vector<uint64_t> todo = MissingBlocks(outs, block_arrays);
   Sampler sampler(prep->scene, geo, r, prep->spp, prep->bounces, prep->seed);
   sampler.SetVisibility(o.visibility);
-  // Converged sampling: pass k traces with its own seed (pass 0 with the bake's).
-  std::vector<std::unique_ptr<Sampler>> pass_samplers;
+  std::vector<std::unique_ptr<Sampler>> pass_samplers = PassSamplers(o, *prep);
   std::vector<const Sampler*> passes;
-  if (o.tolerance) {
-    passes.push_back(&sampler);
-    for (uint32_t k = 1; k < o.max_passes; ++k) {
-      pass_samplers.push_back(
-          std::make_unique<Sampler>(prep->scene, geo, r, prep->spp, prep->bounces, sample::PassSeed(prep->seed, k)));
-      passes.push_back(pass_samplers.back().get());
-    }
-  }
+  if (o.tolerance) passes.push_back(&sampler);
+  for (const auto& ps : pass_samplers) passes.push_back(ps.get());
   // The tracing threads hand their chunks to one writer thread per output through a
   // bounded queue (a quarter of --mem-limit, at most kMaxWriteQueueBytes, shared by the
   // outputs); the pool outlives the writers, which return the buffers to it.
