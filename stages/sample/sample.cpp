@@ -396,16 +396,6 @@ struct BlockBuffers {
   std::vector<float> extra;  // a factored bake's terms 1..K−1, one block after the other
   std::vector<float> pos, nor;
   std::vector<uint8_t> mask;
-  // Converged sampling: the samplers of passes 1..max_passes−1, each with its own seed (pass 0
-  // is the bake's own sampler); none without --tolerance.
-  std::vector<std::unique_ptr<Sampler>> PassSamplers(const SampleOptions& o, const Prepared& p) {
-    std::vector<std::unique_ptr<Sampler>> out;
-    for (uint32_t k = 1; o.tolerance && k < o.max_passes; ++k) {
-      out.push_back(std::make_unique<Sampler>(p.scene, p.geo, p.r, p.spp, p.bounces, sample::PassSeed(p.seed, k)));
-    }
-    return out;
-  }
-
   // A converged bake's side tables: passes, rays and estimated relative error per row.
   std::vector<uint8_t> passes;
   std::vector<uint64_t> rays;
@@ -525,6 +515,16 @@ void AddFactorMetadata(const SampleOptions& o, const Prepared& p, const FactorPl
                          {"geometry_hash", p.geo.geometry_hash}};
   (*meta)["provenance"]["parameters"]["factor"] = plan.terms;
   (*meta)["provenance"]["parameters"]["factor_grid"] = {o.factor_incident_res, o.factor_view_res};
+}
+
+// Converged sampling: the samplers of passes 1..max_passes−1, each with its own seed (pass 0
+// is the bake's own sampler); none without --tolerance.
+std::vector<std::unique_ptr<Sampler>> PassSamplers(const SampleOptions& o, const Prepared& p) {
+  std::vector<std::unique_ptr<Sampler>> out;
+  for (uint32_t k = 1; o.tolerance && k < o.max_passes; ++k) {
+    out.push_back(std::make_unique<Sampler>(p.scene, p.geo, p.r, p.spp, p.bounces, sample::PassSeed(p.seed, k)));
+  }
+  return out;
 }
 
 // A converged bake's side tables (after the four every sample output has) and parameters.
