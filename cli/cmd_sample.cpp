@@ -62,10 +62,11 @@ class SampleCommand : public Command {
                     "L2) is traced in full instead")
         ->default_val(0.15);
     app->add_option("--tolerance", tolerance_,
-                    "converged sampling (docs/SAMPLE.md): trace each row in passes of --spp rays a texel until "
-                    "its estimated relative L2 error is at most this (\"0.5%\" or 0.005), or --max-passes");
-    app->add_option("--max-passes", options_.max_passes, "with --tolerance: passes a row may take, at most (1..255)")
-        ->default_val(16);
+                    "converged sampling (docs/SAMPLE.md): sample the matrix to this estimated relative RMS error "
+                    "(\"1%\" or 0.01), each texel at --spp and, where its error needs it, again at 2, 4, ... times");
+    app->add_option("--max-levels", options_.max_levels,
+                    "with --tolerance: levels of sampling, at most (1..12; 5: up to 16 x --spp)")
+        ->default_val(5);
     app->add_option("--channels", channels_,
                     "mono: one matrix (a scene with colour gets a per-row reflectance table); rgb: one matrix per "
                     "colour channel, OUT.r.ltm, OUT.g.ltm, OUT.b.ltm (docs/COLOUR.md)")
@@ -103,8 +104,8 @@ class SampleCommand : public Command {
       auto t = stages::ParseFraction(tolerance_);
       if (!t.ok()) return ReportUsage(t.status().WithContext("--tolerance"));
       options_.tolerance = *t;
-    } else if (options_.max_passes != 16) {
-      return ReportUsage(InvalidArgument("--max-passes goes with --tolerance"));
+    } else if (options_.max_levels != 5) {
+      return ReportUsage(InvalidArgument("--max-levels goes with --tolerance"));
     }
     if (features_)
       options_.sparse.features = static_cast<uint32_t>(std::clamp<long long>(*features_, 0, (1ll << 32) - 1));
@@ -191,20 +192,17 @@ class SampleCommand : public Command {
   }
 
   void PrintConverged(const stages::SampleResult& r) const {
-    uint64_t rows = 0, passes = 0;
     std::string hist;
-    for (size_t k = 0; k < r.pass_histogram.size(); ++k) {
-      rows += r.pass_histogram[k];
-      passes += (k + 1) * r.pass_histogram[k];
-      if (r.pass_histogram[k] != 0) hist += " " + std::to_string(k + 1) + ":" + std::to_string(r.pass_histogram[k]);
+    for (size_t k = 0; k < r.level_histogram.size(); ++k) {
+      if (r.level_histogram[k] != 0) hist += " " + std::to_string(k) + ":" + std::to_string(r.level_histogram[k]);
     }
     char line[256];
     std::snprintf(line, sizeof line,
-                  "  converged: tolerance %.4g, %.2f passes a row on average (at most %u), largest estimated error "
-                  "%.4g\n",
-                  *options_.tolerance, rows ? static_cast<double>(passes) / rows : 0.0, options_.max_passes,
-                  r.max_rel_error);
-    std::cout << line << "  rows per passes (passes:rows, this run):" << hist << "\n";
+                  "  converged: tolerance %.4g, up to spp %u; pilot of %llu rows, RMS row norm %.4g; largest row "
+                  "error %.4g of it\n",
+                  *options_.tolerance, r.spp << (options_.max_levels - 1),
+                  static_cast<unsigned long long>(r.pilot_rows), r.pilot_rms_norm, r.max_rel_error);
+    std::cout << line << "  rows by the highest level a texel of theirs took (level:rows, this run):" << hist << "\n";
   }
 
   static void PrintSparse(const stages::SparseStats& s) {

@@ -1,10 +1,29 @@
 // Internal to the sample stage: converged sampling (`sample --tolerance T`, docs/SAMPLE.md
-// "Converged sampling"). A row is traced in passes, each a full stratified estimate with its
-// own random streams (pass k's sampler has seed PassSeed(seed, k); pass 0 the bake's own
-// seed), until the estimated relative standard error of the row's response to a uniform
-// white sky (Σ_c T_c, what the row relights to under smooth lighting) is at most T, or
-// max_passes are spent. Deterministic for a seed and T: every decision is made on the row's
-// own samples, in a fixed order.
+// "Converged sampling"). T is the relative RMS (Frobenius) error the matrix is sampled to:
+// the relit image's relative error under lighting that varies from texel to texel (under
+// smooth lighting it is smaller). Rays go where the error is, by texel: σ varies widely
+// between texels (one wholly visible or wholly occluded has almost none, one a shadow edge
+// crosses has most), far more than between rows.
+//
+// Levels, not passes: texel c is estimated at spp, and where that does not suffice, again
+// from scratch at 2·spp, 4·spp, ... up to max_spp, each level a fresh stratified set (its
+// own seed, LevelSeed(seed, k)). Independent passes of spp samples would lose what
+// stratification gives: across a shadow edge a stratified estimate's variance falls as
+// n^−1.5, a mean of independent passes' only as n^−1. A texel's estimate is its levels'
+// combination with fixed weights 2^(1.5k) (inverse to that model's variance; fixed, so
+// unbiased); its variance the same combination of each level's estimate (from neighbouring
+// strata's differences, Sampler::DirectWithVariance).
+//
+// Which level a texel goes to: the one past which one more level's drop in variance per
+// ray, v_k (1 − 2^−1.5) / (spp·2^(k+1)) with v_k = v·2^(−1.5k) from its variance v so far,
+// is below λ (the greedy optimum of total variance for the rays spent). λ is set once from
+// a pilot (level 0 of a fixed subset of rows) so that the predicted variance of the matrix
+// is T² times its squared norm. A texel's v is the largest of its face's 3×3 neighbourhood
+// (four samples often show none of the variance of a texel an edge crosses; a neighbour on
+// the same edge shows it). Deterministic for a seed and T (the pilot's rows and every
+// decision depend on nothing else), so a resumed or sharded bake decides alike. Bounces:
+// the indirect term is traced once per row at the base spp, as a fixed bake does (only the
+// direct term adapts).
 #pragma once
 
 #include <cstdint>
@@ -14,25 +33,33 @@
 
 namespace ltb::sample {
 
-// The seed of pass k (k = 0: the seed itself).
-uint64_t PassSeed(uint64_t seed, uint32_t k);
+// The seed of level k (k = 0: the seed itself).
+uint64_t LevelSeed(uint64_t seed, uint32_t k);
+
+// The pilot: level 0 of every stride-th row from stride/2 (rows/32 of them, at least 64 or
+// all, at most 2048: a few percent of one pass), and λ for tolerance T over `levels` levels.
+struct Pilot {
+  uint64_t rows = 0, rays = 0;
+  double mean_norm2 = 0;  // N², the mean squared row norm (rows that see no geometry count as 0)
+  double lambda = 0;      // 0: no light seen (every texel stays at level 0)
+};
+Pilot PilotRows(const Sampler& s, uint64_t rows, uint32_t levels, double tolerance);
 
 struct ConvergedRow {
-  uint32_t passes = 0;
+  uint32_t level = 0;  // the highest level a texel of the row went to
   uint64_t rays = 0;
-  double rel_error = 0;  // the estimated relative error of the row's sky response (0 for a zero row)
+  double rel_error = 0;  // the row's estimated RMS error (direct term) over the RMS row norm N
 };
 
 // Scratch of one thread, reused from row to row.
 struct ConvergedScratch {
-  std::vector<double> est, var, sum, var_sum, ind, ind_sum, ind_sq;
+  std::vector<double> est, var, sum, wsum, var_sum, v, ind;
+  std::vector<uint32_t> target;
+  std::vector<uint8_t> select;
 };
 
-// One row of T (6R² values into out) from passes[0..max_passes) (one sampler per pass, all
-// alike but their seeds). The error estimate: the direct term's within-pass variance (from
-// each texel's stratified samples), and with bounces the indirect term's spread between
-// passes (so a bake with bounces takes at least two passes).
-ConvergedRow TraceConverged(const std::vector<const Sampler*>& passes, uint64_t row, const RowPoint& rp,
-                            double tolerance, float* out, RowScratch& sc, ConvergedScratch& cs);
+// One row of T (6R² values into out) from levels[k] (a sampler of spp·2^k, seed LevelSeed(k)).
+ConvergedRow TraceConverged(const std::vector<const Sampler*>& levels, uint64_t row, const RowPoint& rp, double lambda,
+                            double rms_norm, float* out, RowScratch& sc, ConvergedScratch& cs);
 
 }  // namespace ltb::sample

@@ -96,7 +96,7 @@ Status CheckSparse(const SampleOptions& o, uint32_t r) {
 }
 
 // --tolerance: a relative error in (0, 1), at least two samples a texel (the error is
-// estimated from their spread), passes in 1..255; not yet with the modes that trace rows
+// estimated from their spread), levels in 1..12; not yet with the modes that trace rows
 // their own way.
 Status CheckConverged(const SampleOptions& o, uint32_t spp) {
   if (!o.tolerance) return Status::Ok();
@@ -110,8 +110,8 @@ Status CheckConverged(const SampleOptions& o, uint32_t spp) {
     return InvalidArgument("--tolerance estimates each texel's error from the spread of its samples: --spp " +
                            std::to_string(spp) + " must be at least 2");
   }
-  if (o.max_passes < 1 || o.max_passes > 255) {
-    return InvalidArgument("--max-passes " + std::to_string(o.max_passes) + " is not in 1..255");
+  if (o.max_levels < 1 || o.max_levels > 12) {
+    return InvalidArgument("--max-levels " + std::to_string(o.max_levels) + " is not in 1..12");
   }
   if (o.sparse.enabled || o.visibility || o.rgb || o.factor > 0) {
     return InvalidArgument(
@@ -396,8 +396,8 @@ struct BlockBuffers {
   std::vector<float> extra;  // a factored bake's terms 1..K−1, one block after the other
   std::vector<float> pos, nor;
   std::vector<uint8_t> mask;
-  // A converged bake's side tables: passes, rays and estimated relative error per row.
-  std::vector<uint8_t> passes;
+  // A converged bake's side tables: highest level, rays and estimated relative error per row.
+  std::vector<uint8_t> level;
   std::vector<uint64_t> rays;
   std::vector<float> error;
 };
@@ -430,7 +430,7 @@ class BufferPool {
     b->pos.assign(rows * 3, 0.0f);
     b->nor.assign(rows * 3, 0.0f);
     b->mask.assign(rows, 0);
-    b->passes.assign(rows, 0);
+    b->level.assign(rows, 0);
     b->rays.assign(rows, 0);
     b->error.assign(rows, 0.0f);
     return std::shared_ptr<BlockBuffers>(b.release(), [this](BlockBuffers* p) {
@@ -517,12 +517,12 @@ void AddFactorMetadata(const SampleOptions& o, const Prepared& p, const FactorPl
   (*meta)["provenance"]["parameters"]["factor_grid"] = {o.factor_incident_res, o.factor_view_res};
 }
 
-// Converged sampling: the samplers of passes 1..max_passes−1, each with its own seed (pass 0
-// is the bake's own sampler); none without --tolerance.
-std::vector<std::unique_ptr<Sampler>> PassSamplers(const SampleOptions& o, const Prepared& p) {
+// Converged sampling: the samplers of levels 1..max_levels−1, level k with spp·2^k rays a
+// texel and its own seed (level 0 is the bake's own sampler); none without --tolerance.
+std::vector<std::unique_ptr<Sampler>> LevelSamplers(const SampleOptions& o, const Prepared& p) {
   std::vector<std::unique_ptr<Sampler>> out;
-  for (uint32_t k = 1; o.tolerance && k < o.max_passes; ++k) {
-    out.push_back(std::make_unique<Sampler>(p.scene, p.geo, p.r, p.spp, p.bounces, sample::PassSeed(p.seed, k)));
+  for (uint32_t k = 1; o.tolerance && k < o.max_levels; ++k) {
+    out.push_back(std::make_unique<Sampler>(p.scene, p.geo, p.r, p.spp << k, p.bounces, sample::LevelSeed(p.seed, k)));
   }
   return out;
 }
@@ -530,13 +530,13 @@ std::vector<std::unique_ptr<Sampler>> PassSamplers(const SampleOptions& o, const
 // A converged bake's side tables (after the four every sample output has) and parameters.
 void AddConvergedMetadata(const SampleOptions& o, const Prepared& p, uint64_t block, nlohmann::json* meta) {
   if (!o.tolerance) return;
-  for (const ArraySpec& a : {sample_internal::RowArray("sample_passes", DType::kU8, p.rows, 1, block),
+  for (const ArraySpec& a : {sample_internal::RowArray("sample_level", DType::kU8, p.rows, 1, block),
                              sample_internal::RowArray("sample_rays", DType::kU64, p.rows, 1, block),
                              sample_internal::RowArray("sample_error", DType::kF32, p.rows, 1, block)}) {
     (*meta)["arrays"].push_back(a.ToJson());
   }
   (*meta)["provenance"]["parameters"]["tolerance"] = *o.tolerance;
-  (*meta)["provenance"]["parameters"]["max_passes"] = o.max_passes;
+  (*meta)["provenance"]["parameters"]["max_levels"] = o.max_levels;
 }
 
 // Samples row blocks, one chunk of each array per block, from any number of threads, and
@@ -554,13 +554,15 @@ struct BlockSampler {
   BufferPool& pool;
   const Progress& progress;
   uint64_t block, rows_todo;
-  // Converged sampling (--tolerance): one sampler per pass; empty: one Transport per row.
-  std::vector<const sample::Sampler*> passes;
+  // Converged sampling (--tolerance): one sampler per level (empty: one Transport per row),
+  // the pilot's λ and RMS row norm N (stages/sample/converged.h).
+  std::vector<const sample::Sampler*> levels;
+  double lambda = 0, rms_norm = 0;
   Counters cnt;
   std::atomic<uint64_t> valid{0}, written{0}, rows_done{0};
   std::mutex converged_mu;
-  std::vector<uint64_t> pass_histogram;  // under converged_mu
-  double max_rel_error = 0;              // under converged_mu
+  std::vector<uint64_t> level_histogram;  // under converged_mu
+  double max_rel_error = 0;               // under converged_mu
 
   Status Run(uint64_t chunk) {
     const uint64_t rows = p.rows, cols = 6ull * p.r * p.r;
@@ -598,11 +600,11 @@ struct BlockSampler {
         term_out.assign(1, mat + i * cols);
         for (uint64_t k = 0; k < extra_terms; ++k) term_out.push_back(buf->extra.data() + (k * n + i) * cols);
         sampler.TransportFactored(r0 + i, rp, *f, term_out.data(), sc, cnt);
-      } else if (!passes.empty()) {  // converged sampling: passes until the row's error is within tolerance
+      } else if (!levels.empty()) {  // converged sampling: each texel to the level its error needs
         thread_local sample::ConvergedScratch cs;
         const sample::ConvergedRow cr =
-            sample::TraceConverged(passes, r0 + i, rp, *o.tolerance, mat + i * cols, sc, cs);
-        buf->passes[i] = static_cast<uint8_t>(cr.passes);
+            sample::TraceConverged(levels, r0 + i, rp, lambda, rms_norm, mat + i * cols, sc, cs);
+        buf->level[i] = static_cast<uint8_t>(cr.level);
         buf->rays[i] = cr.rays;
         buf->error[i] = static_cast<float>(cr.rel_error);
         cnt.rays += cr.rays;
@@ -633,21 +635,21 @@ struct BlockSampler {
     auto bytes = [](const auto* v, uint64_t count) {
       return ByteSpan(reinterpret_cast<const std::byte*>(v), count * sizeof(v[0]));
     };
-    if (!passes.empty()) {
+    if (!levels.empty()) {
       std::lock_guard<std::mutex> lock(converged_mu);
       for (uint64_t i = 0; i < n; ++i) {
-        if (buf->passes[i] == 0) continue;  // no geometry
-        pass_histogram.resize(std::max<size_t>(pass_histogram.size(), buf->passes[i]), 0);
-        pass_histogram[buf->passes[i] - 1]++;
+        if (buf->mask[i] == 0) continue;  // no geometry
+        level_histogram.resize(std::max<size_t>(level_histogram.size(), buf->level[i] + 1u), 0);
+        level_histogram[buf->level[i]]++;
         max_rel_error = std::max(max_rel_error, static_cast<double>(buf->error[i]));
       }
     }
-    const uint32_t arrays = passes.empty() ? 4 : 7;
+    const uint32_t arrays = levels.empty() ? 4 : 7;
     for (size_t k = 0; k < outs.size(); ++k) {
       const uint32_t term = out_term[k];
       const float* m = term == 0 ? mat : buf->extra.data() + (term - 1) * n * cols;
-      const ByteSpan parts[7] = {bytes(m, n * cols),         bytes(buf->mask.data(), n),   bytes(pos, n * 3),
-                                 bytes(nor, n * 3),          bytes(buf->passes.data(), n), bytes(buf->rays.data(), n),
+      const ByteSpan parts[7] = {bytes(m, n * cols),         bytes(buf->mask.data(), n),  bytes(pos, n * 3),
+                                 bytes(nor, n * 3),          bytes(buf->level.data(), n), bytes(buf->rays.data(), n),
                                  bytes(buf->error.data(), n)};
       for (uint32_t a = 0; a < arrays; ++a) {
         if (outs[k].Has(a, chunk)) continue;
@@ -659,6 +661,17 @@ struct BlockSampler {
     return Status::Ok();
   }
 };
+
+// Converged sampling's pilot (stages/sample/converged.h): λ and the RMS row norm for the
+// tracing threads; its rays count as the bake's.
+void RunPilot(const SampleOptions& o, const Sampler& sampler, uint64_t rows, BlockSampler* bs, SampleResult* result) {
+  const sample::Pilot pilot = sample::PilotRows(sampler, rows, o.max_levels, *o.tolerance);
+  bs->rms_norm = std::sqrt(pilot.mean_norm2);
+  bs->lambda = pilot.lambda;
+  bs->cnt.rays += pilot.rays;
+  result->pilot_rows = pilot.rows;
+  result->pilot_rms_norm = bs->rms_norm;
+}
 
 }  // namespace
 
@@ -724,10 +737,10 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   const std::vector<uint64_t> todo = MissingBlocks(outs, block_arrays);
   Sampler sampler(prep->scene, geo, r, prep->spp, prep->bounces, prep->seed);
   sampler.SetVisibility(o.visibility);
-  std::vector<std::unique_ptr<Sampler>> pass_samplers = PassSamplers(o, *prep);
-  std::vector<const Sampler*> passes;
-  if (o.tolerance) passes.push_back(&sampler);
-  for (const auto& ps : pass_samplers) passes.push_back(ps.get());
+  std::vector<std::unique_ptr<Sampler>> level_samplers = LevelSamplers(o, *prep);
+  std::vector<const Sampler*> levels;
+  if (o.tolerance) levels.push_back(&sampler);
+  for (const auto& ls : level_samplers) levels.push_back(ls.get());
   // The tracing threads hand their chunks to one writer thread per output through a
   // bounded queue (a quarter of --mem-limit, at most kMaxWriteQueueBytes, shared by the
   // outputs); the pool outlives the writers, which return the buffers to it.
@@ -747,7 +760,8 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
                   progress,
                   block,
                   std::min(rows, todo.size() * block),
-                  passes};
+                  levels};
+  if (o.tolerance) RunPilot(o, sampler, rows, &bs, &result);
   Status s = ParallelFor(todo, o.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
                          [&](uint64_t chunk) -> Status { return bs.Run(chunk); });
   // Also after a failure or an interrupt: the chunks already queued are written and commit.
@@ -767,7 +781,7 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   result.texels_below_horizon = bs.cnt.below;
   result.samples_below_horizon = bs.cnt.samples_below;
   result.valid_rows = bs.valid;
-  result.pass_histogram = bs.pass_histogram;
+  result.level_histogram = bs.level_histogram;
   result.max_rel_error = bs.max_rel_error;
   LTB_RETURN_IF_ERROR(s);
   for (io::ContainerWriter& out : outs) {

@@ -59,11 +59,12 @@ struct SampleOptions {
   // Write shard `index` of `count` (io::ShardPath(output, ...)) instead of the whole output.
   io::ShardSpec shard;
   SparseOptions sparse;
-  // Converged sampling (--tolerance, docs/SAMPLE.md "Converged sampling"): each row is
-  // traced in passes of spp rays per texel until the estimated relative L2 error of the
-  // passes' mean is at most `tolerance`, or `max_passes` were traced. Unset: one pass.
+  // Converged sampling (--tolerance, docs/SAMPLE.md "Converged sampling"): the matrix is
+  // sampled to an estimated relative RMS error of `tolerance`, each texel of each row at
+  // spp, and where its error needs it again at 2·spp, 4·spp, ... (`max_levels` levels in
+  // all: at most spp·2^(max_levels−1); stages/sample/converged.h). Unset: spp everywhere.
   std::optional<double> tolerance;
-  uint32_t max_passes = 16;
+  uint32_t max_levels = 5;
   // --channel r|g|b (0, 1, 2): bake the scene as that colour channel sees it (every
   // material's channel value, vertex colours multiplying the albedo), one container per
   // channel (docs/COLOUR.md); -1: the monochrome bake.
@@ -115,10 +116,12 @@ struct SampleResult {
   uint64_t write_queue_waits = 0;  // times a tracing thread waited for room in it
   double seconds = 0;
   std::optional<SparseStats> sparse;
-  // A converged bake (--tolerance): rows by the passes they took (index p − 1) in this run,
-  // and the largest estimated relative error of a row written.
-  std::vector<uint64_t> pass_histogram;
+  // A converged bake (--tolerance): rows that see geometry by the highest level a texel of
+  // theirs went to (index = level) in this run, and the largest estimated error of a row.
+  std::vector<uint64_t> level_histogram;
   double max_rel_error = 0;
+  uint64_t pilot_rows = 0;    // rows of the pilot pass (their rays are in `rays`)
+  double pilot_rms_norm = 0;  // the RMS row norm N it estimated
   // A factored bake: per glossy material, the relative L2 error of ρ·cos with K = 1..max(K, 8).
   std::vector<std::pair<std::string, std::vector<double>>> factor_errors;
 };

@@ -565,12 +565,14 @@ void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vec
   cnt.samples_below += samples_below;
 }
 
-uint64_t Sampler::DirectWithVariance(uint64_t row, const RowPoint& rp, double* est, double* var, RowScratch& sc) const {
+uint64_t Sampler::DirectWithVariance(uint64_t row, const RowPoint& rp, double* est, double* var, RowScratch& sc,
+                                     const uint8_t* select) const {
   uint64_t below = 0, samples_below = 0, rays = 0;
   const PhongLobe brdf = MakeBrdf(rp);
   const uint64_t cols = texels_.size(), step = TexelsPerBatch(), spp = spp_;
-  std::fill_n(est, cols, 0.0);
-  std::fill_n(var, cols, 0.0);
+  for (uint64_t c = 0; c < cols; ++c) {
+    if (select == nullptr || select[c] != 0) est[c] = var[c] = 0.0;  // a texel below the horizon gets no rays
+  }
   // Sample i of a texel alone estimates its integral as value_i · h² (the stratum's area
   // times spp); the texel's estimate is their mean, as Transport's Σ value · h²/spp. Its
   // variance, (1/n²) Σ σ_i² over the n strata, is estimated from neighbouring pairs: E(v_a −
@@ -578,28 +580,33 @@ uint64_t Sampler::DirectWithVariance(uint64_t row, const RowPoint& rp, double* e
   // only (the whole texel's spread, as an estimate for independent samples would take,
   // overstates it by all of the integrand's variation across the texel).
   const double h = 2.0 / r_, texel_area = h * h, n = static_cast<double>(spp);
-  for (uint64_t c0 = 0; c0 < cols; c0 += step) {
-    GenerateRays(row, rp, brdf, c0, std::min(cols, c0 + step), sc, &below, &samples_below);
+  const double pair_scale = n / (2.0 * static_cast<double>(spp / 2)) / (n * n);
+  // Ranges holding about a batch's worth of selected texels (as DirectSelected).
+  for (uint64_t c0 = 0; c0 < cols;) {
+    uint64_t c1 = std::min(cols, c0 + step), picked = c1 - c0;
+    if (select != nullptr) {
+      for (c1 = c0, picked = 0; c1 < cols && picked < step;) picked += select[c1++] != 0 ? 1 : 0;
+    }
+    if (picked == 0) break;
+    GenerateRays(row, rp, brdf, c0, c1, sc, &below, &samples_below, select);
     g_.rays->Occluded(sc.batch, sc.n);
     rays += sc.active;
     const float* tf = sc.batch.tfar.data();
     const double* val = sc.ray_value.data();
     const size_t texels = sc.n / spp;
     for (size_t m = 0; m < texels; ++m) {
-      double s1 = 0, d2 = 0;
+      double s1 = 0, d2 = 0, prev = 0;
       for (uint64_t i = 0; i < spp; ++i) {
         const double v = tf[m * spp + i] >= 0 ? val[m * spp + i] * texel_area : 0.0;  // occluded or inactive: 0
         s1 += v;
-        // Slots 2j and 2j + 1: neighbouring strata (stratum_x_ runs fastest).
-        if (i % 2 == 1) {
-          const double u = tf[m * spp + i - 1] >= 0 ? val[m * spp + i - 1] * texel_area : 0.0;
-          d2 += (v - u) * (v - u);
-        }
+        if (i % 2 == 1) d2 += (v - prev) * (v - prev);  // slots 2j, 2j + 1: neighbouring strata
+        prev = v;
       }
       const uint64_t c = sc.texel[m];
       est[c] = s1 / n;
-      var[c] = d2 * (n / (2.0 * static_cast<double>(spp / 2))) / (n * n);
+      var[c] = d2 * pair_scale;
     }
+    c0 = c1;
   }
   return rays;
 }

@@ -112,7 +112,9 @@ class Sampler {
   // texel's estimate into var, from the differences of neighbouring strata's samples (each
   // sample alone an estimate of the texel's integral; an overestimate by the strata's
   // difference in mean). spp must be at least 2. Returns the rays traced.
-  uint64_t DirectWithVariance(uint64_t row, const RowPoint& rp, double* est, double* var, RowScratch& sc) const;
+  // With select, only the texels c with select[c] != 0 are traced and written.
+  uint64_t DirectWithVariance(uint64_t row, const RowPoint& rp, double* est, double* var, RowScratch& sc,
+                              const uint8_t* select = nullptr) const;
   // Every texel's direct term with V = 1, from the same samples and without tracing: a
   // texel that Transport finds wholly unoccluded has exactly this value, a texel wholly
   // below the horizon 0.
