@@ -142,10 +142,46 @@ Result<std::string> InlineScene(const std::string& path, const std::string& dir,
   return out.str();
 }
 
+// A relative error in (0, 1): "2%" or 0.02; unset when the key is absent.
+Result<std::optional<double>> GetRelativeError(const std::string& path, const toml::table& t, const char* key) {
+  const toml::node* k = t.get(key);
+  if (k == nullptr) return std::optional<double>();
+  if (k->is_string()) {
+    auto f = stages::ParseFraction(*k->value<std::string>());
+    if (!f.ok()) return f.status().WithContext(Where(path, *k) + ": \"" + key + "\"");
+    if (!(*f < 1)) return InvalidArgument(Where(path, *k) + ": \"" + key + "\" must be below 100%");
+    return std::optional<double>(*f);
+  }
+  LTB_ASSIGN_OR_RETURN(double v, GetNumber(path, t, key, 0.01, 1e-9, 0.999999));
+  return std::optional<double>(v);
+}
+
+// [sample] tolerance and max_levels: converged sampling, which traces rows its own way.
+Status ParseConverged(const std::string& path, const toml::table& t, Recipe::Sample* s) {
+  LTB_ASSIGN_OR_RETURN(s->tolerance, GetRelativeError(path, t, "tolerance"));
+  if (const toml::node* m = t.get("max_levels")) {
+    if (!s->tolerance) return InvalidArgument(Where(path, *m) + ": \"max_levels\" goes with \"tolerance\"");
+    LTB_ASSIGN_OR_RETURN(uint64_t v, GetUnsigned(path, t, "max_levels", 5, 1, 12));
+    s->max_levels = v;
+  }
+  if (s->tolerance && s->bounces.value_or(0) > 0) {
+    return InvalidArgument(Where(path, *t.get("tolerance")) +
+                           ": [sample] tolerance estimates the direct term's error only; with bounces the tolerance "
+                           "would not hold (docs/SAMPLE.md \"Converged sampling\")");
+  }
+  if (s->tolerance && (s->sparse || s->channels == "rgb" || s->factor > 0)) {
+    return InvalidArgument(Where(path, *t.get("tolerance")) +
+                           ": [sample] tolerance (converged sampling) does not yet combine with sparse, channels = "
+                           "\"rgb\" or factor (docs/SAMPLE.md \"Converged sampling\")");
+  }
+  return Status::Ok();
+}
+
 Status ParseSample(const std::string& path, const toml::table& t, Recipe::Sample* s) {
-  LTB_RETURN_IF_ERROR(CheckKeys(path, t, "[sample]",
-                                {"cube_res", "spp", "bounces", "seed", "sparse", "dense_fraction", "radius", "features",
-                                 "neighbours", "l1_lambda", "max_residual", "channels", "factor"}));
+  LTB_RETURN_IF_ERROR(
+      CheckKeys(path, t, "[sample]",
+                {"cube_res", "spp", "bounces", "seed", "sparse", "dense_fraction", "radius", "features", "neighbours",
+                 "l1_lambda", "max_residual", "channels", "factor", "tolerance", "max_levels"}));
   LTB_ASSIGN_OR_RETURN(s->sparse, GetBool(path, t, "sparse", false));
   LTB_ASSIGN_OR_RETURN(s->channels, GetString(path, t, "channels", "mono"));
   LTB_ASSIGN_OR_RETURN(s->factor, GetUnsigned(path, t, "factor", 0, 1, 64));
@@ -207,7 +243,7 @@ Status ParseSample(const std::string& path, const toml::table& t, Recipe::Sample
     LTB_ASSIGN_OR_RETURN(uint64_t v, GetUnsigned(path, t, "seed", 0, 0, uint64_t{1} << 62));
     s->seed = v;
   }
-  return Status::Ok();
+  return ParseConverged(path, t, s);
 }
 
 Status ParseColumnTransform(const std::string& path, const toml::table& t, Recipe::ColumnTransform* c) {

@@ -57,6 +57,9 @@ struct Recipe {
     // The BRDF in-out factorisation's terms (docs/GLOSSY.md); 0: none. Each term is its own
     // step (sample --factor K --factor-term k), and so is every later container step.
     uint64_t factor = 0;
+    // Converged sampling (sample --tolerance, --max-levels; docs/SAMPLE.md); unset: fixed spp.
+    std::optional<double> tolerance;
+    std::optional<uint64_t> max_levels;
   } sample;
   struct RowTransform {
     std::string filter = "haar";

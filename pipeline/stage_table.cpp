@@ -23,6 +23,14 @@ StageCommand Sample(const Recipe& r, const StageContext& ctx) {
   opt("--bounces", "bounces", r.sample.bounces);
   opt("--seed", "seed", r.sample.seed);
   const auto& sp = r.sample;
+  if (sp.tolerance) {  // converged sampling; absent from params otherwise (older runs stay up to date)
+    c.params["tolerance"] = *sp.tolerance;
+    c.args.insert(c.args.end(), {"--tolerance", Shortest(*sp.tolerance)});
+    if (sp.max_levels) {
+      c.params["max_levels"] = *sp.max_levels;
+      c.args.insert(c.args.end(), {"--max-levels", std::to_string(*sp.max_levels)});
+    }
+  }
   if (sp.sparse) {  // params["sparse"] marks the step unshardable (pipeline/bake.cpp)
     json p = json::object();
     c.args.push_back("--sparse");

@@ -5,25 +5,25 @@
 // between texels (one wholly visible or wholly occluded has almost none, one a shadow edge
 // crosses has most), far more than between rows.
 //
-// Levels, not passes: texel c is estimated at spp, and where that does not suffice, again
-// from scratch at 2·spp, 4·spp, ... up to max_spp, each level a fresh stratified set (its
-// own seed, LevelSeed(seed, k)). Independent passes of spp samples would lose what
-// stratification gives: across a shadow edge a stratified estimate's variance falls as
-// n^−1.5, a mean of independent passes' only as n^−1. A texel's estimate is its levels'
-// combination with fixed weights 2^(1.5k) (inverse to that model's variance; fixed, so
-// unbiased); its variance the same combination of each level's estimate (from neighbouring
-// strata's differences, Sampler::DirectWithVariance).
+// Levels, not passes: texel c is estimated at spp (level 0), and where that does not suffice
+// once more, from scratch, at spp·2^k for the one level k its level-0 variance calls for (at
+// most max_levels − 1), a fresh stratified set with its own seed (LevelSeed(seed, k)).
+// Independent passes of spp samples would lose what stratification gives: across a shadow
+// edge a stratified estimate's variance falls as n^−1.5, a mean of independent passes' only
+// as n^−1 (and growing a texel level by level costs twice its last level). The texel's
+// estimate combines its two levels with fixed weights 1 and 2^(1.5k) (inverse to that
+// model's variances; fixed, so unbiased); its variance is the same combination of each
+// level's estimate (from neighbouring strata's differences, Sampler::DirectWithVariance).
 //
-// Which level a texel goes to: the one past which one more level's drop in variance per
-// ray, v_k (1 − 2^−1.5) / (spp·2^(k+1)) with v_k = v·2^(−1.5k) from its variance v so far,
-// is below λ (the greedy optimum of total variance for the rays spent). λ is set once from
-// a pilot (level 0 of a fixed subset of rows) so that the predicted variance of the matrix
-// is T² times its squared norm. A texel's v is the largest of its face's 3×3 neighbourhood
-// (four samples often show none of the variance of a texel an edge crosses; a neighbour on
-// the same edge shows it). Deterministic for a seed and T (the pilot's rows and every
-// decision depend on nothing else), so a resumed or sharded bake decides alike. Bounces:
-// the indirect term is traced once per row at the base spp, as a fixed bake does (only the
-// direct term adapts).
+// Which level: the one past which one more level's drop in variance per ray,
+// v_k (1 − 2^−1.5) / (spp·2^(k+1)) with v_k = v·2^(−1.5k), is below λ (the greedy optimum
+// of total variance for the rays spent). v is the texel's level-0 variance, the largest of
+// its face's 3×3 neighbourhood (four samples often show none of the variance of a texel an
+// edge crosses; a neighbour on the same edge shows it). λ is set once from a pilot (level 0
+// of a fixed subset of rows) so that the predicted variance of the matrix is T² times its
+// squared norm. Deterministic for a seed and T (the pilot's rows and every decision depend
+// on nothing else), so a resumed or sharded bake decides alike. Bounces: the indirect term
+// is traced once per row at the base spp, as a fixed bake does (only the direct term adapts).
 #pragma once
 
 #include <cstdint>
@@ -46,7 +46,7 @@ struct Pilot {
 Pilot PilotRows(const Sampler& s, uint64_t rows, uint32_t levels, double tolerance);
 
 struct ConvergedRow {
-  uint32_t level = 0;  // the highest level a texel of the row went to
+  uint32_t level = 0;  // the highest level a texel of the row went to (0: spp alone)
   uint64_t rays = 0;
   double rel_error = 0;  // the row's estimated RMS error (direct term) over the RMS row norm N
 };

@@ -181,4 +181,7 @@ with tempfile.TemporaryDirectory() as d:
             expect=None)
     check(p.returncode in (1, 2), f"--tolerance 150% exits {p.returncode}")
     check("--tolerance" in p.stderr, f"--tolerance 150%:\n{p.stderr}")
+    p = run("sample", os.path.join(d, "scene.toml"), "-o", os.path.join(d, "x.ltm"), "--tolerance", "1%",
+            "--bounces", "1", expect=1)
+    check("the indirect term's is not estimated" in p.stderr, f"--tolerance with bounces:\n{p.stderr}")
 finish()

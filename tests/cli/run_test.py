@@ -255,7 +255,8 @@ with tempfile.TemporaryDirectory() as d:
     bad("error_ratio of 1", BASE.replace("bits = 9", "error_ratio = 1.0"), 2, '"error_ratio"')
     bad("target_error and budget", BASE + '[column-transform]\ntarget_error = 0.02\nbudget = "2%"\n', 2,
         "more than one of")
-    for text, want in ((BASE.replace("[quantize]\nbits = 9\n", ""), "--error-ratio 1.1"),
+    for text, want in ((BASE + '[sample]\ntolerance = "1%"\nmax_levels = 3\n', "--tolerance 0.01 --max-levels 3"),
+                       (BASE.replace("[quantize]\nbits = 9\n", ""), "--error-ratio 1.1"),
                        (BASE, "--budget 5%"),  # [column-transform] defaults to one 5% budget
                        (BASE + '[column-transform]\ntarget_error = "2%"\n', "--target-error 0.02"),
                        (BASE.replace("bits = 9", "error_ratio = 1.25"), "--error-ratio 1.25")):
@@ -274,6 +275,9 @@ with tempfile.TemporaryDirectory() as d:
     check(not os.path.exists(os.path.join(wmaps, "rows.ltm")), "a recipe with a bad map ran a stage")
     bad("lat-long read as a cross", BASE + f'[relight]\nenvs = ["{latlong}"]\nenv_layout = "hcross"\n', 2, latlong,
         "32x16 is not a horizontal cross")
+    bad("max_levels without tolerance", BASE + "[sample]\nmax_levels = 3\n", 2, '"max_levels" goes with')
+    bad("tolerance with bounces", BASE + '[sample]\nbounces = 1\ntolerance = "1%"\n', 2, "direct term's error only")
+    bad("tolerance with sparse", BASE + '[sample]\nsparse = true\ntolerance = "1%"\n', 2, "does not yet combine")
     bad("env_layout choice", BASE + f'[relight]\nenvs = ["{probe}"]\nenv_layout = "mirrorball"\n', 2,
         '"env_layout" is "mirrorball"', "angular")
     np.save(os.path.join(d, "odd.npy"), np.ones((6 * 8 * 8 + 6, 3), np.float32))

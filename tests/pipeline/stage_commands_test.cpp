@@ -142,6 +142,9 @@ method = "bi"
 clusters = 2
 )");
   CheckRecipe("keep-fraction", R"(
+[sample]
+tolerance = "2%"
+max_levels = 4
 [column-transform]
 depth = "none"
 keep = 0.1
