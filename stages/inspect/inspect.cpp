@@ -157,6 +157,47 @@ Result<json> SummarizeSparse(const io::ContainerReader& r) {
   return out;
 }
 
+Result<json> SummarizeConverged(const io::ContainerReader& r) {
+  const Metadata& meta = r.metadata();
+  const int level_a = meta.FindArray("sample_level"), rays_a = meta.FindArray("sample_rays"),
+            err_a = meta.FindArray("sample_error");
+  if (level_a < 0 || rays_a < 0 || err_a < 0) return json(nullptr);
+  uint64_t rays = 0;
+  std::vector<uint64_t> levels;
+  std::vector<float> errors;
+  const ArraySpec& ls = meta.arrays[static_cast<uint32_t>(level_a)];
+  for (uint64_t c = 0; c < ls.ChunkCount(); ++c) {
+    LTB_ASSIGN_OR_RETURN(io::Chunk l, r.ReadChunk(static_cast<uint32_t>(level_a), c));
+    LTB_ASSIGN_OR_RETURN(io::Chunk y, r.ReadChunk(static_cast<uint32_t>(rays_a), c));
+    LTB_ASSIGN_OR_RETURN(io::Chunk e, r.ReadChunk(static_cast<uint32_t>(err_a), c));
+    auto lv = l.as<uint8_t>();
+    auto yv = y.as<uint64_t>();
+    auto ev = e.as<float>();
+    if (yv.size() != lv.size() || ev.size() != lv.size()) {
+      return DataLoss(r.path() + ": the converged side tables of chunk " + std::to_string(c) + " differ in length");
+    }
+    for (size_t i = 0; i < lv.size(); ++i) {
+      rays += yv[i];
+      if (yv[i] == 0) continue;  // a row that sees no geometry
+      if (levels.size() <= lv[i]) levels.resize(lv[i] + 1u, 0);
+      levels[lv[i]]++;
+      errors.push_back(ev[i]);
+    }
+  }
+  json out = {{"rays", rays}, {"rows_by_highest_level", levels}};
+  if (!errors.empty()) {
+    std::sort(errors.begin(), errors.end());
+    out["row_error"] = {{"median", errors[errors.size() / 2]}, {"max", errors.back()}};
+  }
+  const json& prov = meta.json.value("provenance", json::object());
+  if (prov.is_object() && prov.contains("parameters") && prov["parameters"].is_object()) {
+    for (const char* k : {"tolerance", "max_levels", "spp"}) {
+      if (prov["parameters"].contains(k)) out[k] = prov["parameters"][k];
+    }
+  }
+  return out;
+}
+
 namespace {
 
 // Column-transform / quantize outputs: chosen depths, error, bytes per nonzero; cpca
@@ -246,6 +287,9 @@ Result<json> InspectContainer(const std::string& path, const InspectOptions& opt
     auto sparse = SummarizeSparse(reader);
     if (!sparse.ok()) return sparse.status();
     if (!sparse->is_null()) out["sparse"] = *sparse;
+    auto converged = SummarizeConverged(reader);
+    if (!converged.ok()) return converged.status();
+    if (!converged->is_null()) out["converged"] = *converged;
   }
   if (options.chunk_list) out["chunk_list"] = ChunkList(reader);
   return out;

@@ -31,4 +31,9 @@ Result<nlohmann::json> InspectContainer(const std::string& path, const InspectOp
 // from it, from its side tables; null when the container has none.
 Result<nlohmann::json> SummarizeSparse(const io::ContainerReader& reader);
 
+// The "converged" block of a converged bake (sample --tolerance, docs/SAMPLE.md) or a
+// row-block container derived from it: total rays, rows by the highest level a texel of
+// theirs took, the rows' estimated errors; null when the container has no such side tables.
+Result<nlohmann::json> SummarizeConverged(const io::ContainerReader& reader);
+
 }  // namespace ltb::stages

@@ -146,6 +146,9 @@ with tempfile.TemporaryDirectory() as d:
     check(levels[rows].max() >= 1, "no texel went past level 0")
     rays = side_table(conv, "sample_rays").reshape(-1)
     check(rays[mask == 0].sum() == 0 and rays[rows].min() > 0, "the rays side table is off")
+    summary = json.loads(run("inspect", "--json", conv).stdout).get("converged", {})
+    check(summary.get("rays") == int(rays.sum()) and summary.get("tolerance") == TOL,
+          f"inspect's converged block: {summary}")
     print(f"converged: error {err_conv:.4f} (tolerance {TOL}), fixed spp 4 {err_fixed:.4f}; "
           f"{share:.1%} of rows within 2x of their estimate; rays {rays.sum()}", file=sys.stderr)
 
