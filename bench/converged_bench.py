@@ -137,7 +137,7 @@ def bake(build, work, scene_path, name, flags):
     """Samples into work/name.ltm (kept if there), returns (rays, T as float64 rows × 6R², seconds)."""
     out = os.path.join(work, name + ".ltm")
     t0 = time.monotonic()
-    text = ltbake(build, "sample", scene_path, "-o", out, "--cube-res", R, *flags)
+    text = ltbake(build, "sample", scene_path, "-o", out, "--cube-res", R, "--overwrite", *flags)
     secs = time.monotonic() - t0
     m = re.search(r"rays traced: (\d+)", text)
     npy = os.path.join(work, name + ".npy")
