@@ -121,6 +121,12 @@ Status CheckConverged(const SampleOptions& o, uint32_t spp, uint32_t bounces) {
   if (o.max_levels < 1 || o.max_levels > 12) {
     return InvalidArgument("--max-levels " + std::to_string(o.max_levels) + " is not in 1..12");
   }
+  if ((uint64_t{spp} << (o.max_levels - 1)) > (uint64_t{1} << 16)) {
+    return InvalidArgument("--tolerance: --spp " + std::to_string(spp) + " at --max-levels " +
+                           std::to_string(o.max_levels) + " would trace " +
+                           std::to_string(uint64_t{spp} << (o.max_levels - 1)) +
+                           " samples a texel at its top level; at most 65536 (lower either)");
+  }
   if (o.sparse.enabled || o.visibility || o.rgb || o.factor > 0) {
     return InvalidArgument(
         "--tolerance (converged sampling) does not yet combine with --sparse, --visibility, --channels rgb or "

@@ -229,11 +229,13 @@ def recipes(d, j):
 
 def resume_hint(d, j):
     img = j("img.toml")
-    with open(j("broken.exr"), "wb") as f:
-        f.write(b"\x76\x2f\x31\x01" + b"\0" * 60)  # EXR magic, then nothing usable
+    # A map whose header passes the recipe's shape check (32x16, lat-long) but whose pixels
+    # stop after 16 of 512: the bake runs and its relight step fails.
+    with open(j("broken.hdr"), "wb") as f:
+        f.write(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 16 +X 32\n" + bytes([128, 128, 128, 129]) * 16)
     w = j("wh")
     rec = t.write(j("hint.toml"), f'name = "h"\nscene = "{img}"\ntargets = ["relight"]\n'
-                  f'[relight]\nenvs = ["{j("broken.exr")}"]\n')
+                  f'[relight]\nenvs = ["{j("broken.hdr")}"]\n')
     p = t.run("run", rec, "--workdir", w, "--mem-limit", "256MiB", expect=None)
     t.check(p.returncode == 1, f"a bake with a broken map: exit {p.returncode}\n{p.stderr}")
     want = f"ltbake run {rec} --workdir {w} --mem-limit 256MiB"
