@@ -43,7 +43,8 @@ demo: configure samples
 	cmake --build $(BUILD) -j $(JOBS) --target ltbake
 	@bash scripts/demo.sh $(BUILD)
 
-# ltbake, its stage executables (ltbake-<stage>) and the Python module under PREFIX:
+# ltbake, its stage executables (ltbake-<stage>), the Python module and the bash completion
+# under PREFIX:
 # PREFIX/bin and PREFIX/lib/python3.X/dist-packages (README "Install").
 PREFIX      ?= /usr/local
 install: configure

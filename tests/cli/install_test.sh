@@ -2,8 +2,8 @@
 # `cmake --install` (what `make install PREFIX=...` runs) into a fresh prefix: ltbake, a link
 # ltbake-<stage> for each stage executable the build tree has (the build's links are checked
 # against the command list by tests/pipeline/stage_commands_test.cpp), no stale ltbake-* link
-# left from an earlier install, each link running its stage, and `import ltbake` from the
-# installed package.
+# left from an earlier install, each link running its stage, the bash completion, and
+# `import ltbake` from the installed package.
 #   install_test.sh BUILD_DIR
 set -euo pipefail
 build=$1
@@ -30,6 +30,22 @@ for link in $have; do
 done
 # A path a user has on PATH: the installed binary runs on its own (no build tree needed).
 PATH="$bin:$PATH" ltbake --version | grep -q '^ltbake ' || fail "installed ltbake --version failed"
+
+# Bash completion, from the installed file: commands from the command list, a stage's flags
+# from its --help (for ltbake and for ltbake-<stage> alike).
+comp=$tmp/prefix/share/bash-completion/completions/ltbake
+[ -f "$comp" ] || fail "no bash completion at $comp"
+complete_words() {  # complete_words WORD... : what completing the last word offers
+  PATH="$bin:$PATH" bash -c 'source "$0"; COMP_WORDS=("${@}"); COMP_CWORD=$((${#COMP_WORDS[@]} - 1)); _ltbake;
+    printf "%s\n" "${COMPREPLY[@]}"' "$comp" "$@"
+}
+[ "$(complete_words ltbake qua)" = quantize ] || fail "ltbake qua<TAB> offers '$(complete_words ltbake qua)'"
+got=$(complete_words ltbake sample --sp | sort | tr '\n' ' ')
+[ "$got" = "--sparse --spp " ] || fail "ltbake sample --sp<TAB> offers '$got'"
+got=$(complete_words ltbake-quantize --error | tr '\n' ' ')
+[ "$got" = "--error-ratio " ] || fail "ltbake-quantize --error<TAB> offers '$got'"
+PATH="$bin:$PATH" bash -c 'source "$0"; complete -p ltbake-sample' "$comp" > /dev/null ||
+  fail "no completion registered for ltbake-sample"
 
 py=$(find "$tmp/prefix/lib" -path '*-packages/ltbake/__init__.py' | head -1)
 [ -n "$py" ] || fail "no Python package under $tmp/prefix/lib: $(cat "$tmp/install.log")"
