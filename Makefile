@@ -45,7 +45,7 @@ demo: configure samples
 
 # ltbake, its stage executables (ltbake-<stage>), the Python module and the bash completion
 # under PREFIX:
-# PREFIX/bin and PREFIX/lib/python3.X/dist-packages (README "Install").
+# PREFIX/bin, PREFIX/lib/python3.X/dist-packages and PREFIX/share/bash-completion (README).
 PREFIX      ?= /usr/local
 install: configure
 	cmake --build $(BUILD) -j $(JOBS) --target ltbake ltb_python
