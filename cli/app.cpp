@@ -47,26 +47,58 @@ int RunOverMembers(Command& cmd) {
 
 const std::vector<CommandInfo>& CommandList() {
   static const std::vector<CommandInfo> list = {
-      {"inspect", RegisterInspect, false},
-      {"verify", RegisterVerify, false},
-      {"convert", RegisterConvert, false},
-      {"row-transform", RegisterRowTransform, true},
-      {"transpose", RegisterTranspose, true},
-      {"sample", RegisterSample, true},
-      {"column-transform", RegisterColumnTransform, true},
-      {"quantize", RegisterQuantize, true},
-      {"cpca", RegisterCpca, true},
-      {"relight", RegisterRelight, true},
-      {"run", RegisterRun, false},
-      {"commit", RegisterCommit, false},
-      {"merge", RegisterMerge, false},
-      {"material", RegisterMaterial, false},
-      {"view", RegisterView, false},
+      {"inspect", RegisterInspect, false,
+       "ltbake inspect final.ltm\n"
+       "ltbake inspect rows.ltm --json --chunks  # every chunk's place, encoding and checksum\n"
+       "ltbake inspect big.ltm --no-content  # the header and recorded hashes only: fast"},
+      {"verify", RegisterVerify, false,
+       "ltbake verify raw.ltm rows.ltm final.ltm\n"
+       "ltbake verify --allow-incomplete --json raw.ltm  # a bake still running or interrupted"},
+      {"convert", RegisterConvert, false,
+       "ltbake convert T.npy raw.ltm --cube-res 32 --image 256x256\n"
+       "ltbake convert final.ltm T.npy --basis pixels  # decode to the pixel basis\n"
+       "ltbake convert sky.exr sky.npy --cube-res 32  # an environment map as a 6R^2 x 3 cubemap"},
+      {"row-transform", RegisterRowTransform, true,
+       "ltbake row-transform raw.ltm -o rows.ltm\n"
+       "ltbake row-transform raw.ltm -o rows.ltm --filter db2 --zstd"},
+      {"transpose", RegisterTranspose, true, "ltbake transpose rows.ltm -o cols.ltm --mem-limit 1GiB"},
+      {"sample", RegisterSample, true,
+       "ltbake sample scene.toml -o raw.ltm\n"
+       "ltbake sample scene.toml -o raw.ltm --cube-res 64 --spp 16 --bounces 1\n"
+       "ltbake sample scene.toml -o raw.ltm --tolerance 2%  # converged sampling (docs/SAMPLE.md)\n"
+       "ltbake sample scene.toml -o rows.ltm --row-transform haar  # sample and row-transform in one pass"},
+      {"column-transform", RegisterColumnTransform, true,
+       "ltbake column-transform cols.ltm -o cols4d.ltm  # adaptive depth, a 5% budget\n"
+       "ltbake column-transform cols.ltm -o cols4d.ltm --target-error 2%"},
+      {"quantize", RegisterQuantize, true,
+       "ltbake quantize cols4d.ltm -o final.ltm\n"
+       "ltbake quantize cols4d.ltm -o final.ltm --bits 9  # per-column maxima, as the 2007 paper"},
+      {"cpca", RegisterCpca, true, "ltbake cpca rows.ltm -o cpca.ltm --clusters 16 --basis 8"},
+      {"relight", RegisterRelight, true,
+       "ltbake relight final.ltm --env sky.exr -o relit.png --terms 200\n"
+       "ltbake relight final.ltm --env probe.hdr --env-layout angular -o relit.exr --reference rows.ltm\n"
+       "ltbake relight final.ltm --env sky.exr --sequence rotate:3.6:100 -o relit.mp4  # docs/SEQUENCE.md"},
+      {"run", RegisterRun, false,
+       "ltbake run bake.toml\n"
+       "ltbake run bake.toml --dry-run  # the plan, and why each step runs or is skipped\n"
+       "ltbake run bake.toml --workdir out/b2 --shards 4 --engine slurm"},
+      {"commit", RegisterCommit, false,
+       "ltbake commit raw.ltm --nshards 4  # after ltbake sample ... --shard I --nshards 4"},
+      {"merge", RegisterMerge, false, "ltbake merge raw.ltm -o raw-one-file.ltm"},
+      {"material", RegisterMaterial, false, "ltbake material --brdf phong:64 --cube-res 32 -o phong64.ltm"},
+      {"view", RegisterView, false, "ltbake view final.ltm --env sky.exr  # prints http://127.0.0.1:PORT/"},
   };
   return list;
 }
 
 namespace {
+
+// Each line of `text` indented by two spaces.
+std::string Indented(const std::string& text) {
+  std::string out = "  ";
+  for (char ch : text) out += ch == '\n' ? std::string("\n  ") : std::string(1, ch);
+  return out;
+}
 
 // The command line: the top-level flags and every command's subcommand.
 struct CommandLine {
@@ -86,6 +118,7 @@ struct CommandLine {
       if (sub->get_name() != c.name) {
         throw std::logic_error(std::string("command list: '") + c.name + "' registers '" + sub->get_name() + "'");
       }
+      sub->footer(std::string("\nExamples:\n") + Indented(c.examples));
       commands[sub] = std::move(cmd);
     }
   }

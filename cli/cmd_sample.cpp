@@ -2,10 +2,12 @@
 #include <algorithm>
 #include <cstdio>
 #include <iostream>
+#include <nlohmann/json.hpp>
 #include <optional>
 
 #include "cli/commands.h"
 #include "cli/common.h"
+#include "format/json_text.h"
 #include "stages/common/channels.h"
 #include "stages/common/quantity.h"
 #include "stages/sample/sample.h"
@@ -85,6 +87,7 @@ class SampleCommand : public Command {
                     "with --factor K: write only term T (0..K-1) into OUT as given; ltbake run bakes a term a step")
         ->check(CLI::Range(0, 63));
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
+    app->add_flag("--json", json_, "print the summary as JSON (one object; a channel set's passes, one a line)");
     app->add_flag("!--no-direct-io", options_.direct_io,
                   "write the output through the page cache instead of with O_DIRECT");
     AddCommonFlags(app, &flags_);
@@ -150,6 +153,10 @@ class SampleCommand : public Command {
     auto r = stages::RunSample(options_, bar.hook());
     bar.Done();
     if (!r.ok()) return ReportFailure(r.status());
+    if (json_) {
+      std::cout << JsonText(SummaryJson(*r), -1) << "\n";
+      return kExitOk;
+    }
     if (!r->direct_fallback.empty() && !flags_.quiet) {
       std::cerr << "ltbake: note: " << r->direct_fallback << "; the output was written through the page cache\n";
     }
@@ -191,6 +198,43 @@ class SampleCommand : public Command {
     return kExitOk;
   }
 
+  nlohmann::json SummaryJson(const stages::SampleResult& r) const {
+    nlohmann::json j = {{"output", options_.output},
+                        {"rows", r.rows},
+                        {"rows_with_geometry", r.valid_rows},
+                        {"cols", 6ull * r.cube_res * r.cube_res},
+                        {"cube_res", r.cube_res},
+                        {"spp", r.spp},
+                        {"bounces", r.bounces},
+                        {"rays", r.rays},
+                        {"seconds", r.seconds},
+                        {"texels_below_horizon", r.texels_below_horizon},
+                        {"samples_below_horizon", r.samples_below_horizon},
+                        {"degenerate_triangles", r.degenerate_triangles},
+                        {"chunks_written", r.chunks_written},
+                        {"chunks_already_committed", r.chunks_already_committed}};
+    if (options_.channel >= 0) j["channel"] = stages::ChannelName(options_.channel);
+    if (!r.direct_fallback.empty()) j["direct_io_note"] = r.direct_fallback;
+    if (r.sparse) {
+      const stages::SparseStats& sp = *r.sparse;
+      j["sparse"] = {{"dense_rows", sp.dense_rows},
+                     {"sparse_rows", sp.sparse_rows},
+                     {"rows_traced_in_full", sp.fallback_rows},
+                     {"traced_fraction", sp.traced_fraction()},
+                     {"rays", {sp.total_rays[0], sp.total_rays[1]}},
+                     {"seconds", {sp.seconds[0], sp.seconds[1]}}};
+    }
+    if (options_.tolerance) {
+      j["converged"] = {{"tolerance", *options_.tolerance},
+                        {"max_levels", options_.max_levels},
+                        {"rows_by_highest_level", r.level_histogram},
+                        {"pilot_rows", r.pilot_rows},
+                        {"largest_row_error", r.max_rel_error}};
+    }
+    for (const auto& [name, errors] : r.factor_errors) j["factor_errors"][name] = errors;
+    return j;
+  }
+
   void PrintConverged(const stages::SampleResult& r) const {
     std::string hist;
     for (size_t k = 0; k < r.level_histogram.size(); ++k) {
@@ -225,6 +269,7 @@ class SampleCommand : public Command {
   stages::SampleOptions options_;
   std::optional<double> radius_;
   std::string tolerance_;
+  bool json_ = false;
   std::optional<long long> features_;
   std::string row_filter_;
   std::string channels_ = "mono", channel_;

@@ -46,6 +46,9 @@ struct CommandInfo {
   const char* name;  // its subcommand's name (checked when the command line is built)
   std::unique_ptr<Command> (*add)(CLI::App* parent);
   bool stage_executable;
+  // Its --help's "Examples:" footer, one command line a line (each parses: a test runs them
+  // through ParseOnly), a comment after "  # ".
+  const char* examples;
 };
 const std::vector<CommandInfo>& CommandList();
 

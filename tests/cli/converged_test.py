@@ -19,6 +19,7 @@ unit normal of the plane through it. Checked:
     converged_test.py LTBAKE"""
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -154,8 +155,14 @@ with tempfile.TemporaryDirectory() as d:
 
     # Determinism, and a bake killed once its first chunk is committed resumes to the same hash.
     want = content_hash(conv)
-    again, _, _ = bake(d, "again", "--tolerance", f"{TOL * 100:g}%")
+    again, _, again_text = bake(d, "again", "--tolerance", f"{TOL * 100:g}%")
     check(content_hash(again) == want, "the same converged bake twice differs")
+    # sample --json: the same bake's summary as one JSON object (its rays as the text says).
+    j = json.loads(run("sample", os.path.join(d, "scene.toml"), "-o", os.path.join(d, "j.ltm"), "--tolerance",
+                       f"{TOL * 100:g}%", "--json").stdout)
+    traced = int(re.search(r"rays traced: (\d+)", again_text).group(1))
+    check(j["rays"] == traced and j["converged"]["tolerance"] == TOL and j["rows"] == 24 * 24,
+          f"sample --json: {j} (the text run traced {traced} rays)")
     killed = os.path.join(d, "killed.ltm")
     cmd = [LTBAKE, "sample", os.path.join(d, "scene.toml"), "-o", killed, "--tolerance", f"{TOL * 100:g}%",
            "--chunk-rows", "8", "--jobs", "1"]

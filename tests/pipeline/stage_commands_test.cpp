@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <fstream>
 #include <set>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -220,6 +221,38 @@ TEST(CommandList, StageExecutablesAreTheLinksNextToLtbake) {
     if (f.rfind("ltbake-", 0) == 0 && fs::is_symlink(e.symlink_status())) have.insert(f);
   }
   EXPECT_EQ(have, want);
+}
+
+// Every command's --help shows examples, and each example parses as it is written (in a
+// directory holding the files it names, for the flags that check a file exists).
+TEST(CommandList, EveryExampleParses) {
+  const fs::path dir = fs::temp_directory_path() / ("ltb_examples_" + std::to_string(getpid()));
+  fs::create_directories(dir);
+  const fs::path was = fs::current_path();
+  fs::current_path(dir);
+  for (const auto& c : cli::CommandList()) {
+    ASSERT_NE(c.examples, nullptr) << c.name;
+    std::istringstream lines(c.examples);
+    int n = 0;
+    for (std::string line; std::getline(lines, line);) {
+      line = line.substr(0, line.find("  # "));
+      std::istringstream words(line);
+      std::vector<std::string> args;
+      for (std::string w; words >> w;) args.push_back(w);
+      ASSERT_GE(args.size(), 2u) << c.name << ": " << line;
+      EXPECT_EQ(args[0], "ltbake") << line;
+      EXPECT_EQ(args[1], c.name) << line;
+      args.erase(args.begin());
+      for (const std::string& a : args) {
+        if (a[0] != '-' && a.find('.') != std::string::npos) std::ofstream(a).put('x');
+      }
+      EXPECT_EQ(cli::ParseOnly(args), "") << line;
+      ++n;
+    }
+    EXPECT_GE(n, 1) << c.name;
+  }
+  fs::current_path(was);
+  fs::remove_all(dir);
 }
 
 }  // namespace
