@@ -62,14 +62,19 @@ std::string PlanText(const pipeline::BakeOutcome& o) {
   return t.str();
 }
 
+// " [3/6]": where the step is in the bake.
+std::string StepOf(const pipeline::StepEvent& e) {
+  return e.steps ? " [" + std::to_string(e.step) + "/" + std::to_string(e.steps) + "]" : "";
+}
+
 // The line a step event prints (stdout), or "" for none.
 std::string StepLine(const pipeline::StepEvent& e) {
   using Kind = pipeline::StepEvent::Kind;
   switch (e.kind) {
     case Kind::kSkipped:
-      return "== " + e.node + ": skipped, " + e.reason;
+      return "== " + e.node + ": skipped, " + e.reason + StepOf(e);
     case Kind::kStarting:
-      return "== " + e.node + ": " + e.action + " (" + e.reason + ")";
+      return "== " + e.node + ": " + e.action + " (" + e.reason + ")" + StepOf(e);
     case Kind::kImageWritten: {
       std::string line = "wrote " + e.path;
       const json& m = e.metrics;

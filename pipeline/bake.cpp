@@ -112,7 +112,7 @@ class Bake {
   void DeleteUnneeded(size_t upto);
   Status SaveReport();
   void Emit(StepEvent::Kind kind, const Node& n, const std::string& action, const std::string& reason) const {
-    if (o_.on_step) o_.on_step({kind, n.name, action, reason, {}, {}});
+    if (o_.on_step) o_.on_step({kind, n.name, action, reason, {}, {}, step_, g_.nodes.size()});
   }
 
   const BakeOptions& o_;
@@ -120,7 +120,8 @@ class Bake {
   std::string workdir_, scene_file_, scene_hash_;
   bool workdir_existed_ = false;
   io::FileLock lock_;
-  int from_ = -1;  // StageIndex of --from; -1: none
+  int from_ = -1;    // StageIndex of --from; -1: none
+  size_t step_ = 0;  // the step RunStep is at, from 1 (for the step events)
   Graph g_;
   std::map<std::string, json> previous_;                 // node -> its entry in the last run.json
   std::set<std::string> ours_;                           // files earlier runs of this recipe made
@@ -501,6 +502,7 @@ StepEnd Bake::RecordDone(const Node& n, const std::string& known_hash, json& e) 
 
 Result<StepEnd> Bake::RunStep(size_t i, const Plan& plan) {
   const Node& n = g_.nodes[i];
+  step_ = i + 1;
   const std::string out_path = Path(n.output);
   if (int sig = o_.pending_signal ? o_.pending_signal() : 0; sig != 0) {
     return Interrupted(sig, "interrupted before " + n.name + "; rerun `" + ContinueCommand(o_, r_.path) + "` to go on");

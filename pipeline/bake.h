@@ -32,11 +32,12 @@ struct StepEvent {
     kImageWritten,  // a relight step wrote its image; `metrics` is relight's JSON
   };
   Kind kind = Kind::kStarting;
-  std::string node;        // "sample+row-transform", "relight:sunset", ...
-  std::string action;      // "skip", "run", "resume", "redo" (pipeline/plan.h ActionName)
-  std::string reason;      // why
-  std::string path;        // kImageWritten: the image
-  nlohmann::json metrics;  // kImageWritten
+  std::string node;            // "sample+row-transform", "relight:sunset", ...
+  std::string action;          // "skip", "run", "resume", "redo" (pipeline/plan.h ActionName)
+  std::string reason;          // why
+  std::string path;            // kImageWritten: the image
+  nlohmann::json metrics;      // kImageWritten
+  size_t step = 0, steps = 0;  // this is step `step` (from 1) of the bake's `steps`
 };
 
 struct BakeOptions {

@@ -66,6 +66,10 @@ with tempfile.TemporaryDirectory() as d:
     rep = report(w)
     check(rep["status"] == "ok" and rep["exit_code"] == 0, f"run.json status {rep.get('status')}")
     check(actions(w, FUSED) == {n: "run" for n in FUSED}, f"first bake actions {actions(w, FUSED)}")
+    # Each step says where it is in the bake: "== NODE: ... [k/4]", k = 1, 2, 3, 4 in order.
+    steps = [re.search(r"\[(\d+)/(\d+)\]$", l) for l in p.stdout.splitlines() if l.startswith("== ")]
+    check([(int(m.group(1)), int(m.group(2))) if m else None for m in steps] == [(k, 4) for k in range(1, 5)],
+          f"bake: step lines lack [k/4]:\n{p.stdout}")
     for s in rep["stages"]:
         out = s["output"]
         check(s["wall_seconds"] > 0 and s["peak_rss_bytes"] > 1 << 20, f"{s['node']}: no wall time / peak RSS: {s}")
