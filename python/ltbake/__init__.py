@@ -79,8 +79,10 @@ class _Core:
 class Array:
     """One array of a container: the matrix (array 0) or a side table.
 
-    ``a[i0:i1, :]`` and ``a[:, j0:j1]`` (and integers, and slices with steps) read values;
-    ``a.iter_chunks()`` streams the array chunk by chunk."""
+    ``a[i0:i1, :]`` and ``a[:, j0:j1]`` (and integers, negative ones too, slices with any
+    step, ``...``) read values, as NumPy indexes a 2-D array; ``np.asarray(a)`` reads it
+    whole (within ``max_bytes``); ``len(a)`` is its rows; ``a.iter_chunks()`` streams it
+    chunk by chunk."""
 
     def __init__(self, core, index, spec):
         self._c = core
@@ -91,6 +93,16 @@ class Array:
                                 "u64": "<u8"}[spec["dtype"]])
         self.layout = spec["layout"]
         self.block = int(spec["block"])
+
+    ndim = 2
+    size = property(lambda self: self.shape[0] * self.shape[1], doc="values in the array")
+
+    def __len__(self):
+        return self.shape[0]
+
+    def __array__(self, dtype=None, copy=None):
+        out = self.read()
+        return out if dtype is None else out.astype(dtype, copy=False)
 
     @property
     def nchunks(self):
@@ -135,7 +147,12 @@ class Array:
         """The values at ``key`` (an index of up to two axes). More than the container's
         ``max_bytes`` raises TooLargeError unless ``force``."""
         if not isinstance(key, tuple):
-            key = (key, slice(None))
+            key = (key,)
+        if sum(k is Ellipsis for k in key) > 1:
+            raise IndexError("an index can only have a single ellipsis ('...')")
+        if Ellipsis in [k for k in key if k is Ellipsis]:  # ... stands for the axes not given
+            at = next(i for i, k in enumerate(key) if k is Ellipsis)
+            key = key[:at] + (slice(None),) * (3 - len(key)) + key[at + 1:]
         if len(key) == 1:
             key = (key[0], slice(None))
         if len(key) != 2:
@@ -212,6 +229,9 @@ class Container(Array):
         self.arrays = {s["name"]: Array(core, i, s) for i, s in enumerate(specs)}
 
     basis = property(lambda self: self.metadata.get("basis"), doc="what rows and columns are")
+    attrs = property(lambda self: {k: v for k, v in self.metadata.items() if k != "arrays"},
+                     doc="the container's metadata but its array list (basis, provenance, stage blocks), "
+                         "as h5py's and zarr's .attrs")
     provenance = property(lambda self: self.metadata.get("provenance"), doc="stage, tool, parameters, inputs")
     complete = property(lambda self: self._c.reader.complete, doc="every chunk of every array committed")
     sealed = property(lambda self: self._c.reader.sealed, doc="the writer finished the file")

@@ -55,6 +55,29 @@ def test_dense_kinds_read_like_convert(bake, dense):
                 c[[1, 2], :]
 
 
+def test_numpy_protocol_like_h5py(dense, bake):
+    """np.asarray, ..., len, ndim, size and .attrs, as h5py and zarr datasets have them, against
+    the command's convert of the same file."""
+    for name, path in dense.items():
+        ref = cli_npy(path, bake["dir"])
+        with ltbake.open(path) as c:
+            assert len(c) == ref.shape[0] and c.ndim == 2 and c.size == ref.size, name
+            assert np.array_equal(bits(np.asarray(c)), bits(ref)), f"{name}: np.asarray"
+            assert np.asarray(c, dtype=np.float64).dtype == np.float64
+            assert np.array_equal(bits(c[...]), bits(ref)), f"{name}: [...]"
+            assert np.array_equal(bits(c[..., 3]), bits(ref[..., 3])), f"{name}: [..., 3]"
+            assert np.array_equal(bits(c[-2, ...]), bits(ref[-2, ...])), f"{name}: [-2, ...]"
+            assert np.array_equal(bits(c[1:9:-1, ...]), bits(ref[1:9:-1, ...]))
+            assert np.array_equal(bits(c[-5:, -7::-2]), bits(ref[-5:, -7::-2])), name
+            if "mask" in c.arrays:  # a side table indexes alike
+                assert np.array_equal(c.arrays["mask"][...], c.arrays["mask"][:, :]), name
+            with pytest.raises(IndexError):
+                c[..., ...]
+            attrs, info = c.attrs, cli_inspect(path)
+            assert "arrays" not in attrs, name
+            assert attrs["basis"] == info["basis"] and attrs["provenance"] == info["provenance"], name
+
+
 def test_metadata_matches_inspect(dense, bake):
     for name, path in list(dense.items()) + [(k, bake["P"](k + ".ltm")) for k in ["cols4d", "final", "cpca"]]:
         info = cli_inspect(path, "--chunks")
