@@ -472,7 +472,8 @@ py::array FloatArray(std::vector<float> v, std::vector<py::ssize_t> shape) {
 }
 
 py::tuple Relight(const std::string& matrix, const std::string& env, uint64_t terms, const std::string& weighting,
-                  double rotate_deg, bool clamp_env, bool keep_negative, int jobs, uint64_t mem_limit) {
+                  double rotate_deg, bool clamp_env, bool keep_negative, int jobs, uint64_t mem_limit,
+                  const std::optional<py::array_t<float, py::array::c_style | py::array::forcecast>>& cubemap) {
   CheckJobs(jobs);
   CheckMemLimit(mem_limit);
   stages::RelightOptions o;
@@ -486,6 +487,12 @@ py::tuple Relight(const std::string& matrix, const std::string& env, uint64_t te
   o.jobs = jobs;
   o.mem_limit = mem_limit;
   o.return_image = true;
+  if (cubemap) {  // a 6R² × 3 cubemap in memory instead of a file
+    if (cubemap->ndim() != 2 || cubemap->shape(1) != 3) {
+      throw py::value_error(env + ": an environment array must be a 6R^2 x 3 cubemap (rows of RGB)");
+    }
+    o.env_cubemap.assign(cubemap->data(), cubemap->data() + cubemap->size());
+  }
   stages::RelightResult res = WithoutGil([&] { return stages::RunRelight(o, Progress{}); });
   const py::ssize_t rows = static_cast<py::ssize_t>(res.image.size() / 3);
   return py::make_tuple(FloatArray(std::move(res.image), {rows, 3}), JsonText(res.report));
@@ -606,7 +613,8 @@ PYBIND11_MODULE(_ltbake, m) {
   m.def("inspect_json", &Inspect, py::arg("path"), py::arg("content") = true, py::arg("chunk_list") = false,
         py::arg("jobs") = 2);
   m.def("relight", &Relight, py::arg("matrix"), py::arg("env"), py::arg("terms"), py::arg("weighting"),
-        py::arg("rotate_deg"), py::arg("clamp_env"), py::arg("keep_negative"), py::arg("jobs"), py::arg("mem_limit"));
+        py::arg("rotate_deg"), py::arg("clamp_env"), py::arg("keep_negative"), py::arg("jobs"), py::arg("mem_limit"),
+        py::arg("cubemap") = py::none());
   m.def("envmap", &Envmap, py::arg("path"), py::arg("cube_res"), py::arg("clamp"), py::arg("max_bytes"));
   m.def("convert", &Convert, py::arg("input"), py::arg("output"), py::arg("pixel_basis"), py::arg("jobs"),
         py::arg("mem_limit"));

@@ -449,7 +449,9 @@ def inspect(path, content=True, chunks=False, jobs=2):
 def relight(path, env, terms=100, weighting="area", rotate=0.0, clamp_env=False, keep_negative=False,
             jobs=2, mem_limit=1 << 30, report=False):
     """The relit rows (rows × 3 float32, RGB), as ``ltbake relight PATH --env ENV -o OUT.npy``
-    writes them, bit for bit. ``env``: an .exr/.hdr map or a 6R² × 3 cubemap .npy;
+    writes them, bit for bit. ``env``: an .exr/.hdr map, a 6R² × 3 cubemap .npy, or that
+    cubemap as a NumPy array (in memory: e.g. ``ltbake.envmap(...)`` edited, or lighting
+    computed on the fly; the same result as the array saved as .npy);
     ``terms``: an int or "all"; ``rotate``: degrees about +Z; ``report=True`` also returns
     the dict ``--json`` prints."""
     if terms == "all":
@@ -458,8 +460,11 @@ def relight(path, env, terms=100, weighting="area", rotate=0.0, clamp_env=False,
         n = int(terms)
         if n < 1:
             raise ValueError("terms is at least 1 (or 'all')")
+    cube = None
+    if isinstance(env, _np.ndarray):
+        cube, env = env, "<array>"
     image, rep = _ltbake.relight(_os.fspath(path), _os.fspath(env), n, weighting, float(rotate), bool(clamp_env),
-                                 bool(keep_negative), int(jobs), int(mem_limit))
+                                 bool(keep_negative), int(jobs), int(mem_limit), cube)
     return (image, _json.loads(rep)) if report else image
 
 

@@ -113,6 +113,37 @@ Result<Environment> Environment::Open(const std::string& path, uint64_t cube_res
   return e;
 }
 
+Result<Environment> Environment::FromCubemap(std::vector<float> values, uint64_t cube_res, bool clamp,
+                                             const std::string& what) {
+  if (cube_res == 0 || values.size() != 18 * cube_res * cube_res) {
+    return InvalidArgument(what + ": holds " + std::to_string(values.size()) +
+                           " values; expected a cubemap of shape (" + std::to_string(6 * cube_res * cube_res) +
+                           ", 3) for the matrix's R = " + std::to_string(cube_res));
+  }
+  Environment e;
+  e.cube_res_ = cube_res;
+  uint64_t bad = 0, first = 0;
+  for (uint64_t i = 0; i < values.size(); ++i) {
+    float& v = values[i];
+    if (v >= 0 && std::isfinite(v)) continue;
+    if (clamp) {
+      v = std::isnan(v) || v < 0 ? 0.0f : std::numeric_limits<float>::max();
+      ++e.clamped_;
+    } else if (bad++ == 0) {
+      first = i;
+    }
+  }
+  if (bad > 0) {
+    return InvalidArgument(what + ": texel " + std::to_string(first / 3) + " channel " + std::to_string(first % 3) +
+                           " is " + MessageNumber(values[first]) + "; " + std::to_string(bad) +
+                           " values in all are not finite and non-negative radiance (clamp_env=True sets NaN and "
+                           "negative values to 0 and +Inf to the largest finite float)");
+  }
+  e.fixed_ = std::move(values);
+  for (float v : e.fixed_) e.peak_ = std::max(e.peak_, v);
+  return e;
+}
+
 Status Environment::Cubemap(double rotation, std::vector<float>* out) const {
   if (exact_) {
     std::lock_guard<std::mutex> lock(last_->mutex);

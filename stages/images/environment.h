@@ -39,6 +39,10 @@ class Environment {
  public:
   static Result<Environment> Open(const std::string& path, uint64_t cube_res, const EnvLoadOptions& o,
                                   EnvResampling resampling = EnvResampling::kExact);
+  // A cubemap already in memory (the Python module's relight from a NumPy array): 6R² × 3
+  // values, checked as ReadCubemapNpy checks a file's (`what` names it in messages).
+  static Result<Environment> FromCubemap(std::vector<float> values, uint64_t cube_res, bool clamp,
+                                         const std::string& what);
   // 6R² × 3 radiance for a rotation about +Z in radians (a .npy cubemap cannot rotate).
   // Fails only when the exact path is cancelled (EnvLoadOptions::progress).
   Status Cubemap(double rotation, std::vector<float>* out) const;

@@ -187,7 +187,10 @@ Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progre
   LTB_ASSIGN_OR_RETURN(RelightMatrix m, RelightMatrix::Open(o.matrix, o.mem_limit, o.jobs, progress, &report));
   const LightingBasis& basis = m.basis();
   auto t1 = Clock::now();
-  LTB_ASSIGN_OR_RETURN(Environment env, Environment::Open(o.env, basis.cube_res(), eo));
+  LTB_ASSIGN_OR_RETURN(Environment env,
+                       o.env_cubemap.empty()
+                           ? Environment::Open(o.env, basis.cube_res(), eo)
+                           : Environment::FromCubemap(o.env_cubemap, basis.cube_res(), o.clamp_env, o.env));
   auto t2 = Clock::now();
   report["load_matrix_ms"] = Ms(t0, t1);
   report["load_env_ms"] = Ms(t1, t2);

@@ -22,7 +22,9 @@ namespace ltb::stages {
 
 struct RelightOptions {
   std::string matrix;
-  std::string env;     // .exr / .hdr (EnvLoadOptions) or a 6R² × 3 cubemap .npy
+  std::string env;  // .exr / .hdr (EnvLoadOptions) or a 6R² × 3 cubemap .npy
+  // Instead of `env`: a 6R² × 3 cubemap in memory (the Python module); `env` names it.
+  std::vector<float> env_cubemap;
   std::string output;  // .exr, .png or .npy; empty: none written (return_image)
   static constexpr uint64_t kAllTerms = std::numeric_limits<uint64_t>::max();
   uint64_t terms = 100;  // ≥ 1; kAllTerms keeps every nonzero coefficient

@@ -343,10 +343,25 @@ def test_relight_equals_the_commands_npy(bake, tmp_path):
         assert img.shape == (1024, 3) and img.dtype == np.float32
         assert np.array_equal(bits(img), bits(np.load(out))), name
         assert report["terms"] == terms
+        # The same cubemap as a NumPy array in memory (float64 too): the same image.
+        lights = np.load(bake["env"])
+        for arr in (lights, lights.astype(np.float64)):
+            assert np.array_equal(bits(ltbake.relight(P(name + ".ltm"), arr, terms=terms)), bits(img)), name
     with pytest.raises(ltbake.FormatError):
         ltbake.relight(P("final.ltm"), bake["env"], weighting="sideways")
     with pytest.raises(ValueError):
         ltbake.relight(P("final.ltm"), bake["env"], terms=0)
+    bad = np.load(bake["env"])
+    bad[7, 1] = np.nan
+    with pytest.raises(ltbake.FormatError, match="texel 7 channel 1 is nan"):
+        ltbake.relight(P("final.ltm"), bad)
+    fixed = ltbake.relight(P("final.ltm"), bad, clamp_env=True)
+    bad[7, 1] = 0
+    assert np.array_equal(bits(fixed), bits(ltbake.relight(P("final.ltm"), bad)))
+    with pytest.raises(ltbake.FormatError, match="expected a cubemap of shape"):
+        ltbake.relight(P("final.ltm"), np.ones((10, 3), np.float32))
+    with pytest.raises(ValueError, match="6R\\^2 x 3"):
+        ltbake.relight(P("final.ltm"), np.ones((384, 4), np.float32))
 
 
 def test_envmap_equals_convert(tmp_path):
