@@ -122,10 +122,7 @@ ConvergedRow TraceConverged(const std::vector<const Sampler*>& levels, uint64_t 
     r.rays += levels[k]->DirectWithVariance(row, rp, cs.est.data(), cs.var.data(), sc, cs.select.data());
     const double w = std::pow(2.0, kBeta * k);
     for (uint64_t c = 0; c < cols; ++c) {
-      if (cs.select[c] == 0) {
-        cs.var[c] = 0;  // for the dilation: this texel's level-k variance is not known
-        continue;
-      }
+      if (cs.select[c] == 0) continue;
       cs.sum[c] += w * cs.est[c];
       cs.wsum[c] += w;
       cs.var_sum[c] += w * w * cs.var[c];

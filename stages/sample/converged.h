@@ -23,7 +23,8 @@
 // of a fixed subset of rows) so that the predicted variance of the matrix is T² times its
 // squared norm. Deterministic for a seed and T (the pilot's rows and every decision depend
 // on nothing else), so a resumed or sharded bake decides alike. Bounces: the indirect term
-// is traced once per row at the base spp, as a fixed bake does (only the direct term adapts).
+// would be traced once per row at the base spp, as a fixed bake does, its error not estimated
+// (so `sample` refuses --tolerance with bounces: the tolerance would not hold).
 #pragma once
 
 #include <cstdint>
