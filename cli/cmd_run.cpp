@@ -4,12 +4,14 @@
 #include <algorithm>
 #include <climits>
 #include <cstdio>
+#include <fstream>
 #include <iostream>
 #include <sstream>
 
 #include "cli/commands.h"
 #include "cli/common.h"
 #include "format/array_spec.h"
+#include "format/json_text.h"
 #include "pipeline/bake.h"
 
 namespace ltb::cli {
@@ -65,6 +67,17 @@ std::string PlanText(const pipeline::BakeOutcome& o) {
 // " [3/6]": where the step is in the bake.
 std::string StepOf(const pipeline::StepEvent& e) {
   return e.steps ? " [" + std::to_string(e.step) + "/" + std::to_string(e.steps) + "]" : "";
+}
+
+// --dry-run --json: the plan as one JSON object.
+std::string PlanJson(const pipeline::BakeOutcome& o) {
+  json steps = json::array();
+  for (const auto& s : o.plan) {
+    json j = {{"node", s.node}, {"action", s.action}, {"reason", s.reason}};
+    if (!s.command.empty()) j["command"] = s.command;
+    steps.push_back(j);
+  }
+  return JsonText(json{{"recipe", o.recipe_path}, {"workdir", o.workdir}, {"plan", steps}}, 2) + "\n";
 }
 
 // The line a step event prints (stdout), or "" for none.
@@ -142,6 +155,9 @@ class RunCommand : public Command {
     app->add_option("--retries", options_.cluster.retries, "slurm: resubmit failed shards up to this many times")
         ->default_val(2)
         ->check(CLI::Range(0, 100));
+    app->add_flag("--json", json_,
+                  "print the run report (what run.json holds; with --dry-run, the plan) as JSON on stdout; the "
+                  "step lines and the stages' output go to stderr");
     AddCommonFlags(app, &flags_);
     app_ = app;
   }
@@ -161,17 +177,19 @@ class RunCommand : public Command {
     options_.quiet = flags_.quiet;
     options_.progress = !flags_.quiet && (flags_.progress == "always" || (flags_.progress == "auto" && ::isatty(2)));
     options_.ltbake = SelfExe();
-    options_.say = [](const std::string& line) { std::cout << line << std::endl; };
+    // With --json, stdout holds the JSON alone: what the bake says goes to stderr.
+    std::ostream& say = json_ ? std::cerr : std::cout;
+    options_.say = [&say](const std::string& line) { say << line << std::endl; };
     if (!flags_.quiet) {
-      options_.on_step = [](const pipeline::StepEvent& e) {
+      options_.on_step = [&say](const pipeline::StepEvent& e) {
         std::string line = StepLine(e);
-        if (!line.empty()) std::cout << line << std::endl;
+        if (!line.empty()) say << line << std::endl;
       };
     }
     options_.exit_code_for = [](pipeline::BakeEnd end, int signal) { return ExitCodeFor(EndingOf(end), signal); };
-    options_.stage_stdout = [](std::string_view text) {
-      std::cout << text;
-      std::cout.flush();
+    options_.stage_stdout = [&say](std::string_view text) {
+      say << text;
+      say.flush();
     };
     options_.stage_stderr = [](std::string_view text) {
       std::cerr << text;
@@ -188,11 +206,14 @@ class RunCommand : public Command {
       return ExitCodeFor(s.code() == StatusCode::kInvalidArgument ? Ending::kUsage : Ending::kFailed);
     }
     if (options_.dry_run) {
-      std::cout << PlanText(*outcome);
+      std::cout << (json_ ? PlanJson(*outcome) : PlanText(*outcome));
       return kExitOk;
     }
     const int code = ExitCodeFor(EndingOf(outcome->end), outcome->signal);
-    if (!flags_.quiet || code != kExitOk) {
+    if (json_) {
+      std::ifstream report(outcome->report_path);
+      std::cout << report.rdbuf();
+    } else if (!flags_.quiet || code != kExitOk) {
       std::cout << "\n" << SummaryTable(outcome->stages);
       std::cout << "run report: " << outcome->report_path << "\n";
     }
@@ -202,6 +223,7 @@ class RunCommand : public Command {
 
  private:
   pipeline::BakeOptions options_;
+  bool json_ = false;
   CommonFlags flags_;
   CLI::App* app_ = nullptr;
 };

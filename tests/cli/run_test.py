@@ -82,6 +82,13 @@ with tempfile.TemporaryDirectory() as d:
     rows_hash = content_hash(os.path.join(w, "rows.ltm"))
     mtime = os.path.getmtime(os.path.join(w, "final.ltm"))
 
+    # --json: stdout is run.json's report alone (the step lines go to stderr); with --dry-run, the plan.
+    p = run("run", rec, "--workdir", w, "--json")
+    j = json.loads(p.stdout)
+    check(j == report(w) and "== quantize: skipped" in p.stderr, f"run --json: {p.stdout[:300]}\n{p.stderr}")
+    j = json.loads(run("run", rec, "--workdir", w, "--json", "--dry-run").stdout)
+    check([s["node"] for s in j["plan"]] == FUSED and all(s["action"] == "skip" for s in j["plan"]),
+          f"run --dry-run --json: {j}")
     p = run("run", rec, "--workdir", w)
     check(actions(w, FUSED) == {n: "skip" for n in FUSED}, f"rerun should skip all: {actions(w, FUSED)}")
     check(p.stdout.count("skipped, up to date") == 4, f"rerun does not say what it skipped:\n{p.stdout}")
