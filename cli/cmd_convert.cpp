@@ -1,10 +1,12 @@
 // ltbake convert IN OUT
 #include <cstdio>
 #include <iostream>
+#include <nlohmann/json.hpp>
 
 #include "cli/commands.h"
 #include "cli/common.h"
 #include "format/io/file_lock.h"
+#include "format/json_text.h"
 #include "stages/convert/convert.h"
 #include "stages/images/envmap.h"
 
@@ -42,6 +44,7 @@ class ConvertCommand : public Command {
     app->add_flag("--clamp", env_clamp_,
                   "environment map input: set NaN and negative values to 0 and +Inf to the largest float instead of "
                   "refusing them");
+    app->add_flag("--json", json_, "print the summary as JSON");
     AddCommonFlags(app, &flags_);
   }
 
@@ -83,7 +86,16 @@ class ConvertCommand : public Command {
       Status s = stages::ConvertEnvToNpy(options_.input, options_.output, options_.cube_res, env, &clamped);
       bar.Done();
       if (!s.ok()) return ReportFailure(s);
-      if (!flags_.quiet) {
+      if (json_) {
+        std::cout << JsonText({{"output", options_.output},
+                               {"kind", "environment cubemap"},
+                               {"rows", 6 * options_.cube_res * options_.cube_res},
+                               {"cols", 3},
+                               {"cube_res", options_.cube_res},
+                               {"clamped_values", clamped}},
+                              -1)
+                  << "\n";
+      } else if (!flags_.quiet) {
         std::cout << "wrote " << options_.output << ": " << 6 * options_.cube_res * options_.cube_res
                   << " x 3 cubemap (R = " << options_.cube_res << ")";
         if (clamped) std::cout << ", " << clamped << " values clamped";
@@ -98,7 +110,20 @@ class ConvertCommand : public Command {
     if (!r->restarted_because.empty()) {
       std::cerr << "ltbake convert: started over (--overwrite): " << r->restarted_because << "\n";
     }
-    if (!flags_.quiet) {
+    if (json_) {
+      nlohmann::json j = {{"output", options_.output},
+                          {"rows", r->rows},
+                          {"cols", r->cols},
+                          {"chunks_total", r->chunks_total},
+                          {"chunks_written", r->chunks_written},
+                          {"chunks_already_committed", r->chunks_already_committed},
+                          {"zero_chunks", r->zero_chunks},
+                          {"zstd_chunks", r->zstd_chunks},
+                          {"bytes_out", r->bytes_out}};
+      if (r->channels) j["channels"] = r->channels;
+      if (!r->restarted_because.empty()) j["restarted_because"] = r->restarted_because;
+      std::cout << JsonText(j, -1) << "\n";
+    } else if (!flags_.quiet) {
       std::cout << "wrote " << options_.output << ": ";
       if (r->channels) std::cout << r->channels << " channels x ";
       std::cout << r->rows << " x " << r->cols << ", " << r->chunks_total << " chunks";
@@ -117,6 +142,7 @@ class ConvertCommand : public Command {
 
  private:
   stages::ConvertOptions options_;
+  bool json_ = false;
   std::string chunk_size_ = "8MiB", layout_ = "rows", image_, basis_ = "stored", env_layout_ = "auto";
   bool env_clamp_ = false;
   CommonFlags flags_;

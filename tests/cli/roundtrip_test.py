@@ -84,7 +84,10 @@ with tempfile.TemporaryDirectory() as d:
     m64 = np.random.default_rng(9).standard_normal((40, 33)) * 1e3
     src = os.path.join(d, "m64.npy")
     np.save(src, m64)
-    run("convert", src, os.path.join(d, "m64.ltm"), "--chunk-size", "1KiB")
+    j = json.loads(run("convert", src, os.path.join(d, "m64.ltm"), "--chunk-size", "1KiB", "--json").stdout)
+    on_disk = json.loads(run("inspect", "--json", os.path.join(d, "m64.ltm")).stdout)
+    check((j["rows"], j["cols"]) == m64.shape and j["chunks_written"] == j["chunks_total"] ==
+          on_disk["chunks"]["committed"], f"convert --json: {j}")
     run("convert", os.path.join(d, "m64.ltm"), os.path.join(d, "m64back.npy"))
     check(np.load(os.path.join(d, "m64back.npy")).tobytes() == m64.astype(np.float32).tobytes(),
           "f64 input: not equal to astype(float32)")
