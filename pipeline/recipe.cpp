@@ -4,18 +4,16 @@
 
 #include <algorithm>
 #include <bit>
-#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <sstream>
 
 #include "format/bits.h"
-#include "format/io/file.h"
-#include "format/npy.h"
 #include "stages/brdf/brdf.h"
 #include "stages/column_transform/column_transform.h"
 #include "stages/common/quantity.h"
 #include "stages/common/toml_fields.h"
+#include "stages/images/environment.h"
 #include "stages/images/envmap.h"
 #include "stages/relight/sequence_spec.h"
 #include "stages/sample/scene.h"
@@ -269,16 +267,8 @@ Status ParseColumnTransform(const std::string& path, const toml::table& t, Recip
                            ": [column-transform] gives more than one of \"keep\", \"terms\", "
                            "\"budget\", \"target_error\"; choose one");
   }
-  if (const toml::node* k = t.get("target_error"); k && k->is_string()) {  // "2%", as --target-error takes it
-    auto f = stages::ParseFraction(*k->value<std::string>());
-    if (!f.ok()) return f.status().WithContext(Where(path, *k) + ": \"target_error\"");
-    if (!(*f < 1)) return InvalidArgument(Where(path, *k) + ": \"target_error\" must be below 100%");
-    c->target_error = *f;
-  } else if (k) {
-    LTB_ASSIGN_OR_RETURN(double v, GetNumber(path, t, "target_error", 0.02, 1e-9, 0.999999));
-    c->target_error = v;
-  }
-  if (const toml::node* k = t.get("keep"); k && k->is_string()) {  // "5%", as --keep takes it
+  LTB_ASSIGN_OR_RETURN(c->target_error, GetRelativeError(path, t, "target_error"));  // "2%", as --target-error
+  if (const toml::node* k = t.get("keep"); k && k->is_string()) {                    // "5%", as --keep takes it
     auto f = stages::ParseFraction(*k->value<std::string>());
     if (!f.ok()) return f.status().WithContext(Where(path, *k) + ": \"keep\"");
     c->keep = *f;
@@ -319,20 +309,8 @@ Status CheckEnvShape(const EnvMap& e, const std::string& table) {
       return InvalidArgument(table + " envs: " + e.path + " is a cubemap .npy; env_layout = \"" + e.layout +
                              "\" is for images (.exr, .hdr)");
     }
-    LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(e.path, io::File::Mode::kRead));
-    LTB_ASSIGN_OR_RETURN(const uint64_t size, f.Size());
-    std::vector<std::byte> head(std::min<uint64_t>(size, format::kMaxNpyHeaderBytes + 12));
-    LTB_RETURN_IF_ERROR(f.ReadAt(0, head));
-    auto h = format::ParseNpyHeader(head);
-    if (!h.ok()) return h.status().WithContext(table + " envs: " + e.path);
-    const uint64_t n = h->shape.empty() ? 0 : h->shape[0];
-    const uint64_t r = n % 6 == 0 ? static_cast<uint64_t>(std::llround(std::sqrt(double(n / 6)))) : 0;
-    if (h->fortran_order || h->shape.size() != 2 || h->shape[1] != 3 || r == 0 || 6 * r * r != n || !IsPowerOfTwo(r) ||
-        (h->descr != "<f4" && h->descr != "<f8")) {
-      return InvalidArgument(table + " envs: " + e.path + " is not a cubemap .npy (a C-order float32/float64 array " +
-                             "of shape (6R², 3), R a power of two; `ltbake convert env.exr env.npy --cube-res R` " +
-                             "writes one)");
-    }
+    auto r = stages::CubemapNpyResolution(e.path);
+    if (!r.ok()) return r.status().WithContext(table + " envs");
     return Status::Ok();
   }
   stages::EnvLoadOptions o;

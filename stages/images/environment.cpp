@@ -14,7 +14,15 @@
 
 namespace ltb::stages {
 
-Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t r, bool clamp, uint64_t* clamped) {
+namespace {
+
+// A cubemap .npy opened and its header parsed (only a regular file is opened).
+struct NpyFile {
+  io::File f;
+  uint64_t size = 0;
+  format::NpyHeader h;
+};
+Result<NpyFile> OpenNpy(const std::string& path) {
   LTB_RETURN_IF_ERROR(io::RequireRegularFile(path, "name a 6R² × 3 cubemap .npy file"));
   LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(path, io::File::Mode::kRead));
   LTB_ASSIGN_OR_RETURN(uint64_t size, f.Size());
@@ -22,6 +30,30 @@ Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t r, b
   LTB_RETURN_IF_ERROR(f.ReadAt(0, head));
   auto h = format::ParseNpyHeader(head);
   if (!h.ok()) return h.status().WithContext(path);
+  return NpyFile{std::move(f), size, std::move(*h)};
+}
+
+}  // namespace
+
+Result<uint64_t> CubemapNpyResolution(const std::string& path) {
+  LTB_ASSIGN_OR_RETURN(NpyFile npy, OpenNpy(path));
+  const format::NpyHeader& h = npy.h;
+  const uint64_t n = h.shape.empty() ? 0 : h.shape[0];
+  const uint64_t r = n % 6 == 0 ? static_cast<uint64_t>(std::llround(std::sqrt(static_cast<double>(n / 6)))) : 0;
+  if (h.fortran_order || h.shape.size() != 2 || h.shape[1] != 3 || r == 0 || 6 * r * r != n || (r & (r - 1)) != 0 ||
+      (h.descr != "<f4" && h.descr != "<f8")) {
+    return InvalidArgument(path +
+                           " is not a cubemap .npy (a C-order float32/float64 array of shape (6R², 3), R a power of "
+                           "two; `ltbake convert env.exr env.npy --cube-res R` writes one)");
+  }
+  return r;
+}
+
+Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t r, bool clamp, uint64_t* clamped) {
+  LTB_ASSIGN_OR_RETURN(NpyFile npy, OpenNpy(path));
+  io::File& f = npy.f;
+  const uint64_t size = npy.size;
+  const format::NpyHeader* h = &npy.h;
   uint64_t n = 0;
   if (r == 0 || format::MulOverflows(r, r, &n) || format::MulOverflows(n, 6, &n) || n > (uint64_t(1) << 40)) {
     return InvalidArgument(path + ": cube resolution " + std::to_string(r) + " of the matrix is out of range");

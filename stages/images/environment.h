@@ -24,6 +24,9 @@ namespace ltb::stages {
 // before anything is allocated.
 Result<std::vector<float>> ReadCubemapNpy(const std::string& path, uint64_t cube_res, bool clamp = false,
                                           uint64_t* clamped = nullptr);
+// The R of a cubemap .npy from its header alone (for checks before a bake runs): an error
+// unless it holds a C-order float (6R², 3) array with R a power of two.
+Result<uint64_t> CubemapNpyResolution(const std::string& path);
 
 // How a map that is not lat-long becomes a cubemap (a lat-long map is exact either way).
 enum class EnvResampling {

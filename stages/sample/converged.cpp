@@ -49,11 +49,8 @@ void Dilate(const std::vector<double>& var, uint32_t res, std::vector<double>& v
 
 uint64_t LevelSeed(uint64_t seed, uint32_t k) {
   if (k == 0) return seed;
-  // splitmix64 of (seed, k): streams of different levels share no counter origin.
-  uint64_t z = seed + 0x9E3779B97F4A7C15ull * (uint64_t{k} + 1);
-  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-  return z ^ (z >> 31);
+  // SplitMix64 of (seed, k): streams of different levels share no counter origin.
+  return Mix64(seed + 0x9E3779B97F4A7C15ull * (uint64_t{k} + 1));
 }
 
 Pilot PilotRows(const Sampler& s, uint64_t rows, uint32_t levels, double tolerance) {

@@ -21,12 +21,7 @@ struct Rng {
     state = seed ^ (row * 0x9E3779B97F4A7C15ull) ^ (item * 0xC2B2AE3D27D4EB4Full);
     Next();
   }
-  uint64_t Next() {
-    uint64_t z = (state += 0x9E3779B97F4A7C15ull);
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-    return z ^ (z >> 31);
-  }
+  uint64_t Next() { return Mix64(state += 0x9E3779B97F4A7C15ull); }
   double Uniform() { return static_cast<double>(Next() >> 11) * 0x1.0p-53; }
   // Two independent uniforms in [0, 1) with 24 bits each, from one draw.
   void Uniform2(double* a, double* b) {
@@ -83,12 +78,6 @@ inline double Power(double x, double e, int int_e) {
 // being generated and traced (measured: 1024 beats 4096 by ~5% CPU; 512 is no better).
 constexpr uint64_t kBatchRays = 1024;
 constexpr uint64_t kGolden = 0x9E3779B97F4A7C15ull;
-
-inline uint64_t Mix(uint64_t z) {
-  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-  return z ^ (z >> 31);
-}
 
 // The glossy lobe max(0, r·d)^e of slots [0, n) into gl, from x = max(0, r·d) in pw
 // (overwritten), by squaring over the exponent's bits in the outer loop so the lane loops
@@ -292,7 +281,24 @@ void Sampler::GenerateRaysT(uint64_t row, const RowPoint& rp, const PhongLobe& b
 // slots: jittered point, direction, trace or not (a sample below the horizon needs no
 // ray: its slot is inactive, tfar = -inf < tnear, and its value is never read), weight; for a glossy
 // BRDF the value waits for the lobe (wc and x = max(0, r·d) are kept).
-// SplitMix64 is counter-based: draw k of the (row, texel) stream is Mix(s0 + (k+2)·G).
+namespace {
+
+// The end of the texel range from c0 that holds `step` selected texels (select[c] != 0; every
+// texel when select is null), or the rest; their count into *picked. Sparse selections so
+// still trace full batches.
+uint64_t SelectedRangeEnd(const uint8_t* select, uint64_t c0, uint64_t cols, uint64_t step, uint64_t* picked) {
+  if (select == nullptr) {
+    *picked = std::min(cols, c0 + step) - c0;
+    return c0 + *picked;
+  }
+  uint64_t c1 = c0;
+  for (*picked = 0; c1 < cols && *picked < step;) *picked += select[c1++] != 0 ? 1 : 0;
+  return c1;
+}
+
+}  // namespace
+
+// SplitMix64 is counter-based: draw k of the (row, texel) stream is Mix64(s0 + (k+2)·G).
 template <uint32_t kSpp, int kKind>
 void Sampler::DirectionsT(size_t n0, size_t n1, double na, double nb, double nc, const TexelInfo& t,
                           const PhongLobe& brdf, RowScratch& sc) const {
@@ -316,7 +322,7 @@ void Sampler::DirectionsT(size_t n0, size_t n1, double na, double nb, double nc,
   constexpr float kInf = std::numeric_limits<float>::infinity();
 #pragma omp simd
   for (size_t k = n0; k < n1; ++k) {
-    const uint64_t z = Mix(ls[k] + ((k % spp) + 2) * kGolden);
+    const uint64_t z = Mix64(ls[k] + ((k % spp) + 2) * kGolden);
     // (z >> 40)·2^-24 and ((z >> 16) & 0xFFFFFF)·2^-24, exactly, built from bits (AVX2
     // has no vector uint64 -> double conversion): 1 + m·2^-24 has m in the mantissa.
     const double ju = std::bit_cast<double>(0x3FF0000000000000ull | ((z >> 40) << 28)) - 1.0;
@@ -581,12 +587,10 @@ uint64_t Sampler::DirectWithVariance(uint64_t row, const RowPoint& rp, double* e
   // overstates it by all of the integrand's variation across the texel).
   const double h = 2.0 / r_, texel_area = h * h, n = static_cast<double>(spp);
   const double pair_scale = n / (2.0 * static_cast<double>(spp / 2)) / (n * n);
-  // Ranges holding about a batch's worth of selected texels (as DirectSelected).
+  // Ranges holding about a batch's worth of selected texels (SelectedRangeEnd).
   for (uint64_t c0 = 0; c0 < cols;) {
-    uint64_t c1 = std::min(cols, c0 + step), picked = c1 - c0;
-    if (select != nullptr) {
-      for (c1 = c0, picked = 0; c1 < cols && picked < step;) picked += select[c1++] != 0 ? 1 : 0;
-    }
+    uint64_t picked = 0;
+    const uint64_t c1 = SelectedRangeEnd(select, c0, cols, step, &picked);
     if (picked == 0) break;
     GenerateRays(row, rp, brdf, c0, c1, sc, &below, &samples_below, select);
     g_.rays->Occluded(sc.batch, sc.n);
@@ -622,8 +626,8 @@ uint64_t Sampler::DirectSelected(uint64_t row, const RowPoint& rp, const uint8_t
   // Ranges holding about a batch's worth of selected texels, so sparse selections still
   // trace full batches.
   for (uint64_t c0 = 0; c0 < cols;) {
-    uint64_t c1 = c0, picked = 0;
-    while (c1 < cols && picked < step) picked += select[c1++] != 0 ? 1 : 0;
+    uint64_t picked = 0;
+    const uint64_t c1 = SelectedRangeEnd(select, c0, cols, step, &picked);
     if (picked == 0) break;
     GenerateRays(row, rp, brdf, c0, c1, sc, &below, &samples_below, select);
     g_.rays->Occluded(sc.batch, sc.n);

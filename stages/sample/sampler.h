@@ -19,6 +19,14 @@
 
 namespace ltb::sample {
 
+// SplitMix64's finaliser: the sampler's random streams, the sparse bake's row draws and the
+// converged levels' seeds all hash with it.
+inline uint64_t Mix64(uint64_t z) {
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
+
 struct TexelInfo {
   int face;
   double u0, v0;       // lower corner in face coordinates

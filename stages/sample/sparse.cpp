@@ -72,15 +72,9 @@ enum CheckpointArray : uint32_t {
 enum OutputArray : uint32_t { kKind = 4, kTraced = 5, kRays = 6, kResidual = 7, kSeconds = 8 };
 enum RowKind : uint8_t { kNone = 0, kDense = 1, kSparse = 2 };
 
-uint64_t Mix(uint64_t z) {
-  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-  return z ^ (z >> 31);
-}
-
 // A uniform number in (0, 1] from (seed, round, row).
 double Uniform(uint64_t seed, uint64_t round, uint64_t row) {
-  const uint64_t z = Mix(seed ^ 0x5EED5EED5EED5EEDull ^ Mix(round * 0x9E3779B97F4A7C15ull + row));
+  const uint64_t z = sample::Mix64(seed ^ 0x5EED5EED5EED5EEDull ^ sample::Mix64(round * 0x9E3779B97F4A7C15ull + row));
   return (static_cast<double>(z >> 11) + 1.0) * 0x1.0p-53;
 }
 
