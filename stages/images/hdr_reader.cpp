@@ -34,9 +34,10 @@ struct HdrHeader {
 };
 
 // The header lines up to the blank line and the resolution line, with every size checked
-// against the cap, the file and the memory limit; `*pos` is left at the first scanline.
-Result<HdrHeader> ReadHdrHeader(const std::string& path, const std::vector<uint8_t>& buf, const EnvLoadOptions& o,
-                                uint64_t* pos_out) {
+// against the cap, the file and the memory limit; `*pos` is left at the first scanline. buf
+// holds the file's first bytes (all of them to decode it); file_size is its whole length.
+Result<HdrHeader> ReadHdrHeader(const std::string& path, const std::vector<uint8_t>& buf, uint64_t file_size,
+                                const EnvLoadOptions& o, uint64_t* pos_out) {
   const uint64_t size = buf.size();
   uint64_t pos = 0;
   auto next_line = [&](std::string* line) {
@@ -105,7 +106,7 @@ Result<HdrHeader> ReadHdrHeader(const std::string& path, const std::vector<uint8
                            "\") is beyond " + std::to_string(kMaxPixels) + " pixels (16384 x 16384)");
   }
   // Every scanline takes at least 4 bytes of the file (one flat pixel or a run-length header).
-  const uint64_t data_bytes = size - pos;
+  const uint64_t data_bytes = file_size - pos;
   if (h > data_bytes / 4) {
     return DataLoss(path + ": Radiance .hdr declares " + std::to_string(h) + " scanlines (resolution line \"" + shown +
                     "\") but holds " + std::to_string(data_bytes) +
@@ -122,7 +123,8 @@ Result<HdrHeader> ReadHdrHeader(const std::string& path, const std::vector<uint8
                     " bytes of pixel data, more than " + std::to_string(kMaxHdrPixelsPerByte) +
                     " pixels per byte: the size is damaged (if the map is real, save it again, or as .exr)");
   }
-  LTB_RETURN_IF_ERROR(CheckMemory(pixels, size + w * 4, o.max_bytes, path, "the Radiance .hdr image " + Size(w, h)));
+  LTB_RETURN_IF_ERROR(
+      CheckMemory(pixels, file_size + w * 4, o.max_bytes, path, "the Radiance .hdr image " + Size(w, h)));
   *pos_out = pos;
   return HdrHeader{w, h, pixels, ys == "+Y", xs == "-X"};
 }
@@ -213,15 +215,16 @@ Status DecodeFlatScanline(HdrScanlines& in, uint64_t y, uint64_t width, std::vec
 // either run-length encoded per component (the "new" format, widths 8..32767) or flat RGBE
 // with the original (1,1,1,n) repeat records. RGBE -> float as in Greg Ward's rgbe.c and
 // stb_image: mantissa · 2^(e − 136), 0 when e = 0.
-Result<ImageSize> ReadHdrSize(const std::string& path, const std::vector<uint8_t>& buf, const EnvLoadOptions& o) {
+Result<ImageSize> ReadHdrSize(const std::string& path, const std::vector<uint8_t>& head, uint64_t file_size,
+                              const EnvLoadOptions& o) {
   uint64_t pos = 0;
-  LTB_ASSIGN_OR_RETURN(HdrHeader hh, ReadHdrHeader(path, buf, o, &pos));
+  LTB_ASSIGN_OR_RETURN(HdrHeader hh, ReadHdrHeader(path, head, file_size, o, &pos));
   return ImageSize{hh.w, hh.h};
 }
 
 Result<Image> ReadHdr(const std::string& path, const std::vector<uint8_t>& buf, const EnvLoadOptions& o) {
   uint64_t pos = 0;
-  LTB_ASSIGN_OR_RETURN(HdrHeader hh, ReadHdrHeader(path, buf, o, &pos));
+  LTB_ASSIGN_OR_RETURN(HdrHeader hh, ReadHdrHeader(path, buf, buf.size(), o, &pos));
   const uint64_t w = hh.w, h = hh.h;
   const bool flip_y = hh.flip_y, flip_x = hh.flip_x;
   Image img;

@@ -1,6 +1,7 @@
 #include "stages/images/image_readers.h"
 
 #include <algorithm>
+#include <cstdint>
 #include <cstdio>
 #include <exception>
 
@@ -47,7 +48,10 @@ Status CheckMemory(uint64_t pixels, uint64_t extra, uint64_t max_bytes, const st
 
 namespace {
 
-Result<std::vector<uint8_t>> ReadWholeFile(const std::string& path, uint64_t max_bytes) {
+// The first `limit` bytes of a file (all of it by default), after the checks every .hdr
+// read makes of its size; the file's size into *file_size.
+Result<std::vector<uint8_t>> ReadFileHead(const std::string& path, uint64_t max_bytes, uint64_t* file_size,
+                                          uint64_t limit = UINT64_MAX) {
   LTB_ASSIGN_OR_RETURN(io::File f, io::File::Open(path, io::File::Mode::kRead));
   LTB_ASSIGN_OR_RETURN(uint64_t size, f.Size());
   if (size > (uint64_t(4) << 30)) {
@@ -58,13 +62,15 @@ Result<std::vector<uint8_t>> ReadWholeFile(const std::string& path, uint64_t max
     return InvalidArgument(path + ": the file is " + MiB(size) + ", beyond the memory limit of " + MiB(max_bytes) +
                            " (--mem-limit); raise --mem-limit");
   }
+  *file_size = size;
+  const uint64_t n = std::min(size, limit);
   std::vector<uint8_t> bytes;
   try {
-    bytes.resize(size);
+    bytes.resize(n);
   } catch (const std::exception&) {
-    return InvalidArgument(path + ": no memory to read its " + std::to_string(size) + " bytes");
+    return InvalidArgument(path + ": no memory to read its " + std::to_string(n) + " bytes");
   }
-  LTB_RETURN_IF_ERROR(f.ReadAt(0, format::MutableByteSpan(reinterpret_cast<std::byte*>(bytes.data()), size)));
+  LTB_RETURN_IF_ERROR(f.ReadAt(0, format::MutableByteSpan(reinterpret_cast<std::byte*>(bytes.data()), n)));
   return bytes;
 }
 
@@ -99,15 +105,17 @@ Result<ImageKind> Sniff(const std::string& path, const EnvLoadOptions& o) {
 Result<Image> ReadImage(const std::string& path, const EnvLoadOptions& o) {
   LTB_ASSIGN_OR_RETURN(const ImageKind kind, Sniff(path, o));
   if (kind == ImageKind::kExr) return ReadExr(path, o);
-  LTB_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, ReadWholeFile(path, o.max_bytes));
+  uint64_t size = 0;
+  LTB_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, ReadFileHead(path, o.max_bytes, &size));
   return ReadHdr(path, bytes, o);
 }
 
 Result<ImageSize> ReadImageSize(const std::string& path, const EnvLoadOptions& o) {
   LTB_ASSIGN_OR_RETURN(const ImageKind kind, Sniff(path, o));
   if (kind == ImageKind::kExr) return ReadExrSize(path);
-  LTB_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, ReadWholeFile(path, o.max_bytes));
-  return ReadHdrSize(path, bytes, o);
+  uint64_t size = 0;  // the header: at most 64 KiB of lines, then the resolution line
+  LTB_ASSIGN_OR_RETURN(std::vector<uint8_t> head, ReadFileHead(path, o.max_bytes, &size, (1u << 16) + 4096));
+  return ReadHdrSize(path, head, size, o);
 }
 
 }  // namespace ltb::stages::envmap_internal

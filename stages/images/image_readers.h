@@ -50,8 +50,8 @@ Status CheckMemory(uint64_t pixels, uint64_t extra, uint64_t max_bytes, const st
 Result<Image> ReadImage(const std::string& path, const EnvLoadOptions& o);
 
 // The width and height the .exr or .hdr file declares, after the checks ReadImage makes
-// before it allocates pixels, without decoding any: an .exr's header alone; an .hdr is read
-// whole (the checks of its declared size need the pixel data's length) but not decoded.
+// before it allocates pixels, without decoding any: an .exr's header alone; an .hdr's
+// header (its declared size is checked against the file's length, not its pixels).
 struct ImageSize {
   uint64_t width = 0, height = 0;
 };
@@ -60,7 +60,9 @@ Result<ImageSize> ReadImageSize(const std::string& path, const EnvLoadOptions& o
 // The readers ReadImage dispatches to.
 // Radiance RGBE (.hdr), from the whole file's bytes (hdr_reader.cpp).
 Result<Image> ReadHdr(const std::string& path, const std::vector<uint8_t>& buf, const EnvLoadOptions& o);
-Result<ImageSize> ReadHdrSize(const std::string& path, const std::vector<uint8_t>& buf, const EnvLoadOptions& o);
+// From the file's first bytes (its header) and its whole length.
+Result<ImageSize> ReadHdrSize(const std::string& path, const std::vector<uint8_t>& head, uint64_t file_size,
+                              const EnvLoadOptions& o);
 // OpenEXR through the library (exr_reader.cpp), after CheckExrHeaderSizes passed.
 Result<Image> ReadExr(const std::string& path, const EnvLoadOptions& o);
 Result<ImageSize> ReadExrSize(const std::string& path);
