@@ -4,6 +4,8 @@
 #include <cmath>
 #include <cstring>
 
+#include "stages/common/basis.h"
+
 namespace ltb::stages {
 
 using namespace ltb::format;
@@ -40,8 +42,9 @@ Result<ColumnCodec> ColumnCodec::FromMetadata(const Metadata& meta, const std::s
   c.depth_array_ = meta.FindArray(ct.value("depth_array", std::string("depth")));
   if (c.depth_array_ < 0) return bad("no depth array");
   const ArraySpec& ds = meta.arrays[c.depth_array_];
-  if (ds.dtype != DType::kU8 || ds.rows != meta.matrix().cols || ds.cols != 1 || ds.layout != Layout::kRows ||
-      ds.block != meta.matrix().block) {
+  // Chunked like the matrix (column-transform) or in few chunks of its own (quantize since
+  // 2026-12-02): readers take a chunk's columns with ReadLines.
+  if (ds.dtype != DType::kU8 || ds.rows != meta.matrix().cols || ds.cols != 1 || ds.layout != Layout::kRows) {
     return bad("depth array has an unexpected shape");
   }
   if (meta.matrix().layout != Layout::kCols) return bad("matrix is not in column blocks");
@@ -59,7 +62,7 @@ Result<ColumnCodec> ColumnCodec::FromMetadata(const Metadata& meta, const std::s
     c.scale_array_ = meta.FindArray(q.value("scale_array", std::string("scale")));
     if (c.scale_array_ < 0) return bad("no scale array");
     const ArraySpec& ss = meta.arrays[c.scale_array_];
-    if (ss.dtype != DType::kF64 || ss.rows != meta.matrix().cols || ss.cols != 1 || ss.block != meta.matrix().block) {
+    if (ss.dtype != DType::kF64 || ss.rows != meta.matrix().cols || ss.cols != 1 || ss.layout != Layout::kRows) {
       return bad("scale array has an unexpected shape");
     }
     if (meta.matrix().dtype != DType::kI32) return bad("quantized matrix is not i32");
@@ -196,16 +199,14 @@ void ColumnCodec::ToImage(int depth, float* column, std::vector<float>* scratch)
 Status ColumnCodec::DecodeChunk(const io::ContainerReader& reader, uint64_t chunk, std::vector<float>* out,
                                 const io::ReadOptions& options) const {
   LTB_ASSIGN_OR_RETURN(SparseChunk sc, reader.ReadSparse(0, chunk, options));
-  LTB_ASSIGN_OR_RETURN(io::Chunk dc, reader.ReadChunk(depth_array_, chunk, options));
+  const ChunkExtent& e = sc.extent;
+  LTB_ASSIGN_OR_RETURN(const std::vector<uint8_t> depths,
+                       ReadLinesAs<uint8_t>(reader, depth_array_, e.col0, e.col0 + e.cols, options));
   std::vector<double> scales;
   if (scale_array_ >= 0) {
-    LTB_ASSIGN_OR_RETURN(io::Chunk s, reader.ReadChunk(scale_array_, chunk, options));
-    auto v = s.as<double>();
-    scales.assign(v.begin(), v.end());
+    LTB_ASSIGN_OR_RETURN(scales, ReadLinesAs<double>(reader, scale_array_, e.col0, e.col0 + e.cols, options));
   }
   const uint64_t pixels = width_ * height_;
-  const ChunkExtent& e = sc.extent;
-  auto depths = dc.as<uint8_t>();
   out->assign(e.cols * pixels, 0.0f);
   std::vector<float> scratch;
   const size_t elem = 4;  // f32 values or i32 quantized values

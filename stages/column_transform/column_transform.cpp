@@ -91,6 +91,7 @@ struct SelectionPlan {
 struct OutputLayout {
   nlohmann::json meta;
   uint32_t depth_array = 0, stats_array = 0;
+  std::vector<uint32_t> row_tables;  // the input arrays kept, output arrays 1, 2, ...
 };
 
 // The input: the output of `transpose` (column blocks, complete f32), not yet transformed.
@@ -242,9 +243,16 @@ Result<OutputLayout> OutputMetadata(const ColumnTransformOptions& o, const io::C
   out_meta = meta.json;
   ArraySpec out_spec = a;
   out_spec.block = plan.block;
-  out_meta["arrays"][0] = out_spec.ToJson();
-  for (size_t arr = 1; arr < meta.arrays.size(); ++arr)
-    out_meta["arrays"][arr] = PassThroughSpec(meta.arrays[arr]).ToJson();
+  out_meta["arrays"] = nlohmann::json::array({out_spec.ToJson()});
+  nlohmann::json dropped = nlohmann::json::array();
+  for (uint32_t arr = 1; arr < meta.arrays.size(); ++arr) {
+    if (!KeptByCompressedOutputs(meta.arrays[arr].name)) {
+      dropped.push_back(meta.arrays[arr].name);
+      continue;
+    }
+    out.row_tables.push_back(arr);
+    out_meta["arrays"].push_back(PassThroughSpec(meta.arrays[arr]).ToJson());
+  }
   ArraySpec depth_spec;
   depth_spec.name = kDepthArray;
   depth_spec.dtype = DType::kU8;
@@ -259,7 +267,7 @@ Result<OutputLayout> OutputMetadata(const ColumnTransformOptions& o, const io::C
   if (meta.FindArray(kDepthArray) >= 0 || meta.FindArray(kStatsArray) >= 0) {
     return FailedPrecondition(o.input + ": already has a \"depth\" or \"column_stats\" array");
   }
-  out.depth_array = static_cast<uint32_t>(meta.arrays.size());
+  out.depth_array = static_cast<uint32_t>(out_meta["arrays"].size());
   out.stats_array = out.depth_array + 1;
   out_meta["arrays"].push_back(depth_spec.ToJson());
   out_meta["arrays"].push_back(stats_spec.ToJson());
@@ -273,6 +281,7 @@ Result<OutputLayout> OutputMetadata(const ColumnTransformOptions& o, const io::C
                                   {"selection", sel.selection},
                                   {"depth_array", kDepthArray},
                                   {"stats_array", kStatsArray}};
+  if (!dropped.empty()) out_meta["column_transform"]["row_tables_dropped"] = dropped;
   out_meta["provenance"] = Provenance("column-transform",
                                       {{"filter", wavelet::FilterName(o.filter)},
                                        {"depth", DepthModeName(o.depth)},
@@ -486,8 +495,8 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
   result.chunks_already_committed = out.resume_info().committed_chunks;
 
   // Row side tables pass through, in few chunks.
-  for (uint32_t arr = 1; arr < meta.arrays.size(); ++arr) {
-    LTB_RETURN_IF_ERROR(CopyArray(in, arr, out, &result.chunks_written));
+  for (uint32_t k = 0; k < layout.row_tables.size(); ++k) {
+    LTB_RETURN_IF_ERROR(CopyArray(in, layout.row_tables[k], out, k + 1, &result.chunks_written));
   }
   const std::vector<uint64_t> items = MissingChunks(out, layout);
   LTB_RETURN_IF_ERROR(MakeCompressor(o.filter, plan).status());
@@ -521,6 +530,40 @@ Result<ColumnTransformResult> RunColumnTransform(const ColumnTransformOptions& o
   return result;
 }
 
+namespace {
+
+// A quantize output's column totals: its input's, recorded in "column_transform.totals"
+// (the per-column column_stats are not carried past quantize).
+Result<ColumnTransformResult> TotalsFromMetadata(const std::string& path, const Metadata& meta) {
+  const auto& ct = meta.json["column_transform"];
+  const auto& t = ct["totals"];
+  auto bad = [&](const std::string& what) { return DataLoss(path + ": column_transform.totals: " + what); };
+  if (!t.is_object()) return bad("not an object");
+  ColumnTransformResult r;
+  r.rows = meta.matrix().rows;
+  r.cols = meta.matrix().cols;
+  r.min_depth = ct.value("min_depth", 0);
+  r.max_depth = ct.value("max_depth", 0);
+  for (const char* k : {"energy", "error"})
+    if (!t.value(k, nlohmann::json()).is_number() || !(t[k].get<double>() >= 0))
+      return bad(std::string(k) + " missing or negative");
+  for (const char* k : {"nonzeros", "empty_columns"})
+    if (!t.value(k, nlohmann::json()).is_number_unsigned()) return bad(std::string(k) + " missing");
+  r.energy = t["energy"].get<double>();
+  r.error = t["error"].get<double>();
+  r.nonzeros = t["nonzeros"].get<uint64_t>();
+  r.empty_columns = t["empty_columns"].get<uint64_t>();
+  const auto& h = t.value("depth_histogram", nlohmann::json());
+  if (!h.is_array() || h.size() > 65) return bad("depth_histogram missing");
+  for (const auto& v : h) {
+    if (!v.is_number_unsigned()) return bad("depth_histogram holds " + v.dump());
+    r.depth_histogram.push_back(v.get<uint64_t>());
+  }
+  return r;
+}
+
+}  // namespace
+
 Result<ColumnTransformResult> SummarizeColumnTransform(const std::string& path) {
   LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(path));
   const Metadata& meta = r.metadata();
@@ -528,6 +571,7 @@ Result<ColumnTransformResult> SummarizeColumnTransform(const std::string& path) 
     return FailedPrecondition(path + ": is not a column-transform output");
   }
   const auto& ct = meta.json["column_transform"];
+  if (!ct.contains("stats_array") && ct.contains("totals")) return TotalsFromMetadata(path, meta);
   int depth_array = meta.FindArray(ct.value("depth_array", kDepthArray));
   int stats_array = meta.FindArray(ct.value("stats_array", kStatsArray));
   if (depth_array < 0 || stats_array < 0) return DataLoss(path + ": column_transform names arrays that are missing");

@@ -111,36 +111,53 @@ format::ArraySpec PassThroughSpec(const format::ArraySpec& in) {
   return out;
 }
 
+Result<std::vector<std::byte>> ReadLines(const io::ContainerReader& in, uint32_t arr, uint64_t l0, uint64_t l1,
+                                         const io::ReadOptions& options) {
+  const format::ArraySpec& src = in.metadata().arrays.at(arr);
+  const bool rows = src.layout == format::Layout::kRows;
+  const uint64_t lines = rows ? src.rows : src.cols;
+  const uint64_t line = (rows ? src.cols : src.rows) * format::DTypeSize(src.dtype);
+  if (l0 > l1 || l1 > lines) {
+    return InvalidArgument(in.path() + ": lines " + std::to_string(l0) + ".." + std::to_string(l1) + " of \"" +
+                           src.name + "\", which has " + std::to_string(lines));
+  }
+  std::vector<std::byte> buf((l1 - l0) * line);
+  for (uint64_t ic = l0 / src.block; ic * src.block < l1; ++ic) {
+    LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(arr, ic, options));
+    const uint64_t i0 = ic * src.block, a = std::max(i0, l0), b = std::min(i0 + src.block, l1);
+    std::memcpy(buf.data() + (a - l0) * line, chunk.bytes().data() + (a - i0) * line, (b - a) * line);
+  }
+  return buf;
+}
+
 Status CopyArray(const io::ContainerReader& in, uint32_t arr, io::ContainerWriter& out, uint64_t* chunks_written) {
+  return CopyArray(in, arr, out, arr, chunks_written);
+}
+
+Status CopyArray(const io::ContainerReader& in, uint32_t arr, io::ContainerWriter& out, uint32_t dst_arr,
+                 uint64_t* chunks_written) {
   const format::ArraySpec& src = in.metadata().arrays[arr];
-  const format::ArraySpec& dst = out.metadata().arrays[arr];
+  const format::ArraySpec& dst = out.metadata().arrays[dst_arr];
   if (src.layout != dst.layout || src.rows != dst.rows || src.cols != dst.cols || src.dtype != dst.dtype) {
     return Internal("CopyArray: array \"" + src.name + "\" changes shape, dtype or layout");
   }
-  // A chunk is a run of lines (rows of a rows-layout array, columns of a cols-layout one)
-  // of `line` bytes each: copy the lines of each output chunk from the input chunks over them.
-  const bool rows = src.layout == format::Layout::kRows;
-  const uint64_t line = (rows ? src.cols : src.rows) * format::DTypeSize(src.dtype);
+  const uint64_t lines = src.layout == format::Layout::kRows ? src.rows : src.cols;
   format::EncodeOptions eo;
   eo.zstd = true;
-  for (uint64_t c : out.Missing(arr)) {
+  for (uint64_t c : out.Missing(dst_arr)) {
     if (src.block == dst.block) {
       LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(arr, c));
-      LTB_RETURN_IF_ERROR(out.Put(arr, c, chunk.bytes(), eo));
+      LTB_RETURN_IF_ERROR(out.Put(dst_arr, c, chunk.bytes(), eo));
     } else {
-      const uint64_t lines = rows ? src.rows : src.cols;
       const uint64_t l0 = c * dst.block, l1 = std::min(lines, l0 + dst.block);
-      std::vector<std::byte> buf((l1 - l0) * line);
-      for (uint64_t ic = l0 / src.block; ic * src.block < l1; ++ic) {
-        LTB_ASSIGN_OR_RETURN(io::Chunk chunk, in.ReadChunk(arr, ic));
-        const uint64_t i0 = ic * src.block, a = std::max(i0, l0), b = std::min(i0 + src.block, l1);
-        std::memcpy(buf.data() + (a - l0) * line, chunk.bytes().data() + (a - i0) * line, (b - a) * line);
-      }
-      LTB_RETURN_IF_ERROR(out.Put(arr, c, format::ByteSpan(buf.data(), buf.size()), eo));
+      LTB_ASSIGN_OR_RETURN(std::vector<std::byte> buf, ReadLines(in, arr, l0, l1));
+      LTB_RETURN_IF_ERROR(out.Put(dst_arr, c, format::ByteSpan(buf.data(), buf.size()), eo));
     }
     if (chunks_written) ++*chunks_written;
   }
   return Status::Ok();
 }
+
+bool KeptByCompressedOutputs(const std::string& name) { return name == "mask" || name == "reflectance"; }
 
 }  // namespace ltb::stages

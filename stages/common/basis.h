@@ -3,9 +3,11 @@
 #pragma once
 
 #include <cstdint>
+#include <cstring>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "format/array_spec.h"
 #include "format/bits.h"
@@ -47,9 +49,33 @@ Status RefuseCpcaOutput(const io::ContainerReader& in, const std::string& stage)
 // kSideTableChunkBytes (each chunk costs ~170 bytes of frame and index), others as they are.
 inline constexpr uint64_t kSideTableChunkBytes = 16ull << 20;
 format::ArraySpec PassThroughSpec(const format::ArraySpec& in);
-// Copies array `arr` of `in` into `out`, whose spec for it may have another block than the
-// input's (same layout, shape and dtype); skips chunks `out` already has; zstd where it saves.
+// Copies array `arr` of `in` into array `dst` of `out` (by default the same index), whose
+// spec may have another block than the input's (same layout, shape and dtype); skips
+// chunks `out` already has; zstd where it saves.
 Status CopyArray(const io::ContainerReader& in, uint32_t arr, io::ContainerWriter& out, uint64_t* chunks_written);
+Status CopyArray(const io::ContainerReader& in, uint32_t arr, io::ContainerWriter& out, uint32_t dst,
+                 uint64_t* chunks_written);
+
+// Lines [l0, l1) of array `arr` (rows of a rows-layout array, columns of a cols-layout
+// one), whatever its block: a per-column table read for a matrix chunk's columns whether
+// the table is chunked like the matrix (column-transform) or in one chunk (quantize).
+Result<std::vector<std::byte>> ReadLines(const io::ContainerReader& in, uint32_t arr, uint64_t l0, uint64_t l1,
+                                         const io::ReadOptions& options = {});
+template <class T>
+Result<std::vector<T>> ReadLinesAs(const io::ContainerReader& in, uint32_t arr, uint64_t l0, uint64_t l1,
+                                   const io::ReadOptions& options = {}) {
+  LTB_ASSIGN_OR_RETURN(std::vector<std::byte> b, ReadLines(in, arr, l0, l1, options));
+  std::vector<T> v(b.size() / sizeof(T));
+  if (!v.empty()) std::memcpy(v.data(), b.data(), v.size() * sizeof(T));
+  return v;
+}
+
+// The row side tables the outputs of column-transform and quantize keep: what relighting
+// reads ("mask", the pixels a surface covers; "reflectance", a colour bake's per-row
+// albedo). Per-row geometry ("position", "normal") and the sampling diagnostics
+// ("sparse_*", "sample_*") stay in the outputs of sample, row-transform and transpose,
+// where sparse reconstruction, CPCA and `inspect` read them (docs/COLUMN-TRANSFORM.md).
+bool KeptByCompressedOutputs(const std::string& name);
 
 // {"tool", "stage", "parameters", "inputs": [{"file", "fingerprint"}]}
 nlohmann::json Provenance(const std::string& stage, const nlohmann::json& parameters,

@@ -77,8 +77,9 @@ Result<double> RefineStep(const io::ContainerReader& in, const ColumnCodec& code
   for (uint64_t c = 0; c < chunks.size(); ++c) chunks[c] = c;
   Status s = ParallelFor(chunks, jobs, progress, "chunks (step search)", [&](uint64_t c) -> Status {
     LTB_ASSIGN_OR_RETURN(SparseChunk sc, in.ReadSparse(0, c));
-    LTB_ASSIGN_OR_RETURN(io::Chunk dc, in.ReadChunk(static_cast<uint32_t>(codec.depth_array()), c));
-    auto depths = dc.as<uint8_t>();
+    LTB_ASSIGN_OR_RETURN(const std::vector<uint8_t> depths,
+                         ReadLinesAs<uint8_t>(in, static_cast<uint32_t>(codec.depth_array()), sc.extent.col0,
+                                              sc.extent.col0 + sc.extent.cols));
     auto values = sc.as<float>();
     StepSample& out = per_chunk[c];
     for (size_t i = 0; i < sc.index.size(); ++i) {
@@ -176,35 +177,69 @@ Result<double> FindStep(const QuantizeOptions& o, const io::ContainerReader& in,
   return RefineStep(in, codec, factors, o.error_ratio, *totals_in, step, o.jobs, progress);
 }
 
-// The output's metadata and where its per-column scales are.
+// The output's metadata and where its tables are.
 struct QuantizeOutput {
   nlohmann::json meta;
-  uint32_t scale_array = 0;
+  std::vector<uint32_t> row_tables;  // the input arrays kept, output arrays 1, 2, ...
+  uint32_t depth_array = 0, scale_array = 0;
 };
 
-// The output's metadata (docs/COLUMN-TRANSFORM.md): the matrix as i32, the input's side
-// tables, a "scale" table (f64 per column, chunked like the matrix) and "quantization",
-// what ColumnCodec::FromMetadata reads back.
-Result<QuantizeOutput> OutputMetadata(const QuantizeOptions& o, const io::ContainerReader& in, Scaling scaling,
-                                      bool step_mode, double step) {
+// A per-column table of the output: one line per column, in as few chunks as fit
+// kSideTableChunkBytes (one, up to 2 Mi columns of f64).
+ArraySpec ColumnTableSpec(const char* name, DType dtype, uint64_t cols) {
+  ArraySpec s;
+  s.name = name;
+  s.dtype = dtype;
+  s.rows = cols;
+  s.cols = 1;
+  s.layout = Layout::kRows;
+  s.block = BlockForTargetBytes(cols, 1, dtype, Layout::kRows, kSideTableChunkBytes);
+  return s;
+}
+
+// The output's metadata (docs/COLUMN-TRANSFORM.md): the matrix as i32; the row tables
+// relighting reads; "depth" (u8) and "scale" (f64) per column, each in one chunk written
+// after the matrix; "quantization", what ColumnCodec::FromMetadata reads back; and the
+// input's column totals under "column_transform.totals" instead of its per-column
+// column_stats (which nothing reads after quantize: relight estimates the column norms
+// from the coefficients).
+Result<QuantizeOutput> OutputMetadata(const QuantizeOptions& o, const io::ContainerReader& in,
+                                      const ColumnTransformResult& totals, Scaling scaling, bool step_mode,
+                                      double step) {
   const Metadata& meta = in.metadata();
   const ArraySpec& a = meta.matrix();
+  if (meta.FindArray(kScaleArray) >= 0) return FailedPrecondition(o.input + ": already has a \"scale\" array");
   QuantizeOutput out;
   nlohmann::json& out_meta = out.meta;
   out_meta = meta.json;
   ArraySpec m = a;
   m.dtype = DType::kI32;
-  out_meta["arrays"][0] = m.ToJson();
-  ArraySpec scale_spec;
-  scale_spec.name = kScaleArray;
-  scale_spec.dtype = DType::kF64;
-  scale_spec.rows = a.cols;
-  scale_spec.cols = 1;
-  scale_spec.layout = Layout::kRows;
-  scale_spec.block = a.block;
-  if (meta.FindArray(kScaleArray) >= 0) return FailedPrecondition(o.input + ": already has a \"scale\" array");
-  out.scale_array = static_cast<uint32_t>(meta.arrays.size());
-  out_meta["arrays"].push_back(scale_spec.ToJson());
+  out_meta["arrays"] = nlohmann::json::array({m.ToJson()});
+  nlohmann::json& ct = out_meta["column_transform"];
+  nlohmann::json dropped = ct.value("row_tables_dropped", nlohmann::json::array());
+  const int depth_in = meta.FindArray(ct.value("depth_array", std::string("depth")));
+  const int stats_in = meta.FindArray(ct.value("stats_array", std::string("column_stats")));
+  for (uint32_t arr = 1; arr < meta.arrays.size(); ++arr) {
+    if (static_cast<int>(arr) == depth_in || static_cast<int>(arr) == stats_in) continue;
+    if (!KeptByCompressedOutputs(meta.arrays[arr].name)) {  // an older column-transform kept more
+      dropped.push_back(meta.arrays[arr].name);
+      continue;
+    }
+    out.row_tables.push_back(arr);
+    out_meta["arrays"].push_back(PassThroughSpec(meta.arrays[arr]).ToJson());
+  }
+  out.depth_array = static_cast<uint32_t>(out_meta["arrays"].size());
+  out_meta["arrays"].push_back(ColumnTableSpec("depth", DType::kU8, a.cols).ToJson());
+  out.scale_array = out.depth_array + 1;
+  out_meta["arrays"].push_back(ColumnTableSpec(kScaleArray, DType::kF64, a.cols).ToJson());
+  ct["depth_array"] = "depth";
+  ct.erase("stats_array");
+  if (!dropped.empty()) ct["row_tables_dropped"] = dropped;
+  ct["totals"] = {{"energy", totals.energy},
+                  {"error", totals.error},
+                  {"nonzeros", totals.nonzeros},
+                  {"empty_columns", totals.empty_columns},
+                  {"depth_histogram", totals.depth_histogram}};
   out_meta["basis"]["rows"]["coefficients"] = "column_transform, quantized";
   out_meta["quantization"] = {{"bits", o.bits},
                               {"scaling", ScalingName(scaling)},
@@ -223,15 +258,6 @@ Result<QuantizeOutput> OutputMetadata(const QuantizeOptions& o, const io::Contai
   return out;
 }
 
-// Chunks missing from the matrix or the scale table (each chunk writes what it lacks).
-std::vector<uint64_t> MissingChunks(const io::ContainerWriter& out, uint32_t scale_array) {
-  std::vector<uint64_t> items = out.Missing(0);
-  for (uint64_t c : out.Missing(scale_array)) items.push_back(c);
-  std::sort(items.begin(), items.end());
-  items.erase(std::unique(items.begin(), items.end()), items.end());
-  return items;
-}
-
 // Σ squared quantization error (double bits, CAS-added).
 void AddError(std::atomic<uint64_t>* sum_bits, double e) {
   uint64_t cur = sum_bits->load();
@@ -246,56 +272,78 @@ struct QuantizeJob {
   io::ContainerWriter& out;
   const ColumnCodec& codec;
   const std::vector<std::vector<double>>& factors;  // per depth, per position
-  uint32_t scale_array = 0;
   bool step_mode = false;
   double step = 0;
   double levels = 0;                 // Q
   std::atomic<uint64_t>* qerr_bits;  // AddError
   EncodeOptions matrix_encoding;     // sparse i32
-  EncodeOptions side_encoding;       // the per-column scales: zstd where it saves
+  std::vector<double>* scales;       // per column of the matrix: each chunk fills its own
 };
 
-// Quantizes chunk c (its columns one by one) and writes its matrix chunk and scales
-// unless already committed.
-Status QuantizeChunk(const QuantizeJob& job, uint64_t c) {
+// One input chunk: its stored coefficients and their columns' depths.
+struct InputChunk {
+  SparseChunk sc;
+  std::vector<uint8_t> depths;
+};
+
+Result<InputChunk> ReadInputChunk(const QuantizeJob& job, uint64_t c) {
+  InputChunk ic;
+  LTB_ASSIGN_OR_RETURN(ic.sc, job.in.ReadSparse(0, c));
+  const ChunkExtent& e = ic.sc.extent;
+  LTB_ASSIGN_OR_RETURN(
+      ic.depths, ReadLinesAs<uint8_t>(job.in, static_cast<uint32_t>(job.codec.depth_array()), e.col0, e.col0 + e.cols));
+  return ic;
+}
+
+// The scaled coefficients (v · factor) of column k of the chunk, positions [begin, end) of
+// its index, into *scaled; returns their largest magnitude M, the column's scale (Δ · Q for
+// every column with a nonzero in --error-ratio mode), 0 for a column of (signed) zeros.
+Result<double> ScaleColumn(const QuantizeJob& job, const InputChunk& ic, uint64_t k, size_t begin, size_t end,
+                           std::vector<double>* scaled) {
+  const SparseChunk& sc = ic.sc;
+  const uint64_t pixels = job.in.metadata().matrix().rows;
+  const uint64_t col = sc.extent.col0 + k;
+  const int d = ic.depths[k];
+  if (d > job.codec.max_depth()) {
+    return DataLoss(job.o.input + ": column " + std::to_string(col) + " has depth " + std::to_string(d));
+  }
+  const std::vector<double>& factor = job.factors[d];
+  auto values = sc.as<float>();
+  scaled->resize(end - begin);
+  double mx = 0;
+  for (size_t i = begin; i < end; ++i) {
+    const uint32_t p = sc.index[i] - static_cast<uint32_t>(k * pixels);
+    const double v = static_cast<double>(values[i]) * factor[p];
+    (*scaled)[i - begin] = v;
+    mx = std::max(mx, std::fabs(v));
+  }
+  if (!std::isfinite(mx))
+    return DataLoss(job.o.input + ": column " + std::to_string(col) + " holds a non-finite coefficient");
+  if (mx == 0) return 0.0;                            // only signed zeros
+  return job.step_mode ? job.step * job.levels : mx;  // q = round(v / Δ): the same step in every column
+}
+
+// Chunk c: the scales of its columns into job.scales and, with `quantize`, its quantized
+// matrix chunk (written unless already committed).
+Status QuantizeChunk(const QuantizeJob& job, uint64_t c, bool quantize) {
   const QuantizeOptions& o = job.o;
   const uint64_t pixels = job.in.metadata().matrix().rows;
   const double levels = job.levels;
-  LTB_ASSIGN_OR_RETURN(SparseChunk sc, job.in.ReadSparse(0, c));
-  LTB_ASSIGN_OR_RETURN(io::Chunk dc, job.in.ReadChunk(static_cast<uint32_t>(job.codec.depth_array()), c));
-  auto depths = dc.as<uint8_t>();
-  auto values = sc.as<float>();
+  LTB_ASSIGN_OR_RETURN(const InputChunk ic, ReadInputChunk(job, c));
+  const SparseChunk& sc = ic.sc;
   const ChunkExtent& e = sc.extent;
-  std::vector<int32_t> dense(e.cols * pixels, 0);
-  std::vector<double> scales(e.cols, 0.0);
+  std::vector<int32_t> dense(quantize ? e.cols * pixels : 0, 0);
   std::vector<double> scaled;
   size_t pos = 0;
   for (uint64_t k = 0; k < e.cols; ++k) {
-    size_t begin = pos;
+    const size_t begin = pos;
     while (pos < sc.index.size() && sc.index[pos] < (k + 1) * pixels) ++pos;
-    if (begin == pos) continue;
-    int d = depths[k];
-    if (d > job.codec.max_depth()) {
-      return DataLoss(o.input + ": column " + std::to_string(e.col0 + k) + " has depth " + std::to_string(d));
-    }
-    const std::vector<double>& factor = job.factors[d];
-    scaled.resize(pos - begin);
-    double mx = 0;
-    for (size_t i = begin; i < pos; ++i) {
-      uint32_t p = sc.index[i] - static_cast<uint32_t>(k * pixels);
-      double v = static_cast<double>(values[i]) * factor[p];
-      scaled[i - begin] = v;
-      mx = std::max(mx, std::fabs(v));
-    }
-    if (!(mx > 0) || !std::isfinite(mx)) {
-      if (mx == 0) continue;  // only signed zeros
-      return DataLoss(o.input + ": column " + std::to_string(e.col0 + k) + " holds a non-finite coefficient");
-    }
-    if (job.step_mode) mx = job.step * levels;  // q = round(v / Δ): the same step in every column
-    scales[k] = mx;
+    LTB_ASSIGN_OR_RETURN(const double mx, ScaleColumn(job, ic, k, begin, pos, &scaled));
+    (*job.scales)[e.col0 + k] = mx;
+    if (!quantize || mx == 0) continue;
     double column_error = 0;
     for (size_t i = begin; i < pos; ++i) {
-      uint32_t p = sc.index[i] - static_cast<uint32_t>(k * pixels);
+      const uint32_t p = sc.index[i] - static_cast<uint32_t>(k * pixels);
       const int32_t q = QuantizeValue(scaled[i - begin], mx, levels, o.dither, o.seed, e.col0 + k, p);
       dense[sc.index[i]] = q;
       const double err = static_cast<double>(q) * (mx / levels) - scaled[i - begin];
@@ -303,11 +351,38 @@ Status QuantizeChunk(const QuantizeJob& job, uint64_t c) {
     }
     AddError(job.qerr_bits, column_error);
   }
-  if (!job.out.Has(0, c)) {
+  if (quantize && !job.out.Has(0, c)) {
     LTB_RETURN_IF_ERROR(job.out.Put(0, c, BytesOf(dense), job.matrix_encoding));
   }
-  if (!job.out.Has(job.scale_array, c)) {
-    LTB_RETURN_IF_ERROR(job.out.Put(job.scale_array, c, BytesOf(scales), job.side_encoding));
+  return Status::Ok();
+}
+
+// The per-column tables, once every matrix chunk is committed: "depth" copied from the
+// input, "scale" from job.scales, after the scales of the chunks this run did not
+// quantize (committed before a resume, or another shard's) are computed the same way.
+Status PutColumnTables(const QuantizeJob& job, const QuantizeOutput& layout, const std::vector<bool>& scaled,
+                       const Progress& progress, uint64_t* chunks_written) {
+  const bool need_scale = !job.out.Missing(layout.scale_array).empty();
+  const bool need_depth = !job.out.Missing(layout.depth_array).empty();
+  if (!need_scale && !need_depth) return Status::Ok();
+  const Metadata& meta = job.in.metadata();
+  const uint64_t cols = meta.matrix().cols;
+  EncodeOptions side;
+  side.zstd = true;
+  if (need_scale) {
+    std::vector<uint64_t> rest;
+    for (uint64_t c = 0; c < scaled.size(); ++c)
+      if (!scaled[c]) rest.push_back(c);
+    LTB_RETURN_IF_ERROR(ParallelFor(rest, job.o.jobs, progress, "chunks (scales)",
+                                    [&](uint64_t c) { return QuantizeChunk(job, c, false); }));
+    LTB_RETURN_IF_ERROR(job.out.Put(layout.scale_array, 0, BytesOf(*job.scales), side));
+    ++*chunks_written;
+  }
+  if (need_depth) {
+    LTB_ASSIGN_OR_RETURN(std::vector<std::byte> depth,
+                         ReadLines(job.in, static_cast<uint32_t>(job.codec.depth_array()), 0, cols));
+    LTB_RETURN_IF_ERROR(job.out.Put(layout.depth_array, 0, ByteSpan(depth.data(), depth.size()), side));
+    ++*chunks_written;
   }
   return Status::Ok();
 }
@@ -346,7 +421,10 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
   if (step_mode) {
     LTB_ASSIGN_OR_RETURN(step, FindStep(o, in, codec, factors, progress, &totals_in));
   }
-  LTB_ASSIGN_OR_RETURN(QuantizeOutput layout, OutputMetadata(o, in, scaling, step_mode, step));
+  if (!step_mode) {
+    LTB_ASSIGN_OR_RETURN(totals_in, SummarizeColumnTransform(o.input));
+  }
+  LTB_ASSIGN_OR_RETURN(QuantizeOutput layout, OutputMetadata(o, in, totals_in, scaling, step_mode, step));
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
   LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(o.output, layout.meta, wo, o.shard));
@@ -357,37 +435,40 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
   for (const ArraySpec& s : out.metadata().arrays) result.chunks_total += s.ChunkCount();
   result.chunks_already_committed = out.resume_info().committed_chunks;
 
-  for (uint32_t arr = 1; arr < meta.arrays.size(); ++arr) {
-    LTB_RETURN_IF_ERROR(CopyArray(in, arr, out, &result.chunks_written));
+  for (uint32_t k = 0; k < layout.row_tables.size(); ++k) {
+    LTB_RETURN_IF_ERROR(CopyArray(in, layout.row_tables[k], out, k + 1, &result.chunks_written));
   }
-  const std::vector<uint64_t> items = MissingChunks(out, layout.scale_array);
+  const std::vector<uint64_t> items = out.Missing(0);
 
   std::atomic<uint64_t> qerr_bits{0};  // Σ squared quantization error (double bits, CAS-added)
+  std::vector<double> scales(a.cols, 0.0);
   QuantizeJob job{.o = o,
                   .in = in,
                   .out = out,
                   .codec = codec,
                   .factors = factors,
-                  .scale_array = layout.scale_array,
                   .step_mode = step_mode,
                   .step = step,
                   .levels = Quantization{o.bits}.Levels(),
-                  .qerr_bits = &qerr_bits};
+                  .qerr_bits = &qerr_bits,
+                  .scales = &scales};
   job.matrix_encoding.sparse = true;
   job.matrix_encoding.dtype = DType::kI32;
   job.matrix_encoding.zstd = o.zstd;
   // Also the coded encoding (format 1.2), its contexts shaped by the column image.
   job.matrix_encoding.coded = true;
   job.matrix_encoding.coded_width = codec.width();
-  job.side_encoding.zstd = true;
+  std::vector<bool> scaled(a.ChunkCount(), false);
+  for (uint64_t c : items) scaled[c] = true;  // each a distinct chunk: no two jobs write one flag
   std::atomic<uint64_t> written{0};
   Status s = ParallelFor(items, o.jobs, progress, "chunks", [&](uint64_t c) -> Status {
-    LTB_RETURN_IF_ERROR(QuantizeChunk(job, c));
+    LTB_RETURN_IF_ERROR(QuantizeChunk(job, c, true));
     written++;
     return Status::Ok();
   });
   result.chunks_written += written;
   LTB_RETURN_IF_ERROR(s);
+  LTB_RETURN_IF_ERROR(PutColumnTables(job, layout, scaled, progress, &result.chunks_written));
   LTB_RETURN_IF_ERROR(out.Finish());
 
   result.step = step;

@@ -175,7 +175,7 @@ Status Relighter::AppendChunk(const std::string& path, const ColumnCodec* codec,
       }
       pos_.push_back(p);
       values_.push_back(v);
-      e2 += static_cast<double>(v) * v;
+      e2 += static_cast<double>(v) * v * (synthesis_energy_.empty() ? 1.0 : synthesis_energy_[depths[k]][p]);
       ++pos;
     }
     col_ptr_[j + 1] = values_.size();
@@ -186,8 +186,10 @@ Status Relighter::AppendChunk(const std::string& path, const ColumnCodec* codec,
           " of " + std::to_string(cols_) +
           "); raise --mem-limit, compress it further, or relight the row-block matrix (streamed)");
     }
-    // ‖T_j‖ in the image: the column's recorded energy, else (plain columns, or depth 0
-    // where coefficients are pixels) its values' energy.
+    // ‖T_j‖ in the image: the column's recorded energy (column-transform outputs), else
+    // its kept values' energy, each weighted by its basis function's ‖ψ̃‖² (quantize outputs,
+    // which carry no column_stats: exact for the orthonormal filters' kept part, up to the
+    // cross terms of the biorthogonal basis for LeGall 5/3; plain columns: ‖ψ̃‖ = 1).
     column_norm_[j] = std::sqrt(energy[k] >= 0 ? energy[k] : e2);
   }
   return Status::Ok();
@@ -228,8 +230,12 @@ Result<Relighter> Relighter::Load(const std::string& path, uint64_t mem_limit, c
   r.column_norm_.assign(a.cols, 0.0);
   r.col_ptr_.assign(a.cols + 1, 0);
   int stats_array = -1;
-  if (codec)
+  if (codec) {
     stats_array = meta.FindArray(meta.json["column_transform"].value("stats_array", std::string("column_stats")));
+    if (stats_array < 0 && !wavelet::IsOrthonormal(codec->filter())) {
+      r.synthesis_energy_ = SynthesisEnergies(codec->filter(), r.width_, r.height_, r.max_depth_);
+    }
+  }
 
   // Chunks are decoded `jobs` at a time in parallel (a sparse-coded chunk decodes at ~7 M
   // nonzeros/s on one core), then appended in order, so the result does not depend on jobs.
@@ -240,17 +246,12 @@ Result<Relighter> Relighter::Load(const std::string& path, uint64_t mem_limit, c
     d->scales.assign(e.cols, 1.0);
     d->energy.assign(e.cols, -1.0);
     if (!codec) return Status::Ok();
-    LTB_ASSIGN_OR_RETURN(io::Chunk dc, in.ReadChunk(static_cast<uint32_t>(codec->depth_array()), c));
-    auto dv = dc.as<uint8_t>();
-    std::copy_n(dv.begin(), std::min<size_t>(dv.size(), e.cols), d->depths.begin());
+    LTB_ASSIGN_OR_RETURN(d->depths, ReadLinesAs<uint8_t>(in, codec->depth_array(), e.col0, e.col0 + e.cols));
     if (codec->scale_array() >= 0) {
-      LTB_ASSIGN_OR_RETURN(io::Chunk sc, in.ReadChunk(static_cast<uint32_t>(codec->scale_array()), c));
-      auto sv = sc.as<double>();
-      std::copy_n(sv.begin(), std::min<size_t>(sv.size(), e.cols), d->scales.begin());
+      LTB_ASSIGN_OR_RETURN(d->scales, ReadLinesAs<double>(in, codec->scale_array(), e.col0, e.col0 + e.cols));
     }
     if (stats_array >= 0) {
-      LTB_ASSIGN_OR_RETURN(io::Chunk st, in.ReadChunk(static_cast<uint32_t>(stats_array), c));
-      auto sv = st.as<double>();
+      LTB_ASSIGN_OR_RETURN(const std::vector<double> sv, ReadLinesAs<double>(in, stats_array, e.col0, e.col0 + e.cols));
       for (uint64_t k = 0; k < e.cols && 3 * k < sv.size(); ++k) d->energy[k] = sv[3 * k];
     }
     return Status::Ok();

@@ -93,6 +93,9 @@ class Relighter {
   };
   // Appends a chunk's columns (dequantized) to the in-memory matrix.
   Status AppendChunk(const std::string& path, const ColumnCodec* codec, uint64_t mem_limit, const LoadedChunk& d);
+  // ‖ψ̃‖² of every position per depth, when a column's norm is estimated from its coefficients
+  // (no recorded energy and a biorthogonal column filter); empty otherwise.
+  std::vector<std::vector<double>> synthesis_energy_;
 
   uint64_t rows_ = 0, cols_ = 0;
   uint64_t width_ = 0, height_ = 0;

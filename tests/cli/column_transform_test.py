@@ -346,8 +346,10 @@ with tempfile.TemporaryDirectory() as d:
         if bc is None:
             check(ic["block"] == m.shape[1] and iq["block"] == m.shape[1], f"default block: {ic['block']} (expected all {m.shape[1]} columns)")
     check(hashes[None] == hashes[1] == hashes[7], f"--block-cols changes the content: {hashes}")
-    check(disk[None]["overhead_bytes"] < disk[1]["overhead_bytes"] / 4 and disk[None]["overhead_bytes"] < 4096,
-          f"column groups should cut the container's bytes: {disk}")
+    # Each matrix chunk costs at least its 64-byte frame header and 72-byte index entry; the
+    # per-column tables of final.ltm are one chunk each whatever the grouping.
+    check(disk[1]["overhead_bytes"] - disk[None]["overhead_bytes"] >= (m.shape[1] - 1) * (64 + 72) and
+          disk[None]["overhead_bytes"] < 4096, f"column groups should cut the container's bytes: {disk}")
 
     # 8. Refusals.
     rows_ltm = os.path.join(d, "rows.ltm")

@@ -89,7 +89,7 @@ def side_table(ltm, name):
     info = json.loads(run("inspect", ltm, "--json", "--chunks").stdout)
     arr = next(a for a in info["arrays"] if a["name"] == name)
     rows, cols, block = arr["shape"][0], arr["shape"][1], arr["block"]
-    dtype = {"f32": np.float32, "u8": np.uint8, "u32": np.uint32, "u64": np.uint64}[arr["dtype"]]
+    dtype = {"f32": np.float32, "f64": np.float64, "u8": np.uint8, "u32": np.uint32, "u64": np.uint64}[arr["dtype"]]
     raw = open(ltm, "rb").read()
     out = np.zeros((rows, cols), dtype)
     for c in info["chunk_list"]:
