@@ -59,11 +59,18 @@ Result<ColumnCodec> ColumnCodec::FromMetadata(const Metadata& meta, const std::s
     c.quant_.scaling = *scaling;
     c.quant_.dither = q.value("dither", true);
     c.quant_.seed = q.value("seed", uint64_t{0});
-    c.scale_array_ = meta.FindArray(q.value("scale_array", std::string("scale")));
-    if (c.scale_array_ < 0) return bad("no scale array");
-    const ArraySpec& ss = meta.arrays[c.scale_array_];
-    if (ss.dtype != DType::kF64 || ss.rows != meta.matrix().cols || ss.cols != 1 || ss.layout != Layout::kRows) {
-      return bad("scale array has an unexpected shape");
+    if (!q.contains("scale_array")) {  // one step Δ for the matrix: M = Δ · Q in every column
+      const auto& step = q.value("step", nlohmann::json());
+      if (!step.is_number() || !(step.get<double>() > 0) || !std::isfinite(step.get<double>()))
+        return bad("neither a scale array nor a step");
+      c.uniform_scale_ = step.get<double>() * c.quant_.Levels();
+    } else {
+      c.scale_array_ = meta.FindArray(q.value("scale_array", std::string("scale")));
+      if (c.scale_array_ < 0) return bad("no scale array");
+      const ArraySpec& ss = meta.arrays[c.scale_array_];
+      if (ss.dtype != DType::kF64 || ss.rows != meta.matrix().cols || ss.cols != 1 || ss.layout != Layout::kRows) {
+        return bad("scale array has an unexpected shape");
+      }
     }
     if (meta.matrix().dtype != DType::kI32) return bad("quantized matrix is not i32");
   } else if (meta.matrix().dtype != DType::kF32) {
@@ -221,7 +228,7 @@ Status ColumnCodec::DecodeChunk(const io::ContainerReader& reader, uint64_t chun
     while (pos < sc.index.size() && sc.index[pos] < (k + 1) * pixels) ++pos;
     std::vector<uint32_t> local(sc.index.begin() + begin, sc.index.begin() + pos);
     for (uint32_t& i : local) i -= static_cast<uint32_t>(k * pixels);
-    double scale = scales.empty() ? 1.0 : scales[k];
+    double scale = !scales.empty() ? scales[k] : uniform_scale_ > 0 ? uniform_scale_ : 1.0;
     if (!std::isfinite(scale) || scale < 0) {
       return DataLoss(reader.path() + ": column " + std::to_string(e.col0 + k) + " has scale " + std::to_string(scale));
     }

@@ -54,7 +54,10 @@ class ColumnCodec {
   int max_depth() const { return max_depth_; }
   const Quantization& quantization() const { return quant_; }
   int depth_array() const { return depth_array_; }
-  int scale_array() const { return scale_array_; }  // −1 when not quantized
+  int scale_array() const { return scale_array_; }  // −1 when not quantized or one step for the matrix
+  // One step for the matrix (`quantize --error-ratio`, written since 2026-12-02 without a
+  // "scale" table): M = Δ · Q for every column; 0 when the scales are per column.
+  double uniform_scale() const { return uniform_scale_; }
 
   static std::vector<uint8_t> ComputeLevels(uint64_t width, uint64_t height, int depth);
   // The quantization factor of every position at depth d (see above).
@@ -81,6 +84,7 @@ class ColumnCodec {
   int max_depth_ = 0;
   Quantization quant_;
   int depth_array_ = -1, scale_array_ = -1;
+  double uniform_scale_ = 0;
   std::shared_ptr<const Tables> tables_;
 };
 

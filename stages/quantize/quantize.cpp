@@ -181,7 +181,8 @@ Result<double> FindStep(const QuantizeOptions& o, const io::ContainerReader& in,
 struct QuantizeOutput {
   nlohmann::json meta;
   std::vector<uint32_t> row_tables;  // the input arrays kept, output arrays 1, 2, ...
-  uint32_t depth_array = 0, scale_array = 0;
+  uint32_t depth_array = 0;
+  int scale_array = -1;  // per-column maxima (--bits) only: one step needs none
 };
 
 // A per-column table of the output: one line per column, in as few chunks as fit
@@ -198,8 +199,9 @@ ArraySpec ColumnTableSpec(const char* name, DType dtype, uint64_t cols) {
 }
 
 // The output's metadata (docs/COLUMN-TRANSFORM.md): the matrix as i32; the row tables
-// relighting reads; "depth" (u8) and "scale" (f64) per column, each in one chunk written
-// after the matrix; "quantization", what ColumnCodec::FromMetadata reads back; and the
+// relighting reads; "depth" (u8) and, for --bits, "scale" (f64) per column, each in one
+// chunk written after the matrix (one step for the matrix is in the metadata:
+// "quantization.step"); "quantization", what ColumnCodec::FromMetadata reads back; and the
 // input's column totals under "column_transform.totals" instead of its per-column
 // column_stats (which nothing reads after quantize: relight estimates the column norms
 // from the coefficients).
@@ -230,8 +232,10 @@ Result<QuantizeOutput> OutputMetadata(const QuantizeOptions& o, const io::Contai
   }
   out.depth_array = static_cast<uint32_t>(out_meta["arrays"].size());
   out_meta["arrays"].push_back(ColumnTableSpec("depth", DType::kU8, a.cols).ToJson());
-  out.scale_array = out.depth_array + 1;
-  out_meta["arrays"].push_back(ColumnTableSpec(kScaleArray, DType::kF64, a.cols).ToJson());
+  if (!step_mode) {
+    out.scale_array = static_cast<int>(out.depth_array) + 1;
+    out_meta["arrays"].push_back(ColumnTableSpec(kScaleArray, DType::kF64, a.cols).ToJson());
+  }
   ct["depth_array"] = "depth";
   ct.erase("stats_array");
   if (!dropped.empty()) ct["row_tables_dropped"] = dropped;
@@ -245,13 +249,13 @@ Result<QuantizeOutput> OutputMetadata(const QuantizeOptions& o, const io::Contai
                               {"scaling", ScalingName(scaling)},
                               {"dither", o.dither},
                               {"seed", o.seed},
-                              {"scale_array", kScaleArray},
                               {"decode", "v = q / (2^(bits-1) - 1) * scale / factor (docs/COLUMN-TRANSFORM.md)"}};
+  if (!step_mode) out_meta["quantization"]["scale_array"] = kScaleArray;
   nlohmann::json params = {
       {"bits", o.bits}, {"scaling", ScalingName(scaling)}, {"dither", o.dither}, {"seed", o.seed}, {"zstd", o.zstd}};
   if (step_mode) {
     out_meta["quantization"]["error_ratio"] = o.error_ratio;
-    out_meta["quantization"]["step"] = step;
+    out_meta["quantization"]["step"] = step;  // scale = step · (2^(bits-1) - 1) in every column
     params = {{"error_ratio", o.error_ratio}, {"zstd", o.zstd}};
   }
   out_meta["provenance"] = Provenance("quantize", params, {&in});
@@ -357,32 +361,40 @@ Status QuantizeChunk(const QuantizeJob& job, uint64_t c, bool quantize) {
   return Status::Ok();
 }
 
+// Writes the missing chunks of per-column table `arr` from its values for every column.
+Status PutColumnTable(io::ContainerWriter& out, uint32_t arr, const std::byte* values, uint64_t* chunks_written) {
+  const ArraySpec& spec = out.metadata().arrays[arr];
+  const uint64_t line = DTypeSize(spec.dtype);
+  EncodeOptions side;
+  side.zstd = true;
+  for (uint64_t c : out.Missing(arr)) {
+    const uint64_t l0 = c * spec.block, l1 = std::min(spec.rows, l0 + spec.block);
+    LTB_RETURN_IF_ERROR(out.Put(arr, c, ByteSpan(values + l0 * line, (l1 - l0) * line), side));
+    ++*chunks_written;
+  }
+  return Status::Ok();
+}
+
 // The per-column tables, once every matrix chunk is committed: "depth" copied from the
-// input, "scale" from job.scales, after the scales of the chunks this run did not
+// input, "scale" (--bits) from job.scales, after the scales of the chunks this run did not
 // quantize (committed before a resume, or another shard's) are computed the same way.
 Status PutColumnTables(const QuantizeJob& job, const QuantizeOutput& layout, const std::vector<bool>& scaled,
                        const Progress& progress, uint64_t* chunks_written) {
-  const bool need_scale = !job.out.Missing(layout.scale_array).empty();
-  const bool need_depth = !job.out.Missing(layout.depth_array).empty();
-  if (!need_scale && !need_depth) return Status::Ok();
-  const Metadata& meta = job.in.metadata();
-  const uint64_t cols = meta.matrix().cols;
-  EncodeOptions side;
-  side.zstd = true;
-  if (need_scale) {
+  io::ContainerWriter& out = job.out;
+  if (layout.scale_array >= 0 && !out.Missing(static_cast<uint32_t>(layout.scale_array)).empty()) {
     std::vector<uint64_t> rest;
     for (uint64_t c = 0; c < scaled.size(); ++c)
       if (!scaled[c]) rest.push_back(c);
     LTB_RETURN_IF_ERROR(ParallelFor(rest, job.o.jobs, progress, "chunks (scales)",
                                     [&](uint64_t c) { return QuantizeChunk(job, c, false); }));
-    LTB_RETURN_IF_ERROR(job.out.Put(layout.scale_array, 0, BytesOf(*job.scales), side));
-    ++*chunks_written;
+    LTB_RETURN_IF_ERROR(PutColumnTable(out, static_cast<uint32_t>(layout.scale_array),
+                                       reinterpret_cast<const std::byte*>(job.scales->data()), chunks_written));
   }
-  if (need_depth) {
+  if (!out.Missing(layout.depth_array).empty()) {
+    const uint64_t cols = job.in.metadata().matrix().cols;
     LTB_ASSIGN_OR_RETURN(std::vector<std::byte> depth,
                          ReadLines(job.in, static_cast<uint32_t>(job.codec.depth_array()), 0, cols));
-    LTB_RETURN_IF_ERROR(job.out.Put(layout.depth_array, 0, ByteSpan(depth.data(), depth.size()), side));
-    ++*chunks_written;
+    LTB_RETURN_IF_ERROR(PutColumnTable(out, layout.depth_array, depth.data(), chunks_written));
   }
   return Status::Ok();
 }

@@ -243,7 +243,7 @@ Result<Relighter> Relighter::Load(const std::string& path, uint64_t mem_limit, c
     LTB_ASSIGN_OR_RETURN(d->sc, in.ReadSparse(0, c));
     const ChunkExtent& e = d->sc.extent;
     d->depths.assign(e.cols, 0);
-    d->scales.assign(e.cols, 1.0);
+    d->scales.assign(e.cols, codec && codec->uniform_scale() > 0 ? codec->uniform_scale() : 1.0);
     d->energy.assign(e.cols, -1.0);
     if (!codec) return Status::Ok();
     LTB_ASSIGN_OR_RETURN(d->depths, ReadLinesAs<uint8_t>(in, codec->depth_array(), e.col0, e.col0 + e.cols));

@@ -290,40 +290,47 @@ with tempfile.TemporaryDirectory() as d:
         check(rep.get("output", {}).get("masked_rows") == int(bg.sum()), f"mask {extra}: report {rep.get('output')}")
 
     # 8b. final.ltm carries what relighting reads and no more (docs/COLUMN-TRANSFORM.md, "Output
-    # of quantize"): the mask, then depth and scale in one chunk each; position and normal stay
-    # in rows.ltm; column_stats becomes totals in the metadata, which are cols4d.ltm's
-    # column_stats summed in NumPy (its bytes read through the zstd tool); the depths are
-    # cols4d.ltm's; every column with a kept coefficient has the scale step * (2^23 - 1).
-    fi = json.loads(run("inspect", fin, "--json").stdout)
-    names = [a["name"] for a in fi["arrays"]]
+    # of quantize"): the mask, then depth in one chunk (and with --bits the scales, one chunk;
+    # one step for the matrix needs none); position and normal stay in rows.ltm; column_stats
+    # becomes totals in the metadata, which are cols4d.ltm's column_stats summed in NumPy (its
+    # bytes read through the zstd tool); the depths are cols4d.ltm's; with --bits every column
+    # with a kept coefficient has a positive scale, the others 0.
     c4b = os.path.join(bake, "cols4d.ltm")
-    check(names == ["matrix", "mask", "depth", "scale"] and
-          all(a["chunks"]["expected"] == 1 for a in fi["arrays"][2:]) and
-          {"position", "normal"} <= {a["name"] for a in json.loads(run("inspect", os.path.join(bake, "rows.ltm"),
-                                                                      "--json").stdout)["arrays"]} and
-          fi["column_transform"].get("row_tables_dropped") == ["position", "normal"], f"final.ltm arrays: {fi['arrays']}")
     st = side_table(c4b, "column_stats")
-    tot = fi["column_transform"]["totals"]
-    check(tot["nonzeros"] == int(st[:, 2].sum()) and abs(tot["energy"] - st[:, 0].sum()) <= 1e-12 * st[:, 0].sum() and
-          abs(tot["error"] - st[:, 1].sum()) <= 1e-12 * st[:, 0].sum() and tot["empty_columns"] == int((st[:, 0] == 0).sum()),
-          f"totals {tot} against cols4d.ltm's column_stats: nonzeros {st[:, 2].sum()}, energy {st[:, 0].sum()}")
-    check(np.array_equal(side_table(fin, "depth"), side_table(c4b, "depth")), "final.ltm depths != cols4d.ltm's")
-    scale = side_table(fin, "scale")[:, 0]
-    check(np.array_equal(scale, np.where(st[:, 2] > 0, fi["quantization"]["step"] * (2 ** 23 - 1), 0.0)),
-          f"scales: {scale[:8]} for step {fi['quantization']['step']}")
-    # Killed after its last matrix chunk, before the tables: the rerun computes the scales of
-    # the committed chunks again and ends with the same content (the file cut at the first
-    # table frame, as a kill leaves it).
-    chunks = json.loads(run("inspect", fin, "--json", "--chunks").stdout)["chunk_list"]
-    cut_at = min(c["offset"] for c in chunks if c["array"] in ("depth", "scale"))
-    with open(fin, "rb") as f, open(p("cut.ltm"), "wb") as g:
-        g.write(f.read(cut_at))
-    rq = json.loads(run("quantize", c4b, "-o", p("cut.ltm"), "--json", *q).stdout)
-    ci = json.loads(run("inspect", p("cut.ltm"), "--json").stdout)
-    check(ci["complete"] and [a["content_hash"] for a in ci["arrays"]] == [a["content_hash"] for a in fi["arrays"]] and
-          rq["chunks_already_committed"] == len(chunks) - 2 and rq["chunks_written"] == 2,
-          f"quantize resumed before its tables: {rq}, content_hash {ci['content_hash']} vs {fi['content_hash']}")
-    run("verify", p("cut.ltm"), *q)
+    for fq, qargs in ((fin, ()), (p("fin9.ltm"), ("--bits", 9))):
+        if qargs:
+            run("quantize", c4b, "-o", fq, *qargs, *q)
+        fi = json.loads(run("inspect", fq, "--json").stdout)
+        names = [a["name"] for a in fi["arrays"]]
+        check(names == ["matrix", "mask", "depth"] + (["scale"] if qargs else []) and
+              all(a["chunks"]["expected"] == 1 for a in fi["arrays"][2:]) and
+              {"position", "normal"} <= {a["name"] for a in json.loads(run("inspect", os.path.join(bake, "rows.ltm"),
+                                                                          "--json").stdout)["arrays"]} and
+              fi["column_transform"].get("row_tables_dropped") == ["position", "normal"],
+              f"{qargs}: final.ltm arrays {fi['arrays']}")
+        tot = fi["column_transform"]["totals"]
+        check(tot["nonzeros"] == int(st[:, 2].sum()) and abs(tot["energy"] - st[:, 0].sum()) <= 1e-12 * st[:, 0].sum()
+              and abs(tot["error"] - st[:, 1].sum()) <= 1e-12 * st[:, 0].sum() and
+              tot["empty_columns"] == int((st[:, 0] == 0).sum()),
+              f"totals {tot} against cols4d.ltm's column_stats: nonzeros {st[:, 2].sum()}, energy {st[:, 0].sum()}")
+        check(np.array_equal(side_table(fq, "depth"), side_table(c4b, "depth")), f"{qargs}: depths != cols4d.ltm's")
+        if qargs:
+            scale = side_table(fq, "scale")[:, 0]
+            check(np.array_equal(scale > 0, st[:, 2] > 0), f"--bits 9 scales: {scale[:8]}")
+        # Killed after its last matrix chunk, before the tables: the rerun computes the scales
+        # of the committed chunks again and ends with the same content (the file cut at the
+        # first table frame, as a kill leaves it).
+        chunks = json.loads(run("inspect", fq, "--json", "--chunks").stdout)["chunk_list"]
+        tables = [c for c in chunks if c["array"] in ("depth", "scale")]
+        with open(fq, "rb") as f, open(p("cut.ltm"), "wb") as g:
+            g.write(f.read(min(c["offset"] for c in tables)))
+        rq = json.loads(run("quantize", c4b, "-o", p("cut.ltm"), "--json", *qargs, *q).stdout)
+        ci = json.loads(run("inspect", p("cut.ltm"), "--json").stdout)
+        check(ci["complete"] and [a["content_hash"] for a in ci["arrays"]] == [a["content_hash"] for a in fi["arrays"]]
+              and rq["chunks_already_committed"] == len(chunks) - len(tables) and rq["chunks_written"] == len(tables),
+              f"{qargs}: quantize resumed before its tables: {rq}, content {ci['arrays']}")
+        run("verify", p("cut.ltm"), *q)
+        os.remove(p("cut.ltm"))
 
     # 9. Maps near float32's largest value (docs/RELIGHT.md "Numbers"): an RGBE map at exponent
     # 255 (mantissa 255: 255·2^119 = 1.69e38) converts to finite texels, and relights the tiny
