@@ -43,9 +43,9 @@ demo: configure samples
 	cmake --build $(BUILD) -j $(JOBS) --target ltbake
 	@bash scripts/demo.sh $(BUILD)
 
-# ltbake, its stage executables (ltbake-<stage>), the Python module and the bash completion
-# under PREFIX:
-# PREFIX/bin, PREFIX/lib/python3.X/dist-packages and PREFIX/share/bash-completion (README).
+# ltbake, its stage executables (ltbake-<stage>), the Python module, the bash completion and
+# a man page per command under PREFIX: PREFIX/bin, PREFIX/lib/python3.X/dist-packages,
+# PREFIX/share/bash-completion and PREFIX/share/man/man1 (README).
 PREFIX      ?= /usr/local
 install: configure
 	cmake --build $(BUILD) -j $(JOBS) --target ltbake ltb_python

@@ -50,7 +50,7 @@ const std::vector<CommandInfo>& CommandList() {
       {"inspect", RegisterInspect, false,
        "ltbake inspect final.ltm\n"
        "ltbake inspect rows.ltm --json --chunks  # every chunk's place, encoding and checksum\n"
-       "ltbake inspect big.ltm --no-content  # the header and recorded hashes only: fast"},
+       "ltbake inspect big.ltm --content  # also read every chunk: value statistics, content_hash recomputed"},
       {"verify", RegisterVerify, false,
        "ltbake verify raw.ltm rows.ltm final.ltm\n"
        "ltbake verify --allow-incomplete --json raw.ltm  # a bake still running or interrupted"},

@@ -31,6 +31,7 @@ PACKAGES=(
   python3-dev pybind11-dev python3-pytest  # the Python module (import ltbake; docs/PYTHON.md) and its tests
   nodejs                           # converting the sample meshes (npm is checked below)
   ffmpeg                           # relight --sequence -o relit.mp4 (docs/SEQUENCE.md)
+  help2man                         # a man page per command at install, from its --help (scripts/man_pages.sh)
   slurm-wlm munge slurm-client     # cluster test: a single-node Slurm on localhost (tests/cluster, docs/cluster.md)
 )
 

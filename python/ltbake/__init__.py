@@ -120,7 +120,7 @@ class Array:
         h = self._c.reader.recorded_content_hash(self.index)
         if h:
             return h
-        info = inspect(self._c.path, jobs=self._c.jobs)
+        info = inspect(self._c.path, content=True, jobs=self._c.jobs)
         return info["arrays"][self.index].get("content_hash")
 
     def chunk_range(self, k):
@@ -440,9 +440,10 @@ def verify_report(path, jobs=2):
     return _ltbake.verify_report(_os.fspath(path), jobs)
 
 
-def inspect(path, content=True, chunks=False, jobs=2):
-    """The dict ``ltbake inspect FILE --json`` prints (``content=False``: --no-content,
-    ``chunks=True``: --chunks)."""
+def inspect(path, content=False, chunks=False, jobs=2):
+    """The dict ``ltbake inspect FILE --json`` prints: from the header, metadata, index and
+    recorded content_hash (fast for any size); ``content=True``: --content, every chunk
+    read (value statistics, content_hash recomputed); ``chunks=True``: --chunks."""
     return _json.loads(_ltbake.inspect_json(_os.fspath(path), bool(content), bool(chunks), jobs))
 
 

@@ -202,7 +202,7 @@ namespace {
 
 // Column-transform / quantize outputs: chosen depths, error, bytes per nonzero; cpca
 // outputs: clusters, basis dimension, passes, error (docs/CPCA.md).
-void AddStageSummaries(const std::string& path, const Metadata& meta, bool complete, json& out) {
+void AddStageSummaries(const std::string& path, const Metadata& meta, bool complete, bool content, json& out) {
   if (meta.json.contains("column_transform") && complete) {
     auto ct = stages::SummarizeColumnTransform(path);
     if (ct.ok()) {
@@ -213,7 +213,11 @@ void AddStageSummaries(const std::string& path, const Metadata& meta, bool compl
       c["relative_rms_error"] = ct->energy > 0 ? std::sqrt(ct->error / ct->energy) : 0.0;
       out["column_transform"] = c;
     }
-    if (meta.json.contains("quantization")) {
+    if (meta.json.contains("quantization") && !content) {  // the payload bytes from the index alone
+      json qj = meta.json["quantization"];
+      qj["matrix_bytes"] = out["arrays"][0]["chunks"]["stored_bytes"];
+      out["quantization"] = qj;
+    } else if (meta.json.contains("quantization")) {
       auto q = stages::SummarizeQuantized(path);
       if (q.ok()) {
         json qj = meta.json["quantization"];
@@ -282,7 +286,7 @@ Result<json> InspectContainer(const std::string& path, const InspectOptions& opt
   for (const char* k : {"shape", "dtype", "layout", "block", "chunks", "content_hash", "stats"}) {
     if (m.contains(k)) out[k] = m[k];
   }
-  AddStageSummaries(path, meta, reader.complete(), out);
+  AddStageSummaries(path, meta, reader.complete(), options.content, out);
   if (reader.complete()) {
     auto sparse = SummarizeSparse(reader);
     if (!sparse.ok()) return sparse.status();

@@ -15,8 +15,9 @@
 namespace ltb::stages {
 
 struct InspectOptions {
-  // Read every chunk: statistics, and content_hash recomputed (a record that differs is a
-  // problem). Without it, content_hash only as the writer recorded it.
+  // Read every chunk: statistics, content_hash recomputed (a record that differs is a
+  // problem), a quantized matrix's nonzeros. Without it (the CLI's default): content_hash
+  // only as the writer recorded it, and only the index's byte counts.
   bool content = true;
   bool chunk_list = false;  // "chunk_list": every committed chunk frame
   int jobs = 2;

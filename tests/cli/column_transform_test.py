@@ -26,7 +26,7 @@ from ltbtest import check, finish, kill_storm, run  # noqa: E402
 
 
 def info(path):
-    return json.loads(run("inspect", path, "--json").stdout)
+    return json.loads(run("inspect", path, "--json", "--content").stdout)
 
 
 def decode(path, d, name="dec.npy", *extra):
@@ -259,9 +259,15 @@ with tempfile.TemporaryDirectory() as d:
         run("quantize", ch, "-o", out, "--scaling", scaling, "--bits", 6, "--no-dither", "--progress", "never")
         errs[scaling] = float(((decode(out, d, "fh.npy") - refh) ** 2).sum())
     check(errs["level"] < errs["none"], f"haar: level scaling should lower the quantization error: {errs}")
-    inspected = json.loads(run("inspect", fin, "--json").stdout)
+    inspected = json.loads(run("inspect", fin, "--json", "--content").stdout)
     check("depth_histogram" in inspected.get("column_transform", {}) and
           "bytes_per_nonzero" in inspected.get("quantization", {}), f"inspect misses depths/bytes: {inspected.keys()}")
+    # Without --content inspect reads no payload: the quantized nonzeros are not counted, the
+    # payload bytes come from the index (the same number).
+    fast = json.loads(run("inspect", fin, "--json").stdout)
+    check("stats" not in fast and "nonzeros" not in fast["quantization"] and
+          fast["quantization"]["matrix_bytes"] == inspected["quantization"]["matrix_bytes"] and
+          fast["content_hash"] == inspected["content_hash"], f"inspect without --content: {fast.get('quantization')}")
 
     # 6. Determinism across --jobs (column-transform, budget, quantize).
     for args in [("--terms", 9), ("--budget", "3%")]:

@@ -107,7 +107,7 @@ VIEW = ["--eye", "0,-3,2", "--target", "0,0,1", "--fov", "30", "--size", f"{SIZE
 
 
 def info(path):
-    return json.loads(t.run("inspect", path, "--json").stdout)
+    return json.loads(t.run("inspect", path, "--json", "--content").stdout)
 
 
 def matrix_hash(path):

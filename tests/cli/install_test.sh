@@ -3,7 +3,7 @@
 # ltbake-<stage> for each stage executable the build tree has (the build's links are checked
 # against the command list by tests/pipeline/stage_commands_test.cpp), no stale ltbake-* link
 # left from an earlier install, each link running its stage, the bash completion, and
-# `import ltbake` from the installed package.
+# the man pages, and `import ltbake` from the installed package.
 #   install_test.sh BUILD_DIR
 set -euo pipefail
 build=$1
@@ -46,6 +46,17 @@ got=$(complete_words ltbake-quantize --error | tr '\n' ' ')
 [ "$got" = "--error-ratio " ] || fail "ltbake-quantize --error<TAB> offers '$got'"
 PATH="$bin:$PATH" bash -c 'source "$0"; complete -p ltbake-sample' "$comp" > /dev/null ||
   fail "no completion registered for ltbake-sample"
+
+# A man page for ltbake and every command (stages and the rest), rendered by man: its NAME
+# line names the command and its options are the command's own.
+man1=$tmp/prefix/share/man/man1
+[ -f "$man1/ltbake.1" ] || fail "no man page ltbake.1 in $man1"
+while read -r cmd _; do
+  [ -f "$man1/ltbake-$cmd.1" ] || fail "no man page ltbake-$cmd.1 in $man1"
+done < <("$bin/ltbake" --list-commands)
+page=$(MANWIDTH=200 man -l "$man1/ltbake-quantize.1" 2> /dev/null) || fail "man -l ltbake-quantize.1 failed"
+grep -q "ltbake-quantize - quantize a column-transform output" <<< "$page" || fail "ltbake-quantize.1 NAME: $page"
+grep -q -- "--error-ratio" <<< "$page" || fail "ltbake-quantize.1 lacks --error-ratio: $page"
 
 py=$(find "$tmp/prefix/lib" -path '*-packages/ltbake/__init__.py' | head -1)
 [ -n "$py" ] || fail "no Python package under $tmp/prefix/lib: $(cat "$tmp/install.log")"

@@ -147,7 +147,7 @@ radius = 0.4
         if rgb:
             out = os.path.join(d, f"sample-{name}.r.ltm")
         v = json.loads(run("verify", "--json", out).stdout)[0]
-        info = json.loads(run("inspect", "--json", out).stdout)
+        info = json.loads(run("inspect", "--json", "--content", out).stdout)
         check(v["ok"], f"{name}: output does not verify")
         check(info["stats"]["nonzero_fraction"] > 0.05 and info["stats"]["nan_count"] == 0, f"{name}: stats {info['stats']}")
         if name == "bunny-vertices":

@@ -57,7 +57,7 @@ with tempfile.TemporaryDirectory() as d:
                 flags = ["--chunk-size", "512", "--layout", layout] + (["--zstd"] if zstd else [])
                 run("convert", src, ltm, *flags)
                 run("verify", ltm)
-                info = json.loads(run("inspect", ltm, "--json").stdout or "{}")
+                info = json.loads(run("inspect", ltm, "--json", "--content").stdout or "{}")
                 tag = f"{rows}x{cols} {layout} zstd={zstd}"
                 check(info.get("shape") == [rows, cols], f"{tag}: shape {info.get('shape')}")
                 check(info.get("complete") is True, f"{tag}: not complete")
@@ -85,7 +85,7 @@ with tempfile.TemporaryDirectory() as d:
     src = os.path.join(d, "m64.npy")
     np.save(src, m64)
     j = json.loads(run("convert", src, os.path.join(d, "m64.ltm"), "--chunk-size", "1KiB", "--json").stdout)
-    on_disk = json.loads(run("inspect", "--json", os.path.join(d, "m64.ltm")).stdout)
+    on_disk = json.loads(run("inspect", "--json", "--content", os.path.join(d, "m64.ltm")).stdout)
     check((j["rows"], j["cols"]) == m64.shape and j["chunks_written"] == j["chunks_total"] ==
           on_disk["chunks"]["committed"], f"convert --json: {j}")
     run("convert", os.path.join(d, "m64.ltm"), os.path.join(d, "m64back.npy"))
