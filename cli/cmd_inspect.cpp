@@ -113,6 +113,25 @@ class InspectCommand : public Command {
       std::cout << "  colour channel: " << out["channel"].value("name", std::string("?"))
                 << " of a set (docs/COLOUR.md)\n";
     }
+    PrintStageSummaries(out);
+    if (out["uncommitted_tail_bytes"].get<uint64_t>() > 0) {
+      std::cout << "  uncommitted tail: " << JsonText(out["uncommitted_tail_bytes"])
+                << " bytes (a chunk in flight when the writer stopped; a rerun discards it)\n";
+    }
+    for (const json& p : out["problems"]) std::cout << "  problem: " << p.get<std::string>() << "\n";
+    if (out.contains("chunk_list")) {
+      std::cout << "  chunks (array index offset encoding stored decoded checksum):\n";
+      for (const json& c : out["chunk_list"]) {
+        std::cout << "    " << c["array"].get<std::string>() << " " << JsonText(c["index"]) << " "
+                  << JsonText(c["offset"]) << " " << c["encoding"].get<std::string>() << " "
+                  << JsonText(c["stored_bytes"]) << " " << JsonText(c["decoded_bytes"]) << " "
+                  << c["checksum"].get<std::string>() << "\n";
+      }
+    }
+  }
+
+  // The column-transform, quantize, cpca and sparse summaries of PrintText.
+  static void PrintStageSummaries(const json& out) {
     if (out.contains("column_transform")) {
       const json& c = out["column_transform"];
       std::cout << "  column transform: filter " << c.value("filter", "?") << ", depth " << c.value("depth", "?")
@@ -155,20 +174,6 @@ class InspectCommand : public Command {
           JsonText(sp["rays"]["dense"]).c_str(), JsonText(sp["rays"]["sparse"]).c_str(),
           sp["seconds"]["dense"].get<double>(), sp["seconds"]["sparse"].get<double>());
       std::cout << line;
-    }
-    if (out["uncommitted_tail_bytes"].get<uint64_t>() > 0) {
-      std::cout << "  uncommitted tail: " << JsonText(out["uncommitted_tail_bytes"])
-                << " bytes (a chunk in flight when the writer stopped; a rerun discards it)\n";
-    }
-    for (const json& p : out["problems"]) std::cout << "  problem: " << p.get<std::string>() << "\n";
-    if (out.contains("chunk_list")) {
-      std::cout << "  chunks (array index offset encoding stored decoded checksum):\n";
-      for (const json& c : out["chunk_list"]) {
-        std::cout << "    " << c["array"].get<std::string>() << " " << JsonText(c["index"]) << " "
-                  << JsonText(c["offset"]) << " " << c["encoding"].get<std::string>() << " "
-                  << JsonText(c["stored_bytes"]) << " " << JsonText(c["decoded_bytes"]) << " "
-                  << c["checksum"].get<std::string>() << "\n";
-      }
     }
   }
 
