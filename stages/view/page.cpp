@@ -15,6 +15,7 @@ body{font:14px system-ui,sans-serif;margin:16px;background:#1b1b1b;color:#ddd}
 #env{display:block;margin-top:8px;border:1px solid #444;width:512px}
 .row{margin:6px 0}label{display:inline-block;width:90px}
 #figures span{display:inline-block;min-width:90px;margin-right:14px}
+a{color:#8cf}
 </style></head><body>
 <h3>ltbake view <small id="matrix"></small></h3>
 <div style="display:flex;gap:24px;flex-wrap:wrap">
@@ -27,7 +28,11 @@ body{font:14px system-ui,sans-serif;margin:16px;background:#1b1b1b;color:#ddd}
 <span id="termsval">100</span></div>
 <div class="row"><label for="exposure">exposure</label><input id="exposure" type="range" min="-6" max="6" step="0.25" value="0">
 <span id="expval">0 stops</span></div>
+<div class="row"><label for="show">show</label><select id="show">
+<option value="matrix">the matrix (A)</option><option value="reference">the reference (B)</option>
+<option value="difference">|A − B|</option></select> <small id="showhint"></small></div>
 <div class="row"><label>rotation</label><span id="rotval">0°</span></div>
+<div class="row"><a id="save" download="ltbake-frame.png" href="#">save this frame (PNG)</a></div>
 <div id="figures" class="row"><span id="ms">– ms</span><span id="used">– terms</span><span id="err"></span><span id="count">0 frames</span></div>
 <div class="row"><small id="bands"></small></div>
 <img id="env" alt="environment (lat-long), the frame's terms in red"><div><small>the frame's terms in red, finer
@@ -40,12 +45,17 @@ const ltb = window.ltb = {frames: 0, rotate: 0, base: 0, last: null, stats: null
 const defaults = LTB_DEFAULTS;  // the command line's --terms and --method, filled in by the server
 if (defaults.terms !== "all") { $("terms").value = defaults.terms; $("termsval").textContent = $("terms").value; }
 $("method").value = defaults.method;
+if (!defaults.reference) {  // A/B needs ltbake view --reference FILE
+  for (const o of $("show").options) if (o.value !== "matrix") o.disabled = true;
+  $("showhint").textContent = "(start with --reference to compare)";
+}
 let dirty = true, wake = null;
 function poke() { dirty = true; if (wake) { const w = wake; wake = null; w(); } }
 function params() {
   const stops = parseFloat($("exposure").value);
   const exposure = ltb.base > 0 ? ltb.base * Math.pow(2, stops) : 0;
-  return {rotate: ltb.rotate.toFixed(3), terms: $("terms").value, method: $("method").value, exposure: exposure};
+  return {rotate: ltb.rotate.toFixed(3), terms: $("terms").value, method: $("method").value, exposure: exposure,
+          show: $("show").value};
 }
 let dragging = false, lastX = 0;
 $("frame").addEventListener("pointerdown", (e) => { dragging = true; lastX = e.clientX; $("frame").setPointerCapture(e.pointerId); e.preventDefault(); });
@@ -57,6 +67,7 @@ $("frame").addEventListener("pointermove", (e) => {
 for (const ev of ["pointerup", "pointercancel"]) $("frame").addEventListener(ev, () => { dragging = false; });
 $("terms").addEventListener("input", () => { $("termsval").textContent = $("terms").value; poke(); });
 $("method").addEventListener("change", poke);
+$("show").addEventListener("change", poke);
 $("exposure").addEventListener("input", () => { $("expval").textContent = $("exposure").value + " stops"; poke(); });
 async function frame() {
   const p = params();
@@ -69,11 +80,18 @@ async function frame() {
   const old = img.src;
   await new Promise((ok, bad) => { img.onload = ok; img.onerror = bad; img.src = URL.createObjectURL(blob); });
   if (old.startsWith("blob:")) URL.revokeObjectURL(old);
+  $("save").href = img.src;  // the frame as shown, named by what it is
+  $("save").download = "ltbake-" + p.show + "-" + p.method + "-" + p.terms + "-rot" + ltb.rotate.toFixed(1) + ".png";
   if (ltb.base === 0) ltb.base = stats.exposure;
   ltb.frames += 1; ltb.last = p; ltb.stats = stats;
   $("ms").textContent = stats.ms.toFixed(2) + " ms";
   $("used").textContent = stats.terms_used + " terms (" + stats.terms_in_effect + " in effect)";
   $("err").textContent = "rel_l2" in stats ? "error " + (100 * stats.rel_l2).toFixed(2) + "%" : "";
+  if (stats.show === "difference" && stats.exposure > 0) {
+    $("showhint").textContent = "at " + (stats.difference_exposure / stats.exposure).toPrecision(3) + "× the frame's exposure";
+  } else if (defaults.reference) {
+    $("showhint").textContent = "";
+  }
   $("count").textContent = ltb.frames + " frames";
   $("bands").textContent = "bands: " + stats.bands.map((b) => b.terms + (b.incremental ? "i" : "r")).join(" ");
   $("env").src = "/env.png?f=" + stats.frame;

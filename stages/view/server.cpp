@@ -12,8 +12,9 @@ Status Serve(const ViewOptions& o, const std::function<void(const std::string& u
   LTB_ASSIGN_OR_RETURN(std::unique_ptr<ViewSession> session, ViewSession::Open(o));
   std::mutex mu;  // one frame at a time: the approximation carries from frame to frame
   const FrameRequest& d = session->defaults();
-  const std::string page =
-      PageHtml(JsonText(nlohmann::json{{"terms", TermsJson(d.terms)}, {"method", SequenceMethodName(d.method)}}));
+  const std::string page = PageHtml(JsonText(nlohmann::json{{"terms", TermsJson(d.terms)},
+                                                            {"method", SequenceMethodName(d.method)},
+                                                            {"reference", session->has_reference()}}));
   auto fail = [](int code, const std::string& message) {
     HttpResponse r;
     r.status = code;
@@ -31,7 +32,8 @@ Status Serve(const ViewOptions& o, const std::function<void(const std::string& u
       if (!q.ok()) return fail(400, q.status().message());
       std::lock_guard<std::mutex> lock(mu);
       auto png = session->Render(*q);
-      if (!png.ok()) return fail(500, png.status().message());
+      if (!png.ok())
+        return fail(png.status().code() == StatusCode::kInvalidArgument ? 400 : 500, png.status().message());
       res.headers.push_back({"X-Ltb-Stats", JsonText(session->stats())});
       res.content_type = "image/png";
       res.body = std::move(*png);

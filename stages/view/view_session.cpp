@@ -49,6 +49,18 @@ uint64_t InEffect(const std::vector<float>& applied) {
 
 }  // namespace
 
+const char* FrameShowName(FrameShow s) {
+  switch (s) {
+    case FrameShow::kReference:
+      return "reference";
+    case FrameShow::kDifference:
+      return "difference";
+    case FrameShow::kMatrix:
+      break;
+  }
+  return "matrix";
+}
+
 Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>& params, const FrameRequest& d) {
   FrameRequest r = d;
   for (const auto& [key, value] : params) {
@@ -74,9 +86,19 @@ Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>&
       auto v = ParseDecimal(value, 0, kMaxExposure);
       if (!v.ok()) return InvalidArgument("exposure: " + v.status().message() + " (0: automatic)");
       r.exposure = *v;
+    } else if (key == "show") {
+      if (value == "matrix") {
+        r.show = FrameShow::kMatrix;
+      } else if (value == "reference") {
+        r.show = FrameShow::kReference;
+      } else if (value == "difference") {
+        r.show = FrameShow::kDifference;
+      } else {
+        return InvalidArgument("show=" + shown + ": expected matrix, reference or difference");
+      }
     } else {
       return InvalidArgument("unknown parameter \"" + (key.size() > 40 ? key.substr(0, 40) + "..." : key) +
-                             "\" (rotate, terms, method, exposure)");
+                             "\" (rotate, terms, method, exposure, show)");
     }
   }
   return r;
@@ -108,6 +130,10 @@ Result<std::unique_ptr<ViewSession>> ViewSession::Open(const ViewOptions& o) {
 }
 
 Result<std::string> ViewSession::Render(const FrameRequest& q) {
+  if (q.show != FrameShow::kMatrix && !reference_) {
+    return InvalidArgument(std::string("show=") + FrameShowName(q.show) +
+                           ": there is no reference to compare with (start ltbake view with --reference FILE)");
+  }
   auto a = std::chrono::steady_clock::now();
   if (!relighter_ || q.method != last_.method || q.terms != last_.terms) {
     relighter_ = std::make_unique<IncrementalRelighter>(m_, q.method, q.terms, Weighting::kArea);
@@ -140,17 +166,30 @@ Result<std::string> ViewSession::Render(const FrameRequest& q) {
             {"exposure", exposure},
             {"width", m_.width()},
             {"height", m_.height()},
-            {"bands", std::move(bands)}};
-  if (reference_) {
-    std::vector<float> full = cube_, exact;
-    reference_->basis().ToBasis(full.data());
-    LTB_RETURN_IF_ERROR(reference_->RelightDense(full, &exact));
-    ScaleByPowerOfTwo(&exact, exponent);
-    FinishRelitImage(m_.mask(), false, &exact);
-    stats_["rel_l2"] = CompareImages(out.data(), exact.data(), m_.rows(), m_.width(), m_.height()).rel_l2;
-  }
+            {"bands", std::move(bands)},
+            {"show", FrameShowName(q.show)}};
   last_ = q;
-  std::vector<uint8_t> px = ToSrgb8(out.data(), m_.rows(), exposure);
+  if (!reference_) {
+    std::vector<uint8_t> px = ToSrgb8(out.data(), m_.rows(), exposure);
+    return EncodePng(px.data(), m_.width(), m_.height());
+  }
+  std::vector<float> full = cube_, exact;
+  reference_->basis().ToBasis(full.data());
+  LTB_RETURN_IF_ERROR(reference_->RelightDense(full, &exact));
+  ScaleByPowerOfTwo(&exact, exponent);
+  FinishRelitImage(m_.mask(), false, &exact);
+  stats_["rel_l2"] = CompareImages(out.data(), exact.data(), m_.rows(), m_.width(), m_.height()).rel_l2;
+  std::vector<float> diff(out.size());
+  for (size_t i = 0; i < out.size(); ++i) diff[i] = std::fabs(out[i] - exact[i]);
+  // The difference is small beside the image: at the frame's exposure it would be black, so
+  // it gets its own (automatic, or 16x the frame's when that is given).
+  const double diff_exposure = q.exposure > 0 ? 16 * q.exposure : AutoExposure(diff.data(), m_.rows());
+  stats_["difference_exposure"] = diff_exposure;
+  const std::vector<float>& shown = q.show == FrameShow::kReference    ? exact
+                                    : q.show == FrameShow::kDifference ? diff
+                                                                       : out;
+  std::vector<uint8_t> px =
+      ToSrgb8(shown.data(), m_.rows(), q.show == FrameShow::kDifference ? diff_exposure : exposure);
   return EncodePng(px.data(), m_.width(), m_.height());
 }
 

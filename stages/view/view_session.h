@@ -30,14 +30,20 @@ struct ViewOptions {
   int port = 0;  // 0: a free one
 };
 
+// What a frame's PNG shows: the matrix's relit image, the reference's exact one under the
+// same lighting (A/B), or their difference |A − B| per channel at an exposure of its own.
+enum class FrameShow { kMatrix, kReference, kDifference };
+const char* FrameShowName(FrameShow s);
+
 struct FrameRequest {
   double rotate_deg = 0;
   uint64_t terms = 100;  // RelightOptions::kAllTerms: every term
   SequenceMethod method = SequenceMethod::kPbi;
-  double exposure = 0;  // 0: automatic (the 99th percentile of luminance to 0.9)
+  double exposure = 0;                  // 0: automatic (the 99th percentile of luminance to 0.9)
+  FrameShow show = FrameShow::kMatrix;  // reference and difference need --reference
 };
-// From a query's parameters (rotate, terms, method, exposure; each optional, defaults from
-// `defaults`); an InvalidArgument names the parameter and the value.
+// From a query's parameters (rotate, terms, method, exposure, show; each optional, defaults
+// from `defaults`); an InvalidArgument names the parameter and the value.
 Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>& params, const FrameRequest& defaults);
 
 class ViewSession {
@@ -45,12 +51,14 @@ class ViewSession {
   static Result<std::unique_ptr<ViewSession>> Open(const ViewOptions& options);
   const FrameRequest& defaults() const { return defaults_; }
   bool has_image() const { return m_.width() > 0; }
+  bool has_reference() const { return reference_.has_value(); }
 
   // Relights one frame (the approximation carries over from the last frame when method and
   // terms are the same) and returns its PNG bytes; stats() describes it afterwards.
   Result<std::string> Render(const FrameRequest& request);
-  // The last frame: frame, rotate, method, terms, columns_touched, ms, exposure, bands, and
-  // rel_l2 against the reference when there is one.
+  // The last frame: frame, rotate, method, terms, columns_touched, ms, exposure, bands, show,
+  // and with a reference rel_l2 against it and difference_exposure (what the difference
+  // image is shown at: its own automatic exposure, or the frame's times 2^4 when given).
   const nlohmann::json& stats() const { return stats_; }
   // A lat-long strip (width × width/2) of the last frame's lighting, the texels its terms
   // touched tinted red.

@@ -6,14 +6,18 @@
 - HTTP: / is the page (text/html); an NWA frame with an explicit exposure is, pixel for
   pixel (±1 level), `ltbake relight --clamp --rotate --terms --exposure` of the same bake;
   a bad rotate/terms/method/exposure and an unknown parameter get 400 naming it, an
-  unknown path 404, a 100 kB query a 4xx, and the server still answers /stats and /env.png.
+  unknown path 404, a 100 kB query a 4xx, and the server still answers /stats and /env.png;
+  show=reference is `relight` of the reference with every term, show=difference NumPy's
+  |A − B| of the two relit images at 16× the exposure.
 - The page in headless Chromium (chromium-headless-shell, driven through the DevTools
   protocol over --remote-debugging-pipe): the first frame arrives (automatic exposure
   becomes the base); the method, terms and exposure controls change the next frame's query;
   dragging 80 px on the frame rotates the environment by 40 degrees and brings a new frame
   and new figures; the frame the page shows (read back through a canvas) equals `relight`
   of the same query within 1 level; after switching back to PBI the page keeps asking for
-  frames on its own until the image has converged, then stops; no script errors; a
+  frames on its own until the image has converged, then stops; choosing show = |A − B|
+  (the server runs with --reference rows.ltm) brings difference frames and a save link
+  holding the frame shown; no script errors; a
   screenshot of the page goes to $LTB_TEST_ARTIFACTS (default ./test-artifacts)/view_page.png.
   The slowest frame request the page made is printed (a note when over 2 s).
 - SIGINT stops the server: exit 130, "ltbake view: stopped", the port refuses connections.
@@ -454,7 +458,8 @@ def main():
                             "blender-data")
 
             # 1. The URL, first line of stdout.
-            server = Server(final, "--env", env, "--clamp", "--port", 0, "--method", "pbi", "--terms", 100)
+            server = Server(final, "--env", env, "--clamp", "--port", 0, "--method", "pbi", "--terms", 100,
+                            "--reference", P("rows.ltm"))
             url = server.first_line()
             m = re.fullmatch(r"http://127\.0\.0\.1:(\d+)/", url)
             if not m:
@@ -492,8 +497,28 @@ def main():
                 check(got.shape == (48, 64, 3), f"/frame.png is {got.shape[1]}x{got.shape[0]}, expected 64x48")
                 compare(got, relight_png(final, env, 30, 20, 0.5, P("http_ref.png")),
                         "/frame.png?rotate=30&terms=20&method=nwa&exposure=0.5 against relight")
+            # A/B against the reference (rows.ltm, every term): show=reference is `relight rows.ltm`
+            # of the same rotation and exposure; show=difference is |A - B| of the two relit
+            # images at 16x the exposure, through the sRGB curve (computed here in NumPy).
+            ab = {}
+            for show in ("reference", "difference"):
+                st, h, body = get(base + f"/frame.png?rotate=30&terms=20&method=nwa&exposure=0.5&show={show}")
+                stats = json.loads((h.get("X-Ltb-Stats") if h else None) or "{}")
+                check(st == 200 and stats.get("show") == show and stats.get("difference_exposure") == 8.0 and
+                      stats.get("rel_l2", 0) > 0, f"GET /frame.png?...&show={show}: {st} {stats} {body[:200]!r}")
+                ab[show] = png_pixels(body) if st == 200 else None
+            compare(ab["reference"], relight_png(P("rows.ltm"), env, 30, "all", 0.5, P("ref_all.png")),
+                    "show=reference against relight rows.ltm --terms all")
+            for m, terms, npy in ((final, 20, "a.npy"), (P("rows.ltm"), "all", "b.npy")):
+                run("relight", m, "--env", env, "--clamp", "--rotate", 30, "--terms", terms, "-o", P(npy), *Q,
+                    timeout=120)
+            if os.path.exists(P("a.npy")) and os.path.exists(P("b.npy")):
+                d8 = np.clip(np.abs(np.load(P("a.npy")).astype(np.float64) - np.load(P("b.npy"))) * 8.0, 0, 1)
+                srgb = np.where(d8 <= 0.0031308, 12.92 * d8, 1.055 * d8 ** (1 / 2.4) - 0.055)
+                compare(ab["difference"], np.round(255 * srgb).astype(np.int16).reshape(48, 64, 3),
+                        "show=difference against NumPy's |A - B| at 8")
             for query, name in (("rotate=abc", "rotate"), ("terms=0", "terms"), ("method=xyz", "method"),
-                                ("bogus=1", "bogus"), ("exposure=-1", "exposure")):
+                                ("bogus=1", "bogus"), ("exposure=-1", "exposure"), ("show=both", "show")):
                 st, h, body = get(base + "/frame.png?" + query)
                 check(st == 400 and name.encode() in body,
                       f"GET /frame.png?{query}: {st} {body[:300]!r}, expected 400 naming {name}")
@@ -598,10 +623,24 @@ def main():
                               "the PBI frames to converge (columns_touched 0)")
                 check(s["ltb"]["last"]["rotate"] == f"{s['ltb']['rotate']:.3f}" and s["ltb"]["last"]["terms"] == "20",
                       f"PBI frames at another rotation or terms: {s['ltb']}")
-                check(s["ltb"]["error"] is None and not s["err"],
+                # With --reference the figures hold the frame's error against it ("error 0.60%"),
+                # nothing else.
+                check(s["ltb"]["error"] is None and re.fullmatch(r"error \d+\.\d\d%", s["err"] or "") is not None,
                       f"the page shows an error: {s['ltb']['error']!r} {s['err']!r}")
                 exc = page.exceptions()
                 check(not exc, f"uncaught script errors in the page: {json.dumps(exc)[:1000]}")
+                # A/B: "show" asks for the difference image, the page says at what exposure, and the
+                # save link holds the frame shown under a name that says what it is.
+                page.eval("(() => { const e = document.getElementById('show'); e.value = 'difference';"
+                          " e.dispatchEvent(new Event('change')); })()")
+                s = wait_idle(lambda ltb: ltb["last"]["show"] == "difference" and ltb["stats"]["show"] == "difference",
+                              "a difference frame after choosing show = |A - B|")
+                save = page.eval("(() => { const a = document.getElementById('save'); return {href: a.href,"
+                                 " name: a.download, img: document.getElementById('frame').src,"
+                                 " hint: document.getElementById('showhint').textContent}; })()")
+                check(save["href"] == save["img"] and save["href"].startswith("blob:") and
+                      save["name"].startswith("ltbake-difference-pbi-20-rot") and "the frame's exposure" in save["hint"],
+                      f"the save link and hint of a difference frame: {save}")
                 times = page.eval("performance.getEntriesByType('resource').filter((e) => e.name.includes('/frame.png'))"
                                   ".map((e) => e.duration)")
                 slowest = max(times) if times else 0
