@@ -59,7 +59,12 @@ std::string PlanText(const pipeline::BakeOutcome& o) {
   t << "plan for " << o.recipe_path << " in " << o.workdir << ":\n";
   for (const auto& s : o.plan) {
     t << "  " << Pad(s.node, 22) << Pad(s.action, 8) << s.reason << "\n";
-    if (!s.command.empty()) t << "      " << s.command << "\n";
+    if (!s.command.empty() && s.submit.empty()) t << "      " << s.command << "\n";
+    if (!s.submit.empty()) {  // the Slurm engine: a job array and its script
+      t << "      submits: " << s.submit << "\n      job script " << s.script_path << ":\n";
+      std::istringstream lines(s.script);
+      for (std::string line; std::getline(lines, line);) t << "        " << line << "\n";
+    }
   }
   return t.str();
 }
@@ -75,6 +80,7 @@ std::string PlanJson(const pipeline::BakeOutcome& o) {
   for (const auto& s : o.plan) {
     json j = {{"node", s.node}, {"action", s.action}, {"reason", s.reason}};
     if (!s.command.empty()) j["command"] = s.command;
+    if (!s.submit.empty()) j["slurm"] = {{"submit", s.submit}, {"script_path", s.script_path}, {"script", s.script}};
     steps.push_back(j);
   }
   return JsonText(json{{"recipe", o.recipe_path}, {"workdir", o.workdir}, {"plan", steps}}, 2) + "\n";

@@ -371,8 +371,23 @@ BakeOutcome Bake::DryRun(const Plan& plan) const {
   for (size_t i = 0; i < g_.nodes.size(); ++i) {
     const Node& n = g_.nodes[i];
     const Decision& d = plan.steps[i];
-    outcome.plan.push_back({n.name, ActionName(d.action), d.reason,
-                            d.runs() ? ShellQuote(Command(n, ours_.count(n.output) > 0)) : std::string()});
+    const bool overwrite = ours_.count(n.output) > 0;
+    PlannedStep p{n.name, ActionName(d.action), d.reason, d.runs() ? ShellQuote(Command(n, overwrite)) : std::string()};
+    if (d.runs() && o_.cluster.engine == "slurm" && o_.cluster.shards > 1 && Shardable(n)) {
+      std::vector<std::string> stage = {o_.ltbake};
+      for (std::string& a : StepArgs(n, Path(n.output), o_, overwrite, /*shard=*/true)) stage.push_back(std::move(a));
+      std::vector<uint64_t> all(o_.cluster.shards);
+      for (uint64_t k = 0; k < all.size(); ++k) all[k] = k;
+      std::string step = n.name;
+      std::replace(step.begin(), step.end(), ':', '-');
+      EngineOptions eo = o_.cluster;
+      eo.jobs = o_.jobs;
+      const SlurmSubmission sub = PlanSlurm(eo, stage, all, step, Path("logs"), eo.sbatch, "ltbake-" + step + "-RUN");
+      p.script_path = sub.script_path;
+      p.script = sub.script;
+      p.submit = ShellQuote(sub.command);
+    }
+    outcome.plan.push_back(std::move(p));
   }
   return outcome;
 }

@@ -72,6 +72,9 @@ struct PlannedStep {
   std::string action;  // "run", "resume", "redo", "skip", "given"
   std::string reason;
   std::string command;  // the stage command, shell-quoted, for a step that runs
+  // A sharded step on the Slurm engine: its job script (path and text) and the sbatch line
+  // of its job array (every shard; those already done are left out when it runs).
+  std::string script_path, script, submit;
 };
 
 struct BakeOutcome {

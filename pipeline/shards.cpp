@@ -163,42 +163,53 @@ Status WriteScript(const std::string& path, const std::string& text) {
   return Status::Ok();
 }
 
-Result<ShardedStep> RunSlurm(const EngineOptions& o, const std::vector<std::string>& stage, const std::string& output,
-                             const std::vector<uint64_t>& todo, const std::string& step, const std::string& log_dir) {
-  ShardedStep result;
-  LTB_ASSIGN_OR_RETURN(const std::string sbatch, FindProgram(o.sbatch));
-  LTB_ASSIGN_OR_RETURN(const std::string scancel, FindProgram(o.scancel));
+}  // namespace
+
+SlurmSubmission PlanSlurm(const EngineOptions& o, const std::vector<std::string>& stage,
+                          const std::vector<uint64_t>& todo, const std::string& step, const std::string& log_dir,
+                          const std::string& sbatch, const std::string& job_name) {
+  SlurmSubmission s;
   const int cpus = o.cpus_per_task > 0 ? o.cpus_per_task : std::max(1, o.jobs);
   // One script per step; the shard index comes from the array task, the count is explicit
   // (an array that reruns only some shards has another SLURM_ARRAY_TASK_COUNT).
   std::vector<std::string> argv = stage;
   argv.insert(argv.end(), {"--nshards", std::to_string(o.shards)});
-  const std::string script = log_dir + "/" + step + ".sbatch";
-  LTB_RETURN_IF_ERROR(WriteScript(script, "#!/bin/bash\n# Written by `ltbake run`: one shard of step " + step +
-                                              " per array task.\n"
-                                              "exec " +
-                                              ShellQuote(argv) +
-                                              " --shard \"$SLURM_ARRAY_TASK_ID\" --jobs \"${SLURM_CPUS_PER_TASK:-" +
-                                              std::to_string(cpus) + "}\"\n"));
+  s.script_path = log_dir + "/" + step + ".sbatch";
+  s.script = "#!/bin/bash\n# Written by `ltbake run`: one shard of step " + step + " per array task.\nexec " +
+             ShellQuote(argv) + " --shard \"$SLURM_ARRAY_TASK_ID\" --jobs \"${SLURM_CPUS_PER_TASK:-" +
+             std::to_string(cpus) + "}\"\n";
+  s.command = {sbatch,
+               "--wait",
+               "--parsable",
+               "--job-name=" + job_name,
+               "--array=" + ArrayList(todo),
+               "--output=" + log_dir + "/" + step + ".shard-%a.log",
+               "--open-mode=append",
+               "--cpus-per-task=" + std::to_string(cpus)};
+  if (!o.partition.empty()) s.command.push_back("--partition=" + o.partition);
+  if (!o.mem.empty()) s.command.push_back("--mem=" + o.mem);
+  s.command.insert(s.command.end(), o.sbatch_args.begin(), o.sbatch_args.end());
+  s.command.push_back(s.script_path);
+  return s;
+}
+
+namespace {
+
+Result<ShardedStep> RunSlurm(const EngineOptions& o, const std::vector<std::string>& stage, const std::string& output,
+                             const std::vector<uint64_t>& todo, const std::string& step, const std::string& log_dir) {
+  ShardedStep result;
+  LTB_ASSIGN_OR_RETURN(const std::string sbatch, FindProgram(o.sbatch));
+  LTB_ASSIGN_OR_RETURN(const std::string scancel, FindProgram(o.scancel));
   // Unique per submission, so a cancel reaches only this run's jobs.
   const std::string job_name = "ltbake-" + step + "-" + std::to_string(::getpid()) + "-" +
                                std::to_string(std::chrono::steady_clock::now().time_since_epoch().count() % 1000000);
+  const SlurmSubmission first = PlanSlurm(o, stage, todo, step, log_dir, sbatch, job_name);
+  LTB_RETURN_IF_ERROR(WriteScript(first.script_path, first.script));
   std::map<uint64_t, ShardRun> runs;
   for (uint64_t i : todo) runs[i] = ShardRun{.index = i, .status = "failed", .log = ShardLog(log_dir, step, i)};
   std::vector<uint64_t> left = todo;
   for (int round = 0; round <= o.retries && !left.empty(); ++round) {
-    std::vector<std::string> cmd = {sbatch,
-                                    "--wait",
-                                    "--parsable",
-                                    "--job-name=" + job_name,
-                                    "--array=" + ArrayList(left),
-                                    "--output=" + log_dir + "/" + step + ".shard-%a.log",
-                                    "--open-mode=append",
-                                    "--cpus-per-task=" + std::to_string(cpus)};
-    if (!o.partition.empty()) cmd.push_back("--partition=" + o.partition);
-    if (!o.mem.empty()) cmd.push_back("--mem=" + o.mem);
-    cmd.insert(cmd.end(), o.sbatch_args.begin(), o.sbatch_args.end());
-    cmd.push_back(script);
+    const std::vector<std::string> cmd = PlanSlurm(o, stage, left, step, log_dir, sbatch, job_name).command;
     result.submit_commands.push_back(ShellQuote(cmd));
     if (o.say) {
       o.say(std::string("   ") + (round == 0 ? "submitting" : "resubmitting") + " shards " + ArrayList(left) + " of " +

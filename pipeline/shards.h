@@ -56,6 +56,18 @@ struct ShardedStep {
 // Whether shard `index` of `count` of `output` is a sealed, complete shard file.
 bool ShardFileComplete(const std::string& output, uint64_t index, uint64_t count, std::string* fingerprint = nullptr);
 
+// What the Slurm engine submits for the shards `todo` of `stage` (argv as for RunShards):
+// the job script (its path under `log_dir` and its text, one shard per array task) and the
+// sbatch command line of the first round (`sbatch`: the program; `job_name`: unique per
+// submission). `ltbake run --dry-run --engine slurm` prints it; RunShards submits it.
+struct SlurmSubmission {
+  std::string script_path, script;
+  std::vector<std::string> command;
+};
+SlurmSubmission PlanSlurm(const EngineOptions& o, const std::vector<std::string>& stage,
+                          const std::vector<uint64_t>& todo, const std::string& step, const std::string& log_dir,
+                          const std::string& sbatch, const std::string& job_name);
+
 // Runs the shards in `todo` of `stage` (argv of the stage command, without --shard,
 // --nshards and --jobs). `step` names logs and the Slurm job; logs go to `log_dir`.
 Result<ShardedStep> RunShards(const EngineOptions& o, const std::vector<std::string>& stage, const std::string& output,

@@ -101,6 +101,11 @@ export SLURM_CONF=$LTBAKE_SLURM_DIR/etc/slurm.conf
 
 say "2. slurm, 4 shards, --retries 0; cancel task 2 of the sample array mid-run"
 W=$WORK/slurm
+# First the plan: --dry-run shows each step's job array and script (checked against what the
+# runs below submit and write) and makes nothing.
+"$LTBAKE" run "$WORK/bake.toml" --workdir "$W" --engine slurm --shards 4 --cpus-per-task 1 --retries 0 \
+    --dry-run --json >"$WORK/plan.json" || fail "the dry run failed"
+[ ! -e "$W" ] || fail "the dry run made $W"
 "$LTBAKE" run "$WORK/bake.toml" --workdir "$W" --engine slurm --shards 4 --cpus-per-task 1 --retries 0 \
     >"$WORK/run1.out" 2>&1 &
 BG=$!
@@ -143,6 +148,17 @@ for node in ("transpose", "column-transform", "quantize"):
     assert e["status"] == "done" and e["nshards"] == 4 and e["engine"] == "slurm", e
     assert all(x["status"] == "done" for x in e["shards"]), e["shards"]
 print("   run.json: sample shard 2 ran alone; later stages ran 4 shards each")
+PY
+$PY - "$W/run.json" "$WORK/plan.json" "$W/logs" <<'PY' || fail "the dry run's job arrays are not what the run submitted"
+import json, os, sys
+st = {s["node"]: s for s in json.load(open(sys.argv[1]))["stages"]}
+plan = {p["node"]: p for p in json.load(open(sys.argv[2]))["plan"]}
+same = lambda line: [w for w in line.split()[1:] if not w.startswith("--job-name=")]  # sbatch's path, the run's tag
+for node in ("transpose", "column-transform", "quantize"):
+    sl = plan[node]["slurm"]
+    assert "--array=0-3 " in sl["submit"] and same(sl["submit"]) == same(st[node]["submissions"][0]), (sl, st[node])
+    assert open(sl["script_path"]).read() == sl["script"], sl["script_path"]
+print("   --dry-run: the job arrays and scripts it showed are the ones submitted")
 PY
 [ -s "$W/logs/sample+row-transform.shard-2.log" ] || fail "no log of shard 2"
 
