@@ -670,6 +670,18 @@ def main():
                 browser.close()
                 check(browser.returncode is not None, "the browser did not exit after Browser.close")
 
+            # 4b. Without --reference there is nothing to compare with: show=reference is a 400
+            # that says what to start the server with, and the page offers A alone.
+            plain = Server(final, "--env", env, "--clamp", "--port", 0)
+            try:
+                purl = plain.first_line()
+                st, h, body = get(purl.rstrip("/") + "/frame.png?show=reference")
+                check(st == 400 and b"--reference" in body, f"show=reference without --reference: {st} {body[:300]!r}")
+                st, h, body = get(purl)
+                check(st == 200 and b'"reference":false' in body, f"the page of a server without --reference: {st}")
+            finally:
+                plain.kill()
+
             # 5. SIGINT stops the server.
             server.p.send_signal(signal.SIGINT)
             rc = server.wait()
