@@ -5,7 +5,8 @@ Fetches npm `teapot@1.0.0` (the Utah teapot) and `snowden@1.0.1` (a scanned bust
 `npm pack` (not install), converts their vertex arrays to OBJ with node, and normalises
 each to z-up, one unit tall, centred over the origin and standing on z = 0 (both are
 y-up), so it sits where the bundled bunny sits in samples/medium.toml. Then writes a
-scene per mesh: the medium scene's camera, floor and materials at WIDTH x WIDTH pixels.
+scene per mesh: samples/medium.toml (camera, floor, materials) with the mesh in place of
+the bunny, at WIDTH x WIDTH pixels.
 
     /usr/bin/python3 bench/unseen_meshes.py [OUT=bench/out/unseen] [WIDTH=128]
 
@@ -14,6 +15,7 @@ scripts import `scenes(out, width)`.
 """
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -21,44 +23,20 @@ import tempfile
 HERE = os.path.dirname(os.path.abspath(__file__))
 PACKAGES = {"teapot": "teapot@1.0.0", "snowden": "snowden@1.0.1"}
 
-SCENE = """# {name} (npm {package}), fetched by bench/unseen_meshes.py: a scene no test tunes on.
-[output]
-mode = "image"
+MEDIUM = os.path.join(HERE, "..", "samples", "medium.toml")
 
-[camera]
-eye = [0.0, -3.2, 2.0]
-target = [0.0, 0.0, 0.45]
-up = [0.0, 0.0, 1.0]
-fov = 38.0
-width = {width}
-height = {width}
 
-[sampling]
-cube_res = 32
-spp = 4
-
-[[material]]
-name = "floor"
-albedo = 0.7
-
-[[material]]
-name = "object"
-albedo = 0.6
-ks = 0.25
-exponent = 40.0
-
-[[object]]
-name = "ground"
-type = "plane"
-size = [6.0, 6.0]
-material = "floor"
-
-[[object]]
-name = "{name}"
-type = "mesh"
-file = "{obj}"
-material = "object"
-"""
+def scene_text(name, obj, width):
+    """samples/medium.toml (its camera, floor, materials and sampling) with the bunny's mesh
+    replaced by OBJ (already z-up and one unit tall: the bunny's scale and turn dropped), at
+    WIDTH x WIDTH pixels."""
+    text = open(MEDIUM).read()
+    text = re.sub(r"(?m)^(width|height) = \d+", lambda m: f"{m.group(1)} = {width}", text)
+    text = re.sub(r'(?m)^file = "[^"]*bunny\.obj".*$', f'file = "{obj}"', text)
+    text = re.sub(r"(?m)^(scale = 0\.1|rotate = \[90\.0, 0\.0, 0\.0\])\n", "", text)
+    if f'file = "{obj}"' not in text or "scale = 0.1" in text:
+        raise SystemExit(f"{MEDIUM}: its bunny object is not where bench/unseen_meshes.py looks for it")
+    return f"# {name} (npm {PACKAGES[name]}) in samples/medium.toml, by bench/unseen_meshes.py\n" + text
 
 
 def fetch(name, out):
@@ -99,7 +77,7 @@ def scenes(out, width):
         obj = fetch(name, os.path.join(out, "meshes"))
         path = os.path.join(out, f"{name}{width}.toml")
         with open(path, "w") as f:
-            f.write(SCENE.format(name=name, package=PACKAGES[name], width=width, obj=obj))
+            f.write(scene_text(name, obj, width))
         paths[name] = path
     return paths
 

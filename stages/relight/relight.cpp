@@ -237,6 +237,20 @@ Result<Relighter> Relighter::Load(const std::string& path, uint64_t mem_limit, c
     }
   }
 
+  // The per-column tables, read once whatever their chunking (a quantize output holds each in
+  // one chunk, a column-transform output chunks them like the matrix).
+  std::vector<uint8_t> depths;
+  std::vector<double> scales, stats;
+  if (codec) {
+    LTB_ASSIGN_OR_RETURN(depths, ReadLinesAs<uint8_t>(in, codec->depth_array(), 0, a.cols));
+    if (codec->scale_array() >= 0) {
+      LTB_ASSIGN_OR_RETURN(scales, ReadLinesAs<double>(in, codec->scale_array(), 0, a.cols));
+    }
+    if (stats_array >= 0) {
+      LTB_ASSIGN_OR_RETURN(stats, ReadLinesAs<double>(in, stats_array, 0, a.cols));
+    }
+  }
+
   // Chunks are decoded `jobs` at a time in parallel (a sparse-coded chunk decodes at ~7 M
   // nonzeros/s on one core), then appended in order, so the result does not depend on jobs.
   auto decode = [&](uint64_t c, LoadedChunk* d) -> Status {
@@ -246,14 +260,10 @@ Result<Relighter> Relighter::Load(const std::string& path, uint64_t mem_limit, c
     d->scales.assign(e.cols, codec && codec->uniform_scale() > 0 ? codec->uniform_scale() : 1.0);
     d->energy.assign(e.cols, -1.0);
     if (!codec) return Status::Ok();
-    LTB_ASSIGN_OR_RETURN(d->depths, ReadLinesAs<uint8_t>(in, codec->depth_array(), e.col0, e.col0 + e.cols));
-    if (codec->scale_array() >= 0) {
-      LTB_ASSIGN_OR_RETURN(d->scales, ReadLinesAs<double>(in, codec->scale_array(), e.col0, e.col0 + e.cols));
-    }
-    if (stats_array >= 0) {
-      LTB_ASSIGN_OR_RETURN(const std::vector<double> sv, ReadLinesAs<double>(in, stats_array, e.col0, e.col0 + e.cols));
-      for (uint64_t k = 0; k < e.cols && 3 * k < sv.size(); ++k) d->energy[k] = sv[3 * k];
-    }
+    std::copy_n(depths.begin() + e.col0, e.cols, d->depths.begin());
+    if (!scales.empty()) std::copy_n(scales.begin() + e.col0, e.cols, d->scales.begin());
+    if (!stats.empty())
+      for (uint64_t k = 0; k < e.cols; ++k) d->energy[k] = stats[3 * (e.col0 + k)];
     return Status::Ok();
   };
   const uint64_t window = static_cast<uint64_t>(std::max(1, jobs));

@@ -58,7 +58,8 @@ class ViewSession {
   Result<std::string> Render(const FrameRequest& request);
   // The last frame: frame, rotate, method, terms, columns_touched, ms, exposure, bands, show,
   // and with a reference rel_l2 against it and difference_exposure (what the difference
-  // image is shown at: its own automatic exposure, or the frame's times 2^4 when given).
+  // image is shown at: the frame's given exposure times 2^4, else, when the difference is
+  // shown, its own automatic one).
   const nlohmann::json& stats() const { return stats_; }
   // A lat-long strip (width × width/2) of the last frame's lighting, the texels its terms
   // touched tinted red.
