@@ -32,6 +32,7 @@
 #include "stages/sample/l1_solver.h"
 #include "stages/sample/sample_internal.h"
 #include "stages/sample/sampler.h"
+#include "stages/sample/sparse_internal.h"
 #include "stages/sample/sparse_rows.h"
 
 namespace ltb::stages {
@@ -41,60 +42,7 @@ using namespace ltb::format;
 std::string SparseCheckpointPath(const std::string& output) { return output + ".dense.ltm"; }
 
 namespace sample_internal {
-namespace {
-
-using sample::RowPoint;
-using sample::RowScratch;
-using sample::Sampler;
-namespace sp = sample::sparse;
-
-constexpr double kRadiusFactor = 0.04;   // default radius: this × the rows' bounding-box diagonal
-constexpr double kNormalCos = 0.5;       // neighbours' normals within 60° of the row's
-constexpr uint32_t kRankRes = 8;         // local rank on the cubemap box-filtered to 6·8²
-constexpr double kRankThreshold = 0.02;  // singular values above 2% of the largest count
-constexpr uint32_t kMinFeatures = 32;    // a sparse row traces at least this many texels
-constexpr double kMinWeight = 0.25;      // placement weight of a candidate whose neighbours have rank 0
-// The fit stops when its KKT violation is below this × λ_max, or after this many sweeps.
-constexpr double kL1Tolerance = 1e-4;
-constexpr int kL1MaxSweeps = 200;
-
-// Array indices of the checkpoint.
-enum CheckpointArray : uint32_t {
-  kRow = 0,
-  kDirect = 1,
-  kFeatures = 2,
-  kDenseRays = 3,
-  kDenseSeconds = 4,
-  kDenseTraced = 5,
-  kIndirect = 6
-};
-// Extra arrays of the output, after matrix, mask, position, normal.
-enum OutputArray : uint32_t { kKind = 4, kTraced = 5, kRays = 6, kResidual = 7, kSeconds = 8 };
-enum RowKind : uint8_t { kNone = 0, kDense = 1, kSparse = 2 };
-
-// A uniform number in (0, 1] from (seed, round, row).
-double Uniform(uint64_t seed, uint64_t round, uint64_t row) {
-  const uint64_t z = sample::Mix64(seed ^ 0x5EED5EED5EED5EEDull ^ sample::Mix64(round * 0x9E3779B97F4A7C15ull + row));
-  return (static_cast<double>(z >> 11) + 1.0) * 0x1.0p-53;
-}
-
-double Seconds(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
-
-struct Params {
-  uint64_t cols = 0, dense = 0, dense_block = 0;
-  std::vector<uint64_t> rounds;  // dense rows per round
-  double radius = 0;
-  uint32_t features = 0, neighbours = 0;
-  sample::L1Options l1;
-};
-
-// Per row: the primary point; the rows that see geometry.
-struct RowPoints {
-  std::vector<RowPoint> pt;
-  std::vector<uint64_t> valid;
-};
+namespace sparse_bake {
 
 Result<RowPoints> PrimaryPoints(const Sampler& sampler, const Prepared& p, int jobs, const Progress& progress) {
   RowPoints rp;
@@ -151,38 +99,6 @@ Params Resolve(const SampleOptions& o, const Prepared& p, const RowPoints& rows)
   return pr;
 }
 
-nlohmann::json ParamsJson(const SampleOptions& o, const Params& pr) {
-  return {{"dense_fraction", o.sparse.dense_fraction},
-          {"initial_fraction", o.sparse.initial_fraction},
-          {"radius", pr.radius},
-          {"features", pr.features},
-          {"neighbours", pr.neighbours},
-          {"l1_lambda", pr.l1.lambda_rel},
-          {"l1_tolerance", pr.l1.tolerance},
-          {"l1_nonnegative", pr.l1.nonnegative},
-          {"window", 2 * sp::kWindowHalf + 1},
-          {"normal_cos", kNormalCos},
-          {"rank_res", kRankRes},
-          {"rank_threshold", kRankThreshold},
-          {"min_features", kMinFeatures},
-          {"max_residual", o.sparse.max_residual}};
-}
-
-// ---- Dense rows ----
-
-struct DenseScratch {
-  const sp::WindowTable* windows = nullptr;
-  RowScratch sc;
-  std::vector<double> unoccluded, value, indirect;
-  std::vector<uint8_t> grid, second;
-};
-
-struct DenseRowResult {
-  uint64_t rays = 0, traced = 0;
-};
-
-// One dense row (§4.2): the unoccluded term of every texel (no rays), the regular grid,
-// then the texels whose window disagrees; the indirect term with a quarter of the paths.
 DenseRowResult TraceDenseRow(const Sampler& s, uint64_t row, const RowPoint& rp, uint64_t cols, DenseScratch& ds,
                              float* direct, float* indirect, uint8_t* features) {
   DenseRowResult out;
@@ -204,16 +120,99 @@ DenseRowResult TraceDenseRow(const Sampler& s, uint64_t row, const RowPoint& rp,
   return out;
 }
 
-// What both phases read: the options, the scene, its rows and the resolved parameters.
-struct Context {
-  const SampleOptions& o;
-  const Prepared& p;
-  const Sampler& s;
-  const RowPoints& pts;
-  const Params& pr;
-  const sp::WindowTable& windows;
-  const Progress& progress;
+void DenseNeighbours(const Context& c, const sp::PointGrid& grid, const RowPoint& rp, std::vector<uint32_t>* nb) {
+  double radius = c.pr.radius;
+  for (int widen = 0; widen < 3; ++widen, radius *= 2) {
+    grid.Query(rp.p, rp.n, radius, c.pr.neighbours, kNormalCos, -1, nb);
+    if (nb->size() >= 2) break;
+  }
+}
+
+SparseRowOutcome ReconstructRow(const Context& c, const sp::PointGrid& grid, std::span<const sp::DenseView> views,
+                                uint64_t row, const RowPoint& rp, float* out) {
+  thread_local DenseScratch ds;
+  ds.windows = &c.windows;
+  thread_local sp::Scratch fs;
+  thread_local std::vector<uint32_t> nb_idx, texels;
+  thread_local std::vector<sp::DenseView> nb;
+  thread_local std::vector<uint8_t> relevant, select;
+  thread_local std::vector<double> b;
+  thread_local std::vector<float> ind_scratch;
+  const uint64_t cols = c.pr.cols;
+  DenseNeighbours(c, grid, rp, &nb_idx);
+  // Traced like a dense row instead: no dense row anywhere near, or a fit that does not
+  // match its own traced texels.
+  auto fallback = [&](double why, uint64_t traced_before, uint64_t rays_before) {
+    ind_scratch.assign(c.p.bounces > 0 ? cols : 0, 0.0f);
+    DenseRowResult d =
+        TraceDenseRow(c.s, row, rp, cols, ds, out, c.p.bounces > 0 ? ind_scratch.data() : nullptr, nullptr);
+    for (uint64_t k = 0; k < ind_scratch.size(); ++k)
+      out[k] = static_cast<float>(double{out[k]} + double{ind_scratch[k]});
+    return SparseRowOutcome{kDense, static_cast<float>(why), static_cast<uint32_t>(traced_before + d.traced),
+                            rays_before + d.rays};
+  };
+  if (nb_idx.empty()) return fallback(1.0, 0, 0);
+  nb.clear();
+  for (uint32_t k : nb_idx) nb.push_back(views[k]);
+  relevant.resize(cols);
+  for (uint64_t k = 0; k < cols; ++k) relevant[k] = c.s.BelowHorizon(rp.n, k) ? 0 : 1;
+  sp::ChooseFeatures(nb, cols, relevant.data(), c.pr.features, kMinFeatures, fs, &texels);
+  select.assign(cols, 0);
+  for (uint32_t k : texels) select[k] = 1;
+  // DirectSelected writes the selected texels of a full-length row.
+  ds.value.assign(cols, 0.0);
+  const uint64_t nr = texels.empty() ? 0 : c.s.DirectSelected(row, rp, select.data(), ds.value.data(), ds.sc);
+  b.resize(texels.size());
+  for (size_t j = 0; j < texels.size(); ++j) b[j] = ds.value[texels[j]];
+  sp::Fit fit = sp::Reconstruct(nb, cols, texels, b.data(), relevant.data(), c.pr.l1, fs, out);
+  const bool dark = std::all_of(b.begin(), b.end(), [](double x) { return x == 0; });
+  if (fit.residual > c.o.sparse.max_residual || (dark && !texels.empty())) {
+    return fallback(dark ? 1.0 : fit.residual, texels.size(), nr);
+  }
+  return SparseRowOutcome{kSparse, static_cast<float>(fit.residual), static_cast<uint32_t>(texels.size()), nr};
+}
+
+}  // namespace sparse_bake
+
+namespace {
+
+using namespace sparse_bake;
+
+// Array indices of the checkpoint.
+enum CheckpointArray : uint32_t {
+  kRow = 0,
+  kDirect = 1,
+  kFeatures = 2,
+  kDenseRays = 3,
+  kDenseSeconds = 4,
+  kDenseTraced = 5,
+  kIndirect = 6
 };
+// Extra arrays of the output, after matrix, mask, position, normal.
+enum OutputArray : uint32_t { kKind = 4, kTraced = 5, kRays = 6, kResidual = 7, kSeconds = 8 };
+
+// A uniform number in (0, 1] from (seed, round, row).
+double Uniform(uint64_t seed, uint64_t round, uint64_t row) {
+  const uint64_t z = sample::Mix64(seed ^ 0x5EED5EED5EED5EEDull ^ sample::Mix64(round * 0x9E3779B97F4A7C15ull + row));
+  return (static_cast<double>(z >> 11) + 1.0) * 0x1.0p-53;
+}
+
+nlohmann::json ParamsJson(const SampleOptions& o, const Params& pr) {
+  return {{"dense_fraction", o.sparse.dense_fraction},
+          {"initial_fraction", o.sparse.initial_fraction},
+          {"radius", pr.radius},
+          {"features", pr.features},
+          {"neighbours", pr.neighbours},
+          {"l1_lambda", pr.l1.lambda_rel},
+          {"l1_tolerance", pr.l1.tolerance},
+          {"l1_nonnegative", pr.l1.nonnegative},
+          {"window", 2 * sp::kWindowHalf + 1},
+          {"normal_cos", kNormalCos},
+          {"rank_res", kRankRes},
+          {"rank_threshold", kRankThreshold},
+          {"min_features", kMinFeatures},
+          {"max_residual", o.sparse.max_residual}};
+}
 
 // ---- Phase 1 ----
 
@@ -498,19 +497,11 @@ class Phase2Runner {
   }
 
   Status Block(io::ContainerWriter& w, uint64_t chunk, uint64_t block, Phase2Counters& cnt) {
-    thread_local DenseScratch ds;
-    ds.windows = &c_.windows;
-    thread_local sp::Scratch fs;
-    thread_local std::vector<uint32_t> nb_idx, texels;
-    thread_local std::vector<sp::DenseView> nb;
-    thread_local std::vector<uint8_t> relevant, select;
-    thread_local std::vector<double> b;
     const uint64_t cols = c_.pr.cols, r0 = chunk * block, n = std::min(block, c_.p.rows - r0);
     std::vector<float> mat(n * cols, 0.0f), pos(n * 3, 0.0f), nor(n * 3, 0.0f), residual(n, 0.0f), secs(n, 0.0f);
     std::vector<uint8_t> mask(n, 0), kind(n, kNone);
     std::vector<uint32_t> traced(n, 0);
     std::vector<uint64_t> rays(n, 0);
-    std::vector<float> ind_scratch;
     for (uint64_t i = 0; i < n; ++i) {
       if (c_.progress.Cancelled()) return Cancelled("interrupted; committed chunks are kept, rerun to resume");
       c_.progress.Report(cnt.done.fetch_add(1) + 1, todo_rows_, "rows");
@@ -536,56 +527,12 @@ class Phase2Runner {
         traced[i] = dense_.traced[static_cast<size_t>(di)];
         continue;
       }
-      kind[i] = kSparse;
-      // Neighbours within the radius; twice and four times it when fewer than two are found.
-      double radius = c_.pr.radius;
-      for (int widen = 0; widen < 3; ++widen, radius *= 2) {
-        grid_->Query(rp.p, rp.n, radius, c_.pr.neighbours, kNormalCos, -1, &nb_idx);
-        if (nb_idx.size() >= 2) break;
-      }
-      // Traced like a dense row instead (kind 1 with a residual > 0: the failed fit's, or
-      // 1 when there was none): no dense row anywhere near, or a fit that does not match
-      // its own traced texels.
-      auto fallback = [&](double why, uint64_t traced_before, uint64_t rays_before) {
-        ind_scratch.assign(c_.p.bounces > 0 ? cols : 0, 0.0f);
-        DenseRowResult d =
-            TraceDenseRow(c_.s, row, rp, cols, ds, out, c_.p.bounces > 0 ? ind_scratch.data() : nullptr, nullptr);
-        for (uint64_t c = 0; c < ind_scratch.size(); ++c) {
-          out[c] = static_cast<float>(double{out[c]} + double{ind_scratch[c]});
-        }
-        kind[i] = kDense;
-        residual[i] = static_cast<float>(why);
-        traced[i] = static_cast<uint32_t>(traced_before + d.traced);
-        rays[i] = rays_before + d.rays;
-        cnt.rays_sparse += rays[i];
-        secs[i] = static_cast<float>(Seconds(t0));
-      };
-      if (nb_idx.empty()) {
-        fallback(1.0, 0, 0);
-        continue;
-      }
-      nb.clear();
-      for (uint32_t k : nb_idx) nb.push_back(dense_.views[k]);
-      relevant.resize(cols);
-      for (uint64_t c = 0; c < cols; ++c) relevant[c] = c_.s.BelowHorizon(rp.n, c) ? 0 : 1;
-      sp::ChooseFeatures(nb, cols, relevant.data(), c_.pr.features, kMinFeatures, fs, &texels);
-      select.assign(cols, 0);
-      for (uint32_t c : texels) select[c] = 1;
-      // DirectSelected writes the selected texels of a full-length row.
-      ds.value.assign(cols, 0.0);
-      const uint64_t nr = texels.empty() ? 0 : c_.s.DirectSelected(row, rp, select.data(), ds.value.data(), ds.sc);
-      b.resize(texels.size());
-      for (size_t j = 0; j < texels.size(); ++j) b[j] = ds.value[texels[j]];
-      sp::Fit fit = sp::Reconstruct(nb, cols, texels, b.data(), relevant.data(), c_.pr.l1, fs, out);
-      const bool dark = std::all_of(b.begin(), b.end(), [](double x) { return x == 0; });
-      if (fit.residual > c_.o.sparse.max_residual || (dark && !texels.empty())) {
-        fallback(dark ? 1.0 : fit.residual, texels.size(), nr);
-        continue;
-      }
-      residual[i] = static_cast<float>(fit.residual);
-      traced[i] = static_cast<uint32_t>(texels.size());
-      rays[i] = nr;
-      cnt.rays_sparse += nr;
+      const SparseRowOutcome r = ReconstructRow(c_, *grid_, dense_.views, row, rp, out);
+      kind[i] = r.kind;
+      residual[i] = r.residual;
+      traced[i] = r.traced;
+      rays[i] = r.rays;
+      cnt.rays_sparse += r.rays;
       secs[i] = static_cast<float>(Seconds(t0));
     }
     LTB_RETURN_IF_ERROR(c_.p.geo.rays->error());
