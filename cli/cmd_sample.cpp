@@ -42,9 +42,16 @@ class SampleCommand : public Command {
     app->add_flag("--visibility", options_.visibility,
                   "vertex mode: bake the visibility field V(x, w) of the triple-product path (docs/TRIPLE.md), "
                   "Haar per face, sparse, instead of T");
-    app->add_flag("--sparse", options_.sparse.enabled,
-                  "sparse precomputation (docs/SPARSE.md): trace about a quarter of the rows densely and the rest "
-                  "on a few feature texels, reconstructed from dense neighbours");
+    sparse_opt_ =
+        app->add_option(
+               "--sparse", sparse_mode_,
+               "sparse precomputation (docs/SPARSE.md): trace about a quarter of the rows densely and the rest "
+               "on a few feature texels, reconstructed from dense neighbours. --sparse auto: a short pilot "
+               "measures both ways on this scene and bakes in full when sparse would not be faster; "
+               "--sparse or --sparse force: sparse regardless")
+            ->expected(0, 1)
+            ->default_str("force");
+    app->add_option("--sparse-margin", sparse_margin_, "")->group("")->check(CLI::Range(0.0, 1e9));
     app->add_option("--dense-fraction", options_.sparse.dense_fraction,
                     "with --sparse: dense rows / rows that see geometry, in (0, 1]")
         ->default_val(0.25);
@@ -103,6 +110,18 @@ class SampleCommand : public Command {
     if (bounces_ >= 0) options_.bounces = static_cast<uint32_t>(bounces_);
     if (seed_ >= 0) options_.seed = static_cast<uint64_t>(seed_);
     if (radius_) options_.sparse.radius = *radius_;
+    if (sparse_opt_->count() > 0) {
+      if (sparse_mode_ != "auto" && sparse_mode_ != "force" && !sparse_mode_.empty()) {
+        return ReportUsage(
+            InvalidArgument("--sparse " + sparse_mode_ + ": expected auto or force (or no value: force)"));
+      }
+      options_.sparse.enabled = true;
+      options_.sparse.automatic = sparse_mode_ == "auto";
+    }
+    if (sparse_margin_) {
+      if (!options_.sparse.automatic) return ReportUsage(InvalidArgument("--sparse-margin goes with --sparse auto"));
+      options_.sparse.auto_margin = *sparse_margin_;
+    }
     if (!tolerance_.empty()) {
       auto t = stages::ParseFraction(tolerance_);
       if (!t.ok()) return ReportUsage(t.status().WithContext("--tolerance"));
@@ -182,6 +201,7 @@ class SampleCommand : public Command {
                 << "\n  skipped: " << r->texels_below_horizon << " (row, texel) pairs wholly below the horizon, "
                 << r->samples_below_horizon << " samples below it"
                 << "\n  degenerate triangles dropped: " << r->degenerate_triangles << "\n";
+      if (r->sparse_auto) PrintSparseAuto(*r->sparse_auto);
       if (r->sparse) PrintSparse(*r->sparse);
       if (options_.tolerance) PrintConverged(*r);
       for (const auto& [name, errors] : r->factor_errors) {
@@ -224,6 +244,20 @@ class SampleCommand : public Command {
                      {"rays", {sp.total_rays[0], sp.total_rays[1]}},
                      {"seconds", {sp.seconds[0], sp.seconds[1]}}};
     }
+    if (r.sparse_auto) {
+      const stages::SparseAuto& a = *r.sparse_auto;
+      j["sparse_auto"] = {
+          {"decision", a.sparse ? "sparse" : "full"},
+          {"resumed", a.resumed},
+          {"reason", a.reason},
+          {"pilot_rows", a.pilot_rows},
+          {"pilot_dense_rows", a.pilot_dense_rows},
+          {"pilot_seconds", a.pilot_seconds},
+          {"cpu_seconds_per_row", {{"full", a.full_row}, {"dense", a.dense_row}, {"sparse", a.sparse_row}}},
+          {"fallback_fraction", a.fallback_fraction},
+          {"predicted_cpu_seconds", {{"full", a.predicted_full}, {"sparse", a.predicted_sparse}}},
+          {"margin", a.margin}};
+    }
     if (options_.tolerance) {
       j["converged"] = {{"tolerance", *options_.tolerance},
                         {"max_levels", options_.max_levels},
@@ -247,6 +281,16 @@ class SampleCommand : public Command {
                   *options_.tolerance, r.spp << (options_.max_levels - 1),
                   static_cast<unsigned long long>(r.pilot_rows), r.pilot_rms_norm, r.max_rel_error);
     std::cout << line << "  rows by the highest level a texel of theirs took (level:rows, this run):" << hist << "\n";
+  }
+
+  static void PrintSparseAuto(const stages::SparseAuto& a) {
+    char line[160];
+    std::snprintf(line, sizeof line, "  --sparse auto: %s bake%s; pilot of %llu rows (+%llu dense) in %.2f s\n",
+                  a.sparse ? "a sparse" : "the full",
+                  a.resumed ? " (the decision of the run that started this output)" : "",
+                  static_cast<unsigned long long>(a.pilot_rows), static_cast<unsigned long long>(a.pilot_dense_rows),
+                  a.pilot_seconds);
+    std::cout << line << "    why: " << a.reason << "\n";
   }
 
   static void PrintSparse(const stages::SparseStats& s) {
@@ -273,6 +317,9 @@ class SampleCommand : public Command {
   std::optional<long long> features_;
   std::string row_filter_;
   std::string channels_ = "mono", channel_;
+  std::string sparse_mode_;
+  CLI::Option* sparse_opt_ = nullptr;
+  std::optional<double> sparse_margin_;
   long long factor_term_ = -1;
   std::string factor_grid_ = "96,32";
   long long cube_res_ = -1, spp_ = -1, bounces_ = -1, seed_ = -1;

@@ -180,7 +180,18 @@ Status ParseSample(const std::string& path, const toml::table& t, Recipe::Sample
       CheckKeys(path, t, "[sample]",
                 {"cube_res", "spp", "bounces", "seed", "sparse", "dense_fraction", "radius", "features", "neighbours",
                  "l1_lambda", "max_residual", "channels", "factor", "tolerance", "max_levels"}));
-  LTB_ASSIGN_OR_RETURN(s->sparse, GetBool(path, t, "sparse", false));
+  // sparse = true or "auto": --sparse auto (a pilot picks sparse or full); "force": --sparse.
+  if (const toml::node* sp = t.get("sparse"); sp != nullptr && sp->is_string()) {
+    const std::string v = *sp->value<std::string>();
+    if (v != "auto" && v != "force") {
+      return InvalidArgument(Where(path, *sp) + ": [sample] sparse is \"" + v +
+                             "\" (expected true, false, \"auto\" (as true) or \"force\")");
+    }
+    s->sparse = true;
+    s->sparse_force = v == "force";
+  } else {
+    LTB_ASSIGN_OR_RETURN(s->sparse, GetBool(path, t, "sparse", false));
+  }
   LTB_ASSIGN_OR_RETURN(s->channels, GetString(path, t, "channels", "mono"));
   LTB_ASSIGN_OR_RETURN(s->factor, GetUnsigned(path, t, "factor", 0, 1, 64));
   if (s->factor > 0 && (s->channels == "rgb" || s->sparse)) {

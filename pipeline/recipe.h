@@ -48,7 +48,8 @@ struct Recipe {
 
   struct Sample {
     std::optional<uint64_t> cube_res, spp, bounces, seed;  // unset: the scene's [sampling] values
-    bool sparse = false;  // sparse precomputation (docs/SPARSE.md); the keys below are its flags
+    bool sparse = false;        // sparse precomputation (docs/SPARSE.md); the keys below are its flags
+    bool sparse_force = false;  // sparse = "force": sparse regardless (--sparse); else --sparse auto
     std::optional<double> dense_fraction, radius, l1_lambda, max_residual;
     std::optional<uint64_t> features, neighbours;
     // "rgb": one matrix per colour channel, every later step once per channel file

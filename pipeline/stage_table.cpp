@@ -33,7 +33,8 @@ StageCommand Sample(const Recipe& r, const StageContext& ctx) {
   }
   if (sp.sparse) {  // params["sparse"] marks the step unshardable (pipeline/bake.cpp)
     json p = json::object();
-    c.args.push_back("--sparse");
+    c.args.insert(c.args.end(), {"--sparse", sp.sparse_force ? "force" : "auto"});
+    p["mode"] = sp.sparse_force ? "force" : "auto";
     auto num = [&](const char* flag, const char* key, const std::optional<double>& v) {
       if (!v) return;
       p[key] = *v;

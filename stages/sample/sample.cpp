@@ -29,6 +29,7 @@
 #include "stages/sample/sampler.h"
 #include "stages/sample/scene.h"
 #include "stages/sample/scene_geometry.h"
+#include "stages/sample/sparse_internal.h"
 #include "stages/wavelet/haar_face.h"
 
 namespace ltb::stages {
@@ -687,23 +688,53 @@ void RunPilot(const SampleOptions& o, const Sampler& sampler, uint64_t rows, Blo
   result->pilot_rms_norm = bs->rms_norm;
 }
 
+// The full bake's outputs (one, a channel set's or a factored bake's terms), opened or resumed;
+// chose_full: --sparse auto's decision for the full bake, recorded in the provenance.
+Result<std::vector<io::ContainerWriter>> OpenOutputs(const SampleOptions& o, const Prepared& prep,
+                                                     const FactorPlan* plan, const std::vector<uint32_t>& out_term,
+                                                     uint64_t block, const std::optional<SparseAuto>& chose_full) {
+  io::WriterOptions wo;
+  wo.overwrite_mismatch = o.overwrite;
+  wo.direct_io = o.direct_io;
+  std::vector<io::ContainerWriter> outs;
+  for (uint32_t k : out_term) {
+    SampleOptions ok = o;  // --channels rgb: output k is exactly what --channel k writes
+    if (o.rgb) ok.channel = static_cast<int>(k);
+    nlohmann::json meta = sample_internal::SampleMetadata(ok, prep, block);
+    AddConvergedMetadata(o, prep, block, &meta);
+    sample_internal::AddReflectance(prep, block, &meta);
+    if (plan) AddFactorMetadata(o, prep, *plan, k, &meta);
+    if (chose_full) {
+      meta["provenance"]["parameters"]["sparse_auto"] = sample_internal::sparse_bake::SparseAutoJson(*chose_full);
+    }
+    const std::string path = plan && !o.factor_term ? FactorPath(o.output, k)
+                             : o.rgb                ? ChannelPath(o.output, static_cast<int>(k))
+                                                    : o.output;
+    LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(path, meta, wo, o.shard));
+    outs.push_back(std::move(out));
+  }
+  return outs;
+}
+
 }  // namespace
 
 Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress) {
   auto t0 = std::chrono::steady_clock::now();
   LTB_ASSIGN_OR_RETURN(std::unique_ptr<Prepared> prep, sample_internal::Prepare(o, progress));
+  std::optional<SparseAuto> chose_full;  // --sparse auto picked the full bake
   if (o.sparse.enabled) {
-    LTB_ASSIGN_OR_RETURN(SampleResult sr, sample_internal::RunSparseSample(o, *prep, progress));
-    sr.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    return sr;
+    SparseAuto full;
+    LTB_ASSIGN_OR_RETURN(std::optional<SampleResult> sr, sample_internal::RunSparseSample(o, *prep, progress, &full));
+    if (sr) {
+      sr->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      return *sr;
+    }
+    chose_full = full;
   }
   const Geometry& geo = prep->geo;
   const uint32_t r = prep->r;
   const uint64_t rows = prep->rows;
   const uint64_t block = sample_internal::BlockRows(o, rows, 6ull * r * r);
-  io::WriterOptions wo;
-  wo.overwrite_mismatch = o.overwrite;
-  wo.direct_io = o.direct_io;
   // A factored bake (--factor K): K outputs OUT.k0.ltm ... from one pass (docs/GLOSSY.md).
   std::optional<FactorPlan> plan;
   if (o.factor > 0) {
@@ -721,20 +752,8 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
     for (uint32_t k = 0; k < (plan ? plan->terms : o.rgb ? 3 : 1); ++k) out_term.push_back(k);
   }
   const uint32_t outputs = static_cast<uint32_t>(out_term.size());
-  std::vector<io::ContainerWriter> outs;
-  for (uint32_t k : out_term) {
-    SampleOptions ok = o;  // --channels rgb: output k is exactly what --channel k writes
-    if (o.rgb) ok.channel = static_cast<int>(k);
-    nlohmann::json meta = sample_internal::SampleMetadata(ok, *prep, block);
-    AddConvergedMetadata(o, *prep, block, &meta);
-    sample_internal::AddReflectance(*prep, block, &meta);
-    if (plan) AddFactorMetadata(o, *prep, *plan, k, &meta);
-    const std::string path = plan && !o.factor_term ? FactorPath(o.output, k)
-                             : o.rgb                ? ChannelPath(o.output, static_cast<int>(k))
-                                                    : o.output;
-    LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(path, meta, wo, o.shard));
-    outs.push_back(std::move(out));
-  }
+  LTB_ASSIGN_OR_RETURN(std::vector<io::ContainerWriter> outs,
+                       OpenOutputs(o, *prep, plan ? &*plan : nullptr, out_term, block, chose_full));
 
   SampleResult result;
   result.rows = rows;
@@ -743,6 +762,7 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   result.bounces = prep->bounces;
   result.degenerate_triangles = geo.degenerate;
   if (plan) result.factor_errors = plan->errors;
+  result.sparse_auto = chose_full;
   const uint64_t nchunks = (rows + block - 1) / block;
   const uint32_t block_arrays = o.tolerance ? 7 : 4;  // the arrays BlockSampler writes per block
   result.chunks_total = nchunks * block_arrays * outputs;

@@ -21,13 +21,18 @@ namespace ltb::stages {
 // feature texels and reconstructed from their dense neighbours.
 struct SparseOptions {
   bool enabled = false;
-  double dense_fraction = 0.25;      // --dense-fraction: dense rows / rows that see geometry
-  double initial_fraction = 0.05;    // the first, uniformly random dense rows
-  std::optional<double> radius;      // --radius (scene units); default 0.04 × the rows' bounding-box diagonal
-  std::optional<uint32_t> features;  // --features per sparse row; default max(350 · 6R² / 6144, 4 · neighbours)
-  uint32_t neighbours = 16;          // --neighbours: dense rows a sparse row combines, at most
-  double lambda = 1e-3;              // --l1-lambda: λ / λ_max of the L1-regularised fit
-  double max_residual = 0.15;        // --max-residual: a worse fit traces the row in full instead
+  // --sparse auto: a pilot measures a full, a dense and a sparse row's cost on this scene and
+  // the bake goes sparse only when that is predicted faster by the margin (default 0.8: at
+  // least 1.25x); else the full bake. --sparse (force): sparse regardless.
+  bool automatic = false;
+  std::optional<double> auto_margin;  // --sparse-margin (hidden; tests pin the decision with it)
+  double dense_fraction = 0.25;       // --dense-fraction: dense rows / rows that see geometry
+  double initial_fraction = 0.05;     // the first, uniformly random dense rows
+  std::optional<double> radius;       // --radius (scene units); default 0.04 × the rows' bounding-box diagonal
+  std::optional<uint32_t> features;   // --features per sparse row; default max(350 · 6R² / 6144, 4 · neighbours)
+  uint32_t neighbours = 16;           // --neighbours: dense rows a sparse row combines, at most
+  double lambda = 1e-3;               // --l1-lambda: λ / λ_max of the L1-regularised fit
+  double max_residual = 0.15;         // --max-residual: a worse fit traces the row in full instead
 };
 
 struct SampleOptions {
@@ -102,6 +107,19 @@ struct SparseStats {
   }
 };
 
+// What `sample --sparse auto` decided and why (the output's provenance "sparse_auto").
+struct SparseAuto {
+  bool sparse = false;   // the decision: sparse, or the full bake
+  bool resumed = false;  // read from the output an earlier run started, not measured now
+  std::string reason;
+  uint64_t pilot_rows = 0, pilot_dense_rows = 0;
+  double pilot_seconds = 0;                            // wall
+  double full_row = 0, dense_row = 0, sparse_row = 0;  // thread CPU seconds per row
+  double fallback_fraction = 0;                        // pilot sparse rows traced like dense rows
+  double predicted_full = 0, predicted_sparse = 0;     // thread CPU seconds of the whole bake
+  double margin = 0.8;
+};
+
 struct SampleResult {
   uint64_t rows = 0, valid_rows = 0;  // rows that see geometry (image) or all vertices
   uint32_t cube_res = 0, spp = 0, bounces = 0;
@@ -116,6 +134,7 @@ struct SampleResult {
   uint64_t write_queue_waits = 0;  // times a tracing thread waited for room in it
   double seconds = 0;
   std::optional<SparseStats> sparse;
+  std::optional<SparseAuto> sparse_auto;  // --sparse auto: the decision (the bake is sparse or full by it)
   // A converged bake (--tolerance): rows that see geometry by the highest level a texel of
   // theirs went to (index = level) in this run, and the largest estimated error of a row.
   std::vector<uint64_t> level_histogram;

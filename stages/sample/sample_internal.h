@@ -50,7 +50,10 @@ void AddReflectance(const Prepared& p, uint64_t block, nlohmann::json* meta);
 Status WriteReflectance(const Prepared& p, const sample::Sampler& sampler, uint64_t block, io::ContainerWriter& out,
                         const Progress& progress);
 
-// `sample --sparse` (sparse.cpp): the whole stage once the scene is prepared.
-Result<SampleResult> RunSparseSample(const SampleOptions& o, const Prepared& p, const Progress& progress);
+// `sample --sparse` (sparse.cpp): the whole stage once the scene is prepared. With --sparse
+// auto the pilot decides first (sparse_auto.cpp); when it picks the full bake, returns no
+// result and *full holds the decision, for the caller's full bake to record.
+Result<std::optional<SampleResult>> RunSparseSample(const SampleOptions& o, const Prepared& p, const Progress& progress,
+                                                    SparseAuto* full);
 
 }  // namespace ltb::stages::sample_internal

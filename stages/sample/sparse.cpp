@@ -570,12 +570,25 @@ class Phase2Runner {
 
 }  // namespace
 
-Result<SampleResult> RunSparseSample(const SampleOptions& o, const Prepared& p, const Progress& progress) {
+Result<std::optional<SampleResult>> RunSparseSample(const SampleOptions& o, const Prepared& p, const Progress& progress,
+                                                    SparseAuto* full) {
   Sampler sampler(p.scene, p.geo, p.r, p.spp, p.bounces, p.seed);
   LTB_ASSIGN_OR_RETURN(RowPoints pts, PrimaryPoints(sampler, p, o.jobs, progress));
   const Params pr = Resolve(o, p, pts);
   const uint64_t block = BlockRows(o, p.rows, pr.cols);
-  const nlohmann::json out_meta = OutputMetadata(o, p, pr, block);
+  nlohmann::json out_meta = OutputMetadata(o, p, pr, block);
+  const sp::WindowTable windows(p.r);
+  const Context ctx{o, p, sampler, pts, pr, windows, progress};
+  std::optional<SparseAuto> decision;
+  if (o.sparse.automatic) {
+    LTB_ASSIGN_OR_RETURN(SparseAuto d, DecideSparse(ctx));
+    if (!d.sparse) {
+      *full = d;
+      return std::optional<SampleResult>();
+    }
+    out_meta["provenance"]["parameters"]["sparse_auto"] = SparseAutoJson(d);
+    decision = d;
+  }
 
   SampleResult result;
   result.rows = p.rows;
@@ -603,8 +616,6 @@ Result<SampleResult> RunSparseSample(const SampleOptions& o, const Prepared& p, 
 
   // Phase 1 (its checkpoint is sealed once done; a rerun reads it back).
   const std::string cp = SparseCheckpointPath(o.output);
-  const sp::WindowTable windows(p.r);
-  const Context ctx{o, p, sampler, pts, pr, windows, progress};
   std::vector<uint64_t> todo;  // output blocks with any array missing
   for (uint32_t a = 0; a < 9; ++a) {
     std::vector<uint64_t> m = out.Missing(a);
@@ -658,7 +669,8 @@ Result<SampleResult> RunSparseSample(const SampleOptions& o, const Prepared& p, 
   std::error_code ec;
   std::filesystem::remove(cp, ec);
   result.sparse = st;
-  return result;
+  result.sparse_auto = decision;
+  return std::optional<SampleResult>(std::move(result));
 }
 
 }  // namespace sample_internal

@@ -107,4 +107,14 @@ void DenseNeighbours(const Context& c, const sp::PointGrid& grid, const RowPoint
 SparseRowOutcome ReconstructRow(const Context& c, const sp::PointGrid& grid, std::span<const sp::DenseView> views,
                                 uint64_t row, const RowPoint& rp, float* out);
 
+// ---- --sparse auto (sparse_auto.cpp) ----
+
+// The pilot's decision, or the one recorded in the output an earlier run started for the same
+// scene, R, spp, bounces and seed: sparse when its predicted CPU time is at most the margin of the full bake's.
+Result<SparseAuto> DecideSparse(const Context& c);
+
+// The record in the output's provenance ("sparse_auto"), and back.
+nlohmann::json SparseAutoJson(const SparseAuto& d);
+Result<SparseAuto> SparseAutoFromJson(const nlohmann::json& j);
+
 }  // namespace ltb::stages::sample_internal::sparse_bake

@@ -12,6 +12,11 @@ the full bake of the same scene, NumPy, and the container's own guarantees.
 5. The fused row-transform equals row-transform of the sparse raw matrix; cpca on the sparse
    bake runs dense-first; a recipe with [sample] sparse = true bakes through quantize + cpca.
 6. Bad parameters are refused naming the flag and the value.
+7. --sparse auto: the pilot's record is consistent with its decision (the prediction's
+   closed form), a full decision writes the full bake's matrix (content_hash of `sample`
+   without --sparse) and a sparse one the --sparse bake's; a rerun keeps the recorded
+   decision; a recipe's sparse = true runs --sparse auto. (The hidden --sparse-margin pins
+   the decision, so no test depends on how fast the machine is.)
 
 usage: sparse_test.py PATH_TO_LTBAKE
 """
@@ -183,7 +188,7 @@ scene = "{TINY}"
 workdir = "{os.path.join(d, 'work')}"
 targets = ["quantize", "cpca"]
 [sample]
-sparse = true
+sparse = "force"
 dense_fraction = 0.3
 [cpca]
 clusters = 4
@@ -198,6 +203,49 @@ basis = 3
     bad = t.write(os.path.join(d, "bad.toml"), f'scene = "{TINY}"\nworkdir = "{d}/w2"\n[sample]\ndense_fraction = 0.3\n')
     p = t.run("run", bad, expect=2)
     t.check("sparse = true" in p.stderr and "bad.toml" in p.stderr, f"recipe key without sparse: {p.stderr}")
+
+    # 7. --sparse auto.
+    def summary(out, *args):
+        return json.loads(t.run("sample", TINY, "-o", out, "--progress", "never", "--json", *args).stdout)
+
+    plain = os.path.join(d, "auto_plain.ltm")
+    sample(TINY, plain)
+    for margin, want, same_as in (("0", "full", plain), ("1e9", "sparse", ref)):
+        out = os.path.join(d, f"auto_{want}.ltm")
+        j = summary(out, "--sparse", "auto", "--sparse-margin", margin, "--jobs", "1")
+        a = j["sparse_auto"]
+        t.check(a["decision"] == want and not a["resumed"], f"--sparse-margin {margin}: {a}")
+        v, per = j["rows_with_geometry"], a["cpu_seconds_per_row"]
+        dense = max(1, min(v, round(0.25 * v)))
+        pred = a["predicted_cpu_seconds"]
+        t.check(abs(pred["full"] - v * per["full"]) <= 1e-9 * pred["full"] + 1e-12, f"predicted full: {a}")
+        t.check(abs(pred["sparse"] - (dense * per["dense"] + (v - dense) * per["sparse"])) <= 1e-9 * pred["sparse"] + 1e-12,
+                f"predicted sparse: {a}")
+        t.check(a["pilot_rows"] > 0 and min(per.values()) > 0, f"pilot: {a}")
+        t.check((pred["sparse"] <= a["margin"] * pred["full"]) == (want == "sparse"), f"decision against the record: {a}")
+        t.check(matrix_hash(out) == matrix_hash(same_as), f"--sparse auto ({want}): matrix differs from {same_as}")
+        names = [x["name"] for x in info(out)["arrays"]]
+        t.check(("sparse_kind" in names) == (want == "sparse"), f"{want}: arrays {names}")
+        meta = info(out)["provenance"]["parameters"]["sparse_auto"]
+        t.check(meta["decision"] == want and meta["reason"] == a["reason"], f"{want}: provenance {meta}")
+        # A rerun follows the recorded decision whatever the pilot would say now.
+        other = "1e9" if margin == "0" else "0"
+        a2 = summary(out, "--sparse", "auto", "--sparse-margin", other, "--jobs", "1")["sparse_auto"]
+        t.check(a2["decision"] == want and a2["resumed"], f"rerun: the recorded decision was not kept: {a2}")
+        t.check(matrix_hash(out) == matrix_hash(same_as), f"rerun ({want}) changed the output")
+    # Other sampling (a seed) with --overwrite: the pilot runs again.
+    a3 = summary(os.path.join(d, "auto_full.ltm"), "--sparse", "auto", "--sparse-margin", "0", "--seed", "5", "--jobs", "1",
+                 "--overwrite")["sparse_auto"]
+    t.check(not a3["resumed"], f"--overwrite with another seed kept a stale decision: {a3}")
+    p = sample(TINY, os.path.join(d, "bad.ltm"), "--sparse", "always", expect=2)
+    t.check("--sparse always" in p.stderr and "auto or force" in p.stderr, f"--sparse always: {p.stderr}")
+    for value, flag in (('"force"', "--sparse force"), ("true", "--sparse auto"), ('"auto"', "--sparse auto")):
+        r = t.write(os.path.join(d, "auto.toml"), f'scene = "{TINY}"\nworkdir = "{d}/w3"\n[sample]\nsparse = {value}\n')
+        p = t.run("run", r, "--dry-run", "--json")
+        t.check(flag in p.stdout, f"recipe sparse = {value}: the plan does not pass {flag}")
+    r = t.write(os.path.join(d, "auto.toml"), f'scene = "{TINY}"\nworkdir = "{d}/w3"\n[sample]\nsparse = "yes"\n')
+    p = t.run("run", r, expect=2)
+    t.check('"yes"' in p.stderr and "auto.toml" in p.stderr, f"recipe sparse = \"yes\": {p.stderr}")
 
     # 6. Bad parameters name the flag and the value.
     for args, flag in ((["--dense-fraction", "0"], "--dense-fraction 0"), (["--dense-fraction", "1.5"], "--dense-fraction 1.5"),
