@@ -12,7 +12,8 @@
 //   full   = V · t_full
 //   sparse = D · t_dense + (V − D) · t_sparse
 // over V rows that see geometry and D dense rows; sparse wins when it is at most kMargin of
-// full. The decision and its figures go into the output's metadata, and a rerun that resumes
+// full. Neighbourhoods run a batch (one per thread) at a time, and a clear case stops early.
+// The decision and its figures go into the output's metadata, and a rerun that resumes
 // the output follows them.
 #include <algorithm>
 #include <cmath>
@@ -34,6 +35,10 @@ constexpr uint32_t kInner = 8;            // sparse rows per neighbourhood
 constexpr double kRegionRadii = 4.0;      // a neighbourhood: the rows within this many radii of its seed
 constexpr double kMargin = 0.8;           // sparse when predicted at most this fraction of full
 constexpr uint64_t kPilotRound = 0xA070;  // hash rounds of the pilot's draws (none of phase 1's)
+// Early stop: after kClearRows pilot rows, when the predicted speed-up is below kClearBelow or
+// above kClearAbove times the one sparse needs (1 / margin).
+constexpr uint64_t kClearRows = 16;
+constexpr double kClearBelow = 0.8, kClearAbove = 1.5;
 
 double Hash01(uint64_t seed, uint64_t round, uint64_t row) {
   const uint64_t z = sample::Mix64(seed ^ 0xA07055A07055A070ull ^ sample::Mix64(round * 0x9E3779B97F4A7C15ull + row));
@@ -122,6 +127,20 @@ Status Neighbourhood(const Context& c, const sp::PointGrid& all, uint64_t seed_r
   tally->full_rows += inner.size();
   tally->fallbacks += fallbacks;
   return Status::Ok();
+}
+
+// The figures of *d from the pilot's tally: per-row costs and both predictions, and the decision.
+void Predict(const Tally& t, uint64_t valid, uint64_t dense, SparseAuto* d) {
+  d->pilot_rows = t.sparse_rows;
+  d->pilot_dense_rows = t.dense_rows;
+  d->full_row = t.full_rows ? t.full / static_cast<double>(t.full_rows) : 0;
+  d->sparse_row = t.sparse_rows ? t.sparse / static_cast<double>(t.sparse_rows) : 0;
+  d->dense_row = t.dense_rows ? t.dense / static_cast<double>(t.dense_rows) : d->full_row;
+  d->fallback_fraction = t.sparse_rows ? static_cast<double>(t.fallbacks) / static_cast<double>(t.sparse_rows) : 0;
+  const auto vd = static_cast<double>(valid), dd = static_cast<double>(dense);
+  d->predicted_full = vd * d->full_row;
+  d->predicted_sparse = dd * d->dense_row + (vd - dd) * d->sparse_row;
+  d->sparse = t.sparse_rows > 0 && d->predicted_sparse <= d->margin * d->predicted_full;
 }
 
 std::string Ms(double seconds) {
@@ -217,20 +236,20 @@ Result<SparseAuto> DecideSparse(const Context& c) {
   std::partial_sort(keys.begin(), keys.begin() + static_cast<std::ptrdiff_t>(seeds), keys.end());
   std::vector<uint64_t> items;
   for (uint64_t i = 0; i < seeds; ++i) items.push_back(keys[i].second);
+  // Seeds a batch (one per thread) at a time; a clear case stops after a batch of at least
+  // kClearRows pilot rows: its prediction well short of the speed-up sparse needs, or well past it.
   Tally t;
-  LTB_RETURN_IF_ERROR(ParallelFor(items, c.o.jobs, Progress{.update = nullptr, .cancelled = c.progress.cancelled},
-                                  "rows", [&](uint64_t r) { return Neighbourhood(c, all, r, &t); }));
-  d.pilot_rows = t.sparse_rows;
-  d.pilot_dense_rows = t.dense_rows;
-  d.full_row = t.full_rows ? t.full / static_cast<double>(t.full_rows) : 0;
-  d.sparse_row = t.sparse_rows ? t.sparse / static_cast<double>(t.sparse_rows) : 0;
-  d.dense_row = t.dense_rows ? t.dense / static_cast<double>(t.dense_rows) : d.full_row;
-  d.fallback_fraction = t.sparse_rows ? static_cast<double>(t.fallbacks) / static_cast<double>(t.sparse_rows) : 0;
-  const auto vd = static_cast<double>(v), dd = static_cast<double>(c.pr.dense);
-  d.predicted_full = vd * d.full_row;
-  d.predicted_sparse = dd * d.dense_row + (vd - dd) * d.sparse_row;
   d.margin = c.o.sparse.auto_margin.value_or(kMargin);
-  d.sparse = t.sparse_rows > 0 && d.predicted_sparse <= d.margin * d.predicted_full;
+  const auto batch = static_cast<uint64_t>(std::max(2, c.o.jobs));
+  for (uint64_t i0 = 0; i0 < items.size(); i0 += batch) {
+    const std::vector<uint64_t> part(items.begin() + static_cast<std::ptrdiff_t>(i0),
+                                     items.begin() + static_cast<std::ptrdiff_t>(std::min(items.size(), i0 + batch)));
+    LTB_RETURN_IF_ERROR(ParallelFor(part, c.o.jobs, Progress{.update = nullptr, .cancelled = c.progress.cancelled},
+                                    "rows", [&](uint64_t r) { return Neighbourhood(c, all, r, &t); }));
+    Predict(t, v, c.pr.dense, &d);
+    const double speedup = d.predicted_sparse > 0 ? d.predicted_full / d.predicted_sparse : 0.0;
+    if (t.sparse_rows >= kClearRows && (speedup * d.margin < kClearBelow || speedup * d.margin > kClearAbove)) break;
+  }
   char r[96];
   std::snprintf(r, sizeof r,
                 d.margin > 0 ? "%.2fx the full bake's speed (it needs %.2fx)"
