@@ -28,7 +28,7 @@ PACKAGES=(
   clang-format                     # the house style (.clang-format; tests/format_check.sh)
   python3 python3-numpy python3-pywt python3-h5py python3-matplotlib python3-xxhash python3-sklearn  # oracles, baselines, plots
   python3-zfpy libopenjp2-tools    # the compression baselines a user would pick instead (zfp, JPEG 2000; bench/baselines.py)
-  python3-dev pybind11-dev python3-pytest  # the Python module (import ltbake; docs/PYTHON.md) and its tests
+  python3-dev pybind11-dev python3-pytest python3-pip python3-venv  # the Python module (import ltbake; docs/PYTHON.md), its tests, pip install ./python
   nodejs                           # converting the sample meshes (npm is checked below)
   ffmpeg                           # relight --sequence -o relit.mp4 (docs/SEQUENCE.md)
   help2man                         # a man page per command at install, from its --help (scripts/man_pages.sh)
