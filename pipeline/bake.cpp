@@ -23,6 +23,7 @@
 #include "pipeline/plan.h"
 #include "pipeline/process.h"
 #include "pipeline/recipe.h"
+#include "pipeline/run_report.h"
 #include "pipeline/sharded_step.h"
 #include "pipeline/stage_table.h"
 #include "pipeline/workdir.h"
@@ -220,7 +221,8 @@ Status Bake::SaveReport() {
   }
   report_["stages"] = all;
   report_["updated"] = Now();
-  return io::WriteFileAtomically(Path(kRunReport), JsonText(report_, 2) + "\n");
+  LTB_RETURN_IF_ERROR(io::WriteFileAtomically(Path(kRunReport), JsonText(report_, 2) + "\n"));
+  return io::WriteFileAtomically(Path(kRunReportPage), RunReportHtml(report_));
 }
 
 // Removes intermediates that are not kept once nothing left in this run reads them.

@@ -16,6 +16,8 @@ namespace ltb::pipeline {
 
 // The run report's file name in the work directory.
 inline constexpr const char* kRunReport = "run.json";
+// ... and as a page (pipeline/run_report.h), rewritten with it.
+inline constexpr const char* kRunReportPage = "run.html";
 
 // What is on disk at a node's output.
 struct OutputState {

@@ -40,6 +40,45 @@ def actions(workdir, nodes):
     return {n: by[n]["action"] for n in nodes if n in by}
 
 
+def html_report(workdir):
+    """run.html parsed by Python's own HTML parser (an independent reader): the timeline's
+    bars (their <title>s), the text of every table cell, the images and their captions."""
+    from html.parser import HTMLParser
+
+    class Page(HTMLParser):
+        def __init__(self):
+            super().__init__()
+            self.bars, self.bar_titles, self.cells, self.images, self.captions = [], [], [], [], []
+            self.where = []
+
+        def handle_starttag(self, tag, attrs):
+            self.where.append(tag)
+            if tag == "rect":
+                self.bars.append(dict(attrs))
+            if tag == "img":
+                self.images.append(dict(attrs)["src"])
+            if tag in ("td", "figcaption"):
+                (self.cells if tag == "td" else self.captions).append("")
+
+        def handle_endtag(self, tag):
+            while self.where and self.where.pop() != tag:
+                pass
+
+        def handle_data(self, data):
+            if "title" in self.where and "rect" in self.where:
+                self.bar_titles.append(data.split(":")[0])
+            if "td" in self.where:
+                self.cells[-1] += data
+            if "figcaption" in self.where:
+                self.captions[-1] += data
+
+    p = Page()
+    p.feed(open(os.path.join(workdir, "run.html")).read())
+    p.close()
+    return {"bars": p.bars, "bar_titles": p.bar_titles, "cells": " ".join(p.cells), "images": p.images,
+            "captions": p.captions}
+
+
 def content_hash(path):
     return json.loads(run("inspect", "--json", path).stdout)["content_hash"]
 
@@ -78,6 +117,13 @@ with tempfile.TemporaryDirectory() as d:
         check(os.path.exists(s["log"]) and s["node"].split("+")[0] in open(s["log"]).read(),
               f"{s['node']}: log {s.get('log')} missing or empty")
         check(s["command"].startswith(LTBAKE) or "ltbake" in s["command"], f"{s['node']}: command {s['command']}")
+    # run.html: the same report as a page; a step a timeline bar, every node in the table.
+    page = html_report(w)
+    check(len(page["bars"]) == len(rep["stages"]) and sorted(page["bar_titles"]) == sorted(s["node"] for s in rep["stages"]),
+          f"run.html: timeline {page['bar_titles']} against run.json's steps")
+    for s in rep["stages"]:
+        check(s["node"] in page["cells"] and s["output"]["content_hash"] in page["cells"],
+              f"run.html: step {s['node']} or its content_hash missing from the table")
     final_hash = content_hash(os.path.join(w, "final.ltm"))
     rows_hash = content_hash(os.path.join(w, "rows.ltm"))
     mtime = os.path.getmtime(os.path.join(w, "final.ltm"))
@@ -298,6 +344,18 @@ with tempfile.TemporaryDirectory() as d:
     plan = run("run", write(os.path.join(d, "probe.toml"), with_relight + f'[relight]\nenvs = ["{probe}"]\nenv_layout = "angular"\n'),
                "--workdir", wmaps, "--dry-run")
     check("--env-layout angular" in plan.stdout, f"env_layout = \"angular\": plan lacks --env-layout:\n{plan.stdout}")
+    # run.html of a bake with relight steps: each relit image shown with its error.
+    sky = os.path.join(d, "sky.npy")
+    np.save(sky, np.random.default_rng(5).uniform(0.2, 1.5, (6 * 8 * 8, 3)).astype(np.float32))
+    wrel = os.path.join(d, "wrel")
+    run("run", write(os.path.join(d, "rel.toml"), with_relight + f'[relight]\nenvs = ["{sky}"]\nreference = true\n'),
+        "--workdir", wrel, "-q")
+    page, rrep = html_report(wrel), report(wrel)
+    step = [s for s in rrep["stages"] if s["output"]["file"] == "relit-sky.png"]
+    check(len(step) == 1 and page["images"] == ["relit-sky.png"] and os.path.exists(os.path.join(wrel, "relit-sky.png")),
+          f"run.html: images {page['images']}")
+    err = f"{step[0]['metrics']['error']['rel_l2']:.4f}" if step else "?"
+    check(any("rel. L2 " + err in c for c in page["captions"]), f"run.html: caption lacks rel. L2 {err}: {page['captions']}")
     os.environ.pop("LTBAKE_NO_SUCH_VAR", None)
     bad("unset variable", BASE + '[relight]\nenvs = ["${LTBAKE_NO_SUCH_VAR}/a.exr"]\n', 2, "LTBAKE_NO_SUCH_VAR",
         "not set")
