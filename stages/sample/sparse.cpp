@@ -159,14 +159,27 @@ SparseRowOutcome ReconstructRow(const Context& c, const sp::PointGrid& grid, std
   sp::ChooseFeatures(nb, cols, relevant.data(), c.pr.features, kMinFeatures, fs, &texels);
   select.assign(cols, 0);
   for (uint32_t k : texels) select[k] = 1;
-  // DirectSelected writes the selected texels of a full-length row.
+  // The selected texels of a full-length row, with the variance of each estimate (spp ≥ 2).
   ds.value.assign(cols, 0.0);
-  const uint64_t nr = texels.empty() ? 0 : c.s.DirectSelected(row, rp, select.data(), ds.value.data(), ds.sc);
+  ds.indirect.assign(cols, 0.0);  // the variances
+  uint64_t nr = 0;
+  if (!texels.empty()) {
+    nr = c.s.spp() >= 2 ? c.s.DirectWithVariance(row, rp, ds.value.data(), ds.indirect.data(), ds.sc, select.data())
+                        : c.s.DirectSelected(row, rp, select.data(), ds.value.data(), ds.sc);
+  }
   b.resize(texels.size());
-  for (size_t j = 0; j < texels.size(); ++j) b[j] = ds.value[texels[j]];
+  double b2 = 0, noise = 0;
+  for (size_t j = 0; j < texels.size(); ++j) {
+    b[j] = ds.value[texels[j]];
+    b2 += b[j] * b[j];
+    noise += ds.indirect[texels[j]];
+  }
   sp::Fit fit = sp::Reconstruct(nb, cols, texels, b.data(), relevant.data(), c.pr.l1, fs, out);
-  const bool dark = std::all_of(b.begin(), b.end(), [](double x) { return x == 0; });
-  if (fit.residual > c.o.sparse.max_residual || (dark && !texels.empty())) {
+  const bool dark = b2 == 0;
+  // The fit is judged by what it misses beyond the traced values' own Monte Carlo noise: a
+  // fit that matched the noise too would be worse, not better.
+  const double excess = b2 > 0 ? std::sqrt(std::max(0.0, fit.residual * fit.residual - noise / b2)) : 0.0;
+  if (excess > c.o.sparse.max_residual || (dark && !texels.empty())) {
     return fallback(dark ? 1.0 : fit.residual, texels.size(), nr);
   }
   return SparseRowOutcome{kSparse, static_cast<float>(fit.residual), static_cast<uint32_t>(texels.size()), nr};
