@@ -68,7 +68,7 @@ class SampleCommand : public Command {
         ->default_val(1e-3);
     app->add_option("--max-residual", options_.sparse.max_residual,
                     "with --sparse: a sparse row whose fit misses its own traced texels by more than this (relative "
-                    "L2) is traced in full instead")
+                    "L2, beyond their Monte Carlo noise) is traced in full instead")
         ->default_val(0.15);
     app->add_option("--tolerance", tolerance_,
                     "converged sampling (docs/SAMPLE.md): sample the matrix to this estimated relative RMS error "
