@@ -1,4 +1,4 @@
-// ltbake view MATRIX --env MAP [--terms N] [--method pbi|bi|nwa] [--reference M] [--port P]
+// ltbake view MATRIX --env MAP [--env MAP2 ...] [--terms N] [--method pbi|bi|nwa] [--reference M] [--port P]
 // An interactive relighting page on 127.0.0.1 (docs/VIEW.md); the URL is the first line of
 // stdout. Ctrl-C stops it.
 #include <iostream>
@@ -19,7 +19,9 @@ class ViewCommand : public Command {
     app->add_option("MATRIX", o_.matrix,
                     "an image bake relight reads: final.ltm, cols4d.ltm, cols.ltm, cpca.ltm, rows.ltm")
         ->required();
-    app->add_option("--env", o_.env, "environment map (.exr or .hdr)")->required();
+    app->add_option("--env", o_.envs, "environment map (.exr or .hdr); repeat it to pick among several on the page")
+        ->required()
+        ->take_all();
     app->add_option("--terms", terms_text_, "lighting terms a frame to start with, N >= 1 or all")
         ->default_val("100")
         ->check(TermsCheck());

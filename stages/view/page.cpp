@@ -21,6 +21,7 @@ a{color:#8cf}
 <div style="display:flex;gap:24px;flex-wrap:wrap">
 <div><img id="frame" alt="relit frame" draggable="false"><div><small>drag to rotate the environment</small></div></div>
 <div>
+<div class="row"><label for="map">map</label><select id="map"></select></div>
 <div class="row"><label for="method">method</label><select id="method">
 <option value="pbi">PBI (per-band incremental)</option><option value="bi">BI (basic incremental)</option>
 <option value="nwa">NWA (non-incremental)</option></select></div>
@@ -45,6 +46,7 @@ const ltb = window.ltb = {frames: 0, rotate: 0, base: 0, last: null, stats: null
 const defaults = LTB_DEFAULTS;  // the command line's --terms and --method, filled in by the server
 if (defaults.terms !== "all") { $("terms").value = defaults.terms; $("termsval").textContent = $("terms").value; }
 $("method").value = defaults.method;
+defaults.maps.forEach((name, k) => { const o = document.createElement("option"); o.value = k; o.textContent = name; $("map").appendChild(o); });
 if (!defaults.reference) {  // A/B needs ltbake view --reference FILE
   for (const o of $("show").options) if (o.value !== "matrix") o.disabled = true;
   $("showhint").textContent = "(start with --reference to compare)";
@@ -54,7 +56,7 @@ function poke() { dirty = true; if (wake) { const w = wake; wake = null; w(); } 
 function params() {
   const stops = parseFloat($("exposure").value);
   const exposure = ltb.base > 0 ? ltb.base * Math.pow(2, stops) : 0;
-  return {rotate: ltb.rotate.toFixed(3), terms: $("terms").value, method: $("method").value, exposure: exposure,
+  return {map: $("map").value, rotate: ltb.rotate.toFixed(3), terms: $("terms").value, method: $("method").value, exposure: exposure,
           show: $("show").value};
 }
 let dragging = false, lastX = 0;
@@ -67,6 +69,7 @@ $("frame").addEventListener("pointermove", (e) => {
 for (const ev of ["pointerup", "pointercancel"]) $("frame").addEventListener(ev, () => { dragging = false; });
 $("terms").addEventListener("input", () => { $("termsval").textContent = $("terms").value; poke(); });
 $("method").addEventListener("change", poke);
+$("map").addEventListener("change", () => { ltb.base = 0; poke(); });  // a new map: its own automatic exposure
 $("show").addEventListener("change", poke);
 $("exposure").addEventListener("input", () => { $("expval").textContent = $("exposure").value + " stops"; poke(); });
 async function frame() {
@@ -81,7 +84,7 @@ async function frame() {
   await new Promise((ok, bad) => { img.onload = ok; img.onerror = bad; img.src = URL.createObjectURL(blob); });
   if (old.startsWith("blob:")) URL.revokeObjectURL(old);
   $("save").href = img.src;  // the frame as shown, named by what it is
-  $("save").download = "ltbake-" + p.show + "-" + p.method + "-" + p.terms + "-rot" + ltb.rotate.toFixed(1) + ".png";
+  $("save").download = "ltbake-" + stats.map_name.replace(/\.[^.]*$/, "") + "-" + p.show + "-" + p.method + "-" + p.terms + "-rot" + ltb.rotate.toFixed(1) + ".png";
   if (ltb.base === 0) ltb.base = stats.exposure;
   ltb.frames += 1; ltb.last = p; ltb.stats = stats;
   $("ms").textContent = stats.ms.toFixed(2) + " ms";

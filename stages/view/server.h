@@ -1,6 +1,6 @@
 // `ltbake view`'s HTTP server (docs/VIEW.md), bound to 127.0.0.1 only:
 //   GET /            the page (self-contained: no CDN, no build step)
-//   GET /frame.png   one relit frame: ?rotate=DEG&terms=N|all&method=pbi|bi|nwa&exposure=E
+//   GET /frame.png   one relit frame: ?map=K&rotate=DEG&terms=N|all&method=pbi|bi|nwa&exposure=E
 //                    (its figures in the X-Ltb-Stats header, JSON)
 //   GET /stats       the last frame's figures (JSON)
 //   GET /env.png     the last frame's lighting as a lat-long strip, its terms tinted red
@@ -21,7 +21,8 @@ namespace ltb::stages::view {
 Status Serve(const ViewOptions& options, const std::function<void(const std::string& url)>& ready,
              const std::function<bool()>& stop);
 
-// The page's HTML; `defaults_json` ({"terms": N or "all", "method": "pbi"}) sets its controls.
+// The page's HTML; `defaults_json` ({"terms": N or "all", "method": "pbi", "reference": bool,
+// "maps": [names]}) sets its controls.
 std::string PageHtml(const std::string& defaults_json);
 
 }  // namespace ltb::stages::view

@@ -2,6 +2,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <numbers>
 
 #include "stages/common/cubemap.h"
@@ -61,11 +62,19 @@ const char* FrameShowName(FrameShow s) {
   return "matrix";
 }
 
-Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>& params, const FrameRequest& d) {
+Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>& params, const FrameRequest& d,
+                                       uint64_t maps) {
   FrameRequest r = d;
   for (const auto& [key, value] : params) {
     const std::string shown = value.size() > 40 ? value.substr(0, 40) + "..." : value;
-    if (key == "rotate") {
+    if (key == "map") {
+      if (value.empty() || value.size() > 9 || value.find_first_not_of("0123456789") != std::string::npos ||
+          std::stoull(value) >= maps) {
+        return InvalidArgument("map=" + shown + ": expected 0.." + std::to_string(maps - 1) +
+                               " (the --env maps, in order)");
+      }
+      r.map = std::stoull(value);
+    } else if (key == "rotate") {
       auto v = ParseDecimal(value, -RelightOptions::kMaxRotateDegrees, RelightOptions::kMaxRotateDegrees);
       if (!v.ok()) return InvalidArgument("rotate: " + v.status().message() + " (degrees)");
       r.rotate_deg = *v;
@@ -98,7 +107,7 @@ Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>&
       }
     } else {
       return InvalidArgument("unknown parameter \"" + (key.size() > 40 ? key.substr(0, 40) + "..." : key) +
-                             "\" (rotate, terms, method, exposure, show)");
+                             "\" (map, rotate, terms, method, exposure, show)");
     }
   }
   return r;
@@ -113,12 +122,22 @@ Result<std::unique_ptr<ViewSession>> ViewSession::Open(const ViewOptions& o) {
   eo.clamp = o.clamp_env;
   eo.layout = o.env_layout;
   eo.max_bytes = o.mem_limit;
-  LTB_ASSIGN_OR_RETURN(Environment env, Environment::Open(o.env, m.basis().cube_res(), eo, EnvResampling::kPerFrame));
-  if (!env.rotates()) {
-    return FailedPrecondition(o.env + ": a cubemap .npy cannot rotate; view needs an .exr or .hdr map");
+  if (o.envs.empty()) return InvalidArgument("view needs an environment map (--env)");
+  std::unique_ptr<ViewSession> s(new ViewSession(std::move(m)));
+  float peak = 0;
+  for (const std::string& path : o.envs) {
+    LTB_ASSIGN_OR_RETURN(Environment env,
+                         Environment::Open(path, s->m_.basis().cube_res(), eo, EnvResampling::kPerFrame));
+    if (!env.rotates()) {
+      return FailedPrecondition(path + ": a cubemap .npy cannot rotate; view needs an .exr or .hdr map");
+    }
+    peak = std::max(peak, env.peak());
+    s->envs_.push_back(std::move(env));
+    s->env_paths_.push_back(path);
   }
-  std::unique_ptr<ViewSession> s(new ViewSession(std::move(m), std::move(env)));
-  s->env_path_ = o.env;
+  // A map near float32's largest value is relit at 2^-k (one k for the session, from the
+  // brightest map: the incremental image adds up across frames) and the image scaled back.
+  s->exponent_ = LightingExponent(peak);
   if (!o.reference.empty()) {
     LTB_ASSIGN_OR_RETURN(RelightMatrix r, RelightMatrix::Open(o.reference, o.mem_limit, o.jobs, Progress{}, nullptr));
     LTB_RETURN_IF_ERROR(CheckSameBake(r, s->m_));
@@ -135,20 +154,21 @@ Result<std::string> ViewSession::Render(const FrameRequest& q) {
                            ": there is no reference to compare with (start ltbake view with --reference FILE)");
   }
   auto a = std::chrono::steady_clock::now();
-  if (!relighter_ || q.method != last_.method || q.terms != last_.terms) {
+  if (q.map >= envs_.size())
+    return InvalidArgument("map=" + std::to_string(q.map) + ": there are " + std::to_string(envs_.size()) + " maps");
+  // Another map starts over: the carried approximation is the old map's.
+  if (!relighter_ || q.method != last_.method || q.terms != last_.terms || q.map != last_.map) {
     relighter_ = std::make_unique<IncrementalRelighter>(m_, q.method, q.terms, Weighting::kArea);
   }
-  LTB_RETURN_IF_ERROR(env_.Cubemap(q.rotate_deg * std::numbers::pi / 180.0, &cube_));
-  // A map near float32's largest value is relit at 2^-k (one k for the session: the
-  // incremental image adds up across frames) and the image scaled back.
-  const int exponent = LightingExponent(env_.peak());
+  LTB_RETURN_IF_ERROR(envs_[q.map].Cubemap(q.rotate_deg * std::numbers::pi / 180.0, &cube_));
+  const int exponent = exponent_;
   ScaleByPowerOfTwo(&cube_, -exponent);
   LTB_RETURN_IF_ERROR(relighter_->Frame(cube_));
   const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - a).count();
   std::vector<float> out = relighter_->image();
   ScaleByPowerOfTwo(&out, exponent);
   FinishRelitImage(m_.mask(), false, &out);
-  LTB_RETURN_IF_ERROR(CheckRelitImageFinite(out, m_.width(), env_path_));
+  LTB_RETURN_IF_ERROR(CheckRelitImageFinite(out, m_.width(), env_paths_[q.map]));
   const double exposure = q.exposure > 0 ? q.exposure : AutoExposure(out.data(), m_.rows());
   const FrameUpdate& u = relighter_->update();
   nlohmann::json bands = nlohmann::json::array();
@@ -156,6 +176,8 @@ Result<std::string> ViewSession::Render(const FrameRequest& q) {
     bands.push_back({{"band", k}, {"terms", u.bands[k].terms}, {"incremental", u.bands[k].incremental}});
   }
   stats_ = {{"frame", frame_++},
+            {"map", q.map},
+            {"map_name", std::filesystem::path(env_paths_[q.map]).filename().string()},
             {"rotate", q.rotate_deg},
             {"method", SequenceMethodName(q.method)},
             {"terms", TermsJson(q.terms)},
@@ -191,6 +213,12 @@ Result<std::string> ViewSession::Render(const FrameRequest& q) {
   std::vector<uint8_t> px =
       ToSrgb8(shown.data(), m_.rows(), q.show == FrameShow::kDifference ? diff_exposure : exposure);
   return EncodePng(px.data(), m_.width(), m_.height());
+}
+
+std::vector<std::string> ViewSession::map_names() const {
+  std::vector<std::string> names;
+  for (const std::string& p : env_paths_) names.push_back(std::filesystem::path(p).filename().string());
+  return names;
 }
 
 std::string ViewSession::EnvironmentPng(uint64_t width) const {

@@ -1,4 +1,4 @@
-// The state behind `ltbake view` (docs/VIEW.md): one matrix, one environment, and the
+// The state behind `ltbake view` (docs/VIEW.md): one matrix, its environment maps, and the
 // lighting approximation carried from frame to frame, so that dragging the environment
 // relights incrementally (pbi or bi) exactly like `relight --sequence`. HTTP-free: the
 // server (server.h) parses requests into FrameRequest and sends what Render returns.
@@ -20,7 +20,8 @@
 namespace ltb::stages::view {
 
 struct ViewOptions {
-  std::string matrix, env, reference;
+  std::string matrix, reference;
+  std::vector<std::string> envs;  // --env, once or more: the page picks among them
   uint64_t terms = 100;
   SequenceMethod method = SequenceMethod::kPbi;
   EnvLayout env_layout = EnvLayout::kAuto;
@@ -36,15 +37,17 @@ enum class FrameShow { kMatrix, kReference, kDifference };
 const char* FrameShowName(FrameShow s);
 
 struct FrameRequest {
+  uint64_t map = 0;  // index into ViewOptions::envs
   double rotate_deg = 0;
   uint64_t terms = 100;  // RelightOptions::kAllTerms: every term
   SequenceMethod method = SequenceMethod::kPbi;
   double exposure = 0;                  // 0: automatic (the 99th percentile of luminance to 0.9)
   FrameShow show = FrameShow::kMatrix;  // reference and difference need --reference
 };
-// From a query's parameters (rotate, terms, method, exposure, show; each optional, defaults
-// from `defaults`); an InvalidArgument names the parameter and the value.
-Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>& params, const FrameRequest& defaults);
+// From a query's parameters (map, rotate, terms, method, exposure, show; each optional,
+// defaults from `defaults`; map below `maps`); an InvalidArgument names the parameter and the value.
+Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>& params, const FrameRequest& defaults,
+                                       uint64_t maps = 1);
 
 class ViewSession {
  public:
@@ -52,11 +55,14 @@ class ViewSession {
   const FrameRequest& defaults() const { return defaults_; }
   bool has_image() const { return m_.width() > 0; }
   bool has_reference() const { return reference_.has_value(); }
+  // The maps' file names, in --env order (the page's choice of map).
+  std::vector<std::string> map_names() const;
+  uint64_t maps() const { return envs_.size(); }
 
-  // Relights one frame (the approximation carries over from the last frame when method and
-  // terms are the same) and returns its PNG bytes; stats() describes it afterwards.
+  // Relights one frame (the approximation carries over from the last frame when map, method
+  // and terms are the same) and returns its PNG bytes; stats() describes it afterwards.
   Result<std::string> Render(const FrameRequest& request);
-  // The last frame: frame, rotate, method, terms, columns_touched, ms, exposure, bands, show,
+  // The last frame: frame, map, map_name, rotate, method, terms, columns_touched, ms, exposure, bands, show,
   // and with a reference rel_l2 against it and difference_exposure (what the difference
   // image is shown at: the frame's given exposure times 2^4, else, when the difference is
   // shown, its own automatic one).
@@ -66,10 +72,11 @@ class ViewSession {
   std::string EnvironmentPng(uint64_t width) const;
 
  private:
-  ViewSession(RelightMatrix m, Environment env) : m_(std::move(m)), env_(std::move(env)) {}
+  explicit ViewSession(RelightMatrix m) : m_(std::move(m)) {}
   RelightMatrix m_;
-  Environment env_;
-  std::string env_path_;
+  std::vector<Environment> envs_;
+  std::vector<std::string> env_paths_;
+  int exponent_ = 0;  // every map relit at 2^-exponent_ (LightingExponent of the brightest)
   std::optional<RelightMatrix> reference_;
   FrameRequest defaults_, last_;
   std::unique_ptr<IncrementalRelighter> relighter_;

@@ -458,7 +458,8 @@ def main():
                             "blender-data")
 
             # 1. The URL, first line of stdout.
-            server = Server(final, "--env", env, "--clamp", "--port", 0, "--method", "pbi", "--terms", 100,
+            env2 = os.path.join(envdir, "forest.exr")
+            server = Server(final, "--env", env, "--env", env2, "--clamp", "--port", 0, "--method", "pbi", "--terms", 100,
                             "--reference", P("rows.ltm"))
             url = server.first_line()
             m = re.fullmatch(r"http://127\.0\.0\.1:(\d+)/", url)
@@ -497,6 +498,14 @@ def main():
                 check(got.shape == (48, 64, 3), f"/frame.png is {got.shape[1]}x{got.shape[0]}, expected 64x48")
                 compare(got, relight_png(final, env, 30, 20, 0.5, P("http_ref.png")),
                         "/frame.png?rotate=30&terms=20&method=nwa&exposure=0.5 against relight")
+            # The second --env map (map=1) is `relight --env` of that map; map=2 does not exist.
+            st, h, body = get(base + "/frame.png?map=1&rotate=30&terms=20&method=nwa&exposure=0.5")
+            stats = json.loads(h.get("X-Ltb-Stats") or "{}") if st == 200 else {}
+            check(st == 200 and stats.get("map") == 1 and stats.get("map_name") == "forest.exr",
+                  f"GET /frame.png?map=1: {st} {stats}")
+            if st == 200:
+                compare(png_pixels(body), relight_png(final, env2, 30, 20, 0.5, P("http_ref2.png")),
+                        "/frame.png?map=1&rotate=30&terms=20&method=nwa&exposure=0.5 against relight of forest.exr")
             # A/B against the reference (rows.ltm, every term): show=reference is `relight rows.ltm`
             # of the same rotation and exposure; show=difference is |A - B| of the two relit
             # images at 16x the exposure, through the sRGB curve (computed here in NumPy).
@@ -518,7 +527,8 @@ def main():
                 compare(ab["difference"], np.round(255 * srgb).astype(np.int16).reshape(48, 64, 3),
                         "show=difference against NumPy's |A - B| at 8")
             for query, name in (("rotate=abc", "rotate"), ("terms=0", "terms"), ("method=xyz", "method"),
-                                ("bogus=1", "bogus"), ("exposure=-1", "exposure"), ("show=both", "show")):
+                                ("bogus=1", "bogus"), ("exposure=-1", "exposure"), ("show=both", "show"),
+                                ("map=2", "map"), ("map=-1", "map")):
                 st, h, body = get(base + "/frame.png?" + query)
                 check(st == 400 and name.encode() in body,
                       f"GET /frame.png?{query}: {st} {body[:300]!r}, expected 400 naming {name}")
@@ -571,6 +581,19 @@ def main():
                               "a frame with method nwa, terms 20 and exposure base / 2")
                 check(s["ltb"]["stats"]["method"] == "nwa" and s["ltb"]["stats"]["terms_used"] == 20 and
                       s["used"].startswith("20 terms"), f"the nwa frame's figures: {s}")
+
+                # The map control lists both maps; choosing forest brings its frames, then back to sunset.
+                names = page.eval("Array.from(document.getElementById('map').options).map((o) => o.textContent)")
+                check(names == ["sunset.exr", "forest.exr"], f"the map control lists {names}")
+                page.eval("(() => { const e = document.getElementById('map'); e.value = '1';"
+                          " e.dispatchEvent(new Event('change')); })()")
+                s = wait_idle(lambda ltb: ltb["last"]["map"] == "1" and ltb["stats"]["map"] == 1,
+                              "a frame of the second map after choosing it")
+                check(s["ltb"]["stats"]["map_name"] == "forest.exr", f"the second map's frame: {s['ltb']['stats']}")
+                page.eval("(() => { const e = document.getElementById('map'); e.value = '0';"
+                          " e.dispatchEvent(new Event('change')); })()")
+                s = wait_idle(lambda ltb: ltb["last"]["map"] == "0" and ltb["stats"]["map"] == 0,
+                              "a frame of the first map again")
 
                 # Drag 80 px to the right on the frame: 40 degrees.
                 box = page.eval("(() => { const r = document.getElementById('frame').getBoundingClientRect();"
@@ -639,7 +662,7 @@ def main():
                                  " name: a.download, img: document.getElementById('frame').src,"
                                  " hint: document.getElementById('showhint').textContent}; })()")
                 check(save["href"] == save["img"] and save["href"].startswith("blob:") and
-                      save["name"].startswith("ltbake-difference-pbi-20-rot") and "the frame's exposure" in save["hint"],
+                      save["name"].startswith("ltbake-sunset-difference-pbi-20-rot") and "the frame's exposure" in save["hint"],
                       f"the save link and hint of a difference frame: {save}")
                 times = page.eval("performance.getEntriesByType('resource').filter((e) => e.name.includes('/frame.png'))"
                                   ".map((e) => e.duration)")
