@@ -180,9 +180,9 @@ SparseRowOutcome ReconstructRow(const Context& c, const sp::PointGrid& grid, std
   // fit that matched the noise too would be worse, not better.
   const double excess = b2 > 0 ? std::sqrt(std::max(0.0, fit.residual * fit.residual - noise / b2)) : 0.0;
   if (excess > c.o.sparse.max_residual || (dark && !texels.empty())) {
-    return fallback(dark ? 1.0 : fit.residual, texels.size(), nr);
+    return fallback(dark ? 1.0 : excess, texels.size(), nr);
   }
-  return SparseRowOutcome{kSparse, static_cast<float>(fit.residual), static_cast<uint32_t>(texels.size()), nr};
+  return SparseRowOutcome{kSparse, static_cast<float>(excess), static_cast<uint32_t>(texels.size()), nr};
 }
 
 }  // namespace sparse_bake
