@@ -97,7 +97,7 @@ Status Neighbourhood(const Context& c, const sp::PointGrid& all, uint64_t seed_r
   thread_local bool warm = false;
   ds.windows = &c.windows;
   std::vector<float> out(cols), out2(cols);
-  Counters cnt;
+  sample::Counters cnt;
   if (!warm) {
     TraceDenseRow(c.s, inner[0], c.pts.pt[inner[0]], cols, ds, out.data(), bounces ? out2.data() : nullptr, nullptr);
     c.s.Transport(inner[0], c.pts.pt[inner[0]], out.data(), sc, cnt);
