@@ -11,6 +11,9 @@ constexpr double kBeta = 1.5;  // a stratified estimate's variance across an edg
 
 void Size(const Sampler& s, ConvergedScratch& cs) {
   const uint64_t cols = 6ull * s.cube_res() * s.cube_res();
+  cs.stats.resize(cols);
+  cs.exact.resize(cols);
+  cs.cv.resize(cols);
   cs.est.resize(cols);
   cs.var.resize(cols);
   cs.v.resize(cols);
@@ -20,29 +23,71 @@ void Size(const Sampler& s, ConvergedScratch& cs) {
 }
 
 // The level past which one more level gains less than λ per ray, for a texel of variance v
-// at level k (spp0: level 0's spp), at most `top`.
-uint32_t TargetLevel(double v, uint32_t k, double lambda, uint32_t spp0, uint32_t top) {
-  if (!(lambda > 0) || !(v > 0)) return k;
-  const double v0 = v * std::pow(2.0, kBeta * k);  // the model's level-0 variance
-  // Smallest ℓ with v0·2^(−βℓ)(1 − 2^−β) ≤ λ·spp0·2^(ℓ+1).
-  const double x = v0 * (1 - std::pow(2.0, -kBeta)) / (2 * lambda * spp0);
+// at level 0 (spp0: level 0's spp), at most `top`.
+uint32_t TargetLevel(double v, double lambda, uint32_t spp0, uint32_t top) {
+  if (!(lambda > 0) || !(v > 0)) return 0;
+  // Smallest ℓ with v·2^(−βℓ)(1 − 2^−β) ≤ λ·spp0·2^(ℓ+1).
+  const double x = v * (1 - std::pow(2.0, -kBeta)) / (2 * lambda * spp0);
   const double l = x > 1 ? std::ceil(std::log2(x) / (kBeta + 1)) : 0.0;
-  return static_cast<uint32_t>(std::clamp(l, static_cast<double>(k), static_cast<double>(top)));
+  return static_cast<uint32_t>(std::min(l, static_cast<double>(top)));
 }
 
-// cs.v: each texel's variance, the largest of its face's 3×3 neighbourhood in `var`.
-void Dilate(const std::vector<double>& var, uint32_t res, std::vector<double>& v) {
-  const uint64_t rr = uint64_t{res} * res;
-  for (uint64_t c = 0; c < var.size(); ++c) {
+// A texel's estimate from one level's samples: with the control variate (cv), the exact
+// unoccluded value less the occluded samples' mean (exact where no sample is occluded), else
+// the unoccluded samples' mean (Transport's, exact 0 where every sample is occluded).
+double Estimate(const TexelStats& st, bool cv, double exact) { return cv ? exact - st.occ : st.vis; }
+double EstimateVariance(const TexelStats& st, bool cv) { return cv ? st.occ_spread : st.vis_spread; }
+
+// Level 0 of one row: every texel's stats, the estimator each texel uses at every level
+// (cs.cv), its level-0 estimate and variance (cs.est, cs.var) and the variance its level is
+// chosen by (cs.v). Returns the rays traced.
+uint64_t LevelZero(const Sampler& s, uint64_t row, const RowPoint& rp, RowScratch& sc, ConvergedScratch& cs) {
+  const uint64_t rays = s.DirectStats(row, rp, cs.stats.data(), sc);
+  const bool exact = s.UnoccludedExact(rp, cs.exact.data());
+  const uint32_t res = s.cube_res();
+  const uint64_t rr = uint64_t{res} * res, cols = cs.stats.size();
+  // Over each texel's 3×3 neighbourhood on its face (Neighbourhood calls f(k, is_self)).
+  auto neighbourhood = [&](uint64_t c, auto&& f) {
     const uint64_t face = c / rr, t = c % rr / res, u = c % res;
-    double m = 0;
     for (uint64_t tt = t > 0 ? t - 1 : 0; tt <= std::min<uint64_t>(res - 1, t + 1); ++tt) {
       for (uint64_t uu = u > 0 ? u - 1 : 0; uu <= std::min<uint64_t>(res - 1, u + 1); ++uu) {
-        m = std::max(m, var[face * rr + tt * res + uu]);
+        f(face * rr + tt * res + uu, tt == t && uu == u);
       }
     }
-    v[c] = m;
+  };
+  // First every texel's estimator, from its neighbours' samples (not its own: the estimator
+  // must not depend on them, or it is biased)...
+  for (uint64_t c = 0; c < cols; ++c) {
+    uint64_t active = 0, visible = 0;
+    neighbourhood(c, [&](uint64_t k, bool self) {
+      if (self) return;
+      active += cs.stats[k].active;
+      visible += cs.stats[k].visible;
+    });
+    cs.cv[c] = exact && active > 0 && 2 * visible >= active ? 1 : 0;
   }
+  // ... then its estimate, variance, and the variance its level is chosen by: the largest
+  // spread in the neighbourhood (four samples often show none of an edge a neighbour on it
+  // shows), and where the neighbourhood's samples saw both sky and occluder, at least a
+  // half-covered texel's U²/(4·spp) (an edge between two texels shows in neither's samples).
+  for (uint64_t c = 0; c < cols; ++c) {
+    const TexelStats& self = cs.stats[c];
+    cs.est[c] = Estimate(self, cs.cv[c] != 0, cs.exact[c]);
+    cs.var[c] = EstimateVariance(self, cs.cv[c] != 0);
+    uint64_t active = 0, visible = 0;
+    double spread = 0;
+    neighbourhood(c, [&](uint64_t k, bool) {
+      active += cs.stats[k].active;
+      visible += cs.stats[k].visible;
+      spread = std::max(spread, EstimateVariance(cs.stats[k], cs.cv[k] != 0));
+    });
+    if (visible > 0 && visible < active) {
+      const double value = exact ? cs.exact[c] : self.vis + self.occ;
+      spread = std::max(spread, value * value / (4.0 * s.spp()));
+    }
+    cs.v[c] = spread;
+  }
+  return rays;
 }
 
 }  // namespace
@@ -60,30 +105,30 @@ Pilot PilotRows(const Sampler& s, uint64_t rows, uint32_t levels, double toleran
   RowScratch sc;
   ConvergedScratch cs;
   Size(s, cs);
-  std::vector<double> v0;  // every pilot texel's (dilated) level-0 variance
+  const uint64_t cols = cs.est.size();
+  std::vector<double> v0;  // every pilot texel's level variance
   double norm2 = 0;
   for (uint64_t row = stride / 2; row < rows; row += stride) {
     ++p.rows;
     const RowPoint rp = s.Primary(row);
     if (!rp.valid) continue;  // an all-zero row
-    p.rays += s.DirectWithVariance(row, rp, cs.est.data(), cs.var.data(), sc);
+    p.rays += LevelZero(s, row, rp, sc, cs);
     std::fill(cs.ind.begin(), cs.ind.end(), 0.0);
     if (s.bounces() > 0) p.rays += s.IndirectTerm(row, rp, s.DefaultPaths(), cs.ind.data());
-    for (size_t c = 0; c < cs.est.size(); ++c) norm2 += (cs.est[c] + cs.ind[c]) * (cs.est[c] + cs.ind[c]);
-    Dilate(cs.var, s.cube_res(), cs.v);
-    for (size_t c = 0; c < cs.v.size(); ++c) {
+    for (size_t c = 0; c < cols; ++c) norm2 += (cs.est[c] + cs.ind[c]) * (cs.est[c] + cs.ind[c]);
+    for (size_t c = 0; c < cols; ++c) {
       if (cs.v[c] > 0) v0.push_back(cs.v[c]);
     }
   }
   if (p.rows == 0 || !(norm2 > 0) || v0.empty()) return p;
   p.mean_norm2 = norm2 / static_cast<double>(p.rows);
-  // λ: bisection (in log) for the predicted variance of the pilot rows, Σ v0·2^(−β·level),
+  // λ: bisection (in log) for the predicted variance of the pilot rows, Σ v·2^(−β·level),
   // to be T² times their squared norm. The prediction falls as λ does.
   const double want = tolerance * tolerance * norm2;
   const uint32_t top = levels - 1;
   auto predicted = [&](double lambda) {
     double total = 0;
-    for (double v : v0) total += v * std::pow(2.0, -kBeta * TargetLevel(v, 0, lambda, s.spp(), top));
+    for (double v : v0) total += v * std::pow(2.0, -kBeta * TargetLevel(v, lambda, s.spp(), top));
     return total;
   };
   double lo = 1e-300, hi = 1e300;
@@ -95,20 +140,19 @@ Pilot PilotRows(const Sampler& s, uint64_t rows, uint32_t levels, double toleran
   return p;
 }
 
-ConvergedRow TraceConverged(const std::vector<const Sampler*>& levels, uint64_t row, const RowPoint& rp, double lambda,
-                            double rms_norm, float* out, RowScratch& sc, ConvergedScratch& cs) {
+ConvergedRow TraceConverged(const std::vector<const Sampler*>& levels, uint64_t row, const RowPoint& rp,
+                            const Pilot& pilot, float* out, RowScratch& sc, ConvergedScratch& cs) {
   const Sampler& first = *levels.front();
   const uint64_t cols = 6ull * first.cube_res() * first.cube_res();
   const uint32_t top = static_cast<uint32_t>(levels.size()) - 1;
   Size(first, cs);
   ConvergedRow r;
-  r.rays = first.DirectWithVariance(row, rp, cs.est.data(), cs.var.data(), sc);
+  r.rays = LevelZero(first, row, rp, sc, cs);
   // Per texel: Σ w_k est_k, Σ w_k, Σ w_k² var_k with w_k = 2^(βk).
   cs.sum.assign(cs.est.begin(), cs.est.end());
   cs.wsum.assign(cols, 1.0);
   cs.var_sum.assign(cs.var.begin(), cs.var.end());
-  Dilate(cs.var, first.cube_res(), cs.v);
-  for (uint64_t c = 0; c < cols; ++c) cs.target[c] = TargetLevel(cs.v[c], 0, lambda, first.spp(), top);
+  for (uint64_t c = 0; c < cols; ++c) cs.target[c] = TargetLevel(cs.v[c], pilot.lambda, first.spp(), top);
   for (uint32_t k = 1; k <= top; ++k) {
     uint64_t picked = 0;
     for (uint64_t c = 0; c < cols; ++c) {
@@ -116,13 +160,13 @@ ConvergedRow TraceConverged(const std::vector<const Sampler*>& levels, uint64_t 
       picked += cs.select[c];
     }
     if (picked == 0) continue;
-    r.rays += levels[k]->DirectWithVariance(row, rp, cs.est.data(), cs.var.data(), sc, cs.select.data());
+    r.rays += levels[k]->DirectStats(row, rp, cs.stats.data(), sc, cs.select.data());
     const double w = std::pow(2.0, kBeta * k);
     for (uint64_t c = 0; c < cols; ++c) {
       if (cs.select[c] == 0) continue;
-      cs.sum[c] += w * cs.est[c];
+      cs.sum[c] += w * Estimate(cs.stats[c], cs.cv[c] != 0, cs.exact[c]);
       cs.wsum[c] += w;
-      cs.var_sum[c] += w * w * cs.var[c];
+      cs.var_sum[c] += w * w * EstimateVariance(cs.stats[c], cs.cv[c] != 0);
     }
     r.level = k;
   }
@@ -133,6 +177,7 @@ ConvergedRow TraceConverged(const std::vector<const Sampler*>& levels, uint64_t 
     out[c] = static_cast<float>(cs.sum[c] / cs.wsum[c] + cs.ind[c]);
     err2 += cs.var_sum[c] / (cs.wsum[c] * cs.wsum[c]);
   }
+  const double rms_norm = std::sqrt(pilot.mean_norm2);
   r.rel_error = rms_norm > 0 ? std::sqrt(err2) / rms_norm : 0.0;
   return r;
 }

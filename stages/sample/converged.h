@@ -5,6 +5,15 @@
 // between texels (one wholly visible or wholly occluded has almost none, one a shadow edge
 // crosses has most), far more than between rows.
 //
+// The estimator, per texel and level: Transport's mean of the unoccluded samples, or for a
+// diffuse row point a control variate, U − mean((1 − V)·f), U the texel's exact unoccluded
+// value (Sampler::UnoccludedExact, Lambert's formula). Both are unbiased; the control variate
+// is exact (variance 0) where no sample is occluded, the plain mean where every sample is,
+// so each texel takes the one its face's 3×3 neighbours (not itself: the choice must not
+// depend on its own samples, or the estimate is biased) say fits: the control variate where
+// at least half of the neighbours' samples saw the sky. Across a scene most texels of most
+// rows are then exact, and the variance is where the shadow edges are.
+//
 // Levels, not passes: texel c is estimated at spp (level 0), and where that does not suffice
 // once more, from scratch, at spp·2^k for the one level k its level-0 variance calls for (at
 // most max_levels − 1), a fresh stratified set with its own seed (LevelSeed(seed, k)).
@@ -13,13 +22,16 @@
 // as n^−1 (and growing a texel level by level costs twice its last level). The texel's
 // estimate combines its two levels with fixed weights 1 and 2^(1.5k) (inverse to that
 // model's variances; fixed, so unbiased); its variance is the same combination of each
-// level's estimate (from neighbouring strata's differences, Sampler::DirectWithVariance).
+// level's estimate (the samples' spread over n: every stratum's difference counts, so it
+// does not miss an edge that runs between the strata of a pair).
 //
 // Which level: the one past which one more level's drop in variance per ray,
 // v_k (1 − 2^−1.5) / (spp·2^(k+1)) with v_k = v·2^(−1.5k), is below λ (the greedy optimum
-// of total variance for the rays spent). v is the texel's level-0 variance, the largest of
-// its face's 3×3 neighbourhood (four samples often show none of the variance of a texel an
-// edge crosses; a neighbour on the same edge shows it). λ is set once from a pilot (level 0
+// of total variance for the rays spent). v is the largest level-0 variance of the texel's
+// face's 3×3 neighbourhood (four samples often show none of the variance of a texel an edge
+// crosses; a neighbour on the same edge shows it), and where the neighbourhood's samples saw
+// both sky and occluder, at least the variance of a half-covered texel's mean, U²/(4·spp) (an
+// edge between two texels shows in neither's samples). λ is set once from a pilot (level 0
 // of a fixed subset of rows) so that the predicted variance of the matrix is T² times its
 // squared norm. Deterministic for a seed and T (the pilot's rows and every decision depend
 // on nothing else), so a resumed or sharded bake decides alike. Bounces: the indirect term
@@ -54,13 +66,14 @@ struct ConvergedRow {
 
 // Scratch of one thread, reused from row to row.
 struct ConvergedScratch {
-  std::vector<double> est, var, sum, wsum, var_sum, v, ind;
+  std::vector<TexelStats> stats;
+  std::vector<double> exact, est, var, sum, wsum, var_sum, v, ind;
   std::vector<uint32_t> target;
-  std::vector<uint8_t> select;
+  std::vector<uint8_t> cv, select;
 };
 
 // One row of T (6R² values into out) from levels[k] (a sampler of spp·2^k, seed LevelSeed(k)).
-ConvergedRow TraceConverged(const std::vector<const Sampler*>& levels, uint64_t row, const RowPoint& rp, double lambda,
-                            double rms_norm, float* out, RowScratch& sc, ConvergedScratch& cs);
+ConvergedRow TraceConverged(const std::vector<const Sampler*>& levels, uint64_t row, const RowPoint& rp,
+                            const Pilot& pilot, float* out, RowScratch& sc, ConvergedScratch& cs);
 
 }  // namespace ltb::sample

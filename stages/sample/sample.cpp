@@ -572,7 +572,7 @@ struct BlockSampler {
   // Converged sampling (--tolerance): one sampler per level (empty: one Transport per row),
   // the pilot's λ and RMS row norm N (stages/sample/converged.h).
   std::vector<const sample::Sampler*> levels;
-  double lambda = 0, rms_norm = 0;
+  sample::Pilot pilot;
   Counters cnt;
   std::atomic<uint64_t> valid{0}, written{0}, rows_done{0};
   std::mutex converged_mu;
@@ -618,7 +618,7 @@ struct BlockSampler {
       } else if (!levels.empty()) {  // converged sampling: each texel to the level its error needs
         thread_local sample::ConvergedScratch cs;
         const sample::ConvergedRow cr =
-            sample::TraceConverged(levels, r0 + i, rp, lambda, rms_norm, mat + i * cols, sc, cs);
+            sample::TraceConverged(levels, r0 + i, rp, pilot, mat + i * cols, sc, cs);
         buf->level[i] = static_cast<uint8_t>(cr.level);
         buf->rays[i] = cr.rays;
         buf->error[i] = static_cast<float>(cr.rel_error);
@@ -680,12 +680,10 @@ struct BlockSampler {
 // Converged sampling's pilot (stages/sample/converged.h): λ and the RMS row norm for the
 // tracing threads; its rays count as the bake's.
 void RunPilot(const SampleOptions& o, const Sampler& sampler, uint64_t rows, BlockSampler* bs, SampleResult* result) {
-  const sample::Pilot pilot = sample::PilotRows(sampler, rows, o.max_levels, *o.tolerance);
-  bs->rms_norm = std::sqrt(pilot.mean_norm2);
-  bs->lambda = pilot.lambda;
-  bs->cnt.rays += pilot.rays;
-  result->pilot_rows = pilot.rows;
-  result->pilot_rms_norm = bs->rms_norm;
+  bs->pilot = sample::PilotRows(sampler, rows, o.max_levels, *o.tolerance);
+  bs->cnt.rays += bs->pilot.rays;
+  result->pilot_rows = bs->pilot.rows;
+  result->pilot_rms_norm = std::sqrt(bs->pilot.mean_norm2);
 }
 
 // The full bake's outputs (one, a channel set's or a factored bake's terms), opened or resumed;

@@ -120,6 +120,24 @@ double PhongLobe::Eval(const glm::dvec3& w) const {
   return f;
 }
 
+namespace {
+
+// ½ Σ_k Θ_k ĝ_k of the spherical polygon through the unit directions of p[0..m) (in order):
+// Lambert's vector irradiance, so that ∫ n·ω dω over the polygon is ±n·Φ (the sign is the
+// polygon's orientation). Θ_k is the arc from p_k to p_k+1, ĝ_k the unit normal of its plane.
+glm::dvec3 LambertVector(const glm::dvec3* p, int m) {
+  glm::dvec3 phi(0.0);
+  for (int k = 0; k < m; ++k) {
+    const glm::dvec3 a = glm::normalize(p[k]), b = glm::normalize(p[(k + 1) % m]);
+    const glm::dvec3 g = glm::cross(a, b);
+    const double s = glm::length(g);
+    if (s > 0) phi += (std::atan2(s, glm::dot(a, b)) / s) * g;
+  }
+  return 0.5 * phi;
+}
+
+}  // namespace
+
 Sampler::Sampler(const SceneDesc& s, const Geometry& g, uint32_t r, uint32_t spp, uint32_t bounces, uint64_t seed)
     : s_(s), g_(g), r_(r), spp_(spp), bounces_(bounces), seed_(seed), camera_(s.camera), texels_(TexelTable(r)) {
   // Strata tile the texel exactly: kx · ky = spp, as square as spp allows.
@@ -133,12 +151,56 @@ Sampler::Sampler(const SceneDesc& s, const Geometry& g, uint32_t r, uint32_t spp
     centre_y_.push_back(t.centre.y);
     centre_z_.push_back(t.centre.z);
     cos_limit_.push_back(t.cos_limit);
+    const double h = 2.0 / r;
+    const glm::dvec3 q[4] = {t.a + t.u0 * t.b + t.v0 * t.c, t.a + (t.u0 + h) * t.b + t.v0 * t.c,
+                             t.a + (t.u0 + h) * t.b + (t.v0 + h) * t.c, t.a + t.u0 * t.b + (t.v0 + h) * t.c};
+    glm::dvec3 phi = LambertVector(q, 4);
+    irradiance_.push_back(glm::dot(phi, t.centre) < 0 ? -phi : phi);  // pointing out through the texel
   }
   // Per slot of a batch (slot k is sample k mod spp of its texel).
   for (uint64_t k = 0; k < TexelsPerBatch() * spp; ++k) {
     stratum_x_.push_back(static_cast<double>((k % spp) % kx_));
     stratum_y_.push_back(static_cast<double>((k % spp) / kx_));
   }
+}
+
+bool Sampler::UnoccludedExact(const RowPoint& rp, double* out) const {
+  const PhongLobe brdf = MakeBrdf(rp);
+  if (brdf.ks_norm > 0) return false;
+  const double h = 2.0 / r_;
+  for (uint64_t c = 0; c < texels_.size(); ++c) {
+    const TexelInfo& t = texels_[c];
+    if (BelowHorizon(rp.n, c)) {
+      out[c] = 0.0;
+      continue;
+    }
+    // n·(a + u b + v c) at the corners, counter-clockwise in (u, v).
+    const double na = glm::dot(rp.n, t.a), nb = glm::dot(rp.n, t.b), nc = glm::dot(rp.n, t.c);
+    const double cu[4] = {t.u0, t.u0 + h, t.u0 + h, t.u0}, cv[4] = {t.v0, t.v0, t.v0 + h, t.v0 + h};
+    double s[4];
+    bool all_above = true;
+    for (int k = 0; k < 4; ++k) {
+      s[k] = na + cu[k] * nb + cv[k] * nc;
+      all_above = all_above && s[k] >= 0;
+    }
+    if (all_above) {
+      out[c] = brdf.diffuse * std::max(0.0, glm::dot(rp.n, irradiance_[c]));
+      continue;
+    }
+    // Clipped to the horizon (n·ω ≥ 0 is a half-plane of the face): at most five corners.
+    glm::dvec3 poly[8];
+    int m = 0;
+    for (int k = 0; k < 4; ++k) {
+      const int j = (k + 1) % 4;
+      if (s[k] >= 0) poly[m++] = t.a + cu[k] * t.b + cv[k] * t.c;
+      if ((s[k] >= 0) != (s[j] >= 0)) {
+        const double f = s[k] / (s[k] - s[j]);
+        poly[m++] = t.a + (cu[k] + f * (cu[j] - cu[k])) * t.b + (cv[k] + f * (cv[j] - cv[k])) * t.c;
+      }
+    }
+    out[c] = m >= 3 ? brdf.diffuse * std::abs(glm::dot(rp.n, LambertVector(poly, m))) : 0.0;
+  }
+  return true;
 }
 
 RowPoint Sampler::Primary(uint64_t row) const {
@@ -609,6 +671,56 @@ uint64_t Sampler::DirectWithVariance(uint64_t row, const RowPoint& rp, double* e
       const uint64_t c = sc.texel[m];
       est[c] = s1 / n;
       var[c] = d2 * pair_scale;
+    }
+    c0 = c1;
+  }
+  return rays;
+}
+
+uint64_t Sampler::DirectStats(uint64_t row, const RowPoint& rp, TexelStats* out, RowScratch& sc,
+                              const uint8_t* select) const {
+  uint64_t below = 0, samples_below = 0, rays = 0;
+  const PhongLobe brdf = MakeBrdf(rp);
+  const uint64_t cols = texels_.size(), step = TexelsPerBatch(), spp = spp_;
+  for (uint64_t c = 0; c < cols; ++c) {
+    if (select == nullptr || select[c] != 0) out[c] = TexelStats{};  // below the horizon: no rays
+  }
+  const double h = 2.0 / r_, texel_area = h * h, n = static_cast<double>(spp);
+  const double pair_scale = n / (2.0 * static_cast<double>(spp / 2)) / (n * n);  // as DirectWithVariance
+  for (uint64_t c0 = 0; c0 < cols;) {
+    uint64_t picked = 0;
+    const uint64_t c1 = SelectedRangeEnd(select, c0, cols, step, &picked);
+    if (picked == 0) break;
+    GenerateRays(row, rp, brdf, c0, c1, sc, &below, &samples_below, select);
+    sc.live.resize(sc.n);
+    const float* tf = sc.batch.tfar.data();
+    for (size_t k = 0; k < sc.n; ++k) sc.live[k] = tf[k] >= 0 ? 1 : 0;  // before tracing: above the horizon
+    g_.rays->Occluded(sc.batch, sc.n);
+    rays += sc.active;
+    const double* val = sc.ray_value.data();
+    for (size_t m = 0; m < sc.n / spp; ++m) {
+      TexelStats& st = out[sc.texel[m]];
+      double s[2] = {0, 0}, s2[2] = {0, 0}, d2[2] = {0, 0}, prev[2] = {0, 0};
+      for (uint64_t i = 0; i < spp; ++i) {
+        const size_t k = m * spp + i;
+        const double x = sc.live[k] ? val[k] * texel_area : 0.0;
+        const bool seen = tf[k] >= 0;  // unoccluded (an inactive slot stays at -inf)
+        const double part[2] = {seen ? x : 0.0, seen ? 0.0 : x};
+        for (int j = 0; j < 2; ++j) {
+          s[j] += part[j];
+          s2[j] += part[j] * part[j];
+          if (i % 2 == 1) d2[j] += (part[j] - prev[j]) * (part[j] - prev[j]);
+          prev[j] = part[j];
+        }
+        st.active += sc.live[k];
+        st.visible += seen ? 1 : 0;
+      }
+      st.vis = s[0] / n;
+      st.occ = s[1] / n;
+      st.vis_var = d2[0] * pair_scale;
+      st.occ_var = d2[1] * pair_scale;
+      st.vis_spread = std::max(0.0, s2[0] - s[0] * s[0] / n) / ((n - 1) * n);
+      st.occ_spread = std::max(0.0, s2[1] - s[1] * s[1] / n) / ((n - 1) * n);
     }
     c0 = c1;
   }

@@ -52,6 +52,7 @@ struct RowScratch {
   std::vector<double> u0, v0, wc, gl, pw;
   std::vector<uint64_t> s0;
   std::vector<uint8_t> above;  // per texel of a run: 1 when not wholly below the horizon
+  std::vector<uint8_t> live;  // per slot of a batch: 1 when above the horizon (DirectStats)
   // One batch: texel[m] owns ray slots [m·spp, (m+1)·spp), a slot per sample in stratum
   // order; a sample below the horizon keeps its slot as an inactive ray of value 0.
   RayBatch batch;
@@ -61,6 +62,17 @@ struct RowScratch {
   size_t active = 0;  // rays traced (slots above the horizon)
   std::vector<double> sum_value, sum_weight;
 };
+
+// Converged sampling's view of one texel's direct-term samples (Sampler::DirectStats), each
+// sample i alone an estimate of the texel's integral, x_i = f_i·A (f the integrand
+// w·cos·albedo/π, A the texel's area in face coordinates), split by what its ray saw.
+struct TexelStats {
+  double vis = 0, vis_var = 0, vis_spread = 0;  // mean of V_i·x_i (Transport's estimate), its variance
+  double occ = 0, occ_var = 0, occ_spread = 0;  // mean of (1 − V_i)·x_i, its variance
+  uint32_t active = 0, visible = 0;             // samples above the horizon, and of those unoccluded
+};
+// *_var: from neighbouring strata's differences (as DirectWithVariance); *_spread: the samples'
+// own spread over n (what independent samples would give: it sees every stratum's difference).
 
 struct Counters {
   std::atomic<uint64_t> rays{0}, below{0}, samples_below{0};
@@ -123,6 +135,15 @@ class Sampler {
   // With select, only the texels c with select[c] != 0 are traced and written.
   uint64_t DirectWithVariance(uint64_t row, const RowPoint& rp, double* est, double* var, RowScratch& sc,
                               const uint8_t* select = nullptr) const;
+  // Converged sampling: the direct term's samples of every texel (select: of the texels c with
+  // select[c] != 0) as TexelStats into out. spp must be at least 2. Returns the rays traced.
+  uint64_t DirectStats(uint64_t row, const RowPoint& rp, TexelStats* out, RowScratch& sc,
+                       const uint8_t* select = nullptr) const;
+  // Every texel's direct term with V = 1, exactly: albedo/π · ∫ max(0, n·ω) dω over the texel
+  // (Lambert's formula for a spherical polygon; a texel the horizon crosses clipped to it), what
+  // Transport's estimate of a wholly unoccluded texel has for its mean. Diffuse row points
+  // only: false (out untouched) where the lobe is glossy.
+  bool UnoccludedExact(const RowPoint& rp, double* out) const;
   // Every texel's direct term with V = 1, from the same samples and without tracing: a
   // texel that Transport finds wholly unoccluded has exactly this value, a texel wholly
   // below the horizon 0.
@@ -177,6 +198,9 @@ class Sampler {
   // The texel table's fields the ray generator reads, as arrays it can vectorise over.
   std::vector<double> u0_, v0_, centre_x_, centre_y_, centre_z_, cos_limit_;
   std::vector<double> stratum_x_, stratum_y_;  // stratum column and row of the sample in batch slot k
+  // Per texel: ½ Σ_k Θ_k ĝ_k over its spherical quadrilateral (Lambert), so that
+  // ∫_texel n·ω dω = n · irradiance_[c] for a texel wholly above the horizon.
+  std::vector<glm::dvec3> irradiance_;
 
   // The (row, texel) stream's counter origin, as Rng(seed, row, texel) sets it.
   uint64_t StreamStart(uint64_t row, uint64_t c) const {

@@ -14,7 +14,10 @@ unit normal of the plane through it. Checked:
   - the converged bake's relative RMS error over the sphere rows is within its tolerance,
     where a fixed bake at the same base spp is not (so the tolerance did something);
   - the per-row error estimate (side table sample_error) is not optimistic: in at least 95%
-    of the rows the actual error is at most twice the estimate;
+    of the rows the actual error is at most twice the estimate (plus a hundredth of the
+    tolerance);
+  - lit texels whose samples saw no floor equal the closed form to float32 rounding (the
+    exact unoccluded value, horizon-clipped where the horizon crosses the texel);
   - the same command twice gives the same content_hash, and a killed bake resumes to it.
     converged_test.py LTBAKE"""
 import json
@@ -141,8 +144,17 @@ with tempfile.TemporaryDirectory() as d:
     est = side_table(conv, "sample_error").reshape(-1).astype(np.float64)
     rms = np.sqrt(np.mean(np.sum(T ** 2, axis=1)))
     actual = np.linalg.norm(T[rows] - X, axis=1) / rms
-    share = np.mean(actual <= 2 * est[rows] + 1e-9)
+    # Errors below a hundredth of the tolerance do not count against the estimate: float32
+    # storage (~1e-8), and a texel an edge crosses where neither its samples nor its
+    # neighbours' saw the edge, which takes the exact unoccluded value with variance 0.
+    share = np.mean(actual <= 2 * est[rows] + 0.01 * TOL)
     check(share >= 0.95, f"the row error estimate is optimistic: {share:.1%} of the rows within 2x of it")
+    # Where no sample saw the floor the texel takes its exact unoccluded value (Lambert's
+    # formula in sample, here the oracle's own), clipped to the horizon where it crosses it:
+    # equal to float32 rounding, not Monte Carlo noise. Most texels above the floor are such.
+    lit = X > 0
+    exact_share = np.mean(np.abs(T[rows] - X)[lit] <= 1e-6 * X[lit])
+    check(exact_share >= 0.7, f"only {exact_share:.1%} of the lit entries equal the closed form to 1e-6")
     levels = side_table(conv, "sample_level").reshape(-1)
     check(levels[rows].max() >= 1, "no texel went past level 0")
     rays = side_table(conv, "sample_rays").reshape(-1)
@@ -151,7 +163,8 @@ with tempfile.TemporaryDirectory() as d:
     check(summary.get("rays") == int(rays.sum()) and summary.get("tolerance") == TOL,
           f"inspect's converged block: {summary}")
     print(f"converged: error {err_conv:.4f} (tolerance {TOL}), fixed spp 4 {err_fixed:.4f}; "
-          f"{share:.1%} of rows within 2x of their estimate; rays {rays.sum()}", file=sys.stderr)
+          f"{share:.1%} of rows within 2x of their estimate; {exact_share:.1%} of the lit entries exact; "
+          f"rays {rays.sum()}", file=sys.stderr)
 
     # Determinism, and a bake killed once its first chunk is committed resumes to the same hash.
     want = content_hash(conv)
