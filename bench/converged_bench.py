@@ -9,7 +9,7 @@ windows in a dark room). For each scene and bounce count:
   - a reference: fixed spp REF_SPP with another seed;
   - fixed spp 2, 4, 8, 16, 32 (the Monte Carlo curve: its error is the noise floor at each
     cost);
-  - converged, spp 4 a pass, at tolerances 4% .. 0.25%.
+  - converged, level 0 at --base-spp (2) and levels up to spp 64, at tolerances 10% .. 1.8%.
 Relit error: rel. L2 over the image of T·L (every texel of the cubemap, RGB) against the
 reference's, the mean over the maps; no lighting approximation and no compression, so only
 the sampling differs. The saving at equal error: the fixed curve's rays at the converged
@@ -187,6 +187,8 @@ def main():
     ap.add_argument("--bounces", default="0", help="e.g. 0,1 (sample refuses --tolerance with bounces today)")
     ap.add_argument("--ref-spp", type=int, default=0, help="the reference's spp (default 1024 direct, 256 with bounces)")
     ap.add_argument("--quick", action="store_true", help="fewer points (a smoke run of the script)")
+    ap.add_argument("--base-spp", type=int, default=2,
+                    help="the converged runs' level-0 spp (levels up to spp 64 at the top)")
     ap.add_argument("--scenes", default="knot,blobs",
                     help="of knot, blobs (generated here) and teapot, snowden (npm, bench/unseen_meshes.py: "
                          "samples/medium.toml's camera, floor and glossy object material)")
@@ -206,8 +208,10 @@ def main():
         import unseen_meshes  # noqa: E402
         npm_scenes = unseen_meshes.scenes(os.path.join(work, "unseen"), a.size)
     fixed_spp = [2, 4, 8, 16] if a.quick else [2, 4, 8, 16, 32, 64, 128]
-    tolerances = [0.05, 0.025] if a.quick else [0.08, 0.05, 0.035, 0.025, 0.018, 0.012]
+    tolerances = [0.05, 0.025] if a.quick else [0.1, 0.07, 0.05, 0.035, 0.025, 0.018]
+    max_levels = 1 + (64 // a.base_spp).bit_length() - 1  # the top level at spp 64
     results = {"machine": benchlib.machine(), "commit": benchlib.git_describe(), "size": a.size, "R": R,
+               "base_spp": a.base_spp,
                "maps": [os.path.basename(m) for m in maps], "cases": []}
     for mesh in a.scenes.split(","):
         sc = os.path.join(work, mesh + ".toml")
@@ -234,15 +238,21 @@ def main():
             curve = [(f["rays"], f["mean_error"]) for f in case["fixed"]]
             for tol in tolerances:
                 rays, T, secs, text = bake(a.build, work, sc, "conv",
-                                           ["--spp", 4, "--bounces", bounces, "--tolerance", tol, "--max-levels", 5])
+                                           ["--spp", a.base_spp, "--bounces", bounces, "--tolerance", tol,
+                                            "--max-levels", max_levels])
                 e = relit_error(T, Tref, L)
                 mean = float(np.mean(list(e.values())))
                 fr = interp_rays(curve, mean)
+                by_map = {}
+                for name in e:  # the same saving map by map, against that map's fixed curve
+                    r_m = interp_rays([(f["rays"], f["errors"][name]) for f in case["fixed"]], e[name])
+                    by_map[name] = r_m / rays if r_m else None
                 within = float(np.linalg.norm(T - Tref) / np.linalg.norm(Tref))
                 passes = None
                 case["converged"].append({"tolerance": tol, "rays": rays, "seconds": secs, "errors": e,
                                           "mean_error": mean, "fixed_rays_at_error": fr,
-                                          "saving": fr / rays if fr else None, "matrix_error": within,
+                                          "saving": fr / rays if fr else None, "saving_by_map": by_map,
+                                          "matrix_error": within,
                                           "mean_passes": float(passes.group(1)) if passes else None})
                 sv = f"{fr / rays:.2f}x" if fr else "outside the fixed curve"
                 print(f"  tol {tol:.2%}: {rays:>12d} rays {secs:6.2f} s  error {mean:.4%}  saving {sv}  "
@@ -256,17 +266,20 @@ def main():
 def report(res):
     print(f"\nmachine: {res['machine']}; commit {res['commit']}; {res['size']}² pixels, R = {res['R']}; maps: "
           f"{', '.join(res['maps'])}\n")
-    print("| scene | bounces | run | rays | relit error (mean of maps) | matrix error | fixed spp rays at that relit error | saving |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| scene | bounces | run | rays | relit error (mean of maps) | matrix error | fixed spp rays at that relit error | saving | saving map by map |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for c in res["cases"]:
         for f in c["fixed"]:
             print(f"| {c['scene']} | {c['bounces']} | fixed spp {f['spp']} | {f['rays']:,} | {f['mean_error']:.3%} | "
-                  f"{f['matrix_error']:.2%} | | |")
+                  f"{f['matrix_error']:.2%} | | | |")
         for v in c["converged"]:
             fr = f"{v['fixed_rays_at_error']:,.0f}" if v["fixed_rays_at_error"] else "—"
             sv = f"{v['saving']:.2f}×" if v["saving"] else "—"
+            known = [x for x in v.get("saving_by_map", {}).values() if x]
+            bm = f"{min(known):.2f}–{max(known):.2f}×" + (" (some outside)" if len(known) < len(v["saving_by_map"]) else "") \
+                if known else "—"
             print(f"| {c['scene']} | {c['bounces']} | tolerance {v['tolerance']:.2%} | {v['rays']:,} | "
-                  f"{v['mean_error']:.3%} | {v['matrix_error']:.2%} | {fr} | {sv} |")
+                  f"{v['mean_error']:.3%} | {v['matrix_error']:.2%} | {fr} | {sv} | {bm} |")
 
 
 if __name__ == "__main__":

@@ -263,7 +263,9 @@ class SampleCommand : public Command {
                         {"max_levels", options_.max_levels},
                         {"rows_by_highest_level", r.level_histogram},
                         {"pilot_rows", r.pilot_rows},
-                        {"largest_row_error", r.max_rel_error}};
+                        {"largest_row_error", r.max_rel_error},
+                        {"reachable", r.tolerance_reachable},
+                        {"least_error", r.least_error}};
     }
     for (const auto& [name, errors] : r.factor_errors) j["factor_errors"][name] = errors;
     return j;
@@ -281,6 +283,13 @@ class SampleCommand : public Command {
                   *options_.tolerance, r.spp << (options_.max_levels - 1),
                   static_cast<unsigned long long>(r.pilot_rows), r.pilot_rms_norm, r.max_rel_error);
     std::cout << line << "  rows by the highest level a texel of theirs took (level:rows, this run):" << hist << "\n";
+    if (!r.tolerance_reachable) {
+      std::snprintf(line, sizeof line,
+                    "  the tolerance is out of reach: at --max-levels %u the pilot predicts %.3g%% at best, so the "
+                    "levels went as far as brings it within 5%% of that; for %.3g%%, raise --max-levels or --spp\n",
+                    options_.max_levels, 100 * r.least_error, 100 * *options_.tolerance);
+      std::cout << line;
+    }
   }
 
   static void PrintSparseAuto(const stages::SparseAuto& a) {

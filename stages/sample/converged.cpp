@@ -8,6 +8,9 @@ namespace ltb::sample {
 namespace {
 
 constexpr double kBeta = 1.5;  // a stratified estimate's variance across an edge: ∝ n^−β
+// The indirect term's paths double at most this often past DefaultPaths() (1024×): its noise
+// falls only as 1/paths, so it needs far more doublings than a texel needs levels.
+constexpr uint32_t kIndirectDoublings = 10;
 
 void Size(const Sampler& s, ConvergedScratch& cs) {
   const uint64_t cols = 6ull * s.cube_res() * s.cube_res();
@@ -90,6 +93,49 @@ uint64_t LevelZero(const Sampler& s, uint64_t row, const RowPoint& rp, RowScratc
   return rays;
 }
 
+
+// The indirect term's variance (Σ over texels of its mean's) after `paths` paths, from the
+// sums of β and β² per texel.
+double IndirectVariance(const std::vector<double>& sum, const std::vector<double>& sum2, uint64_t paths) {
+  const double p = static_cast<double>(paths);
+  double v = 0;
+  for (size_t c = 0; c < sum.size(); ++c) v += std::max(0.0, sum2[c] / p - (sum[c] / p) * (sum[c] / p)) / p;
+  return v;
+}
+
+// Doublings of the indirect term's paths past P0 that the rule of the texels' levels takes
+// (one more doubling while it removes more than λ of variance per ray: half the variance
+// for as many rays again), for variance v at P0 paths and `ray_cost` rays for those, at most top.
+uint32_t IndirectDoublings(double v, double ray_cost, double lambda, uint32_t top) {
+  if (!(lambda > 0) || !(v > 0) || !(ray_cost > 0)) return 0;
+  // Smallest m with v·2^−m / 2 ≤ λ·ray_cost·2^m.
+  const double x = v / (2 * lambda * ray_cost);
+  const double m = x > 1 ? std::ceil(std::log2(x) / 2) : 0.0;
+  return static_cast<uint32_t>(std::min(m, static_cast<double>(top)));
+}
+
+// The indirect term of one row into cs.ind (its variance returned in *var): DefaultPaths()
+// paths, doubled while IndirectDoublings' rule, on the row's own measured variance and rays
+// per path, asks for it (lambda 0: never). Returns the rays traced.
+uint64_t ConvergeIndirect(const Sampler& s, uint64_t row, const RowPoint& rp, double lambda, uint32_t top,
+                          ConvergedScratch& cs, double* var, uint64_t* paths_out) {
+  const uint64_t p0 = s.DefaultPaths();
+  cs.isum.assign(cs.ind.size(), 0.0);
+  cs.isum2.assign(cs.ind.size(), 0.0);
+  uint64_t rays = 0, done = 0, target = p0;
+  for (uint32_t m = 0;; ++m) {
+    rays += s.IndirectStats(row, rp, done, target, cs.isum.data(), cs.isum2.data());
+    done = target;
+    *var = IndirectVariance(cs.isum, cs.isum2, done);
+    const double per_path = static_cast<double>(rays) / static_cast<double>(done);
+    if (m >= top || !(lambda > 0) || !(*var / 2 > lambda * per_path * static_cast<double>(done))) break;
+    target = 2 * done;
+  }
+  for (size_t c = 0; c < cs.ind.size(); ++c) cs.ind[c] = cs.isum[c] / static_cast<double>(done);
+  *paths_out = done;
+  return rays;
+}
+
 }  // namespace
 
 uint64_t LevelSeed(uint64_t seed, uint32_t k) {
@@ -106,7 +152,10 @@ Pilot PilotRows(const Sampler& s, uint64_t rows, uint32_t levels, double toleran
   ConvergedScratch cs;
   Size(s, cs);
   const uint64_t cols = cs.est.size();
-  std::vector<double> v0;  // every pilot texel's level variance
+  // Every pilot texel's variance its level is chosen by, and its level-0 estimate's own
+  // (what the prediction counts: the first is a neighbourhood's largest, an upper bound).
+  std::vector<std::pair<float, float>> v0;
+  std::vector<std::pair<double, double>> indirect;  // with bounces, every pilot row's indirect variance and rays
   double norm2 = 0;
   for (uint64_t row = stride / 2; row < rows; row += stride) {
     ++p.rows;
@@ -114,29 +163,47 @@ Pilot PilotRows(const Sampler& s, uint64_t rows, uint32_t levels, double toleran
     if (!rp.valid) continue;  // an all-zero row
     p.rays += LevelZero(s, row, rp, sc, cs);
     std::fill(cs.ind.begin(), cs.ind.end(), 0.0);
-    if (s.bounces() > 0) p.rays += s.IndirectTerm(row, rp, s.DefaultPaths(), cs.ind.data());
+    if (s.bounces() > 0) {  // the indirect term at its first P0 paths: its variance and cost
+      double v = 0;
+      uint64_t paths = 0;
+      const uint64_t r = ConvergeIndirect(s, row, rp, 0.0, 0, cs, &v, &paths);
+      p.rays += r;
+      if (v > 0) indirect.emplace_back(v, static_cast<double>(r));
+    }
     for (size_t c = 0; c < cols; ++c) norm2 += (cs.est[c] + cs.ind[c]) * (cs.est[c] + cs.ind[c]);
     for (size_t c = 0; c < cols; ++c) {
-      if (cs.v[c] > 0) v0.push_back(cs.v[c]);
+      if (cs.v[c] > 0) v0.emplace_back(static_cast<float>(cs.v[c]), static_cast<float>(cs.var[c]));
     }
   }
-  if (p.rows == 0 || !(norm2 > 0) || v0.empty()) return p;
+  if (p.rows == 0 || !(norm2 > 0) || (v0.empty() && indirect.empty())) return p;
   p.mean_norm2 = norm2 / static_cast<double>(p.rows);
-  // λ: bisection (in log) for the predicted variance of the pilot rows, Σ v·2^(−β·level),
+  // λ: bisection (in log) for the predicted variance of the pilot rows, Σ var·2^(−β·level),
   // to be T² times their squared norm. The prediction falls as λ does.
   const double want = tolerance * tolerance * norm2;
   const uint32_t top = levels - 1;
   auto predicted = [&](double lambda) {
     double total = 0;
-    for (double v : v0) total += v * std::pow(2.0, -kBeta * TargetLevel(v, lambda, s.spp(), top));
+    for (const auto& [v, own] : v0) total += own * std::pow(2.0, -kBeta * TargetLevel(v, lambda, s.spp(), top));
+    for (const auto& [v, cost] : indirect) {
+      total += v * std::pow(2.0, -1.0 * IndirectDoublings(v, cost, lambda, kIndirectDoublings));
+    }
     return total;
   };
-  double lo = 1e-300, hi = 1e300;
-  for (int i = 0; i < 200 && hi / lo > 1.0001; ++i) {
-    const double mid = std::sqrt(lo) * std::sqrt(hi);
-    (predicted(mid) > want ? hi : lo) = mid;
-  }
-  p.lambda = hi;  // the largest λ (fewest rays) found whose prediction is within T²
+  auto largest_within = [&](double bound) {  // the largest λ (fewest rays) whose prediction is within bound
+    double lo = 1e-300, hi = 1e300;
+    for (int i = 0; i < 200 && hi / lo > 1.0001; ++i) {
+      const double mid = std::sqrt(lo) * std::sqrt(hi);
+      (predicted(mid) > bound ? hi : lo) = mid;
+    }
+    return hi;
+  };
+  // Where even every level at its top does not reach T, the levels go only as far as brings
+  // the prediction within 5% of the least they can reach (not every texel and path to the
+  // top for the last fraction of a percent); `sample` says so.
+  const double least = predicted(1e-300);
+  p.reachable = least <= want;
+  p.least_error = std::sqrt(least / norm2);
+  p.lambda = largest_within(p.reachable ? want : 1.05 * least);
   return p;
 }
 
@@ -171,8 +238,12 @@ ConvergedRow TraceConverged(const std::vector<const Sampler*>& levels, uint64_t 
     r.level = k;
   }
   std::fill(cs.ind.begin(), cs.ind.end(), 0.0);
-  if (first.bounces() > 0) r.rays += first.IndirectTerm(row, rp, first.DefaultPaths(), cs.ind.data());
   double err2 = 0;
+  if (first.bounces() > 0) {
+    uint64_t paths = 0;
+    r.rays += ConvergeIndirect(first, row, rp, pilot.lambda, kIndirectDoublings, cs, &err2, &paths);
+    r.level = std::max<uint32_t>(r.level, static_cast<uint32_t>(std::log2(paths / first.DefaultPaths())));
+  }
   for (uint64_t c = 0; c < cols; ++c) {
     out[c] = static_cast<float>(cs.sum[c] / cs.wsum[c] + cs.ind[c]);
     err2 += cs.var_sum[c] / (cs.wsum[c] * cs.wsum[c]);

@@ -55,6 +55,10 @@ struct Pilot {
   uint64_t rows = 0, rays = 0;
   double mean_norm2 = 0;  // N², the mean squared row norm (rows that see no geometry count as 0)
   double lambda = 0;      // 0: no light seen (every texel stays at level 0)
+  // Whether the levels can reach the tolerance at all (predicted), and the least relative
+  // error they can reach (with every texel and path at its top).
+  bool reachable = true;
+  double least_error = 0;
 };
 Pilot PilotRows(const Sampler& s, uint64_t rows, uint32_t levels, double tolerance);
 
@@ -67,7 +71,7 @@ struct ConvergedRow {
 // Scratch of one thread, reused from row to row.
 struct ConvergedScratch {
   std::vector<TexelStats> stats;
-  std::vector<double> exact, est, var, sum, wsum, var_sum, v, ind;
+  std::vector<double> exact, est, var, sum, wsum, var_sum, v, ind, isum, isum2;
   std::vector<uint32_t> target;
   std::vector<uint8_t> cv, select;
 };

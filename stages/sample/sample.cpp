@@ -99,7 +99,7 @@ Status CheckSparse(const SampleOptions& o, uint32_t r) {
 // --tolerance: a relative error in (0, 1), at least two samples a texel (the error is
 // estimated from their spread), levels in 1..12; not yet with the modes that trace rows
 // their own way.
-Status CheckConverged(const SampleOptions& o, uint32_t spp, uint32_t bounces) {
+Status CheckConverged(const SampleOptions& o, uint32_t spp) {
   if (!o.tolerance) return Status::Ok();
   const double t = *o.tolerance;
   if (!(t > 0 && t < 1)) {
@@ -110,14 +110,6 @@ Status CheckConverged(const SampleOptions& o, uint32_t spp, uint32_t bounces) {
   if (spp < 2) {
     return InvalidArgument("--tolerance estimates each texel's error from the spread of its samples: --spp " +
                            std::to_string(spp) + " must be at least 2");
-  }
-  if (bounces > 0) {
-    // Measured (bench/converged_bench.py): with the indirect term at a fixed bake's paths, its
-    // noise stays and the tolerance is not met (6.5% measured for 2%).
-    return InvalidArgument("--tolerance estimates the direct term's error only; with --bounces " +
-                           std::to_string(bounces) +
-                           " the indirect term's is not estimated, so the tolerance would not hold (docs/SAMPLE.md "
-                           "\"Converged sampling\"): leave out --bounces or --tolerance");
   }
   if (o.max_levels < 1 || o.max_levels > 12) {
     return InvalidArgument("--max-levels " + std::to_string(o.max_levels) + " is not in 1..12");
@@ -202,7 +194,7 @@ Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress
   }
   if (p->spp == 0) return InvalidArgument("--spp must be at least 1");
   LTB_RETURN_IF_ERROR(CheckSparse(o, p->r));
-  LTB_RETURN_IF_ERROR(CheckConverged(o, p->spp, p->bounces));
+  LTB_RETURN_IF_ERROR(CheckConverged(o, p->spp));
   if (o.visibility) {
     if (p->scene.mode != SceneDesc::Mode::kVertex) {
       return InvalidArgument(o.scene +
@@ -684,6 +676,8 @@ void RunPilot(const SampleOptions& o, const Sampler& sampler, uint64_t rows, Blo
   bs->cnt.rays += bs->pilot.rays;
   result->pilot_rows = bs->pilot.rows;
   result->pilot_rms_norm = std::sqrt(bs->pilot.mean_norm2);
+  result->tolerance_reachable = bs->pilot.reachable;
+  result->least_error = bs->pilot.least_error;
 }
 
 // The full bake's outputs (one, a channel set's or a factored bake's terms), opened or resumed;

@@ -141,6 +141,10 @@ struct SampleResult {
   double max_rel_error = 0;
   uint64_t pilot_rows = 0;    // rows of the pilot pass (their rays are in `rays`)
   double pilot_rms_norm = 0;  // the RMS row norm N it estimated
+  // Whether the pilot predicts the tolerance is reachable within --max-levels, and the
+  // least error it predicts the levels can reach.
+  bool tolerance_reachable = true;
+  double least_error = 0;
   // A factored bake: per glossy material, the relative L2 error of ρ·cos with K = 1..max(K, 8).
   std::vector<std::pair<std::string, std::vector<double>>> factor_errors;
 };

@@ -775,9 +775,19 @@ uint64_t Sampler::IndirectTerm(uint64_t row, const RowPoint& rp, uint64_t paths,
 // throughput to the texel it leaves through. Diffuse at the bounces.
 uint64_t Sampler::Indirect(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, const glm::dvec3& origin,
                            uint64_t paths, double* acc) const {
+  return IndirectPaths(row, rp, brdf, origin, 0, paths, static_cast<double>(paths), acc, nullptr);
+}
+
+uint64_t Sampler::IndirectStats(uint64_t row, const RowPoint& rp, uint64_t k0, uint64_t k1, double* sum,
+                                double* sum2) const {
+  return IndirectPaths(row, rp, MakeBrdf(rp), Origin(rp), k0, k1, 1.0, sum, sum2);
+}
+
+uint64_t Sampler::IndirectPaths(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, const glm::dvec3& origin,
+                                uint64_t k0, uint64_t k1, double divisor, double* acc, double* acc2) const {
   const uint64_t cols = texels_.size();
   uint64_t rays = 0;
-  for (uint64_t k = 0; k < paths; ++k) {
+  for (uint64_t k = k0; k < k1; ++k) {
     Rng rng(seed_, row, cols + k);
     glm::dvec3 d = CosineSample(rp.n, rng);
     double beta = brdf.Eval(d) * M_PI;  // f cos / pdf with pdf = cos / π
@@ -801,7 +811,9 @@ uint64_t Sampler::Indirect(uint64_t row, const RowPoint& rp, const PhongLobe& br
       hit = g_.rays->Intersect(o, d);
       ++rays;
       if (!hit.hit) {
-        acc[cubemap::Column(cubemap::DirectionToTexel(d, r_), r_)] += beta / static_cast<double>(paths);
+        const uint64_t c = cubemap::Column(cubemap::DirectionToTexel(d, r_), r_);
+        acc[c] += beta / divisor;
+        if (acc2 != nullptr) acc2[c] += beta * beta;
         break;
       }
     }

@@ -151,6 +151,10 @@ class Sampler {
   // The indirect term (bounces) of one row with `paths` paths, added into acc (6R² values).
   // Transport uses DefaultPaths(). Returns the rays traced.
   uint64_t IndirectTerm(uint64_t row, const RowPoint& rp, uint64_t paths, double* acc) const;
+  // Converged sampling: paths k0..k1−1 of the indirect term (the same paths as
+  // IndirectTerm's first ones), each escaping path's throughput β added into sum[c] and β²
+  // into sum2[c] (unscaled). Returns the rays traced.
+  uint64_t IndirectStats(uint64_t row, const RowPoint& rp, uint64_t k0, uint64_t k1, double* sum, double* sum2) const;
   uint64_t DefaultPaths() const { return std::max<uint64_t>(1, spp_ * texels_.size() / 2); }
   uint32_t bounces() const { return bounces_; }
   uint32_t cube_res() const { return r_; }
@@ -181,6 +185,9 @@ class Sampler {
   void AccumulateVisibility(const RowScratch& sc, std::vector<double>& acc, std::vector<double>& total) const;
   uint64_t Indirect(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, const glm::dvec3& origin, uint64_t paths,
                     double* acc) const;
+  // Paths k0..k1−1: β/divisor into acc at the texel each leaves through, β² into acc2 (if any).
+  uint64_t IndirectPaths(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, const glm::dvec3& origin,
+                         uint64_t k0, uint64_t k1, double divisor, double* acc, double* acc2) const;
   // Channel c's BRDF at a row point (MakeBrdf of ChannelScene(scene, c)).
   PhongLobe MakeBrdfChannel(const RowPoint& rp, int c) const;
   // Indirect for the three channels from the same paths: acc[c] gains channel c's.

@@ -18,6 +18,8 @@ unit normal of the plane through it. Checked:
     tolerance);
   - lit texels whose samples saw no floor equal the closed form to float32 rounding (the
     exact unoccluded value, horizon-clipped where the horizon crosses the texel);
+  - with a bounce, within its tolerance against a fixed spp-256 bake; an unreachable
+    tolerance is reported;
   - the same command twice gives the same content_hash, and a killed bake resumes to it.
     converged_test.py LTBAKE"""
 import json
@@ -204,7 +206,28 @@ with tempfile.TemporaryDirectory() as d:
             expect=None)
     check(p.returncode in (1, 2), f"--tolerance 150% exits {p.returncode}")
     check("--tolerance" in p.stderr, f"--tolerance 150%:\n{p.stderr}")
-    p = run("sample", os.path.join(d, "scene.toml"), "-o", os.path.join(d, "x.ltm"), "--tolerance", "1%",
-            "--bounces", "1", expect=1)
-    check("the indirect term's is not estimated" in p.stderr, f"--tolerance with bounces:\n{p.stderr}")
+
+    # With a bounce the indirect term's paths double per row while its own variance asks for
+    # it. No closed form: the reference is a fixed bake at spp 256, whose own noise (from a
+    # second reference with another seed: ‖r1 − r2‖ / √2) adds in quadrature to what is
+    # measured against it; a fixed spp-4 bake (~20%) must miss the tolerance.
+    TOL_B = 0.10
+    _, ref_b, _ = bake(d, "ref_b", "--spp", "256", "--bounces", "1", "--seed", "7")
+    _, ref_b2, _ = bake(d, "ref_b2", "--spp", "256", "--bounces", "1", "--seed", "8")
+    noise = np.linalg.norm(ref_b - ref_b2) / np.sqrt(2) / np.linalg.norm(ref_b)
+    _, conv_b, text_b = bake(d, "conv_b", "--tolerance", f"{TOL_B * 100:g}%", "--bounces", "1")
+    _, fixed_b, _ = bake(d, "fixed_b", "--bounces", "1")
+    err_b = np.linalg.norm(conv_b - ref_b) / np.linalg.norm(ref_b)
+    err_fb = np.linalg.norm(fixed_b - ref_b) / np.linalg.norm(ref_b)
+    # The levels are set from the pilot's 64 rows, whose variance sum is known to ~1/√64 (two
+    # standard errors: 25% in variance, 12.5% in the error), on top of the reference's noise.
+    check(err_b ** 2 <= (TOL_B * (1 + 1 / np.sqrt(64))) ** 2 + noise ** 2,
+          f"converged bake with a bounce: error {err_b:.4f} over its tolerance {TOL_B} (reference noise {noise:.4f})")
+    check(err_fb > TOL_B, f"the fixed spp-4 bake with a bounce is already within {TOL_B} ({err_fb:.4f})")
+    print(f"converged with a bounce: error {err_b:.4f} (tolerance {TOL_B}, reference noise {noise:.4f}), "
+          f"fixed spp 4 {err_fb:.4f}", file=sys.stderr)
+    # A tolerance the levels cannot reach is said, not chased to every level's top.
+    p = run("sample", os.path.join(d, "scene.toml"), "-o", os.path.join(d, "far.ltm"), "--tolerance", "0.01%",
+            "--max-levels", "2")
+    check("the tolerance is out of reach" in p.stdout, f"--tolerance 0.01% at --max-levels 2:\n{p.stdout}")
 finish()
