@@ -93,7 +93,6 @@ uint64_t LevelZero(const Sampler& s, uint64_t row, const RowPoint& rp, RowScratc
   return rays;
 }
 
-
 // The indirect term's variance (Σ over texels of its mean's) after `paths` paths, from the
 // sums of β and β² per texel.
 double IndirectVariance(const std::vector<double>& sum, const std::vector<double>& sum2, uint64_t paths) {

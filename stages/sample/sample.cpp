@@ -609,8 +609,7 @@ struct BlockSampler {
         sampler.TransportFactored(r0 + i, rp, *f, term_out.data(), sc, cnt);
       } else if (!levels.empty()) {  // converged sampling: each texel to the level its error needs
         thread_local sample::ConvergedScratch cs;
-        const sample::ConvergedRow cr =
-            sample::TraceConverged(levels, r0 + i, rp, pilot, mat + i * cols, sc, cs);
+        const sample::ConvergedRow cr = sample::TraceConverged(levels, r0 + i, rp, pilot, mat + i * cols, sc, cs);
         buf->level[i] = static_cast<uint8_t>(cr.level);
         buf->rays[i] = cr.rays;
         buf->error[i] = static_cast<float>(cr.rel_error);

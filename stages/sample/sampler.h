@@ -52,7 +52,7 @@ struct RowScratch {
   std::vector<double> u0, v0, wc, gl, pw;
   std::vector<uint64_t> s0;
   std::vector<uint8_t> above;  // per texel of a run: 1 when not wholly below the horizon
-  std::vector<uint8_t> live;  // per slot of a batch: 1 when above the horizon (DirectStats)
+  std::vector<uint8_t> live;   // per slot of a batch: 1 when above the horizon (DirectStats)
   // One batch: texel[m] owns ray slots [m·spp, (m+1)·spp), a slot per sample in stratum
   // order; a sample below the horizon keeps its slot as an inactive ray of value 0.
   RayBatch batch;
@@ -186,8 +186,8 @@ class Sampler {
   uint64_t Indirect(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, const glm::dvec3& origin, uint64_t paths,
                     double* acc) const;
   // Paths k0..k1−1: β/divisor into acc at the texel each leaves through, β² into acc2 (if any).
-  uint64_t IndirectPaths(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, const glm::dvec3& origin,
-                         uint64_t k0, uint64_t k1, double divisor, double* acc, double* acc2) const;
+  uint64_t IndirectPaths(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, const glm::dvec3& origin, uint64_t k0,
+                         uint64_t k1, double divisor, double* acc, double* acc2) const;
   // Channel c's BRDF at a row point (MakeBrdf of ChannelScene(scene, c)).
   PhongLobe MakeBrdfChannel(const RowPoint& rp, int c) const;
   // Indirect for the three channels from the same paths: acc[c] gains channel c's.
