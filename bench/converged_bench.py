@@ -9,7 +9,7 @@ windows in a dark room). For each scene and bounce count:
   - a reference: fixed spp REF_SPP with another seed;
   - fixed spp 2, 4, 8, 16, 32 (the Monte Carlo curve: its error is the noise floor at each
     cost);
-  - converged, level 0 at --base-spp (2) and levels up to spp 64, at tolerances 10% .. 1.8%.
+  - converged, level 0 at --base-spp (2) and levels up to spp 64, at tolerances 5% .. 0.5%.
 Relit error: rel. L2 over the image of T·L (every texel of the cubemap, RGB) against the
 reference's, the mean over the maps; no lighting approximation and no compression, so only
 the sampling differs. The saving at equal error: the fixed curve's rays at the converged
@@ -189,6 +189,7 @@ def main():
     ap.add_argument("--quick", action="store_true", help="fewer points (a smoke run of the script)")
     ap.add_argument("--base-spp", type=int, default=2,
                     help="the converged runs' level-0 spp (levels up to spp 64 at the top)")
+    ap.add_argument("--tolerances", default="", help="comma-separated, e.g. 0.05,0.025 (default: 5% .. 0.5%)")
     ap.add_argument("--scenes", default="knot,blobs",
                     help="of knot, blobs (generated here) and teapot, snowden (npm, bench/unseen_meshes.py: "
                          "samples/medium.toml's camera, floor and glossy object material)")
@@ -208,7 +209,9 @@ def main():
         import unseen_meshes  # noqa: E402
         npm_scenes = unseen_meshes.scenes(os.path.join(work, "unseen"), a.size)
     fixed_spp = [2, 4, 8, 16] if a.quick else [2, 4, 8, 16, 32, 64, 128]
-    tolerances = [0.05, 0.025] if a.quick else [0.1, 0.07, 0.05, 0.035, 0.025, 0.018]
+    tolerances = [0.05, 0.02] if a.quick else [0.05, 0.035, 0.025, 0.018, 0.012, 0.008, 0.005]
+    if a.tolerances:
+        tolerances = [float(t) for t in a.tolerances.split(",")]
     max_levels = 1 + (64 // a.base_spp).bit_length() - 1  # the top level at spp 64
     results = {"machine": benchlib.machine(), "commit": benchlib.git_describe(), "size": a.size, "R": R,
                "base_spp": a.base_spp,
@@ -243,6 +246,7 @@ def main():
                 e = relit_error(T, Tref, L)
                 mean = float(np.mean(list(e.values())))
                 fr = interp_rays(curve, mean)
+                secs_fixed = interp_rays([(f["seconds"], f["mean_error"]) for f in case["fixed"]], mean)
                 by_map = {}
                 for name in e:  # the same saving map by map, against that map's fixed curve
                     r_m = interp_rays([(f["rays"], f["errors"][name]) for f in case["fixed"]], e[name])
@@ -252,6 +256,7 @@ def main():
                 case["converged"].append({"tolerance": tol, "rays": rays, "seconds": secs, "errors": e,
                                           "mean_error": mean, "fixed_rays_at_error": fr,
                                           "saving": fr / rays if fr else None, "saving_by_map": by_map,
+                                          "time_saving": secs_fixed / secs if secs_fixed else None,
                                           "matrix_error": within,
                                           "mean_passes": float(passes.group(1)) if passes else None})
                 sv = f"{fr / rays:.2f}x" if fr else "outside the fixed curve"
@@ -266,20 +271,22 @@ def main():
 def report(res):
     print(f"\nmachine: {res['machine']}; commit {res['commit']}; {res['size']}² pixels, R = {res['R']}; maps: "
           f"{', '.join(res['maps'])}\n")
-    print("| scene | bounces | run | rays | relit error (mean of maps) | matrix error | fixed spp rays at that relit error | saving | saving map by map |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| scene | bounces | run | rays | s | relit error (mean of maps) | matrix error | fixed spp rays at that relit error | "
+          "saving (rays) | saving map by map | saving (wall time) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for c in res["cases"]:
         for f in c["fixed"]:
-            print(f"| {c['scene']} | {c['bounces']} | fixed spp {f['spp']} | {f['rays']:,} | {f['mean_error']:.3%} | "
-                  f"{f['matrix_error']:.2%} | | | |")
+            print(f"| {c['scene']} | {c['bounces']} | fixed spp {f['spp']} | {f['rays']:,} | {f['seconds']:.2f} | "
+                  f"{f['mean_error']:.3%} | {f['matrix_error']:.2%} | | | | |")
         for v in c["converged"]:
             fr = f"{v['fixed_rays_at_error']:,.0f}" if v["fixed_rays_at_error"] else "—"
             sv = f"{v['saving']:.2f}×" if v["saving"] else "—"
             known = [x for x in v.get("saving_by_map", {}).values() if x]
             bm = f"{min(known):.2f}–{max(known):.2f}×" + (" (some outside)" if len(known) < len(v["saving_by_map"]) else "") \
                 if known else "—"
-            print(f"| {c['scene']} | {c['bounces']} | tolerance {v['tolerance']:.2%} | {v['rays']:,} | "
-                  f"{v['mean_error']:.3%} | {v['matrix_error']:.2%} | {fr} | {sv} | {bm} |")
+            ts = f"{v['time_saving']:.2f}×" if v.get("time_saving") else "—"
+            print(f"| {c['scene']} | {c['bounces']} | tolerance {v['tolerance']:.2%} | {v['rays']:,} | {v['seconds']:.2f} | "
+                  f"{v['mean_error']:.3%} | {v['matrix_error']:.2%} | {fr} | {sv} | {bm} | {ts} |")
 
 
 if __name__ == "__main__":

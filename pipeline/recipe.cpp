@@ -162,11 +162,6 @@ Status ParseConverged(const std::string& path, const toml::table& t, Recipe::Sam
     LTB_ASSIGN_OR_RETURN(uint64_t v, GetUnsigned(path, t, "max_levels", 5, 1, 12));
     s->max_levels = v;
   }
-  if (s->tolerance && s->bounces.value_or(0) > 0) {
-    return InvalidArgument(Where(path, *t.get("tolerance")) +
-                           ": [sample] tolerance estimates the direct term's error only; with bounces the tolerance "
-                           "would not hold (docs/SAMPLE.md \"Converged sampling\")");
-  }
   if (s->tolerance && (s->sparse || s->channels == "rgb" || s->factor > 0)) {
     return InvalidArgument(Where(path, *t.get("tolerance")) +
                            ": [sample] tolerance (converged sampling) does not yet combine with sparse, channels = "

@@ -123,7 +123,7 @@ uint64_t ConvergeIndirect(const Sampler& s, uint64_t row, const RowPoint& rp, do
   cs.isum2.assign(cs.ind.size(), 0.0);
   uint64_t rays = 0, done = 0, target = p0;
   for (uint32_t m = 0;; ++m) {
-    rays += s.IndirectStats(row, rp, done, target, cs.isum.data(), cs.isum2.data());
+    rays += s.IndirectStats(row, rp, done, target, cs.isum.data(), cs.isum2.data(), &cs.guide);
     done = target;
     *var = IndirectVariance(cs.isum, cs.isum2, done);
     const double per_path = static_cast<double>(rays) / static_cast<double>(done);
@@ -133,6 +133,17 @@ uint64_t ConvergeIndirect(const Sampler& s, uint64_t row, const RowPoint& rp, do
   for (size_t c = 0; c < cs.ind.size(); ++c) cs.ind[c] = cs.isum[c] / static_cast<double>(done);
   *paths_out = done;
   return rays;
+}
+
+// The first-bounce guide of a row from its level-0 stats: each texel weighted by the mean of
+// its occluded samples' values (the part of its direct term something blocks: where
+// indirect light comes from), a quarter of the paths still cosine-sampled.
+void BuildGuide(ConvergedScratch& cs) {
+  constexpr double kCosineShare = 0.25;
+  cs.guide.alpha = kCosineShare;
+  cs.guide.cdf.resize(cs.stats.size());
+  double total = 0;
+  for (size_t c = 0; c < cs.stats.size(); ++c) cs.guide.cdf[c] = total += std::max(0.0, cs.stats[c].occ);
 }
 
 }  // namespace
@@ -161,6 +172,7 @@ Pilot PilotRows(const Sampler& s, uint64_t rows, uint32_t levels, double toleran
     const RowPoint rp = s.Primary(row);
     if (!rp.valid) continue;  // an all-zero row
     p.rays += LevelZero(s, row, rp, sc, cs);
+    BuildGuide(cs);
     std::fill(cs.ind.begin(), cs.ind.end(), 0.0);
     if (s.bounces() > 0) {  // the indirect term at its first P0 paths: its variance and cost
       double v = 0;
@@ -214,6 +226,7 @@ ConvergedRow TraceConverged(const std::vector<const Sampler*>& levels, uint64_t 
   Size(first, cs);
   ConvergedRow r;
   r.rays = LevelZero(first, row, rp, sc, cs);
+  BuildGuide(cs);  // before the levels overwrite the stats of the texels they trace
   // Per texel: Σ w_k est_k, Σ w_k, Σ w_k² var_k with w_k = 2^(βk).
   cs.sum.assign(cs.est.begin(), cs.est.end());
   cs.wsum.assign(cols, 1.0);

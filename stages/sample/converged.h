@@ -34,9 +34,17 @@
 // edge between two texels shows in neither's samples). λ is set once from a pilot (level 0
 // of a fixed subset of rows) so that the predicted variance of the matrix is T² times its
 // squared norm. Deterministic for a seed and T (the pilot's rows and every decision depend
-// on nothing else), so a resumed or sharded bake decides alike. Bounces: the indirect term
-// would be traced once per row at the base spp, as a fixed bake does, its error not estimated
-// (so `sample` refuses --tolerance with bounces: the tolerance would not hold).
+// on nothing else), so a resumed or sharded bake decides alike.
+//
+// Bounces: a row's indirect term starts at the fixed bake's paths (DefaultPaths) and doubles,
+// at most 2^10 times, while one more doubling removes more than λ of variance per ray (its
+// variance from the escaping paths' β and β² per texel; the same λ, so the pilot's prediction
+// counts it). Its first directions are guided (IndirectGuide): three quarters drawn from the
+// texels by the occluded part of their level-0 direct samples — indirect light only comes
+// in where something blocks the sky, and a cosine-sampled path that escapes at once is a
+// wasted ray — a quarter from the cosine, so the mixture's density covers every direction
+// and the estimate stays unbiased (the guide depends only on the direct samples, which are
+// independent of the paths').
 #pragma once
 
 #include <cstdint>
@@ -74,6 +82,7 @@ struct ConvergedScratch {
   std::vector<double> exact, est, var, sum, wsum, var_sum, v, ind, isum, isum2;
   std::vector<uint32_t> target;
   std::vector<uint8_t> cv, select;
+  IndirectGuide guide;
 };
 
 // One row of T (6R² values into out) from levels[k] (a sampler of spp·2^k, seed LevelSeed(k)).

@@ -778,19 +778,57 @@ uint64_t Sampler::Indirect(uint64_t row, const RowPoint& rp, const PhongLobe& br
   return IndirectPaths(row, rp, brdf, origin, 0, paths, static_cast<double>(paths), acc, nullptr);
 }
 
-uint64_t Sampler::IndirectStats(uint64_t row, const RowPoint& rp, uint64_t k0, uint64_t k1, double* sum,
-                                double* sum2) const {
-  return IndirectPaths(row, rp, MakeBrdf(rp), Origin(rp), k0, k1, 1.0, sum, sum2);
+uint64_t Sampler::IndirectStats(uint64_t row, const RowPoint& rp, uint64_t k0, uint64_t k1, double* sum, double* sum2,
+                                const IndirectGuide* guide) const {
+  const IndirectGuide* g = guide != nullptr && !guide->cdf.empty() && guide->cdf.back() > 0 ? guide : nullptr;
+  return IndirectPaths(row, rp, MakeBrdf(rp), Origin(rp), k0, k1, 1.0, sum, sum2, g);
+}
+
+bool Sampler::GuidedFirst(const RowPoint& rp, const PhongLobe& brdf, const IndirectGuide& g, uint64_t row, uint64_t k,
+                          glm::dvec3* d, double* beta) const {
+  // Its own stream (the cosine branch draws as IndirectTerm does, from the path's stream).
+  Rng pick(Mix64(seed_ ^ 0x6A09E667F3BCC909ull), row, texels_.size() + k);
+  const double total = g.cdf.back(), h = 2.0 / r_;
+  if (pick.Uniform() < g.alpha) {
+    Rng rng(seed_, row, texels_.size() + k);
+    *d = CosineSample(rp.n, rng);
+  } else {
+    const double x = pick.Uniform() * total;
+    const auto it = std::upper_bound(g.cdf.begin(), g.cdf.end(), x);
+    const uint64_t c = std::min<uint64_t>(static_cast<uint64_t>(it - g.cdf.begin()), g.cdf.size() - 1);
+    const TexelInfo& t = texels_[c];
+    const double u = t.u0 + pick.Uniform() * h, v = t.v0 + pick.Uniform() * h;
+    *d = glm::normalize(t.a + u * t.b + v * t.c);
+  }
+  const double cosn = glm::dot(rp.n, *d);
+  if (!(cosn > 0)) return false;
+  // The mixture's density at d: the cosine's, and the texel's weight share over its solid
+  // angle (uniform in face coordinates: dω = du dv · |d·a|³ for the face axis a).
+  const uint64_t c = cubemap::Column(cubemap::DirectionToTexel(*d, r_), r_);
+  const double w = g.cdf[c] - (c > 0 ? g.cdf[c - 1] : 0.0);
+  const double da = std::abs(glm::dot(*d, texels_[c].a));
+  const double pdf = g.alpha * cosn / M_PI + (1 - g.alpha) * (w / total) / (h * h * da * da * da);
+  *beta = brdf.Eval(*d) * cosn / pdf;
+  return true;
 }
 
 uint64_t Sampler::IndirectPaths(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, const glm::dvec3& origin,
-                                uint64_t k0, uint64_t k1, double divisor, double* acc, double* acc2) const {
+                                uint64_t k0, uint64_t k1, double divisor, double* acc, double* acc2,
+                                const IndirectGuide* guide) const {
   const uint64_t cols = texels_.size();
   uint64_t rays = 0;
   for (uint64_t k = k0; k < k1; ++k) {
     Rng rng(seed_, row, cols + k);
-    glm::dvec3 d = CosineSample(rp.n, rng);
-    double beta = brdf.Eval(d) * M_PI;  // f cos / pdf with pdf = cos / π
+    glm::dvec3 d;
+    double beta;
+    if (guide != nullptr) {
+      if (!GuidedFirst(rp, brdf, *guide, row, k, &d, &beta)) continue;
+      // The bounces draw from their own stream: the cosine branch's draws are not reused.
+      rng = Rng(Mix64(seed_ ^ 0xBB67AE8584CAA73Bull), row, cols + k);
+    } else {
+      d = CosineSample(rp.n, rng);
+      beta = brdf.Eval(d) * M_PI;  // f cos / pdf with pdf = cos / π
+    }
     glm::dvec3 o = origin;
     Hit hit = g_.rays->Intersect(o, d);
     ++rays;

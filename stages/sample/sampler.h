@@ -74,6 +74,16 @@ struct TexelStats {
 // *_var: from neighbouring strata's differences (as DirectWithVariance); *_spread: the samples'
 // own spread over n (what independent samples would give: it sees every stratum's difference).
 
+// Converged sampling's first-bounce guide (Sampler::IndirectStats): indirect light comes in
+// only through the directions something blocks, so a path's first direction is drawn from
+// the texels by weight (the occluded part of their direct term, from the row's own direct
+// samples) with probability 1 − alpha, else from the cosine as IndirectTerm draws it. The
+// estimate divides by the mixture's density, so it stays unbiased for any weights.
+struct IndirectGuide {
+  std::vector<double> cdf;  // per texel, the running sum of the weights (empty: no guide)
+  double alpha = 1.0;
+};
+
 struct Counters {
   std::atomic<uint64_t> rays{0}, below{0}, samples_below{0};
 };
@@ -154,7 +164,9 @@ class Sampler {
   // Converged sampling: paths k0..k1−1 of the indirect term (the same paths as
   // IndirectTerm's first ones), each escaping path's throughput β added into sum[c] and β²
   // into sum2[c] (unscaled). Returns the rays traced.
-  uint64_t IndirectStats(uint64_t row, const RowPoint& rp, uint64_t k0, uint64_t k1, double* sum, double* sum2) const;
+  // With a guide (non-empty cdf), the first directions are drawn as IndirectGuide says.
+  uint64_t IndirectStats(uint64_t row, const RowPoint& rp, uint64_t k0, uint64_t k1, double* sum, double* sum2,
+                         const IndirectGuide* guide = nullptr) const;
   uint64_t DefaultPaths() const { return std::max<uint64_t>(1, spp_ * texels_.size() / 2); }
   uint32_t bounces() const { return bounces_; }
   uint32_t cube_res() const { return r_; }
@@ -187,7 +199,12 @@ class Sampler {
                     double* acc) const;
   // Paths k0..k1−1: β/divisor into acc at the texel each leaves through, β² into acc2 (if any).
   uint64_t IndirectPaths(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, const glm::dvec3& origin, uint64_t k0,
-                         uint64_t k1, double divisor, double* acc, double* acc2) const;
+                         uint64_t k1, double divisor, double* acc, double* acc2,
+                         const IndirectGuide* guide = nullptr) const;
+  // A guided first direction into *d and f·cos/pdf into *beta; false when it falls below the
+  // horizon (no light that way: the path ends, no ray).
+  bool GuidedFirst(const RowPoint& rp, const PhongLobe& brdf, const IndirectGuide& g, uint64_t row, uint64_t k,
+                   glm::dvec3* d, double* beta) const;
   // Channel c's BRDF at a row point (MakeBrdf of ChannelScene(scene, c)).
   PhongLobe MakeBrdfChannel(const RowPoint& rp, int c) const;
   // Indirect for the three channels from the same paths: acc[c] gains channel c's.

@@ -333,7 +333,6 @@ with tempfile.TemporaryDirectory() as d:
     bad("lat-long read as a cross", BASE + f'[relight]\nenvs = ["{latlong}"]\nenv_layout = "hcross"\n', 2, latlong,
         "32x16 is not a horizontal cross")
     bad("max_levels without tolerance", BASE + "[sample]\nmax_levels = 3\n", 2, '"max_levels" goes with')
-    bad("tolerance with bounces", BASE + '[sample]\nbounces = 1\ntolerance = "1%"\n', 2, "direct term's error only")
     bad("tolerance with sparse", BASE + '[sample]\nsparse = true\ntolerance = "1%"\n', 2, "does not yet combine")
     bad("env_layout choice", BASE + f'[relight]\nenvs = ["{probe}"]\nenv_layout = "mirrorball"\n', 2,
         '"env_layout" is "mirrorball"', "angular")
