@@ -161,6 +161,7 @@ Sampler::Sampler(const SceneDesc& s, const Geometry& g, uint32_t r, uint32_t spp
   for (uint64_t k = 0; k < TexelsPerBatch() * spp; ++k) {
     stratum_x_.push_back(static_cast<double>((k % spp) % kx_));
     stratum_y_.push_back(static_cast<double>((k % spp) / kx_));
+    stratum_salt_.push_back(((k % spp) + 2) * kGolden);
   }
 }
 
@@ -374,6 +375,7 @@ void Sampler::DirectionsT(size_t n0, size_t n1, double na, double nb, double nc,
   const uint64_t* __restrict ls = sc.s0.data();
   const double* __restrict stx = stratum_x_.data();
   const double* __restrict sty = stratum_y_.data();
+  const uint64_t* __restrict salt = stratum_salt_.data();
   double* __restrict wc = sc.wc.data();
   double* __restrict pw = sc.pw.data();
   double* __restrict val = sc.ray_value.data();
@@ -384,7 +386,7 @@ void Sampler::DirectionsT(size_t n0, size_t n1, double na, double nb, double nc,
   constexpr float kInf = std::numeric_limits<float>::infinity();
 #pragma omp simd
   for (size_t k = n0; k < n1; ++k) {
-    const uint64_t z = Mix64(ls[k] + ((k % spp) + 2) * kGolden);
+    const uint64_t z = Mix64(ls[k] + salt[k]);  // ((k % spp) + 2)·kGolden, without the division
     // (z >> 40)·2^-24 and ((z >> 16) & 0xFFFFFF)·2^-24, exactly, built from bits (AVX2
     // has no vector uint64 -> double conversion): 1 + m·2^-24 has m in the mantissa.
     const double ju = std::bit_cast<double>(0x3FF0000000000000ull | ((z >> 40) << 28)) - 1.0;

@@ -222,6 +222,7 @@ class Sampler {
   // The texel table's fields the ray generator reads, as arrays it can vectorise over.
   std::vector<double> u0_, v0_, centre_x_, centre_y_, centre_z_, cos_limit_;
   std::vector<double> stratum_x_, stratum_y_;  // stratum column and row of the sample in batch slot k
+  std::vector<uint64_t> stratum_salt_;         // ((k mod spp) + 2)·golden: slot k's offset in its texel's stream
   // Per texel: ½ Σ_k Θ_k ĝ_k over its spherical quadrilateral (Lambert), so that
   // ∫_texel n·ω dω = n · irradiance_[c] for a texel wholly above the horizon.
   std::vector<glm::dvec3> irradiance_;
