@@ -157,6 +157,22 @@ Result<json> SummarizeSparse(const io::ContainerReader& r) {
   return out;
 }
 
+// A sample output's rays: the sum of its sample_rays side table (every row's rays, whichever
+// run traced them; a converged bake's pilot not included; a shard's file: its own rows'),
+// null without one.
+Result<json> SumSampleRays(const io::ContainerReader& r) {
+  const int a = r.metadata().FindArray("sample_rays");
+  if (a < 0) return json(nullptr);
+  uint64_t rays = 0;
+  const ArraySpec& spec = r.metadata().arrays[static_cast<uint32_t>(a)];
+  for (uint64_t c = 0; c < spec.ChunkCount(); ++c) {
+    if (r.Find(static_cast<uint32_t>(a), c) == nullptr) continue;  // a shard's file holds only its own chunks
+    LTB_ASSIGN_OR_RETURN(io::Chunk y, r.ReadChunk(static_cast<uint32_t>(a), c));
+    for (uint64_t v : y.as<uint64_t>()) rays += v;
+  }
+  return json(rays);
+}
+
 Result<json> SummarizeConverged(const io::ContainerReader& r) {
   const Metadata& meta = r.metadata();
   const int level_a = meta.FindArray("sample_level"), rays_a = meta.FindArray("sample_rays"),
@@ -294,6 +310,15 @@ Result<json> InspectContainer(const std::string& path, const InspectOptions& opt
     auto converged = SummarizeConverged(reader);
     if (!converged.ok()) return converged.status();
     if (!converged->is_null()) out["converged"] = *converged;
+    // The rays of any sample output: full and converged ones per row, sparse ones by phase.
+    auto rays = SumSampleRays(reader);
+    if (!rays.ok()) return rays.status();
+    if (!rays->is_null()) {
+      out["rays"] = *rays;
+    } else if (out.contains("sparse") && out["sparse"].contains("rays")) {
+      out["rays"] =
+          out["sparse"]["rays"].value("dense", uint64_t{0}) + out["sparse"]["rays"].value("sparse", uint64_t{0});
+    }
   }
   if (options.chunk_list) out["chunk_list"] = ChunkList(reader);
   return out;

@@ -534,11 +534,16 @@ std::vector<std::unique_ptr<Sampler>> LevelSamplers(const SampleOptions& o, cons
   return out;
 }
 
-// A converged bake's side tables (after the four every sample output has) and parameters.
-void AddConvergedMetadata(const SampleOptions& o, const Prepared& p, uint64_t block, nlohmann::json* meta) {
-  if (!o.tolerance) return;
-  for (const ArraySpec& a : {sample_internal::RowArray("sample_level", DType::kU8, p.rows, 1, block),
-                             sample_internal::RowArray("sample_rays", DType::kU64, p.rows, 1, block),
+// The side tables after the four every sample output has: the rays traced per row
+// (sample_rays), and a converged bake's highest level and estimated error per row around it;
+// with a converged bake's parameters.
+void AddRowStatsMetadata(const SampleOptions& o, const Prepared& p, uint64_t block, nlohmann::json* meta) {
+  const ArraySpec rays = sample_internal::RowArray("sample_rays", DType::kU64, p.rows, 1, block);
+  if (!o.tolerance) {
+    (*meta)["arrays"].push_back(rays.ToJson());
+    return;
+  }
+  for (const ArraySpec& a : {sample_internal::RowArray("sample_level", DType::kU8, p.rows, 1, block), rays,
                              sample_internal::RowArray("sample_error", DType::kF32, p.rows, 1, block)}) {
     (*meta)["arrays"].push_back(a.ToJson());
   }
@@ -599,24 +604,28 @@ struct BlockSampler {
         nor[3 * i + k] = static_cast<float>(rp.n[k]);
       }
       const std::vector<const ParabolicTable*>* f = plan ? &plan->tables[static_cast<size_t>(rp.material)] : nullptr;
-      if (o.rgb) {  // the three channels from one set of rays
+      Counters row_cnt;  // this row's, for its sample_rays entry (then added to the bake's)
+      if (o.rgb) {       // the three channels from one set of rays
         float* const out3[3] = {mat + i * cols, buf->extra.data() + i * cols, buf->extra.data() + (n + i) * cols};
-        sampler.TransportChannels(r0 + i, rp, out3, sc, cnt);
+        sampler.TransportChannels(r0 + i, rp, out3, sc, row_cnt);
       } else if (f != nullptr && !f->empty()) {  // a glossy material of a factored bake: K terms from one set of rays
         thread_local std::vector<float*> term_out;
         term_out.assign(1, mat + i * cols);
         for (uint64_t k = 0; k < extra_terms; ++k) term_out.push_back(buf->extra.data() + (k * n + i) * cols);
-        sampler.TransportFactored(r0 + i, rp, *f, term_out.data(), sc, cnt);
+        sampler.TransportFactored(r0 + i, rp, *f, term_out.data(), sc, row_cnt);
       } else if (!levels.empty()) {  // converged sampling: each texel to the level its error needs
         thread_local sample::ConvergedScratch cs;
         const sample::ConvergedRow cr = sample::TraceConverged(levels, r0 + i, rp, pilot, mat + i * cols, sc, cs);
         buf->level[i] = static_cast<uint8_t>(cr.level);
-        buf->rays[i] = cr.rays;
         buf->error[i] = static_cast<float>(cr.rel_error);
-        cnt.rays += cr.rays;
+        row_cnt.rays += cr.rays;
       } else {  // terms 1..K−1 of a diffuse material are 0 (the buffers start at 0)
-        sampler.Transport(r0 + i, rp, mat + i * cols, sc, cnt);
+        sampler.Transport(r0 + i, rp, mat + i * cols, sc, row_cnt);
       }
+      buf->rays[i] = row_cnt.rays.load();
+      cnt.rays += row_cnt.rays.load();
+      cnt.below += row_cnt.below.load();
+      cnt.samples_below += row_cnt.samples_below.load();
       uint64_t rays = cnt.rays.load();
       uint64_t estimate = std::max(rays, static_cast<uint64_t>(static_cast<double>(rays) / done_rows * rows_todo));
       progress.Report(rays, done_rows >= rows_todo ? rays : estimate, "rays");
@@ -650,13 +659,17 @@ struct BlockSampler {
         max_rel_error = std::max(max_rel_error, static_cast<double>(buf->error[i]));
       }
     }
-    const uint32_t arrays = levels.empty() ? 4 : 7;
+    // The arrays of RowStatsArrays' order: the four every output has, then sample_rays, or a
+    // converged bake's sample_level, sample_rays, sample_error.
+    const uint32_t arrays = levels.empty() ? 5 : 7;
     for (size_t k = 0; k < outs.size(); ++k) {
       const uint32_t term = out_term[k];
       const float* m = term == 0 ? mat : buf->extra.data() + (term - 1) * n * cols;
-      const ByteSpan parts[7] = {bytes(m, n * cols),         bytes(buf->mask.data(), n),  bytes(pos, n * 3),
-                                 bytes(nor, n * 3),          bytes(buf->level.data(), n), bytes(buf->rays.data(), n),
-                                 bytes(buf->error.data(), n)};
+      const ByteSpan converged[7] = {
+          bytes(m, n * cols),          bytes(buf->mask.data(), n), bytes(pos, n * 3),          bytes(nor, n * 3),
+          bytes(buf->level.data(), n), bytes(buf->rays.data(), n), bytes(buf->error.data(), n)};
+      const ByteSpan full[5] = {converged[0], converged[1], converged[2], converged[3], converged[5]};
+      const ByteSpan* parts = levels.empty() ? full : converged;
       for (uint32_t a = 0; a < arrays; ++a) {
         if (outs[k].Has(a, chunk)) continue;
         // The writer thread encodes and writes; buf goes back to the pool after the last part.
@@ -692,7 +705,7 @@ Result<std::vector<io::ContainerWriter>> OpenOutputs(const SampleOptions& o, con
     SampleOptions ok = o;  // --channels rgb: output k is exactly what --channel k writes
     if (o.rgb) ok.channel = static_cast<int>(k);
     nlohmann::json meta = sample_internal::SampleMetadata(ok, prep, block);
-    AddConvergedMetadata(o, prep, block, &meta);
+    AddRowStatsMetadata(o, prep, block, &meta);
     sample_internal::AddReflectance(prep, block, &meta);
     if (plan) AddFactorMetadata(o, prep, *plan, k, &meta);
     if (chose_full) {
@@ -755,7 +768,7 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   if (plan) result.factor_errors = plan->errors;
   result.sparse_auto = chose_full;
   const uint64_t nchunks = (rows + block - 1) / block;
-  const uint32_t block_arrays = o.tolerance ? 7 : 4;  // the arrays BlockSampler writes per block
+  const uint32_t block_arrays = o.tolerance ? 7 : 5;  // the arrays BlockSampler writes per block
   result.chunks_total = nchunks * block_arrays * outputs;
   for (const io::ContainerWriter& out : outs) result.chunks_already_committed += out.resume_info().committed_chunks;
 

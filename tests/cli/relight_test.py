@@ -291,7 +291,7 @@ with tempfile.TemporaryDirectory() as d:
 
     # 8b. final.ltm carries what relighting reads and no more (docs/COLUMN-TRANSFORM.md, "Output
     # of quantize"): the mask, then depth in one chunk (and with --bits the scales, one chunk;
-    # one step for the matrix needs none); position and normal stay in rows.ltm; column_stats
+    # one step for the matrix needs none); position, normal and sample_rays stay in rows.ltm; column_stats
     # becomes totals in the metadata, which are cols4d.ltm's column_stats summed in NumPy (its
     # bytes read through the zstd tool); the depths are cols4d.ltm's; with --bits every column
     # with a kept coefficient has a positive scale, the others 0.
@@ -306,7 +306,7 @@ with tempfile.TemporaryDirectory() as d:
               all(a["chunks"]["expected"] == 1 for a in fi["arrays"][2:]) and
               {"position", "normal"} <= {a["name"] for a in json.loads(run("inspect", os.path.join(bake, "rows.ltm"),
                                                                           "--json").stdout)["arrays"]} and
-              fi["column_transform"].get("row_tables_dropped") == ["position", "normal"],
+              fi["column_transform"].get("row_tables_dropped") == ["position", "normal", "sample_rays"],
               f"{qargs}: final.ltm arrays {fi['arrays']}")
         tot = fi["column_transform"]["totals"]
         check(tot["nonzeros"] == int(st[:, 2].sum()) and abs(tot["energy"] - st[:, 0].sum()) <= 1e-12 * st[:, 0].sum()

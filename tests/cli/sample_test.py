@@ -33,6 +33,7 @@ usage: sample_test.py PATH_TO_LTBAKE
 import json
 import math
 import os
+import re
 import sys
 import tempfile
 import time
@@ -154,14 +155,24 @@ material = "m"
     big = scene(d, "big.toml", open(s2).read().replace("width = 12", "width = 48").replace("height = 12", "height = 48"))
     ref = os.path.join(d, "big-ref.ltm")
     t0 = time.monotonic()
-    run("sample", big, "-o", ref, "--chunk-rows", 16)
+    ref_text = run("sample", big, "-o", ref, "--chunk-rows", 16).stdout
     full = time.monotonic() - t0
-    ref_hash = json.loads(run("inspect", ref, "--json").stdout)["content_hash"]
+    ref_info = json.loads(run("inspect", ref, "--json").stdout)
+    ref_hash = ref_info["content_hash"]
+    # Every sample output records its rays per row (sample_rays); inspect sums them, and an
+    # uninterrupted bake's sum is what it said it traced.
+    traced = int(re.search(r"rays traced: (\d+)", ref_text).group(1))
+    check(ref_info.get("rays") == traced, f"inspect's rays {ref_info.get('rays')} against {traced} traced")
+    per_row = side_table(ref, "sample_rays").reshape(-1)
+    mask = side_table(ref, "mask").reshape(-1)
+    check(per_row.sum() == traced and per_row[mask == 0].sum() == 0 and per_row[mask == 1].min() > 0,
+          "sample_rays: not one entry per row that sees geometry")
     out = os.path.join(d, "big-k.ltm")
     kill_storm(["sample", big, "-o", out, "--chunk-rows", 16], out, kills=6, max_delay=full, seed=3)
     run("sample", big, "-o", out, "--chunk-rows", 16, "--jobs", 1)
-    check(json.loads(run("inspect", out, "--json").stdout)["content_hash"] == ref_hash,
-          "sample resumed after kills differs from the uninterrupted run")
+    resumed = json.loads(run("inspect", out, "--json").stdout)
+    check(resumed["content_hash"] == ref_hash, "sample resumed after kills differs from the uninterrupted run")
+    check(resumed.get("rays") == traced, f"a resumed bake's rays {resumed.get('rays')} against {traced}")
 
     # 4. Bad input.
     base = open(s1).read()
