@@ -58,8 +58,10 @@ with tempfile.TemporaryDirectory() as d:
     run("sample", TINY, "-o", P("sparse.ltm"), "--sparse", "--bounces", 1, "--row-transform", "haar", *Q)
     check(info(P("sparse.ltm"))["sparse"]["rows"]["dense"] > 0, "sparse: no dense rows")
     run("cpca", P("sparse.ltm"), "-o", P("sparse_cpca.ltm"), "--clusters", 2, "--basis", 2, *Q)
-    # Converged sampling, fused (docs/SAMPLE.md "Converged sampling").
-    run("sample", TINY, "-o", P("converged.ltm"), "--tolerance", "5%", "--cube-res", 4, "--row-transform", "haar", *Q)
+    # Converged sampling with a bounce (guided first directions), fused (docs/SAMPLE.md
+    # "Converged sampling").
+    run("sample", TINY, "-o", P("converged.ltm"), "--tolerance", "5%", "--cube-res", 4, "--bounces", 1,
+        "--row-transform", "haar", *Q)
     # Colour (docs/COLOUR.md): a reflectance table through cpca, and a channel set (sample
     # --channels rgb with a bounce, every stage on the set, relight, convert to one .npy).
     with open(TINY) as f:
