@@ -184,7 +184,7 @@ def main():
     ap.add_argument("build")
     ap.add_argument("out")
     ap.add_argument("--size", type=int, default=64)
-    ap.add_argument("--bounces", default="0", help="e.g. 0,1 (sample refuses --tolerance with bounces today)")
+    ap.add_argument("--bounces", default="0", help="e.g. 0,1")
     ap.add_argument("--ref-spp", type=int, default=0, help="the reference's spp (default 1024 direct, 256 with bounces)")
     ap.add_argument("--quick", action="store_true", help="fewer points (a smoke run of the script)")
     ap.add_argument("--base-spp", type=int, default=2,

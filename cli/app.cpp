@@ -65,7 +65,7 @@ const std::vector<CommandInfo>& CommandList() {
       {"sample", RegisterSample, true,
        "ltbake sample scene.toml -o raw.ltm\n"
        "ltbake sample scene.toml -o raw.ltm --cube-res 64 --spp 16 --bounces 1\n"
-       "ltbake sample scene.toml -o raw.ltm --tolerance 2%  # converged sampling (docs/SAMPLE.md)\n"
+       "ltbake sample scene.toml -o raw.ltm --tolerance 1% --spp 2 --max-levels 6  # converged sampling\n"
        "ltbake sample scene.toml -o rows.ltm --row-transform haar  # sample and row-transform in one pass"},
       {"column-transform", RegisterColumnTransform, true,
        "ltbake column-transform cols.ltm -o cols4d.ltm  # adaptive depth, a 5% budget\n"
