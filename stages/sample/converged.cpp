@@ -41,6 +41,35 @@ uint32_t TargetLevel(double v, double lambda, uint32_t spp0, uint32_t top) {
 double Estimate(const TexelStats& st, bool cv, double exact) { return cv ? exact - st.occ : st.vis; }
 double EstimateVariance(const TexelStats& st, bool cv) { return cv ? st.occ_spread : st.vis_spread; }
 
+// Over each face's 3×3 neighbourhoods (clipped at the face's edges): sums of x into out, and
+// maxima of y into out; tmp is scratch. Separable, along u then along v.
+template <typename T, typename Op>
+void Separable3(const std::vector<T>& x, uint32_t res, std::vector<T>& out, std::vector<T>& tmp, Op op) {
+  const uint64_t rr = uint64_t{res} * res, cols = x.size();
+  out.resize(cols);
+  tmp.resize(cols);
+  for (uint64_t c = 0; c < cols; ++c) {
+    const uint64_t u = c % res;
+    T a = x[c];
+    if (u > 0) a = op(a, x[c - 1]);
+    if (u + 1 < res) a = op(a, x[c + 1]);
+    tmp[c] = a;
+  }
+  for (uint64_t c = 0; c < cols; ++c) {
+    const uint64_t t = c % rr / res;
+    T a = tmp[c];
+    if (t > 0) a = op(a, tmp[c - res]);
+    if (t + 1 < res) a = op(a, tmp[c + res]);
+    out[c] = a;
+  }
+}
+void Box3(const std::vector<uint32_t>& x, uint32_t res, std::vector<uint32_t>& out, std::vector<uint32_t>& tmp) {
+  Separable3(x, res, out, tmp, [](uint32_t a, uint32_t b) { return a + b; });
+}
+void Max3(const std::vector<double>& x, uint32_t res, std::vector<double>& out, std::vector<double>& tmp) {
+  Separable3(x, res, out, tmp, [](double a, double b) { return std::max(a, b); });
+}
+
 // Level 0 of one row: every texel's stats, the estimator each texel uses at every level
 // (cs.cv), its level-0 estimate and variance (cs.est, cs.var) and the variance its level is
 // chosen by (cs.v). Returns the rays traced.
@@ -48,47 +77,35 @@ uint64_t LevelZero(const Sampler& s, uint64_t row, const RowPoint& rp, RowScratc
   const uint64_t rays = s.DirectStats(row, rp, cs.stats.data(), sc);
   const bool exact = s.UnoccludedExact(rp, cs.exact.data());
   const uint32_t res = s.cube_res();
-  const uint64_t rr = uint64_t{res} * res, cols = cs.stats.size();
-  // Over each texel's 3×3 neighbourhood on its face (Neighbourhood calls f(k, is_self)).
-  auto neighbourhood = [&](uint64_t c, auto&& f) {
-    const uint64_t face = c / rr, t = c % rr / res, u = c % res;
-    for (uint64_t tt = t > 0 ? t - 1 : 0; tt <= std::min<uint64_t>(res - 1, t + 1); ++tt) {
-      for (uint64_t uu = u > 0 ? u - 1 : 0; uu <= std::min<uint64_t>(res - 1, u + 1); ++uu) {
-        f(face * rr + tt * res + uu, tt == t && uu == u);
-      }
-    }
-  };
-  // First every texel's estimator, from its neighbours' samples (not its own: the estimator
-  // must not depend on them, or it is biased)...
+  const uint64_t cols = cs.stats.size();
+  // Per texel: its samples above the horizon and unoccluded, then their sums over the face's
+  // 3×3 neighbourhood (separable: along u, then along v).
+  cs.n_active.resize(cols);
+  cs.n_visible.resize(cols);
   for (uint64_t c = 0; c < cols; ++c) {
-    uint64_t active = 0, visible = 0;
-    neighbourhood(c, [&](uint64_t k, bool self) {
-      if (self) return;
-      active += cs.stats[k].active;
-      visible += cs.stats[k].visible;
-    });
-    cs.cv[c] = exact && active > 0 && 2 * visible >= active ? 1 : 0;
+    cs.n_active[c] = cs.stats[c].active;
+    cs.n_visible[c] = cs.stats[c].visible;
   }
-  // ... then its estimate, variance, and the variance its level is chosen by: the largest
-  // spread in the neighbourhood (four samples often show none of an edge a neighbour on it
-  // shows), and where the neighbourhood's samples saw both sky and occluder, at least a
-  // half-covered texel's U²/(4·spp) (an edge between two texels shows in neither's samples).
+  Box3(cs.n_active, res, cs.sum_active, cs.tmp_u);
+  Box3(cs.n_visible, res, cs.sum_visible, cs.tmp_u);
+  // Every texel's estimator from its neighbours' samples (not its own: the estimator must not
+  // depend on them, or it is biased), then its estimate and variance.
   for (uint64_t c = 0; c < cols; ++c) {
-    const TexelStats& self = cs.stats[c];
-    cs.est[c] = Estimate(self, cs.cv[c] != 0, cs.exact[c]);
-    cs.var[c] = EstimateVariance(self, cs.cv[c] != 0);
-    uint64_t active = 0, visible = 0;
-    double spread = 0;
-    neighbourhood(c, [&](uint64_t k, bool) {
-      active += cs.stats[k].active;
-      visible += cs.stats[k].visible;
-      spread = std::max(spread, EstimateVariance(cs.stats[k], cs.cv[k] != 0));
-    });
-    if (visible > 0 && visible < active) {
-      const double value = exact ? cs.exact[c] : self.vis + self.occ;
-      spread = std::max(spread, value * value / (4.0 * s.spp()));
+    const uint64_t active = cs.sum_active[c] - cs.n_active[c], visible = cs.sum_visible[c] - cs.n_visible[c];
+    cs.cv[c] = exact && active > 0 && 2 * visible >= active ? 1 : 0;
+    cs.est[c] = Estimate(cs.stats[c], cs.cv[c] != 0, cs.exact[c]);
+    cs.var[c] = EstimateVariance(cs.stats[c], cs.cv[c] != 0);
+  }
+  // The variance the level is chosen by: the largest in the neighbourhood (four samples often
+  // show none of an edge a neighbour on it shows), and where the neighbourhood's samples saw
+  // both sky and occluder, at least a half-covered texel's U²/(4·spp) (an edge between two
+  // texels shows in neither's samples).
+  Max3(cs.var, res, cs.v, cs.tmp_v);
+  for (uint64_t c = 0; c < cols; ++c) {
+    if (cs.sum_visible[c] > 0 && cs.sum_visible[c] < cs.sum_active[c]) {
+      const double value = exact ? cs.exact[c] : cs.stats[c].vis + cs.stats[c].occ;
+      cs.v[c] = std::max(cs.v[c], value * value / (4.0 * s.spp()));
     }
-    cs.v[c] = spread;
   }
   return rays;
 }

@@ -82,6 +82,8 @@ struct ConvergedScratch {
   std::vector<double> exact, est, var, sum, wsum, var_sum, v, ind, isum, isum2;
   std::vector<uint32_t> target;
   std::vector<uint8_t> cv, select;
+  std::vector<uint32_t> n_active, n_visible, sum_active, sum_visible, tmp_u;
+  std::vector<double> tmp_v;
   IndirectGuide guide;
 };
 

@@ -365,7 +365,6 @@ uint64_t SelectedRangeEnd(const uint8_t* select, uint64_t c0, uint64_t cols, uin
 template <uint32_t kSpp, int kKind>
 void Sampler::DirectionsT(size_t n0, size_t n1, double na, double nb, double nc, const TexelInfo& t,
                           const PhongLobe& brdf, RowScratch& sc) const {
-  const uint64_t spp = kSpp ? kSpp : spp_;
   const double h = 2.0 / r_, hx = h / kx_, hy = h / ky_;
   const double ax = t.a.x, ay = t.a.y, az = t.a.z, bx = t.b.x, by = t.b.y, bz = t.b.z;
   const double cx = t.c.x, cy = t.c.y, cz = t.c.z;
