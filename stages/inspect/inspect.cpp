@@ -310,8 +310,9 @@ Result<json> InspectContainer(const std::string& path, const InspectOptions& opt
     auto converged = SummarizeConverged(reader);
     if (!converged.ok()) return converged.status();
     if (!converged->is_null()) out["converged"] = *converged;
-    // The rays of any sample output: full and converged ones per row, sparse ones by phase.
-    auto rays = SumSampleRays(reader);
+    // The rays of any sample output: full and converged ones per row (a converged summary
+    // has summed them already), sparse ones by phase.
+    auto rays = out.contains("converged") ? Result<json>(out["converged"]["rays"]) : SumSampleRays(reader);
     if (!rays.ok()) return rays.status();
     if (!rays->is_null()) {
       out["rays"] = *rays;

@@ -189,9 +189,9 @@ Pilot PilotRows(const Sampler& s, uint64_t rows, uint32_t levels, double toleran
     const RowPoint rp = s.Primary(row);
     if (!rp.valid) continue;  // an all-zero row
     p.rays += LevelZero(s, row, rp, sc, cs);
-    BuildGuide(cs);
     std::fill(cs.ind.begin(), cs.ind.end(), 0.0);
     if (s.bounces() > 0) {  // the indirect term at its first P0 paths: its variance and cost
+      BuildGuide(cs);
       double v = 0;
       uint64_t paths = 0;
       const uint64_t r = ConvergeIndirect(s, row, rp, 0.0, 0, cs, &v, &paths);
@@ -243,7 +243,7 @@ ConvergedRow TraceConverged(const std::vector<const Sampler*>& levels, uint64_t 
   Size(first, cs);
   ConvergedRow r;
   r.rays = LevelZero(first, row, rp, sc, cs);
-  BuildGuide(cs);  // before the levels overwrite the stats of the texels they trace
+  if (first.bounces() > 0) BuildGuide(cs);  // before the levels overwrite the stats of the texels they trace
   // Per texel: Σ w_k est_k, Σ w_k, Σ w_k² var_k with w_k = 2^(βk).
   cs.sum.assign(cs.est.begin(), cs.est.end());
   cs.wsum.assign(cols, 1.0);

@@ -636,44 +636,12 @@ void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vec
 
 uint64_t Sampler::DirectWithVariance(uint64_t row, const RowPoint& rp, double* est, double* var, RowScratch& sc,
                                      const uint8_t* select) const {
-  uint64_t below = 0, samples_below = 0, rays = 0;
-  const PhongLobe brdf = MakeBrdf(rp);
-  const uint64_t cols = texels_.size(), step = TexelsPerBatch(), spp = spp_;
-  for (uint64_t c = 0; c < cols; ++c) {
-    if (select == nullptr || select[c] != 0) est[c] = var[c] = 0.0;  // a texel below the horizon gets no rays
-  }
-  // Sample i of a texel alone estimates its integral as value_i · h² (the stratum's area
-  // times spp); the texel's estimate is their mean, as Transport's Σ value · h²/spp. Its
-  // variance, (1/n²) Σ σ_i² over the n strata, is estimated from neighbouring pairs: E(v_a −
-  // v_b)² = σ_a² + σ_b² + (μ_a − μ_b)², which overstates it by the pairs' difference in mean
-  // only (the whole texel's spread, as an estimate for independent samples would take,
-  // overstates it by all of the integrand's variation across the texel).
-  const double h = 2.0 / r_, texel_area = h * h, n = static_cast<double>(spp);
-  const double pair_scale = n / (2.0 * static_cast<double>(spp / 2)) / (n * n);
-  // Ranges holding about a batch's worth of selected texels (SelectedRangeEnd).
-  for (uint64_t c0 = 0; c0 < cols;) {
-    uint64_t picked = 0;
-    const uint64_t c1 = SelectedRangeEnd(select, c0, cols, step, &picked);
-    if (picked == 0) break;
-    GenerateRays(row, rp, brdf, c0, c1, sc, &below, &samples_below, select);
-    g_.rays->Occluded(sc.batch, sc.n);
-    rays += sc.active;
-    const float* tf = sc.batch.tfar.data();
-    const double* val = sc.ray_value.data();
-    const size_t texels = sc.n / spp;
-    for (size_t m = 0; m < texels; ++m) {
-      double s1 = 0, d2 = 0, prev = 0;
-      for (uint64_t i = 0; i < spp; ++i) {
-        const double v = tf[m * spp + i] >= 0 ? val[m * spp + i] * texel_area : 0.0;  // occluded or inactive: 0
-        s1 += v;
-        if (i % 2 == 1) d2 += (v - prev) * (v - prev);  // slots 2j, 2j + 1: neighbouring strata
-        prev = v;
-      }
-      const uint64_t c = sc.texel[m];
-      est[c] = s1 / n;
-      var[c] = d2 * pair_scale;
-    }
-    c0 = c1;
+  sc.stats.resize(texels_.size());
+  const uint64_t rays = DirectStats(row, rp, sc.stats.data(), sc, select);
+  for (uint64_t c = 0; c < texels_.size(); ++c) {
+    if (select != nullptr && select[c] == 0) continue;
+    est[c] = sc.stats[c].vis;
+    var[c] = sc.stats[c].vis_var;
   }
   return rays;
 }
@@ -686,8 +654,14 @@ uint64_t Sampler::DirectStats(uint64_t row, const RowPoint& rp, TexelStats* out,
   for (uint64_t c = 0; c < cols; ++c) {
     if (select == nullptr || select[c] != 0) out[c] = TexelStats{};  // below the horizon: no rays
   }
+  // Sample i of a texel alone estimates its integral as value_i · h² (the stratum's area
+  // times spp); the texel's estimate is their mean, as Transport's Σ value · h²/spp. Its
+  // variance, (1/n²) Σ σ_i² over the n strata, is estimated from neighbouring pairs: E(v_a −
+  // v_b)² = σ_a² + σ_b² + (μ_a − μ_b)², which overstates it by the pairs' difference in mean
+  // only (the samples' spread, as an estimate for independent samples would take, overstates
+  // it by all of the integrand's variation across the texel).
   const double h = 2.0 / r_, texel_area = h * h, n = static_cast<double>(spp);
-  const double pair_scale = n / (2.0 * static_cast<double>(spp / 2)) / (n * n);  // as DirectWithVariance
+  const double pair_scale = n / (2.0 * static_cast<double>(spp / 2)) / (n * n);
   for (uint64_t c0 = 0; c0 < cols;) {
     uint64_t picked = 0;
     const uint64_t c1 = SelectedRangeEnd(select, c0, cols, step, &picked);

@@ -46,13 +46,25 @@ struct PhongLobe {
   double Eval(const glm::dvec3& w) const;
 };
 
+// Converged sampling's view of one texel's direct-term samples (Sampler::DirectStats), each
+// sample i alone an estimate of the texel's integral, x_i = f_i·A (f the integrand
+// w·cos·albedo/π, A the texel's area in face coordinates), split by what its ray saw.
+struct TexelStats {
+  double vis = 0, vis_var = 0, vis_spread = 0;  // mean of V_i·x_i (Transport's estimate), its variance
+  double occ = 0, occ_var = 0, occ_spread = 0;  // mean of (1 − V_i)·x_i, its variance
+  uint32_t active = 0, visible = 0;             // samples above the horizon, and of those unoccluded
+};
+// *_var: from neighbouring strata's differences (Sampler::DirectStats); *_spread: the samples'
+// own spread over n (what independent samples would give: it sees every stratum's difference).
+
 struct RowScratch {
   // Per-slot arrays of one batch: the texel's lower corner and random stream origin,
   // then w·cos and the glossy lobe of each sample.
   std::vector<double> u0, v0, wc, gl, pw;
   std::vector<uint64_t> s0;
-  std::vector<uint8_t> above;  // per texel of a run: 1 when not wholly below the horizon
-  std::vector<uint8_t> live;   // per slot of a batch: 1 when above the horizon (DirectStats)
+  std::vector<uint8_t> above;     // per texel of a run: 1 when not wholly below the horizon
+  std::vector<uint8_t> live;      // per slot of a batch: 1 when above the horizon (DirectStats)
+  std::vector<TexelStats> stats;  // per texel: DirectWithVariance's
   // One batch: texel[m] owns ray slots [m·spp, (m+1)·spp), a slot per sample in stratum
   // order; a sample below the horizon keeps its slot as an inactive ray of value 0.
   RayBatch batch;
@@ -62,17 +74,6 @@ struct RowScratch {
   size_t active = 0;  // rays traced (slots above the horizon)
   std::vector<double> sum_value, sum_weight;
 };
-
-// Converged sampling's view of one texel's direct-term samples (Sampler::DirectStats), each
-// sample i alone an estimate of the texel's integral, x_i = f_i·A (f the integrand
-// w·cos·albedo/π, A the texel's area in face coordinates), split by what its ray saw.
-struct TexelStats {
-  double vis = 0, vis_var = 0, vis_spread = 0;  // mean of V_i·x_i (Transport's estimate), its variance
-  double occ = 0, occ_var = 0, occ_spread = 0;  // mean of (1 − V_i)·x_i, its variance
-  uint32_t active = 0, visible = 0;             // samples above the horizon, and of those unoccluded
-};
-// *_var: from neighbouring strata's differences (as DirectWithVariance); *_spread: the samples'
-// own spread over n (what independent samples would give: it sees every stratum's difference).
 
 // Converged sampling's first-bounce guide (Sampler::IndirectStats): indirect light comes in
 // only through the directions something blocks, so a path's first direction is drawn from
