@@ -534,6 +534,10 @@ std::vector<std::unique_ptr<Sampler>> LevelSamplers(const SampleOptions& o, cons
   return out;
 }
 
+// The arrays BlockSampler writes per block: the four every sample output has and the side
+// tables AddRowStatsMetadata adds.
+constexpr uint32_t BlockArrays(bool converged) { return converged ? 7 : 5; }
+
 // The side tables after the four every sample output has: the rays traced per row
 // (sample_rays), and a converged bake's highest level and estimated error per row around it;
 // with a converged bake's parameters.
@@ -659,9 +663,9 @@ struct BlockSampler {
         max_rel_error = std::max(max_rel_error, static_cast<double>(buf->error[i]));
       }
     }
-    // The arrays of RowStatsArrays' order: the four every output has, then sample_rays, or a
+    // In AddRowStatsMetadata's order: the four every output has, then sample_rays, or a
     // converged bake's sample_level, sample_rays, sample_error.
-    const uint32_t arrays = levels.empty() ? 5 : 7;
+    const uint32_t arrays = BlockArrays(!levels.empty());
     for (size_t k = 0; k < outs.size(); ++k) {
       const uint32_t term = out_term[k];
       const float* m = term == 0 ? mat : buf->extra.data() + (term - 1) * n * cols;
@@ -768,7 +772,7 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   if (plan) result.factor_errors = plan->errors;
   result.sparse_auto = chose_full;
   const uint64_t nchunks = (rows + block - 1) / block;
-  const uint32_t block_arrays = o.tolerance ? 7 : 5;  // the arrays BlockSampler writes per block
+  const uint32_t block_arrays = BlockArrays(o.tolerance.has_value());
   result.chunks_total = nchunks * block_arrays * outputs;
   for (const io::ContainerWriter& out : outs) result.chunks_already_committed += out.resume_info().committed_chunks;
 
