@@ -163,6 +163,42 @@ void BuildGuide(ConvergedScratch& cs) {
   for (size_t c = 0; c < cs.stats.size(); ++c) cs.guide.cdf[c] = total += std::max(0.0, cs.stats[c].occ);
 }
 
+// The pilot texels' own level-0 variances summed by the variance their level is chosen by,
+// in bins of 1/256 octave (a bin's texels take the level of its centre, within 0.3% of their
+// own v): what the prediction needs, in memory bounded by the range of v (a few hundred KB at
+// most) instead of 8 bytes for each of up to 2048 × 6R² texels (400 MB at R = 64).
+class VarianceHistogram {
+ public:
+  void Add(double v, double own) {
+    const int64_t b = static_cast<int64_t>(std::floor(std::clamp(std::log2(v), -kRange, kRange) * kPerOctave));
+    if (sums_.empty()) first_ = b;
+    if (b < first_) {
+      sums_.insert(sums_.begin(), static_cast<size_t>(first_ - b), 0.0);
+      first_ = b;
+    }
+    const size_t i = static_cast<size_t>(b - first_);
+    if (i >= sums_.size()) sums_.resize(i + 1, 0.0);
+    sums_[i] += own;
+  }
+  bool empty() const { return sums_.empty(); }
+  // Σ over the bins of their own variance times weight(v at the bin's centre).
+  template <typename Weight>
+  double Sum(Weight&& weight) const {
+    double total = 0;
+    for (size_t i = 0; i < sums_.size(); ++i) {
+      if (sums_[i] != 0)
+        total +=
+            sums_[i] * weight(std::exp2((static_cast<double>(first_ + static_cast<int64_t>(i)) + 0.5) / kPerOctave));
+    }
+    return total;
+  }
+
+ private:
+  static constexpr double kPerOctave = 256, kRange = 1100;  // |log2 v| of a double's range
+  int64_t first_ = 0;
+  std::vector<double> sums_;
+};
+
 }  // namespace
 
 uint64_t LevelSeed(uint64_t seed, uint32_t k) {
@@ -179,9 +215,9 @@ Pilot PilotRows(const Sampler& s, uint64_t rows, uint32_t levels, double toleran
   ConvergedScratch cs;
   Size(s, cs);
   const uint64_t cols = cs.est.size();
-  // Every pilot texel's variance its level is chosen by, and its level-0 estimate's own
-  // (what the prediction counts: the first is a neighbourhood's largest, an upper bound).
-  std::vector<std::pair<float, float>> v0;
+  // Every pilot texel's level-0 estimate's own variance (what the prediction counts) by the
+  // variance its level is chosen by (a neighbourhood's largest, an upper bound).
+  VarianceHistogram v0;
   std::vector<std::pair<double, double>> indirect;  // with bounces, every pilot row's indirect variance and rays
   double norm2 = 0;
   for (uint64_t row = stride / 2; row < rows; row += stride) {
@@ -200,7 +236,7 @@ Pilot PilotRows(const Sampler& s, uint64_t rows, uint32_t levels, double toleran
     }
     for (size_t c = 0; c < cols; ++c) norm2 += (cs.est[c] + cs.ind[c]) * (cs.est[c] + cs.ind[c]);
     for (size_t c = 0; c < cols; ++c) {
-      if (cs.v[c] > 0) v0.emplace_back(static_cast<float>(cs.v[c]), static_cast<float>(cs.var[c]));
+      if (cs.v[c] > 0) v0.Add(cs.v[c], cs.var[c]);
     }
   }
   if (p.rows == 0 || !(norm2 > 0) || (v0.empty() && indirect.empty())) return p;
@@ -210,8 +246,7 @@ Pilot PilotRows(const Sampler& s, uint64_t rows, uint32_t levels, double toleran
   const double want = tolerance * tolerance * norm2;
   const uint32_t top = levels - 1;
   auto predicted = [&](double lambda) {
-    double total = 0;
-    for (const auto& [v, own] : v0) total += own * std::pow(2.0, -kBeta * TargetLevel(v, lambda, s.spp(), top));
+    double total = v0.Sum([&](double v) { return std::pow(2.0, -kBeta * TargetLevel(v, lambda, s.spp(), top)); });
     for (const auto& [v, cost] : indirect) {
       total += v * std::pow(2.0, -1.0 * IndirectDoublings(v, cost, lambda, kIndirectDoublings));
     }
