@@ -23,6 +23,7 @@
 
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "format/io/manifest.h"
 #include "format/progress.h"
@@ -70,7 +71,8 @@ int32_t QuantizeValue(double v, double m, double levels, bool dither, uint64_t s
 // `energy` (a lossless input, E = 0, takes E = 1e-10 · energy: RMS 1e-5 of the signal).
 double StepForErrorRatio(double ratio, double truncation_error, double energy, uint64_t kept);
 
-// Totals of a quantize output (used by the stage and by `inspect`).
-Result<QuantizeResult> SummarizeQuantized(const std::string& path);
+// Totals of a quantize output (used by the stage and by `inspect`); nonzeros_out leaves out
+// the chunks c with skip_nonzeros[c] (the stage counts those it writes as it writes them).
+Result<QuantizeResult> SummarizeQuantized(const std::string& path, const std::vector<bool>& skip_nonzeros = {});
 
 }  // namespace ltb::stages
