@@ -128,18 +128,6 @@ double QuantizationError(const std::vector<double>& x, double step, bool ordered
   return e;
 }
 
-// Whether the ordered sum times `weight` is at most `bound`, from the fast sum where that
-// decides it: both sums are within γ = n·2^−53 (a little more, for the margin's own
-// rounding) of the exact one relative, so a fast sum farther than 2γ from the bound gives the
-// ordered sum's answer; near it (the last steps of a bisection) the ordered sum is taken.
-bool QuantizationErrorAtMost(const std::vector<double>& x, double step, double weight, double bound) {
-  const double fast = QuantizationError(x, step, false);
-  const double margin = 4.0 * (static_cast<double>(x.size()) + 1.0) * 0x1p-53 * fast;
-  if ((fast + margin) * weight < bound) return true;
-  if ((fast - margin) * weight > bound) return false;
-  return QuantizationError(x, step, true) * weight <= bound;
-}
-
 // The largest step whose quantization error over the matrix (estimated on the sample) is
 // at most (ratio² − 1) times the truncation error. Reads every chunk, also in a shard, so
 // every shard finds the same step (it is in the metadata).
@@ -504,6 +492,18 @@ Result<uint64_t> InputNonzeros(const io::ContainerReader& in, const Metadata& ou
 }
 
 }  // namespace
+
+// From the fast sum where that decides it: both sums are within γ = n·2^−53 of the exact one
+// relative (the margin takes 4γ, for its own rounding), so a fast sum farther than that from
+// the bound gives the ordered sum's answer; near it (the last steps of a bisection) the
+// ordered sum is taken.
+bool QuantizationErrorAtMost(const std::vector<double>& x, double step, double weight, double bound) {
+  const double fast = QuantizationError(x, step, false);
+  const double margin = 4.0 * (static_cast<double>(x.size()) + 1.0) * 0x1p-53 * fast;
+  if ((fast + margin) * weight < bound) return true;
+  if ((fast - margin) * weight > bound) return false;
+  return QuantizationError(x, step, true) * weight <= bound;
+}
 
 Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progress& progress) {
   LTB_ASSIGN_OR_RETURN(const QuantizeOptions o, ResolveOptions(options));

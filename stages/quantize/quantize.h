@@ -67,6 +67,10 @@ Result<QuantizeResult> RunQuantize(const QuantizeOptions& options, const Progres
 int32_t QuantizeValue(double v, double m, double levels, bool dither, uint64_t seed, uint64_t column,
                       uint32_t position);
 
+// Whether Σ (round(v / step) · step − v)² over x, added in x's order, times `weight` is at
+// most `bound` (the step search's decision; exposed for tests).
+bool QuantizationErrorAtMost(const std::vector<double>& x, double step, double weight, double bound);
+
 // The step of --error-ratio R for N kept coefficients with truncation error E and energy
 // `energy` (a lossless input, E = 0, takes E = 1e-10 · energy: RMS 1e-5 of the signal).
 double StepForErrorRatio(double ratio, double truncation_error, double energy, uint64_t kept);

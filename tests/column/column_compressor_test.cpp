@@ -395,5 +395,33 @@ TEST(Quantize, DitherIsUnbiased) {
   EXPECT_NEAR(sum / n, v, 5.0 / q / std::sqrt(n));
 }
 
+TEST(Quantize, StepDecisionEqualsTheOrderedScalarSum) {
+  // The step search decides from a vectorised sum except near the bound; its answer must be
+  // the plain loop's (std::round, added in order) for every bound, also one equal to that
+  // loop's own result and its neighbouring doubles, with exact halves, negatives and ties.
+  std::mt19937_64 rng(11);
+  std::normal_distribution<double> normal;
+  for (const size_t n : {size_t{1}, size_t{7}, size_t{8}, size_t{9}, size_t{1000}, size_t{100003}}) {
+    std::vector<double> x(n);
+    for (size_t i = 0; i < n; ++i) x[i] = normal(rng) * std::exp2(static_cast<int>(rng() % 20) - 10);
+    for (size_t i = 0; i < n; i += 5) x[i] = (static_cast<double>(rng() % 40) - 20.0 + 0.5) * 0.25;  // halves of 0.25
+    for (const double step : {0.25, 0.1, 1.0 / 3.0, 3.0}) {
+      double ordered = 0;
+      for (double v : x) {
+        const double d = std::round(v / step) * step - v;
+        ordered += d * d;
+      }
+      for (const double weight : {1.0, 2.5}) {
+        const double e = ordered * weight;
+        for (const double bound : {e, std::nextafter(e, 0.0), std::nextafter(e, INFINITY), e * (1 + 1e-12),
+                                   e * (1 - 1e-12), e * 1.01, e * 0.99, 0.0}) {
+          EXPECT_EQ(QuantizationErrorAtMost(x, step, weight, bound), e <= bound)
+              << "n " << n << " step " << step << " weight " << weight << " bound " << bound << " sum " << e;
+        }
+      }
+    }
+  }
+}
+
 }  // namespace
 }  // namespace ltb::stages
