@@ -43,9 +43,10 @@ demo: configure samples
 	cmake --build $(BUILD) -j $(JOBS) --target ltbake
 	@bash scripts/demo.sh $(BUILD)
 
-# ltbake, its stage executables (ltbake-<stage>), the Python module, the bash completion and
-# a man page per command under PREFIX: PREFIX/bin, PREFIX/lib/python3.X/dist-packages,
-# PREFIX/share/bash-completion and PREFIX/share/man/man1 (README).
+# ltbake, its stage executables (ltbake-<stage>), the Python module, the bash and zsh
+# completions and a man page per command under PREFIX: PREFIX/bin,
+# PREFIX/lib/python3.X/dist-packages, PREFIX/share/bash-completion, PREFIX/share/zsh/site-functions
+# and PREFIX/share/man/man1 (README).
 PREFIX      ?= /usr/local
 install: configure
 	cmake --build $(BUILD) -j $(JOBS) --target ltbake ltb_python
@@ -54,7 +55,9 @@ install: configure
 	 echo "installed ltbake and its stage executables in $(PREFIX)/bin, the Python module in $$py"; \
 	 case ":$$PATH:" in *":$(PREFIX)/bin:"*) ;; *) echo "  put them on PATH:  export PATH=\"$(PREFIX)/bin:\$$PATH\"";; esac; \
 	 case "$$py" in /usr/lib/python3/dist-packages|/usr/local/lib/python3*) ;; \
-	   *) echo "  Python (Debian's /usr/bin/python3, which has NumPy): PYTHONPATH=\"$$py\" /usr/bin/python3";; esac
+	   *) echo "  Python (Debian's /usr/bin/python3, which has NumPy): PYTHONPATH=\"$$py\" /usr/bin/python3";; esac; \
+	 case "$(PREFIX)" in /usr|/usr/local) ;; \
+	   *) echo "  zsh completion: fpath=(\"$(PREFIX)/share/zsh/site-functions\" \$$fpath) before compinit in ~/.zshrc";; esac
 
 # The whole suite (tests/README.md): every test in the release tree, then the sanitizer
 # tree's unit tests, smoke run and hostile-input suites. TEST_SCALE scales the repetition

@@ -32,6 +32,7 @@ PACKAGES=(
   nodejs                           # converting the sample meshes (npm is checked below)
   ffmpeg                           # relight --sequence -o relit.mp4 (docs/SEQUENCE.md)
   help2man                         # a man page per command at install, from its --help (scripts/man_pages.sh)
+  zsh                              # the zsh completion's test (tests/cli/zsh_completion.zsh drives a real zsh)
   slurm-wlm munge slurm-client     # cluster test: a single-node Slurm on localhost (tests/cluster, docs/cluster.md)
 )
 

@@ -2,7 +2,7 @@
 # `cmake --install` (what `make install PREFIX=...` runs) into a fresh prefix: ltbake, a link
 # ltbake-<stage> for each stage executable the build tree has (the build's links are checked
 # against the command list by tests/pipeline/stage_commands_test.cpp), no stale ltbake-* link
-# left from an earlier install, each link running its stage, the bash completion, and
+# left from an earlier install, each link running its stage, the bash and zsh completions,
 # the man pages, and `import ltbake` from the installed package.
 #   install_test.sh BUILD_DIR
 set -euo pipefail
@@ -46,6 +46,21 @@ got=$(complete_words ltbake-quantize --error | tr '\n' ' ')
 [ "$got" = "--error-ratio " ] || fail "ltbake-quantize --error<TAB> offers '$got'"
 PATH="$bin:$PATH" bash -c 'source "$0"; complete -p ltbake-sample' "$comp" > /dev/null ||
   fail "no completion registered for ltbake-sample"
+
+# Zsh completion, from the installed file, in a real interactive zsh (zsh/zpty, compinit):
+# a command, a stage's flag for ltbake and for ltbake-<stage>, an ambiguous flag listed.
+zfn=$tmp/prefix/share/zsh/site-functions
+[ -f "$zfn/_ltbake" ] || fail "no zsh completion at $zfn/_ltbake"
+command -v zsh > /dev/null || fail "zsh is not installed (scripts/setup.sh installs it)"
+mkdir "$tmp/zsh"
+zsh -f "$(dirname "$0")/zsh_completion.zsh" "$zfn" "$bin" "$tmp/zsh" "ltbake qua" "ltbake-quantize --error" \
+  "ltbake sample --sp" "ltbake --ver" || fail "the zsh completion test did not run"
+for want in "1:ltbake quantize " "2:ltbake-quantize --error-ratio " "3:ltbake sample --sp" "4:ltbake --version "; do
+  got=$(cat "$tmp/zsh/${want%%:*}.buffer")
+  [ "$got" = "${want#*:}" ] || fail "zsh: TAB gave '$got', not '${want#*:}'"
+done
+grep -q -- "--sparse" "$tmp/zsh/3.screen" && grep -q -- "--spp" "$tmp/zsh/3.screen" ||
+  fail "zsh: ltbake sample --sp<TAB> did not list --sparse and --spp: $(cat -v "$tmp/zsh/3.screen")"
 
 # A man page for ltbake and every command (stages and the rest), rendered by man: its NAME
 # line names the command and its options are the command's own.
