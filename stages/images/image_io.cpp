@@ -3,6 +3,7 @@
 #include <OpenEXR/ImfChannelList.h>
 #include <OpenEXR/ImfFrameBuffer.h>
 #include <OpenEXR/ImfHeader.h>
+#include <OpenEXR/ImfIO.h>
 #include <OpenEXR/ImfOutputFile.h>
 #include <stb/stb_image_write.h>
 
@@ -22,25 +23,52 @@ namespace ltb::stages {
 
 namespace {
 
+// The relit image's EXR: 32-bit float RGB, ZIP compression; into a file or a stream.
+Imf::Header ExrHeader(uint64_t w, uint64_t h) {
+  Imf::Header header(static_cast<int>(w), static_cast<int>(h));
+  header.compression() = Imf::ZIP_COMPRESSION;
+  for (const char* c : {"R", "G", "B"}) header.channels().insert(c, Imf::Channel(Imf::FLOAT));
+  return header;
+}
+
+void WriteExrPixels(Imf::OutputFile& file, const float* rgb, uint64_t w, uint64_t h) {
+  Imf::FrameBuffer fb;
+  const size_t xs = 3 * sizeof(float), ys = w * xs;
+  char* base = reinterpret_cast<char*>(const_cast<float*>(rgb));
+  fb.insert("R", Imf::Slice(Imf::FLOAT, base, xs, ys));
+  fb.insert("G", Imf::Slice(Imf::FLOAT, base + 4, xs, ys));
+  fb.insert("B", Imf::Slice(Imf::FLOAT, base + 8, xs, ys));
+  file.setFrameBuffer(fb);
+  file.writePixels(static_cast<int>(h));
+}
+
 Status WriteExr(const std::string& tmp, const float* rgb, uint64_t w, uint64_t h) {
   try {
-    Imf::Header header(static_cast<int>(w), static_cast<int>(h));
-    header.compression() = Imf::ZIP_COMPRESSION;
-    for (const char* c : {"R", "G", "B"}) header.channels().insert(c, Imf::Channel(Imf::FLOAT));
-    Imf::OutputFile file(tmp.c_str(), header);
-    Imf::FrameBuffer fb;
-    const size_t xs = 3 * sizeof(float), ys = w * xs;
-    char* base = reinterpret_cast<char*>(const_cast<float*>(rgb));
-    fb.insert("R", Imf::Slice(Imf::FLOAT, base, xs, ys));
-    fb.insert("G", Imf::Slice(Imf::FLOAT, base + 4, xs, ys));
-    fb.insert("B", Imf::Slice(Imf::FLOAT, base + 8, xs, ys));
-    file.setFrameBuffer(fb);
-    file.writePixels(static_cast<int>(h));
+    Imf::OutputFile file(tmp.c_str(), ExrHeader(w, h));
+    WriteExrPixels(file, rgb, w, h);
   } catch (const std::exception& e) {
     return InvalidArgument(tmp + ": OpenEXR: " + e.what());
   }
   return Status::Ok();
 }
+
+// An OpenEXR output stream into a string (the writer seeks back to fill in its offset table).
+class StringOStream : public Imf::OStream {
+ public:
+  explicit StringOStream(std::string* out) : Imf::OStream("memory"), out_(out) {}
+  void write(const char c[], int n) override {
+    const size_t end = pos_ + static_cast<size_t>(n);
+    if (end > out_->size()) out_->resize(end);
+    std::copy(c, c + n, out_->begin() + static_cast<std::ptrdiff_t>(pos_));
+    pos_ = end;
+  }
+  uint64_t tellp() override { return pos_; }
+  void seekp(uint64_t pos) override { pos_ = pos; }
+
+ private:
+  std::string* out_;
+  size_t pos_ = 0;
+};
 
 double SrgbEncode(double v) {
   v = std::clamp(v, 0.0, 1.0);
@@ -78,6 +106,18 @@ std::vector<uint8_t> ToSrgb8(const float* rgb, uint64_t n, double exposure) {
   std::vector<uint8_t> px(n * 3);
   for (uint64_t i = 0; i < n * 3; ++i) px[i] = static_cast<uint8_t>(std::lround(255.0 * SrgbEncode(exposure * rgb[i])));
   return px;
+}
+
+Result<std::string> EncodeExr(const float* rgb, uint64_t w, uint64_t h) {
+  std::string out;
+  try {
+    StringOStream stream(&out);
+    Imf::OutputFile file(stream, ExrHeader(w, h));
+    WriteExrPixels(file, rgb, w, h);
+  } catch (const std::exception& e) {
+    return InvalidArgument(std::string("encoding an EXR image: OpenEXR: ") + e.what());
+  }
+  return out;
 }
 
 std::string EncodePng(const uint8_t* srgb, uint64_t w, uint64_t h) {

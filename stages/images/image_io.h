@@ -26,6 +26,9 @@ double AutoExposure(const float* rgb, uint64_t rows);
 std::vector<uint8_t> ToSrgb8(const float* rgb, uint64_t rows, double exposure);
 // A PNG file's bytes, in memory, from width × height × 3 sRGB bytes.
 std::string EncodePng(const uint8_t* srgb, uint64_t width, uint64_t height);
+// An EXR file's bytes, in memory, from width × height × 3 linear floats: the file WriteImage
+// writes for an .exr path, byte for byte.
+Result<std::string> EncodeExr(const float* rgb, uint64_t width, uint64_t height);
 
 // `rgb` holds rows × 3 floats; width × height must equal rows for .exr and .png.
 Status WriteImage(const std::string& path, const float* rgb, uint64_t rows, uint64_t width, uint64_t height,

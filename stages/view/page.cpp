@@ -33,7 +33,7 @@ a{color:#8cf}
 <option value="matrix">the matrix (A)</option><option value="reference">the reference (B)</option>
 <option value="difference">|A − B|</option></select> <small id="showhint"></small></div>
 <div class="row"><label>rotation</label><span id="rotval">0°</span></div>
-<div class="row"><a id="save" download="ltbake-frame.png" href="#">save this frame (PNG)</a></div>
+<div class="row"><a id="save" download="ltbake-frame.png" href="#">save this frame (PNG)</a> · <a id="saveexr" download="ltbake-frame.exr" href="#">linear (EXR)</a></div>
 <div id="figures" class="row"><span id="ms">– ms</span><span id="used">– terms</span><span id="err"></span><span id="count">0 frames</span></div>
 <div class="row"><small id="bands"></small></div>
 <img id="env" alt="environment (lat-long), the frame's terms in red"><div><small>the frame's terms in red, finer
@@ -84,7 +84,10 @@ async function frame() {
   await new Promise((ok, bad) => { img.onload = ok; img.onerror = bad; img.src = URL.createObjectURL(blob); });
   if (old.startsWith("blob:")) URL.revokeObjectURL(old);
   $("save").href = img.src;  // the frame as shown, named by what it is
-  $("save").download = "ltbake-" + stats.map_name.replace(/\.[^.]*$/, "") + "-" + p.show + "-" + p.method + "-" + p.terms + "-rot" + ltb.rotate.toFixed(1) + ".png";
+  const name = "ltbake-" + stats.map_name.replace(/\.[^.]*$/, "") + "-" + p.show + "-" + p.method + "-" + p.terms + "-rot" + ltb.rotate.toFixed(1);
+  $("save").download = name + ".png";
+  $("saveexr").href = "/frame.exr?frame=" + stats.frame;  // the same frame, linear (the server keeps the last one)
+  $("saveexr").download = name + ".exr";
   if (ltb.base === 0) ltb.base = stats.exposure;
   ltb.frames += 1; ltb.last = p; ltb.stats = stats;
   $("ms").textContent = stats.ms.toFixed(2) + " ms";

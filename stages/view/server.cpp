@@ -1,6 +1,7 @@
 #include "stages/view/server.h"
 
 #include <mutex>
+#include <optional>
 
 #include "format/json_text.h"
 #include "stages/view/http_server.h"
@@ -38,6 +39,22 @@ Status Serve(const ViewOptions& o, const std::function<void(const std::string& u
       res.headers.push_back({"X-Ltb-Stats", JsonText(session->stats())});
       res.content_type = "image/png";
       res.body = std::move(*png);
+    } else if (req.path == "/frame.exr") {  // the last frame, linear
+      std::optional<uint64_t> frame;
+      for (const auto& [key, value] : req.params) {
+        if (key != "frame" || value.empty() || value.size() > 18 ||
+            value.find_first_not_of("0123456789") != std::string::npos) {
+          return fail(400, key + "=" + value.substr(0, 40) +
+                               ": /frame.exr takes only frame=N (the number of the frame to save; optional)");
+        }
+        frame = std::stoull(value);
+      }
+      std::lock_guard<std::mutex> lock(mu);
+      auto exr = session->FrameExr(frame);
+      if (!exr.ok())
+        return fail(exr.status().code() == StatusCode::kFailedPrecondition ? 409 : 500, exr.status().message());
+      res.content_type = "image/x-exr";
+      res.body = std::move(*exr);
     } else if (req.path == "/stats") {
       std::lock_guard<std::mutex> lock(mu);
       res.content_type = "application/json";

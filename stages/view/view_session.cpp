@@ -193,6 +193,7 @@ Result<std::string> ViewSession::Render(const FrameRequest& q) {
   last_ = q;
   if (!reference_) {
     std::vector<uint8_t> px = ToSrgb8(out.data(), m_.rows(), exposure);
+    shown_ = std::move(out);
     return EncodePng(px.data(), m_.width(), m_.height());
   }
   std::vector<float> full = cube_, exact;
@@ -212,7 +213,17 @@ Result<std::string> ViewSession::Render(const FrameRequest& q) {
                                                                        : out;
   std::vector<uint8_t> px =
       ToSrgb8(shown.data(), m_.rows(), q.show == FrameShow::kDifference ? diff_exposure : exposure);
+  shown_ = shown;
   return EncodePng(px.data(), m_.width(), m_.height());
+}
+
+Result<std::string> ViewSession::FrameExr(std::optional<uint64_t> frame) const {
+  if (frame_ == 0) return FailedPrecondition("no frame yet: /frame.exr saves the last frame /frame.png rendered");
+  if (frame && *frame != frame_ - 1) {
+    return FailedPrecondition("frame=" + std::to_string(*frame) + ": the last frame is " + std::to_string(frame_ - 1) +
+                              " (only the last one is kept)");
+  }
+  return EncodeExr(shown_.data(), m_.width(), m_.height());
 }
 
 std::vector<std::string> ViewSession::map_names() const {

@@ -67,6 +67,11 @@ class ViewSession {
   // image is shown at: the frame's given exposure times 2^4, else, when the difference is
   // shown, its own automatic one).
   const nlohmann::json& stats() const { return stats_; }
+  // The last frame as shown (the matrix's image, the reference's or the difference), linear,
+  // as an EXR file's bytes (what `relight -o X.exr` writes); `frame`, when given, must be
+  // its number (stats' "frame"), so a page saves the frame it shows. FailedPrecondition
+  // before the first frame or for another frame.
+  Result<std::string> FrameExr(std::optional<uint64_t> frame) const;
   // A lat-long strip (width × width/2) of the last frame's lighting, the texels its terms
   // touched tinted red.
   std::string EnvironmentPng(uint64_t width) const;
@@ -81,6 +86,7 @@ class ViewSession {
   FrameRequest defaults_, last_;
   std::unique_ptr<IncrementalRelighter> relighter_;
   std::vector<float> cube_;
+  std::vector<float> shown_;                   // the last frame's image as shown, linear (rows × 3)
   mutable std::vector<uint64_t> strip_texel_;  // the cube texel of each strip pixel (made once)
   uint64_t frame_ = 0;
   nlohmann::json stats_ = nlohmann::json::object();

@@ -8,7 +8,9 @@
   a bad rotate/terms/method/exposure and an unknown parameter get 400 naming it, an
   unknown path 404, a 100 kB query a 4xx, and the server still answers /stats and /env.png;
   show=reference is `relight` of the reference with every term, show=difference NumPy's
-  |A − B| of the two relit images at 16× the exposure.
+  |A − B| of the two relit images at 16× the exposure; /frame.exr is the last frame, linear,
+  the bytes `relight -o X.exr` writes (409 before any frame and for another frame= than the
+  last, 400 for any other parameter).
 - The page in headless Chromium (chromium-headless-shell, driven through the DevTools
   protocol over --remote-debugging-pipe): the first frame arrives (automatic exposure
   becomes the base); the method, terms and exposure controls change the next frame's query;
@@ -16,8 +18,8 @@
   and new figures; the frame the page shows (read back through a canvas) equals `relight`
   of the same query within 1 level; after switching back to PBI the page keeps asking for
   frames on its own until the image has converged, then stops; choosing show = |A − B|
-  (the server runs with --reference rows.ltm) brings difference frames and a save link
-  holding the frame shown; no script errors; a
+  (the server runs with --reference rows.ltm) brings difference frames and save links
+  holding the frame shown (PNG) and naming it (EXR); no script errors; a
   screenshot of the page goes to $LTB_TEST_ARTIFACTS (default ./test-artifacts)/view_page.png.
   The slowest frame request the page made is printed (a note when over 2 s).
 - SIGINT stops the server: exit 130, "ltbake view: stopped", the port refuses connections.
@@ -486,6 +488,8 @@ def main():
             st, h, body = get(url)
             check(st == 200 and h.get("Content-Type", "").startswith("text/html") and b'id="frame"' in body,
                   f"GET /: {st} {h.get('Content-Type') if h else None} {body[:200]!r}")
+            st, h, body = get(base + "/frame.exr")
+            check(st == 409 and b"no frame yet" in body, f"GET /frame.exr before any frame: {st} {body[:200]!r}")
             st, h, body = get(base + "/frame.png?rotate=30&terms=20&method=nwa&exposure=0.5")
             check(st == 200 and h.get("Content-Type") == "image/png" and body[:8] == b"\x89PNG\r\n\x1a\n",
                   f"GET /frame.png (nwa): {st} {h.get('Content-Type') if h else None} {body[:200]!r}")
@@ -498,6 +502,20 @@ def main():
                 check(got.shape == (48, 64, 3), f"/frame.png is {got.shape[1]}x{got.shape[0]}, expected 64x48")
                 compare(got, relight_png(final, env, 30, 20, 0.5, P("http_ref.png")),
                         "/frame.png?rotate=30&terms=20&method=nwa&exposure=0.5 against relight")
+                # The same frame, linear: the EXR `relight -o X.exr` writes, byte for byte; only the
+                # last frame is kept, and a page names it (frame=N).
+                run("relight", final, "--env", env, "--clamp", "--rotate", 30, "--terms", 20, "-o", P("http_ref.exr"),
+                    *Q, timeout=120)
+                for query in ("", f"?frame={stats.get('frame')}"):
+                    st2, h2, exr = get(base + "/frame.exr" + query)
+                    check(st2 == 200 and h2.get("Content-Type") == "image/x-exr" and exr[:4] == b"\x76\x2f\x31\x01",
+                          f"GET /frame.exr{query}: {st2} {h2.get('Content-Type') if h2 else None} {exr[:64]!r}")
+                    if os.path.exists(P("http_ref.exr")):
+                        with open(P("http_ref.exr"), "rb") as f:
+                            check(exr == f.read(), f"/frame.exr{query} differs from relight -o .exr of the same frame")
+                for query, code in ((f"frame={stats.get('frame', 0) + 1}", 409), ("frame=x", 400), ("rotate=3", 400)):
+                    st2, _, msg = get(base + "/frame.exr?" + query)
+                    check(st2 == code, f"GET /frame.exr?{query}: {st2} {msg[:200]!r}, expected {code}")
             # The second --env map (map=1) is `relight --env` of that map; map=2 does not exist.
             st, h, body = get(base + "/frame.png?map=1&rotate=30&terms=20&method=nwa&exposure=0.5")
             stats = json.loads(h.get("X-Ltb-Stats") or "{}") if st == 200 else {}
@@ -664,6 +682,13 @@ def main():
                 check(save["href"] == save["img"] and save["href"].startswith("blob:") and
                       save["name"].startswith("ltbake-sunset-difference-pbi-20-rot") and "the frame's exposure" in save["hint"],
                       f"the save link and hint of a difference frame: {save}")
+                # The linear save link names the frame shown, and the server answers it with an EXR.
+                exr = page.eval("(() => { const a = document.getElementById('saveexr'); return {href: a.href,"
+                                " name: a.download, frame: ltb.stats.frame}; })()")
+                check(exr["href"].endswith(f"/frame.exr?frame={exr['frame']}") and exr["name"] == save["name"][:-4] + ".exr",
+                      f"the EXR save link of the difference frame: {exr}")
+                st, h, body = get(exr["href"])
+                check(st == 200 and body[:4] == b"\x76\x2f\x31\x01", f"GET {exr['href']}: {st} {body[:100]!r}")
                 times = page.eval("performance.getEntriesByType('resource').filter((e) => e.name.includes('/frame.png'))"
                                   ".map((e) => e.duration)")
                 slowest = max(times) if times else 0
