@@ -86,7 +86,10 @@ const std::vector<CommandInfo>& CommandList() {
        "ltbake commit raw.ltm --nshards 4  # after ltbake sample ... --shard I --nshards 4"},
       {"merge", RegisterMerge, false, "ltbake merge raw.ltm -o raw-one-file.ltm"},
       {"material", RegisterMaterial, false, "ltbake material --brdf phong:64 --cube-res 32 -o phong64.ltm"},
-      {"view", RegisterView, false, "ltbake view final.ltm --env sky.exr  # prints http://127.0.0.1:PORT/"},
+      {"view", RegisterView, false,
+       "ltbake view final.ltm --env sky.exr  # prints http://127.0.0.1:PORT/\n"
+       "ltbake view final.ltm --env a.exr --env b.hdr --reference rows.ltm --sequence fade:a.exr+b.hdr:50  # A/B, "
+       "time slider"},
   };
   return list;
 }

@@ -1,4 +1,5 @@
-// ltbake view MATRIX --env MAP [--env MAP2 ...] [--terms N] [--method pbi|bi|nwa] [--reference M] [--port P]
+// ltbake view MATRIX --env MAP [--env MAP2 ...] [--terms N] [--method pbi|bi|nwa] [--reference M]
+//             [--sequence SPEC] [--port P]
 // An interactive relighting page on 127.0.0.1 (docs/VIEW.md); the URL is the first line of
 // stdout. Ctrl-C stops it.
 #include <iostream>
@@ -36,6 +37,9 @@ class ViewCommand : public Command {
         ->default_val("auto")
         ->check(CLI::IsMember({"auto", "latlong", "hcross", "vcross", "faces", "angular"}));
     app->add_flag("--clamp", o_.clamp_env, "clamp negative, NaN and infinite radiance to valid values");
+    app->add_option("--sequence", sequence_,
+                    "a lighting sequence from each map (relight's grammar: rotate:DEG:FRAMES, hold:FRAMES, "
+                    "maps:A+B, fade:A+B:FRAMES; docs/SEQUENCE.md): the page's time slider scrubs and plays it");
     AddCommonFlags(app, &flags_);
   }
 
@@ -43,6 +47,11 @@ class ViewCommand : public Command {
     o_.terms = terms_text_ == "all" ? stages::RelightOptions::kAllTerms : std::stoull(terms_text_);
     o_.method = *stages::ParseSequenceMethod(method_);  // checked by IsMember
     o_.env_layout = *stages::ParseEnvLayout(layout_);   // checked by IsMember
+    if (!sequence_.empty()) {
+      auto seq = stages::ParseSequence(sequence_);
+      if (!seq.ok()) return ReportUsage(seq.status().WithContext("--sequence " + sequence_));
+      o_.sequence = std::move(*seq);
+    }
     StageFlags sf;
     if (int code = ResolveStageFlags(flags_, nullptr, &sf); code != kExitOk) return code;
     o_.mem_limit = sf.mem_limit;
@@ -64,7 +73,7 @@ class ViewCommand : public Command {
 
  private:
   stages::view::ViewOptions o_;
-  std::string terms_text_ = "100", method_ = "pbi", layout_ = "auto";
+  std::string terms_text_ = "100", method_ = "pbi", layout_ = "auto", sequence_;
   CommonFlags flags_;
 };
 

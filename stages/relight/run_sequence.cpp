@@ -117,14 +117,14 @@ Result<const Environment*> LightingSequence::Load(uint32_t map) {
   return cache_.back().second.get();
 }
 
-Status LightingSequence::Cubemap(uint64_t frame, std::vector<float>* out) {
+Status LightingSequence::Cubemap(uint64_t frame, std::vector<float>* out, double turn) {
   const Frame& f = frames_[frame];
   LTB_ASSIGN_OR_RETURN(const Environment* a, Load(f.a));
-  LTB_RETURN_IF_ERROR(a->Cubemap(f.rotation, out));
+  LTB_RETURN_IF_ERROR(a->Cubemap(f.rotation + turn, out));
   if (f.b == f.a || f.t == 0.0f) return Status::Ok();
   LTB_ASSIGN_OR_RETURN(const Environment* b, Load(f.b));
   std::vector<float> other;
-  LTB_RETURN_IF_ERROR(b->Cubemap(f.rotation, &other));
+  LTB_RETURN_IF_ERROR(b->Cubemap(f.rotation + turn, &other));
   for (size_t i = 0; i < out->size(); ++i) (*out)[i] = (1.0f - f.t) * (*out)[i] + f.t * other[i];
   return Status::Ok();
 }

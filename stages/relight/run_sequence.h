@@ -29,7 +29,8 @@ class LightingSequence {
   static Result<LightingSequence> Open(const std::vector<SequenceSegment>& segments, const std::string& first,
                                        double rotation, uint64_t cube_res, const EnvLoadOptions& options);
   uint64_t frames() const { return frames_.size(); }
-  Status Cubemap(uint64_t frame, std::vector<float>* out);
+  // Frame `frame`'s lighting, turned `turn` radians more about +Z (ltbake view's drag).
+  Status Cubemap(uint64_t frame, std::vector<float>* out, double turn = 0);
   double Rotation(uint64_t frame) const { return frames_[frame].rotation; }
   // The power of two k to relight every frame at (× 2^-k; LightingExponent of the largest
   // value of any of its maps): one k for the whole sequence, so the incremental images add up.

@@ -6,8 +6,10 @@
 
 namespace ltb::stages::view {
 
-std::string PageHtml(const std::string& defaults_json) {
-  static const std::string kPage = R"HTML(<!doctype html>
+namespace {
+
+// The page, its defaults (LTB_DEFAULTS) filled in by PageHtml.
+constexpr const char* kPage = R"HTML(<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>ltbake view</title>
 <style>
 body{font:14px system-ui,sans-serif;margin:16px;background:#1b1b1b;color:#ddd}
@@ -33,6 +35,8 @@ a{color:#8cf}
 <option value="matrix">the matrix (A)</option><option value="reference">the reference (B)</option>
 <option value="difference">|A − B|</option></select> <small id="showhint"></small></div>
 <div class="row"><label>rotation</label><span id="rotval">0°</span></div>
+<div class="row" id="timerow" hidden><label for="time">time</label><input id="time" type="range" min="0" max="0" value="0">
+<span id="timeval">frame 0</span> <button id="play" type="button">play</button></div>
 <div class="row"><a id="save" download="ltbake-frame.png" href="#">save this frame (PNG)</a> · <a id="saveexr" download="ltbake-frame.exr" href="#">linear (EXR)</a></div>
 <div id="figures" class="row"><span id="ms">– ms</span><span id="used">– terms</span><span id="err"></span><span id="count">0 frames</span></div>
 <div class="row"><small id="bands"></small></div>
@@ -56,8 +60,24 @@ function poke() { dirty = true; if (wake) { const w = wake; wake = null; w(); } 
 function params() {
   const stops = parseFloat($("exposure").value);
   const exposure = ltb.base > 0 ? ltb.base * Math.pow(2, stops) : 0;
-  return {map: $("map").value, rotate: ltb.rotate.toFixed(3), terms: $("terms").value, method: $("method").value, exposure: exposure,
+  const p = {map: $("map").value, rotate: ltb.rotate.toFixed(3), terms: $("terms").value, method: $("method").value, exposure: exposure,
           show: $("show").value};
+  if (defaults.sequence_frames > 0) p.t = $("time").value;  // the --sequence frame shown
+  return p;
+}
+// --sequence: the time slider scrubs it; play steps one frame per frame received (so the
+// incremental methods see the sequence as relight --sequence does), from the end back to 0.
+ltb.playing = false;
+if (defaults.sequence_frames > 0) {
+  $("timerow").hidden = false;
+  $("time").max = defaults.sequence_frames - 1;
+  const show = () => { $("timeval").textContent = "frame " + $("time").value + " of " + defaults.sequence_frames; };
+  show();
+  $("time").addEventListener("input", () => { show(); poke(); });
+  $("play").addEventListener("click", () => {
+    ltb.playing = !ltb.playing; $("play").textContent = ltb.playing ? "pause" : "play"; poke();
+  });
+  ltb.step = () => { $("time").value = (parseInt($("time").value) + 1) % defaults.sequence_frames; show(); };
 }
 let dragging = false, lastX = 0;
 $("frame").addEventListener("pointerdown", (e) => { dragging = true; lastX = e.clientX; $("frame").setPointerCapture(e.pointerId); e.preventDefault(); });
@@ -111,6 +131,7 @@ async function loop() {
       const s = await frame();
       // Keep converging while the lighting holds and terms are still being applied.
       if (s.method !== "nwa" && s.columns_touched > 0) dirty = true;
+      if (ltb.playing) { ltb.step(); dirty = true; }
     } catch (e) {
       ltb.error = String(e); $("err").textContent = ltb.error;
       await new Promise((ok) => setTimeout(ok, 500));
@@ -120,6 +141,10 @@ async function loop() {
 loop();
 </script></body></html>
 )HTML";
+
+}  // namespace
+
+std::string PageHtml(const std::string& defaults_json) {
   std::string page = kPage;
   const std::string marker = "LTB_DEFAULTS;";
   page.replace(page.find(marker), marker.size() - 1, defaults_json);

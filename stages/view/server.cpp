@@ -16,7 +16,8 @@ Status Serve(const ViewOptions& o, const std::function<void(const std::string& u
   const std::string page = PageHtml(JsonText(nlohmann::json{{"terms", TermsJson(d.terms)},
                                                             {"method", SequenceMethodName(d.method)},
                                                             {"reference", session->has_reference()},
-                                                            {"maps", session->map_names()}}));
+                                                            {"maps", session->map_names()},
+                                                            {"sequence_frames", session->sequence_frames()}}));
   auto fail = [](int code, const std::string& message) {
     HttpResponse r;
     r.status = code;
@@ -30,7 +31,7 @@ Status Serve(const ViewOptions& o, const std::function<void(const std::string& u
       res.content_type = "text/html; charset=utf-8";
       res.body = page;
     } else if (req.path == "/frame.png") {
-      auto q = ParseFrameRequest(req.params, session->defaults(), session->maps());
+      auto q = ParseFrameRequest(req.params, session->defaults(), session->maps(), session->sequence_frames());
       if (!q.ok()) return fail(400, q.status().message());
       std::lock_guard<std::mutex> lock(mu);
       auto png = session->Render(*q);

@@ -63,7 +63,7 @@ const char* FrameShowName(FrameShow s) {
 }
 
 Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>& params, const FrameRequest& d,
-                                       uint64_t maps) {
+                                       uint64_t maps, uint64_t sequence_frames) {
   FrameRequest r = d;
   for (const auto& [key, value] : params) {
     const std::string shown = value.size() > 40 ? value.substr(0, 40) + "..." : value;
@@ -105,9 +105,19 @@ Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>&
       } else {
         return InvalidArgument("show=" + shown + ": expected matrix, reference or difference");
       }
+    } else if (key == "t") {
+      if (sequence_frames == 0) {
+        return InvalidArgument("t=" + shown + ": there is no sequence (start ltbake view with --sequence SPEC)");
+      }
+      if (value.empty() || value.size() > 9 || value.find_first_not_of("0123456789") != std::string::npos ||
+          std::stoull(value) >= sequence_frames) {
+        return InvalidArgument("t=" + shown + ": expected a frame of the sequence, 0.." +
+                               std::to_string(sequence_frames - 1));
+      }
+      r.t = static_cast<int64_t>(std::stoull(value));
     } else {
       return InvalidArgument("unknown parameter \"" + (key.size() > 40 ? key.substr(0, 40) + "..." : key) +
-                             "\" (map, rotate, terms, method, exposure, show)");
+                             "\" (map, rotate, terms, method, exposure, show, t)");
     }
   }
   return r;
@@ -136,8 +146,15 @@ Result<std::unique_ptr<ViewSession>> ViewSession::Open(const ViewOptions& o) {
     s->env_paths_.push_back(path);
   }
   // A map near float32's largest value is relit at 2^-k (one k for the session, from the
-  // brightest map: the incremental image adds up across frames) and the image scaled back.
+  // brightest map, a sequence's maps too: the incremental image adds up across frames) and
+  // the image scaled back.
   s->exponent_ = LightingExponent(peak);
+  for (size_t k = 0; k < o.envs.size() && !o.sequence.empty(); ++k) {
+    LTB_ASSIGN_OR_RETURN(LightingSequence seq,
+                         LightingSequence::Open(o.sequence, o.envs[k], 0.0, s->m_.basis().cube_res(), eo));
+    s->exponent_ = std::max(s->exponent_, seq.exponent());
+    s->sequences_.push_back(std::move(seq));
+  }
   if (!o.reference.empty()) {
     LTB_ASSIGN_OR_RETURN(RelightMatrix r, RelightMatrix::Open(o.reference, o.mem_limit, o.jobs, Progress{}, nullptr));
     LTB_RETURN_IF_ERROR(CheckSameBake(r, s->m_));
@@ -160,7 +177,12 @@ Result<std::string> ViewSession::Render(const FrameRequest& q) {
   if (!relighter_ || q.method != last_.method || q.terms != last_.terms || q.map != last_.map) {
     relighter_ = std::make_unique<IncrementalRelighter>(m_, q.method, q.terms, Weighting::kArea);
   }
-  LTB_RETURN_IF_ERROR(envs_[q.map].Cubemap(q.rotate_deg * std::numbers::pi / 180.0, &cube_));
+  const double turn = q.rotate_deg * std::numbers::pi / 180.0;
+  if (q.t >= 0 && static_cast<uint64_t>(q.t) < sequence_frames()) {
+    LTB_RETURN_IF_ERROR(sequences_[q.map].Cubemap(static_cast<uint64_t>(q.t), &cube_, turn));
+  } else {
+    LTB_RETURN_IF_ERROR(envs_[q.map].Cubemap(turn, &cube_));
+  }
   const int exponent = exponent_;
   ScaleByPowerOfTwo(&cube_, -exponent);
   LTB_RETURN_IF_ERROR(relighter_->Frame(cube_));
@@ -190,6 +212,7 @@ Result<std::string> ViewSession::Render(const FrameRequest& q) {
             {"height", m_.height()},
             {"bands", std::move(bands)},
             {"show", FrameShowName(q.show)}};
+  if (q.t >= 0) stats_["t"] = q.t;
   last_ = q;
   if (!reference_) {
     std::vector<uint8_t> px = ToSrgb8(out.data(), m_.rows(), exposure);

@@ -29,6 +29,9 @@ struct ViewOptions {
   uint64_t mem_limit = 1ull << 30;
   int jobs = 2;
   int port = 0;  // 0: a free one
+  // --sequence: a lighting sequence (docs/SEQUENCE.md) from each map, which the page's time
+  // slider scrubs and plays (FrameRequest::t); empty: none.
+  std::vector<SequenceSegment> sequence;
 };
 
 // What a frame's PNG shows: the matrix's relit image, the reference's exact one under the
@@ -43,11 +46,13 @@ struct FrameRequest {
   SequenceMethod method = SequenceMethod::kPbi;
   double exposure = 0;                  // 0: automatic (the 99th percentile of luminance to 0.9)
   FrameShow show = FrameShow::kMatrix;  // reference and difference need --reference
+  int64_t t = -1;                       // a frame of the --sequence (rotate turns it further); −1: none
 };
-// From a query's parameters (map, rotate, terms, method, exposure, show; each optional,
-// defaults from `defaults`; map below `maps`); an InvalidArgument names the parameter and the value.
+// From a query's parameters (map, rotate, terms, method, exposure, show, t; each optional,
+// defaults from `defaults`; map below `maps`, t below `sequence_frames`); an InvalidArgument
+// names the parameter and the value.
 Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>& params, const FrameRequest& defaults,
-                                       uint64_t maps = 1);
+                                       uint64_t maps = 1, uint64_t sequence_frames = 0);
 
 class ViewSession {
  public:
@@ -58,6 +63,8 @@ class ViewSession {
   // The maps' file names, in --env order (the page's choice of map).
   std::vector<std::string> map_names() const;
   uint64_t maps() const { return envs_.size(); }
+  // Frames of the --sequence (0: none).
+  uint64_t sequence_frames() const { return sequences_.empty() ? 0 : sequences_.front().frames(); }
 
   // Relights one frame (the approximation carries over from the last frame when map, method
   // and terms are the same) and returns its PNG bytes; stats() describes it afterwards.
@@ -81,7 +88,8 @@ class ViewSession {
   RelightMatrix m_;
   std::vector<Environment> envs_;
   std::vector<std::string> env_paths_;
-  int exponent_ = 0;  // every map relit at 2^-exponent_ (LightingExponent of the brightest)
+  std::vector<LightingSequence> sequences_;  // --sequence from each map (empty without one)
+  int exponent_ = 0;                         // every map relit at 2^-exponent_ (LightingExponent of the brightest)
   std::optional<RelightMatrix> reference_;
   FrameRequest defaults_, last_;
   std::unique_ptr<IncrementalRelighter> relighter_;

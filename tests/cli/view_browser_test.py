@@ -10,7 +10,9 @@
   show=reference is `relight` of the reference with every term, show=difference NumPy's
   |A − B| of the two relit images at 16× the exposure; /frame.exr is the last frame, linear,
   the bytes `relight -o X.exr` writes (409 before any frame and for another frame= than the
-  last, 400 for any other parameter).
+  last, 400 for any other parameter); with --sequence, t=K is frame K of `relight --sequence`
+  (NWA) byte for byte, t=2&rotate=5 is relight --rotate 25, a t past the end a 400, and a
+  server without --sequence refuses t.
 - The page in headless Chromium (chromium-headless-shell, driven through the DevTools
   protocol over --remote-debugging-pipe): the first frame arrives (automatic exposure
   becomes the base); the method, terms and exposure controls change the next frame's query;
@@ -19,7 +21,8 @@
   of the same query within 1 level; after switching back to PBI the page keeps asking for
   frames on its own until the image has converged, then stops; choosing show = |A − B|
   (the server runs with --reference rows.ltm) brings difference frames and save links
-  holding the frame shown (PNG) and naming it (EXR); no script errors; a
+  holding the frame shown (PNG) and naming it (EXR); the time slider asks for that frame of
+  the sequence, play steps on, pause stops; no script errors; a
   screenshot of the page goes to $LTB_TEST_ARTIFACTS (default ./test-artifacts)/view_page.png.
   The slowest frame request the page made is printed (a note when over 2 s).
 - SIGINT stops the server: exit 130, "ltbake view: stopped", the port refuses connections.
@@ -461,8 +464,10 @@ def main():
 
             # 1. The URL, first line of stdout.
             env2 = os.path.join(envdir, "forest.exr")
+            # A sequence the time slider scrubs: 4 frames turning 10° each, a fade of 3 to forest, a hold.
+            seq = f"rotate:10:4,fade:{env}+{env2}:3,hold:1"
             server = Server(final, "--env", env, "--env", env2, "--clamp", "--port", 0, "--method", "pbi", "--terms", 100,
-                            "--reference", P("rows.ltm"))
+                            "--reference", P("rows.ltm"), "--sequence", seq)
             url = server.first_line()
             m = re.fullmatch(r"http://127\.0\.0\.1:(\d+)/", url)
             if not m:
@@ -516,6 +521,23 @@ def main():
                 for query, code in ((f"frame={stats.get('frame', 0) + 1}", 409), ("frame=x", 400), ("rotate=3", 400)):
                     st2, _, msg = get(base + "/frame.exr?" + query)
                     check(st2 == code, f"GET /frame.exr?{query}: {st2} {msg[:200]!r}, expected {code}")
+            # --sequence: t=K is frame K of `relight --sequence` (NWA: frames independent), byte for
+            # byte; rotate turns it further; t past the end is a 400.
+            run("relight", final, "--env", env, "--clamp", "--sequence", seq, "--method", "nwa", "--terms", 20,
+                "--exposure", 0.5, "-o", P("seq_%04d.png"), *Q, timeout=120)
+            for t in (2, 5):
+                st, h, body = get(base + f"/frame.png?t={t}&terms=20&method=nwa&exposure=0.5")
+                stats = json.loads(h.get("X-Ltb-Stats") or "{}") if st == 200 else {}
+                check(st == 200 and stats.get("t") == t, f"GET /frame.png?t={t}: {st} {stats}")
+                if st == 200 and os.path.exists(P(f"seq_{t:04d}.png")):
+                    with open(P(f"seq_{t:04d}.png"), "rb") as f:
+                        check(body == f.read(), f"/frame.png?t={t} differs from frame {t} of relight --sequence {seq}")
+            st, h, body = get(base + "/frame.png?t=2&rotate=5&terms=20&method=nwa&exposure=0.5")
+            if st == 200:
+                compare(png_pixels(body), relight_png(final, env, 25, 20, 0.5, P("http_t2.png")),
+                        "/frame.png?t=2&rotate=5 (the sequence's 20° and 5 more) against relight --rotate 25")
+            st, h, body = get(base + "/frame.png?t=8")
+            check(st == 400 and b"0..7" in body, f"GET /frame.png?t=8: {st} {body[:200]!r}, expected 400 naming 0..7")
             # The second --env map (map=1) is `relight --env` of that map; map=2 does not exist.
             st, h, body = get(base + "/frame.png?map=1&rotate=30&terms=20&method=nwa&exposure=0.5")
             stats = json.loads(h.get("X-Ltb-Stats") or "{}") if st == 200 else {}
@@ -682,6 +704,20 @@ def main():
                 check(save["href"] == save["img"] and save["href"].startswith("blob:") and
                       save["name"].startswith("ltbake-sunset-difference-pbi-20-rot") and "the frame's exposure" in save["hint"],
                       f"the save link and hint of a difference frame: {save}")
+                # The time slider: moving it asks for that frame of the sequence; play steps on
+                # by itself, pause stops it.
+                page.eval("(() => { const e = document.getElementById('time'); e.value = '5';"
+                          " e.dispatchEvent(new Event('input')); })()")
+                wait_idle(lambda ltb: ltb["stats"].get("t") == 5 and ltb["last"].get("t") == "5",
+                          "a frame of the sequence after moving the time slider to 5")
+                page.eval("document.getElementById('play').click()")
+                page.wait_state(lambda ltb: ltb["stats"].get("t") not in (None, 5),
+                                "the sequence playing on from frame 5")
+                page.eval("document.getElementById('play').click()")
+                check(page.eval("document.getElementById('play').textContent") == "play",
+                      "the play button did not turn back into play after pause")
+                wait_idle(lambda ltb: ltb["stats"]["columns_touched"] == 0,
+                          "the paused frame converged (no terms left to apply)")
                 # The linear save link names the frame shown, and the server answers it with an EXR.
                 exr = page.eval("(() => { const a = document.getElementById('saveexr'); return {href: a.href,"
                                 " name: a.download, frame: ltb.stats.frame}; })()")
@@ -726,7 +762,10 @@ def main():
                 st, h, body = get(purl.rstrip("/") + "/frame.png?show=reference")
                 check(st == 400 and b"--reference" in body, f"show=reference without --reference: {st} {body[:300]!r}")
                 st, h, body = get(purl)
-                check(st == 200 and b'"reference":false' in body, f"the page of a server without --reference: {st}")
+                check(st == 200 and b'"reference":false' in body and b'"sequence_frames":0' in body,
+                      f"the page of a server without --reference and --sequence: {st}")
+                st, h, body = get(purl.rstrip("/") + "/frame.png?t=0")
+                check(st == 400 and b"--sequence" in body, f"t=0 without --sequence: {st} {body[:300]!r}")
             finally:
                 plain.kill()
 
