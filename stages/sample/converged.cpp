@@ -165,8 +165,9 @@ void BuildGuide(ConvergedScratch& cs) {
 
 // The pilot texels' own level-0 variances summed by the variance their level is chosen by,
 // in bins of 1/256 octave (a bin's texels take the level of its centre, within 0.3% of their
-// own v): what the prediction needs, in memory bounded by the range of v (a few hundred KB at
-// most) instead of 8 bytes for each of up to 2048 × 6R² texels (400 MB at R = 64).
+// own v): what the prediction needs, in memory bounded by the range of v (4.5 MB if it spanned
+// every double; kilobytes in practice) instead of 8 bytes for each of up to 2048 × 6R² texels
+// (400 MB at R = 64).
 class VarianceHistogram {
  public:
   void Add(double v, double own) {

@@ -45,7 +45,7 @@ Status Serve(const ViewOptions& o, const std::function<void(const std::string& u
       for (const auto& [key, value] : req.params) {
         if (key != "frame" || value.empty() || value.size() > 18 ||
             value.find_first_not_of("0123456789") != std::string::npos) {
-          return fail(400, key + "=" + value.substr(0, 40) +
+          return fail(400, key.substr(0, 40) + "=" + value.substr(0, 40) +
                                ": /frame.exr takes only frame=N (the number of the frame to save; optional)");
         }
         frame = std::stoull(value);
