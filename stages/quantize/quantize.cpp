@@ -414,6 +414,7 @@ Status QuantizeChunk(const QuantizeJob& job, uint64_t c, bool quantize) {
   } clear{dense, sc.index};
   std::vector<double> scaled;
   size_t pos = 0;
+  uint64_t nonzeros = 0;
   for (uint64_t k = 0; k < e.cols; ++k) {
     const size_t begin = pos;
     while (pos < sc.index.size() && sc.index[pos] < (k + 1) * pixels) ++pos;
@@ -425,6 +426,7 @@ Status QuantizeChunk(const QuantizeJob& job, uint64_t c, bool quantize) {
       const uint32_t p = sc.index[i] - static_cast<uint32_t>(k * pixels);
       const int32_t q = QuantizeValue(scaled[i - begin], mx, levels, o.dither, o.seed, e.col0 + k, p);
       dense[sc.index[i]] = q;
+      nonzeros += q != 0 ? 1 : 0;
       const double err = static_cast<double>(q) * (mx / levels) - scaled[i - begin];
       column_error += err * err;
     }
@@ -432,7 +434,7 @@ Status QuantizeChunk(const QuantizeJob& job, uint64_t c, bool quantize) {
   }
   if (quantize && !job.out.Has(0, c)) {
     LTB_RETURN_IF_ERROR(job.out.Put(0, c, BytesOf(std::span<const int32_t>(dense)), job.matrix_encoding));
-    *job.nonzeros += static_cast<uint64_t>(std::count_if(dense.begin(), dense.end(), [](int32_t q) { return q != 0; }));
+    *job.nonzeros += nonzeros;
   }
   return Status::Ok();
 }

@@ -217,6 +217,7 @@ Result<std::string> ViewSession::Render(const FrameRequest& q) {
   if (!reference_) {
     std::vector<uint8_t> px = ToSrgb8(out.data(), m_.rows(), exposure);
     shown_ = std::move(out);
+    shown_frame_ = frame_ - 1;
     return EncodePng(px.data(), m_.width(), m_.height());
   }
   std::vector<float> full = cube_, exact;
@@ -237,6 +238,7 @@ Result<std::string> ViewSession::Render(const FrameRequest& q) {
   std::vector<uint8_t> px =
       ToSrgb8(shown.data(), m_.rows(), q.show == FrameShow::kDifference ? diff_exposure : exposure);
   shown_ = shown;
+  shown_frame_ = frame_ - 1;
   return EncodePng(px.data(), m_.width(), m_.height());
 }
 
@@ -245,6 +247,9 @@ Result<std::string> ViewSession::FrameExr(std::optional<uint64_t> frame) const {
   if (frame && *frame != frame_ - 1) {
     return FailedPrecondition("frame=" + std::to_string(*frame) + ": the last frame is " + std::to_string(frame_ - 1) +
                               " (only the last one is kept)");
+  }
+  if (shown_frame_ != frame_ - 1) {
+    return FailedPrecondition("frame " + std::to_string(frame_ - 1) + " failed; there is no frame to save");
   }
   return EncodeExr(shown_.data(), m_.width(), m_.height());
 }

@@ -95,6 +95,7 @@ class ViewSession {
   std::unique_ptr<IncrementalRelighter> relighter_;
   std::vector<float> cube_;
   std::vector<float> shown_;                   // the last frame's image as shown, linear (rows × 3)
+  uint64_t shown_frame_ = ~uint64_t{0};        // the frame shown_ is (a frame that failed leaves it behind)
   mutable std::vector<uint64_t> strip_texel_;  // the cube texel of each strip pixel (made once)
   uint64_t frame_ = 0;
   nlohmann::json stats_ = nlohmann::json::object();
