@@ -183,6 +183,8 @@ Result<json> SummarizeConverged(const io::ContainerReader& r) {
   std::vector<float> errors;
   const ArraySpec& ls = meta.arrays[static_cast<uint32_t>(level_a)];
   for (uint64_t c = 0; c < ls.ChunkCount(); ++c) {
+    if (r.Find(static_cast<uint32_t>(level_a), c) == nullptr)
+      continue;  // a shard's file: its own chunks, as SumSampleRays
     LTB_ASSIGN_OR_RETURN(io::Chunk l, r.ReadChunk(static_cast<uint32_t>(level_a), c));
     LTB_ASSIGN_OR_RETURN(io::Chunk y, r.ReadChunk(static_cast<uint32_t>(rays_a), c));
     LTB_ASSIGN_OR_RETURN(io::Chunk e, r.ReadChunk(static_cast<uint32_t>(err_a), c));

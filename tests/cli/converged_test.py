@@ -178,6 +178,17 @@ with tempfile.TemporaryDirectory() as d:
     traced = int(re.search(r"rays traced: (\d+)", again_text).group(1))
     check(j["rays"] == traced and j["converged"]["tolerance"] == TOL and j["rows"] == 24 * 24,
           f"sample --json: {j} (the text run traced {traced} rays)")
+    # Two shards decide as the whole bake does: inspect reads each shard file's own chunks, and
+    # their rays add up to the whole bake's.
+    shard_rays = 0
+    for k in range(2):
+        run("sample", os.path.join(d, "scene.toml"), "-o", os.path.join(d, "sh.ltm"), "--tolerance", f"{TOL * 100:g}%",
+            "--chunk-rows", "8", "--shard", k, "--nshards", 2)
+        p = subprocess.run([LTBAKE, "inspect", "--json", os.path.join(d, "sh.shards", f"{k:05d}-of-00002.ltm")],
+                           capture_output=True, text=True)
+        check(p.returncode == 0, f"inspect of converged shard {k}: {p.stderr}")
+        shard_rays += json.loads(p.stdout).get("converged", {}).get("rays", 0) if p.returncode == 0 else 0
+    check(shard_rays == int(rays.sum()), f"the two shards' rays {shard_rays}, the whole bake's {int(rays.sum())}")
     killed = os.path.join(d, "killed.ltm")
     cmd = [LTBAKE, "sample", os.path.join(d, "scene.toml"), "-o", killed, "--tolerance", f"{TOL * 100:g}%",
            "--chunk-rows", "8", "--jobs", "1"]
