@@ -293,13 +293,16 @@ void Sampler::GenerateRaysT(uint64_t row, const RowPoint& rp, const PhongLobe& b
     uint32_t* __restrict texel = sc.texel.data();
     const double* __restrict tu0 = u0_.data();
     const double* __restrict tv0 = v0_.data();
+    // Texel c's slots at n: its corner and stream origin (StreamStart(row, c)).
+    auto slots_of = [&](uint64_t c) {
+      Splat<kSpp>(lu + n, tu0[c], spp);
+      Splat<kSpp>(lv + n, tv0[c], spp);
+      Splat<kSpp>(ls + n, static_cast<uint64_t>(stream_row ^ (c * 0xC2B2AE3D27D4EB4Full)), spp);
+      texel[m] = static_cast<uint32_t>(c);
+    };
     if (select == nullptr) {  // most texels kept: branch-free, each texel's slots written, kept or not
       for (uint64_t c = f0; c < f1; ++c) {
-        const uint64_t s0 = stream_row ^ (c * 0xC2B2AE3D27D4EB4Full);  // StreamStart(row, c)
-        Splat<kSpp>(lu + n, tu0[c], spp);
-        Splat<kSpp>(lv + n, tv0[c], spp);
-        Splat<kSpp>(ls + n, s0, spp);
-        texel[m] = static_cast<uint32_t>(c);
+        slots_of(c);
         const uint64_t a = up[c - f0];
         m += a;
         n += a * spp;
@@ -307,11 +310,8 @@ void Sampler::GenerateRaysT(uint64_t row, const RowPoint& rp, const PhongLobe& b
     } else {  // a converged level's few selected texels: only theirs (the same slots, far fewer writes)
       for (uint64_t c = f0; c < f1; ++c) {
         if (up[c - f0] == 0) continue;
-        const uint64_t s0 = stream_row ^ (c * 0xC2B2AE3D27D4EB4Full);  // StreamStart(row, c)
-        Splat<kSpp>(lu + n, tu0[c], spp);
-        Splat<kSpp>(lv + n, tv0[c], spp);
-        Splat<kSpp>(ls + n, s0, spp);
-        texel[m++] = static_cast<uint32_t>(c);
+        slots_of(c);
+        ++m;
         n += spp;
       }
     }
