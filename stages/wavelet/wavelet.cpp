@@ -183,22 +183,113 @@ void Scale(T* x, size_t n, size_t lanes, size_t parity, T c) {
   }
 }
 
-// Lifting runs in natural (interleaved) order in the scratch buffer; the data holds the
-// Mallat order (even samples = low band first, odd = high band after).
+// LeGall 5/3 in one pass per direction. The two lifting steps
+//   predict  d_i = x_{2i+1} + (-1/2)(x_{2i} + x_{2i+2}),
+//   update   s_i = x_{2i}   + (1/4)(d_{i-1} + d_i)
+// (whole-sample symmetric extension, so x_n = x_{n-2}, d_{-1} = d_0 and, for odd n, the last
+// s takes d_{low-2} twice) are computed sample by sample from the natural-order signal: the
+// low band is written in place (s_i over sample i, which no later sample needs) and the high
+// band through the scratch buffer. Each value is the same expression of the same operands
+// as the two separate lifting passes (no contraction: -ffp-contract=off), so results are
+// identical bit for bit; the gain is the memory passes (one read and 1.5 writes instead
+// of a pack, two lifting passes and an unpack). L: lanes at compile time (0 = lanes_rt).
+template <typename T, size_t L>
+void LeGallAnalysisImpl(T* data, size_t n, size_t stride, size_t lanes_rt, T* scratch) {
+  const size_t lanes = L ? L : lanes_rt;
+  const size_t low = LowCount(n), high = n - low;
+  const T cp = T(-0.5), cu = T(0.25);
+  for (size_t i = 0; i < low; ++i) {
+    if (i < high) {
+      const T* __restrict e = data + 2 * i * stride;
+      const T* __restrict o = e + stride;
+      const T* __restrict f = 2 * i + 2 < n ? o + stride : e;
+      T* __restrict d = scratch + i * lanes;
+      for (size_t l = 0; l < lanes; ++l) d[l] = o[l] + cp * (e[l] + f[l]);
+    }
+    const T* dl = scratch + (i > 0 ? i - 1 : 0) * lanes;
+    const T* dr = scratch + (i < high ? i : i - 1) * lanes;
+    const T* e = data + 2 * i * stride;
+    T* s = data + i * stride;  // s_i over x_i: e is x_{2i}, the same row only at i = 0
+    for (size_t l = 0; l < lanes; ++l) s[l] = e[l] + cu * (dl[l] + dr[l]);
+  }
+  if (stride == lanes)
+    std::memcpy(data + low * stride, scratch, high * lanes * sizeof(T));
+  else
+    Unpack(scratch, high, stride, lanes, data + low * stride);
+}
+
+// The inverse, as the two lifting passes of the synthesis:
+//   x_{2i}   = s_i + (-1/4)(d_{i-1} + d_i),   x_{2i+1} = d_i + (1/2)(x_{2i} + x_{2i+2}).
+// The low band is copied to the scratch buffer first; the output is then written in place
+// in natural order, even samples one ahead of the odd ones. Writing x_{2i+2} over row 2i+2
+// destroys d_{2i+2-low}: a value no later sample reads except at i = low − 2, where it is
+// d_i itself, still needed for x_{2i+1}; that one row is saved first. Row 2i+1 holds
+// d_{2i+1-low}, never one after d_i.
+template <typename T, size_t L>
+void LeGallSynthesisImpl(T* data, size_t n, size_t stride, size_t lanes_rt, T* scratch) {
+  const size_t lanes = L ? L : lanes_rt;
+  const size_t low = LowCount(n), high = n - low;
+  const T cu = T(-0.25), cp = T(0.5);
+  if (stride == lanes)
+    std::memcpy(scratch, data, low * lanes * sizeof(T));
+  else
+    Pack(data, low, stride, lanes, scratch);
+  const T* dband = data + low * stride;
+  auto even = [&](size_t k) {  // x_{2k} from s_k (scratch) and the high band (rows low..)
+    const T* __restrict s = scratch + k * lanes;
+    const T* dl = dband + (k > 0 ? k - 1 : 0) * stride;
+    const T* dr = dband + (k < high ? k : k - 1) * stride;
+    T* x = data + 2 * k * stride;
+    for (size_t l = 0; l < lanes; ++l) x[l] = s[l] + cu * (dl[l] + dr[l]);
+  };
+  T* saved = scratch + low * lanes;  // one row (high >= 1)
+  even(0);
+  for (size_t i = 0; i < high; ++i) {
+    const T* d = dband + i * stride;
+    if (i + 2 == low) {
+      std::memcpy(saved, d, lanes * sizeof(T));
+      d = saved;
+    }
+    if (i + 1 < low) even(i + 1);
+    const T* e = data + 2 * i * stride;
+    const T* f = 2 * i + 2 < n ? e + 2 * stride : e;
+    T* o = data + (2 * i + 1) * stride;
+    for (size_t l = 0; l < lanes; ++l) o[l] = d[l] + cp * (e[l] + f[l]);
+  }
+}
+
+template <typename T>
+void LeGallAnalysis(T* data, size_t n, size_t stride, size_t lanes, T* scratch) {
+  if (lanes == 8)
+    LeGallAnalysisImpl<T, 8>(data, n, stride, lanes, scratch);
+  else if (lanes == 16)
+    LeGallAnalysisImpl<T, 16>(data, n, stride, lanes, scratch);
+  else
+    LeGallAnalysisImpl<T, 0>(data, n, stride, lanes, scratch);
+}
+
+template <typename T>
+void LeGallSynthesis(T* data, size_t n, size_t stride, size_t lanes, T* scratch) {
+  if (lanes == 8)
+    LeGallSynthesisImpl<T, 8>(data, n, stride, lanes, scratch);
+  else if (lanes == 16)
+    LeGallSynthesisImpl<T, 16>(data, n, stride, lanes, scratch);
+  else
+    LeGallSynthesisImpl<T, 0>(data, n, stride, lanes, scratch);
+}
+
+// CDF 9/7: lifting runs in natural (interleaved) order in the scratch buffer; the data
+// holds the Mallat order (even samples = low band first, odd = high band after).
 template <typename T>
 void BiorthAnalysis(Filter f, T* data, size_t n, size_t stride, size_t lanes, T* scratch) {
+  if (f == Filter::kLeGall53) return LeGallAnalysis(data, n, stride, lanes, scratch);
   Pack(data, n, stride, lanes, scratch);
-  if (f == Filter::kLeGall53) {
-    Lift(scratch, n, lanes, 1, T(-0.5));
-    Lift(scratch, n, lanes, 0, T(0.25));
-  } else {
-    Lift(scratch, n, lanes, 1, static_cast<T>(kAlpha));
-    Lift(scratch, n, lanes, 0, static_cast<T>(kBeta));
-    Lift(scratch, n, lanes, 1, static_cast<T>(kGamma));
-    Lift(scratch, n, lanes, 0, static_cast<T>(kDelta));
-    Scale(scratch, n, lanes, 1, static_cast<T>(kK));
-    Scale(scratch, n, lanes, 0, static_cast<T>(1.0 / kK));
-  }
+  Lift(scratch, n, lanes, 1, static_cast<T>(kAlpha));
+  Lift(scratch, n, lanes, 0, static_cast<T>(kBeta));
+  Lift(scratch, n, lanes, 1, static_cast<T>(kGamma));
+  Lift(scratch, n, lanes, 0, static_cast<T>(kDelta));
+  Scale(scratch, n, lanes, 1, static_cast<T>(kK));
+  Scale(scratch, n, lanes, 0, static_cast<T>(1.0 / kK));
   size_t low = LowCount(n);
   for (size_t p = 0; p < n; ++p) {
     size_t dst = (p & 1) ? low + p / 2 : p / 2;
@@ -208,22 +299,18 @@ void BiorthAnalysis(Filter f, T* data, size_t n, size_t stride, size_t lanes, T*
 
 template <typename T>
 void BiorthSynthesis(Filter f, T* data, size_t n, size_t stride, size_t lanes, T* scratch) {
+  if (f == Filter::kLeGall53) return LeGallSynthesis(data, n, stride, lanes, scratch);
   size_t low = LowCount(n);
   for (size_t p = 0; p < n; ++p) {
     size_t src = (p & 1) ? low + p / 2 : p / 2;
     std::memcpy(scratch + p * lanes, data + src * stride, lanes * sizeof(T));
   }
-  if (f == Filter::kLeGall53) {
-    Lift(scratch, n, lanes, 0, T(-0.25));
-    Lift(scratch, n, lanes, 1, T(0.5));
-  } else {
-    Scale(scratch, n, lanes, 0, static_cast<T>(kK));
-    Scale(scratch, n, lanes, 1, static_cast<T>(1.0 / kK));
-    Lift(scratch, n, lanes, 0, static_cast<T>(-kDelta));
-    Lift(scratch, n, lanes, 1, static_cast<T>(-kGamma));
-    Lift(scratch, n, lanes, 0, static_cast<T>(-kBeta));
-    Lift(scratch, n, lanes, 1, static_cast<T>(-kAlpha));
-  }
+  Scale(scratch, n, lanes, 0, static_cast<T>(kK));
+  Scale(scratch, n, lanes, 1, static_cast<T>(1.0 / kK));
+  Lift(scratch, n, lanes, 0, static_cast<T>(-kDelta));
+  Lift(scratch, n, lanes, 1, static_cast<T>(-kGamma));
+  Lift(scratch, n, lanes, 0, static_cast<T>(-kBeta));
+  Lift(scratch, n, lanes, 1, static_cast<T>(-kAlpha));
   Unpack(scratch, n, stride, lanes, data);
 }
 

@@ -159,6 +159,71 @@ TEST(Wavelet, SingleStepsComposeToFull) {
   }
 }
 
+// LeGall 5/3 as two plain lifting passes over the natural-order signal (T.800 Annex F's
+// reversible structure without rounding; whole-sample symmetric extension), then the
+// even/odd split. The library computes the same values in one pass; every value is the
+// same float expression, so the two must agree bit for bit.
+std::vector<float> LeGallByPasses(std::vector<float> x, size_t n, size_t lanes, bool inverse) {
+  auto at = [&](long long i) {  // mirror: -1 -> 1, n -> n - 2
+    if (i < 0) i = -i;
+    if (i >= static_cast<long long>(n)) i = 2 * (static_cast<long long>(n) - 1) - i;
+    return static_cast<size_t>(i);
+  };
+  const size_t low = (n + 1) / 2;
+  std::vector<float> nat(n * lanes);
+  if (inverse) {
+    for (size_t p = 0; p < n; ++p)
+      for (size_t l = 0; l < lanes; ++l) nat[p * lanes + l] = x[((p & 1) ? low + p / 2 : p / 2) * lanes + l];
+  } else {
+    nat = x;
+  }
+  auto lift = [&](size_t parity, float c) {
+    for (size_t p = parity; p < n; p += 2)
+      for (size_t l = 0; l < lanes; ++l)
+        nat[p * lanes + l] += c * (nat[at(static_cast<long long>(p) - 1) * lanes + l] +
+                                   nat[at(static_cast<long long>(p) + 1) * lanes + l]);
+  };
+  if (inverse) {
+    lift(0, -0.25f);
+    lift(1, 0.5f);
+    return nat;
+  }
+  lift(1, -0.5f);
+  lift(0, 0.25f);
+  std::vector<float> out(n * lanes);
+  for (size_t p = 0; p < n; ++p)
+    for (size_t l = 0; l < lanes; ++l) out[((p & 1) ? low + p / 2 : p / 2) * lanes + l] = nat[p * lanes + l];
+  return out;
+}
+
+TEST(Biorthogonal, LeGallOnePassEqualsTheLiftingPassesBitForBit) {
+  for (size_t lanes : {size_t(1), size_t(3), size_t(8), size_t(16), size_t(24)}) {
+    for (size_t n = 2; n <= 19; ++n) {
+      for (size_t pad : {size_t(0), size_t(5)}) {  // stride == lanes, and a strided signal
+        const size_t stride = lanes + pad;
+        auto x = Random<float>(n * lanes, static_cast<uint32_t>(100 * n + lanes));
+        for (bool inverse : {false, true}) {
+          std::vector<float> data(n * stride, -7.0f), scratch(n * lanes);
+          for (size_t p = 0; p < n; ++p)
+            for (size_t l = 0; l < lanes; ++l) data[p * stride + l] = x[p * lanes + l];
+          if (inverse)
+            SynthesisStep1D(Filter::kLeGall53, data.data(), n, stride, lanes, scratch.data());
+          else
+            AnalysisStep1D(Filter::kLeGall53, data.data(), n, stride, lanes, scratch.data());
+          auto want = LeGallByPasses(x, n, lanes, inverse);
+          for (size_t p = 0; p < n; ++p) {
+            for (size_t l = 0; l < lanes; ++l)
+              ASSERT_EQ(data[p * stride + l], want[p * lanes + l])
+                  << (inverse ? "synthesis" : "analysis") << " n " << n << " lanes " << lanes << " stride " << stride
+                  << " sample " << p << " lane " << l;
+            for (size_t l = lanes; l < stride; ++l) ASSERT_EQ(data[p * stride + l], -7.0f) << "padding written";
+          }
+        }
+      }
+    }
+  }
+}
+
 TEST(Wavelet, ParseAndCheckSize) {
   EXPECT_EQ(*ParseFilter("db1"), Filter::kHaar);
   EXPECT_FALSE(ParseFilter("db5").ok());
