@@ -1,8 +1,13 @@
 #include "stages/transpose/transpose.h"
 
 #include <fcntl.h>
+#include <sys/mman.h>
 #include <unistd.h>
 #include <xxhash.h>
+
+#if defined(__AVX2__)
+#include <immintrin.h>
+#endif
 
 #include <algorithm>
 #include <atomic>
@@ -35,6 +40,10 @@ namespace {
 constexpr uint64_t kMinChunkBytes = 64 << 10;  // group columns only when one is smaller
 constexpr uint64_t kTileRows = 32;             // rows gathered before transposing into a panel
 constexpr uint64_t kFixedOverhead = 2 << 20;   // writer state, stacks, small buffers
+// Row blocks whose panel segments are queued (WILLNEED) ahead of the readers: 16 blocks of
+// 21 rows at R = 64 keep ~340 small reads in flight; 1 (each block its own, the earlier
+// way) was 1.2x slower in a 2 GiB cgroup (bench/results/big_bake_r64.md), 64-1024 no faster.
+constexpr uint64_t kPrefetchBlocks = 16;
 
 // A panel: output chunks [first_chunk, first_chunk + chunks), columns [col0, col0 + cols),
 // stored column-major (column c at data + (c - col0) * rows).
@@ -43,11 +52,18 @@ struct Panel {
   uint64_t col0 = 0, cols = 0;
 };
 
-// A float buffer on a 4096-byte boundary (std::vector's is only 16-byte aligned).
+// A float buffer on a 4096-byte boundary (std::vector's is only 16-byte aligned). Buffers
+// of 2 MiB or more sit on 2 MiB boundaries and ask for transparent huge pages: filling a
+// column-major panel writes a short run into each of thousands of columns 256 KiB apart
+// (at 65536 rows), one 4 KiB page each, which with small pages is a TLB miss per run.
 class AlignedFloats {
  public:
   bool resize(uint64_t n) {
-    data_.reset(static_cast<float*>(std::aligned_alloc(4096, std::max<uint64_t>(4096, (n * 4 + 4095) / 4096 * 4096))));
+    constexpr uint64_t kHuge = 2 << 20;
+    const uint64_t bytes = std::max<uint64_t>(4096, (n * 4 + 4095) / 4096 * 4096);
+    const uint64_t align = bytes >= kHuge ? kHuge : 4096;
+    data_.reset(static_cast<float*>(std::aligned_alloc(align, (bytes + align - 1) / align * align)));
+    if (data_ != nullptr && align == kHuge) (void)::madvise(data_.get(), bytes, MADV_HUGEPAGE);  // a hint only
     return data_ != nullptr;
   }
   float* data() const { return data_.get(); }
@@ -320,6 +336,43 @@ struct PanelSource {
   const Progress& progress;
 };
 
+// The tile (nr rows of `cols` floats) into the column-major panel: column c's nr values at
+// out + c * rows. In 8 × 8 blocks (AVX2: eight row loads, an in-register transpose, eight
+// column stores) so that each column run is written whole, not one float per pass.
+void TransposeTile(const float* tile, uint64_t nr, uint64_t cols, float* out, uint64_t rows) {
+  uint64_t c0 = 0;
+#if defined(__AVX2__)
+  const uint64_t nr8 = nr / 8 * 8;
+  if (nr8 > 0) {
+    for (; c0 + 8 <= cols; c0 += 8) {
+      for (uint64_t r = nr8; r < nr; ++r)
+        for (uint64_t j = 0; j < 8; ++j) out[(c0 + j) * rows + r] = tile[r * cols + c0 + j];
+      for (uint64_t r0 = 0; r0 < nr8; r0 += 8) {
+        __m256 v[8];
+        for (int i = 0; i < 8; ++i) v[i] = _mm256_loadu_ps(tile + (r0 + i) * cols + c0);
+        const __m256 a0 = _mm256_unpacklo_ps(v[0], v[1]), a1 = _mm256_unpackhi_ps(v[0], v[1]);
+        const __m256 a2 = _mm256_unpacklo_ps(v[2], v[3]), a3 = _mm256_unpackhi_ps(v[2], v[3]);
+        const __m256 a4 = _mm256_unpacklo_ps(v[4], v[5]), a5 = _mm256_unpackhi_ps(v[4], v[5]);
+        const __m256 a6 = _mm256_unpacklo_ps(v[6], v[7]), a7 = _mm256_unpackhi_ps(v[6], v[7]);
+        const __m256 b0 = _mm256_shuffle_ps(a0, a2, 0x44), b1 = _mm256_shuffle_ps(a0, a2, 0xee);
+        const __m256 b2 = _mm256_shuffle_ps(a1, a3, 0x44), b3 = _mm256_shuffle_ps(a1, a3, 0xee);
+        const __m256 b4 = _mm256_shuffle_ps(a4, a6, 0x44), b5 = _mm256_shuffle_ps(a4, a6, 0xee);
+        const __m256 b6 = _mm256_shuffle_ps(a5, a7, 0x44), b7 = _mm256_shuffle_ps(a5, a7, 0xee);
+        const __m256 t[8] = {_mm256_permute2f128_ps(b0, b4, 0x20), _mm256_permute2f128_ps(b1, b5, 0x20),
+                             _mm256_permute2f128_ps(b2, b6, 0x20), _mm256_permute2f128_ps(b3, b7, 0x20),
+                             _mm256_permute2f128_ps(b0, b4, 0x31), _mm256_permute2f128_ps(b1, b5, 0x31),
+                             _mm256_permute2f128_ps(b2, b6, 0x31), _mm256_permute2f128_ps(b3, b7, 0x31)};
+        for (int j = 0; j < 8; ++j) _mm256_storeu_ps(out + (c0 + j) * rows + r0, t[j]);
+      }
+    }
+  }
+#endif
+  for (uint64_t c = c0; c < cols; ++c) {
+    float* col = out + c * rows;
+    for (uint64_t r = 0; r < nr; ++r) col[r] = tile[r * cols + c];
+  }
+}
+
 // Fills one panel (column-major, zeroed first) from every stored input row block, `jobs`
 // blocks at a time: each reader reads the panel's column range of each row of its block
 // into a tile, then transposes the tile into the panel.
@@ -331,9 +384,29 @@ Status FillPanel(const PanelSource& src, const Panel& p, float* panel, PanelCoun
   const ArraySpec& a = in.metadata().matrix();
   const uint64_t rows = plan.rows, cols = plan.cols;
   std::fill(panel, panel + p.cols * rows, 0.0f);
+  // Queue the reads of this panel's segments of raw row blocks ahead of the readers, so the
+  // disk has many small reads in flight instead of one block's few (page cache, no RSS).
+  auto prefetch = [&](uint64_t k) {
+    if (k >= src.in_chunks.size()) return;
+    const uint64_t ci = src.in_chunks[k];
+    const IndexEntry* entry = in.Find(0, ci);
+    if (entry->header.encoding != static_cast<uint16_t>(Encoding::kRaw)) return;
+    const int fd = in.Holder(0, ci).file().fd();
+    const uint64_t payload = entry->frame_offset + kFrameHeaderSize;
+    for (uint64_t r = 0; r < a.Extent(ci).rows; ++r) {
+      ::posix_fadvise(fd, static_cast<off_t>(payload + (r * cols + p.col0) * 4), static_cast<off_t>(p.cols * 4),
+                      POSIX_FADV_WILLNEED);
+    }
+  };
+  constexpr uint64_t ahead = kPrefetchBlocks;
+  std::vector<uint64_t> order(src.in_chunks.size());
+  for (uint64_t k = 0; k < order.size(); ++k) order[k] = k;
+  for (uint64_t k = 0; k + 1 < ahead; ++k) prefetch(k);
   return ParallelFor(
-      src.in_chunks, plan.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
-      [&](uint64_t ci) -> Status {
+      order, plan.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
+      [&](uint64_t k) -> Status {
+        prefetch(k + ahead - 1);
+        const uint64_t ci = src.in_chunks[k];
         const IndexEntry* entry = in.Find(0, ci);
         const io::File& in_file = in.Holder(0, ci).file();  // a manifest's chunks live in its shards
         ChunkExtent e = a.Extent(ci);
@@ -348,14 +421,6 @@ Status FillPanel(const PanelSource& src, const Panel& p, float* panel, PanelCoun
           n.bytes_read += entry->header.payload_length;
         }
         uint64_t payload = entry->frame_offset + kFrameHeaderSize;
-        if (src == nullptr) {
-          // Start the reads of this block's column range for every row at once, so the disk
-          // has them all queued instead of one small pread at a time (page cache, no RSS).
-          for (uint64_t r = 0; r < e.rows; ++r) {
-            ::posix_fadvise(in_file.fd(), static_cast<off_t>(payload + (r * cols + p.col0) * 4),
-                            static_cast<off_t>(p.cols * 4), POSIX_FADV_WILLNEED);
-          }
-        }
         for (uint64_t r0 = 0; r0 < e.rows; r0 += kTileRows) {
           uint64_t nr = std::min(kTileRows, e.rows - r0);
           for (uint64_t r = 0; r < nr; ++r) {
@@ -369,11 +434,7 @@ Status FillPanel(const PanelSource& src, const Panel& p, float* panel, PanelCoun
               n.bytes_read += p.cols * 4;
             }
           }
-          // Transpose the tile into the column-major panel.
-          for (uint64_t c = 0; c < p.cols; ++c) {
-            float* col = panel + c * rows + e.row0 + r0;
-            for (uint64_t r = 0; r < nr; ++r) col[r] = tile[r * p.cols + c];
-          }
+          TransposeTile(tile.data(), nr, p.cols, panel + e.row0 + r0, rows);
         }
         return Status::Ok();
       });
