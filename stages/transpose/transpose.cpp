@@ -41,8 +41,9 @@ constexpr uint64_t kMinChunkBytes = 64 << 10;  // group columns only when one is
 constexpr uint64_t kTileRows = 32;             // rows gathered before transposing into a panel
 constexpr uint64_t kFixedOverhead = 2 << 20;   // writer state, stacks, small buffers
 // Row blocks whose panel segments are queued (WILLNEED) ahead of the readers: 16 blocks of
-// 21 rows at R = 64 keep ~340 small reads in flight; 1 (each block its own, the earlier
-// way) was 1.2x slower in a 2 GiB cgroup (bench/results/big_bake_r64.md), 64-1024 no faster.
+// 21 rows at R = 64 keep ~340 small reads in flight. In a 2 GiB cgroup (R = 64, cold cache)
+// 1 block (each its own, the earlier way) took 19.4-23.4 s in single runs against 16.1-18.0 s
+// for 16; 64, 256 and 1024 were no faster (big_bake_r64.md has the run).
 constexpr uint64_t kPrefetchBlocks = 16;
 
 // A panel: output chunks [first_chunk, first_chunk + chunks), columns [col0, col0 + cols),
