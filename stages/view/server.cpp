@@ -43,12 +43,11 @@ Status Serve(const ViewOptions& o, const std::function<void(const std::string& u
     } else if (req.path == "/frame.exr") {  // the last frame, linear
       std::optional<uint64_t> frame;
       for (const auto& [key, value] : req.params) {
-        if (key != "frame" || value.empty() || value.size() > 18 ||
-            value.find_first_not_of("0123456789") != std::string::npos) {
+        frame = key == "frame" ? ParseIndex(value, 18) : std::nullopt;
+        if (!frame) {
           return fail(400, key.substr(0, 40) + "=" + value.substr(0, 40) +
                                ": /frame.exr takes only frame=N (the number of the frame to save; optional)");
         }
-        frame = std::stoull(value);
       }
       std::lock_guard<std::mutex> lock(mu);
       auto exr = session->FrameExr(frame);

@@ -62,18 +62,24 @@ const char* FrameShowName(FrameShow s) {
   return "matrix";
 }
 
+std::optional<uint64_t> ParseIndex(const std::string& value, size_t max_digits) {
+  if (value.empty() || value.size() > max_digits || value.find_first_not_of("0123456789") != std::string::npos)
+    return std::nullopt;
+  return std::stoull(value);
+}
+
 Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>& params, const FrameRequest& d,
                                        uint64_t maps, uint64_t sequence_frames) {
   FrameRequest r = d;
   for (const auto& [key, value] : params) {
     const std::string shown = value.size() > 40 ? value.substr(0, 40) + "..." : value;
     if (key == "map") {
-      if (value.empty() || value.size() > 9 || value.find_first_not_of("0123456789") != std::string::npos ||
-          std::stoull(value) >= maps) {
+      const std::optional<uint64_t> map = ParseIndex(value, 9);
+      if (!map || *map >= maps) {
         return InvalidArgument("map=" + shown + ": expected 0.." + std::to_string(maps - 1) +
                                " (the --env maps, in order)");
       }
-      r.map = std::stoull(value);
+      r.map = *map;
     } else if (key == "rotate") {
       auto v = ParseDecimal(value, -RelightOptions::kMaxRotateDegrees, RelightOptions::kMaxRotateDegrees);
       if (!v.ok()) return InvalidArgument("rotate: " + v.status().message() + " (degrees)");
@@ -81,11 +87,10 @@ Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>&
     } else if (key == "terms") {
       if (value == "all") {
         r.terms = RelightOptions::kAllTerms;
-      } else if (value.empty() || value.size() > 9 || value.find_first_not_of("0123456789") != std::string::npos ||
-                 std::stoull(value) == 0) {
-        return InvalidArgument("terms=" + shown + ": expected an integer >= 1 or all");
+      } else if (const std::optional<uint64_t> terms = ParseIndex(value, 9); terms && *terms > 0) {
+        r.terms = *terms;
       } else {
-        r.terms = std::stoull(value);
+        return InvalidArgument("terms=" + shown + ": expected an integer >= 1 or all");
       }
     } else if (key == "method") {
       auto m = ParseSequenceMethod(value);
@@ -109,12 +114,12 @@ Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>&
       if (sequence_frames == 0) {
         return InvalidArgument("t=" + shown + ": there is no sequence (start ltbake view with --sequence SPEC)");
       }
-      if (value.empty() || value.size() > 9 || value.find_first_not_of("0123456789") != std::string::npos ||
-          std::stoull(value) >= sequence_frames) {
+      const std::optional<uint64_t> t = ParseIndex(value, 9);
+      if (!t || *t >= sequence_frames) {
         return InvalidArgument("t=" + shown + ": expected a frame of the sequence, 0.." +
                                std::to_string(sequence_frames - 1));
       }
-      r.t = static_cast<int64_t>(std::stoull(value));
+      r.t = static_cast<int64_t>(*t);
     } else {
       return InvalidArgument("unknown parameter \"" + (key.size() > 40 ? key.substr(0, 40) + "..." : key) +
                              "\" (map, rotate, terms, method, exposure, show, t)");

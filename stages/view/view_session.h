@@ -39,6 +39,10 @@ struct ViewOptions {
 enum class FrameShow { kMatrix, kReference, kDifference };
 const char* FrameShowName(FrameShow s);
 
+// A query parameter's unsigned decimal number of at most `max_digits` digits (no sign, no
+// spaces, no leading '+'); nothing when the text is anything else.
+std::optional<uint64_t> ParseIndex(const std::string& value, size_t max_digits);
+
 struct FrameRequest {
   uint64_t map = 0;  // index into ViewOptions::envs
   double rotate_deg = 0;
