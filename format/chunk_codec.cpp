@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <memory>
 #include <optional>
 
 namespace ltb::format {
@@ -21,13 +22,21 @@ bool IsAllZero(ByteSpan data) {
   return true;
 }
 
+// Compresses into a buffer each thread keeps (left uninitialised, so only the pages zstd
+// writes are touched), then copies the frame out at its size. A zero-filled vector of
+// ZSTD_compressBound bytes per call cost a page fault and a clear per 4 KiB of the input
+// (32 MiB per chunk in column-transform: a fifth of its time).
 std::optional<std::vector<std::byte>> CompressZstd(ByteSpan data, int level) {
-  std::vector<std::byte> out(ZSTD_compressBound(data.size()));
-  size_t n = ZSTD_compress(out.data(), out.size(), data.data(), data.size(), level);
+  thread_local std::unique_ptr<std::byte[]> buffer;
+  thread_local size_t capacity = 0;
+  const size_t bound = ZSTD_compressBound(data.size());
+  if (capacity < bound) {
+    buffer.reset(new std::byte[bound]);
+    capacity = bound;
+  }
+  size_t n = ZSTD_compress(buffer.get(), bound, data.data(), data.size(), level);
   if (ZSTD_isError(n)) return std::nullopt;
-  out.resize(n);
-  out.shrink_to_fit();
-  return out;
+  return std::vector<std::byte>(buffer.get(), buffer.get() + n);
 }
 
 // ---- Sparse payloads ----
@@ -407,19 +416,14 @@ EncodedChunk EncodeChunk(ByteSpan data, const EncodeOptions& options) {
     return EncodeWithSparse(data, options);
   }
   if (options.zstd) {
-    size_t bound = ZSTD_compressBound(data.size());
-    c.owned.resize(bound);
-    size_t n = ZSTD_compress(c.owned.data(), bound, data.data(), data.size(), options.zstd_level);
-    if (!ZSTD_isError(n) && static_cast<double>(n) <= (1.0 - options.min_saving) * static_cast<double>(data.size())) {
-      c.owned.resize(n);
-      c.owned.shrink_to_fit();
+    std::optional<std::vector<std::byte>> z = CompressZstd(data, options.zstd_level);
+    if (z && static_cast<double>(z->size()) <= (1.0 - options.min_saving) * static_cast<double>(data.size())) {
+      c.owned = std::move(*z);
       c.encoding = Encoding::kZstd;
       c.payload = c.owned;
       c.checksum = Checksum(c.payload);
       return c;
     }
-    c.owned.clear();
-    c.owned.shrink_to_fit();
   }
   c.encoding = Encoding::kRaw;
   c.payload = data;
