@@ -97,10 +97,12 @@ void GlossyLobe(const PhongLobe& brdf, RowScratch& sc, size_t n) {
   }
 }
 
-// p[0, spp) = x; one vector store when spp is the compile-time 4.
+// p[0, spp) = x; one store when spp is the compile-time 1 or 4.
 template <uint32_t kSpp, typename T>
 inline void Splat(T* __restrict p, T x, uint64_t spp) {
-  if constexpr (kSpp == 4) {
+  if constexpr (kSpp == 1) {
+    *p = x;
+  } else if constexpr (kSpp == 4) {
     typedef T V __attribute__((vector_size(4 * sizeof(T))));
     const V v = {x, x, x, x};
     std::memcpy(p, &v, sizeof v);
@@ -241,6 +243,8 @@ void Sampler::GenerateRays(uint64_t row, const RowPoint& rp, const PhongLobe& br
                            RowScratch& sc, uint64_t* below, uint64_t* samples_below, const uint8_t* select) const {
   if (spp_ == 4) {
     GenerateRaysT<4>(row, rp, brdf, c0, c1, sc, below, samples_below, select);
+  } else if (spp_ == 1) {
+    GenerateRaysT<1>(row, rp, brdf, c0, c1, sc, below, samples_below, select);
   } else {
     GenerateRaysT<0>(row, rp, brdf, c0, c1, sc, below, samples_below, select);
   }
@@ -430,6 +434,8 @@ void Sampler::DirectionsT(size_t n0, size_t n1, double na, double nb, double nc,
 void Sampler::Accumulate(const RowScratch& sc, std::vector<double>& acc) const {
   if (spp_ == 4) {
     AccumulateT<4>(sc, acc);
+  } else if (spp_ == 1) {
+    AccumulateT<1>(sc, acc);
   } else {
     AccumulateT<0>(sc, acc);
   }

@@ -181,7 +181,7 @@ class Sampler {
   const RayScene& rays() const { return *g_.rays; }
 
  private:
-  // kSpp: spp_ when known at compile time (the common 4), else 0.
+  // kSpp: spp_ when known at compile time (the common 4, and 1), else 0.
   template <uint32_t kSpp>
   void GenerateRaysT(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, uint64_t c0, uint64_t c1, RowScratch& sc,
                      uint64_t* below, uint64_t* samples_below, const uint8_t* select) const;
