@@ -292,6 +292,13 @@ class RelightCommand : public Command {
           if (report.contains("frames")) {
             std::cout << "; " << frames_ << " frames: median " << report["frames"]["median_ms"].get<double>() << " ms ("
                       << report["frames"]["fps"].get<double>() << " fps)";
+            if (report["frames"].contains("roofline")) {
+              const nlohmann::json& r = report["frames"]["roofline"];
+              std::cout << "; the matrix product " << r["product_median_ms"].get<double>() << " ms for "
+                        << r["coefficient_bytes"].get<double>() / 1e6 << " MB of coefficients, "
+                        << 100 * r["fraction_of_bound"].get<double>() << "% of the copy-bandwidth bound ("
+                        << r["copy_bytes_per_s"].get<double>() / 1e9 << " GB/s)";
+            }
           }
           std::cout << "\n";
           if (pixels && terms_used < available) {

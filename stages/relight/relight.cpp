@@ -286,6 +286,12 @@ Result<Relighter> Relighter::Load(const std::string& path, uint64_t mem_limit, c
   return r;
 }
 
+uint64_t Relighter::CoefficientBytes(const LightTerms& terms) const {
+  uint64_t n = 0;
+  for (uint32_t j : terms.column) n += col_ptr_[j + 1] - col_ptr_[j];
+  return n * (sizeof(uint32_t) + sizeof(float));
+}
+
 void Relighter::Relight(const LightTerms& terms, float* out) {
   for (auto& b : by_depth_) b.clear();
   int deepest = -1;

@@ -83,6 +83,9 @@ class Relighter {
 
   // B (rows × 3, row order) for the given terms.
   void Relight(const LightTerms& terms, float* out_rgb);
+  // Bytes of the kept coefficients Relight(terms) reads: 8 per nonzero of the terms'
+  // columns (a 4-byte position and a 4-byte value).
+  uint64_t CoefficientBytes(const LightTerms& terms) const;
 
  private:
   // One chunk of the matrix as read, with its columns' side tables.

@@ -44,6 +44,12 @@ class RelightMatrix {
 
   // image (rows × 3) = T × the terms' lighting; the weights may be negative.
   Status Relight(const LightTerms& terms, std::vector<float>* image);
+  // Relighter::CoefficientBytes for a matrix held as sparse columns (one file, not a
+  // channel set, CPCA or streamed); nothing otherwise.
+  std::optional<uint64_t> CoefficientBytes(const LightTerms& terms) const {
+    if (!channels_.empty() || !relighter_) return std::nullopt;
+    return relighter_->CoefficientBytes(terms);
+  }
   // image = T × dense lighting (6R² × 3, in basis()).
   Status RelightDense(const std::vector<float>& lighting, std::vector<float>* image);
 

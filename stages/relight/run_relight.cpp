@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <memory>
 #include <numbers>
 #include <optional>
@@ -52,6 +53,7 @@ struct Frames {
     LTB_RETURN_IF_ERROR(basis.SelectTerms(cube.data(), o.terms, o.weighting, norms(), &terms));
     auto b = Clock::now();
     LTB_RETURN_IF_ERROR(m.Relight(terms, &image));
+    product_ms = Ms(b, Clock::now());
     ScaleByPowerOfTwo(&image, exponent);
     fixes = Finish(&image);
     LTB_RETURN_IF_ERROR(CheckRelitImageFinite(image, m.width(), o.env));
@@ -69,7 +71,24 @@ struct Frames {
   LightTerms terms;                // at 2^-exponent
   OutputFixes fixes;
   int exponent = 0;
+  double product_ms = 0;  // the last frame's m.Relight alone
 };
+
+// Bytes a memcpy moves per second between two buffers larger than the caches, the best of
+// four (the pages touched first): the bandwidth the relight roofline is measured against.
+double CopyBandwidth() {
+  constexpr size_t kBytes = size_t{64} << 20;
+  std::vector<char> from(kBytes, 1), to(kBytes, 0);
+  double best = 0;
+  for (int k = 0; k < 4; ++k) {
+    auto a = Clock::now();
+    std::memcpy(to.data(), from.data(), kBytes);
+    const double s = std::chrono::duration<double>(Clock::now() - a).count();
+    if (s > 0) best = std::max(best, static_cast<double>(kBytes) / s);
+    from[k] = to[kBytes - 1 - k];  // (keeps the copies from being elided)
+  }
+  return best;
+}
 
 // What a term is in this matrix's column basis, and how much of the map it keeps.
 void ReportTerms(const LightingBasis& basis, const Frames& frames, nlohmann::json* report) {
@@ -84,7 +103,7 @@ void ReportTerms(const LightingBasis& basis, const Frames& frames, nlohmann::jso
 // `o.frames` timing frames, the environment rotating once about +Z from `rotation`.
 Status TimeFrames(const RelightOptions& o, const Environment& env, double rotation, const Progress& progress,
                   Frames* frames, nlohmann::json* report) {
-  std::vector<double> ms;
+  std::vector<double> ms, product_ms, coefficient_bytes;
   for (int f = 0; f < o.frames; ++f) {
     // The timing loop runs until done or interrupted; the image above is already written.
     if (progress.Cancelled()) {
@@ -94,11 +113,29 @@ Status TimeFrames(const RelightOptions& o, const Environment& env, double rotati
     auto a = Clock::now();
     LTB_RETURN_IF_ERROR(frames->Render(rotation + 2 * std::numbers::pi * f / o.frames, nullptr, nullptr));
     ms.push_back(Ms(a, Clock::now()));
+    product_ms.push_back(frames->product_ms);
+    if (auto bytes = frames->m.CoefficientBytes(frames->terms))
+      coefficient_bytes.push_back(static_cast<double>(*bytes));
   }
+  auto median_of = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v[v.size() / 2];
+  };
   std::sort(ms.begin(), ms.end());
   double median = ms[ms.size() / 2];
   (*report)["frames"] = {{"count", o.frames},    {"median_ms", median}, {"fps", 1000.0 / median},
                          {"min_ms", ms.front()}, {"max_ms", ms.back()}, {"rotates", env.rotates()}};
+  // The matrix product against the memory roofline: the kept coefficients' bytes a frame
+  // reads, at the copy bandwidth of this process, against the product's median time.
+  if (coefficient_bytes.size() == ms.size()) {
+    const double bandwidth = CopyBandwidth(), bytes = median_of(coefficient_bytes);
+    const double product = median_of(product_ms), bound_ms = bandwidth > 0 ? 1e3 * bytes / bandwidth : 0;
+    (*report)["frames"]["roofline"] = {{"coefficient_bytes", bytes},
+                                       {"copy_bytes_per_s", bandwidth},
+                                       {"bound_ms", bound_ms},
+                                       {"product_median_ms", product},
+                                       {"fraction_of_bound", product > 0 ? bound_ms / product : 0.0}};
+  }
   return Status::Ok();
 }
 

@@ -144,6 +144,20 @@ material = "shiny"
         run("relight", src, "--env", env, "-o", out, "--terms", 64, *Q)
         check(os.path.getsize(out) > 0, f"relight {src}: empty image")
     run("relight", final, "--env", env, "-o", P("frames.npy"), "--terms", 32, "--frames", 3, *Q)
+    # The roofline report: under a map with no zero wavelet coefficient, every term a frame
+    # reads every stored coefficient, 8 bytes each (position and value); quantize counts them
+    # as it writes them.
+    np.save(P("noise8.npy"), (0.1 + np.random.default_rng(5).random((384, 3))).astype(np.float32))
+    nonzeros = json.loads(run("quantize", cols4d, "-o", P("final2.ltm"), "--json", *Q).stdout)["nonzeros_out"]
+    rep = json.loads(run("relight", final, "--env", P("noise8.npy"), "-o", P("frames.npy"), "--terms", "all",
+                         "--frames", 2, "--json", *Q).stdout)
+    roof = rep["frames"]["roofline"]
+    check(rep["terms_used"] == rep["terms_available"] == 384, f"relight --terms all: {rep['terms_used']} terms used")
+    check(roof["coefficient_bytes"] == 8 * nonzeros and nonzeros > 0,
+          f"relight roofline: {roof['coefficient_bytes']} coefficient bytes, quantize wrote {nonzeros} nonzeros")
+    check(roof["copy_bytes_per_s"] > 0 and roof["bound_ms"] > 0 and roof["product_median_ms"] > 0
+          and abs(roof["fraction_of_bound"] - roof["bound_ms"] / roof["product_median_ms"]) < 1e-9,
+          f"relight roofline: inconsistent figures {roof}")
     # Lighting sequences (docs/SEQUENCE.md): every method over each kind of matrix; on one
     # map repeated, bi and pbi converge to the image of every term (with 64 terms a frame,
     # 384 coefficients take at most 6 frames).
