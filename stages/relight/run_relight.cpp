@@ -74,10 +74,11 @@ struct Frames {
   double product_ms = 0;  // the last frame's m.Relight alone
 };
 
-// Bytes a memcpy moves per second between two buffers larger than the caches, the best of
-// four (the pages touched first): the bandwidth the relight roofline is measured against.
-double CopyBandwidth() {
-  constexpr size_t kBytes = size_t{64} << 20;
+// Bytes a memcpy moves per second between two buffers larger than the caches (64 MiB each,
+// less under a small --mem-limit), the best of four (the pages touched first): the
+// bandwidth the relight roofline is measured against.
+double CopyBandwidth(uint64_t mem_limit) {
+  const size_t kBytes = static_cast<size_t>(std::clamp<uint64_t>(mem_limit / 8, 1 << 20, uint64_t{64} << 20));
   std::vector<char> from(kBytes, 1), to(kBytes, 0);
   double best = 0;
   for (int k = 0; k < 4; ++k) {
@@ -128,7 +129,7 @@ Status TimeFrames(const RelightOptions& o, const Environment& env, double rotati
   // The matrix product against the memory roofline: the kept coefficients' bytes a frame
   // reads, at the copy bandwidth of this process, against the product's median time.
   if (coefficient_bytes.size() == ms.size()) {
-    const double bandwidth = CopyBandwidth(), bytes = median_of(coefficient_bytes);
+    const double bandwidth = CopyBandwidth(o.mem_limit), bytes = median_of(coefficient_bytes);
     const double product = median_of(product_ms), bound_ms = bandwidth > 0 ? 1e3 * bytes / bandwidth : 0;
     (*report)["frames"]["roofline"] = {{"coefficient_bytes", bytes},
                                        {"copy_bytes_per_s", bandwidth},
