@@ -74,11 +74,11 @@ struct Frames {
   double product_ms = 0;  // the last frame's m.Relight alone
 };
 
-// Bytes a memcpy moves per second between two buffers larger than the caches (64 MiB each,
-// less under a small --mem-limit), the best of four (the pages touched first): the
-// bandwidth the relight roofline is measured against.
-double CopyBandwidth(uint64_t mem_limit) {
-  const size_t kBytes = static_cast<size_t>(std::clamp<uint64_t>(mem_limit / 8, 1 << 20, uint64_t{64} << 20));
+// Bytes a memcpy moves per second between two buffers larger than the caches, the best of
+// four (the pages touched first): the bandwidth the relight roofline is measured against.
+constexpr size_t kCopyBytes = size_t{64} << 20;  // each buffer; the roofline needs --mem-limit >= 8x
+double CopyBandwidth() {
+  const size_t kBytes = kCopyBytes;
   std::vector<char> from(kBytes, 1), to(kBytes, 0);
   double best = 0;
   for (int k = 0; k < 4; ++k) {
@@ -127,9 +127,11 @@ Status TimeFrames(const RelightOptions& o, const Environment& env, double rotati
   (*report)["frames"] = {{"count", o.frames},    {"median_ms", median}, {"fps", 1000.0 / median},
                          {"min_ms", ms.front()}, {"max_ms", ms.back()}, {"rotates", env.rotates()}};
   // The matrix product against the memory roofline: the kept coefficients' bytes a frame
-  // reads, at the copy bandwidth of this process, against the product's median time.
-  if (coefficient_bytes.size() == ms.size()) {
-    const double bandwidth = CopyBandwidth(o.mem_limit), bytes = median_of(coefficient_bytes);
+  // reads, at the copy bandwidth of this process, against the product's median time. Not
+  // under a --mem-limit too small for copy buffers beyond the caches (smaller ones would
+  // measure the cache).
+  if (coefficient_bytes.size() == ms.size() && o.mem_limit >= 8 * kCopyBytes) {
+    const double bandwidth = CopyBandwidth(), bytes = median_of(coefficient_bytes);
     const double product = median_of(product_ms), bound_ms = bandwidth > 0 ? 1e3 * bytes / bandwidth : 0;
     (*report)["frames"]["roofline"] = {{"coefficient_bytes", bytes},
                                        {"copy_bytes_per_s", bandwidth},
