@@ -258,31 +258,28 @@ void LeGallSynthesisImpl(T* data, size_t n, size_t stride, size_t lanes_rt, T* s
   }
 }
 
-template <typename T>
-void LeGallAnalysis(T* data, size_t n, size_t stride, size_t lanes, T* scratch) {
-  if (lanes == 8)
-    LeGallAnalysisImpl<T, 8>(data, n, stride, lanes, scratch);
-  else if (lanes == 16)
-    LeGallAnalysisImpl<T, 16>(data, n, stride, lanes, scratch);
+// One LeGall 5/3 step either way, the lane count compiled in where it is a common one (8:
+// the column-transform search; 16: row blocks), else given at run time.
+template <typename T, size_t L>
+void LeGallStep(bool inverse, T* data, size_t n, size_t stride, size_t lanes, T* scratch) {
+  if (inverse)
+    LeGallSynthesisImpl<T, L>(data, n, stride, lanes, scratch);
   else
-    LeGallAnalysisImpl<T, 0>(data, n, stride, lanes, scratch);
+    LeGallAnalysisImpl<T, L>(data, n, stride, lanes, scratch);
 }
 
 template <typename T>
-void LeGallSynthesis(T* data, size_t n, size_t stride, size_t lanes, T* scratch) {
-  if (lanes == 8)
-    LeGallSynthesisImpl<T, 8>(data, n, stride, lanes, scratch);
-  else if (lanes == 16)
-    LeGallSynthesisImpl<T, 16>(data, n, stride, lanes, scratch);
-  else
-    LeGallSynthesisImpl<T, 0>(data, n, stride, lanes, scratch);
+void LeGall(bool inverse, T* data, size_t n, size_t stride, size_t lanes, T* scratch) {
+  if (lanes == 8) return LeGallStep<T, 8>(inverse, data, n, stride, lanes, scratch);
+  if (lanes == 16) return LeGallStep<T, 16>(inverse, data, n, stride, lanes, scratch);
+  LeGallStep<T, 0>(inverse, data, n, stride, lanes, scratch);
 }
 
 // CDF 9/7: lifting runs in natural (interleaved) order in the scratch buffer; the data
 // holds the Mallat order (even samples = low band first, odd = high band after).
 template <typename T>
 void BiorthAnalysis(Filter f, T* data, size_t n, size_t stride, size_t lanes, T* scratch) {
-  if (f == Filter::kLeGall53) return LeGallAnalysis(data, n, stride, lanes, scratch);
+  if (f == Filter::kLeGall53) return LeGall(false, data, n, stride, lanes, scratch);
   Pack(data, n, stride, lanes, scratch);
   Lift(scratch, n, lanes, 1, static_cast<T>(kAlpha));
   Lift(scratch, n, lanes, 0, static_cast<T>(kBeta));
@@ -299,7 +296,7 @@ void BiorthAnalysis(Filter f, T* data, size_t n, size_t stride, size_t lanes, T*
 
 template <typename T>
 void BiorthSynthesis(Filter f, T* data, size_t n, size_t stride, size_t lanes, T* scratch) {
-  if (f == Filter::kLeGall53) return LeGallSynthesis(data, n, stride, lanes, scratch);
+  if (f == Filter::kLeGall53) return LeGall(true, data, n, stride, lanes, scratch);
   size_t low = LowCount(n);
   for (size_t p = 0; p < n; ++p) {
     size_t src = (p & 1) ? low + p / 2 : p / 2;
