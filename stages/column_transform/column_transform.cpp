@@ -16,6 +16,7 @@
 #include "stages/common/basis.h"
 #include "stages/common/parallel_for.h"
 #include "stages/common/quantity.h"
+#include "stages/common/thread_zeros.h"
 
 namespace ltb::stages {
 
@@ -410,21 +411,11 @@ Status TransformChunk(const ChunkJob& job, uint64_t c) {
   const uint64_t pixels = plan.pixels;
   LTB_ASSIGN_OR_RETURN(ColumnCompressor * comp, ThreadCompressor(job.o.filter, plan));
   const uint64_t col0 = c * plan.block, ncols = std::min(plan.block, a.cols - col0);
-  // The dense output chunk, in a buffer each thread keeps from chunk to chunk (all zero
-  // between chunks: the positions a chunk sets are cleared after it is written, on every
-  // path out). A fresh 32 MiB a chunk (128 columns of 256²) cost ~16% of the stage in page
-  // faults.
-  thread_local std::vector<float> buffer;
-  if (buffer.size() < ncols * pixels) buffer.assign(ncols * pixels, 0.0f);
-  const std::span<float> dense(buffer.data(), ncols * pixels);
+  // The dense output chunk, in this thread's reused buffer; the positions written are
+  // cleared after it is put, on every path out.
+  const std::span<float> dense = ThreadZeros<float>(ncols * pixels);
   std::vector<uint64_t> written;
-  struct Clear {
-    std::span<float> d;
-    const std::vector<uint64_t>& at;
-    ~Clear() {
-      for (uint64_t p : at) d[p] = 0.0f;
-    }
-  } clear{dense, written};
+  const ClearOnExit clear(dense, written);
   std::vector<uint8_t> depths(ncols, 0);
   std::vector<double> stats(ncols * kStatsPerColumn, 0.0);
   ColumnChoice choice[kLanes];

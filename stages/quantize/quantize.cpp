@@ -15,6 +15,7 @@
 #include "stages/column_transform/column_transform.h"
 #include "stages/common/basis.h"
 #include "stages/common/parallel_for.h"
+#include "stages/common/thread_zeros.h"
 
 namespace ltb::stages {
 
@@ -398,20 +399,10 @@ Status QuantizeChunk(const QuantizeJob& job, uint64_t c, bool quantize) {
   LTB_ASSIGN_OR_RETURN(const InputChunk ic, ReadInputChunk(job, c));
   const SparseChunk& sc = ic.sc;
   const ChunkExtent& e = sc.extent;
-  // The dense chunk, in a buffer each thread keeps from chunk to chunk (all zero between
-  // chunks: the positions a chunk sets are cleared after it is written; a fresh 32 MiB a
-  // chunk cost ~10% of the stage in page faults).
-  thread_local std::vector<int32_t> buffer;
-  if (quantize && buffer.size() < e.cols * pixels) buffer.assign(e.cols * pixels, 0);
-  std::span<int32_t> dense(buffer.data(), quantize ? e.cols * pixels : 0);
-  struct Clear {  // on every path out, also an error's
-    std::span<int32_t> d;
-    const std::vector<uint32_t>& index;
-    ~Clear() {
-      if (!d.empty())
-        for (uint32_t p : index) d[p] = 0;
-    }
-  } clear{dense, sc.index};
+  // The dense chunk, in this thread's reused buffer; the positions a chunk sets (those of
+  // its input) are cleared after it is written, on every path out.
+  const std::span<int32_t> dense = quantize ? ThreadZeros<int32_t>(e.cols * pixels) : std::span<int32_t>();
+  const ClearOnExit clear(dense, sc.index);
   std::vector<double> scaled;
   size_t pos = 0;
   uint64_t nonzeros = 0;
