@@ -110,54 +110,80 @@ struct Parsed {
   HttpRequest request;
   int error = 0;  // an HTTP status to answer instead, with `message`
   std::string message;
+  uint64_t body_bytes = 0;       // a POST's Content-Length
+  bool expect_continue = false;  // "Expect: 100-continue": say so before the body comes
 };
 
-Parsed ParseHead(const std::string& head) {
+Parsed Refuse(int status, const std::string& message) {
   Parsed p;
+  p.error = status;
+  p.message = message;
+  return p;
+}
+
+// The head's fields after the request line, names in lower case, values trimmed.
+std::map<std::string, std::string> HeadFields(const std::string& head, size_t eol) {
+  std::map<std::string, std::string> fields;
+  for (size_t at = eol; at != std::string::npos && at + 2 < head.size();) {
+    const size_t next = head.find("\r\n", at + 2);
+    const std::string h = head.substr(at + 2, (next == std::string::npos ? head.size() : next) - at - 2);
+    at = next;
+    const size_t colon = h.find(':');
+    if (colon == std::string::npos) continue;
+    std::string name = h.substr(0, colon);
+    std::transform(name.begin(), name.end(), name.begin(), [](unsigned char c) { return std::tolower(c); });
+    const size_t v0 = h.find_first_not_of(" \t", colon + 1), v1 = h.find_last_not_of(" \t");
+    fields[name] = v0 == std::string::npos ? std::string() : h.substr(v0, v1 - v0 + 1);
+  }
+  return fields;
+}
+
+// Over 60 lines: the request line, then the body rules per method, then the target, in order.
+Parsed ParseHead(const std::string& head, uint64_t max_body_bytes) {
   const size_t eol = head.find("\r\n");
   const std::string line = head.substr(0, eol);
   const size_t a = line.find(' '), b = a == std::string::npos ? a : line.find(' ', a + 1);
   if (a == std::string::npos || b == std::string::npos || line.compare(b + 1, 7, "HTTP/1.") != 0) {
-    p.error = 400;
-    p.message = "malformed request line \"" + Clip(line) + "\"";
-    return p;
+    return Refuse(400, "malformed request line \"" + Clip(line) + "\"");
   }
+  Parsed p;
   p.request.method = line.substr(0, a);
   const std::string target = line.substr(a + 1, b - a - 1);
-  if (p.request.method != "GET" && p.request.method != "HEAD") {
-    p.error = 405;
-    p.message = "method " + Clip(p.request.method) + " is not served (GET only)";
-    return p;
+  const bool post = p.request.method == "POST" && max_body_bytes > 0;
+  if (p.request.method != "GET" && p.request.method != "HEAD" && !post) {
+    return Refuse(405, "method " + Clip(p.request.method) + " is not served (" +
+                           (max_body_bytes > 0 ? "GET, HEAD and POST" : "GET only") + ")");
   }
-  // Bodies are not taken: a Content-Length other than 0, or any Transfer-Encoding, is refused.
-  for (size_t at = eol; at != std::string::npos && at + 2 < head.size();) {
-    const size_t next = head.find("\r\n", at + 2);
-    std::string h = head.substr(at + 2, (next == std::string::npos ? head.size() : next) - at - 2);
-    std::transform(h.begin(), h.end(), h.begin(), [](unsigned char c) { return std::tolower(c); });
-    const bool body = (h.starts_with("content-length:") && h.find_first_not_of(" \t0", 15) != std::string::npos) ||
-                      h.starts_with("transfer-encoding:");
-    if (body) {
-      p.error = 413;
-      p.message = "a request body is not accepted";
-      return p;
+  p.request.headers = HeadFields(head, eol);
+  const auto& fields = p.request.headers;
+  const auto length = fields.find("content-length");
+  if (fields.count("transfer-encoding") != 0) {
+    return post ? Refuse(411, "a chunked body is not taken: send its Content-Length")
+                : Refuse(413, "a request body is not accepted");
+  }
+  if (!post) {  // GET and HEAD: no body (a Content-Length of 0 is fine)
+    if (length != fields.end() && length->second.find_first_not_of("0") != std::string::npos)
+      return Refuse(413, "a request body is not accepted");
+  } else {
+    if (length == fields.end()) return Refuse(411, "a POST needs a Content-Length");
+    const std::string& v = length->second;
+    if (v.empty() || v.size() > 18 || v.find_first_not_of("0123456789") != std::string::npos)
+      return Refuse(400, "Content-Length \"" + Clip(v) + "\" is not a number of bytes");
+    p.body_bytes = std::stoull(v);
+    if (p.body_bytes > max_body_bytes) {
+      return Refuse(413, "the body is " + v + " bytes; at most " + std::to_string(max_body_bytes) +
+                             " are taken (ltbake view --mem-limit sets it)");
     }
-    at = next;
+    const auto expect = fields.find("expect");
+    p.expect_continue = expect != fields.end() && expect->second == "100-continue";
   }
   const size_t q = target.find('?');
   auto path = PercentDecode(target.substr(0, q), false);
-  if (!path.ok()) {
-    p.error = 400;
-    p.message = path.status().message();
-    return p;
-  }
+  if (!path.ok()) return Refuse(400, path.status().message());
   p.request.path = *path;
   if (q != std::string::npos) {
     auto params = ParseQuery(target.substr(q + 1));
-    if (!params.ok()) {
-      p.error = 400;
-      p.message = params.status().message();
-      return p;
-    }
+    if (!params.ok()) return Refuse(400, params.status().message());
     p.request.params = std::move(params).value();
   }
   return p;
@@ -176,6 +202,8 @@ std::string HttpReason(int status) {
       return "OK";
     case 400:
       return "Bad Request";
+    case 403:
+      return "Forbidden";
     case 404:
       return "Not Found";
     case 405:
@@ -184,6 +212,8 @@ std::string HttpReason(int status) {
       return "Request Timeout";
     case 409:
       return "Conflict";
+    case 411:
+      return "Length Required";
     case 413:
       return "Payload Too Large";
     case 431:
@@ -290,21 +320,33 @@ Status HttpServer::Serve(const Handler& handler, const std::function<bool()>& st
     int fd;
     std::string buf;
     Clock::time_point deadline;
+    bool head_done = false;  // parsed: a POST's body is being read from body_at on
+    Parsed parsed;
+    size_t body_at = 0;
   };
   std::vector<Conn> conns;
   const auto request_time =
       std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(options_.request_seconds));
+  const auto body_time =
+      std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(options_.body_seconds));
+  uint64_t held_body = 0;  // body bytes the connections being read have announced
+  auto drop = [&](const Conn& c) { held_body -= c.head_done ? c.parsed.body_bytes : 0; };
   Status status;
   std::vector<pollfd> fds;
-  char chunk[4096];
+  std::vector<char> chunk(64 << 10);
   while (!stop()) {
     // Deadlines first: a request not whole by now is answered 408.
     const auto now = Clock::now();
     auto nearest = now + std::chrono::milliseconds(100);
     for (size_t i = 0; i < conns.size();) {
       if (conns[i].deadline <= now) {
-        AnswerNow(conns[i].fd, Plain(408, "the request did not arrive within " +
-                                              std::to_string(static_cast<int>(options_.request_seconds)) + " s"));
+        const bool body = conns[i].head_done;
+        AnswerNow(
+            conns[i].fd,
+            Plain(408, std::string(body ? "the body" : "the request") + " did not arrive within " +
+                           std::to_string(static_cast<int>(body ? options_.body_seconds : options_.request_seconds)) +
+                           " s"));
+        drop(conns[i]);
         conns[i] = std::move(conns.back());
         conns.pop_back();
       } else {
@@ -326,29 +368,54 @@ Status HttpServer::Serve(const Handler& handler, const std::function<bool()>& st
     for (size_t i = 0; i < conns.size(); ++i) {
       if (fds[i + 1].revents == 0) continue;
       Conn& c = conns[i];
-      const ssize_t got = ::recv(c.fd, chunk, sizeof chunk, 0);
+      const ssize_t got = ::recv(c.fd, chunk.data(), chunk.size(), 0);
       if (got < 0 && (errno == EAGAIN || errno == EINTR)) continue;
       if (got <= 0) {
         ::close(c.fd);
+        drop(c);
         gone.push_back(i);
         continue;
       }
-      c.buf.append(chunk, static_cast<size_t>(got));
-      const size_t end = c.buf.find("\r\n\r\n");
-      if (end == std::string::npos) {
-        if (c.buf.size() > options_.max_request_bytes) {
-          AnswerNow(c.fd,
-                    Plain(431, "the request's head is over " + std::to_string(options_.max_request_bytes) + " bytes"));
-          gone.push_back(i);
+      c.buf.append(chunk.data(), static_cast<size_t>(got));
+      if (!c.head_done) {
+        const size_t end = c.buf.find("\r\n\r\n");
+        if (end == std::string::npos) {
+          if (c.buf.size() > options_.max_request_bytes) {
+            AnswerNow(c.fd, Plain(431, "the request's head is over " + std::to_string(options_.max_request_bytes) +
+                                           " bytes"));
+            gone.push_back(i);
+          }
+          continue;
         }
-        continue;
+        c.parsed = ParseHead(c.buf.substr(0, end), options_.max_body_bytes);
+        if (c.parsed.error != 0) {
+          AnswerNow(c.fd, Plain(c.parsed.error, c.parsed.message));
+          gone.push_back(i);
+          continue;
+        }
+        if (c.parsed.body_bytes > 0) {  // a POST: its body next, within the bytes held at once
+          if (held_body + c.parsed.body_bytes > options_.max_body_bytes) {
+            HttpResponse busy = Plain(503, "busy: another upload is being read; try again shortly");
+            busy.headers.push_back({"Retry-After", "1"});
+            AnswerNow(c.fd, busy);
+            gone.push_back(i);
+            continue;
+          }
+          held_body += c.parsed.body_bytes;
+          c.head_done = true;
+          c.body_at = end + 4;
+          c.deadline = Clock::now() + body_time;
+          c.buf.reserve(c.body_at + c.parsed.body_bytes);
+          if (c.parsed.expect_continue)
+            (void)WriteAll(c.fd, "HTTP/1.1 100 Continue\r\n\r\n", Clock::now() + std::chrono::milliseconds(200));
+        }
       }
-      Parsed p = ParseHead(c.buf.substr(0, end));
+      if (c.head_done) {
+        if (c.buf.size() - c.body_at < c.parsed.body_bytes) continue;
+        c.parsed.request.body = c.buf.substr(c.body_at, c.parsed.body_bytes);
+        drop(c);
+      }
       gone.push_back(i);
-      if (p.error != 0) {
-        AnswerNow(c.fd, Plain(p.error, p.message));
-        continue;
-      }
       std::unique_lock<std::mutex> lock(mu);
       if (queue.size() >= static_cast<size_t>(options_.workers)) {
         lock.unlock();
@@ -358,7 +425,7 @@ Status HttpServer::Serve(const Handler& handler, const std::function<bool()>& st
         AnswerNow(c.fd, busy);
         continue;
       }
-      queue.push_back(Job{c.fd, std::move(p.request)});
+      queue.push_back(Job{c.fd, std::move(c.parsed.request)});
       lock.unlock();
       cv.notify_one();
     }

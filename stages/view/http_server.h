@@ -5,7 +5,8 @@
 //     pool: a request that finds it full is answered 503 at once, as is a connection beyond
 //     max_connections, so a busy server answers rather than leaving clients waiting;
 //   - every response closes its connection (no keep-alive: nothing idles on a worker).
-// Only GET (and HEAD) with a query string; bodies are refused (413). Bound to 127.0.0.1.
+// GET (and HEAD) with a query string; POST with a body of at most max_body_bytes (given by
+// Content-Length; 0 turns POST off), bodies of other methods refused (413). Bound to 127.0.0.1.
 #pragma once
 
 #include <cstdint>
@@ -20,11 +21,14 @@
 namespace ltb::stages::view {
 
 struct HttpRequest {
-  std::string method;  // GET or HEAD
+  std::string method;  // GET, HEAD or POST
   std::string path;    // decoded, without the query
   // The query's parameters, percent-decoded ('+' is a space). A key given twice is refused
   // before the handler is called (400).
   std::map<std::string, std::string> params;
+  // The head's fields, names in lower case (a field given twice: the last).
+  std::map<std::string, std::string> headers;
+  std::string body;  // a POST's (Content-Length bytes)
 };
 
 struct HttpResponse {
@@ -40,6 +44,10 @@ struct HttpServerOptions {
   double request_seconds = 5.0;           // from accept to the end of the request's head
   double write_seconds = 10.0;            // to write a response
   uint64_t max_request_bytes = 16 << 10;  // request line and headers
+  // A POST's body: at most this many bytes (larger: 413 before it is read; 0: no POST, 405),
+  // and at most this many held by the reading loop at once over every connection (503 past it).
+  uint64_t max_body_bytes = 0;
+  double body_seconds = 60.0;  // from the end of the head to the end of the body (408 past it)
 };
 
 // The reason phrase of a status code ("Not Found").

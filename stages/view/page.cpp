@@ -23,7 +23,9 @@ a{color:#8cf}
 <div style="display:flex;gap:24px;flex-wrap:wrap">
 <div><img id="frame" alt="relit frame" draggable="false"><div><small>drag to rotate the environment</small></div></div>
 <div>
-<div class="row"><label for="map">map</label><select id="map"></select></div>
+<div class="row"><label for="map">map</label><select id="map"></select>
+<label for="upload" id="uploadlabel" style="width:auto;cursor:pointer;color:#8cf">add a map…</label>
+<input id="upload" type="file" accept=".exr,.hdr" hidden> <small id="uploadmsg"></small></div>
 <div class="row"><label for="method">method</label><select id="method">
 <option value="pbi">PBI (per-band incremental)</option><option value="bi">BI (basic incremental)</option>
 <option value="nwa">NWA (non-incremental)</option></select></div>
@@ -50,7 +52,33 @@ const ltb = window.ltb = {frames: 0, rotate: 0, base: 0, last: null, stats: null
 const defaults = LTB_DEFAULTS;  // the command line's --terms and --method, filled in by the server
 if (defaults.terms !== "all") { $("terms").value = defaults.terms; $("termsval").textContent = $("terms").value; }
 $("method").value = defaults.method;
-defaults.maps.forEach((name, k) => { const o = document.createElement("option"); o.value = k; o.textContent = name; $("map").appendChild(o); });
+function addMap(name, k) { const o = document.createElement("option"); o.value = k; o.textContent = name; $("map").appendChild(o); }
+defaults.maps.forEach(addMap);
+// A map from this computer (.exr or .hdr): sent to the server (POST /map), which checks and
+// loads it like an --env map; it joins the map control and is shown.
+$("upload").addEventListener("change", async () => {
+  const f = $("upload").files[0], msg = $("uploadmsg");
+  $("upload").value = "";
+  if (!f) return;
+  const name = f.name.replace(/[^A-Za-z0-9._-]/g, "_").replace(/^\./, "_");
+  if (f.size > defaults.max_upload_bytes) {
+    msg.textContent = f.name + " is " + (f.size / 1048576).toFixed(1) + " MiB; the most the server takes is " +
+      (defaults.max_upload_bytes / 1048576).toFixed(0) + " MiB (give it as --env, or raise --mem-limit)";
+    ltb.upload = {error: msg.textContent}; return;
+  }
+  msg.textContent = "loading " + name + "…";
+  try {
+    const res = await fetch("/map?name=" + encodeURIComponent(name), {method: "POST", body: f, headers: {"X-Ltb-Upload": "1"}});
+    const text = await res.text();
+    if (!res.ok) throw new Error(text.trim());
+    const r = JSON.parse(text);
+    addMap(r.maps[r.map], r.map);
+    $("map").value = String(r.map); ltb.base = 0;  // the new map, at its own automatic exposure
+    msg.textContent = "added " + r.maps[r.map]; ltb.upload = {map: r.map, name: r.maps[r.map]}; poke();
+  } catch (e) {
+    msg.textContent = String(e.message || e); ltb.upload = {error: msg.textContent};
+  }
+});
 if (!defaults.reference) {  // A/B needs ltbake view --reference FILE
   for (const o of $("show").options) if (o.value !== "matrix") o.disabled = true;
   $("showhint").textContent = "(start with --reference to compare)";

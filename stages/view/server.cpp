@@ -1,5 +1,6 @@
 #include "stages/view/server.h"
 
+#include <algorithm>
 #include <mutex>
 #include <optional>
 
@@ -13,11 +14,20 @@ Status Serve(const ViewOptions& o, const std::function<void(const std::string& u
   LTB_ASSIGN_OR_RETURN(std::unique_ptr<ViewSession> session, ViewSession::Open(o));
   std::mutex mu;  // one frame at a time: the approximation carries from frame to frame
   const FrameRequest& d = session->defaults();
-  const std::string page = PageHtml(JsonText(nlohmann::json{{"terms", TermsJson(d.terms)},
-                                                            {"method", SequenceMethodName(d.method)},
-                                                            {"reference", session->has_reference()},
-                                                            {"maps", session->map_names()},
-                                                            {"sequence_frames", session->sequence_frames()}}));
+  // An uploaded map's file (POST /map): a quarter of --mem-limit, within 16–512 MiB.
+  HttpServerOptions http;
+  http.max_body_bytes = std::clamp<uint64_t>(o.mem_limit / 4, 16ull << 20, 512ull << 20);
+  // The page, made for each GET / so that a reload lists the maps uploaded so far.
+  auto page = [&] {
+    return PageHtml(JsonText(nlohmann::json{{"terms", TermsJson(d.terms)},
+                                            {"method", SequenceMethodName(d.method)},
+                                            {"reference", session->has_reference()},
+                                            {"maps", session->map_names()},
+                                            {"sequence_frames", session->sequence_frames()},
+                                            {"max_upload_bytes", http.max_body_bytes},
+                                            {"max_maps", ViewSession::kMaxMaps}}));
+  };
+
   auto fail = [](int code, const std::string& message) {
     HttpResponse r;
     r.status = code;
@@ -27,13 +37,39 @@ Status Serve(const ViewOptions& o, const std::function<void(const std::string& u
   auto handler = [&](const HttpRequest& req) -> HttpResponse {
     HttpResponse res;
     res.headers.push_back({"Cache-Control", "no-store"});
-    if (req.path == "/") {
+    if ((req.method == "POST") != (req.path == "/map")) {
+      return fail(405, req.path == "/map" ? "/map takes a POST of the map's file"
+                                          : "POST is taken only by /map (an environment map's file)");
+    }
+    if (req.path == "/map") {  // a map from the page: ?name=FILE.exr|.hdr, the file as the body
+      // A page of another origin cannot send this header without asking first (CORS), which
+      // this server never allows: only the page itself uploads.
+      if (req.headers.count("x-ltb-upload") == 0)
+        return fail(403, "an upload needs the header X-Ltb-Upload: 1 (the page sends it)");
+      std::string name;
+      for (const auto& [key, value] : req.params) {
+        if (key != "name") return fail(400, key.substr(0, 40) + ": /map takes only name=FILE.exr or FILE.hdr");
+        name = value;
+      }
+      std::lock_guard<std::mutex> lock(mu);
+      auto k = session->AddMap(name, req.body);
+      if (!k.ok()) {
+        const StatusCode c = k.status().code();
+        return fail(c == StatusCode::kInvalidArgument      ? 400
+                    : c == StatusCode::kFailedPrecondition ? 409
+                                                           : 500,
+                    k.status().message());
+      }
+      res.content_type = "application/json";
+      res.body = JsonText(nlohmann::json{{"map", *k}, {"maps", session->map_names()}});
+    } else if (req.path == "/") {
+      std::lock_guard<std::mutex> lock(mu);
       res.content_type = "text/html; charset=utf-8";
-      res.body = page;
+      res.body = page();
     } else if (req.path == "/frame.png") {
+      std::lock_guard<std::mutex> lock(mu);  // before the maps are counted: an upload adds one
       auto q = ParseFrameRequest(req.params, session->defaults(), session->maps(), session->sequence_frames());
       if (!q.ok()) return fail(400, q.status().message());
-      std::lock_guard<std::mutex> lock(mu);
       auto png = session->Render(*q);
       if (!png.ok())
         return fail(png.status().code() == StatusCode::kInvalidArgument ? 400 : 500, png.status().message());
@@ -68,7 +104,7 @@ Status Serve(const ViewOptions& o, const std::function<void(const std::string& u
     }
     return res;
   };
-  LTB_ASSIGN_OR_RETURN(HttpServer server, HttpServer::Listen(o.port, HttpServerOptions{}));
+  LTB_ASSIGN_OR_RETURN(HttpServer server, HttpServer::Listen(o.port, http));
   ready("http://127.0.0.1:" + std::to_string(server.port()) + "/");
   return server.Serve(handler, stop);
 }

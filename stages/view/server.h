@@ -4,6 +4,8 @@
 //                    (its figures in the X-Ltb-Stats header, JSON)
 //   GET /stats       the last frame's figures (JSON)
 //   GET /env.png     the last frame's lighting as a lat-long strip, its terms tinted red
+//   POST /map        a map from the page (?name=FILE.exr|.hdr, the file as the body, header
+//                    X-Ltb-Upload): loaded like an --env map; answers {"map": K, "maps": [...]}
 // Anything else is 404; bad parameters are 400 naming the parameter. Frames are rendered
 // one at a time (the page keeps one request in flight, so nothing queues up).
 #pragma once
@@ -22,7 +24,7 @@ Status Serve(const ViewOptions& options, const std::function<void(const std::str
              const std::function<bool()>& stop);
 
 // The page's HTML; `defaults_json` ({"terms": N or "all", "method": "pbi", "reference": bool,
-// "maps": [names]}) sets its controls.
+// "maps": [names], "sequence_frames": N, "max_upload_bytes": N, "max_maps": N}) sets its controls.
 std::string PageHtml(const std::string& defaults_json);
 
 }  // namespace ltb::stages::view

@@ -1,10 +1,16 @@
 #include "stages/view/view_session.h"
 
+#include <stdlib.h>
+
+#include <algorithm>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <numbers>
+#include <optional>
 
+#include "format/io/atomic_file.h"
 #include "stages/common/cubemap.h"
 #include "stages/common/quantity.h"
 #include "stages/images/image_io.h"
@@ -138,7 +144,13 @@ Result<std::unique_ptr<ViewSession>> ViewSession::Open(const ViewOptions& o) {
   eo.layout = o.env_layout;
   eo.max_bytes = o.mem_limit;
   if (o.envs.empty()) return InvalidArgument("view needs an environment map (--env)");
+  if (o.envs.size() > kMaxMaps) {
+    return InvalidArgument("view takes at most " + std::to_string(kMaxMaps) + " maps (--env given " +
+                           std::to_string(o.envs.size()) + " times)");
+  }
   std::unique_ptr<ViewSession> s(new ViewSession(std::move(m)));
+  s->env_options_ = eo;
+  s->sequence_ = o.sequence;
   float peak = 0;
   for (const std::string& path : o.envs) {
     LTB_ASSIGN_OR_RETURN(Environment env,
@@ -257,6 +269,59 @@ Result<std::string> ViewSession::FrameExr(std::optional<uint64_t> frame) const {
     return FailedPrecondition("frame " + std::to_string(frame_ - 1) + " failed; there is no frame to save");
   }
   return EncodeExr(shown_.data(), m_.width(), m_.height());
+}
+
+Result<uint64_t> ViewSession::AddMap(const std::string& name, const std::string& bytes) {
+  std::string ext = name.size() >= 4 ? name.substr(name.size() - 4) : std::string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  if (name.empty() || name.size() > 100 || name.front() == '.' ||
+      name.find_first_not_of("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789.-_") !=
+          std::string::npos ||
+      (ext != ".exr" && ext != ".hdr")) {
+    return InvalidArgument("name=" + (name.size() > 40 ? name.substr(0, 40) + "..." : name) +
+                           ": expected the map's file name, ending .exr or .hdr (letters, digits, '.', '-', '_')");
+  }
+  if (envs_.size() >= kMaxMaps) {
+    return FailedPrecondition("the page has " + std::to_string(envs_.size()) + " maps, the most it takes; restart " +
+                              "ltbake view with the maps wanted as --env");
+  }
+  if (bytes.empty()) return InvalidArgument(name + ": the upload is empty");
+  // The loaders read files: the bytes go to a private directory, read, then removed.
+  std::string dir = (std::filesystem::temp_directory_path() / "ltbake-view-XXXXXX").string();
+  if (::mkdtemp(dir.data()) == nullptr) return IoError("view: a temporary directory for " + name, errno);
+  const std::string path = dir + "/" + name;
+  struct Remove {
+    std::string dir;
+    ~Remove() {
+      std::error_code ec;
+      std::filesystem::remove_all(dir, ec);
+    }
+  } remove{dir};
+  LTB_RETURN_IF_ERROR(io::WriteFileAtomically(path, bytes));
+  // Errors name the upload, not the temporary file.
+  auto named = [&](const Status& st) {
+    std::string text = st.message();
+    for (size_t at; (at = text.find(path)) != std::string::npos;) text.replace(at, path.size(), "uploaded " + name);
+    const bool ours = st.code() == StatusCode::kIo || st.code() == StatusCode::kInternal;  // else the file's fault
+    return Status(ours ? st.code() : StatusCode::kInvalidArgument, text);
+  };
+  auto env = Environment::Open(path, m_.basis().cube_res(), env_options_, EnvResampling::kPerFrame);
+  if (!env.ok()) return named(env.status());
+  std::optional<LightingSequence> seq;
+  if (!sequence_.empty()) {
+    auto made = LightingSequence::Open(sequence_, path, 0.0, m_.basis().cube_res(), env_options_);
+    if (!made.ok()) return named(made.status());
+    seq.emplace(std::move(*made));
+  }
+  // A brighter map than any before moves the session's power-of-two scale: the carried
+  // approximation was made at the old one, so the next frame starts afresh.
+  const int exponent = std::max({exponent_, LightingExponent(env->peak()), seq ? seq->exponent() : 0});
+  if (exponent != exponent_) relighter_.reset();
+  exponent_ = exponent;
+  envs_.push_back(std::move(*env));
+  env_paths_.push_back(name);
+  if (seq) sequences_.push_back(std::move(*seq));
+  return envs_.size() - 1;
 }
 
 std::vector<std::string> ViewSession::map_names() const {

@@ -67,6 +67,12 @@ class ViewSession {
   // The maps' file names, in --env order (the page's choice of map).
   std::vector<std::string> map_names() const;
   uint64_t maps() const { return envs_.size(); }
+  // A map sent by the page (POST /map): `name` is its file name (letters, digits, '.', '-',
+  // '_'; ending .exr or .hdr, which says how to read it), `bytes` the file. It is checked and
+  // loaded like an --env map (and its --sequence made); the new map's index. InvalidArgument
+  // for a bad name or file, naming it; FailedPrecondition past kMaxMaps maps.
+  static constexpr uint64_t kMaxMaps = 16;
+  Result<uint64_t> AddMap(const std::string& name, const std::string& bytes);
   // Frames of the --sequence (0: none).
   uint64_t sequence_frames() const { return sequences_.empty() ? 0 : sequences_.front().frames(); }
 
@@ -91,7 +97,9 @@ class ViewSession {
   explicit ViewSession(RelightMatrix m) : m_(std::move(m)) {}
   RelightMatrix m_;
   std::vector<Environment> envs_;
-  std::vector<std::string> env_paths_;
+  std::vector<std::string> env_paths_;  // an uploaded map's: its name
+  EnvLoadOptions env_options_;
+  std::vector<SequenceSegment> sequence_;
   std::vector<LightingSequence> sequences_;  // --sequence from each map (empty without one)
   int exponent_ = 0;                         // every map relit at 2^-exponent_ (LightingExponent of the brightest)
   std::optional<RelightMatrix> reference_;

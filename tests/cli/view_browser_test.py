@@ -45,6 +45,7 @@ import tempfile
 import threading
 import time
 import urllib.error
+import urllib.parse
 import urllib.request
 
 import numpy as np
@@ -142,6 +143,28 @@ def get(url, timeout=30):
         return e.code, e.headers, e.read()
     except (OSError, urllib.error.URLError) as e:
         return None, {}, repr(e).encode()
+
+
+def raw_request(port, data, timeout=30):
+    """(status, body) of raw request bytes sent to 127.0.0.1:port; (None, error) without an answer."""
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=timeout) as c:
+            c.sendall(data)
+            c.shutdown(socket.SHUT_WR)
+            got = b""
+            while chunk := c.recv(65536):
+                got += chunk
+    except OSError as e:
+        return None, repr(e).encode()
+    m = re.match(rb"HTTP/1\.1 (\d+) ", got)
+    return (int(m.group(1)) if m else None), got.split(b"\r\n\r\n", 1)[-1]
+
+
+def post_map(port, name, body, upload_header=True):
+    """(status, body) of POST /map?name=NAME with the file's bytes, as the page sends it."""
+    head = (f"POST /map?name={urllib.parse.quote(name)} HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+            f"Content-Length: {len(body)}\r\n" + ("X-Ltb-Upload: 1\r\n" if upload_header else "") + "\r\n")
+    return raw_request(port, head.encode() + body)
 
 
 def connect_result(host, port, family=socket.AF_INET):
@@ -546,6 +569,49 @@ def main():
             if st == 200:
                 compare(png_pixels(body), relight_png(final, env2, 30, 20, 0.5, P("http_ref2.png")),
                         "/frame.png?map=1&rotate=30&terms=20&method=nwa&exposure=0.5 against relight of forest.exr")
+            # A map uploaded (POST /map, as the page sends it) is map 2: `relight --env` of that file;
+            # a bad upload gets a 4xx naming what is wrong and changes nothing.
+            env3 = os.path.join(envdir, "night.exr")
+            with open(env3, "rb") as f:
+                night = f.read()
+            st, body = post_map(port, "night.exr", night)
+            up = json.loads(body or b"{}") if st == 200 else {}
+            check(st == 200 and up.get("map") == 2 and up.get("maps") == ["sunset.exr", "forest.exr", "night.exr"],
+                  f"POST /map?name=night.exr: {st} {body[:300]!r}")
+            st, h, body = get(base + "/frame.png?map=2&rotate=30&terms=20&method=nwa&exposure=0.5")
+            stats = json.loads(h.get("X-Ltb-Stats") or "{}") if st == 200 else {}
+            check(st == 200 and stats.get("map_name") == "night.exr", f"GET /frame.png?map=2 after the upload: {st} {stats}")
+            if st == 200:
+                compare(png_pixels(body), relight_png(final, env3, 30, 20, 0.5, P("http_ref3.png")),
+                        "/frame.png?map=2 (uploaded night.exr) against relight --env night.exr")
+            st, h, body = get(base + "/frame.png?t=3&map=2&terms=20&method=nwa&exposure=0.5")
+            check(st == 200, f"the sequence from the uploaded map (t=3&map=2): {st} {body[:200]!r}")
+            st, h, body = get(base + "/")
+            check(st == 200 and b'"night.exr"' in body, f"GET / after the upload does not list night.exr: {st}")
+            for name, data, header, code, says in (
+                    ("night.exr", night, False, 403, b"X-Ltb-Upload"),
+                    ("../night.exr", night, True, 400, b"name="),
+                    ("night.png", night, True, 400, b".exr or .hdr"),
+                    ("broken.exr", night[:2000], True, 400, b"uploaded broken.exr"),
+                    ("garbage.hdr", b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 99999 +X 99999\n", True, 400,
+                     b"uploaded garbage.hdr"),
+                    ("empty.hdr", b"", True, 400, b"empty")):
+                st, body = post_map(port, name, data, header)
+                check(st == code and says in body, f"POST /map?name={name} ({len(data)} bytes): {st} {body[:300]!r}, "
+                      f"expected {code} saying {says!r}")
+                check(b"/tmp" not in body and b"ltbake-view-" not in body,
+                      f"the refusal of {name} names the server's temporary file: {body[:300]!r}")
+            for request, code in ((b"POST /map?name=a.hdr HTTP/1.1\r\nX-Ltb-Upload: 1\r\n\r\n", 411),
+                                  (b"POST /map?name=a.hdr HTTP/1.1\r\nTransfer-Encoding: chunked\r\n\r\n0\r\n\r\n", 411),
+                                  (b"POST /map?name=a.hdr HTTP/1.1\r\nContent-Length: 999999999999\r\n\r\n", 413),
+                                  (b"POST /map?name=a.hdr HTTP/1.1\r\nContent-Length: 12x\r\n\r\n", 400),
+                                  (b"POST /frame.png HTTP/1.1\r\nContent-Length: 1\r\n\r\nx", 405),
+                                  (b"GET /map?name=a.hdr HTTP/1.1\r\n\r\n", 405),
+                                  (b"PUT /map HTTP/1.1\r\nContent-Length: 1\r\n\r\nx", 405)):
+                st, body = raw_request(port, request)
+                check(st == code, f"{request[:60]!r}: {st} {body[:200]!r}, expected {code}")
+            st, h, body = get(base + "/frame.png?map=3")
+            check(st == 400 and b"0..2" in body, f"GET /frame.png?map=3 with three maps: {st} {body[:200]!r}")
             # A/B against the reference (rows.ltm, every term): show=reference is `relight rows.ltm`
             # of the same rotation and exposure; show=difference is |A - B| of the two relit
             # images at 16x the exposure, through the sRGB curve (computed here in NumPy).
@@ -568,7 +634,7 @@ def main():
                         "show=difference against NumPy's |A - B| at 8")
             for query, name in (("rotate=abc", "rotate"), ("terms=0", "terms"), ("method=xyz", "method"),
                                 ("bogus=1", "bogus"), ("exposure=-1", "exposure"), ("show=both", "show"),
-                                ("map=2", "map"), ("map=-1", "map")):
+                                ("map=9", "map"), ("map=-1", "map")):
                 st, h, body = get(base + "/frame.png?" + query)
                 check(st == 400 and name.encode() in body,
                       f"GET /frame.png?{query}: {st} {body[:300]!r}, expected 400 naming {name}")
@@ -624,7 +690,7 @@ def main():
 
                 # The map control lists both maps; choosing forest brings its frames, then back to sunset.
                 names = page.eval("Array.from(document.getElementById('map').options).map((o) => o.textContent)")
-                check(names == ["sunset.exr", "forest.exr"], f"the map control lists {names}")
+                check(names == ["sunset.exr", "forest.exr", "night.exr"], f"the map control lists {names} (the third uploaded)")
                 page.eval("(() => { const e = document.getElementById('map'); e.value = '1';"
                           " e.dispatchEvent(new Event('change')); })()")
                 s = wait_idle(lambda ltb: ltb["last"]["map"] == "1" and ltb["stats"]["map"] == 1,
@@ -634,6 +700,22 @@ def main():
                           " e.dispatchEvent(new Event('change')); })()")
                 s = wait_idle(lambda ltb: ltb["last"]["map"] == "0" and ltb["stats"]["map"] == 0,
                               "a frame of the first map again")
+
+                # "add a map…": a file chosen in the page's file input is uploaded, joins the map
+                # control and is shown (the server has three maps: this is the fourth).
+                node = page.send("Runtime.evaluate", {"expression": "document.getElementById('upload')"})
+                page.send("DOM.setFileInputFiles", {"files": [os.path.join(envdir, "city.exr")],
+                                                     "objectId": node["result"]["objectId"]})
+                s = wait_idle(lambda ltb: ltb["last"]["map"] == "3" and ltb["stats"]["map"] == 3,
+                              "a frame of the map chosen in the file input (city.exr, map 3)")
+                up = page.eval("({upload: ltb.upload, msg: document.getElementById('uploadmsg').textContent,"
+                               " names: Array.from(document.getElementById('map').options).map((o) => o.textContent)})")
+                check(s["ltb"]["stats"]["map_name"] == "city.exr" and up["upload"] == {"map": 3, "name": "city.exr"} and
+                      up["names"][-1] == "city.exr" and "added city.exr" in up["msg"], f"the uploaded map: {up}")
+                page.eval("(() => { const e = document.getElementById('map'); e.value = '0';"
+                          " e.dispatchEvent(new Event('change')); })()")
+                s = wait_idle(lambda ltb: ltb["last"]["map"] == "0" and ltb["stats"]["map"] == 0,
+                              "a frame of the first map after the upload")
 
                 # Drag 80 px to the right on the frame: 40 degrees.
                 box = page.eval("(() => { const r = document.getElementById('frame').getBoundingClientRect();"
