@@ -89,7 +89,9 @@ const std::vector<CommandInfo>& CommandList() {
       {"view", RegisterView, false,
        "ltbake view final.ltm --env sky.exr  # prints http://127.0.0.1:PORT/\n"
        "ltbake view final.ltm --env a.exr --env b.hdr --reference rows.ltm --sequence fade:a.exr+b.hdr:50  # A/B, "
-       "time slider"},
+       "time slider\n"
+       "ltbake view glossy.ltm --env sky.exr --clamp --size 512x512  # a vertex bake (glossy.k0.ltm ..) from a moving "
+       "eye"},
   };
   return list;
 }

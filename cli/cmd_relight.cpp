@@ -122,25 +122,6 @@ class RelightCommand : public Command {
     return !materials_.empty() || method_ == "sublinear" || method_ == "linear" || method_ == "pixel";
   }
 
-  // Camera coordinates: anything a scene could hold, with room to square it.
-  static constexpr double kMaxCoordinate = 1e30;
-
-  // "X,Y,Z" -> vector; false when it is not three decimal numbers within ±kMaxCoordinate.
-  static bool ParseVec3(const std::string& text, glm::dvec3* out) {
-    double v[3];
-    size_t pos = 0;
-    for (int k = 0; k < 3; ++k) {
-      const size_t end = k < 2 ? text.find(',', pos) : text.size();
-      if (end == std::string::npos) return false;
-      auto parsed = stages::ParseDecimal(text.substr(pos, end - pos), -kMaxCoordinate, kMaxCoordinate);
-      if (!parsed.ok()) return false;
-      v[k] = *parsed;
-      pos = end + 1;
-    }
-    *out = glm::dvec3(v[0], v[1], v[2]);
-    return true;
-  }
-
   // --eye, --target, --up, --size and --orbit of a view (the triple-product path, a
   // factored bake): kExitOk, or the usage error's code.
   int ParseView(glm::dvec3* eye, glm::dvec3* target, glm::dvec3* up, uint32_t* width, uint32_t* height,
@@ -150,13 +131,10 @@ class RelightCommand : public Command {
       if (!ParseVec3(*text, dst))
         return ReportUsage(InvalidArgument(std::string(name) + " " + *text + ": expected X,Y,Z"));
     }
-    unsigned w = 0, h = 0;
-    char tail = 0;
-    if (std::sscanf(size_.c_str(), "%ux%u%c", &w, &h, &tail) != 2 || w == 0 || h == 0 || w > 16384 || h > 16384) {
+    if (!ParseViewSize(size_, width, height)) {
       return ReportUsage(InvalidArgument("--size " + size_ + ": expected WIDTHxHEIGHT, each 1..16384, e.g. 512x384"));
     }
-    *width = w;
-    *height = h;
+    char tail = 0;
     if (!orbit_.empty()) {
       const size_t colon = orbit_.find(':');
       auto deg = stages::ParseDecimal(orbit_.substr(0, colon), -360, 360);

@@ -1,8 +1,9 @@
 // ltbake view MATRIX --env MAP [--env MAP2 ...] [--terms N] [--method pbi|bi|nwa] [--reference M]
-//             [--sequence SPEC] [--port P]
+//             [--sequence SPEC] [--port P] [--eye X,Y,Z --target X,Y,Z --up --fov --size --brdf-terms]
 // An interactive relighting page on 127.0.0.1 (docs/VIEW.md); the URL is the first line of
 // stdout. Ctrl-C stops it.
 #include <iostream>
+#include <tuple>
 
 #include "cli/commands.h"
 #include "cli/common.h"
@@ -18,7 +19,8 @@ class ViewCommand : public Command {
     auto* app = parent->add_subcommand(
         "view", "serve an interactive relighting page on 127.0.0.1: drag to rotate the environment (docs/VIEW.md)");
     app->add_option("MATRIX", o_.matrix,
-                    "an image bake relight reads: final.ltm, cols4d.ltm, cols.ltm, cpca.ltm, rows.ltm")
+                    "a bake relight reads: final.ltm, cols4d.ltm, cols.ltm, cpca.ltm, rows.ltm; a vertex bake (plain "
+                    "or a factored set X.ltm of sample --factor K) is seen from an eye the page moves")
         ->required();
     app->add_option("--env", o_.envs, "environment map (.exr or .hdr); repeat it to pick among several on the page")
         ->required()
@@ -40,6 +42,16 @@ class ViewCommand : public Command {
     app->add_option("--sequence", sequence_,
                     "a lighting sequence from each map (relight's grammar: rotate:DEG:FRAMES, hold:FRAMES, "
                     "maps:A+B, fade:A+B:FRAMES; docs/SEQUENCE.md): the page's time slider scrubs and plays it");
+    app->add_option("--eye", eye_, "a vertex bake: where the eye starts, X,Y,Z (default: in front of the mesh)");
+    app->add_option("--target", target_, "a vertex bake: the point looked at, X,Y,Z (default: the mesh's centre)");
+    app->add_option("--up", up_, "a vertex bake: the camera's up, X,Y,Z")->default_val("0,0,1");
+    app->add_option("--fov", o_.fov_degrees, "a vertex bake: vertical field of view, degrees")
+        ->default_val(40)
+        ->check(CLI::Range(0.01, 179.0));
+    app->add_option("--size", size_, "a vertex bake: the image, WIDTHxHEIGHT")->default_val("256x256");
+    app->add_option("--brdf-terms", o_.brdf_terms, "a factored vertex bake: the BRDF terms used (0: all)")
+        ->default_val(0)
+        ->check(CLI::Range(0, 64));
     AddCommonFlags(app, &flags_);
   }
 
@@ -51,6 +63,17 @@ class ViewCommand : public Command {
       auto seq = stages::ParseSequence(sequence_);
       if (!seq.ok()) return ReportUsage(seq.status().WithContext("--sequence " + sequence_));
       o_.sequence = std::move(*seq);
+    }
+    for (auto [text, dst, name] : {std::tuple{&eye_, &o_.eye, "--eye"}, std::tuple{&target_, &o_.target, "--target"}}) {
+      if (text->empty()) continue;
+      glm::dvec3 v;
+      if (!ParseVec3(*text, &v))
+        return ReportUsage(InvalidArgument(std::string(name) + " " + *text + ": expected X,Y,Z"));
+      *dst = v;
+    }
+    if (!ParseVec3(up_, &o_.up)) return ReportUsage(InvalidArgument("--up " + up_ + ": expected X,Y,Z"));
+    if (!ParseViewSize(size_, &o_.width, &o_.height)) {
+      return ReportUsage(InvalidArgument("--size " + size_ + ": expected WIDTHxHEIGHT, each 1..16384, e.g. 512x384"));
     }
     StageFlags sf;
     if (int code = ResolveStageFlags(flags_, nullptr, &sf); code != kExitOk) return code;
@@ -73,7 +96,8 @@ class ViewCommand : public Command {
 
  private:
   stages::view::ViewOptions o_;
-  std::string terms_text_ = "100", method_ = "pbi", layout_ = "auto", sequence_;
+  std::string terms_text_ = "100", method_ = "pbi", layout_ = "auto", sequence_, eye_, target_, up_ = "0,0,1",
+              size_ = "256x256";
   CommonFlags flags_;
 };
 

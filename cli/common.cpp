@@ -246,4 +246,29 @@ void ProgressBar::Done() {
   drawn_ = false;
 }
 
+bool ParseVec3(const std::string& text, glm::dvec3* out) {
+  double v[3];
+  size_t pos = 0;
+  for (int k = 0; k < 3; ++k) {
+    const size_t end = k < 2 ? text.find(',', pos) : text.size();
+    if (end == std::string::npos) return false;
+    auto parsed = stages::ParseDecimal(text.substr(pos, end - pos), -kMaxCoordinate, kMaxCoordinate);
+    if (!parsed.ok()) return false;
+    v[k] = *parsed;
+    pos = end + 1;
+  }
+  *out = glm::dvec3(v[0], v[1], v[2]);
+  return true;
+}
+
+bool ParseViewSize(const std::string& text, uint32_t* width, uint32_t* height) {
+  unsigned w = 0, h = 0;
+  char tail = 0;
+  if (std::sscanf(text.c_str(), "%ux%u%c", &w, &h, &tail) != 2 || w == 0 || h == 0 || w > 16384 || h > 16384)
+    return false;
+  *width = w;
+  *height = h;
+  return true;
+}
+
 }  // namespace ltb::cli

@@ -5,6 +5,7 @@
 #include <CLI/CLI.hpp>
 #include <chrono>
 #include <cstdint>
+#include <glm/vec3.hpp>
 #include <mutex>
 #include <string>
 
@@ -84,6 +85,13 @@ CLI::Validator FractionCheck();
 CLI::Validator BudgetCheck();
 // A number of terms: an integer >= 1, or "all".
 CLI::Validator TermsCheck();
+
+// Camera coordinates: anything a scene could hold, with room to square it.
+inline constexpr double kMaxCoordinate = 1e30;
+// "X,Y,Z" -> vector; false when it is not three decimal numbers within ±kMaxCoordinate.
+bool ParseVec3(const std::string& text, glm::dvec3* out);
+// "WIDTHxHEIGHT" (each 1..16384) of a view; false otherwise.
+bool ParseViewSize(const std::string& text, uint32_t* width, uint32_t* height);
 
 // For usage errors found after parsing: prints "ltbake: usage error: MESSAGE" and a pointer
 // to --help on stderr, returns kExitUsage (2).

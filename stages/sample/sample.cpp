@@ -323,6 +323,12 @@ nlohmann::json SampleMetadata(const SampleOptions& o, const Prepared& p, uint64_
                            {"scene_hash", p.geo.scene_hash},
                            {"geometry_hash", p.geo.geometry_hash}};
   }
+  if (scene.mode == SceneDesc::Mode::kVertex && !o.visibility) {
+    // Where a renderer of the vertices from an eye finds their mesh (relight --eye, view).
+    extra["geometry"] = {{"scene", std::filesystem::absolute(o.scene).lexically_normal().string()},
+                         {"scene_hash", p.geo.scene_hash},
+                         {"geometry_hash", p.geo.geometry_hash}};
+  }
   if (o.row_filter) {
     cols_basis = WaveletCubemapCols(r, wavelet::FilterName(*o.row_filter));
     stage = "sample+row-transform";

@@ -21,7 +21,7 @@ a{color:#8cf}
 </style></head><body>
 <h3>ltbake view <small id="matrix"></small></h3>
 <div style="display:flex;gap:24px;flex-wrap:wrap">
-<div><img id="frame" alt="relit frame" draggable="false"><div><small>drag to rotate the environment</small></div></div>
+<div><img id="frame" alt="relit frame" draggable="false"><div><small id="draghint">drag to rotate the environment</small></div></div>
 <div>
 <div class="row"><label for="map">map</label><select id="map"></select>
 <label for="upload" id="uploadlabel" style="width:auto;cursor:pointer;color:#8cf">add a map…</label>
@@ -37,6 +37,9 @@ a{color:#8cf}
 <option value="matrix">the matrix (A)</option><option value="reference">the reference (B)</option>
 <option value="difference">|A − B|</option></select> <small id="showhint"></small></div>
 <div class="row"><label>rotation</label><span id="rotval">0°</span></div>
+<div class="row" id="lightrow" hidden><label for="light">light</label><input id="light" type="range" min="-180" max="180" step="1" value="0">
+<span id="lightval">0°</span></div>
+<div class="row" id="eyerow" hidden><label>eye</label><span id="eyeval">orbit 0°, tilt 0°</span></div>
 <div class="row" id="timerow" hidden><label for="time">time</label><input id="time" type="range" min="0" max="0" value="0">
 <span id="timeval">frame 0</span> <button id="play" type="button">play</button></div>
 <div class="row"><a id="save" download="ltbake-frame.png" href="#">save this frame (PNG)</a> · <a id="saveexr" download="ltbake-frame.exr" href="#">linear (EXR)</a></div>
@@ -83,6 +86,16 @@ if (!defaults.reference) {  // A/B needs ltbake view --reference FILE
   for (const o of $("show").options) if (o.value !== "matrix") o.disabled = true;
   $("showhint").textContent = "(start with --reference to compare)";
 }
+// A vertex bake is seen from an eye: dragging moves the eye (sideways: orbit about +Z through
+// the target, up and down: tilt), the light slider turns the environment; it is relit afresh
+// every frame (NWA), so the incremental methods are not offered.
+ltb.orbit = 0; ltb.tilt = 0;
+if (defaults.from_eye) {
+  $("lightrow").hidden = false; $("eyerow").hidden = false;
+  $("draghint").textContent = "drag to move the eye (sideways: orbit, up and down: tilt)";
+  for (const o of $("method").options) if (o.value !== "nwa") o.disabled = true;
+  $("method").value = "nwa";
+}
 let dirty = true, wake = null;
 function poke() { dirty = true; if (wake) { const w = wake; wake = null; w(); } }
 function params() {
@@ -90,6 +103,7 @@ function params() {
   const exposure = ltb.base > 0 ? ltb.base * Math.pow(2, stops) : 0;
   const p = {map: $("map").value, rotate: ltb.rotate.toFixed(3), terms: $("terms").value, method: $("method").value, exposure: exposure,
           show: $("show").value};
+  if (defaults.from_eye) { p.orbit = ltb.orbit.toFixed(3); p.tilt = ltb.tilt.toFixed(3); }
   if (defaults.sequence_frames > 0) p.t = $("time").value;  // the --sequence frame shown
   return p;
 }
@@ -107,12 +121,23 @@ if (defaults.sequence_frames > 0) {
   });
   ltb.step = () => { $("time").value = (parseInt($("time").value) + 1) % defaults.sequence_frames; show(); };
 }
-let dragging = false, lastX = 0;
-$("frame").addEventListener("pointerdown", (e) => { dragging = true; lastX = e.clientX; $("frame").setPointerCapture(e.pointerId); e.preventDefault(); });
+let dragging = false, lastX = 0, lastY = 0;
+$("frame").addEventListener("pointerdown", (e) => { dragging = true; lastX = e.clientX; lastY = e.clientY; $("frame").setPointerCapture(e.pointerId); e.preventDefault(); });
 $("frame").addEventListener("pointermove", (e) => {
   if (!dragging) return;
-  ltb.rotate += (e.clientX - lastX) * 0.5; lastX = e.clientX;
-  $("rotval").textContent = ltb.rotate.toFixed(1) + "°"; poke();
+  if (defaults.from_eye) {  // the eye: dragging right turns the scene right (the eye left)
+    ltb.orbit -= (e.clientX - lastX) * 0.5;
+    ltb.tilt = Math.max(-170, Math.min(170, ltb.tilt + (e.clientY - lastY) * 0.5));
+    $("eyeval").textContent = "orbit " + ltb.orbit.toFixed(1) + "°, tilt " + ltb.tilt.toFixed(1) + "°";
+  } else {
+    ltb.rotate += (e.clientX - lastX) * 0.5;
+    $("rotval").textContent = ltb.rotate.toFixed(1) + "°";
+  }
+  lastX = e.clientX; lastY = e.clientY; poke();
+});
+$("light").addEventListener("input", () => {
+  ltb.rotate = parseFloat($("light").value);
+  $("lightval").textContent = $("light").value + "°"; $("rotval").textContent = ltb.rotate.toFixed(1) + "°"; poke();
 });
 for (const ev of ["pointerup", "pointercancel"]) $("frame").addEventListener(ev, () => { dragging = false; });
 $("terms").addEventListener("input", () => { $("termsval").textContent = $("terms").value; poke(); });

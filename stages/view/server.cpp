@@ -25,7 +25,8 @@ Status Serve(const ViewOptions& o, const std::function<void(const std::string& u
                                             {"maps", session->map_names()},
                                             {"sequence_frames", session->sequence_frames()},
                                             {"max_upload_bytes", http.max_body_bytes},
-                                            {"max_maps", ViewSession::kMaxMaps}}));
+                                            {"max_maps", ViewSession::kMaxMaps},
+                                            {"from_eye", session->from_eye()}}));
   };
 
   auto fail = [](int code, const std::string& message) {
@@ -68,7 +69,8 @@ Status Serve(const ViewOptions& o, const std::function<void(const std::string& u
       res.body = page();
     } else if (req.path == "/frame.png") {
       std::lock_guard<std::mutex> lock(mu);  // before the maps are counted: an upload adds one
-      auto q = ParseFrameRequest(req.params, session->defaults(), session->maps(), session->sequence_frames());
+      auto q = ParseFrameRequest(req.params, session->defaults(), session->maps(), session->sequence_frames(),
+                                 session->from_eye());
       if (!q.ok()) return fail(400, q.status().message());
       auto png = session->Render(*q);
       if (!png.ok())

@@ -5,15 +5,18 @@
 #pragma once
 
 #include <cstdint>
+#include <glm/vec3.hpp>
 #include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include "format/status.h"
 #include "stages/images/environment.h"
+#include "stages/relight/glossy_view.h"
 #include "stages/relight/relight_matrix.h"
 #include "stages/relight/run_sequence.h"
 
@@ -32,6 +35,14 @@ struct ViewOptions {
   // --sequence: a lighting sequence (docs/SEQUENCE.md) from each map, which the page's time
   // slider scrubs and plays (FrameRequest::t); empty: none.
   std::vector<SequenceSegment> sequence;
+  // A vertex bake (plain, or factored by sample --factor K) is seen from an eye, which each
+  // frame's orbit and tilt move (FrameRequest); unset eye or target: from the vertices'
+  // bounding box (the target its centre, the eye in front of it, raised 25°, all in view).
+  std::optional<glm::dvec3> eye, target;
+  glm::dvec3 up{0, 0, 1};
+  double fov_degrees = 40;
+  uint32_t width = 256, height = 256;
+  uint32_t brdf_terms = 0;  // a factored bake's BRDF terms used (0: all)
 };
 
 // What a frame's PNG shows: the matrix's relit image, the reference's exact one under the
@@ -51,19 +62,28 @@ struct FrameRequest {
   double exposure = 0;                  // 0: automatic (the 99th percentile of luminance to 0.9)
   FrameShow show = FrameShow::kMatrix;  // reference and difference need --reference
   int64_t t = -1;                       // a frame of the --sequence (rotate turns it further); −1: none
+  // A vertex bake's eye: turned orbit_deg about +Z through the target, after raising it
+  // tilt_deg (its elevation kept within ±85°). Only for a vertex bake.
+  double orbit_deg = 0, tilt_deg = 0;
 };
-// From a query's parameters (map, rotate, terms, method, exposure, show, t; each optional,
-// defaults from `defaults`; map below `maps`, t below `sequence_frames`); an InvalidArgument
-// names the parameter and the value.
+// From a query's parameters (map, rotate, terms, method, exposure, show, t, and with `eye` (a
+// vertex bake) orbit and tilt; each optional, defaults from `defaults`; map below `maps`, t
+// below `sequence_frames`); an InvalidArgument names the parameter and the value.
 Result<FrameRequest> ParseFrameRequest(const std::map<std::string, std::string>& params, const FrameRequest& defaults,
-                                       uint64_t maps = 1, uint64_t sequence_frames = 0);
+                                       uint64_t maps = 1, uint64_t sequence_frames = 0, bool eye = false);
 
 class ViewSession {
  public:
   static Result<std::unique_ptr<ViewSession>> Open(const ViewOptions& options);
   const FrameRequest& defaults() const { return defaults_; }
-  bool has_image() const { return m_.width() > 0; }
-  bool has_reference() const { return reference_.has_value(); }
+  // A vertex bake, seen from an eye (else an image bake, seen from its camera).
+  bool from_eye() const { return vertex_ != nullptr; }
+  uint64_t width() const { return width_; }
+  uint64_t height() const { return height_; }
+  // The eye of `q` (a vertex bake) and the target it looks at.
+  glm::dvec3 Eye(const FrameRequest& q) const;
+  const glm::dvec3& target() const { return target_; }
+  bool has_reference() const { return reference_.has_value() || vertex_reference_ != nullptr; }
   // The maps' file names, in --env order (the page's choice of map).
   std::vector<std::string> map_names() const;
   uint64_t maps() const { return envs_.size(); }
@@ -94,8 +114,24 @@ class ViewSession {
   std::string EnvironmentPng(uint64_t width) const;
 
  private:
-  explicit ViewSession(RelightMatrix m) : m_(std::move(m)) {}
-  RelightMatrix m_;
+  ViewSession() = default;
+  // A frame of a vertex bake into `out` (width × height × 3, linear), and `exact`, the
+  // reference's, when there is one; the image path is Render's own.
+  Status RenderFromEye(const FrameRequest& q, std::vector<float>* out, std::vector<float>* exact);
+  // The last frame shown: stats_ gains the comparison with `exact` (when given), and the
+  // PNG of what q.show asks for is returned.
+  Result<std::string> Show(const FrameRequest& q, std::vector<float> out, const std::vector<float>* exact,
+                           double exposure);
+  uint64_t cube_res() const { return vertex_ ? vertex_->basis().cube_res() : m_->basis().cube_res(); }
+
+  std::optional<RelightMatrix> m_;                             // an image bake
+  std::unique_ptr<VertexRenderer> vertex_, vertex_reference_;  // a vertex bake, and its --reference
+  uint64_t width_ = 0, height_ = 0;
+  glm::dvec3 eye_{0}, target_{0}, up_{0, 0, 1};
+  double fov_degrees_ = 40;
+  // What the vertex bake's P_k were relit for (map, rotation, terms, t): a frame that moves
+  // only the eye reuses them.
+  std::optional<std::tuple<uint64_t, double, uint64_t, int64_t>> relit_for_;
   std::vector<Environment> envs_;
   std::vector<std::string> env_paths_;  // an uploaded map's: its name
   EnvLoadOptions env_options_;

@@ -53,6 +53,7 @@ from PIL import Image
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from ltbtest import LTBAKE, check, failures, finish, run, write  # noqa: E402
+from glossy_test import SCENE as BALL_SCENE, icosphere, write_obj  # noqa: E402
 
 REPO = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 Q = ["--progress", "never"]
@@ -454,6 +455,116 @@ READ_FRAME = """(async () => {
 })()"""
 
 
+def vertex_part(P, envdir, chromium):
+    """A vertex bake seen from an eye: frames equal `relight --eye --orbit` byte for byte (PNG and
+    EXR), tilt keeps the eye's distance, the reference and the difference, the default eye, the
+    refusals; in the browser, a drag moves the eye and the light slider turns the map."""
+    v, f = icosphere(3)
+    write_obj(P("ball.obj"), v, f)
+    write(P("ball.toml"), BALL_SCENE.format(mode="vertex", output='objects = ["ball"]', ks=0.6, exponent=16.0,
+                                            obj=P("ball.obj")))
+    for args in (["sample", P("ball.toml"), "-o", P("gl.ltm"), "--factor", 3], ["sample", P("ball.toml"), "-o",
+                                                                                 P("plain.ltm")]):
+        if run(*args, *Q, timeout=120).returncode != 0:
+            raise Abort(f"the vertex bake failed: {args}")
+    env = os.path.join(envdir, "sunset.exr")
+    view = ["--eye", "0,-3,2", "--target", "0,0,1", "--size", "64x64"]
+    run("relight", P("gl.ltm"), "--env", env, "--clamp", *view, "--orbit", "30:2", "--terms", 20, "--exposure", 0.5,
+        "-o", P("orbit_%02d.png"), *Q, timeout=120)
+    run("relight", P("gl.ltm"), "--env", env, "--clamp", *view, "--orbit", "30:2", "--terms", 20, "-o",
+        P("orbit_%02d.exr"), *Q, timeout=120)
+    run("relight", P("gl.ltm"), "--env", env, "--clamp", *view, "--orbit", "30:2", "--terms", "all", "--exposure",
+        0.5, "-o", P("orbit_all_%02d.png"), *Q, timeout=120)
+    srv = Server(P("gl.ltm"), "--env", env, "--clamp", "--port", 0, *view, "--reference", P("gl.ltm"))
+    browser = None
+    try:
+        url = srv.first_line()
+        base = url.rstrip("/")
+        st, h, body = get(base + "/frame.png?orbit=30&terms=20&method=nwa&exposure=0.5")
+        stats = json.loads(h.get("X-Ltb-Stats") or "{}") if st == 200 else {}
+        check(st == 200 and stats.get("orbit") == 30 and stats.get("brdf_terms") == 3 and
+              stats.get("terms_used") == 20 and (stats.get("width"), stats.get("height")) == (64, 64),
+              f"a vertex frame at orbit 30: {st} {stats} {body[:200]!r}")
+        for got, ref, what in ((body, P("orbit_01.png"), "PNG"), (get(base + "/frame.exr")[2], P("orbit_01.exr"),
+                                                                     "EXR")):
+            with open(ref, "rb") as fh:
+                check(got == fh.read(), f"the vertex frame at orbit 30 ({what}) differs from frame 1 of relight "
+                      "--eye 0,-3,2 --orbit 30:2, byte for byte")
+        st, h, body = get(base + "/frame.png?orbit=30&terms=20&method=nwa&exposure=0.5&show=reference")
+        if st == 200:
+            with open(P("orbit_all_01.png"), "rb") as fh:
+                check(body == fh.read(), "show=reference of a vertex bake differs from relight --terms all of the eye")
+        stats = json.loads(h.get("X-Ltb-Stats") or "{}") if st == 200 else {}
+        check(st == 200 and stats.get("rel_l2", 0) > 0, f"the vertex frame against its reference: {st} {stats}")
+        # Tilt raises the eye about the target, its distance kept (sqrt(10) from 0,0,1).
+        st, h, body = get(base + "/frame.png?tilt=20&terms=20&method=nwa")
+        eye = np.array(json.loads(h.get("X-Ltb-Stats") or "{}").get("eye", [0, 0, 0])) if st == 200 else np.zeros(3)
+        el0, el1 = np.degrees(np.arctan2(1, 3)), np.degrees(np.arctan2(eye[2] - 1, np.hypot(eye[0], eye[1])))
+        check(st == 200 and abs(np.linalg.norm(eye - [0, 0, 1]) - 10 ** 0.5) < 1e-9 and abs(el1 - el0 - 20) < 1e-9,
+              f"tilt=20: the eye {eye.tolist()} should be at elevation {el0 + 20:.3f} deg (is {el1:.3f}), "
+              "distance sqrt(10)")
+        for query, says in (("method=pbi", b"nwa"), ("orbit=abc", b"orbit"), ("tilt=1e9", b"tilt")):
+            st, h, body = get(base + "/frame.png?" + query)
+            check(st == 400 and says in body, f"GET /frame.png?{query} of a vertex bake: {st} {body[:200]!r}")
+        if chromium:
+            browser = Browser(chromium, P("profile2"), P("chromium2.log"))
+            page = Page(browser, url)
+            s = page.wait_state(lambda ltb: ltb["frames"] >= 1, "the vertex page's first frame")
+            ui = page.eval("({method: document.getElementById('method').value, pbi: document.querySelector("
+                           "'#method option[value=pbi]').disabled, light: !document.getElementById('lightrow').hidden,"
+                           " hint: document.getElementById('draghint').textContent,"
+                           " diff: document.querySelector('#show option[value=difference]').disabled})")
+            check(ui["method"] == "nwa" and ui["pbi"] and ui["light"] and "eye" in ui["hint"] and not ui["diff"],
+                  f"the vertex page's controls: {ui}")
+            box = page.eval("(() => { const r = document.getElementById('frame').getBoundingClientRect();"
+                            " return {x: r.x, y: r.y, w: r.width, h: r.height}; })()")
+            x, y = int(box["x"] + box["w"] / 2), int(box["y"] + box["h"] / 2)
+            page.mouse("mousePressed", x, y, 1)
+            for step in range(1, 5):
+                page.mouse("mouseMoved", x + 10 * step, y + 5 * step, 1)
+            page.mouse("mouseReleased", x + 40, y + 20, 0)
+            s = page.wait_state(lambda ltb: ltb["stats"] and abs(ltb["stats"].get("orbit", 0) + 20) < 1e-6 and
+                                abs(ltb["stats"].get("tilt", 0) - 10) < 1e-6,
+                                "a frame of the dragged eye (40 px right, 20 down: orbit -20, tilt 10)")
+            page.eval("(() => { const e = document.getElementById('light'); e.value = '45';"
+                      " e.dispatchEvent(new Event('input')); })()")
+            s = page.wait_state(lambda ltb: ltb["stats"] and ltb["stats"]["rotate"] == 45 and
+                                abs(ltb["stats"]["orbit"] + 20) < 1e-6, "a frame of the light turned 45 degrees")
+            exc = page.exceptions()
+            check(not exc, f"uncaught script errors in the vertex page: {json.dumps(exc)[:1000]}")
+            shot = base64.b64decode(page.send("Page.captureScreenshot", {"format": "png"})["data"])
+            art = os.environ.get("LTB_TEST_ARTIFACTS") or os.path.join(os.getcwd(), "test-artifacts")
+            os.makedirs(art, exist_ok=True)
+            with open(os.path.join(art, "view_vertex_page.png"), "wb") as fh:
+                fh.write(shot)
+            browser.close()
+            browser = None
+    finally:
+        if browser:
+            browser.close()
+        srv.kill()
+    # A plain vertex bake with no eye given: the target is the box's centre, the eye in front of
+    # it raised 25 degrees, at the distance where the box's bounding sphere fills the view.
+    plain = Server(P("plain.ltm"), "--env", env, "--clamp", "--port", 0, "--size", "48x40")
+    try:
+        st, h, body = get(plain.first_line().rstrip("/") + "/frame.png?terms=all")
+        stats = json.loads(h.get("X-Ltb-Stats") or "{}") if st == 200 else {}
+        pts = np.array(v) + [0, 0, 1]
+        lo, hi = pts.min(0), pts.max(0)
+        d = 0.5 * np.linalg.norm(hi - lo) / np.sin(np.radians(20))
+        want = (lo + hi) / 2 + d * np.array([0, -np.cos(np.radians(25)), np.sin(np.radians(25))])
+        check(st == 200 and np.abs(np.array(stats.get("eye", [0, 0, 0])) - want).max() < 1e-5 and
+              png_pixels(body).shape == (40, 48, 3) and png_pixels(body).max() > 0,
+              f"the plain vertex bake's default view: {st} eye {stats.get('eye')} (expected {want.tolist()})")
+    finally:
+        plain.kill()
+    p = run("view", P("plain.ltm"), "--env", env, "--size", "64", *Q, expect=2, timeout=60)
+    check("--size" in p.stderr, f"view --size 64: {p.returncode} {p.stderr[-300:]}")
+    # An image bake's camera is fixed: --eye is refused before anything is served.
+    p = run("view", P("final.ltm"), "--env", env, "--eye", "0,-3,2", *Q, expect=1, timeout=60)
+    check("vertex bakes" in p.stderr, f"view of an image bake with --eye: {p.returncode} {p.stderr[-300:]}")
+
+
 # --- the test ----------------------------------------------------------------------------
 def main():
     global server, browser
@@ -850,6 +961,9 @@ def main():
                 check(st == 400 and b"--sequence" in body, f"t=0 without --sequence: {st} {body[:300]!r}")
             finally:
                 plain.kill()
+
+            # 4c. A vertex bake from a moving eye: a factored (glossy, K = 3) ball and a plain one.
+            vertex_part(P, envdir, chromium)
 
             # 5. SIGINT stops the server.
             server.p.send_signal(signal.SIGINT)
