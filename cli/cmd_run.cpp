@@ -13,6 +13,7 @@
 #include "format/array_spec.h"
 #include "format/json_text.h"
 #include "pipeline/bake.h"
+#include "pipeline/eta.h"
 
 namespace ltb::cli {
 namespace {
@@ -92,8 +93,12 @@ std::string StepLine(const pipeline::StepEvent& e) {
   switch (e.kind) {
     case Kind::kSkipped:
       return "== " + e.node + ": skipped, " + e.reason + StepOf(e);
-    case Kind::kStarting:
-      return "== " + e.node + ": " + e.action + " (" + e.reason + ")" + StepOf(e);
+    case Kind::kStarting: {
+      std::string line = "== " + e.node + ": " + e.action + " (" + e.reason + ")" + StepOf(e);
+      // The rest of the bake, this step included (a model: pipeline/eta.h), once the matrix exists.
+      if (e.eta_seconds) line += "; " + pipeline::ApproxDuration(*e.eta_seconds) + " left in the bake";
+      return line;
+    }
     case Kind::kImageWritten: {
       std::string line = "wrote " + e.path;
       const json& m = e.metrics;

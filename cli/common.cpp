@@ -225,6 +225,10 @@ void ProgressBar::Update(uint64_t done, uint64_t total, const char* unit) {
   if (!enabled_) return;
   std::lock_guard<std::mutex> lock(mu_);
   auto now = std::chrono::steady_clock::now();
+  if (unit_ != unit) {  // another phase: its own rate
+    unit_ = unit;
+    start_ = now;
+  }
   if (done < total && now - last_ < std::chrono::milliseconds(160)) return;
   last_ = now;
   double secs = std::chrono::duration<double>(now - start_).count();

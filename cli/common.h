@@ -123,6 +123,9 @@ class ProgressBar {
   std::string label_;
   std::mutex mu_;
   std::chrono::steady_clock::time_point start_, last_;
+  // The phase being shown (its unit): a new unit starts the rate (and so the ETA) afresh, so
+  // that loading a mesh does not count against the rays traced after it.
+  std::string unit_;
   bool drawn_ = false;
 };
 

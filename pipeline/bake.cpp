@@ -19,6 +19,7 @@
 #include "format/io/file_lock.h"
 #include "format/json_text.h"
 #include "format/version.h"
+#include "pipeline/eta.h"
 #include "pipeline/graph.h"
 #include "pipeline/plan.h"
 #include "pipeline/process.h"
@@ -112,9 +113,15 @@ class Bake {
   std::vector<std::string> Command(const Node& n, bool overwrite) const;
   void DeleteUnneeded(size_t upto);
   Status SaveReport();
-  void Emit(StepEvent::Kind kind, const Node& n, const std::string& action, const std::string& reason) const {
-    if (o_.on_step) o_.on_step({kind, n.name, action, reason, {}, {}, step_, g_.nodes.size()});
+  void Emit(StepEvent::Kind kind, const Node& n, const std::string& action, const std::string& reason,
+            std::optional<double> eta = std::nullopt) const {
+    const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - started_).count();
+    if (o_.on_step) o_.on_step({kind, n.name, action, reason, {}, {}, step_, g_.nodes.size(), eta, elapsed});
   }
+  // The bake's matrix size for the ETA, from the first output that holds a "matrix" array.
+  void LearnMatrixSize(const std::string& path);
+  // The wall seconds steps i.. that run should take (BakeEta), recorded in step i's entry.
+  std::optional<double> RemainingSeconds(size_t i, const Plan& plan) const;
 
   const BakeOptions& o_;
   Recipe r_;
@@ -131,7 +138,27 @@ class Bake {
   json entries_ = json::array();
   json report_;
   std::set<std::string> forced_;
+  BakeEta eta_;
+  std::chrono::steady_clock::time_point started_ = std::chrono::steady_clock::now();
 };
+
+void Bake::LearnMatrixSize(const std::string& path) {
+  if (eta_.known()) return;
+  auto r = io::ContainerReader::Open(path);
+  if (!r.ok()) return;  // a manifest of shards, an image, a missing file: another step's output tells
+  const int a = r->metadata().FindArray("matrix");
+  if (a < 0) return;
+  const format::ArraySpec& m = r->metadata().arrays[static_cast<size_t>(a)];
+  eta_.SetMatrixBytes(m.rows * m.cols * 4);
+}
+
+std::optional<double> Bake::RemainingSeconds(size_t i, const Plan& plan) const {
+  std::vector<EtaStep> steps;
+  for (size_t j = i; j < g_.nodes.size(); ++j)
+    if (j == i || (j < plan.steps.size() && plan.steps[j].runs()))
+      steps.push_back({g_.nodes[j].stages, g_.nodes[j].params});
+  return eta_.Seconds(steps);
+}
 
 bool Bake::BeforeFrom(const Node& n) const {
   if (from_ < 0) return false;
@@ -526,6 +553,7 @@ Result<StepEnd> Bake::RunStep(size_t i, const Plan& plan) {
   }
   if (BeforeFrom(n)) {
     LTB_RETURN_IF_ERROR(GivenStep(n));
+    LearnMatrixSize(out_path);
     return StepEnd{};
   }
   LTB_RETURN_IF_ERROR(RefreshSourceHashes(n));
@@ -542,6 +570,7 @@ Result<StepEnd> Bake::RunStep(size_t i, const Plan& plan) {
     d = {Action::kResume, n.output + " is unreadable (" + out.problem + "); rerunning the shards that are not intact"};
   }
   if (!d.runs()) {
+    LearnMatrixSize(out_path);
     Emit(StepEvent::Kind::kSkipped, n, ActionName(d.action), d.reason);
     json entry = *rec;
     entry["action"] = "skip";
@@ -580,11 +609,13 @@ Result<StepEnd> Bake::RunStep(size_t i, const Plan& plan) {
   entry["status"] = "running";
   entry["started"] = Now();
   entry["output"] = {{"file", n.output}, {"path", out_path}};
+  const std::optional<double> eta = RemainingSeconds(i, plan);
+  if (eta) entry["eta_seconds"] = *eta;  // what the step line said was left, this step included
   entries_.push_back(entry);
   ours_.insert(n.output);
   // Record the attempt before it starts: a killed run's next run knows the file is its own.
   if (Status s = SaveReport(); !s.ok()) return s.WithContext("writing the run report");
-  Emit(StepEvent::Kind::kStarting, n, ActionName(d.action), d.reason);
+  Emit(StepEvent::Kind::kStarting, n, ActionName(d.action), d.reason, eta);
   json& e = entries_.back();
   StepEnd ran;
   if (o_.cluster.shards > 1 && Shardable(n)) {
@@ -605,6 +636,9 @@ Result<StepEnd> Bake::RunStep(size_t i, const Plan& plan) {
   const int sig = o_.pending_signal ? o_.pending_signal() : 0;
   StepEnd done = RecordDone(n, ran.content_hash, e);
   if (done.end != BakeEnd::kOk) return done;
+  if (d.action == Action::kRun || d.action == Action::kRedo)  // a resumed step's time is a part's
+    eta_.Finished({n.stages, n.params}, e.value("wall_seconds", -1.0));
+  LearnMatrixSize(out_path);
   LTB_RETURN_IF_ERROR(CheckSourcesUnchanged(n, inputs, e));
   DeleteUnneeded(i);
   if (sig != 0) {  // the stage finished just as the signal came: stop here

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <functional>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -38,6 +39,11 @@ struct StepEvent {
   std::string path;            // kImageWritten: the image
   nlohmann::json metrics;      // kImageWritten
   size_t step = 0, steps = 0;  // this is step `step` (from 1) of the bake's `steps`
+  // kStarting: the wall seconds this step and the ones after it that run should take
+  // (pipeline/eta.h; nothing before the matrix exists or when a step is not modelled), and
+  // those since the bake started.
+  std::optional<double> eta_seconds;
+  double elapsed_seconds = 0;
 };
 
 struct BakeOptions {

@@ -563,7 +563,9 @@ void AddRowStatsMetadata(const SampleOptions& o, const Prepared& p, uint64_t blo
 
 // Samples row blocks, one chunk of each array per block, from any number of threads, and
 // hands the chunks to the writer thread; counts what it did. Progress in rays; the total
-// is extrapolated from the rays per row seen so far.
+// is extrapolated from the rays per row that sees geometry so far, times the rows to do that
+// see it (valid_todo, counted before: a row that sees only sky costs no rays, and an image's
+// top rows often do, which made a count by rows promise a quarter of the time it took).
 struct BlockSampler {
   const SampleOptions& o;
   const Prepared& p;
@@ -581,6 +583,7 @@ struct BlockSampler {
   std::vector<const sample::Sampler*> levels;
   sample::Pilot pilot;
   Counters cnt;
+  uint64_t valid_todo = 0;  // rows of the blocks to do that see geometry
   std::atomic<uint64_t> valid{0}, written{0}, rows_done{0};
   std::mutex converged_mu;
   std::vector<uint64_t> level_histogram;  // under converged_mu
@@ -636,8 +639,11 @@ struct BlockSampler {
       cnt.rays += row_cnt.rays.load();
       cnt.below += row_cnt.below.load();
       cnt.samples_below += row_cnt.samples_below.load();
-      uint64_t rays = cnt.rays.load();
-      uint64_t estimate = std::max(rays, static_cast<uint64_t>(static_cast<double>(rays) / done_rows * rows_todo));
+      const uint64_t rays = cnt.rays.load(), valid_done = valid.load();
+      const uint64_t estimate =
+          std::max(rays, static_cast<uint64_t>(static_cast<double>(rays) /
+                                               static_cast<double>(std::max<uint64_t>(valid_done, 1)) *
+                                               static_cast<double>(valid_todo)));
       progress.Report(rays, done_rows >= rows_todo ? rays : estimate, "rays");
     }
     LTB_RETURN_IF_ERROR(p.geo.rays->error());
@@ -700,6 +706,22 @@ void RunPilot(const SampleOptions& o, const Sampler& sampler, uint64_t rows, Blo
   result->pilot_rms_norm = std::sqrt(bs->pilot.mean_norm2);
   result->tolerance_reachable = bs->pilot.reachable;
   result->least_error = bs->pilot.least_error;
+}
+
+// Rows of the blocks `todo` that see geometry (one primary ray each): what the progress's
+// estimate of the rays still to trace scales by.
+Result<uint64_t> CountValidRows(const Sampler& sampler, const std::vector<uint64_t>& todo, uint64_t block,
+                                uint64_t rows, int jobs, const Progress& progress) {
+  std::atomic<uint64_t> valid{0};
+  LTB_RETURN_IF_ERROR(ParallelFor(todo, jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
+                                  [&](uint64_t chunk) -> Status {
+                                    uint64_t n = 0;
+                                    for (uint64_t r = chunk * block; r < std::min(rows, (chunk + 1) * block); ++r)
+                                      n += sampler.Primary(r).valid;
+                                    valid += n;
+                                    return Status::Ok();
+                                  }));
+  return valid.load();
 }
 
 // The full bake's outputs (one, a channel set's or a factored bake's terms), opened or resumed;
@@ -809,6 +831,7 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
                   block,
                   std::min(rows, todo.size() * block),
                   levels};
+  LTB_ASSIGN_OR_RETURN(bs.valid_todo, CountValidRows(sampler, todo, block, rows, o.jobs, progress));
   if (o.tolerance) RunPilot(o, sampler, rows, &bs, &result);
   Status s = ParallelFor(todo, o.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
                          [&](uint64_t chunk) -> Status { return bs.Run(chunk); });

@@ -105,10 +105,19 @@ with tempfile.TemporaryDirectory() as d:
     rep = report(w)
     check(rep["status"] == "ok" and rep["exit_code"] == 0, f"run.json status {rep.get('status')}")
     check(actions(w, FUSED) == {n: "run" for n in FUSED}, f"first bake actions {actions(w, FUSED)}")
-    # Each step says where it is in the bake: "== NODE: ... [k/4]", k = 1, 2, 3, 4 in order.
-    steps = [re.search(r"\[(\d+)/(\d+)\]$", l) for l in p.stdout.splitlines() if l.startswith("== ")]
+    # Each step says where it is in the bake: "== NODE: ... [k/4]", k = 1, 2, 3, 4 in order; from
+    # step 2 on (the matrix exists), how long the rest of the bake should take, which run.json
+    # keeps as the step's eta_seconds.
+    steps = [re.search(r"\[(\d+)/(\d+)\](; about \d+(\.\d)? (s|min|h) left in the bake)?$", l)
+             for l in p.stdout.splitlines() if l.startswith("== ")]
     check([(int(m.group(1)), int(m.group(2))) if m else None for m in steps] == [(k, 4) for k in range(1, 5)],
           f"bake: step lines lack [k/4]:\n{p.stdout}")
+    check([bool(m and m.group(3)) for m in steps] == [False, True, True, True],
+          f"bake: steps 2-4 should say how long the rest takes, step 1 (sampling) not:\n{p.stdout}")
+    etas = [s.get("eta_seconds") for s in rep["stages"]]
+    # (Not necessarily shrinking: a step slower than the model raises the estimate of the rest.)
+    check(etas[0] is None and all(e is not None and e > 0 for e in etas[1:]),
+          f"run.json eta_seconds {etas}: none for sampling, then positive")
     for s in rep["stages"]:
         out = s["output"]
         check(s["wall_seconds"] > 0 and s["peak_rss_bytes"] > 1 << 20, f"{s['node']}: no wall time / peak RSS: {s}")
