@@ -53,6 +53,7 @@ class ViewCommand : public Command {
         ->default_val(0)
         ->check(CLI::Range(0, 64));
     AddCommonFlags(app, &flags_);
+    app_ = app;
   }
 
   int Run() override {
@@ -72,6 +73,9 @@ class ViewCommand : public Command {
       *dst = v;
     }
     if (!ParseVec3(up_, &o_.up)) return ReportUsage(InvalidArgument("--up " + up_ + ": expected X,Y,Z"));
+    for (const char* flag : {"--eye", "--target", "--up", "--fov", "--size", "--brdf-terms"}) {
+      if (app_->count(flag) > 0) o_.eye_flags += std::string(o_.eye_flags.empty() ? "" : ", ") + flag;
+    }
     if (!ParseViewSize(size_, &o_.width, &o_.height)) {
       return ReportUsage(InvalidArgument("--size " + size_ + ": expected WIDTHxHEIGHT, each 1..16384, e.g. 512x384"));
     }
@@ -99,6 +103,7 @@ class ViewCommand : public Command {
   std::string terms_text_ = "100", method_ = "pbi", layout_ = "auto", sequence_, eye_, target_, up_ = "0,0,1",
               size_ = "256x256";
   CommonFlags flags_;
+  CLI::App* app_ = nullptr;
 };
 
 }  // namespace

@@ -190,10 +190,9 @@ Result<std::unique_ptr<ViewSession>> ViewSession::Open(const ViewOptions& o) {
     LTB_RETURN_IF_ERROR(sample::CheckViewMemory(o.width, o.height, o.mem_limit));
     s->defaults_.method = SequenceMethod::kNwa;  // relit afresh each frame: nothing carries
   } else {
-    if (o.eye || o.target) {
-      return InvalidArgument(o.matrix +
-                             ": an image bake is seen from its own camera; --eye and --target are for "
-                             "vertex bakes");
+    if (!o.eye_flags.empty()) {
+      return InvalidArgument(o.matrix + ": an image bake is seen from its own camera; " + o.eye_flags +
+                             " are for vertex bakes (docs/VIEW.md)");
     }
     LTB_ASSIGN_OR_RETURN(RelightMatrix m, RelightMatrix::Open(o.matrix, o.mem_limit, o.jobs, Progress{}, nullptr));
     s->width_ = m.width();

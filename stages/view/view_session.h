@@ -43,6 +43,9 @@ struct ViewOptions {
   double fov_degrees = 40;
   uint32_t width = 256, height = 256;
   uint32_t brdf_terms = 0;  // a factored bake's BRDF terms used (0: all)
+  // Which of --eye, --target, --up, --fov, --size, --brdf-terms were given ("" for none): an
+  // image bake's camera is its own, so it refuses them.
+  std::string eye_flags;
 };
 
 // What a frame's PNG shows: the matrix's relit image, the reference's exact one under the

@@ -561,8 +561,9 @@ def vertex_part(P, envdir, chromium):
     p = run("view", P("plain.ltm"), "--env", env, "--size", "64", *Q, expect=2, timeout=60)
     check("--size" in p.stderr, f"view --size 64: {p.returncode} {p.stderr[-300:]}")
     # An image bake's camera is fixed: --eye is refused before anything is served.
-    p = run("view", P("final.ltm"), "--env", env, "--eye", "0,-3,2", *Q, expect=1, timeout=60)
-    check("vertex bakes" in p.stderr, f"view of an image bake with --eye: {p.returncode} {p.stderr[-300:]}")
+    p = run("view", P("final.ltm"), "--env", env, "--eye", "0,-3,2", "--size", "64x64", *Q, expect=1, timeout=60)
+    check("--eye, --size are for vertex bakes" in p.stderr,
+          f"view of an image bake with --eye --size: {p.returncode} {p.stderr[-300:]}")
 
 
 # --- the test ----------------------------------------------------------------------------
