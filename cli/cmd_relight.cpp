@@ -10,6 +10,7 @@
 #include <iostream>
 #include <limits>
 #include <nlohmann/json.hpp>
+#include <sstream>
 #include <string>
 #include <tuple>
 #include <vector>
@@ -45,7 +46,8 @@ class RelightCommand : public Command {
     app->add_option("-o,--output", output_, "relit image: .exr (linear), .png (sRGB), .npy (rows × 3)")->required();
     app->add_option("--terms", terms_text_,
                     "lighting terms kept, N >= 1 or all (non-linear approximation: the N largest coefficients of "
-                    "the map in the matrix's lighting basis; for a pixel-basis matrix, the N brightest texels)")
+                    "the map in the matrix's lighting basis; for a pixel-basis matrix, the N brightest texels); "
+                    "a vertex bake seen from --eye takes every term unless this is given")
         ->default_val("100")
         ->check(TermsCheck());
     app->add_option("--weighting", weighting_,
@@ -111,6 +113,7 @@ class RelightCommand : public Command {
     app->add_option("--vertex-output", vertex_output_,
                     "triple-product path: every vertex's radiance (rows x 3 .npy), from the first eye");
     AddCommonFlags(app, &flags_);
+    app_ = app;
   }
 
   // A flag's value that DecimalCheck passed, read by the same parser.
@@ -216,7 +219,11 @@ class RelightCommand : public Command {
     stages::GlossyViewOptions o;
     o.set = matrix_;
     FillViewOptions(&o);
-    o.terms = terms_text_ == "all" ? stages::GlossyViewOptions::kAll : std::stoull(terms_text_);
+    // Every lighting term unless --terms says otherwise: the K terms are relit once per map,
+    // so the exact product costs one relight, and a cut lighting is the view's largest error
+    // (30–61% at 100 texels of a pixel-basis set, docs/GLOSSY.md).
+    o.terms = terms_text_ == "all" || app_->count("--terms") == 0 ? stages::GlossyViewOptions::kAll
+                                                                  : std::stoull(terms_text_);
     o.use_terms = brdf_terms_text_ == "all"
                       ? 0
                       : static_cast<uint32_t>(std::min<unsigned long long>(std::stoull(brdf_terms_text_), 64));
@@ -235,9 +242,20 @@ class RelightCommand : public Command {
     return Report([&](const Progress& p) { return stages::RunGlossyView(o, p); },
                   [&](const nlohmann::json& report) {
                     const nlohmann::json& f = report["frames"];
+                    const nlohmann::json& lt = report["lighting_terms"];
+                    const uint64_t used = lt["used"], available = lt["available"];
+                    std::ostringstream lighting;
+                    if (used >= available) {
+                      lighting << "every lighting term (" << available << ")";
+                    } else {  // a cut lighting says what it dropped
+                      lighting << used << " of " << available << " lighting terms ("
+                               << (lt["basis"] == "pixels" ? "the brightest texels" : "the largest coefficients")
+                               << ", " << std::setprecision(3) << 100 * lt["energy_kept"].get<double>()
+                               << "% of the map's energy; --terms all for every one)";
+                    }
                     std::cout << "wrote " << output_ << " (" << f["count"].get<uint64_t>()
-                              << " view(s)): " << report["terms_used"].get<uint64_t>() << " of "
-                              << report["terms_in_bake"].get<uint64_t>() << " BRDF terms, "
+                              << " view(s)): " << lighting.str() << ", " << report["terms_used"].get<uint64_t>()
+                              << " of " << report["terms_in_bake"].get<uint64_t>() << " BRDF terms, "
                               << report["vertices"].get<uint64_t>() << " vertices; relit in " << std::setprecision(3)
                               << report["relight_ms"].get<double>() << " ms, then " << f["median_ms"].get<double>()
                               << " ms a view (median)\n";
@@ -371,6 +389,7 @@ class RelightCommand : public Command {
   std::string rotate_text_ = "0", exposure_text_ = "0";
   bool clamp_ = false, json_ = false, keep_negative_ = false;
   CommonFlags flags_;
+  CLI::App* app_ = nullptr;
 };
 
 }  // namespace

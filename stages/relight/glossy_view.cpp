@@ -220,7 +220,14 @@ Status VertexRenderer::Relight(const std::vector<float>& cube, uint64_t terms) {
     LightTerms t;
     LTB_RETURN_IF_ERROR(m_[k].basis().SelectTerms(lighting.data(), terms, Weighting::kArea, m_[k].column_norms(), &t));
     LTB_RETURN_IF_ERROR(m_[k].Relight(t, &p_[k]));
-    if (k == 0) terms0_ = std::move(t);
+    if (k == 0) {
+      double total = 0, kept = 0;
+      for (float v : lighting) total += static_cast<double>(v) * v;
+      for (float v : t.rgb) kept += static_cast<double>(v) * v;
+      terms_available_ = lighting.size() / 3;
+      energy_kept_ = total > 0 ? kept / total : 1.0;
+      terms0_ = std::move(t);
+    }
   }
   return Status::Ok();
 }
@@ -262,6 +269,11 @@ Result<GlossyViewResult> RunGlossyView(const GlossyViewOptions& o, const Progres
   LTB_RETURN_IF_ERROR(v.Relight(cube, o.terms));
   report["load_ms"] = Ms(t0, t1);
   report["relight_ms"] = Ms(a, Clock::now());
+  // What the lighting kept (term 0's selection; every term's is of the same map and basis).
+  report["lighting_terms"] = {{"used", v.terms().column.size()},
+                              {"available", v.terms_available()},
+                              {"basis", v.basis().wavelet() ? "wavelet" : "pixels"},
+                              {"energy_kept", v.energy_kept()}};
   // Views.
   const uint32_t frames = std::max<uint32_t>(1, o.orbit_frames);
   if (o.orbit_frames > 0 && !o.output.empty())

@@ -41,8 +41,11 @@ class VertexRenderer {
   // the lighting terms each keeps (the N largest, area weighting; kAll: every one).
   static constexpr uint64_t kAll = std::numeric_limits<uint64_t>::max();
   Status Relight(const std::vector<float>& cube, uint64_t terms);
-  // Term 0's lighting terms of the last Relight (what `view` tints on its map strip).
+  // Term 0's lighting terms of the last Relight (what `view` tints on its map strip), how
+  // many the lighting has, and the fraction of its energy (Σ of squares) they hold.
   const LightTerms& terms() const { return terms0_; }
+  uint64_t terms_available() const { return terms_available_; }
+  double energy_kept() const { return energy_kept_; }
   // One view after Relight: every vertex's B (rows × 3) and the image (width·height × 3),
   // both × 2^exponent (the lighting was relit at 2^-exponent) and checked finite.
   Status Render(const glm::dvec3& eye, const sample::PinholeCamera& camera, int exponent, const std::string& env,
@@ -59,6 +62,8 @@ class VertexRenderer {
   glm::dvec3 low_{0}, high_{0};
   std::vector<std::vector<float>> p_;  // P_k
   LightTerms terms0_;
+  uint64_t terms_available_ = 0;
+  double energy_kept_ = 1;
   std::vector<sample::PixelHit> hits_;
 };
 
@@ -69,7 +74,7 @@ struct GlossyViewOptions {
   bool clamp_env = false;
   double rotate_deg = 0;
   static constexpr uint64_t kAll = std::numeric_limits<uint64_t>::max();
-  uint64_t terms = kAll;   // lighting terms kept per T_k (the N largest, area weighting)
+  uint64_t terms = kAll;   // lighting terms kept per T_k (the N largest, area weighting); kAll: exact
   uint32_t use_terms = 0;  // BRDF terms used: the first use_terms of K (0: all)
   glm::dvec3 eye{0, -3, 1.5}, target{0, 0, 0}, up{0, 0, 1};
   double fov_degrees = 40;

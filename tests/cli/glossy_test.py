@@ -226,6 +226,20 @@ def main():
         a, b = np.load(j("fin_view.npy")), np.load(j("raw_view.npy"))
         e = np.linalg.norm(a - b) / np.linalg.norm(b)
         t.check(e < 0.01, f"the quantized set renders {e:.4f} off the raw set")
+        # A view takes every lighting term unless --terms says otherwise, and then says what it kept.
+        p = t.run("relight", j("g32.ltm"), "--env", city, "--clamp", *VIEW, "-o", j("default_view.npy"))
+        t.check(np.array_equal(np.load(j("default_view.npy")), b) and "every lighting term (384)" in p.stdout,
+                f"a view without --terms should be --terms all, and say so: {p.stdout}")
+        p = t.run("relight", j("g32.ltm"), "--env", city, "--clamp", *VIEW, "--terms", 100, "-o", j("cut_view.npy"))
+        m = re.search(r"100 of 384 lighting terms \(the brightest texels, ([0-9.]+)% of the map's energy", p.stdout)
+        cut = np.load(j("cut_view.npy"))
+        t.check(m is not None and 0 < float(m.group(1)) < 100 and not np.array_equal(cut, b),
+                f"a view with --terms 100 should say what it kept: {p.stdout}")
+        # A plain vertex bake (no --factor) is seen from an eye too: the same image as its K = 1 set.
+        for name in ("plain", "k1"):
+            t.run("relight", j(f"{name}.ltm"), "--env", city, "--clamp", *VIEW, "-o", j(f"{name}_view.npy"), "-q")
+        t.check(np.array_equal(np.load(j("plain_view.npy")), np.load(j("k1_view.npy"))) and
+                np.load(j("plain_view.npy")).max() > 0, "a plain vertex bake's view differs from its --factor 1 set's")
         # A map near float32's largest value (RGBE exponent 255: 255·2^119) through the quantized
         # (Haar) set, whose lighting coefficients would pass float32, is relit at 2^-k and scaled
         # back: 2^126 times the view under the same map at exponent 129, bit for bit.
