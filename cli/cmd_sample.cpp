@@ -10,6 +10,7 @@
 #include "format/json_text.h"
 #include "stages/common/channels.h"
 #include "stages/common/quantity.h"
+#include "stages/sample/factor_choice.h"
 #include "stages/sample/sample.h"
 #include "stages/sample/scene.h"
 
@@ -85,10 +86,11 @@ class SampleCommand : public Command {
         ->check(CLI::IsMember({"mono", "rgb"}));
     app->add_option("--channel", channel_, "bake only this channel of --channels rgb, into OUT as given")
         ->check(CLI::IsMember({"r", "g", "b"}));
-    app->add_option("--factor", options_.factor,
+    app->add_option("--factor", factor_text_,
                     "vertex mode: bake the BRDF in-out factorisation's K terms, OUT.k0.ltm .. OUT.k{K-1}.ltm, so "
-                    "glossy vertices relight from any view (relight --eye; docs/GLOSSY.md)")
-        ->check(CLI::Range(1, 64));
+                    "glossy vertices relight from any view (relight --eye; docs/GLOSSY.md); K in 1..64, or "
+                    "auto:T, the fewest terms whose factorisation of every glossy material is within T (e.g. "
+                    "auto:5%)");
     app->add_option("--factor-grid", factor_grid_,
                     "with --factor: cells a side of the parabolic maps of incident and view directions, I,V")
         ->default_val("96,32");
@@ -142,6 +144,27 @@ class SampleCommand : public Command {
     }
     if (!channel_.empty()) options_.channel = static_cast<int>(std::string("rgb").find(channel_));
     if (factor_term_ >= 0) options_.factor_term = static_cast<uint32_t>(factor_term_);
+    std::optional<double> factor_target;  // --factor auto:T
+    if (factor_text_.starts_with("auto:")) {
+      auto t = stages::ParseFraction(factor_text_.substr(5));
+      if (!t.ok()) return ReportUsage(t.status().WithContext("--factor " + factor_text_));
+      if (factor_term_ >= 0) {
+        return ReportUsage(
+            InvalidArgument("--factor-term names a term of a fixed K; give --factor K (sample --factor " +
+                            factor_text_ + " prints the K it chose)"));
+      }
+      factor_target = *t;
+    } else if (!factor_text_.empty()) {
+      const std::optional<uint64_t> k =
+          factor_text_.find_first_not_of("0123456789") == std::string::npos && factor_text_.size() <= 2
+              ? std::optional<uint64_t>(std::stoull(factor_text_))
+              : std::nullopt;
+      if (!k || *k < 1 || *k > sample::kMaxFactorTerms) {
+        return ReportUsage(
+            InvalidArgument("--factor " + factor_text_ + ": expected K in 1..64 or auto:T (e.g. auto:5%)"));
+      }
+      options_.factor = static_cast<uint32_t>(*k);
+    }
     {
       unsigned gi = 0, gv = 0;
       char tail = 0;
@@ -152,6 +175,29 @@ class SampleCommand : public Command {
       }
       options_.factor_incident_res = gi;
       options_.factor_view_res = gv;
+      gi_ = gi;
+      gv_ = gv;
+    }
+    if (factor_target) {  // the fewest terms for the target, from the factorisation's own errors
+      auto scene = sample::ParseScene(options_.scene);
+      if (!scene.ok()) return ReportFailure(scene.status());
+      auto c = sample::ChooseFactorTerms(*scene, *factor_target, gi_, gv_);
+      if (!c.ok()) return ReportFailure(c.status());
+      options_.factor = c->terms;
+      factor_choice_ = *c;
+      if (!flags_.quiet && !json_) {
+        char b[200];
+        if (c->worst_material.empty()) {
+          std::snprintf(b, sizeof b, "--factor %s: K = 1 (no material the vertices use is glossy)",
+                        factor_text_.c_str());
+        } else {
+          std::snprintf(b, sizeof b,
+                        "--factor %s: K = %u (material \"%s\", the farthest, is %.3g off at K = %u; a view "
+                        "costs about K products a vertex)",
+                        factor_text_.c_str(), c->terms, c->worst_material.c_str(), c->worst_error, c->terms);
+        }
+        std::cout << b << "\n";
+      }
     }
     if (channels_ != "rgb") return RunOne();
     if (!options_.sparse.enabled) {  // the three channels from one pass
@@ -270,6 +316,12 @@ class SampleCommand : public Command {
                         {"least_error", r.least_error}};
     }
     for (const auto& [name, errors] : r.factor_errors) j["factor_errors"][name] = errors;
+    if (factor_choice_) {
+      j["factor_auto"] = {{"target", factor_text_.substr(5)},
+                          {"terms", factor_choice_->terms},
+                          {"material", factor_choice_->worst_material},
+                          {"error", factor_choice_->worst_error}};
+    }
     return j;
   }
 
@@ -332,7 +384,9 @@ class SampleCommand : public Command {
   CLI::Option* sparse_opt_ = nullptr;
   std::optional<double> sparse_margin_;
   long long factor_term_ = -1;
-  std::string factor_grid_ = "96,32";
+  std::string factor_grid_ = "96,32", factor_text_;
+  uint32_t gi_ = 96, gv_ = 32;
+  std::optional<sample::FactorChoice> factor_choice_;
   long long cube_res_ = -1, spp_ = -1, bounces_ = -1, seed_ = -1;
   CommonFlags flags_;
   ShardFlags shard_flags_;

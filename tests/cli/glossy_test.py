@@ -185,6 +185,20 @@ def main():
         want = numpy_errors(0.3, 0.6, 32.0)
         print("factorisation error, Phong(32), K = 1..8: ltbake", got, "NumPy", [round(x, 4) for x in want])
         t.check(got is not None and np.allclose(got, want, atol=2e-4), f"errors {got} vs NumPy {want}")
+        # --factor auto:T takes the fewest terms within T: T halfway between NumPy's errors at K = 4 and
+        # K = 5 must give K = 5 (and its five files); a lobe no 64 terms reach is refused, naming the
+        # triple-product path.
+        target = (want[3] + want[4]) / 2
+        p = t.run("sample", g32, "-o", j("auto.ltm"), "--factor", f"auto:{target:.6f}", "--json")
+        rep = json.loads(p.stdout or "{}")
+        t.check(rep.get("factor_auto", {}).get("terms") == 5 and os.path.exists(j("auto.k4.ltm")) and
+                not os.path.exists(j("auto.k5.ltm")) and abs(rep["factor_auto"]["error"] - want[4]) < 2e-4,
+                f"--factor auto:{target:.4f} (between K = 4 and 5): {rep.get('factor_auto')}")
+        p = t.run("sample", scene("sharp.toml", exponent=2000.0), "-o", j("sharp.ltm"), "--factor", "auto:5%", expect=1)
+        t.check("triple-product" in p.stderr and "64 terms" in p.stderr, f"auto for a Phong(2000) lobe: {p.stderr}")
+        for bad in ("0", "65", "auto:2", "auto:x", "k4"):
+            p = t.run("sample", g32, "-o", j("bad.ltm"), "--factor", bad, expect=2)
+            t.check("--factor" in p.stderr, f"--factor {bad}: {p.stderr}")
 
         # 3. Convergence to the brute-force render.
         for exponent, bound in ((4.0, 0.12), (32.0, None)):
