@@ -160,7 +160,11 @@ Status CheckColour(const SampleOptions& o, Prepared* p) {
     return InvalidArgument(o.scene + ": the scene has colour and --bounces " + std::to_string(p->bounces) +
                            " makes it bleed between surfaces, which one monochrome matrix cannot hold" + fix);
   }
-  if (s.mode == SceneDesc::Mode::kImage || o.factor > 1) {  // where the lobe is rendered
+  // A factored vertex bake keeps the diffuse part (term 0) and the lobe (terms 1..K−1) in
+  // files of their own, each with its own reflectance table: the albedo's colour (and any
+  // vertex colours) on term 0, the lobe's on the others, so any colours factor out (a red
+  // plastic with a white highlight included). Image mode renders the two together.
+  if (s.mode == SceneDesc::Mode::kImage) {
     // Every Embree geometry's material: an object's own, or those its OBJ's usemtl picks.
     for (size_t g = 0; g < p->geo.geom_material.size(); ++g) {
       const sample::Object& obj = s.objects[static_cast<size_t>(p->geo.geom_object[g])];
@@ -352,11 +356,21 @@ nlohmann::json SampleMetadata(const SampleOptions& o, const Prepared& p, uint64_
   return meta;
 }
 
+// The reflectance a row's term `term` of a bake carries: the albedo's colour times the
+// vertex colour (term 0: the diffuse part, or a bake without --factor), or the lobe's colour
+// (terms 1..K−1 of a factored bake). A separable material has one colour for both.
+glm::dvec3 RowTint(const sample::Material& m, const RowPoint& rp, bool lobe) {
+  if (!lobe) return m.tint * rp.colour;
+  if (m.separable) return m.tint;  // (ks_rgb = tint·ks: the same colour, the same bits as before)
+  const double kmax = std::max({m.ks_rgb.x, m.ks_rgb.y, m.ks_rgb.z});
+  return kmax > 0 ? m.ks_rgb / kmax : m.tint;
+}
+
 void AddReflectance(const Prepared& p, uint64_t block, nlohmann::json* meta) {
   if (p.reflectance) (*meta)["arrays"].push_back(RowArray("reflectance", DType::kF32, p.rows, 3, block).ToJson());
 }
 
-Status WriteReflectance(const Prepared& p, const Sampler& sampler, uint64_t block, io::ContainerWriter& out,
+Status WriteReflectance(const Prepared& p, const Sampler& sampler, uint64_t block, io::ContainerWriter& out, bool lobe,
                         const Progress& progress) {
   if (!p.reflectance) return Status::Ok();
   const int a = out.metadata().FindArray("reflectance");
@@ -369,7 +383,7 @@ Status WriteReflectance(const Prepared& p, const Sampler& sampler, uint64_t bloc
     for (uint64_t i = 0; i < n; ++i) {
       const RowPoint rp = sampler.Primary(r0 + i);
       if (!rp.valid) continue;
-      const glm::dvec3 t = p.scene.materials[static_cast<size_t>(rp.material)].tint * rp.colour;
+      const glm::dvec3 t = RowTint(p.scene.materials[static_cast<size_t>(rp.material)], rp, lobe);
       for (int c = 0; c < 3; ++c) v[3 * i + c] = static_cast<float>(t[c]);
     }
     LTB_RETURN_IF_ERROR(p.geo.rays->error());
@@ -855,9 +869,10 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   result.level_histogram = bs.level_histogram;
   result.max_rel_error = bs.max_rel_error;
   LTB_RETURN_IF_ERROR(s);
-  for (io::ContainerWriter& out : outs) {
-    LTB_RETURN_IF_ERROR(sample_internal::WriteReflectance(*prep, sampler, block, out, progress));
-    LTB_RETURN_IF_ERROR(out.Finish());
+  for (size_t i = 0; i < outs.size(); ++i) {
+    const bool lobe = plan && out_term[i] > 0;  // a glossy term of a factored bake
+    LTB_RETURN_IF_ERROR(sample_internal::WriteReflectance(*prep, sampler, block, outs[i], lobe, progress));
+    LTB_RETURN_IF_ERROR(outs[i].Finish());
   }
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return result;

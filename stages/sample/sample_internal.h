@@ -46,9 +46,10 @@ nlohmann::json SampleMetadata(const SampleOptions& o, const Prepared& p, uint64_
 // the metadata's arrays (after every other array: the sparse bake's come first).
 void AddReflectance(const Prepared& p, uint64_t block, nlohmann::json* meta);
 // Writes the reflectance table's missing chunks: per row, its material's tint times its
-// vertex colour (0 for a row that sees no geometry).
+// vertex colour, or with `lobe` (terms 1..K−1 of a factored bake) its lobe's colour ks_rgb
+// over its largest channel (0 for a row that sees no geometry).
 Status WriteReflectance(const Prepared& p, const sample::Sampler& sampler, uint64_t block, io::ContainerWriter& out,
-                        const Progress& progress);
+                        bool lobe, const Progress& progress);
 
 // `sample --sparse` (sparse.cpp): the whole stage once the scene is prepared. With --sparse
 // auto the pilot decides first (sparse_auto.cpp); when it picks the full bake, returns no

@@ -660,7 +660,7 @@ Result<std::optional<SampleResult>> RunSparseSample(const SampleOptions& o, cons
                          [&](uint64_t c) -> Status { return runner.Block(out, c, block, cnt); });
   result.chunks_written = cnt.written;
   LTB_RETURN_IF_ERROR(s);
-  LTB_RETURN_IF_ERROR(WriteReflectance(p, sampler, block, out, progress));
+  LTB_RETURN_IF_ERROR(WriteReflectance(p, sampler, block, out, false, progress));
   LTB_RETURN_IF_ERROR(out.Finish());
   st.seconds[1] = Seconds(t2);
   // The bake's totals (earlier runs' work included), from the sealed output's side tables.

@@ -249,6 +249,21 @@ def main():
         cut = np.load(j("cut_view.npy"))
         t.check(m is not None and 0 < float(m.group(1)) < 100 and not np.array_equal(cut, b),
                 f"a view with --terms 100 should say what it kept: {p.stdout}")
+        # A coloured plastic (a red albedo, a white lobe): term 0 carries the albedo's colour, the
+        # lobe's terms none, so each vertex's radiance is the red diffuse set's (albedo 1, grey,
+        # times the colour) plus the lobe's own set (albedo 0), to float rounding.
+        for name, albedo, ks in (("plastic", "[0.45, 0.12, 0.08]", 0.5), ("dif", "1.0", 0.0), ("lobe", "0.0", 0.5)):
+            text = SCENE.format(mode="vertex", output='objects = ["ball"]', ks=ks, exponent=16.0, obj=j("ball.obj"))
+            t.write(j(f"{name}.toml"), text.replace("albedo = 0.3", f"albedo = {albedo}", 1))
+            t.run("sample", j(f"{name}.toml"), "-o", j(f"{name}.ltm"), "--factor", 4, "-q")
+            t.run("relight", j(f"{name}.ltm"), "--env", city, "--clamp", *VIEW, "-o", j("x.npy"), "--vertex-output",
+                  j(f"{name}_b.npy"), "-q")
+        if all(os.path.exists(j(f"{n}_b.npy")) for n in ("plastic", "dif", "lobe")):
+            got = np.load(j("plastic_b.npy")).astype(np.float64)
+            want = np.load(j("dif_b.npy")) * np.array([0.45, 0.12, 0.08]) + np.load(j("lobe_b.npy"))
+            e = np.linalg.norm(got - want) / np.linalg.norm(want)
+            t.check(e < 1e-5 and np.linalg.norm(np.load(j("lobe_b.npy"))) > 0.1 * np.linalg.norm(want),
+                    f"a red plastic's factored set is {e:.2e} off its diffuse and lobe parts")
         # A plain vertex bake (no --factor) is seen from an eye too: the same image as its K = 1 set.
         for name in ("plain", "k1"):
             t.run("relight", j(f"{name}.ltm"), "--env", city, "--clamp", *VIEW, "-o", j(f"{name}_view.npy"), "-q")
