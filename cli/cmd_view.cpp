@@ -58,6 +58,7 @@ class ViewCommand : public Command {
 
   int Run() override {
     o_.terms = terms_text_ == "all" ? stages::RelightOptions::kAllTerms : std::stoull(terms_text_);
+    o_.terms_given = app_->count("--terms") > 0;
     o_.method = *stages::ParseSequenceMethod(method_);  // checked by IsMember
     o_.env_layout = *stages::ParseEnvLayout(layout_);   // checked by IsMember
     if (!sequence_.empty()) {

@@ -30,7 +30,7 @@ a{color:#8cf}
 <option value="pbi">PBI (per-band incremental)</option><option value="bi">BI (basic incremental)</option>
 <option value="nwa">NWA (non-incremental)</option></select></div>
 <div class="row"><label for="terms">terms</label><input id="terms" type="range" min="1" max="500" value="100">
-<span id="termsval">100</span></div>
+<span id="termsval">100</span> <label style="width:auto"><input id="allterms" type="checkbox"> all</label></div>
 <div class="row"><label for="exposure">exposure</label><input id="exposure" type="range" min="-6" max="6" step="0.25" value="0">
 <span id="expval">0 stops</span></div>
 <div class="row"><label for="show">show</label><select id="show">
@@ -54,6 +54,10 @@ const $ = (id) => document.getElementById(id);
 const ltb = window.ltb = {frames: 0, rotate: 0, base: 0, last: null, stats: null, error: null};
 const defaults = LTB_DEFAULTS;  // the command line's --terms and --method, filled in by the server
 if (defaults.terms !== "all") { $("terms").value = defaults.terms; $("termsval").textContent = $("terms").value; }
+// "all": every lighting term (--terms all, and a vertex bake's default: its lighting is relit
+// once per change, so the exact one costs no more a frame); the slider waits meanwhile.
+function showTerms() { $("terms").disabled = $("allterms").checked; $("termsval").textContent = $("allterms").checked ? "all" : $("terms").value; }
+$("allterms").checked = defaults.terms === "all"; showTerms();
 $("method").value = defaults.method;
 function addMap(name, k) { const o = document.createElement("option"); o.value = k; o.textContent = name; $("map").appendChild(o); }
 defaults.maps.forEach(addMap);
@@ -101,7 +105,7 @@ function poke() { dirty = true; if (wake) { const w = wake; wake = null; w(); } 
 function params() {
   const stops = parseFloat($("exposure").value);
   const exposure = ltb.base > 0 ? ltb.base * Math.pow(2, stops) : 0;
-  const p = {map: $("map").value, rotate: ltb.rotate.toFixed(3), terms: $("terms").value, method: $("method").value, exposure: exposure,
+  const p = {map: $("map").value, rotate: ltb.rotate.toFixed(3), terms: $("allterms").checked ? "all" : $("terms").value, method: $("method").value, exposure: exposure,
           show: $("show").value};
   if (defaults.from_eye) { p.orbit = ltb.orbit.toFixed(3); p.tilt = ltb.tilt.toFixed(3); }
   if (defaults.sequence_frames > 0) p.t = $("time").value;  // the --sequence frame shown
@@ -140,7 +144,8 @@ $("light").addEventListener("input", () => {
   $("lightval").textContent = $("light").value + "°"; $("rotval").textContent = ltb.rotate.toFixed(1) + "°"; poke();
 });
 for (const ev of ["pointerup", "pointercancel"]) $("frame").addEventListener(ev, () => { dragging = false; });
-$("terms").addEventListener("input", () => { $("termsval").textContent = $("terms").value; poke(); });
+$("terms").addEventListener("input", () => { showTerms(); poke(); });
+$("allterms").addEventListener("change", () => { showTerms(); poke(); });
 $("method").addEventListener("change", poke);
 $("map").addEventListener("change", () => { ltb.base = 0; poke(); });  // a new map: its own automatic exposure
 $("show").addEventListener("change", poke);

@@ -239,7 +239,8 @@ Result<std::unique_ptr<ViewSession>> ViewSession::Open(const ViewOptions& o) {
     LTB_RETURN_IF_ERROR(CheckSameBake(r, *s->m_));
     s->reference_ = std::move(r);
   }
-  s->defaults_.terms = o.terms;
+  // A vertex bake's lighting is relit once per change (not per frame): every term unless asked.
+  s->defaults_.terms = s->vertex_ && !o.terms_given ? RelightOptions::kAllTerms : o.terms;
   return s;
 }
 

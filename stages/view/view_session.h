@@ -26,6 +26,7 @@ struct ViewOptions {
   std::string matrix, reference;
   std::vector<std::string> envs;  // --env, once or more: the page picks among them
   uint64_t terms = 100;
+  bool terms_given = false;  // --terms was given (else a vertex bake starts with every term)
   SequenceMethod method = SequenceMethod::kPbi;
   EnvLayout env_layout = EnvLayout::kAuto;
   bool clamp_env = false;

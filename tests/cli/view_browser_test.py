@@ -513,8 +513,10 @@ def vertex_part(P, envdir, chromium):
             ui = page.eval("({method: document.getElementById('method').value, pbi: document.querySelector("
                            "'#method option[value=pbi]').disabled, light: !document.getElementById('lightrow').hidden,"
                            " hint: document.getElementById('draghint').textContent,"
-                           " diff: document.querySelector('#show option[value=difference]').disabled})")
-            check(ui["method"] == "nwa" and ui["pbi"] and ui["light"] and "eye" in ui["hint"] and not ui["diff"],
+                           " diff: document.querySelector('#show option[value=difference]').disabled,"
+                           " all: document.getElementById('allterms').checked, first: ltb.stats.terms})")
+            check(ui["method"] == "nwa" and ui["pbi"] and ui["light"] and "eye" in ui["hint"] and not ui["diff"] and
+                  ui["all"] and ui["first"] == "all",
                   f"the vertex page's controls: {ui}")
             box = page.eval("(() => { const r = document.getElementById('frame').getBoundingClientRect();"
                             " return {x: r.x, y: r.y, w: r.width, h: r.height}; })()")
