@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <csignal>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -29,6 +30,7 @@
 #include "pipeline/stage_table.h"
 #include "pipeline/workdir.h"
 #include "stages/column_transform/column_transform.h"
+#include "stages/sample/factor_choice.h"
 #include "stages/sample/sample.h"
 #include "stages/sample/scene.h"
 #include "stages/wavelet/wavelet.h"
@@ -333,6 +335,20 @@ Status Bake::PrepareGraph() {
     if (!o_.dry_run) LTB_RETURN_IF_ERROR(WriteTextIfChanged(scene_file_, r_.inline_scene));
   } else {
     scene_file_ = r_.scene_path;
+  }
+  if (r_.sample.factor_target) {  // [sample] factor = "auto:T": K from the scene's lobes, as sample chooses it
+    auto scene = sample::ParseScene(scene_file_);
+    if (!scene.ok()) return scene.status().WithContext("scene of recipe " + r_.path);
+    auto c = sample::ChooseFactorTerms(*scene, *r_.sample.factor_target, 96, 32);
+    if (!c.ok()) return c.status().WithContext("recipe " + r_.path + ": [sample] factor");
+    r_.sample.factor = c->terms;
+    if (o_.say && !o_.quiet) {
+      char b[200];
+      std::snprintf(b, sizeof b, "[sample] factor = \"auto:%g\": K = %u (%s at %.3g)", *r_.sample.factor_target,
+                    c->terms, c->worst_material.empty() ? "no glossy material" : c->worst_material.c_str(),
+                    c->worst_error);
+      o_.say(b);
+    }
   }
   LTB_ASSIGN_OR_RETURN(g_, BuildGraph(r_, o_, workdir_, scene_file_));
   from_ = o_.from.empty() ? -1 : StageIndex(o_.from);

@@ -188,7 +188,16 @@ Status ParseSample(const std::string& path, const toml::table& t, Recipe::Sample
     LTB_ASSIGN_OR_RETURN(s->sparse, GetBool(path, t, "sparse", false));
   }
   LTB_ASSIGN_OR_RETURN(s->channels, GetString(path, t, "channels", "mono"));
-  LTB_ASSIGN_OR_RETURN(s->factor, GetUnsigned(path, t, "factor", 0, 1, 64));
+  const toml::node* factor = t.get("factor");
+  if (factor != nullptr && factor->is_string() && factor->value<std::string>()->starts_with("auto:")) {
+    auto f = stages::ParseFraction(factor->value<std::string>()->substr(5));
+    if (!f.ok()) return f.status().WithContext(Where(path, *factor) + ": \"factor\"");
+    if (!(*f < 1)) return InvalidArgument(Where(path, *factor) + ": \"factor\" = \"auto:T\" needs T below 100%");
+    s->factor_target = *f;
+    s->factor = 1;  // a placeholder until the bake chooses K from the scene
+  } else {
+    LTB_ASSIGN_OR_RETURN(s->factor, GetUnsigned(path, t, "factor", 0, 1, 64));
+  }
   if (s->factor > 0 && (s->channels == "rgb" || s->sparse)) {
     return InvalidArgument(Where(path, *t.get("factor")) +
                            ": [sample] factor does not combine with channels = \"rgb\" or sparse (docs/GLOSSY.md)");

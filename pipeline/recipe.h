@@ -58,6 +58,9 @@ struct Recipe {
     // The BRDF in-out factorisation's terms (docs/GLOSSY.md); 0: none. Each term is its own
     // step (sample --factor K --factor-term k), and so is every later container step.
     uint64_t factor = 0;
+    // factor = "auto:T": the fewest terms within T (sample --factor auto:T), chosen from the
+    // scene when the bake is planned (factor then holds it).
+    std::optional<double> factor_target;
     // Converged sampling (sample --tolerance, --max-levels; docs/SAMPLE.md); unset: fixed spp.
     std::optional<double> tolerance;
     std::optional<uint64_t> max_levels;

@@ -194,6 +194,14 @@ def main():
         t.check(rep.get("factor_auto", {}).get("terms") == 5 and os.path.exists(j("auto.k4.ltm")) and
                 not os.path.exists(j("auto.k5.ltm")) and abs(rep["factor_auto"]["error"] - want[4]) < 2e-4,
                 f"--factor auto:{target:.4f} (between K = 4 and 5): {rep.get('factor_auto')}")
+        # The same in a recipe: [sample] factor = "auto:T" chooses K when the bake is planned.
+        recipe = t.write(j("auto_bake.toml"), f'scene = "{g32}"\nworkdir = "{j("wauto")}"\ntargets = ["sample"]\n'
+                         f'[sample]\nfactor = "auto:{target:.6f}"\n')
+        p = t.run("run", recipe, "--progress", "never")
+        t.check("K = 5" in p.stdout and os.path.exists(j("wauto", "raw.k4.ltm")) and
+                not os.path.exists(j("wauto", "raw.k5.ltm")) and
+                matrix_hash(j("wauto", "raw.k4.ltm")) == matrix_hash(j("auto.k4.ltm")),
+                f"a recipe's factor = auto:{target:.4f}: {p.stdout[-600:]}")
         p = t.run("sample", scene("sharp.toml", exponent=2000.0), "-o", j("sharp.ltm"), "--factor", "auto:5%", expect=1)
         t.check("triple-product" in p.stderr and "64 terms" in p.stderr, f"auto for a Phong(2000) lobe: {p.stderr}")
         for bad in ("0", "65", "auto:2", "auto:x", "k4"):
