@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <set>
+#include <tuple>
 
 #include "format/json_text.h"
 
@@ -214,10 +215,16 @@ uint64_t Metadata::OwnedChunks(uint32_t array) const {
   return e - b;
 }
 
-Result<nlohmann::json> ShardMetadataJson(const nlohmann::json& whole, uint64_t index, uint64_t count) {
+Result<nlohmann::json> ShardMetadataJson(const nlohmann::json& whole, uint64_t index, uint64_t count,
+                                         const std::vector<uint64_t>* bounds) {
   if (count == 0 || count > kMaxShards || index >= count) {
     return InvalidArgument("shard " + std::to_string(index) + " of " + std::to_string(count) +
                            ": expected 0 <= shard < nshards <= " + std::to_string(kMaxShards));
+  }
+  if (bounds != nullptr &&
+      (bounds->size() != count + 1 || bounds->front() != 0 || !std::is_sorted(bounds->begin(), bounds->end()))) {
+    return Internal("shard bounds: " + std::to_string(bounds->size()) + " chunk indices for " + std::to_string(count) +
+                    " shards, not 0 and non-decreasing");
   }
   nlohmann::json j = whole;
   j.erase("shard");
@@ -225,6 +232,8 @@ Result<nlohmann::json> ShardMetadataJson(const nlohmann::json& whole, uint64_t i
   nlohmann::json ranges = nlohmann::json::array();
   for (const ArraySpec& a : m.arrays) {
     auto [b, e] = ShardChunkRange(a.ChunkCount(), index, count);
+    if (bounds != nullptr && a.ChunkCount() == bounds->back())
+      std::tie(b, e) = std::pair((*bounds)[index], (*bounds)[index + 1]);
     ranges.push_back({b, e});
   }
   j["shard"] = {{"index", index}, {"count", count}, {"chunks", ranges}};

@@ -80,8 +80,12 @@ struct Metadata {
 };
 
 // The metadata of shard `index` of `count` of the output whose metadata is `whole`:
-// `whole` plus a "shard" key with the chunk ranges of each array.
-Result<nlohmann::json> ShardMetadataJson(const nlohmann::json& whole, uint64_t index, uint64_t count);
+// `whole` plus a "shard" key with the chunk ranges of each array: ShardChunkRange's, or with
+// `bounds` (count + 1 non-decreasing chunk indices, bounds[0] = 0) [bounds[index],
+// bounds[index + 1]) for every array of bounds.back() chunks (a stage that balances its shards
+// by their work; the others keep ShardChunkRange's).
+Result<nlohmann::json> ShardMetadataJson(const nlohmann::json& whole, uint64_t index, uint64_t count,
+                                         const std::vector<uint64_t>* bounds = nullptr);
 
 // Parses and validates metadata bytes. Unknown keys are kept (forward compatibility).
 Result<Metadata> ParseMetadata(ByteSpan bytes);

@@ -138,7 +138,8 @@ Result<ContainerWriter> OpenStageOutput(const std::string& output, const nlohman
     if (shard.index != 0) return InvalidArgument("--shard " + std::to_string(shard.index) + " of --nshards 1");
     return ContainerWriter::Open(output, metadata, options);
   }
-  LTB_ASSIGN_OR_RETURN(nlohmann::json meta, ShardMetadataJson(metadata, shard.index, shard.count));
+  LTB_ASSIGN_OR_RETURN(nlohmann::json meta, ShardMetadataJson(metadata, shard.index, shard.count,
+                                                              shard.bounds.empty() ? nullptr : &shard.bounds));
   const std::string dir = ShardDirectory(output);
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);

@@ -40,6 +40,9 @@ std::string ShardDirectory(const std::string& output);
 struct ShardSpec {
   uint64_t index = 0;
   uint64_t count = 1;
+  // Chunk boundaries of the shards (count + 1 of them, ShardMetadataJson's `bounds`), when the
+  // stage balances its shards by their work; empty: ShardChunkRange's even split.
+  std::vector<uint64_t> bounds;
   bool sharded() const { return count > 1; }
 };
 

@@ -725,7 +725,8 @@ void RunPilot(const SampleOptions& o, const Sampler& sampler, uint64_t rows, Blo
 // Rows of the blocks `todo` that see geometry (one primary ray each): what the progress's
 // estimate of the rays still to trace scales by.
 Result<uint64_t> CountValidRows(const Sampler& sampler, const std::vector<uint64_t>& todo, uint64_t block,
-                                uint64_t rows, int jobs, const Progress& progress) {
+                                uint64_t rows, int jobs, const Progress& progress,
+                                std::vector<uint64_t>* per_block = nullptr) {
   std::atomic<uint64_t> valid{0};
   LTB_RETURN_IF_ERROR(ParallelFor(todo, jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
                                   [&](uint64_t chunk) -> Status {
@@ -733,16 +734,42 @@ Result<uint64_t> CountValidRows(const Sampler& sampler, const std::vector<uint64
                                     for (uint64_t r = chunk * block; r < std::min(rows, (chunk + 1) * block); ++r)
                                       n += sampler.Primary(r).valid;
                                     valid += n;
+                                    if (per_block) (*per_block)[chunk] = n;  // each chunk once: no race
                                     return Status::Ok();
                                   }));
   return valid.load();
+}
+
+// A sharded bake's row blocks split so that each shard gets about the same rows that see
+// geometry (a row that sees only sky costs no rays: contiguous equal block counts gave the
+// shard with the image's top 2.9 s and the other 8.6 s, bench/results/cluster_model_check.md).
+// Every shard computes the same bounds (one primary ray a row, deterministic), weighting each
+// block by its geometry rows plus one, so an empty image still splits by blocks.
+Result<std::vector<uint64_t>> BalancedShardBounds(const Sampler& sampler, uint64_t rows, uint64_t block, uint64_t count,
+                                                  int jobs, const Progress& progress) {
+  const uint64_t blocks = (rows + block - 1) / block;
+  std::vector<uint64_t> all(blocks), weight(blocks, 0);
+  for (uint64_t b = 0; b < blocks; ++b) all[b] = b;
+  LTB_RETURN_IF_ERROR(CountValidRows(sampler, all, block, rows, jobs, progress, &weight).status());
+  std::vector<uint64_t> bounds(count + 1, blocks);
+  bounds[0] = 0;
+  uint64_t total = 0;
+  for (uint64_t& w : weight) total += ++w;
+  unsigned __int128 cum = 0;
+  uint64_t b = 0;
+  for (uint64_t k = 1; k < count; ++k) {  // the first block at which k/count of the weight is done
+    while (b < blocks && cum * count < static_cast<unsigned __int128>(k) * total) cum += weight[b++];
+    bounds[k] = b;
+  }
+  return bounds;
 }
 
 // The full bake's outputs (one, a channel set's or a factored bake's terms), opened or resumed;
 // chose_full: --sparse auto's decision for the full bake, recorded in the provenance.
 Result<std::vector<io::ContainerWriter>> OpenOutputs(const SampleOptions& o, const Prepared& prep,
                                                      const FactorPlan* plan, const std::vector<uint32_t>& out_term,
-                                                     uint64_t block, const std::optional<SparseAuto>& chose_full) {
+                                                     uint64_t block, const std::optional<SparseAuto>& chose_full,
+                                                     const io::ShardSpec& shard) {
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
   wo.direct_io = o.direct_io;
@@ -760,7 +787,7 @@ Result<std::vector<io::ContainerWriter>> OpenOutputs(const SampleOptions& o, con
     const std::string path = plan && !o.factor_term ? FactorPath(o.output, k)
                              : o.rgb                ? ChannelPath(o.output, static_cast<int>(k))
                                                     : o.output;
-    LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(path, meta, wo, o.shard));
+    LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(path, meta, wo, shard));
     outs.push_back(std::move(out));
   }
   return outs;
@@ -802,8 +829,14 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
     for (uint32_t k = 0; k < (plan ? plan->terms : o.rgb ? 3 : 1); ++k) out_term.push_back(k);
   }
   const uint32_t outputs = static_cast<uint32_t>(out_term.size());
+  Sampler sampler(prep->scene, geo, r, prep->spp, prep->bounces, prep->seed);
+  sampler.SetVisibility(o.visibility);
+  io::ShardSpec shard = o.shard;
+  if (shard.sharded()) {
+    LTB_ASSIGN_OR_RETURN(shard.bounds, BalancedShardBounds(sampler, rows, block, shard.count, o.jobs, progress));
+  }
   LTB_ASSIGN_OR_RETURN(std::vector<io::ContainerWriter> outs,
-                       OpenOutputs(o, *prep, plan ? &*plan : nullptr, out_term, block, chose_full));
+                       OpenOutputs(o, *prep, plan ? &*plan : nullptr, out_term, block, chose_full, shard));
 
   SampleResult result;
   result.rows = rows;
@@ -819,8 +852,6 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   for (const io::ContainerWriter& out : outs) result.chunks_already_committed += out.resume_info().committed_chunks;
 
   const std::vector<uint64_t> todo = MissingBlocks(outs, block_arrays);
-  Sampler sampler(prep->scene, geo, r, prep->spp, prep->bounces, prep->seed);
-  sampler.SetVisibility(o.visibility);
   std::vector<std::unique_ptr<Sampler>> level_samplers = LevelSamplers(o, *prep);
   std::vector<const Sampler*> levels;
   if (o.tolerance) levels.push_back(&sampler);

@@ -190,10 +190,14 @@ with tempfile.TemporaryDirectory() as d:
         # Independent of the transforms: the transposed matrix decodes to the rows matrix.
         check(np.array_equal(np.load(os.path.join(w, "cols.npy")), rows_m), f"n={n}: cols manifest != rows matrix")
         # Shards that own no chunk of the 4-block arrays are complete, sealed and empty.
+        # (sample balances its shards by the rows that see geometry, so which of the raw matrix's
+        # seven shards are the empty ones depends on the image: at least three of them are.)
         if n == 7:
-            si = inspect(shard_path(o["raw"], 0, 7))
-            check(si.get("complete") and si.get("sealed") and si["arrays"][0]["chunks"]["expected"] == 0,
-                  f"n=7: shard 0 of the raw matrix should own nothing: {si.get('arrays', [{}])[0].get('chunks')}")
+            infos = [inspect(shard_path(o["raw"], i, 7)) for i in range(7)]
+            empty = [si for si in infos if si["arrays"][0]["chunks"]["expected"] == 0]
+            check(len(empty) >= 3 and all(si.get("complete") and si.get("sealed") for si in empty),
+                  f"n=7: {len(empty)} of the raw matrix's shards own nothing (4 blocks: expected >= 3), "
+                  f"complete and sealed: {[si.get('arrays', [{}])[0].get('chunks') for si in infos]}")
     # relight reads a manifest like a container: the same image, bit for bit.
     env = P("env.npy")
     np.save(env, (np.random.default_rng(5).uniform(0, 1, (6 * 8 * 8, 3)) ** 4 * 5).astype(np.float32))

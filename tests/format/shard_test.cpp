@@ -81,6 +81,25 @@ nlohmann::json TwoArrays() {
   return j;
 }
 
+// Given bounds (a stage balancing its shards, as sample does by geometry rows) set the ranges
+// of every array with bounds.back() chunks; the others keep the even split; bounds that are not
+// count + 1 non-decreasing indices from 0 are refused.
+TEST(ShardMetadata, GivenBoundsSetTheRangesOfArraysOfThatManyChunks) {
+  const std::vector<uint64_t> bounds = {0, 0, 7, 10};  // 10 chunks of the matrix: 0, 7 and 3 chunks
+  for (uint64_t i = 0; i < 3; ++i) {
+    auto j = format::ShardMetadataJson(TwoArrays(), i, 3, &bounds);
+    ASSERT_TRUE(j.ok()) << j.status().message();
+    auto m = format::MetadataFromJson(*j);
+    ASSERT_TRUE(m.ok()) << m.status().message();
+    EXPECT_EQ(m->shard->chunks[0], std::make_pair(bounds[i], bounds[i + 1]));
+    EXPECT_EQ(m->shard->chunks[1], format::ShardChunkRange(3, i, 3));  // 3 chunks: not the bounds' array
+  }
+  for (const std::vector<uint64_t>& bad :
+       {std::vector<uint64_t>{0, 7, 10}, std::vector<uint64_t>{1, 2, 7, 10}, std::vector<uint64_t>{0, 8, 7, 10}}) {
+    EXPECT_FALSE(format::ShardMetadataJson(TwoArrays(), 0, 3, &bad).ok());
+  }
+}
+
 TEST(ShardMetadata, RangesPerArrayOwnsAndOwnedChunks) {
   for (uint64_t n : {1ull, 2ull, 3ull, 7ull, 11ull}) {
     uint64_t owned0 = 0, owned1 = 0;
