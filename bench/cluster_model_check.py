@@ -15,12 +15,14 @@ usage: SLURM_CONF=/tmp/ltbake-slurm/etc/slurm.conf /usr/bin/python3 bench/cluste
 (start the cluster first: scripts/slurm_local.sh start). Writes OUT/cluster_model_check.md. ~5 min at R = 32.
 """
 import datetime
-import json
 import math
 import os
 import re
 import subprocess
 import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import benchlib  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
@@ -57,15 +59,6 @@ def shard_seconds(log_text):
     return [jobs[j] for j in sorted(jobs, key=int)]
 
 
-def bake(ltbake, recipe, workdir, extra):
-    subprocess.run(["rm", "-rf", workdir], check=True)
-    p = subprocess.run([ltbake, "run", recipe, "--workdir", workdir, "-q", *extra], capture_output=True, text=True)
-    if p.returncode != 0:
-        sys.exit(f"ltbake run {' '.join(extra)} failed ({p.returncode}):\n{p.stdout}{p.stderr}")
-    with open(os.path.join(workdir, "run.json")) as f:
-        return json.load(f)["stages"]
-
-
 def main():
     if len(sys.argv) < 3:
         sys.exit(__doc__)
@@ -79,7 +72,7 @@ def main():
         f.write(f'name = "model-check"\nscene = "{REPO}/samples/medium.toml"\ntargets = ["quantize"]\n'
                 f'keep = ["rows", "cols", "cols4d"]\n[sample]\ncube_res = {r}\n')
     b, (bw, br) = dd_bandwidth(out)
-    local = bake(ltbake, recipe, os.path.join(out, "s1"), ["--jobs", "2"])
+    local = benchlib.run_bake(ltbake, recipe, os.path.join(out, "s1"), "-q", "--jobs", "2")
     cost = {}
     for s in local:
         cpu = s.get("cpu_seconds", {})
@@ -88,7 +81,8 @@ def main():
     lines = ["# docs/cluster.md's model against shard runs on one node", "",
              f"`/usr/bin/python3 bench/cluster_model_check.py build/ltbake OUT {r}`; the medium scene at R = {r} "
              f"({65536 * 6 * r * r * 4 / 1e9:.2f} GB of f32 matrix). B = {b / 1e6:.0f} MB/s (dd write "
-             f"{bw / 1e6:.0f}, direct read {br / 1e6:.0f} MB/s). C, V: the unsharded local bake (--jobs 2).", "",
+             f"{bw / 1e6:.0f}, direct read {br / 1e6:.0f} MB/s). C, V: the unsharded local bake (--jobs 2). "
+             f"Machine: {benchlib.machine()}.", "",
              "Model: S shards of one CPU on 2 cores, ceil(S/2) waves of C/S core-seconds, against the I/O "
              "term V/B; a stage ends at the first `sbatch --wait` poll (every 2 s) after its last shard. Measured: "
              "each shard's seconds from the slurmctld log (allocation to completion), the stage's wall time "
@@ -102,8 +96,8 @@ def main():
     log = os.path.join(os.environ.get("LTBAKE_SLURM_DIR", "/tmp/ltbake-slurm"), "log", "slurmctld.log")
     for shards in (2, 4):
         at = os.path.getsize(log)
-        stages = bake(ltbake, recipe, os.path.join(out, f"s{shards}"),
-                      ["--engine", "slurm", "--shards", str(shards), "--jobs", "1"])
+        stages = benchlib.run_bake(ltbake, recipe, os.path.join(out, f"s{shards}"), "-q", "--engine", "slurm",
+                                   "--shards", str(shards), "--jobs", "1")
         with open(log) as f:
             f.seek(at)
             arrays = shard_seconds(f.read())
@@ -115,10 +109,7 @@ def main():
             lines.append(f"| {s['node']} | {shards} | {c:.1f} | {v / 1e9:.2f} | {c / shards:.1f} s; {model:.1f} s "
                          f"({polled:.0f} s at the poll) | {', '.join('%.1f' % t for t in tasks)} s | "
                          f"{s['wall_seconds']:.1f} s | {s['wall_seconds'] / polled:.2f} |")
-    text = "\n".join(lines) + "\n"
-    with open(os.path.join(out, "cluster_model_check.md"), "w") as f:
-        f.write(text)
-    print(text)
+    benchlib.write_report(os.path.join(out, "cluster_model_check.md"), lines)
 
 
 if __name__ == "__main__":

@@ -20,6 +20,9 @@ import sys
 
 import numpy as np
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import benchlib  # noqa: E402
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
 MAPS = "/usr/share/blender/datafiles/studiolights/world"
@@ -27,14 +30,7 @@ MAPS = "/usr/share/blender/datafiles/studiolights/world"
 
 def bake(ltbake, recipe, workdir):
     """`ltbake run RECIPE` from scratch; its run.json's stages."""
-    subprocess.run(["rm", "-rf", workdir], check=True)
-    env = dict(os.environ, LTBAKE_ENVMAPS=MAPS)
-    p = subprocess.run([ltbake, "run", recipe, "--workdir", workdir, "--progress", "never"], env=env,
-                       capture_output=True, text=True)
-    if p.returncode != 0:
-        sys.exit(f"ltbake run {recipe} failed ({p.returncode}):\n{p.stdout}{p.stderr}")
-    with open(os.path.join(workdir, "run.json")) as f:
-        return json.load(f)["stages"]
+    return benchlib.run_bake(ltbake, recipe, workdir, "--progress", "never", env={"LTBAKE_ENVMAPS": MAPS})
 
 
 def recipe_text(name, scene, cube_res, column, relight_maps, extra=""):
@@ -181,19 +177,13 @@ def main():
         sys.exit(__doc__)
     ltbake, out = os.path.abspath(sys.argv[1]), os.path.abspath(sys.argv[2])
     os.makedirs(out, exist_ok=True)
-    cpu = subprocess.run(["sh", "-c", "grep -m1 'model name' /proc/cpuinfo | cut -d: -f2; nproc"],
-                         capture_output=True, text=True).stdout.split("\n")
-    lines = [f"# The whole-bake ETA (`ltbake run`, pipeline/eta.h)", "",
-             f"Machine: {cpu[0].strip()}, {cpu[1].strip()} CPUs. Reproduce: "
+    lines = ["# The whole-bake ETA (`ltbake run`, pipeline/eta.h)", "",
+             f"Machine: {benchlib.machine()}. Reproduce: "
              "`/usr/bin/python3 bench/eta_model.py build/ltbake OUT`.", ""]
     if "--skip-fit" not in sys.argv:
         lines += fit(ltbake, out) + [""]
     lines += check(ltbake, out)
-    text = "\n".join(lines) + "\n"
-    with open(os.path.join(out, "eta_model.md"), "w") as f:
-        f.write(text)
-    print(text)
-
+    benchlib.write_report(os.path.join(out, "eta_model.md"), lines)
 
 if __name__ == "__main__":
     main()

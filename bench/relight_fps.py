@@ -31,6 +31,7 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
+import benchlib  # noqa: E402
 import unseen_meshes  # noqa: E402
 
 BUILD = os.path.abspath(sys.argv[1] if len(sys.argv) > 1 else os.path.join(HERE, "..", "build"))
@@ -84,10 +85,8 @@ def at_error(points, target, n):
 
 def main():
     os.makedirs(OUT, exist_ok=True)
-    cpu = subprocess.run(["sh", "-c", "grep -m1 'model name' /proc/cpuinfo | cut -d: -f2; nproc"],
-                         capture_output=True, text=True).stdout.split("\n")
     lines = ["# Relight frame time per representation at equal matrix quality", "",
-             f"`/usr/bin/python3 bench/relight_fps.py`; machine: {cpu[0].strip()}, {cpu[1].strip()} CPUs; "
+             f"`/usr/bin/python3 bench/relight_fps.py`; machine: {benchlib.machine()}; "
              f"maps {', '.join(MAPS)} (Blender's); R = {R}, spp 4; relight --frames 40 (median frame), "
              "median over the maps; error: every lighting term against raw.ltm, mean over the maps.", ""]
     summary = []
@@ -143,11 +142,7 @@ def main():
     if summary:
         lines.append(f"2D / 4D product time at equal error over every scene, error and term count: "
                      f"{min(summary):.2f}–{max(summary):.2f} (median {float(np.median(summary)):.2f}).")
-    text = "\n".join(lines) + "\n"
-    out = os.path.join(HERE, "results", "relight_fps.md")
-    with open(out, "w") as f:
-        f.write(text)
-    print(text)
+    benchlib.write_report(os.path.join(HERE, "results", "relight_fps.md"), lines)
 
 
 if __name__ == "__main__":

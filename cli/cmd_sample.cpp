@@ -175,13 +175,12 @@ class SampleCommand : public Command {
       }
       options_.factor_incident_res = gi;
       options_.factor_view_res = gv;
-      gi_ = gi;
-      gv_ = gv;
     }
     if (factor_target) {  // the fewest terms for the target, from the factorisation's own errors
       auto scene = sample::ParseScene(options_.scene);
       if (!scene.ok()) return ReportFailure(scene.status());
-      auto c = sample::ChooseFactorTerms(*scene, *factor_target, gi_, gv_);
+      auto c =
+          sample::ChooseFactorTerms(*scene, *factor_target, options_.factor_incident_res, options_.factor_view_res);
       if (!c.ok()) return ReportFailure(c.status());
       options_.factor = c->terms;
       factor_choice_ = *c;
@@ -385,7 +384,6 @@ class SampleCommand : public Command {
   std::optional<double> sparse_margin_;
   long long factor_term_ = -1;
   std::string factor_grid_ = "96,32", factor_text_;
-  uint32_t gi_ = 96, gv_ = 32;
   std::optional<sample::FactorChoice> factor_choice_;
   long long cube_res_ = -1, spp_ = -1, bounces_ = -1, seed_ = -1;
   CommonFlags flags_;

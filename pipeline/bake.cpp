@@ -339,7 +339,9 @@ Status Bake::PrepareGraph() {
   if (r_.sample.factor_target) {  // [sample] factor = "auto:T": K from the scene's lobes, as sample chooses it
     auto scene = sample::ParseScene(scene_file_);
     if (!scene.ok()) return scene.status().WithContext("scene of recipe " + r_.path);
-    auto c = sample::ChooseFactorTerms(*scene, *r_.sample.factor_target, 96, 32);
+    const stages::SampleOptions grid;  // the bake's tables: sample's default grid (a recipe sets no other)
+    auto c =
+        sample::ChooseFactorTerms(*scene, *r_.sample.factor_target, grid.factor_incident_res, grid.factor_view_res);
     if (!c.ok()) return c.status().WithContext("recipe " + r_.path + ": [sample] factor");
     r_.sample.factor = c->terms;
     if (o_.say && !o_.quiet) {

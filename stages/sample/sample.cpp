@@ -722,43 +722,39 @@ void RunPilot(const SampleOptions& o, const Sampler& sampler, uint64_t rows, Blo
   result->least_error = bs->pilot.least_error;
 }
 
-// Rows of the blocks `todo` that see geometry (one primary ray each): what the progress's
-// estimate of the rays still to trace scales by.
-Result<uint64_t> CountValidRows(const Sampler& sampler, const std::vector<uint64_t>& todo, uint64_t block,
-                                uint64_t rows, int jobs, const Progress& progress,
-                                std::vector<uint64_t>* per_block = nullptr) {
-  std::atomic<uint64_t> valid{0};
-  LTB_RETURN_IF_ERROR(ParallelFor(todo, jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
+// Per row block of `blocks` (the others 0), its rows that see geometry (one primary ray
+// each): what the progress's estimate of the rays still to trace scales by, and what a
+// sharded bake balances its shards by.
+Result<std::vector<uint64_t>> GeometryRowsPerBlock(const Sampler& sampler, const std::vector<uint64_t>& blocks,
+                                                   uint64_t block, uint64_t rows, int jobs, const Progress& progress) {
+  std::vector<uint64_t> n((rows + block - 1) / block, 0);
+  LTB_RETURN_IF_ERROR(ParallelFor(blocks, jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
                                   [&](uint64_t chunk) -> Status {
-                                    uint64_t n = 0;
+                                    uint64_t valid = 0;
                                     for (uint64_t r = chunk * block; r < std::min(rows, (chunk + 1) * block); ++r)
-                                      n += sampler.Primary(r).valid;
-                                    valid += n;
-                                    if (per_block) (*per_block)[chunk] = n;  // each chunk once: no race
+                                      valid += sampler.Primary(r).valid;
+                                    n[chunk] = valid;  // each chunk once: no race
                                     return Status::Ok();
                                   }));
-  return valid.load();
+  return n;
 }
 
 // A sharded bake's row blocks split so that each shard gets about the same rows that see
 // geometry (a row that sees only sky costs no rays: contiguous equal block counts gave the
 // shard with the image's top 2.9 s and the other 8.6 s, bench/results/cluster_model_check.md).
-// Every shard computes the same bounds (one primary ray a row, deterministic), weighting each
-// block by its geometry rows plus one, so an empty image still splits by blocks.
-Result<std::vector<uint64_t>> BalancedShardBounds(const Sampler& sampler, uint64_t rows, uint64_t block, uint64_t count,
-                                                  int jobs, const Progress& progress) {
-  const uint64_t blocks = (rows + block - 1) / block;
-  std::vector<uint64_t> all(blocks), weight(blocks, 0);
-  for (uint64_t b = 0; b < blocks; ++b) all[b] = b;
-  LTB_RETURN_IF_ERROR(CountValidRows(sampler, all, block, rows, jobs, progress, &weight).status());
+// Every shard computes the same bounds from every block's geometry rows (one primary ray a
+// row, deterministic), weighting each block by them plus one, so an empty image still splits
+// by blocks.
+std::vector<uint64_t> BalancedShardBounds(const std::vector<uint64_t>& geometry_rows, uint64_t count) {
+  const uint64_t blocks = geometry_rows.size();
   std::vector<uint64_t> bounds(count + 1, blocks);
   bounds[0] = 0;
   uint64_t total = 0;
-  for (uint64_t& w : weight) total += ++w;
+  for (uint64_t g : geometry_rows) total += g + 1;
   unsigned __int128 cum = 0;
   uint64_t b = 0;
   for (uint64_t k = 1; k < count; ++k) {  // the first block at which k/count of the weight is done
-    while (b < blocks && cum * count < static_cast<unsigned __int128>(k) * total) cum += weight[b++];
+    while (b < blocks && cum * count < static_cast<unsigned __int128>(k) * total) cum += geometry_rows[b++] + 1;
     bounds[k] = b;
   }
   return bounds;
@@ -832,8 +828,12 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   Sampler sampler(prep->scene, geo, r, prep->spp, prep->bounces, prep->seed);
   sampler.SetVisibility(o.visibility);
   io::ShardSpec shard = o.shard;
+  std::vector<uint64_t> geometry_rows;  // per block; a sharded bake counts every block's once
   if (shard.sharded()) {
-    LTB_ASSIGN_OR_RETURN(shard.bounds, BalancedShardBounds(sampler, rows, block, shard.count, o.jobs, progress));
+    std::vector<uint64_t> all((rows + block - 1) / block);
+    for (uint64_t b = 0; b < all.size(); ++b) all[b] = b;
+    LTB_ASSIGN_OR_RETURN(geometry_rows, GeometryRowsPerBlock(sampler, all, block, rows, o.jobs, progress));
+    shard.bounds = BalancedShardBounds(geometry_rows, shard.count);
   }
   LTB_ASSIGN_OR_RETURN(std::vector<io::ContainerWriter> outs,
                        OpenOutputs(o, *prep, plan ? &*plan : nullptr, out_term, block, chose_full, shard));
@@ -876,7 +876,10 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
                   block,
                   std::min(rows, todo.size() * block),
                   levels};
-  LTB_ASSIGN_OR_RETURN(bs.valid_todo, CountValidRows(sampler, todo, block, rows, o.jobs, progress));
+  if (geometry_rows.empty()) {
+    LTB_ASSIGN_OR_RETURN(geometry_rows, GeometryRowsPerBlock(sampler, todo, block, rows, o.jobs, progress));
+  }
+  for (uint64_t b : todo) bs.valid_todo += geometry_rows[b];
   if (o.tolerance) RunPilot(o, sampler, rows, &bs, &result);
   Status s = ParallelFor(todo, o.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "chunks",
                          [&](uint64_t chunk) -> Status { return bs.Run(chunk); });
