@@ -85,12 +85,13 @@ class RelightCommand : public Command {
         ->default_val("40")
         ->check(DecimalCheck(0, 180));
     app->add_option("--size", size_, "triple-product path: image WIDTHxHEIGHT")->default_val("256x256");
-    app->add_option("--method", method_,
-                    "with --sequence: nwa (each frame on its own), bi (basic incremental) or pbi (per-band "
-                    "incremental, the default). Triple-product path: sublinear (the default; kept terms only), linear "
-                    "(every coefficient) or pixel (the exact pixel-basis reference; --terms keeps the brightest "
-                    "texels)")
-        ->check(CLI::IsMember({"nwa", "bi", "pbi", "sublinear", "linear", "pixel"}));
+    app->add_option(
+           "--method", method_,
+           "with --sequence: nwa (each frame on its own), bi (basic incremental) or pbi (per-band "
+           "incremental, the default). Triple-product path: sublinear (the default; kept terms only), linear "
+           "(every coefficient), shared (linear's result, each sampled BRDF row lit once a frame) or pixel (the "
+           "exact pixel-basis reference; --terms keeps the brightest texels)")
+        ->check(CLI::IsMember({"nwa", "bi", "pbi", "sublinear", "linear", "shared", "pixel"}));
     app->add_option("--sequence", sequence_,
                     "a lighting sequence, comma-separated segments played in order: rotate:DEG_PER_FRAME:FRAMES "
                     "(about +Z), hold:FRAMES, maps:A.exr+B.hdr+... (one map a frame), fade:A.exr+B.exr:FRAMES; -o is "
@@ -122,7 +123,8 @@ class RelightCommand : public Command {
   }
 
   bool Triple() const {
-    return !materials_.empty() || method_ == "sublinear" || method_ == "linear" || method_ == "pixel";
+    return !materials_.empty() || method_ == "sublinear" || method_ == "linear" || method_ == "shared" ||
+           method_ == "pixel";
   }
 
   // --eye, --target, --up, --size and --orbit of a view (the triple-product path, a
@@ -178,9 +180,10 @@ class RelightCommand : public Command {
     if (method_.empty()) method_ = "sublinear";
     auto method = triple::ParseTripleMethod(method_);
     if (!method.ok()) {
-      return ReportUsage(InvalidArgument("--method " + method_ +
-                                         ": the triple-product path takes sublinear, linear or pixel (nwa, bi and pbi "
-                                         "are for --sequence)"));
+      return ReportUsage(
+          InvalidArgument("--method " + method_ +
+                          ": the triple-product path takes shared, sublinear, linear or pixel (nwa, bi and pbi "
+                          "are for --sequence)"));
     }
     o.method = *method;
     o.light_terms = terms_text_ == "all" ? triple::RenderOptions::kAll : std::stoull(terms_text_);

@@ -24,6 +24,7 @@
 #include "stages/triple/haar_triple.h"
 #include "stages/triple/material.h"
 #include "stages/triple/material_field.h"
+#include "stages/triple/shared_products.h"
 
 namespace ltb::triple {
 
@@ -31,11 +32,22 @@ Result<TripleMethod> ParseTripleMethod(const std::string& name) {
   if (name == "linear") return TripleMethod::kLinear;
   if (name == "sublinear") return TripleMethod::kSublinear;
   if (name == "pixel") return TripleMethod::kPixel;
-  return InvalidArgument("--method " + name + ": expected linear, sublinear or pixel");
+  if (name == "shared") return TripleMethod::kShared;
+  return InvalidArgument("--method " + name + ": expected shared, sublinear, linear or pixel");
 }
 
 const char* TripleMethodName(TripleMethod m) {
-  return m == TripleMethod::kLinear ? "linear" : m == TripleMethod::kSublinear ? "sublinear" : "pixel";
+  switch (m) {
+    case TripleMethod::kLinear:
+      return "linear";
+    case TripleMethod::kSublinear:
+      return "sublinear";
+    case TripleMethod::kPixel:
+      return "pixel";
+    case TripleMethod::kShared:
+      return "shared";
+  }
+  return "?";
 }
 
 namespace {
@@ -195,7 +207,8 @@ struct Renderer {
   std::vector<const MaterialField*> lambert_of, glossy_of;
   std::unique_ptr<TexelTable> texel_table;  // centres and solid angles × R² (pixel method)
   Lighting light;
-  std::vector<float> light_cube;  // 6R² × 3, the frame's radiance (pixel method)
+  std::vector<float> light_cube;    // 6R² × 3, the frame's radiance (pixel method)
+  std::vector<double> light_lanes;  // the approximated lighting's texels, kLanes each (shared method)
 
   // ρ̃ of vertex `row` seen from `eye`: the sampled rows of the fields, weighted.
   void RhoParts(uint64_t row, const glm::dvec3& eye, std::vector<RhoPart>* parts) const {
@@ -482,6 +495,29 @@ uint64_t ShadeVertex(Renderer& rd, TripleMethod method, uint64_t row, const glm:
   return terms;
 }
 
+// The shared method (stages/triple/shared_products.h): B of every needed vertex from `eye`
+// into values; the rows lit into stats.
+Status ShadeShared(const Renderer& rd, const std::vector<uint8_t>& needed, const glm::dvec3& eye,
+                   const Progress& progress, std::vector<float>* values, SharedStats* stats) {
+  std::vector<uint64_t> rows;
+  VertexRho rho;
+  std::vector<RhoPart> parts;
+  for (uint64_t row = 0; row < needed.size(); ++row) {
+    if (!needed[row]) continue;
+    rd.RhoParts(row, eye, &parts);
+    rows.push_back(row);
+    rho.parts.insert(rho.parts.end(), parts.begin(), parts.end());
+    rho.offset.push_back(rho.parts.size());
+  }
+  std::vector<double> b;
+  LTB_RETURN_IF_ERROR(SharedTripleProducts(rd.vis, rd.res, rd.light_lanes, rows, rho, rd.fields,
+                                           rd.o.brdf_terms == RenderOptions::kAll ? UINT64_MAX : rd.o.brdf_terms,
+                                           rd.o.jobs, progress, &b, stats));
+  for (uint64_t i = 0; i < rows.size(); ++i)
+    for (int ch = 0; ch < 3; ++ch) (*values)[rows[i] * 3 + ch] = static_cast<float>(b[i * 3 + ch]);
+  return Status::Ok();
+}
+
 // The vertices of every triangle a pixel sees (needed = 1), counting the pixels that hit
 // something and those that hit a mesh without vertex shading.
 void MarkSeenVertices(const sample::Geometry& geo, const std::vector<sample::PixelHit>& hits,
@@ -542,6 +578,23 @@ Status WriteFrame(const RenderOptions& o, uint32_t k, const std::vector<float>& 
   return stages::WriteImage(path, image.data(), image.size() / 3, o.width, o.height, {.exposure = o.exposure});
 }
 
+// The face table, the pixel method's texel table and the frame's lighting cube.
+Status LoadEnvironment(const RenderOptions& o, const Progress& progress, Renderer& rd) {
+  rd.ft.res = rd.res;
+  rd.ft.face = rd.res * rd.res;
+  rd.ft.squares = (rd.ft.face - 1) / 3;
+  rd.ft.levels = std::countr_zero(rd.res);
+  for (uint64_t k = 0; k < rd.ft.face; ++k) rd.ft.basis.push_back(BasisOf(k));
+  if (o.method == TripleMethod::kPixel) rd.texel_table = std::make_unique<TexelTable>(rd.res);
+  stages::EnvLoadOptions eo;
+  eo.layout = o.env_layout;
+  eo.clamp = o.clamp_env;
+  eo.max_bytes = o.mem_limit;
+  eo.progress = progress;
+  LTB_ASSIGN_OR_RETURN(stages::Environment env, stages::Environment::Open(o.env, rd.res, eo));
+  return env.Cubemap(o.rotate_deg * std::numbers::pi / 180, &rd.light_cube);
+}
+
 }  // namespace
 
 Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& progress) {
@@ -556,24 +609,13 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
   auto t0 = Clock::now();
   Renderer rd{o};
   LTB_RETURN_IF_ERROR(LoadInputs(o, progress, rd, &report));
-  rd.ft.res = rd.res;
-  rd.ft.face = rd.res * rd.res;
-  rd.ft.squares = (rd.ft.face - 1) / 3;
-  rd.ft.levels = std::countr_zero(rd.res);
-  for (uint64_t k = 0; k < rd.ft.face; ++k) rd.ft.basis.push_back(BasisOf(k));
+  LTB_RETURN_IF_ERROR(LoadEnvironment(o, progress, rd));
   const uint64_t cols = 6 * rd.ft.face;
-  if (o.method == TripleMethod::kPixel) rd.texel_table = std::make_unique<TexelTable>(rd.res);
-  stages::EnvLoadOptions eo;
-  eo.layout = o.env_layout;
-  eo.clamp = o.clamp_env;
-  eo.max_bytes = o.mem_limit;
-  eo.progress = progress;
-  LTB_ASSIGN_OR_RETURN(stages::Environment env, stages::Environment::Open(o.env, rd.res, eo));
-  LTB_RETURN_IF_ERROR(env.Cubemap(o.rotate_deg * std::numbers::pi / 180, &rd.light_cube));
   auto t1 = Clock::now();
   report["load_ms"] = Ms(t0, t1);
   MakeLighting(rd.light_cube, rd.res, o.method == TripleMethod::kPixel ? RenderOptions::kAll : o.light_terms,
-               o.method == TripleMethod::kLinear, &rd.light);
+               o.method == TripleMethod::kLinear || o.method == TripleMethod::kShared, &rd.light);
+  if (o.method == TripleMethod::kShared) rd.light_lanes = LightingLanes(rd.light.kept, rd.res);
   const std::vector<uint32_t> texels = o.method == TripleMethod::kPixel && o.light_terms != RenderOptions::kAll
                                            ? BrightestTexels(rd.light_cube, rd.texel_table->weight, o.light_terms)
                                            : std::vector<uint32_t>{};
@@ -586,7 +628,9 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
   std::vector<uint8_t> needed(rows, 0);
   std::atomic<uint64_t> brdf_terms_sum{0};
   // B of the needed vertices from `eye` into values.
+  SharedStats shared_stats;
   auto evaluate = [&](const glm::dvec3& eye) -> Status {
+    if (o.method == TripleMethod::kShared) return ShadeShared(rd, needed, eye, progress, &values, &shared_stats);
     std::vector<uint64_t> blocks;
     for (uint64_t r0 = 0; r0 < rows; r0 += 256) blocks.push_back(r0);
     return stages::ParallelFor(blocks, o.jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "vertices",
@@ -652,7 +696,10 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
                          {"trace_ms", Ms(a, b)},
                          {"relight_ms", Ms(b, c)},
                          {"image_ms", Ms(c, d)}};
-    if (o.method != TripleMethod::kPixel && visible > 0) {
+    if (o.method == TripleMethod::kShared) {
+      fr["brdf_rows_lit"] = shared_stats.rows_lit;
+      fr["brdf_faces_lit"] = shared_stats.faces_lit;
+    } else if (o.method != TripleMethod::kPixel && visible > 0) {
       fr["brdf_terms_per_vertex"] = static_cast<double>(brdf_terms_sum.load()) / static_cast<double>(visible);
     }
     frame_reports.push_back(fr);

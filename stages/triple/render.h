@@ -27,6 +27,7 @@ enum class TripleMethod {
   kLinear,     // every coefficient of the (approximated) inputs, parent sums by DP: O(R²) a vertex
   kSublinear,  // the kept terms only, lazy parent sums: O(terms · log R) a vertex
   kPixel,      // the reference Σ_p L_p V_p ρ̃(ω_p) Ω_p with ρ̃ evaluated exactly (no field, no terms)
+  kShared,     // linear's result: each sampled BRDF row lit once a frame, ⟨V, Haar(L ⊙ ρ̃_row)⟩ a vertex
 };
 Result<TripleMethod> ParseTripleMethod(const std::string& name);
 const char* TripleMethodName(TripleMethod m);

@@ -1,0 +1,192 @@
+#include "stages/triple/shared_products.h"
+
+#include <algorithm>
+#include <atomic>
+#include <bit>
+#include <cmath>
+#include <memory>
+
+#include "stages/common/parallel_for.h"
+#include "stages/wavelet/haar_face.h"
+
+namespace ltb::triple {
+
+using wavelet::SquareIndex;
+
+void ForwardHaarLanes(double* m, int levels, double* coef) {
+  // Level l's squares from the means of level l + 1 (in m, side 2^(l+1)), their means written
+  // over m at j·side + i: every position written was read before (it precedes the block's own
+  // first value, 2j·2side + 2i, in row-major order), so one buffer serves every level.
+  for (int l = levels - 1; l >= 0; --l) {
+    const uint64_t side = uint64_t{1} << l, fine = side * 2;
+    const double scale = std::ldexp(1.0, -l - 2);
+    for (uint64_t j = 0; j < side; ++j) {
+      for (uint64_t i = 0; i < side; ++i) {
+        const double* q00 = m + ((2 * j) * fine + 2 * i) * kLanes;  // q[qy][qx]
+        const double* q01 = q00 + kLanes;
+        const double* q10 = q00 + fine * kLanes;
+        const double* q11 = q10 + kLanes;
+        double* w = coef + (1 + 3 * SquareIndex(l, i, j)) * kLanes;
+        double mean[kLanes];
+        for (int k = 0; k < kLanes; ++k) {
+          w[k] = scale * (q10[k] + q11[k] - q00[k] - q01[k]);               // type 01: +1 above
+          w[kLanes + k] = scale * (q01[k] + q11[k] - q00[k] - q10[k]);      // type 10: +1 right
+          w[2 * kLanes + k] = scale * (q00[k] + q11[k] - q01[k] - q10[k]);  // type 11: the product
+          mean[k] = 0.25 * (q00[k] + q01[k] + q10[k] + q11[k]);
+        }
+        std::copy(mean, mean + kLanes, m + (j * side + i) * kLanes);
+      }
+    }
+  }
+  std::copy(m, m + kLanes, coef);
+}
+
+void InverseHaarFace(const double* coef, int levels, double* px) {
+  // Level l's means (side 2^l, in px at j·side + i) refined into level l + 1's, in place: the
+  // blocks from last to first, so a mean is read before any block writes over it.
+  px[0] = coef[0];
+  for (int l = 0; l < levels; ++l) {
+    const uint64_t side = uint64_t{1} << l, fine = side * 2;
+    const double scale = std::ldexp(1.0, l);
+    for (uint64_t b = side * side; b-- > 0;) {
+      const uint64_t j = b / side, i = b % side;
+      const double mean = px[b];
+      const double* w = coef + 1 + 3 * SquareIndex(l, i, j);
+      const double a = scale * w[0], c = scale * w[1], d = scale * w[2];
+      double* row0 = px + (2 * j) * fine + 2 * i;
+      double* row1 = row0 + fine;
+      row0[0] = mean - a - c + d;  // qx = 0, qy = 0
+      row0[1] = mean - a + c - d;  // qx = 1, qy = 0
+      row1[0] = mean + a - c - d;  // qx = 0, qy = 1
+      row1[1] = mean + a + c + d;  // qx = 1, qy = 1
+    }
+  }
+}
+
+std::vector<double> LightingLanes(const std::vector<double> (&coef)[3], uint64_t res) {
+  const uint64_t face = res * res;
+  const int levels = std::countr_zero(res);
+  std::vector<double> out(6 * face * kLanes, 0.0), px(face);
+  for (int ch = 0; ch < 3; ++ch) {
+    for (uint64_t f = 0; f < 6; ++f) {
+      InverseHaarFace(coef[ch].data() + f * face, levels, px.data());
+      for (uint64_t p = 0; p < face; ++p) out[(f * face + p) * kLanes + ch] = px[p];
+    }
+  }
+  return out;
+}
+
+namespace {
+
+// One thread's buffers for lighting rows: the row's coefficients (dense, 6R², zero outside
+// the row), a face of ρ̃ pixels, a face of lit pixels and the lit row's coefficients.
+struct LitScratch {
+  std::vector<double> rho, rho_px, lit_px, g;
+  explicit LitScratch(uint64_t face) : rho(6 * face, 0.0), rho_px(face), lit_px(face * kLanes), g(6 * face * kLanes) {}
+};
+
+// The sampled rows the parts use, grouped: key k = the field's first key + the row, and the
+// parts using key k at part[first[k] .. first[k + 1]).
+struct Buckets {
+  std::vector<uint64_t> first, part, keys;  // keys: the used ones, ascending
+};
+
+Result<Buckets> GroupParts(const VertexRho& rho, std::span<const MaterialField> fields,
+                           std::vector<uint64_t>* field_base) {
+  field_base->assign(1, 0);
+  for (const MaterialField& f : fields) field_base->push_back(field_base->back() + f.rows.rows);
+  Buckets b;
+  b.first.assign(field_base->back() + 1, 0);
+  std::vector<uint64_t> key(rho.parts.size());
+  for (uint64_t s = 0; s < rho.parts.size(); ++s) {
+    const RhoPart& p = rho.parts[s];
+    uint64_t fi = 0;
+    while (fi < fields.size() && &fields[fi] != p.field) ++fi;
+    if (fi == fields.size() || p.row >= p.field->rows.rows) {
+      return Internal("a vertex's BRDF part names a row outside the material fields");
+    }
+    key[s] = (*field_base)[fi] + p.row;
+    ++b.first[key[s] + 1];
+  }
+  for (uint64_t k = 0; k + 1 < b.first.size(); ++k) {
+    if (b.first[k + 1] > 0) b.keys.push_back(k);
+    b.first[k + 1] += b.first[k];
+  }
+  b.part.resize(rho.parts.size());
+  std::vector<uint64_t> fill(b.first.begin(), b.first.end() - 1);
+  for (uint64_t s = 0; s < rho.parts.size(); ++s) b.part[fill[key[s]]++] = s;
+  return b;
+}
+
+}  // namespace
+
+Status SharedTripleProducts(const SparseRows& vis, uint64_t res, std::span<const double> light,
+                            std::span<const uint64_t> vertex_rows, const VertexRho& rho,
+                            std::span<const MaterialField> fields, uint64_t brdf_terms, int jobs,
+                            const Progress& progress, std::vector<double>* out, SharedStats* stats) {
+  const uint64_t face = res * res, cols = 6 * face;
+  const int levels = std::countr_zero(res), face_shift = 2 * levels;
+  if (light.size() != cols * kLanes || rho.offset.size() != vertex_rows.size() + 1 ||
+      rho.offset.back() != rho.parts.size()) {
+    return Internal("shared triple products: inputs of inconsistent sizes");
+  }
+  std::vector<uint64_t> field_base;
+  LTB_ASSIGN_OR_RETURN(Buckets b, GroupParts(rho, fields, &field_base));
+  std::vector<uint64_t> part_vertex(rho.parts.size());
+  for (uint64_t i = 0; i < vertex_rows.size(); ++i) {
+    for (uint64_t s = rho.offset[i]; s < rho.offset[i + 1]; ++s) part_vertex[s] = vertex_rows[i];
+  }
+  std::vector<double> contrib(rho.parts.size() * 3, 0.0);  // each part's weighted product
+  std::atomic<uint64_t> faces_lit{0};
+  Status st = stages::ParallelFor(
+      b.keys, jobs, Progress{.update = nullptr, .cancelled = progress.cancelled}, "rows", [&](uint64_t k) -> Status {
+        thread_local std::unique_ptr<LitScratch> tls;
+        if (!tls || tls->rho.size() != cols) tls = std::make_unique<LitScratch>(face);
+        LitScratch& sc = *tls;
+        const uint64_t fi =
+            static_cast<uint64_t>(std::upper_bound(field_base.begin(), field_base.end(), k) - field_base.begin()) - 1;
+        const MaterialField& mf = fields[fi];
+        const uint64_t row = k - field_base[fi];
+        const uint64_t e0 = mf.rows.offset[row], e1 = mf.rows.offset[row + 1];
+        const uint64_t keep =
+            brdf_terms == UINT64_MAX ? e1 - e0 : std::min<uint64_t>(e1 - e0, mf.scaling[row] + brdf_terms);
+        unsigned lit = 0;  // faces of the row with a non-zero coefficient
+        for (uint64_t e = e0; e < e0 + keep; ++e) {
+          sc.rho[mf.rows.col[e]] = mf.rows.val[e];
+          if (mf.rows.val[e] != 0) lit |= 1u << (mf.rows.col[e] >> face_shift);
+        }
+        for (uint64_t f = 0; f < 6; ++f) {
+          if (!(lit >> f & 1)) continue;
+          InverseHaarFace(sc.rho.data() + f * face, levels, sc.rho_px.data());
+          const double* l = light.data() + f * face * kLanes;
+          for (uint64_t p = 0; p < face; ++p)
+            for (int q = 0; q < kLanes; ++q) sc.lit_px[p * kLanes + q] = l[p * kLanes + q] * sc.rho_px[p];
+          ForwardHaarLanes(sc.lit_px.data(), levels, sc.g.data() + f * face * kLanes);
+        }
+        for (uint64_t e = e0; e < e0 + keep; ++e) sc.rho[mf.rows.col[e]] = 0;
+        faces_lit += static_cast<uint64_t>(std::popcount(lit));
+        for (uint64_t q = b.first[k]; q < b.first[k + 1]; ++q) {
+          const uint64_t s = b.part[q], vr = part_vertex[s];
+          double acc[kLanes] = {0, 0, 0, 0};
+          for (uint64_t e = vis.offset[vr]; e < vis.offset[vr + 1]; ++e) {
+            const uint32_t c = vis.col[e];
+            if (!(lit >> (c >> face_shift) & 1)) continue;
+            const double v = vis.val[e];
+            const double* g = sc.g.data() + uint64_t{c} * kLanes;
+            for (int ch = 0; ch < kLanes; ++ch) acc[ch] += v * g[ch];
+          }
+          for (int ch = 0; ch < 3; ++ch) contrib[s * 3 + ch] = rho.parts[s].weight * acc[ch];
+        }
+        return Status::Ok();
+      });
+  LTB_RETURN_IF_ERROR(st);
+  out->assign(vertex_rows.size() * 3, 0.0);
+  for (uint64_t i = 0; i < vertex_rows.size(); ++i) {  // the parts in their order: deterministic
+    for (uint64_t s = rho.offset[i]; s < rho.offset[i + 1]; ++s)
+      for (int ch = 0; ch < 3; ++ch) (*out)[i * 3 + ch] += contrib[s * 3 + ch];
+  }
+  if (stats) *stats = {.rows_lit = b.keys.size(), .faces_lit = faces_lit.load()};
+  return Status::Ok();
+}
+
+}  // namespace ltb::triple
