@@ -47,7 +47,7 @@ class RelightCommand : public Command {
     app->add_option("--terms", terms_text_,
                     "lighting terms kept, N >= 1 or all (non-linear approximation: the N largest coefficients of "
                     "the map in the matrix's lighting basis; for a pixel-basis matrix, the N brightest texels); "
-                    "a vertex bake seen from --eye takes every term unless this is given")
+                    "a vertex bake seen from --eye and the triple-product path take every term unless this is given")
         ->default_val("100")
         ->check(TermsCheck());
     app->add_option("--weighting", weighting_,
@@ -88,9 +88,10 @@ class RelightCommand : public Command {
     app->add_option(
            "--method", method_,
            "with --sequence: nwa (each frame on its own), bi (basic incremental) or pbi (per-band "
-           "incremental, the default). Triple-product path: sublinear (the default; kept terms only), linear "
-           "(every coefficient), shared (linear's result, each sampled BRDF row lit once a frame) or pixel (the "
-           "exact pixel-basis reference; --terms keeps the brightest texels)")
+           "incremental, the default). Triple-product path: shared (the default: each sampled BRDF row lit once "
+           "a frame and shared by the vertices that use it; linear's result at any terms), sublinear (the "
+           "kept terms only, per vertex), linear (every coefficient, per vertex) or pixel (the exact "
+           "pixel-basis reference; --terms keeps the brightest texels)")
         ->check(CLI::IsMember({"nwa", "bi", "pbi", "sublinear", "linear", "shared", "pixel"}));
     app->add_option("--sequence", sequence_,
                     "a lighting sequence, comma-separated segments played in order: rotate:DEG_PER_FRAME:FRAMES "
@@ -177,7 +178,7 @@ class RelightCommand : public Command {
     if (!sequence_.empty()) {
       return ReportUsage(InvalidArgument("--sequence belongs to the matrix path, not the triple-product one"));
     }
-    if (method_.empty()) method_ = "sublinear";
+    if (method_.empty()) method_ = "shared";
     auto method = triple::ParseTripleMethod(method_);
     if (!method.ok()) {
       return ReportUsage(
@@ -186,7 +187,8 @@ class RelightCommand : public Command {
                           "are for --sequence)"));
     }
     o.method = *method;
-    o.light_terms = terms_text_ == "all" ? triple::RenderOptions::kAll : std::stoull(terms_text_);
+    o.light_terms = terms_text_ == "all" || app_->count("--terms") == 0 ? triple::RenderOptions::kAll
+                                                                         : std::stoull(terms_text_);
     o.brdf_terms = brdf_terms_text_ == "all" ? triple::RenderOptions::kAll : std::stoull(brdf_terms_text_);
     if (eye_.empty())
       return ReportUsage(InvalidArgument("the triple-product path (--material, --method) needs --eye X,Y,Z"));

@@ -493,7 +493,7 @@ Status ParseTriple(const std::string& path, const std::string& dir, const toml::
     if (!view.ok()) return view.WithContext((at != nullptr ? Where(path, *at) : Where(path, t)) + ": [triple] view");
   }
   LTB_RETURN_IF_ERROR(GetImageSize(path, t, "[triple]", &r->width, &r->height));
-  LTB_ASSIGN_OR_RETURN(r->method, GetChoice(path, t, "method", r->method, {"sublinear", "linear", "pixel"}));
+  LTB_ASSIGN_OR_RETURN(r->method, GetChoice(path, t, "method", r->method, {"shared", "sublinear", "linear", "pixel"}));
   for (auto [key, dst] : {std::pair{"terms", &r->terms}, std::pair{"brdf_terms", &r->brdf_terms}}) {
     const toml::node* n = t.get(key);
     if (n == nullptr) continue;

@@ -128,8 +128,8 @@ struct Recipe {
     glm::dvec3 eye{0, -3, 1.5}, target{0, 0, 0}, up{0, 0, 1};
     double fov = 40;
     uint64_t width = 256, height = 256;
-    std::string method = "sublinear";
-    std::string terms = "100", brdf_terms = "all";  // N or "all"
+    std::string method = "shared";
+    std::string terms = "all", brdf_terms = "all";  // N or "all"
     bool clamp = false;
     std::string format = "png";  // png | exr | npy
     double exposure = 0;

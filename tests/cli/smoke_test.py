@@ -223,13 +223,15 @@ material = "shiny"
         "-o", P("ward.ltm"), *Q)
     np.save(P("env4.npy"), np.ones((6 * 4 * 4, 3), np.float32))
     vals = {}
-    for method in ("pixel", "linear", "sublinear"):
+    for method in ("pixel", "linear", "sublinear", "shared"):
         run("relight", P("vis.ltm"), "--material", P("lam.ltm"), "--material", P("ward.ltm"), "--env", P("env4.npy"),
             "--eye", "2,-3,2", "--method", method, "--size", "16x12", "--terms", "all", "-o", P(f"t_{method}.npy"),
             "--vertex-output", P(f"v_{method}.npy"), *Q)
         vals[method] = np.load(P(f"v_{method}.npy"))
     check(vals["linear"].shape == (9, 3) and np.allclose(vals["linear"], vals["sublinear"], rtol=1e-5, atol=1e-7),
           f"triple: sublinear with every term differs from linear: {vals['linear']} {vals['sublinear']}")
+    check(np.allclose(vals["linear"], vals["shared"], rtol=1e-5, atol=1e-7),
+          f"triple: shared with every term differs from linear: {vals['linear']} {vals['shared']}")
     run("relight", P("vis.ltm"), "--material", P("lam.ltm"), "--material", P("ward.ltm"), "--material", P("ph.ltm"),
         "--env", P("env4.npy"), "--eye", "2,-3,2", "--orbit", "30:2", "--size", "8x8", "--terms", 3, "--brdf-terms", 2,
         "-o", P("o_%d.png"), *Q)

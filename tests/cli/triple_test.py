@@ -6,7 +6,8 @@
 - Two independent paths, one answer: the triple product of a diffuse scene (pixel method,
   and the linear and sublinear methods through material fields) equals `relight` of the
   same scene's vertex-mode transport matrix.
-- sublinear with every term equals linear; its error against linear falls as terms grow.
+- sublinear and shared with every term equal linear; sublinear's error against linear falls as
+  terms grow; shared equals linear at few terms too.
 - A Phong sphere under one bright texel: the brightest vertex is where the light's mirror
   direction meets the eye (the reflection of the view about the normal is the light).
 - Blinn, Ward and Cook–Torrance material rows equal the lobes' definitions (NumPy) over
@@ -263,7 +264,7 @@ material = "chalk"
     outs = {}
     lam = os.path.join(d, "lambert.ltm")
     run("material", "--brdf", "lambert", "--cube-res", R, "--samples-res", 16, "--energy", 1, "-o", lam)
-    for method in ("pixel", "linear", "sublinear"):
+    for method in ("pixel", "linear", "sublinear", "shared"):
         vo = os.path.join(d, f"{method}.npy")
         args = ["--material", lam] if method != "pixel" else []
         run("relight", visd, *args, "--env", env_npy, "--eye", eye, "--target", "0,0,0.3", "--method", method,
@@ -280,6 +281,8 @@ material = "chalk"
     check(e_lin < 5e-3, f"triple (linear, Lambert field) equals relight of T: rel. L2 {e_lin}")
     e_sub = rel(outs["sublinear"], outs["linear"])
     check(e_sub < 1e-6, f"sublinear with every term equals linear: {e_sub}")
+    e_sh = rel(outs["shared"], outs["linear"])
+    check(e_sh < 1e-6, f"shared with every term equals linear: {e_sh}")
     print(f"diffuse scene, R = {R}: rel. L2 against relight of T: pixel {e_pixel:.2e}, linear {e_lin:.2e}")
 
     # Materials may change after the visibility bake (the field checks the geometry only);
@@ -297,13 +300,22 @@ material = "chalk"
     check("geometry" in p.stderr and "bake the visibility field again" in p.stderr,
           f"a moved object is refused: {p.stderr}")
 
-    # --- sublinear error falls with terms ---------------------------------------------------
+    # --- sublinear error falls with terms; shared equals linear at any terms ----------------
     errs = []
     for n in (4, 16, 64, 256):
         vo = os.path.join(d, f"sub{n}.npy")
-        run("relight", visd, "--material", lam, "--env", env_npy, "--eye", eye, "--terms", n, "-o",
-            os.path.join(d, "s.png"), "--vertex-output", vo)
+        run("relight", visd, "--material", lam, "--env", env_npy, "--eye", eye, "--method", "sublinear", "--terms", n,
+            "-o", os.path.join(d, "s.png"), "--vertex-output", vo)
         errs.append(rel(np.load(vo), outs["linear"]))
+    few = {}
+    for method in ("linear", "shared"):
+        vo = os.path.join(d, f"few_{method}.npy")
+        run("relight", visd, "--material", lam, "--env", env_npy, "--eye", eye, "--method", method, "--terms", 16,
+            "--brdf-terms", 8, "-o", os.path.join(d, "s.png"), "--vertex-output", vo)
+        few[method] = np.load(vo)
+    e_few = rel(few["shared"], few["linear"])
+    check(e_few < 1e-6 and rel(few["linear"], outs["linear"]) > 1e-3,
+          f"shared equals linear at 16 lighting and 8 BRDF terms: {e_few}")
     print("sublinear rel. L2 against every term, 4/16/64/256 lighting terms:", ", ".join(f"{e:.2e}" for e in errs))
     check(all(a > b for a, b in zip(errs, errs[1:])), f"sublinear error falls with terms: {errs}")
 
