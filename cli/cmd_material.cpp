@@ -1,5 +1,5 @@
 // ltbake material --brdf lambert|phong:S|blinn:S|ward:A|cook-torrance:M,F0 -o mat.ltm [--cube-res R]
-//                 [--samples-res S] [--normals-res N] [--energy 0.999]
+//                 [--samples-res S] [--normals-res N] [--energy 0.9999]
 #include <iostream>
 #include <nlohmann/json.hpp>
 
@@ -32,7 +32,7 @@ class MaterialCommand : public Command {
                     "blinn, ward, cook-torrance: face size of the cube of sampled normals (default 4); rows are "
                     "every (normal, reflection vector) pair");
     app->add_option("--energy", options_.energy, "fraction of each row's energy the kept coefficients hold")
-        ->default_val(0.999);
+        ->default_val(0.9999);
     app->add_flag("--overwrite", options_.overwrite, "replace an output that was made with other parameters");
     app->add_flag("--json", json_, "print the summary as JSON");
     AddCommonFlags(app, &flags_);

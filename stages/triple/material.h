@@ -77,7 +77,7 @@ struct MaterialOptions {
   uint64_t cube_res = 32;    // R, the lighting's cubemap
   uint64_t samples_res = 0;  // S; 0: 16 for Lambert, 32 for Phong, 16 for the two-direction BRDFs
   uint64_t normals_res = 0;  // N, two-direction BRDFs only; 0: 4
-  double energy = 0.999;     // kept fraction of each row's energy (0, 1]
+  double energy = 0.9999;    // kept fraction of each row's energy (0, 1]
   int jobs = 2;
   bool overwrite = false;
 };
