@@ -187,8 +187,8 @@ class RelightCommand : public Command {
                           "are for --sequence)"));
     }
     o.method = *method;
-    o.light_terms = terms_text_ == "all" || app_->count("--terms") == 0 ? triple::RenderOptions::kAll
-                                                                         : std::stoull(terms_text_);
+    o.light_terms =
+        terms_text_ == "all" || app_->count("--terms") == 0 ? triple::RenderOptions::kAll : std::stoull(terms_text_);
     o.brdf_terms = brdf_terms_text_ == "all" ? triple::RenderOptions::kAll : std::stoull(brdf_terms_text_);
     if (eye_.empty())
       return ReportUsage(InvalidArgument("the triple-product path (--material, --method) needs --eye X,Y,Z"));

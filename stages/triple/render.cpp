@@ -207,8 +207,9 @@ struct Renderer {
   std::vector<const MaterialField*> lambert_of, glossy_of;
   std::unique_ptr<TexelTable> texel_table;  // centres and solid angles × R² (pixel method)
   Lighting light;
-  std::vector<float> light_cube;    // 6R² × 3, the frame's radiance (pixel method)
-  std::vector<double> light_lanes;  // the approximated lighting's texels, kLanes each (shared method)
+  std::vector<float> light_cube;   // 6R² × 3, the frame's radiance (pixel method)
+  std::vector<float> light_lanes;  // the approximated lighting's texels × 2^-light_exponent, kLanes each
+  int light_exponent = 0;          // (the shared method)
 
   // ρ̃ of vertex `row` seen from `eye`: the sampled rows of the fields, weighted.
   void RhoParts(uint64_t row, const glm::dvec3& eye, std::vector<RhoPart>* parts) const {
@@ -514,7 +515,8 @@ Status ShadeShared(const Renderer& rd, const std::vector<uint8_t>& needed, const
                                            rd.o.brdf_terms == RenderOptions::kAll ? UINT64_MAX : rd.o.brdf_terms,
                                            rd.o.jobs, progress, &b, stats));
   for (uint64_t i = 0; i < rows.size(); ++i)
-    for (int ch = 0; ch < 3; ++ch) (*values)[rows[i] * 3 + ch] = static_cast<float>(b[i * 3 + ch]);
+    for (int ch = 0; ch < 3; ++ch)
+      (*values)[rows[i] * 3 + ch] = static_cast<float>(std::ldexp(b[i * 3 + ch], rd.light_exponent));
   return Status::Ok();
 }
 
@@ -615,7 +617,7 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
   report["load_ms"] = Ms(t0, t1);
   MakeLighting(rd.light_cube, rd.res, o.method == TripleMethod::kPixel ? RenderOptions::kAll : o.light_terms,
                o.method == TripleMethod::kLinear || o.method == TripleMethod::kShared, &rd.light);
-  if (o.method == TripleMethod::kShared) rd.light_lanes = LightingLanes(rd.light.kept, rd.res);
+  if (o.method == TripleMethod::kShared) rd.light_lanes = LightingLanes(rd.light.kept, rd.res, &rd.light_exponent);
   const std::vector<uint32_t> texels = o.method == TripleMethod::kPixel && o.light_terms != RenderOptions::kAll
                                            ? BrightestTexels(rd.light_cube, rd.texel_table->weight, o.light_terms)
                                            : std::vector<uint32_t>{};

@@ -13,26 +13,27 @@ namespace ltb::triple {
 
 using wavelet::SquareIndex;
 
-void ForwardHaarLanes(double* m, int levels, double* coef) {
+template <typename T>
+void ForwardHaarLanes(T* m, int levels, T* coef) {
   // Level l's squares from the means of level l + 1 (in m, side 2^(l+1)), their means written
   // over m at j·side + i: every position written was read before (it precedes the block's own
   // first value, 2j·2side + 2i, in row-major order), so one buffer serves every level.
   for (int l = levels - 1; l >= 0; --l) {
     const uint64_t side = uint64_t{1} << l, fine = side * 2;
-    const double scale = std::ldexp(1.0, -l - 2);
+    const T scale = static_cast<T>(std::ldexp(1.0, -l - 2)), quarter = 0.25;
     for (uint64_t j = 0; j < side; ++j) {
       for (uint64_t i = 0; i < side; ++i) {
-        const double* q00 = m + ((2 * j) * fine + 2 * i) * kLanes;  // q[qy][qx]
-        const double* q01 = q00 + kLanes;
-        const double* q10 = q00 + fine * kLanes;
-        const double* q11 = q10 + kLanes;
-        double* w = coef + (1 + 3 * SquareIndex(l, i, j)) * kLanes;
-        double mean[kLanes];
+        const T* q00 = m + ((2 * j) * fine + 2 * i) * kLanes;  // q[qy][qx]
+        const T* q01 = q00 + kLanes;
+        const T* q10 = q00 + fine * kLanes;
+        const T* q11 = q10 + kLanes;
+        T* w = coef + (1 + 3 * SquareIndex(l, i, j)) * kLanes;
+        T mean[kLanes];
         for (int k = 0; k < kLanes; ++k) {
           w[k] = scale * (q10[k] + q11[k] - q00[k] - q01[k]);               // type 01: +1 above
           w[kLanes + k] = scale * (q01[k] + q11[k] - q00[k] - q10[k]);      // type 10: +1 right
           w[2 * kLanes + k] = scale * (q00[k] + q11[k] - q01[k] - q10[k]);  // type 11: the product
-          mean[k] = 0.25 * (q00[k] + q01[k] + q10[k] + q11[k]);
+          mean[k] = quarter * (q00[k] + q01[k] + q10[k] + q11[k]);
         }
         std::copy(mean, mean + kLanes, m + (j * side + i) * kLanes);
       }
@@ -41,20 +42,21 @@ void ForwardHaarLanes(double* m, int levels, double* coef) {
   std::copy(m, m + kLanes, coef);
 }
 
-void InverseHaarFace(const double* coef, int levels, double* px) {
+template <typename T>
+void InverseHaarFace(const T* coef, int levels, T* px) {
   // Level l's means (side 2^l, in px at j·side + i) refined into level l + 1's, in place: the
   // blocks from last to first, so a mean is read before any block writes over it.
   px[0] = coef[0];
   for (int l = 0; l < levels; ++l) {
     const uint64_t side = uint64_t{1} << l, fine = side * 2;
-    const double scale = std::ldexp(1.0, l);
+    const T scale = static_cast<T>(std::ldexp(1.0, l));
     for (uint64_t b = side * side; b-- > 0;) {
       const uint64_t j = b / side, i = b % side;
-      const double mean = px[b];
-      const double* w = coef + 1 + 3 * SquareIndex(l, i, j);
-      const double a = scale * w[0], c = scale * w[1], d = scale * w[2];
-      double* row0 = px + (2 * j) * fine + 2 * i;
-      double* row1 = row0 + fine;
+      const T mean = px[b];
+      const T* w = coef + 1 + 3 * SquareIndex(l, i, j);
+      const T a = scale * w[0], c = scale * w[1], d = scale * w[2];
+      T* row0 = px + (2 * j) * fine + 2 * i;
+      T* row1 = row0 + fine;
       row0[0] = mean - a - c + d;  // qx = 0, qy = 0
       row0[1] = mean - a + c - d;  // qx = 1, qy = 0
       row1[0] = mean + a - c - d;  // qx = 0, qy = 1
@@ -63,16 +65,29 @@ void InverseHaarFace(const double* coef, int levels, double* px) {
   }
 }
 
-std::vector<double> LightingLanes(const std::vector<double> (&coef)[3], uint64_t res) {
+template void ForwardHaarLanes<float>(float*, int, float*);
+template void ForwardHaarLanes<double>(double*, int, double*);
+template void InverseHaarFace<float>(const float*, int, float*);
+template void InverseHaarFace<double>(const double*, int, double*);
+
+std::vector<float> LightingLanes(const std::vector<double> (&coef)[3], uint64_t res, int* exponent) {
   const uint64_t face = res * res;
   const int levels = std::countr_zero(res);
-  std::vector<double> out(6 * face * kLanes, 0.0), px(face);
+  std::vector<double> px(6 * face * kLanes, 0.0);
+  double peak = 0;
   for (int ch = 0; ch < 3; ++ch) {
     for (uint64_t f = 0; f < 6; ++f) {
-      InverseHaarFace(coef[ch].data() + f * face, levels, px.data());
-      for (uint64_t p = 0; p < face; ++p) out[(f * face + p) * kLanes + ch] = px[p];
+      std::vector<double> one(face);
+      InverseHaarFace(coef[ch].data() + f * face, levels, one.data());
+      for (uint64_t p = 0; p < face; ++p) {
+        px[(f * face + p) * kLanes + ch] = one[p];
+        peak = std::max(peak, std::fabs(one[p]));
+      }
     }
   }
+  *exponent = peak > 0 && std::isfinite(peak) ? std::ilogb(peak) : 0;
+  std::vector<float> out(px.size());
+  for (size_t k = 0; k < px.size(); ++k) out[k] = static_cast<float>(std::ldexp(px[k], -*exponent));
   return out;
 }
 
@@ -81,8 +96,8 @@ namespace {
 // One thread's buffers for lighting rows: the row's coefficients (dense, 6R², zero outside
 // the row), a face of ρ̃ pixels, a face of lit pixels and the lit row's coefficients.
 struct LitScratch {
-  std::vector<double> rho, rho_px, lit_px, g;
-  explicit LitScratch(uint64_t face) : rho(6 * face, 0.0), rho_px(face), lit_px(face * kLanes), g(6 * face * kLanes) {}
+  std::vector<float> rho, rho_px, lit_px, g;
+  explicit LitScratch(uint64_t face) : rho(6 * face, 0.0f), rho_px(face), lit_px(face * kLanes), g(6 * face * kLanes) {}
 };
 
 // The sampled rows the parts use, grouped: key k = the field's first key + the row, and the
@@ -120,7 +135,7 @@ Result<Buckets> GroupParts(const VertexRho& rho, std::span<const MaterialField> 
 
 }  // namespace
 
-Status SharedTripleProducts(const SparseRows& vis, uint64_t res, std::span<const double> light,
+Status SharedTripleProducts(const SparseRows& vis, uint64_t res, std::span<const float> light,
                             std::span<const uint64_t> vertex_rows, const VertexRho& rho,
                             std::span<const MaterialField> fields, uint64_t brdf_terms, int jobs,
                             const Progress& progress, std::vector<double>* out, SharedStats* stats) {
@@ -158,7 +173,7 @@ Status SharedTripleProducts(const SparseRows& vis, uint64_t res, std::span<const
         for (uint64_t f = 0; f < 6; ++f) {
           if (!(lit >> f & 1)) continue;
           InverseHaarFace(sc.rho.data() + f * face, levels, sc.rho_px.data());
-          const double* l = light.data() + f * face * kLanes;
+          const float* l = light.data() + f * face * kLanes;
           for (uint64_t p = 0; p < face; ++p)
             for (int q = 0; q < kLanes; ++q) sc.lit_px[p * kLanes + q] = l[p * kLanes + q] * sc.rho_px[p];
           ForwardHaarLanes(sc.lit_px.data(), levels, sc.g.data() + f * face * kLanes);
@@ -172,8 +187,8 @@ Status SharedTripleProducts(const SparseRows& vis, uint64_t res, std::span<const
             const uint32_t c = vis.col[e];
             if (!(lit >> (c >> face_shift) & 1)) continue;
             const double v = vis.val[e];
-            const double* g = sc.g.data() + uint64_t{c} * kLanes;
-            for (int ch = 0; ch < kLanes; ++ch) acc[ch] += v * g[ch];
+            const float* g = sc.g.data() + uint64_t{c} * kLanes;
+            for (int ch = 0; ch < kLanes; ++ch) acc[ch] += v * static_cast<double>(g[ch]);
           }
           for (int ch = 0; ch < 3; ++ch) contrib[s * 3 + ch] = rho.parts[s].weight * acc[ch];
         }

@@ -29,16 +29,21 @@ inline constexpr int kLanes = 4;
 
 // The 2D Haar transform of one face (HaarFace's layout) of kLanes interleaved lanes:
 // `pixels` (R² × kLanes, x + y·R; overwritten: the means are coarsened in place) into `coef`
-// (R² × kLanes). Equals HaarFace::Forward lane by lane up to rounding.
-void ForwardHaarLanes(double* pixels, int levels, double* coef);
+// (R² × kLanes). Equals HaarFace::Forward lane by lane up to rounding (T's). The renderer
+// lights rows in float (twice the lanes a vector instruction holds; its sums stay double).
+template <typename T>
+void ForwardHaarLanes(T* pixels, int levels, T* coef);
 
 // The inverse of one face of one lane: coefficients (R², HaarFace's layout) into pixel values
-// (R²). Equals HaarFace::Inverse up to rounding.
-void InverseHaarFace(const double* coef, int levels, double* pixels);
+// (R²). Equals HaarFace::Inverse up to rounding (T's).
+template <typename T>
+void InverseHaarFace(const T* coef, int levels, T* pixels);
 
 // The pixel values (6R² × kLanes, fourth lane zero) of three channels of Haar coefficients
-// (each 6R², face by face): the lighting the shared method multiplies the rows by.
-std::vector<double> LightingLanes(const std::vector<double> (&coef)[3], uint64_t res);
+// (each 6R², face by face): the lighting the shared method multiplies the rows by, scaled by
+// 2^-exponent so that its largest magnitude is in [1, 2) — float then neither overflows for
+// the brightest maps float32 holds nor loses the faint ones; B scales back exactly by 2^exponent.
+std::vector<float> LightingLanes(const std::vector<double> (&coef)[3], uint64_t res, int* exponent);
 
 // The vertices' ρ̃: vertex i (of the list passed with it) is the weighted rows
 // parts[offset[i] .. offset[i + 1]).
@@ -58,7 +63,7 @@ struct SharedStats {
 // `brdf_terms` wavelets (the prefix MaterialField keeps them in; UINT64_MAX: every one).
 // Every part's field must be one of `fields`. Rows are lit on `jobs` threads; the result does
 // not depend on how many.
-Status SharedTripleProducts(const SparseRows& vis, uint64_t res, std::span<const double> light,
+Status SharedTripleProducts(const SparseRows& vis, uint64_t res, std::span<const float> light,
                             std::span<const uint64_t> vertex_rows, const VertexRho& rho,
                             std::span<const MaterialField> fields, uint64_t brdf_terms, int jobs,
                             const Progress& progress, std::vector<double>* out, SharedStats* stats);
