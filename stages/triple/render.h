@@ -49,7 +49,7 @@ struct RenderOptions {
   double orbit_deg = 0;
   uint32_t orbit_frames = 0;
 
-  TripleMethod method = TripleMethod::kSublinear;
+  TripleMethod method = TripleMethod::kShared;
   static constexpr uint64_t kAll = std::numeric_limits<uint64_t>::max();
   uint64_t light_terms = kAll;  // wavelet terms of the lighting (the N largest over the cube)
   uint64_t brdf_terms = kAll;   // wavelet terms kept of each sampled BRDF row (the largest)
