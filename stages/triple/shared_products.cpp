@@ -4,6 +4,7 @@
 #include <atomic>
 #include <bit>
 #include <cmath>
+#include <cstring>
 #include <memory>
 
 #include "stages/common/parallel_for.h"
@@ -93,6 +94,11 @@ std::vector<float> LightingLanes(const std::vector<double> (&coef)[3], uint64_t 
 
 namespace {
 
+// A texel's lanes, in float (a lit row) and double (the sums).
+using F4 = float __attribute__((vector_size(4 * sizeof(float))));
+using D4 = double __attribute__((vector_size(4 * sizeof(double))));
+static_assert(kLanes == 4);
+
 // One thread's buffers for lighting rows: the row's coefficients (dense, 6R², zero outside
 // the row), a face of ρ̃ pixels, a face of lit pixels and the lit row's coefficients.
 struct LitScratch {
@@ -147,9 +153,17 @@ Status SharedTripleProducts(const SparseRows& vis, uint64_t res, std::span<const
   }
   std::vector<uint64_t> field_base;
   LTB_ASSIGN_OR_RETURN(Buckets b, GroupParts(rho, fields, &field_base));
-  std::vector<uint64_t> part_vertex(rho.parts.size());
+  // Each part's vertex, and where each face's entries begin in its visibility row (the
+  // columns ascend: sparse chunks store them so), so a part reads only its row's lit faces.
+  std::vector<uint64_t> part_vertex(rho.parts.size()), face_begin(vertex_rows.size() * 7);
   for (uint64_t i = 0; i < vertex_rows.size(); ++i) {
-    for (uint64_t s = rho.offset[i]; s < rho.offset[i + 1]; ++s) part_vertex[s] = vertex_rows[i];
+    for (uint64_t s = rho.offset[i]; s < rho.offset[i + 1]; ++s) part_vertex[s] = i;
+    const uint64_t vr = vertex_rows[i];
+    const uint32_t* c0 = vis.col.data() + vis.offset[vr];
+    const uint32_t* c1 = vis.col.data() + vis.offset[vr + 1];
+    for (uint64_t f = 0; f <= 6; ++f) {
+      face_begin[i * 7 + f] = vis.offset[vr] + static_cast<uint64_t>(std::lower_bound(c0, c1, f * face) - c0);
+    }
   }
   std::vector<double> contrib(rho.parts.size() * 3, 0.0);  // each part's weighted product
   std::atomic<uint64_t> faces_lit{0};
@@ -174,23 +188,30 @@ Status SharedTripleProducts(const SparseRows& vis, uint64_t res, std::span<const
           if (!(lit >> f & 1)) continue;
           InverseHaarFace(sc.rho.data() + f * face, levels, sc.rho_px.data());
           const float* l = light.data() + f * face * kLanes;
-          for (uint64_t p = 0; p < face; ++p)
-            for (int q = 0; q < kLanes; ++q) sc.lit_px[p * kLanes + q] = l[p * kLanes + q] * sc.rho_px[p];
+          for (uint64_t p = 0; p < face; ++p) {
+            F4 x;
+            std::memcpy(&x, l + p * kLanes, sizeof x);
+            x *= sc.rho_px[p];
+            std::memcpy(sc.lit_px.data() + p * kLanes, &x, sizeof x);
+          }
           ForwardHaarLanes(sc.lit_px.data(), levels, sc.g.data() + f * face * kLanes);
         }
         for (uint64_t e = e0; e < e0 + keep; ++e) sc.rho[mf.rows.col[e]] = 0;
         faces_lit += static_cast<uint64_t>(std::popcount(lit));
         for (uint64_t q = b.first[k]; q < b.first[k + 1]; ++q) {
-          const uint64_t s = b.part[q], vr = part_vertex[s];
-          double acc[kLanes] = {0, 0, 0, 0};
-          for (uint64_t e = vis.offset[vr]; e < vis.offset[vr + 1]; ++e) {
-            const uint32_t c = vis.col[e];
-            if (!(lit >> (c >> face_shift) & 1)) continue;
-            const double v = vis.val[e];
-            const float* g = sc.g.data() + uint64_t{c} * kLanes;
-            for (int ch = 0; ch < kLanes; ++ch) acc[ch] += v * static_cast<double>(g[ch]);
+          const uint64_t s = b.part[q];
+          const uint64_t* fb = face_begin.data() + part_vertex[s] * 7;
+          D4 acc[2] = {{0, 0, 0, 0}, {0, 0, 0, 0}};  // two chains: the loads' latency overlaps
+          for (uint64_t f = 0; f < 6; ++f) {
+            if (!(lit >> f & 1)) continue;
+            for (uint64_t e = fb[f]; e < fb[f + 1]; ++e) {
+              F4 g;
+              std::memcpy(&g, sc.g.data() + uint64_t{vis.col[e]} * kLanes, sizeof g);
+              acc[e & 1] += static_cast<double>(vis.val[e]) * __builtin_convertvector(g, D4);
+            }
           }
-          for (int ch = 0; ch < 3; ++ch) contrib[s * 3 + ch] = rho.parts[s].weight * acc[ch];
+          const D4 sum = acc[0] + acc[1];
+          for (int ch = 0; ch < 3; ++ch) contrib[s * 3 + ch] = rho.parts[s].weight * sum[ch];
         }
         return Status::Ok();
       });
