@@ -14,33 +14,88 @@ namespace ltb::triple {
 
 using wavelet::SquareIndex;
 
+namespace {
+
+// kLanes values of T as one vector (GCC/Clang vector extensions: one AVX register for double,
+// half of one for float, whatever the -march).
 template <typename T>
-void ForwardHaarLanes(T* m, int levels, T* coef) {
-  // Level l's squares from the means of level l + 1 (in m, side 2^(l+1)), their means written
-  // over m at j·side + i: every position written was read before (it precedes the block's own
-  // first value, 2j·2side + 2i, in row-major order), so one buffer serves every level.
-  for (int l = levels - 1; l >= 0; --l) {
+struct Lanes {
+  typedef T V __attribute__((vector_size(kLanes * sizeof(T))));
+};
+template <typename T>
+typename Lanes<T>::V Load(const T* p) {
+  typename Lanes<T>::V v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+template <typename T>
+void Store(T* p, const typename Lanes<T>::V& v) {
+  std::memcpy(p, &v, sizeof v);
+}
+
+// Square (l, i, j) from its quadrants' means q[qy][qx]: its three wavelets into w (types 01,
+// 10, 11: +1 above, right, and their product) and its mean.
+template <typename V, typename T>
+V Block(V q00, V q01, V q10, V q11, T scale, T* w) {
+  const V a = q00 + q01, b = q10 + q11, c = q01 - q00, d = q11 - q10;
+  Store(w, scale * (b - a));
+  Store(w + kLanes, scale * (c + d));
+  Store(w + 2 * kLanes, scale * (d - c));
+  return static_cast<T>(0.25) * (a + b);
+}
+
+// Levels l = top .. 0 of the forward transform from level top + 1's means in m (side
+// 2^(top+1)), each level's means written over m at j·side + i: every position written was
+// read before (it precedes the block's own first value, 2j·2side + 2i, in row-major order),
+// so one buffer serves every level. Then the scaling coefficient.
+template <typename T>
+void ForwardLevels(T* m, int top, T* coef) {
+  using V = typename Lanes<T>::V;
+  for (int l = top; l >= 0; --l) {
     const uint64_t side = uint64_t{1} << l, fine = side * 2;
-    const T scale = static_cast<T>(std::ldexp(1.0, -l - 2)), quarter = 0.25;
+    const T scale = static_cast<T>(std::ldexp(1.0, -l - 2));
     for (uint64_t j = 0; j < side; ++j) {
-      for (uint64_t i = 0; i < side; ++i) {
-        const T* q00 = m + ((2 * j) * fine + 2 * i) * kLanes;  // q[qy][qx]
-        const T* q01 = q00 + kLanes;
+      T* w = coef + (1 + 3 * SquareIndex(l, 0, j)) * kLanes;
+      for (uint64_t i = 0; i < side; ++i, w += 3 * kLanes) {
+        const T* q00 = m + ((2 * j) * fine + 2 * i) * kLanes;
         const T* q10 = q00 + fine * kLanes;
-        const T* q11 = q10 + kLanes;
-        T* w = coef + (1 + 3 * SquareIndex(l, i, j)) * kLanes;
-        T mean[kLanes];
-        for (int k = 0; k < kLanes; ++k) {
-          w[k] = scale * (q10[k] + q11[k] - q00[k] - q01[k]);               // type 01: +1 above
-          w[kLanes + k] = scale * (q01[k] + q11[k] - q00[k] - q10[k]);      // type 10: +1 right
-          w[2 * kLanes + k] = scale * (q00[k] + q11[k] - q01[k] - q10[k]);  // type 11: the product
-          mean[k] = quarter * (q00[k] + q01[k] + q10[k] + q11[k]);
-        }
-        std::copy(mean, mean + kLanes, m + (j * side + i) * kLanes);
+        const V mean = Block(Load(q00), Load(q00 + kLanes), Load(q10), Load(q10 + kLanes), scale, w);
+        Store(m + (j * side + i) * kLanes, mean);
       }
     }
   }
   std::copy(m, m + kLanes, coef);
+}
+
+// The forward transform of the lit face L ⊙ ρ (light: R² × kLanes, rho: R²), the product
+// formed as the finest level reads it; m (R²/4 × kLanes) holds the coarser means.
+void LitForward(const float* light, const float* rho, int levels, float* m, float* coef) {
+  using V = Lanes<float>::V;
+  if (levels == 0) {
+    Store(coef, Load(light) * rho[0]);
+    return;
+  }
+  const int l = levels - 1;
+  const uint64_t side = uint64_t{1} << l, fine = side * 2;
+  const float scale = static_cast<float>(std::ldexp(1.0, -l - 2));
+  for (uint64_t j = 0; j < side; ++j) {
+    float* w = coef + (1 + 3 * SquareIndex(l, 0, j)) * kLanes;
+    for (uint64_t i = 0; i < side; ++i, w += 3 * kLanes) {
+      const uint64_t p0 = (2 * j) * fine + 2 * i, p1 = p0 + fine;
+      const V mean =
+          Block(Load(light + p0 * kLanes) * rho[p0], Load(light + (p0 + 1) * kLanes) * rho[p0 + 1],
+                Load(light + p1 * kLanes) * rho[p1], Load(light + (p1 + 1) * kLanes) * rho[p1 + 1], scale, w);
+      Store(m + (j * side + i) * kLanes, mean);
+    }
+  }
+  ForwardLevels(m, l - 1, coef);
+}
+
+}  // namespace
+
+template <typename T>
+void ForwardHaarLanes(T* m, int levels, T* coef) {
+  ForwardLevels(m, levels - 1, coef);
 }
 
 template <typename T>
@@ -100,7 +155,7 @@ using D4 = double __attribute__((vector_size(4 * sizeof(double))));
 static_assert(kLanes == 4);
 
 // One thread's buffers for lighting rows: the row's coefficients (dense, 6R², zero outside
-// the row), a face of ρ̃ pixels, a face of lit pixels and the lit row's coefficients.
+// the row), a face of ρ̃ pixels, the coarser means of a lit face and the lit row's coefficients.
 struct LitScratch {
   std::vector<float> rho, rho_px, lit_px, g;
   explicit LitScratch(uint64_t face) : rho(6 * face, 0.0f), rho_px(face), lit_px(face * kLanes), g(6 * face * kLanes) {}
@@ -187,14 +242,8 @@ Status SharedTripleProducts(const SparseRows& vis, uint64_t res, std::span<const
         for (uint64_t f = 0; f < 6; ++f) {
           if (!(lit >> f & 1)) continue;
           InverseHaarFace(sc.rho.data() + f * face, levels, sc.rho_px.data());
-          const float* l = light.data() + f * face * kLanes;
-          for (uint64_t p = 0; p < face; ++p) {
-            F4 x;
-            std::memcpy(&x, l + p * kLanes, sizeof x);
-            x *= sc.rho_px[p];
-            std::memcpy(sc.lit_px.data() + p * kLanes, &x, sizeof x);
-          }
-          ForwardHaarLanes(sc.lit_px.data(), levels, sc.g.data() + f * face * kLanes);
+          LitForward(light.data() + f * face * kLanes, sc.rho_px.data(), levels, sc.lit_px.data(),
+                     sc.g.data() + f * face * kLanes);
         }
         for (uint64_t e = e0; e < e0 + keep; ++e) sc.rho[mf.rows.col[e]] = 0;
         faces_lit += static_cast<uint64_t>(std::popcount(lit));
