@@ -63,6 +63,10 @@ class RelightCommand : public Command {
                     "rotate the environment about +Z by this many degrees (within ±1e6; an .exr or .hdr map)")
         ->default_val("0")
         ->check(DecimalCheck(-stages::RelightOptions::kMaxRotateDegrees, stages::RelightOptions::kMaxRotateDegrees));
+    app->add_option("--light-turn", light_turn_text_,
+                    "triple-product path, with --orbit DEG:FRAMES: the map turns this many more degrees about +Z "
+                    "every frame (light and view changing together; --orbit 0:FRAMES keeps the eye)")
+        ->check(DecimalCheck(-360, 360));
     app->add_option("--env-layout", layout_, "auto, latlong, hcross, vcross, faces or angular (light probe)")
         ->default_val("auto")
         ->check(CLI::IsMember({"auto", "latlong", "hcross", "vcross", "faces", "angular"}));
@@ -187,6 +191,7 @@ class RelightCommand : public Command {
                           "are for --sequence)"));
     }
     o.method = *method;
+    if (!light_turn_text_.empty()) o.light_turn_deg = Decimal(light_turn_text_);
     o.light_terms =
         terms_text_ == "all" || app_->count("--terms") == 0 ? triple::RenderOptions::kAll : std::stoull(terms_text_);
     o.brdf_terms = brdf_terms_text_ == "all" ? triple::RenderOptions::kAll : std::stoull(brdf_terms_text_);
@@ -268,6 +273,11 @@ class RelightCommand : public Command {
   }
 
   int Run() override {
+    if (!light_turn_text_.empty() && !Triple()) {
+      return ReportUsage(InvalidArgument(
+          "--light-turn belongs to the triple-product path (--material ...; docs/TRIPLE.md); a matrix's lighting "
+          "sequence is --sequence rotate:DEG:FRAMES"));
+    }
     if (!eye_.empty() && materials_.empty() && !Triple()) return RunGlossy();
     if (Triple()) return RunTriple();
     if (!sequence_.empty()) return RunSequence();
@@ -391,7 +401,7 @@ class RelightCommand : public Command {
                     brdf_terms_text_ = "all", orbit_, scene_, vertex_output_;
   std::string fov_text_ = "40", fps_text_ = "25";
   int frames_ = 0;
-  std::string rotate_text_ = "0", exposure_text_ = "0";
+  std::string rotate_text_ = "0", exposure_text_ = "0", light_turn_text_;
   bool clamp_ = false, json_ = false, keep_negative_ = false;
   CommonFlags flags_;
   CLI::App* app_ = nullptr;

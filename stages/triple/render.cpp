@@ -206,6 +206,7 @@ struct Renderer {
   // Per scene material: its Lambert and glossy fields (nullptr when the part is zero).
   std::vector<const MaterialField*> lambert_of, glossy_of;
   std::unique_ptr<TexelTable> texel_table;  // centres and solid angles × R² (pixel method)
+  std::unique_ptr<stages::Environment> env;
   Lighting light;
   std::vector<float> light_cube;   // 6R² × 3, the frame's radiance (pixel method)
   std::vector<float> light_lanes;  // the approximated lighting's texels × 2^-light_exponent, kLanes each
@@ -566,6 +567,14 @@ Status CheckRenderOptions(const RenderOptions& o) {
                           .WithContext("the view (--eye, --target, --up, --fov)"));
   LTB_RETURN_IF_ERROR(sample::CheckViewMemory(o.width, o.height, o.mem_limit));
   if (o.light_terms == 0) return InvalidArgument("--terms must be at least 1 (or all)");
+  if (o.light_turn_deg != 0 && o.orbit_frames == 0) {
+    return InvalidArgument("--light-turn " + std::to_string(o.light_turn_deg) +
+                           " turns the map from frame to frame: give the frames with --orbit DEG:FRAMES (0:FRAMES "
+                           "for an eye that stays)");
+  }
+  if (!std::isfinite(o.light_turn_deg) || std::fabs(o.light_turn_deg) > 360) {
+    return InvalidArgument("--light-turn must be a number of degrees in [-360, 360]");
+  }
   if (o.orbit_frames > 0 && !o.output.empty())
     LTB_RETURN_IF_ERROR(stages::FramePath(o.output, 0, stages::FramePattern::kOrbit).status());
   return Status::Ok();
@@ -594,7 +603,24 @@ Status LoadEnvironment(const RenderOptions& o, const Progress& progress, Rendere
   eo.max_bytes = o.mem_limit;
   eo.progress = progress;
   LTB_ASSIGN_OR_RETURN(stages::Environment env, stages::Environment::Open(o.env, rd.res, eo));
-  return env.Cubemap(o.rotate_deg * std::numbers::pi / 180, &rd.light_cube);
+  if (o.light_turn_deg != 0 && !env.rotates()) {
+    return InvalidArgument(o.env + ": a cubemap .npy cannot turn (--light-turn); pass the map as .exr or .hdr");
+  }
+  rd.env = std::make_unique<stages::Environment>(std::move(env));
+  return Status::Ok();
+}
+
+// The lighting of a frame: the map turned by `deg` about +Z, in Haar with its kept terms (and
+// the shared method's lanes); the pixel method's brightest texels into *texels.
+Status LightFrame(const RenderOptions& o, double deg, Renderer& rd, std::vector<uint32_t>* texels) {
+  LTB_RETURN_IF_ERROR(rd.env->Cubemap(deg * std::numbers::pi / 180, &rd.light_cube));
+  MakeLighting(rd.light_cube, rd.res, o.method == TripleMethod::kPixel ? RenderOptions::kAll : o.light_terms,
+               o.method == TripleMethod::kLinear || o.method == TripleMethod::kShared, &rd.light);
+  if (o.method == TripleMethod::kShared) rd.light_lanes = LightingLanes(rd.light.kept, rd.res, &rd.light_exponent);
+  *texels = o.method == TripleMethod::kPixel && o.light_terms != RenderOptions::kAll
+                ? BrightestTexels(rd.light_cube, rd.texel_table->weight, o.light_terms)
+                : std::vector<uint32_t>{};
+  return Status::Ok();
 }
 
 }  // namespace
@@ -615,12 +641,8 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
   const uint64_t cols = 6 * rd.ft.face;
   auto t1 = Clock::now();
   report["load_ms"] = Ms(t0, t1);
-  MakeLighting(rd.light_cube, rd.res, o.method == TripleMethod::kPixel ? RenderOptions::kAll : o.light_terms,
-               o.method == TripleMethod::kLinear || o.method == TripleMethod::kShared, &rd.light);
-  if (o.method == TripleMethod::kShared) rd.light_lanes = LightingLanes(rd.light.kept, rd.res, &rd.light_exponent);
-  const std::vector<uint32_t> texels = o.method == TripleMethod::kPixel && o.light_terms != RenderOptions::kAll
-                                           ? BrightestTexels(rd.light_cube, rd.texel_table->weight, o.light_terms)
-                                           : std::vector<uint32_t>{};
+  std::vector<uint32_t> texels;
+  LTB_RETURN_IF_ERROR(LightFrame(o, o.rotate_deg, rd, &texels));
   report["light_terms_used"] =
       o.method == TripleMethod::kPixel ? (texels.empty() ? cols : texels.size()) : rd.light.terms.size();
   report["lighting_ms"] = Ms(t1, Clock::now());
@@ -674,6 +696,9 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
     if (progress.Cancelled()) return Cancelled("interrupted between frames; the frames written are kept");
     const glm::dvec3 eye = sample::OrbitEye(o.eye, o.target, o.orbit_deg, k);
     auto a = Clock::now();
+    const double light_deg = o.rotate_deg + k * o.light_turn_deg;
+    if (k > 0 && o.light_turn_deg != 0) LTB_RETURN_IF_ERROR(LightFrame(o, light_deg, rd, &texels));
+    auto a2 = Clock::now();
     auto camera = sample::PinholeCamera::Create(eye, o.target, o.up, o.fov_degrees, o.width, o.height);
     if (!camera.ok()) {
       return camera.status().WithContext("the view (--eye, --target, --up, --fov), frame " + std::to_string(k));
@@ -695,7 +720,9 @@ Result<RenderResult> RunTripleRender(const RenderOptions& o, const Progress& pro
                          {"pixels_hit", hit_pixels},
                          {"pixels_not_vertex_shaded", unshaded},
                          {"visible_vertices", visible},
-                         {"trace_ms", Ms(a, b)},
+                         {"light_deg", light_deg},
+                         {"lighting_ms", Ms(a, a2)},
+                         {"trace_ms", Ms(a2, b)},
                          {"relight_ms", Ms(b, c)},
                          {"image_ms", Ms(c, d)}};
     if (o.method == TripleMethod::kShared) {

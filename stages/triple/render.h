@@ -48,6 +48,9 @@ struct RenderOptions {
   // +Z axis through the target; `output` is then a printf pattern with one integer (%04d).
   double orbit_deg = 0;
   uint32_t orbit_frames = 0;
+  // With orbit_frames: the environment turns this much further a frame about +Z (frame k is
+  // lit by the map at rotate_deg + k·light_turn_deg): light and view changing together.
+  double light_turn_deg = 0;
 
   TripleMethod method = TripleMethod::kShared;
   static constexpr uint64_t kAll = std::numeric_limits<uint64_t>::max();

@@ -415,6 +415,34 @@ file = "sphere.obj"
     imgs = [np.load(frames % k) for k in range(4)]
     check(all(i.shape == (32 * 24, 3) for i in imgs), f"orbit frames are height·width × 3: {[i.shape for i in imgs]}")
     check(rel(imgs[0], imgs[1]) > 1e-3, "the orbit moves the eye")
+    # Light and view changing together: frame k of --light-turn D is the map at --rotate k·D,
+    # pixel for pixel (a map that varies around +Z, RGBE written here).
+    with open(os.path.join(d, "ramp.hdr"), "wb") as f:
+        f.write(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 32 +X 64\n" +
+                b"".join(bytes([4 * x, 96 + y, 255 - 4 * x, 129]) for y in range(32) for x in range(64)))
+    ramp = os.path.join(d, "ramp.hdr")
+    turn = os.path.join(d, "turn_%02d.npy")
+    run("relight", visd, "--material", lam, "--env", ramp, "--eye", eye, "--orbit", "0:3", "--light-turn", 40,
+        "--size", "24x16", "-o", turn)
+    run("relight", visd, "--material", lam, "--env", ramp, "--eye", eye, "--rotate", 80, "--size", "24x16",
+        "-o", os.path.join(d, "r80.npy"))
+    lt = [np.load(turn % k) for k in range(3)]
+    check(rel(lt[0], lt[1]) > 1e-3 and np.array_equal(lt[2], np.load(os.path.join(d, "r80.npy"))),
+          "--light-turn 40: frame 2 is the map turned 80 degrees, pixel for pixel")
+    both = os.path.join(d, "both_%02d.npy")
+    fixed = os.path.join(d, "fixed_%02d.npy")
+    run("relight", visd, "--material", lam, "--env", ramp, "--eye", eye, "--orbit", "30:2", "--light-turn", 40,
+        "--size", "24x16", "-o", both)
+    run("relight", visd, "--material", lam, "--env", ramp, "--eye", eye, "--orbit", "30:2", "--rotate", 40,
+        "--size", "24x16", "-o", fixed)
+    check(np.array_equal(np.load(both % 1), np.load(fixed % 1)),
+          "--orbit 30:2 --light-turn 40: frame 1 is the orbit's frame 1 under the map turned 40 degrees")
+    for args, want in ((["--env", ramp, "--light-turn", 10], "--orbit"),
+                       (["--env", env_npy, "--orbit", "0:2", "--light-turn", 10], ".npy")):
+        p = run("relight", visd, "--material", lam, "--eye", eye, *args, "-o", turn, expect=1)
+        check(want in p.stderr, f"--light-turn refused ({want}): {p.stderr}")
+    p = run("relight", raw, "--env", ramp, "--light-turn", 10, "-o", os.path.join(d, "x.png"), expect=2)
+    check("triple-product path" in p.stderr, f"--light-turn on a matrix: {p.stderr}")
     # A map near float32's largest value (an RGBE map at exponent 255: 255·2^119) renders at
     # 2^-k and is scaled back: exactly 2^126 times the image of the same map at exponent 129,
     # bit for bit (every step is linear in the light; docs/RELIGHT.md "Numbers").
