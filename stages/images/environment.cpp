@@ -127,6 +127,7 @@ Result<Environment> Environment::Open(const std::string& path, uint64_t cube_res
   Environment e;
   e.cube_res_ = cube_res;
   e.progress_ = o.progress;
+  e.jobs_ = o.jobs;
   if (path.ends_with(".npy")) {
     LTB_ASSIGN_OR_RETURN(std::vector<float> m, ReadCubemapNpy(path, cube_res, o.clamp, &e.clamped_));
     e.fixed_ = std::move(m);
@@ -188,7 +189,7 @@ Status Environment::Cubemap(double rotation, std::vector<float>* out) const {
   }
   out->resize(6 * cube_res_ * cube_res_ * 3);
   if (resampler_) {
-    resampler_->Resample(rotation, out->data());
+    resampler_->Resample(rotation, out->data(), jobs_);
   } else {
     std::copy(fixed_.begin(), fixed_.end(), out->begin());
   }

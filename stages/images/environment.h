@@ -60,6 +60,7 @@ class Environment {
   std::unique_ptr<CubemapResampler> resampler_;
   std::shared_ptr<const EnvMap> exact_;  // the source, for EnvResampling::kExact of a non-lat-long map
   Progress progress_;
+  int jobs_ = 1;  // the resampler's threads
   uint64_t clamped_ = 0;
   float peak_ = 0;
   // The last exact cubemap (a glossy set asks for the same one per member); behind a pointer

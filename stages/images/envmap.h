@@ -59,6 +59,9 @@ struct EnvLoadOptions {
   uint64_t max_bytes = 0;
   // Cancellation (SIGINT/SIGTERM), checked between strips of rows: a Cancelled status.
   Progress progress;
+  // Threads a rotated lat-long map is resampled on, frame after frame (Environment::Cubemap);
+  // the cubemap does not depend on it.
+  int jobs = 1;
 };
 
 struct EnvMap {

@@ -8,6 +8,7 @@
 #include <cstring>
 #include <glm/geometric.hpp>
 #include <new>
+#include <thread>
 #include <utility>
 
 #include "stages/common/cubemap.h"
@@ -555,12 +556,13 @@ inline void Load(const double* p, Vec4* v) { std::memcpy(v, p, sizeof *v); }
 // its top and bottom pieces cut off), then Σ L·max(area, 0) over those columns: a sum of
 // non-negative terms. Column j of the band's coordinate x = c + shift is working column
 // j mod ww.
-void CubemapResampler::Integrate(double shift, const double* values, double* acc) const {
+void CubemapResampler::Integrate(double shift, const double* values, double* acc, uint32_t part, uint32_t parts) const {
   thread_local std::vector<double> area;
   area.resize(widest_band_ + 2);
   const int64_t ww = int64_t(ww_);
   Vec4* const out = reinterpret_cast<Vec4*>(acc);
   for (const Band& b : bands_) {
+    if (parts > 1 && b.texel % parts != part) continue;
     const Span* spans = spans_.data() + b.first_span;
     const int64_t j0 = int64_t(std::floor(spans[0].a + shift));
     const int64_t cols =
@@ -649,7 +651,7 @@ void CubemapResampler::Normalise() {
   }
 }
 
-void CubemapResampler::Resample(double rotation, float* out) const {
+void CubemapResampler::Resample(double rotation, float* out, int jobs) const {
   const uint64_t n = 6 * r_ * r_, ww = ww_;
   const double wwd = double(ww);
   thread_local std::vector<Vec4> scratch;
@@ -660,7 +662,14 @@ void CubemapResampler::Resample(double rotation, float* out) const {
   turns -= std::floor(turns);
   double shift = turns * wwd;
   if (!(shift >= 0.0 && shift < wwd)) shift = 0.0;
-  Integrate(shift, values_.get(), reinterpret_cast<double*>(acc));
+  // Threads for texels of their own (every texel's bands in the same order: the same sums),
+  // when the cube is large enough to pay for starting them.
+  const uint32_t parts = r_ >= 16 ? uint32_t(std::clamp(jobs, 1, 8)) : 1;
+  std::vector<std::thread> pool;
+  for (uint32_t p = 1; p < parts; ++p)
+    pool.emplace_back([&, p] { Integrate(shift, values_.get(), reinterpret_cast<double*>(acc), p, parts); });
+  Integrate(shift, values_.get(), reinterpret_cast<double*>(acc), 0, parts);
+  for (std::thread& t : pool) t.join();
   for (const EmptyTexel& e : empty_) {
     double x = e.column + shift;
     if (x >= wwd) x -= wwd;

@@ -45,8 +45,9 @@ class CubemapResampler {
   // in direction d appears in direction Rz(rotation)·d. `out` holds 6R²·3 floats, each finite,
   // non-negative and at most the working grid's largest value of its channel (a texel is an
   // average of it: a map near float32's largest value stays finite). A non-finite rotation
-  // is taken as 0. Thread-safe (const; scratch is per thread).
-  void Resample(double rotation, float* out) const;
+  // is taken as 0. Thread-safe (const; scratch is per thread). On `jobs` threads (each its own
+  // texels, every texel's bands in the same order): the same bits for any jobs.
+  void Resample(double rotation, float* out, int jobs = 1) const;
   // Σ radiance × solid angle of the source (a piecewise-constant function on the sphere).
   double SourcePower(int channel) const { return power_[channel]; }
 
@@ -84,7 +85,8 @@ class CubemapResampler {
   // acc[texel·4 + c] += Σ over the texel's bands of Σ_columns L·area, the working grid rotated
   // by `shift` columns; values == nullptr: a map of ones (every lane gets the area). `acc` is
   // 32-byte aligned (4 doubles a texel).
-  void Integrate(double shift, const double* values, double* acc) const;
+  // Only the bands of texels t with t % parts == part (a thread's share; 0 of 1: every band).
+  void Integrate(double shift, const double* values, double* acc, uint32_t part = 0, uint32_t parts = 1) const;
 
   // A texel's part of one working row. Its columns are in a coordinate of its own, lifted so
   // that the band is contiguous: spans and edges lie in [spans.front().a, spans.back().b], within

@@ -219,6 +219,7 @@ Result<RelightResult> RunRelight(const RelightOptions& o, const Progress& progre
   eo.layout = o.env_layout;
   eo.max_bytes = o.mem_limit;  // the map's pixels (and an .hdr's bytes) within --mem-limit
   eo.progress = progress;
+  eo.jobs = o.jobs;
   const nlohmann::json terms_json = TermsJson(o.terms);
   nlohmann::json report = {
       {"matrix", o.matrix}, {"env", o.env}, {"terms", terms_json}, {"weighting", WeightingName(o.weighting)}};

@@ -284,6 +284,7 @@ Result<RelightResult> RunRelightSequence(const RelightOptions& o, const Sequence
   eo.layout = o.env_layout;
   eo.max_bytes = o.mem_limit;
   eo.progress = progress;
+  eo.jobs = o.jobs;
   const nlohmann::json terms_json = TermsJson(o.terms);
   nlohmann::json report = {{"matrix", o.matrix},  {"env", o.env},
                            {"sequence", so.spec}, {"method", SequenceMethodName(so.method)},

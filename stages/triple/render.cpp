@@ -602,6 +602,7 @@ Status LoadEnvironment(const RenderOptions& o, const Progress& progress, Rendere
   eo.clamp = o.clamp_env;
   eo.max_bytes = o.mem_limit;
   eo.progress = progress;
+  eo.jobs = o.jobs;
   LTB_ASSIGN_OR_RETURN(stages::Environment env, stages::Environment::Open(o.env, rd.res, eo));
   if (o.light_turn_deg != 0 && !env.rotates()) {
     return InvalidArgument(o.env + ": a cubemap .npy cannot turn (--light-turn); pass the map as .exr or .hdr");

@@ -867,6 +867,26 @@ TEST_F(EnvMapTest, DISABLED_RandomBlocksAgainstTheOracle) {
   }
 }
 
+// Resample on several threads (each its own texels, each texel's bands in the same order)
+// gives the very bits of one thread, whatever the rotation.
+TEST_F(EnvMapTest, ResampleOnThreadsIsBitForBitOneThread) {
+  const int w = 512, h = 256, r = 32;
+  Pixels px(size_t(w) * h * 3);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> dist(0.0f, 50.0f);
+  for (float& v : px) v = dist(rng);
+  auto rs = CubemapResampler::Create(LatLongEnv(w, h, px, "noise"), r);
+  ASSERT_TRUE(rs.ok()) << rs.status().ToString();
+  for (double rotation : {0.0, 0.7, 4.1}) {
+    std::vector<float> one(6 * r * r * 3), many(one.size());
+    rs->Resample(rotation, one.data(), 1);
+    for (int jobs : {2, 3, 8}) {
+      rs->Resample(rotation, many.data(), jobs);
+      ASSERT_EQ(0, std::memcmp(one.data(), many.data(), one.size() * sizeof(float))) << rotation << " " << jobs;
+    }
+  }
+}
+
 TEST_F(EnvMapTest, RotationByWorkingColumnsIsAShift) {
   std::mt19937 rng(5);
   std::uniform_real_distribution<float> dist(0.0f, 2.0f);
