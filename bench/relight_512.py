@@ -103,7 +103,7 @@ for r in rows:
              f"{r[7]:.1f} | {r[8]:.2f} |")
 fps = [r[3] for r in rows]
 frac = [r[6] for r in rows]
-L += ["", f"Frames/s {min(fps):.0f}–{max(fps):.0f} (target ≥ 120: {'met' if min(fps) >= 120 else 'missed'} "
-      f"on {sum(f >= 120 for f in fps)} of {len(fps)}); product at {100 * min(frac):.0f}–{100 * max(frac):.0f}% of "
-      f"the bound (target ≥ 50%: met on {sum(f >= 0.5 for f in frac)} of {len(frac)})."]
+L += ["", f"Frames/s {min(fps):.0f}–{max(fps):.0f} (target ≥ 120: met on {sum(f >= 120 for f in fps)} of "
+      f"{len(fps)}); product at {100 * min(frac):.0f}–{100 * max(frac):.0f}% of the bound (target ≥ 50%: met on "
+      f"{sum(f >= 0.5 for f in frac)} of {len(frac)})."]
 benchlib.write_report(os.path.join(OUT, "report.md"), L)
