@@ -488,13 +488,16 @@ OutputFixes FinishRelitImage(const std::vector<uint8_t>& mask, bool keep_negativ
       ++fixes.masked_rows;
     }
   }
-  if (!keep_negative) {
-    for (float& v : *image) {
-      if (v < 0.0f) {
-        v = 0.0f;
-        ++fixes.clamped_values;
-      }
+  if (!keep_negative) {  // branch-free, so it vectorises (-0 and NaN stay as they are)
+    uint64_t clamped = 0;
+    const uint64_t n = image->size();
+#pragma omp simd reduction(+ : clamped)
+    for (uint64_t i = 0; i < n; ++i) {
+      const float v = px[i];
+      clamped += v < 0.0f ? 1 : 0;
+      px[i] = v < 0.0f ? 0.0f : v;
     }
+    fixes.clamped_values = clamped;
   }
   return fixes;
 }
