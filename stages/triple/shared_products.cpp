@@ -129,11 +129,10 @@ template void InverseHaarFace<double>(const double*, int, double*);
 std::vector<float> LightingLanes(const std::vector<double> (&coef)[3], uint64_t res, int* exponent) {
   const uint64_t face = res * res;
   const int levels = std::countr_zero(res);
-  std::vector<double> px(6 * face * kLanes, 0.0);
+  std::vector<double> px(6 * face * kLanes, 0.0), one(face);
   double peak = 0;
   for (int ch = 0; ch < 3; ++ch) {
     for (uint64_t f = 0; f < 6; ++f) {
-      std::vector<double> one(face);
       InverseHaarFace(coef[ch].data() + f * face, levels, one.data());
       for (uint64_t p = 0; p < face; ++p) {
         px[(f * face + p) * kLanes + ch] = one[p];
@@ -150,9 +149,8 @@ std::vector<float> LightingLanes(const std::vector<double> (&coef)[3], uint64_t 
 namespace {
 
 // A texel's lanes, in float (a lit row) and double (the sums).
-using F4 = float __attribute__((vector_size(4 * sizeof(float))));
-using D4 = double __attribute__((vector_size(4 * sizeof(double))));
-static_assert(kLanes == 4);
+using F4 = Lanes<float>::V;
+using D4 = Lanes<double>::V;
 
 // One thread's buffers for lighting rows: the row's coefficients (dense, 6R², zero outside
 // the row), a face of ρ̃ pixels, the coarser means of a lit face and the lit row's coefficients.
@@ -254,8 +252,7 @@ Status SharedTripleProducts(const SparseRows& vis, uint64_t res, std::span<const
           for (uint64_t f = 0; f < 6; ++f) {
             if (!(lit >> f & 1)) continue;
             for (uint64_t e = fb[f]; e < fb[f + 1]; ++e) {
-              F4 g;
-              std::memcpy(&g, sc.g.data() + uint64_t{vis.col[e]} * kLanes, sizeof g);
+              const F4 g = Load(sc.g.data() + uint64_t{vis.col[e]} * kLanes);
               acc[e & 1] += static_cast<double>(vis.val[e]) * __builtin_convertvector(g, D4);
             }
           }
