@@ -52,17 +52,26 @@ Status Serve(const ViewOptions& o, const std::function<void(const std::string& u
         if (key != "name") return fail(400, key.substr(0, 40) + ": /map takes only name=FILE.exr or FILE.hdr");
         name = value;
       }
-      std::lock_guard<std::mutex> lock(mu);
-      auto k = session->AddMap(name, req.body);
-      if (!k.ok()) {
-        const StatusCode c = k.status().code();
+      // Loaded outside the lock (LoadMap changes nothing in the session, so frames keep
+      // rendering while a big map loads), added under it (AddMap counts the maps again).
+      auto loaded = session->LoadMap(name, req.body);
+      Status failed = loaded.status();
+      if (loaded.ok()) {
+        std::lock_guard<std::mutex> lock(mu);
+        auto k = session->AddMap(std::move(*loaded));
+        if (k.ok()) {
+          res.content_type = "application/json";
+          res.body = JsonText(nlohmann::json{{"map", *k}, {"maps", session->map_names()}});
+        }
+        failed = k.status();
+      }
+      if (!failed.ok()) {
+        const StatusCode c = failed.code();
         return fail(c == StatusCode::kInvalidArgument      ? 400
                     : c == StatusCode::kFailedPrecondition ? 409
                                                            : 500,
-                    k.status().message());
+                    failed.message());
       }
-      res.content_type = "application/json";
-      res.body = JsonText(nlohmann::json{{"map", *k}, {"maps", session->map_names()}});
     } else if (req.path == "/") {
       std::lock_guard<std::mutex> lock(mu);
       res.content_type = "text/html; charset=utf-8";

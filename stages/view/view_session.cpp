@@ -396,7 +396,7 @@ Result<std::string> ViewSession::FrameExr(std::optional<uint64_t> frame) const {
   return EncodeExr(shown_.data(), width_, height_);
 }
 
-Result<uint64_t> ViewSession::AddMap(const std::string& name, const std::string& bytes) {
+Result<ViewSession::LoadedMap> ViewSession::LoadMap(const std::string& name, const std::string& bytes) const {
   std::string ext = name.size() >= 4 ? name.substr(name.size() - 4) : std::string();
   std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
   if (name.empty() || name.size() > 100 || name.front() == '.' ||
@@ -438,17 +438,26 @@ Result<uint64_t> ViewSession::AddMap(const std::string& name, const std::string&
     if (!made.ok()) return named(made.status());
     seq.emplace(std::move(*made));
   }
+  return LoadedMap{name, std::move(*env), std::move(seq)};
+}
+
+Result<uint64_t> ViewSession::AddMap(LoadedMap map) {
+  if (envs_.size() >= kMaxMaps) {  // again: another upload may have come first
+    return FailedPrecondition("the page has " + std::to_string(envs_.size()) + " maps, the most it takes; restart " +
+                              "ltbake view with the maps wanted as --env");
+  }
+  const std::optional<LightingSequence>& seq = map.sequence;
   // A brighter map than any before moves the session's power-of-two scale: the carried
   // approximation was made at the old one, so the next frame starts afresh.
-  const int exponent = std::max({exponent_, LightingExponent(env->peak()), seq ? seq->exponent() : 0});
+  const int exponent = std::max({exponent_, LightingExponent(map.env.peak()), seq ? seq->exponent() : 0});
   if (exponent != exponent_) {
     relighter_.reset();
     relit_for_.reset();
   }
   exponent_ = exponent;
-  envs_.push_back(std::move(*env));
-  env_paths_.push_back(name);
-  if (seq) sequences_.push_back(std::move(*seq));
+  envs_.push_back(std::move(map.env));
+  env_paths_.push_back(map.name);
+  if (map.sequence) sequences_.push_back(std::move(*map.sequence));
   return envs_.size() - 1;
 }
 

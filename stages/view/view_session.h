@@ -92,11 +92,19 @@ class ViewSession {
   std::vector<std::string> map_names() const;
   uint64_t maps() const { return envs_.size(); }
   // A map sent by the page (POST /map): `name` is its file name (letters, digits, '.', '-',
-  // '_'; ending .exr or .hdr, which says how to read it), `bytes` the file. It is checked and
-  // loaded like an --env map (and its --sequence made); the new map's index. InvalidArgument
-  // for a bad name or file, naming it; FailedPrecondition past kMaxMaps maps.
+  // '_'; ending .exr or .hdr, which says how to read it), `bytes` the file. LoadMap checks and
+  // loads it like an --env map (and makes its --sequence) without changing the session, so
+  // frames may render meanwhile; AddMap then adds it (under the caller's lock): the new map's
+  // index. InvalidArgument for a bad name or file, naming it; FailedPrecondition past kMaxMaps
+  // maps.
   static constexpr uint64_t kMaxMaps = 16;
-  Result<uint64_t> AddMap(const std::string& name, const std::string& bytes);
+  struct LoadedMap {
+    std::string name;
+    Environment env;
+    std::optional<LightingSequence> sequence;
+  };
+  Result<LoadedMap> LoadMap(const std::string& name, const std::string& bytes) const;
+  Result<uint64_t> AddMap(LoadedMap map);
   // Frames of the --sequence (0: none).
   uint64_t sequence_frames() const { return sequences_.empty() ? 0 : sequences_.front().frames(); }
 
