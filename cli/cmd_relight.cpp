@@ -127,10 +127,7 @@ class RelightCommand : public Command {
     return *stages::ParseDecimal(text, -std::numeric_limits<double>::max(), std::numeric_limits<double>::max());
   }
 
-  bool Triple() const {
-    return !materials_.empty() || method_ == "sublinear" || method_ == "linear" || method_ == "shared" ||
-           method_ == "pixel";
-  }
+  bool Triple() const { return !materials_.empty() || (!method_.empty() && triple::ParseTripleMethod(method_).ok()); }
 
   // --eye, --target, --up, --size and --orbit of a view (the triple-product path, a
   // factored bake): kExitOk, or the usage error's code.

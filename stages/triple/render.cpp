@@ -79,9 +79,10 @@ struct Lighting {
   std::vector<uint32_t> terms;  // wavelet indices of the approximation, ascending
 };
 
-// `linear`: also the approximation's dense coefficients and parent sums (only the linear
-// method reads them).
-void MakeLighting(const std::vector<float>& cube, uint64_t res, uint64_t n_terms, bool linear, Lighting* l) {
+// The linear and shared methods also read the approximation's dense coefficients, the
+// linear one their parent sums.
+void MakeLighting(const std::vector<float>& cube, uint64_t res, uint64_t n_terms, TripleMethod method, Lighting* l) {
+  const bool dense = method == TripleMethod::kLinear || method == TripleMethod::kShared;
   const uint64_t face = res * res, cols = 6 * face, squares = (face - 1) / 3;
   const int levels = std::countr_zero(res);
   std::vector<double> pixels(face), ps;
@@ -110,10 +111,11 @@ void MakeLighting(const std::vector<float>& cube, uint64_t res, uint64_t n_terms
   idx.resize(n);
   std::sort(idx.begin(), idx.end());
   l->terms = idx;
-  for (int ch = 0; ch < 3 && linear; ++ch) {
+  for (int ch = 0; ch < 3 && dense; ++ch) {
     l->kept[ch].assign(cols, 0.0);
     for (uint64_t f = 0; f < 6; ++f) l->kept[ch][f * face] = l->c[ch][f * face];
     for (uint32_t k : idx) l->kept[ch][k] = l->c[ch][k];
+    if (method != TripleMethod::kLinear) continue;
     l->kept_psum[ch].assign(6 * squares, 0.0);
     for (uint64_t f = 0; f < 6; ++f) {
       ParentSums(l->kept[ch].data() + f * face, levels, &ps);
@@ -615,8 +617,8 @@ Status LoadEnvironment(const RenderOptions& o, const Progress& progress, Rendere
 // the shared method's lanes); the pixel method's brightest texels into *texels.
 Status LightFrame(const RenderOptions& o, double deg, Renderer& rd, std::vector<uint32_t>* texels) {
   LTB_RETURN_IF_ERROR(rd.env->Cubemap(deg * std::numbers::pi / 180, &rd.light_cube));
-  MakeLighting(rd.light_cube, rd.res, o.method == TripleMethod::kPixel ? RenderOptions::kAll : o.light_terms,
-               o.method == TripleMethod::kLinear || o.method == TripleMethod::kShared, &rd.light);
+  MakeLighting(rd.light_cube, rd.res, o.method == TripleMethod::kPixel ? RenderOptions::kAll : o.light_terms, o.method,
+               &rd.light);
   if (o.method == TripleMethod::kShared) rd.light_lanes = LightingLanes(rd.light.kept, rd.res, &rd.light_exponent);
   *texels = o.method == TripleMethod::kPixel && o.light_terms != RenderOptions::kAll
                 ? BrightestTexels(rd.light_cube, rd.texel_table->weight, o.light_terms)
