@@ -4,12 +4,13 @@ second, per method and term count, with the error split by its source.
 
 Scenes (vertex mode, R = 32 by default): the npm `snowden` bust (bench/unseen_meshes.py) and a
 torus knot generated here (bench/converged_bench.py's generator, 1200 × 64), each on a ground
-grid, a Lambert floor and a plastic object (Lambert 0.4 + Phong 32, ks 0.4). Maps: Blender's
-night, studio, sunrise and courtyard (no test uses them). For each scene × map:
+grid (bench/sparse_scenes/ground_grid.py, 81 × 81 vertices over 4 × 4), a Lambert floor and a
+plastic object (Lambert 0.4 + Phong 32, ks 0.4). Maps: Blender's night, studio, sunrise and
+courtyard (no test uses them). For each scene × map:
 
 - the reference: `--method pixel --terms all` (every texel, ρ̃ evaluated exactly);
 - every vertex's error (rel. L2, RGB) and time (`--vertex-output`) of: shared with every term
-  (the default) through the default fields (99.9% energy) and through 99.999% fields;
+  (the default) through the default fields (99.99% energy) and through 99.999% fields;
   sublinear at the paper's 0.5% lighting / 0.1% BRDF terms and at every term; pixel with the
   0.5% brightest texels;
 - the error by source, from shared (which equals linear at any terms): the fields alone
@@ -37,6 +38,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import benchlib  # noqa: E402
 import unseen_meshes  # noqa: E402
 from converged_bench import torus_knot  # noqa: E402
+from sparse_scenes.ground_grid import write_grid  # noqa: E402
 
 ap = argparse.ArgumentParser()
 ap.add_argument("ltbake")
@@ -63,18 +65,6 @@ def ltbake(*args):
     return p.stdout
 
 
-def ground(path, n=80):
-    with open(path, "w") as f:
-        for j in range(n + 1):
-            for i in range(n + 1):
-                f.write(f"v {-2 + 4 * i / n} {-2 + 4 * j / n} 0\n")
-        for j in range(n):
-            for i in range(n):
-                q = j * (n + 1) + i + 1
-                f.write(f"f {q} {q + 1} {q + n + 2}\nf {q} {q + n + 2} {q + n + 1}\n")
-    return (n + 1) ** 2
-
-
 def scene(name, spp):
     """The scene file of NAME (its mesh fetched or generated) and its visibility field at spp."""
     d = os.path.join(WORK, name)
@@ -85,7 +75,7 @@ def scene(name, spp):
         obj, extra = os.path.join(d, "knot.obj"), ""
         if not os.path.exists(obj):
             torus_knot(obj, nu=1200, nv=64)
-    ground(os.path.join(d, "ground.obj"))
+    write_grid(os.path.join(d, "ground.obj"), n=81, size=4.0)
     path = os.path.join(d, "scene.toml")
     with open(path, "w") as f:
         f.write(f"""[output]
