@@ -27,6 +27,15 @@ def git_describe():
     return p.stdout.strip() if p.returncode == 0 else "?"
 
 
+def run(ltbake, *args):
+    """`ltbake ARGS` (any value, as text); its standard output. Exits naming the command and
+    its output when it fails."""
+    p = subprocess.run([ltbake, *map(str, args)], capture_output=True, text=True)
+    if p.returncode != 0:
+        sys.exit(f"ltbake {' '.join(map(str, args))}: exit {p.returncode}\n{p.stdout}{p.stderr}")
+    return p.stdout
+
+
 def run_bake(ltbake, recipe, workdir, *flags, env=None):
     """`ltbake run RECIPE --workdir WORKDIR FLAGS` from scratch (WORKDIR removed first); the
     stages of its run.json. Exits naming the command and its output when the bake fails."""

@@ -79,10 +79,9 @@ for label, scene in scenes.items():
     for m in MAPS:
         runs = []
         for _ in range(RUNS):
-            p = subprocess.run([LTB, "relight", final, "--env", os.path.join(ENVDIR, f"{m}.exr"), "--clamp", "--terms",
-                                "200", "--frames", "200", "-o", os.path.join(work, "x.png"), "--json"],
-                               capture_output=True, text=True, check=True)
-            runs.append(json.loads(p.stdout)["frames"])
+            out = benchlib.run(LTB, "relight", final, "--env", os.path.join(ENVDIR, f"{m}.exr"), "--clamp", "--terms",
+                               200, "--frames", 200, "-o", os.path.join(work, "x.png"), "--json")
+            runs.append(json.loads(out)["frames"])
         med = lambda key: statistics.median(r[key] for r in runs)  # noqa: E731
         roof = lambda key: statistics.median(r["roofline"][key] for r in runs)  # noqa: E731
         rows.append((label, m, med("median_ms"), 1000 / med("median_ms"), roof("product_median_ms"),

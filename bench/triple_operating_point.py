@@ -59,10 +59,7 @@ VIEWS = {"snowden": ("1.6,-2.0,1.3", "0,0,0.7"), "knot": ("1.7,-2.2,1.6", "0,0,0
 
 
 def ltbake(*args):
-    p = subprocess.run([LTB, *map(str, args)], capture_output=True, text=True)
-    if p.returncode != 0:
-        sys.exit(f"ltbake {' '.join(map(str, args))}: exit {p.returncode}\n{p.stdout}{p.stderr}")
-    return p.stdout
+    return benchlib.run(LTB, *args)
 
 
 def scene(name, spp):
