@@ -156,6 +156,12 @@ Status CheckColour(const SampleOptions& o, Prepared* p) {
   }
   if (o.visibility || !coloured) return Status::Ok();
   const std::string fix = "; bake one matrix per channel with --channels rgb (docs/COLOUR.md)";
+  if (p->bounces > 0 && o.factor > 1) {
+    return InvalidArgument(o.scene + ": the scene has colour and --bounces " + std::to_string(p->bounces) +
+                           " makes it bleed between surfaces, which a monochrome factored set cannot hold, and "
+                           "--factor does not combine with --channels rgb yet; give the scene grey materials, or "
+                           "leave out --bounces (docs/GLOSSY.md)");
+  }
   if (p->bounces > 0) {
     return InvalidArgument(o.scene + ": the scene has colour and --bounces " + std::to_string(p->bounces) +
                            " makes it bleed between surfaces, which one monochrome matrix cannot hold" + fix);
@@ -222,10 +228,6 @@ Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress
     if (o.factor > 64) return InvalidArgument(f + ": at most 64 terms");
     if (o.visibility || o.sparse.enabled || o.channel >= 0) {
       return InvalidArgument(f + " does not combine with --visibility, --sparse or --channel (docs/GLOSSY.md)");
-    }
-    if (p->bounces > 0 && o.factor > 1) {
-      return InvalidArgument(f + " bakes direct lighting; --bounces " + std::to_string(p->bounces) +
-                             " (interreflection off glossy vertices) is not done (docs/GLOSSY.md)");
     }
   }
   LTB_ASSIGN_OR_RETURN(p->geo, BuildGeometry(p->scene, progress));

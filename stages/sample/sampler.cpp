@@ -65,6 +65,39 @@ glm::dvec3 CosineSample(const glm::dvec3& n, Rng& rng) {
   return glm::normalize(t * (r * std::cos(phi)) + b * (r * std::sin(phi)) + n * std::sqrt(std::max(0.0, 1 - u1)));
 }
 
+// The rest of one indirect path after its first direction d from o: at each of up to
+// `bounces` hits, scale(hit) (the hit's albedo on the path's throughput) and a cosine draw
+// from rng about the hit's shading normal; leave(column) when the path escapes after at
+// least one bounce. Returns the rays traced. Indirect, IndirectChannels and the factored
+// bake's indirect term walk their paths with it (the same rays, the same arithmetic).
+template <class Scale, class Leave>
+uint64_t WalkPath(const Geometry& g, uint32_t bounces, uint32_t r, glm::dvec3 o, glm::dvec3 d, Rng& rng, Scale&& scale,
+                  Leave&& leave) {
+  Hit hit = g.rays->Intersect(o, d);
+  uint64_t rays = 1;
+  if (!hit.hit) return rays;  // escaped directly: that is the direct term
+  for (uint32_t b = 0; b < bounces; ++b) {
+    glm::dvec3 y = o + d * hit.t;
+    // The hit's shading normal (the geometric one unless the object has vertex normals),
+    // turned to the side of the surface the path arrived from (by the geometric normal).
+    const glm::dvec3 facing = glm::dot(hit.normal, d) > 0 ? -hit.normal : hit.normal;
+    const glm::dvec3 ns = g.ShadingNormal(hit);
+    const glm::dvec3 ny = glm::dot(ns, facing) < 0 ? -ns : ns;
+    scale(hit);
+    d = CosineSample(ny, rng);
+    // A tilted shading normal can send the path into the surface: it is absorbed there.
+    if (ns != hit.normal && glm::dot(d, facing) <= 0) break;
+    o = y + ny * g.epsilon;
+    hit = g.rays->Intersect(o, d);
+    ++rays;
+    if (!hit.hit) {
+      leave(cubemap::Column(cubemap::DirectionToTexel(d, r), r));
+      break;
+    }
+  }
+  return rays;
+}
+
 // x^e for x > 0: repeated squaring when e is a small whole number (the usual case).
 inline double Power(double x, double e, int int_e) {
   if (int_e < 0) return std::pow(x, e);
@@ -580,32 +613,19 @@ uint64_t Sampler::IndirectChannels(uint64_t row, const RowPoint& rp, const Phong
     glm::dvec3 d = CosineSample(rp.n, rng);
     double beta[3];
     for (int c = 0; c < 3; ++c) beta[c] = brdf[c].Eval(d) * M_PI;  // as Indirect, per channel
-    glm::dvec3 o = origin;
-    Hit hit = g_.rays->Intersect(o, d);
-    ++rays;
-    if (!hit.hit) continue;
-    for (uint32_t bounce = 0; bounce < bounces_; ++bounce) {
-      glm::dvec3 y = o + d * hit.t;
-      const glm::dvec3 facing = glm::dot(hit.normal, d) > 0 ? -hit.normal : hit.normal;
-      const glm::dvec3 ns = g_.ShadingNormal(hit);
-      const glm::dvec3 ny = glm::dot(ns, facing) < 0 ? -ns : ns;
-      const glm::dvec3& albedo = s_.materials[g_.geom_material[hit.geom_id]].albedo_rgb;
-      const glm::dvec3 colour = g_.HitColour(hit);
-      for (int c = 0; c < 3; ++c) {
-        beta[c] *= albedo[c];
-        beta[c] *= colour[c];
-      }
-      d = CosineSample(ny, rng);
-      if (ns != hit.normal && glm::dot(d, facing) <= 0) break;
-      o = y + ny * g_.epsilon;
-      hit = g_.rays->Intersect(o, d);
-      ++rays;
-      if (!hit.hit) {
-        const uint64_t col = cubemap::Column(cubemap::DirectionToTexel(d, r_), r_);
-        for (int c = 0; c < 3; ++c) acc[c][col] += beta[c] / static_cast<double>(paths);
-        break;
-      }
-    }
+    rays += WalkPath(
+        g_, bounces_, r_, origin, d, rng,
+        [&](const Hit& hit) {
+          const glm::dvec3& albedo = s_.materials[g_.geom_material[hit.geom_id]].albedo_rgb;
+          const glm::dvec3 colour = g_.HitColour(hit);
+          for (int c = 0; c < 3; ++c) {
+            beta[c] *= albedo[c];
+            beta[c] *= colour[c];
+          }
+        },
+        [&](uint64_t col) {
+          for (int c = 0; c < 3; ++c) acc[c][col] += beta[c] / static_cast<double>(paths);
+        });
   }
   return rays;
 }
@@ -645,11 +665,45 @@ void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vec
     rays += sc.active;
   }
   const double h = 2.0 / r_, stratum_area = h * h / spp_;
+  for (uint64_t k = 0; k < terms * cols; ++k) acc[k] *= stratum_area;
+  if (bounces_ > 0) rays += IndirectFactored(row, rp, MakeBrdf(rp), f, t, b, DefaultPaths(), acc.data());
   for (size_t k = 0; k < terms; ++k)
-    for (uint64_t c = 0; c < cols; ++c) out[k][c] = static_cast<float>(acc[k * cols + c] * stratum_area);
+    for (uint64_t c = 0; c < cols; ++c) out[k][c] = static_cast<float>(acc[k * cols + c]);
   cnt.rays += rays;
   cnt.below += below;
   cnt.samples_below += samples_below;
+}
+
+uint64_t Sampler::IndirectFactored(uint64_t row, const RowPoint& rp, const PhongLobe& brdf,
+                                   const std::vector<const brdf::ParabolicTable*>& f, const glm::dvec3& t,
+                                   const glm::dvec3& b, uint64_t paths, double* acc) const {
+  const uint64_t cols = texels_.size();
+  const size_t terms = f.size() + 1;
+  const uint32_t res = f.empty() ? 0 : f.front()->res;
+  thread_local std::vector<double> beta;
+  beta.resize(terms);
+  uint64_t rays = 0;
+  for (uint64_t k = 0; k < paths; ++k) {
+    Rng rng(seed_, row, cols + k);  // Indirect's paths: term 0 is its estimate, bit for bit
+    const glm::dvec3 d = CosineSample(rp.n, rng);
+    beta[0] = brdf.Eval(d) * M_PI;
+    // Term j ≥ 1: f_j cos / pdf with pdf = cos / π, f_j·cos read from its table over cos.
+    const brdf::ParabolicCoords pc(res, glm::dvec3(glm::dot(t, d), glm::dot(b, d), glm::dot(rp.n, d)));
+    for (size_t j = 1; j < terms; ++j) beta[j] = f[j - 1]->At(pc) * M_PI;
+    rays += WalkPath(
+        g_, bounces_, r_, Origin(rp), d, rng,
+        [&](const Hit& hit) {
+          const double albedo = s_.materials[g_.geom_material[hit.geom_id]].albedo;
+          for (size_t j = 0; j < terms; ++j) {
+            beta[j] *= albedo;
+            if (s_.channel >= 0) beta[j] *= g_.HitColour(hit)[s_.channel];
+          }
+        },
+        [&](uint64_t c) {
+          for (size_t j = 0; j < terms; ++j) acc[j * cols + c] += beta[j] / static_cast<double>(paths);
+        });
+  }
+  return rays;
 }
 
 uint64_t Sampler::DirectWithVariance(uint64_t row, const RowPoint& rp, double* est, double* var, RowScratch& sc,
@@ -822,32 +876,16 @@ uint64_t Sampler::IndirectPaths(uint64_t row, const RowPoint& rp, const PhongLob
       d = CosineSample(rp.n, rng);
       beta = brdf.Eval(d) * M_PI;  // f cos / pdf with pdf = cos / π
     }
-    glm::dvec3 o = origin;
-    Hit hit = g_.rays->Intersect(o, d);
-    ++rays;
-    if (!hit.hit) continue;  // escaped directly: that is the direct term
-    for (uint32_t b = 0; b < bounces_; ++b) {
-      glm::dvec3 y = o + d * hit.t;
-      // The hit's shading normal (the geometric one unless the object has vertex normals),
-      // turned to the side of the surface the path arrived from (by the geometric normal).
-      const glm::dvec3 facing = glm::dot(hit.normal, d) > 0 ? -hit.normal : hit.normal;
-      const glm::dvec3 ns = g_.ShadingNormal(hit);
-      const glm::dvec3 ny = glm::dot(ns, facing) < 0 ? -ns : ns;
-      beta *= s_.materials[g_.geom_material[hit.geom_id]].albedo;
-      if (s_.channel >= 0) beta *= g_.HitColour(hit)[s_.channel];
-      d = CosineSample(ny, rng);
-      // A tilted shading normal can send the path into the surface: it is absorbed there.
-      if (ns != hit.normal && glm::dot(d, facing) <= 0) break;
-      o = y + ny * g_.epsilon;
-      hit = g_.rays->Intersect(o, d);
-      ++rays;
-      if (!hit.hit) {
-        const uint64_t c = cubemap::Column(cubemap::DirectionToTexel(d, r_), r_);
-        acc[c] += beta / divisor;
-        if (acc2 != nullptr) acc2[c] += beta * beta;
-        break;
-      }
-    }
+    rays += WalkPath(
+        g_, bounces_, r_, origin, d, rng,
+        [&](const Hit& hit) {
+          beta *= s_.materials[g_.geom_material[hit.geom_id]].albedo;
+          if (s_.channel >= 0) beta *= g_.HitColour(hit)[s_.channel];
+        },
+        [&](uint64_t c) {
+          acc[c] += beta / divisor;
+          if (acc2 != nullptr) acc2[c] += beta * beta;
+        });
   }
   return rays;
 }

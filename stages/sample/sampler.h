@@ -130,7 +130,8 @@ class Sampler {
   // The K terms of a factored bake (`sample --factor K`, docs/GLOSSY.md) of one row from one
   // set of rays: out[0] exactly what Transport writes (the diffuse part), out[k] for
   // k = 1..K−1 the texels' ∫ V·cos·f_k(ω in the row's tangent frame) dω, f[k] the incident
-  // factor tables of the row's material (f_k / cos θ). bounces must be 0.
+  // factor tables of the row's material (f_k / cos θ). With bounces, each term gains its
+  // indirect part from one set of paths (IndirectFactored).
   void TransportFactored(uint64_t row, const RowPoint& rp, const std::vector<const brdf::ParabolicTable*>& f,
                          float* const* out, RowScratch& sc, Counters& cnt) const;
 
@@ -198,6 +199,12 @@ class Sampler {
   void AccumulateVisibility(const RowScratch& sc, std::vector<double>& acc, std::vector<double>& total) const;
   uint64_t Indirect(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, const glm::dvec3& origin, uint64_t paths,
                     double* acc) const;
+  // A factored bake's indirect term: Indirect's paths, each term's throughput from its own
+  // first-vertex factor (term 0 the diffuse part, brdf; term j the table f[j−1] in the frame
+  // t, b, n), added into acc (term j at [j·6R², (j+1)·6R²)). Diffuse at the bounces.
+  uint64_t IndirectFactored(uint64_t row, const RowPoint& rp, const PhongLobe& brdf,
+                            const std::vector<const brdf::ParabolicTable*>& f, const glm::dvec3& t, const glm::dvec3& b,
+                            uint64_t paths, double* acc) const;
   // Paths k0..k1−1: β/divisor into acc at the texel each leaves through, β² into acc2 (if any).
   uint64_t IndirectPaths(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, const glm::dvec3& origin, uint64_t k0,
                          uint64_t k1, double divisor, double* acc, double* acc2,
