@@ -38,7 +38,8 @@ int RunOverMembers(Command& cmd) {
     for (size_t i = 0; i < paths.size(); ++i) {
       if (!sets[i].empty()) *paths[i] = stages::SetMemberPath(sets[i], m.name);
     }
-    if (int code = cmd.Run(); code != kExitOk) return code;
+    // A member may be a set itself (a colour factored bake's term X.k0.ltm: X.k0.r.ltm ...).
+    if (int code = RunOverMembers(cmd); code != kExitOk) return code;
   }
   return kExitOk;
 }

@@ -165,6 +165,41 @@ void ExpandSet(const std::function<std::string(const std::string&)>& path, const
   g->wanted = std::move(wanted);
 }
 
+// [sample] channels = "rgb" and factor = K: the graph's container steps per set member
+// (ExpandSet), with each member's sample flags.
+void ExpandSets(const Recipe& r, const std::function<std::string(const std::string&)>& path, Graph* g) {
+  if (r.sample.channels == "rgb" && r.sample.factor > 0) {  // a colour factored bake: member k<k>.<c>
+    std::vector<std::string> names;
+    for (uint64_t k = 0; k < r.sample.factor; ++k)
+      for (const char* c : {"r", "g", "b"}) names.push_back("k" + std::to_string(k) + "." + c);
+    const std::string terms = std::to_string(r.sample.factor);
+    ExpandSet(
+        path, names,
+        [&](size_t i) {
+          return std::vector<std::string>{
+              "--factor", terms, "--factor-term", std::to_string(i / 3), "--channel", std::string(1, "rgb"[i % 3])};
+        },
+        g);
+  } else if (r.sample.channels == "rgb") {
+    ExpandSet(
+        path, {"r", "g", "b"},
+        [](size_t c) {
+          return std::vector<std::string>{"--channel", std::string(1, "rgb"[c])};
+        },
+        g);
+  } else if (r.sample.factor > 0) {
+    std::vector<std::string> names;
+    for (uint64_t k = 0; k < r.sample.factor; ++k) names.push_back("k" + std::to_string(k));
+    const std::string terms = std::to_string(r.sample.factor);
+    ExpandSet(
+        path, names,
+        [&](size_t k) {
+          return std::vector<std::string>{"--factor", terms, "--factor-term", std::to_string(k)};
+        },
+        g);
+  }
+}
+
 // One relight step per [relight] map: relit-NAME.FORMAT from final.ltm or cpca.ltm (a view with
 // eye/target, a sequence, a reference error against rows.ltm as the table asks).
 Status AddRelightNodes(const Recipe& r, const std::function<std::string(const std::string&)>& path, Graph* g) {
@@ -334,24 +369,7 @@ Result<Graph> BuildGraph(const Recipe& r, const BakeOptions& o, const std::strin
       g.wanted.insert(n.output);
     }
   }
-  if (r.sample.channels == "rgb") {
-    ExpandSet(
-        path, {"r", "g", "b"},
-        [](size_t c) {
-          return std::vector<std::string>{"--channel", std::string(1, "rgb"[c])};
-        },
-        &g);
-  } else if (r.sample.factor > 0) {
-    std::vector<std::string> names;
-    for (uint64_t k = 0; k < r.sample.factor; ++k) names.push_back("k" + std::to_string(k));
-    const std::string terms = std::to_string(r.sample.factor);
-    ExpandSet(
-        path, names,
-        [&](size_t k) {
-          return std::vector<std::string>{"--factor", terms, "--factor-term", std::to_string(k)};
-        },
-        &g);
-  }
+  ExpandSets(r, path, &g);
   return g;
 }
 

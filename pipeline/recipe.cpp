@@ -198,9 +198,9 @@ Status ParseSample(const std::string& path, const toml::table& t, Recipe::Sample
   } else {
     LTB_ASSIGN_OR_RETURN(s->factor, GetUnsigned(path, t, "factor", 0, 1, 64));
   }
-  if (s->factor > 0 && (s->channels == "rgb" || s->sparse)) {
+  if (s->factor > 0 && s->sparse) {
     return InvalidArgument(Where(path, *t.get("factor")) +
-                           ": [sample] factor does not combine with channels = \"rgb\" or sparse (docs/GLOSSY.md)");
+                           ": [sample] factor does not combine with sparse (docs/GLOSSY.md)");
   }
   if (s->channels != "mono" && s->channels != "rgb") {
     return InvalidArgument(Where(path, *t.get("channels")) + ": [sample] channels is \"" + s->channels +

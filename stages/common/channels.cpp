@@ -22,15 +22,22 @@ std::string ChannelPath(const std::string& set_path, int channel) {
 
 namespace {
 
-// The "channel" metadata key's member name, or "" when absent.
-std::string MemberName(const nlohmann::json& j) {
-  return j.contains("channel") && j["channel"].is_object() && j["channel"].contains("name") &&
-                 j["channel"]["name"].is_string()
-             ? j["channel"]["name"].get<std::string>()
+// The member name under metadata key `key` ("channel", or a colour factored bake's "term"),
+// or "" when absent.
+std::string MemberName(const nlohmann::json& j, const char* key = "channel") {
+  return j.contains(key) && j[key].is_object() && j[key].contains("name") && j[key]["name"].is_string()
+             ? j[key]["name"].get<std::string>()
              : std::string();
 }
 
 }  // namespace
+
+std::string SetLeaf(const std::string& path) {
+  std::error_code ec;
+  if (fs::exists(path, ec)) return path;
+  const std::string red = SetMemberPath(path, "r");
+  return fs::exists(red, ec) ? red : path;
+}
 
 Result<std::vector<SetMember>> ChannelFiles(const std::string& path) {
   std::error_code ec;
@@ -45,13 +52,17 @@ Result<std::vector<SetMember>> ChannelFiles(const std::string& path) {
       break;
     }
   }
-  if (names.empty() && fs::exists(SetMemberPath(path, "k0"), ec)) {
-    first = SetMemberPath(path, "k0");
+  // A factored bake's terms X.k0.ltm ..., or in colour X.k0.r.ltm ... (each term a colour set,
+  // the terms listed under "term" in its files).
+  const std::string k0 = SetMemberPath(path, "k0");
+  const bool colour_terms = names.empty() && !fs::exists(k0, ec) && SetLeaf(k0) != k0;
+  const char* key = colour_terms ? "term" : "channel";
+  if (names.empty() && (colour_terms || fs::exists(k0, ec))) {
+    first = SetLeaf(k0);
     LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(first));
     const nlohmann::json& j = r.metadata().json;
-    const nlohmann::json* list = j.contains("channel") && j["channel"].is_object() && j["channel"].contains("names")
-                                     ? &j["channel"]["names"]
-                                     : nullptr;
+    const nlohmann::json* list =
+        j.contains(key) && j[key].is_object() && j[key].contains("names") ? &j[key]["names"] : nullptr;
     if (list == nullptr || !list->is_array() || list->empty() || list->size() > 64) {
       return InvalidArgument(first +
                              ": names no terms of a factored bake (\"channel\": {\"names\": [...]}); rebake "
@@ -67,14 +78,14 @@ Result<std::vector<SetMember>> ChannelFiles(const std::string& path) {
   if (names.empty()) return std::vector<SetMember>{};
   std::vector<SetMember> members;
   for (const std::string& name : names) {
-    const std::string file = SetMemberPath(path, name);
+    const std::string member = SetMemberPath(path, name), file = colour_terms ? SetLeaf(member) : member;
     if (!fs::exists(file, ec)) {
       return NotFound(path + ": names the set of " + first + ", but its member " + file + " (" + name +
                       ") does not exist; bake it (docs/COLOUR.md)");
     }
     LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(file));
-    const std::string got = MemberName(r.metadata().json);
-    const nlohmann::json& ch = r.metadata().json.value("channel", nlohmann::json::object());
+    const std::string got = MemberName(r.metadata().json, key);
+    const nlohmann::json& ch = r.metadata().json.value(key, nlohmann::json::object());
     if (got == name && first.find(".k0.") != std::string::npos && ch.value("names", nlohmann::json()) != names) {
       return InvalidArgument(file + ": is term " + name + " of a bake with " +
                              std::to_string(ch.value("names", nlohmann::json::array()).size()) + " terms, and " +
@@ -86,7 +97,7 @@ Result<std::vector<SetMember>> ChannelFiles(const std::string& path) {
                              ", not " + name + " of the set " + path + " (with " + first +
                              "); rebake it (sample --channel or --factor)");
     }
-    members.push_back({name, file});
+    members.push_back({name, member});
   }
   return members;
 }

@@ -27,8 +27,15 @@ struct SetMember {
   std::string name, path;
 };
 
+// A set member's first file: `path` itself when it exists, else its red channel's file when
+// that exists (a colour factored bake's term X.k0.ltm is the colour set X.k0.r.ltm ...), else
+// `path`.
+std::string SetLeaf(const std::string& path);
+
 // The files of the set `path` names, in order: X.r.ltm, X.g.ltm, X.b.ltm (a colour set) or
-// X.k0.ltm .. (a factored bake, its terms listed in each file's "channel" metadata). Empty
+// X.k0.ltm .. (a factored bake, its terms listed in each file's "channel" metadata; in
+// colour each term X.k0.ltm is itself a colour set X.k0.r.ltm .., the terms listed under
+// "term", and the member's path is the term's set name X.k0.ltm). Empty
 // when `path` exists (one container) or when no file of a set does (the caller's open then
 // reports the missing file). A set with a file missing, or a file whose "channel" metadata
 // is not its name's (or is absent), is an error naming both files.

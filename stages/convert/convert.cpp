@@ -460,8 +460,12 @@ Result<ConvertResult> LtmToNpy(const ConvertOptions& o, const Progress& progress
 // cols): member m is [m] (docs/COLOUR.md).
 Result<ConvertResult> SetToNpy(const ConvertOptions& o, const std::vector<SetMember>& members,
                                const Progress& progress) {
-  std::vector<std::string> files;
-  for (const SetMember& m : members) files.push_back(m.path);
+  std::vector<std::string> files;  // a colour factored bake's terms are colour sets: term-major, r, g, b
+  for (const SetMember& m : members) {
+    LTB_ASSIGN_OR_RETURN(std::vector<SetMember> inner, ChannelFiles(m.path));
+    if (inner.empty()) files.push_back(m.path);
+    for (const SetMember& i : inner) files.push_back(i.path);
+  }
   std::vector<std::pair<uint64_t, uint64_t>> shapes;
   for (const std::string& f : files) {
     LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(f));

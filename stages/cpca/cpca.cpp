@@ -261,7 +261,7 @@ Status WriteOutput(const CpcaOptions& o, const io::ContainerReader& in, const Pa
   const int refl = in.metadata().FindArray("reflectance");
   if (refl >= 0) out_meta["arrays"].push_back(in.metadata().arrays[refl].ToJson());
   // A set member's identity, and a factored bake's view factors and geometry (docs/GLOSSY.md).
-  for (const char* key : {"channel", "factor", "geometry"}) {
+  for (const char* key : {"channel", "term", "factor", "geometry"}) {
     if (in.metadata().json.contains(key)) out_meta[key] = in.metadata().json[key];
   }
   io::WriterOptions wo;

@@ -129,13 +129,14 @@ Result<ViewFactors> ReadFactorSet(const std::string& set, const std::vector<SetM
     return InvalidArgument(set +
                            ": a term of a factored bake; give the set's name (X.ltm for X.k0.ltm, X.k1.ltm, ...)");
   }
-  LTB_ASSIGN_OR_RETURN(ViewFactors vf, ReadViewFactors(members.front().path, true));
+  // A colour factored bake's term is a colour set: its factors are in each channel's file.
+  LTB_ASSIGN_OR_RETURN(ViewFactors vf, ReadViewFactors(SetLeaf(members.front().path), true));
   if (vf.terms != members.size()) {
     return InvalidArgument(members.front().path + ": says " + std::to_string(vf.terms) + " terms but the set has " +
                            std::to_string(members.size()));
   }
   for (size_t k = 1; k < members.size(); ++k) {  // every term from the same bake
-    LTB_ASSIGN_OR_RETURN(ViewFactors other, ReadViewFactors(members[k].path, false));
+    LTB_ASSIGN_OR_RETURN(ViewFactors other, ReadViewFactors(SetLeaf(members[k].path), false));
     if (other.terms != vf.terms || other.geometry_hash != vf.geometry_hash) {
       return InvalidArgument(members[k].path + ": is not a term of the same bake as " + members.front().path + " (" +
                              std::to_string(other.terms) + " vs " + std::to_string(vf.terms) +

@@ -135,12 +135,18 @@ Status CheckConverged(const SampleOptions& o, uint32_t spp) {
 // otherwise an error that says to bake per channel.
 Status CheckColour(const SampleOptions& o, Prepared* p) {
   const SceneDesc& s = p->scene;
-  if (o.rgb) {  // the original scene: the sampler reads each channel's values
-    if (o.visibility || o.sparse.enabled || o.factor > 0 || o.channel >= 0) {
-      return InvalidArgument(
-          "--channels rgb in one pass does not combine with --visibility, --sparse, --factor or "
-          "--channel");
+  // The original scene: the sampler reads each channel's values (a factored bake's
+  // --channel c is channel c of the colour factored bake, from the same rays and factors).
+  if (o.rgb || (o.factor > 0 && o.channel >= 0)) {
+    if (o.visibility || o.sparse.enabled || (o.rgb && o.channel >= 0)) {
+      return InvalidArgument("--channels rgb in one pass does not combine with --visibility, --sparse or --channel");
     }
+    if (o.factor > 0 && o.channel >= 0 && !o.factor_term) {
+      return InvalidArgument("--channel with --factor " + std::to_string(o.factor) +
+                             " bakes one channel of one term: give --factor-term too (or --channels rgb for every "
+                             "term and channel)");
+    }
+    p->rgb_factor = o.factor > 0;
     return Status::Ok();
   }
   if (o.channel >= 0) {
@@ -156,12 +162,6 @@ Status CheckColour(const SampleOptions& o, Prepared* p) {
   }
   if (o.visibility || !coloured) return Status::Ok();
   const std::string fix = "; bake one matrix per channel with --channels rgb (docs/COLOUR.md)";
-  if (p->bounces > 0 && o.factor > 1) {
-    return InvalidArgument(o.scene + ": the scene has colour and --bounces " + std::to_string(p->bounces) +
-                           " makes it bleed between surfaces, which a monochrome factored set cannot hold, and "
-                           "--factor does not combine with --channels rgb yet; give the scene grey materials, or "
-                           "leave out --bounces (docs/GLOSSY.md)");
-  }
   if (p->bounces > 0) {
     return InvalidArgument(o.scene + ": the scene has colour and --bounces " + std::to_string(p->bounces) +
                            " makes it bleed between surfaces, which one monochrome matrix cannot hold" + fix);
@@ -226,8 +226,8 @@ Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress
                              "has a camera (image mode, one fixed view). Give it [output] mode = \"vertex\"");
     }
     if (o.factor > 64) return InvalidArgument(f + ": at most 64 terms");
-    if (o.visibility || o.sparse.enabled || o.channel >= 0) {
-      return InvalidArgument(f + " does not combine with --visibility, --sparse or --channel (docs/GLOSSY.md)");
+    if (o.visibility || o.sparse.enabled) {
+      return InvalidArgument(f + " does not combine with --visibility or --sparse (docs/GLOSSY.md)");
     }
   }
   LTB_ASSIGN_OR_RETURN(p->geo, BuildGeometry(p->scene, progress));
@@ -517,7 +517,10 @@ void AddFactorMetadata(const SampleOptions& o, const Prepared& p, const FactorPl
                        nlohmann::json* meta) {
   nlohmann::json names = nlohmann::json::array();
   for (uint32_t i = 0; i < plan.terms; ++i) names.push_back("k" + std::to_string(i));
-  (*meta)["channel"] = {{"name", "k" + std::to_string(k)}, {"index", k}, {"names", names}, {"factor", k}};
+  const nlohmann::json term = {{"name", "k" + std::to_string(k)}, {"index", k}, {"names", names}, {"factor", k}};
+  // A colour factored bake's file is colour channel c of the set X.k<k>.ltm, itself term k
+  // of the set X.ltm ("term"); a monochrome one's is term k of X.ltm ("channel").
+  (*meta)[p.rgb_factor ? "term" : "channel"] = term;
   nlohmann::json materials = nlohmann::json::array();
   uint32_t view_res = 0;
   for (size_t m = 0; m < p.scene.materials.size(); ++m) {
@@ -577,6 +580,22 @@ void AddRowStatsMetadata(const SampleOptions& o, const Prepared& p, uint64_t blo
   (*meta)["provenance"]["parameters"]["max_levels"] = o.max_levels;
 }
 
+// One output of a bake: term `term` (0 unless factored) of colour channel `channel` (−1:
+// monochrome), from the block buffer's plane `plane` (0 the matrix buffer, p ≥ 1 extra
+// plane p − 1). A colour factored bake's planes are 3·term + channel.
+struct OutSlot {
+  uint32_t term = 0;
+  int channel = -1;
+  uint32_t plane = 0;
+};
+
+// The block buffer's planes: a factored bake's terms (times 3 in colour), a colour set's
+// channels, or the one matrix.
+uint64_t Planes(const SampleOptions& o, const Prepared& p, const FactorPlan* plan) {
+  if (plan) return uint64_t{plan->terms} * (p.rgb_factor ? 3 : 1);
+  return o.rgb ? 3 : 1;
+}
+
 // Samples row blocks, one chunk of each array per block, from any number of threads, and
 // hands the chunks to the writer thread; counts what it did. Progress in rays; the total
 // is extrapolated from the rays per row that sees geometry so far, times the rows to do that
@@ -586,9 +605,9 @@ struct BlockSampler {
   const SampleOptions& o;
   const Prepared& p;
   const Sampler& sampler;
-  // One output, or a factored bake's terms (term out_term[i] into outs[i]).
+  // One output, or a set's members (slots[i] into outs[i]).
   std::vector<io::ContainerWriter>& outs;
-  const std::vector<uint32_t>& out_term;
+  const std::vector<OutSlot>& slots;
   std::vector<std::unique_ptr<io::AsyncChunkWriter>>& writers;
   const FactorPlan* plan;
   BufferPool& pool;
@@ -609,7 +628,7 @@ struct BlockSampler {
     const uint64_t rows = p.rows, cols = 6ull * p.r * p.r;
     uint64_t r0 = chunk * block, n = std::min(block, rows - r0);
     thread_local RowScratch sc;
-    const uint64_t extra_terms = plan ? plan->terms - 1 : o.rgb ? 2 : 0;
+    const uint64_t extra_terms = Planes(o, p, plan) - 1;
     std::shared_ptr<BlockBuffers> buf = pool.Get(n, cols, extra_terms);
     if (!buf) {
       return Internal("out of memory for a block of " + std::to_string(n) + " rows x " + std::to_string(cols) +
@@ -634,7 +653,12 @@ struct BlockSampler {
       }
       const std::vector<const ParabolicTable*>* f = plan ? &plan->tables[static_cast<size_t>(rp.material)] : nullptr;
       Counters row_cnt;  // this row's, for its sample_rays entry (then added to the bake's)
-      if (o.rgb) {       // the three channels from one set of rays
+      if (p.rgb_factor && f != nullptr && !f->empty()) {  // every term of every channel from one set of rays
+        thread_local std::vector<float*> plane_out;
+        plane_out.assign(1, mat + i * cols);
+        for (uint64_t k = 0; k < extra_terms; ++k) plane_out.push_back(buf->extra.data() + (k * n + i) * cols);
+        sampler.TransportFactored(r0 + i, rp, *f, plane_out.data(), sc, row_cnt, true);
+      } else if (o.rgb || p.rgb_factor) {  // the three channels from one set of rays (a factored bake's term 0)
         float* const out3[3] = {mat + i * cols, buf->extra.data() + i * cols, buf->extra.data() + (n + i) * cols};
         sampler.TransportChannels(r0 + i, rp, out3, sc, row_cnt);
       } else if (f != nullptr && !f->empty()) {  // a glossy material of a factored bake: K terms from one set of rays
@@ -695,8 +719,8 @@ struct BlockSampler {
     // converged bake's sample_level, sample_rays, sample_error.
     const uint32_t arrays = BlockArrays(!levels.empty());
     for (size_t k = 0; k < outs.size(); ++k) {
-      const uint32_t term = out_term[k];
-      const float* m = term == 0 ? mat : buf->extra.data() + (term - 1) * n * cols;
+      const uint32_t plane = slots[k].plane;
+      const float* m = plane == 0 ? mat : buf->extra.data() + (plane - 1) * n * cols;
       const ByteSpan converged[7] = {
           bytes(m, n * cols),          bytes(buf->mask.data(), n), bytes(pos, n * 3),          bytes(nor, n * 3),
           bytes(buf->level.data(), n), bytes(buf->rays.data(), n), bytes(buf->error.data(), n)};
@@ -762,29 +786,49 @@ std::vector<uint64_t> BalancedShardBounds(const std::vector<uint64_t>& geometry_
   return bounds;
 }
 
+// The bake's outputs: every term (and channel) of the set, or with --factor-term t only term t
+// (recipes), with --channel c only channel c.
+Result<std::vector<OutSlot>> OutputSlots(const SampleOptions& o, const Prepared& p, const FactorPlan* plan) {
+  if (o.factor_term && (!plan || *o.factor_term >= plan->terms)) {
+    return InvalidArgument("--factor-term " + std::to_string(*o.factor_term) + " needs --factor K with K > it");
+  }
+  std::vector<OutSlot> slots;
+  const uint32_t terms = plan ? plan->terms : 1;
+  for (uint32_t k = o.factor_term.value_or(0); k < (o.factor_term ? *o.factor_term + 1 : terms); ++k) {
+    if (!o.rgb && !p.rgb_factor) {
+      slots.push_back({k, o.channel, k});
+      continue;
+    }
+    for (int c = 0; c < 3; ++c) {
+      if (o.channel < 0 || o.channel == c) slots.push_back({k, c, static_cast<uint32_t>(3 * k + c)});
+    }
+  }
+  return slots;
+}
+
 // The full bake's outputs (one, a channel set's or a factored bake's terms), opened or resumed;
 // chose_full: --sparse auto's decision for the full bake, recorded in the provenance.
 Result<std::vector<io::ContainerWriter>> OpenOutputs(const SampleOptions& o, const Prepared& prep,
-                                                     const FactorPlan* plan, const std::vector<uint32_t>& out_term,
+                                                     const FactorPlan* plan, const std::vector<OutSlot>& slots,
                                                      uint64_t block, const std::optional<SparseAuto>& chose_full,
                                                      const io::ShardSpec& shard) {
   io::WriterOptions wo;
   wo.overwrite_mismatch = o.overwrite;
   wo.direct_io = o.direct_io;
   std::vector<io::ContainerWriter> outs;
-  for (uint32_t k : out_term) {
-    SampleOptions ok = o;  // --channels rgb: output k is exactly what --channel k writes
-    if (o.rgb) ok.channel = static_cast<int>(k);
+  for (const OutSlot& slot : slots) {
+    SampleOptions ok = o;  // --channels rgb: output c is exactly what --channel c writes
+    ok.channel = slot.channel;
     nlohmann::json meta = sample_internal::SampleMetadata(ok, prep, block);
     AddRowStatsMetadata(o, prep, block, &meta);
     sample_internal::AddReflectance(prep, block, &meta);
-    if (plan) AddFactorMetadata(o, prep, *plan, k, &meta);
+    if (plan) AddFactorMetadata(o, prep, *plan, slot.term, &meta);
     if (chose_full) {
       meta["provenance"]["parameters"]["sparse_auto"] = sample_internal::sparse_bake::SparseAutoJson(*chose_full);
     }
-    const std::string path = plan && !o.factor_term ? FactorPath(o.output, k)
-                             : o.rgb                ? ChannelPath(o.output, static_cast<int>(k))
-                                                    : o.output;
+    std::string path = o.output;  // --factor-term and --channel name one member: OUT as given
+    if (plan && !o.factor_term) path = FactorPath(path, slot.term);
+    if (o.rgb) path = ChannelPath(path, slot.channel);
     LTB_ASSIGN_OR_RETURN(io::ContainerWriter out, io::OpenStageOutput(path, meta, wo, shard));
     outs.push_back(std::move(out));
   }
@@ -816,17 +860,8 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
     LTB_ASSIGN_OR_RETURN(FactorPlan p, PlanFactors(o, *prep, o.factor));
     plan = std::move(p);
   }
-  // --factor-term t (recipes): only term t, into OUT as given.
-  std::vector<uint32_t> out_term;
-  if (o.factor_term) {
-    if (!plan || *o.factor_term >= plan->terms) {
-      return InvalidArgument("--factor-term " + std::to_string(*o.factor_term) + " needs --factor K with K > it");
-    }
-    out_term = {*o.factor_term};
-  } else {
-    for (uint32_t k = 0; k < (plan ? plan->terms : o.rgb ? 3 : 1); ++k) out_term.push_back(k);
-  }
-  const uint32_t outputs = static_cast<uint32_t>(out_term.size());
+  LTB_ASSIGN_OR_RETURN(const std::vector<OutSlot> slots, OutputSlots(o, *prep, plan ? &*plan : nullptr));
+  const uint32_t outputs = static_cast<uint32_t>(slots.size());
   Sampler sampler(prep->scene, geo, r, prep->spp, prep->bounces, prep->seed);
   sampler.SetVisibility(o.visibility);
   io::ShardSpec shard = o.shard;
@@ -838,7 +873,7 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
     shard.bounds = BalancedShardBounds(geometry_rows, shard.count);
   }
   LTB_ASSIGN_OR_RETURN(std::vector<io::ContainerWriter> outs,
-                       OpenOutputs(o, *prep, plan ? &*plan : nullptr, out_term, block, chose_full, shard));
+                       OpenOutputs(o, *prep, plan ? &*plan : nullptr, slots, block, chose_full, shard));
 
   SampleResult result;
   result.rows = rows;
@@ -870,7 +905,7 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
                   *prep,
                   sampler,
                   outs,
-                  out_term,
+                  slots,
                   writers,
                   plan ? &*plan : nullptr,
                   pool,
@@ -906,7 +941,7 @@ Result<SampleResult> RunSample(const SampleOptions& o, const Progress& progress)
   result.max_rel_error = bs.max_rel_error;
   LTB_RETURN_IF_ERROR(s);
   for (size_t i = 0; i < outs.size(); ++i) {
-    const bool lobe = plan && out_term[i] > 0;  // a glossy term of a factored bake
+    const bool lobe = plan && slots[i].term > 0;  // a glossy term of a factored bake
     LTB_RETURN_IF_ERROR(sample_internal::WriteReflectance(*prep, sampler, block, outs[i], lobe, progress));
     LTB_RETURN_IF_ERROR(outs[i].Finish());
   }

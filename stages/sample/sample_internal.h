@@ -28,6 +28,9 @@ struct Prepared {
   // and ks, and the "reflectance" side table holds each row's tint × vertex colour
   // (docs/COLOUR.md).
   bool reflectance = false;
+  // A factored bake in colour (`--channels rgb --factor K`, or one channel of one with
+  // --channel): every channel's terms from one set of rays on the original scene.
+  bool rgb_factor = false;
 };
 
 Result<std::unique_ptr<Prepared>> Prepare(const SampleOptions& o, const Progress& progress);

@@ -631,15 +631,22 @@ uint64_t Sampler::IndirectChannels(uint64_t row, const RowPoint& rp, const Phong
 }
 
 void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vector<const brdf::ParabolicTable*>& f,
-                                float* const* out, RowScratch& sc, Counters& cnt) const {
-  const size_t terms = f.size() + 1;
+                                float* const* out, RowScratch& sc, Counters& cnt, bool rgb) const {
+  const size_t terms = f.size() + 1, colours = rgb ? 3 : 1;
   const uint64_t cols = texels_.size(), step = TexelsPerBatch();
   uint64_t below = 0, samples_below = 0, rays = 0;
+  FactorWeights fw;
   PhongLobe unit = MakeBrdf(rp);
-  const double diffuse = unit.diffuse;
+  for (size_t c = 0; c < colours; ++c) {
+    fw.brdf[c] = rgb ? MakeBrdfChannel(rp, static_cast<int>(c)) : unit;
+    // The lobe's share of channel c (ks_c / ks: the lobe's colour); 1 for a monochrome bake,
+    // whose lobe colour is its terms' reflectance table.
+    const sample::Material& m = s_.materials[rp.material];
+    fw.lobe[c] = rgb && m.ks > 0 ? m.ks_rgb[c] / m.ks : 1.0;
+  }
   unit.diffuse = 1.0;  // ray values w·cos (w·cos·1.0, then ·diffuse: Transport's product, bit for bit)
   std::vector<double>& acc = sc.sum_value;
-  acc.assign(cols * terms, 0.0);  // term k at [k·cols, (k+1)·cols)
+  acc.assign(cols * terms * colours, 0.0);  // (term k, colour c) at [(k·colours + c)·cols, ...)
   glm::dvec3 t, b;
   brdf::TangentFrame(rp.n, &t, &b);
   const uint32_t res = f.empty() ? 0 : f.front()->res;
@@ -651,56 +658,76 @@ void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vec
     const size_t texels = sc.n / spp_;
     for (size_t m = 0; m < texels; ++m) {
       const uint64_t c = sc.texel[m];
-      double s0 = acc[c];
       for (uint64_t i = 0; i < spp_; ++i) {
         const size_t slot = m * spp_ + i;
         if (tf[slot] < 0) continue;  // occluded, or below the horizon
-        s0 += val[slot] * diffuse;
+        for (size_t ch = 0; ch < colours; ++ch) acc[ch * cols + c] += val[slot] * fw.brdf[ch].diffuse;
         const glm::dvec3 d(sc.batch.dir_x[slot], sc.batch.dir_y[slot], sc.batch.dir_z[slot]);
         const brdf::ParabolicCoords pc(res, glm::dvec3(glm::dot(t, d), glm::dot(b, d), glm::dot(rp.n, d)));
-        for (size_t k = 1; k < terms; ++k) acc[k * cols + c] += val[slot] * f[k - 1]->At(pc);
+        // A lobe term's sum is the same for every colour (its colour is fw.lobe): kept in colour 0.
+        for (size_t k = 1; k < terms; ++k) acc[k * colours * cols + c] += val[slot] * f[k - 1]->At(pc);
       }
-      acc[c] = s0;
     }
     rays += sc.active;
   }
   const double h = 2.0 / r_, stratum_area = h * h / spp_;
-  for (uint64_t k = 0; k < terms * cols; ++k) acc[k] *= stratum_area;
-  if (bounces_ > 0) rays += IndirectFactored(row, rp, MakeBrdf(rp), f, t, b, DefaultPaths(), acc.data());
-  for (size_t k = 0; k < terms; ++k)
+  for (size_t k = 0; k < terms; ++k) {
+    double* a0 = acc.data() + k * colours * cols;
+    if (k == 0) {  // the diffuse part, summed per colour
+      for (uint64_t i = 0; i < colours * cols; ++i) a0[i] *= stratum_area;
+      continue;
+    }
+    for (uint64_t c = 0; c < cols; ++c) a0[c] *= stratum_area;
+    for (size_t ch = colours; ch-- > 0;) {  // a lobe term's colours, colour 0 (read by the others) last
+      for (uint64_t c = 0; c < cols; ++c) a0[ch * cols + c] = a0[c] * fw.lobe[ch];
+    }
+  }
+  if (bounces_ > 0) rays += IndirectFactored(row, rp, fw, f, t, b, DefaultPaths(), rgb, acc.data());
+  for (size_t k = 0; k < terms * colours; ++k)
     for (uint64_t c = 0; c < cols; ++c) out[k][c] = static_cast<float>(acc[k * cols + c]);
   cnt.rays += rays;
   cnt.below += below;
   cnt.samples_below += samples_below;
 }
 
-uint64_t Sampler::IndirectFactored(uint64_t row, const RowPoint& rp, const PhongLobe& brdf,
+uint64_t Sampler::IndirectFactored(uint64_t row, const RowPoint& rp, const FactorWeights& fw,
                                    const std::vector<const brdf::ParabolicTable*>& f, const glm::dvec3& t,
-                                   const glm::dvec3& b, uint64_t paths, double* acc) const {
+                                   const glm::dvec3& b, uint64_t paths, bool rgb, double* acc) const {
   const uint64_t cols = texels_.size();
-  const size_t terms = f.size() + 1;
+  const size_t terms = f.size() + 1, colours = rgb ? 3 : 1, n = terms * colours;
   const uint32_t res = f.empty() ? 0 : f.front()->res;
   thread_local std::vector<double> beta;
-  beta.resize(terms);
+  beta.resize(n);
   uint64_t rays = 0;
   for (uint64_t k = 0; k < paths; ++k) {
     Rng rng(seed_, row, cols + k);  // Indirect's paths: term 0 is its estimate, bit for bit
     const glm::dvec3 d = CosineSample(rp.n, rng);
-    beta[0] = brdf.Eval(d) * M_PI;
+    for (size_t c = 0; c < colours; ++c) beta[c] = fw.brdf[c].Eval(d) * M_PI;
     // Term j ≥ 1: f_j cos / pdf with pdf = cos / π, f_j·cos read from its table over cos.
     const brdf::ParabolicCoords pc(res, glm::dvec3(glm::dot(t, d), glm::dot(b, d), glm::dot(rp.n, d)));
-    for (size_t j = 1; j < terms; ++j) beta[j] = f[j - 1]->At(pc) * M_PI;
+    for (size_t j = 1; j < terms; ++j) {
+      const double v = f[j - 1]->At(pc) * M_PI;
+      for (size_t c = 0; c < colours; ++c) beta[j * colours + c] = v * fw.lobe[c];
+    }
     rays += WalkPath(
         g_, bounces_, r_, Origin(rp), d, rng,
         [&](const Hit& hit) {
-          const double albedo = s_.materials[g_.geom_material[hit.geom_id]].albedo;
-          for (size_t j = 0; j < terms; ++j) {
-            beta[j] *= albedo;
-            if (s_.channel >= 0) beta[j] *= g_.HitColour(hit)[s_.channel];
+          const sample::Material& m = s_.materials[g_.geom_material[hit.geom_id]];
+          if (rgb) {  // as IndirectChannels, per channel
+            const glm::dvec3 colour = g_.HitColour(hit);
+            for (size_t i = 0; i < n; ++i) {
+              beta[i] *= m.albedo_rgb[static_cast<int>(i % 3)];
+              beta[i] *= colour[static_cast<int>(i % 3)];
+            }
+            return;
+          }
+          for (size_t i = 0; i < n; ++i) {
+            beta[i] *= m.albedo;
+            if (s_.channel >= 0) beta[i] *= g_.HitColour(hit)[s_.channel];
           }
         },
         [&](uint64_t c) {
-          for (size_t j = 0; j < terms; ++j) acc[j * cols + c] += beta[j] / static_cast<double>(paths);
+          for (size_t i = 0; i < n; ++i) acc[i * cols + c] += beta[i] / static_cast<double>(paths);
         });
   }
   return rays;

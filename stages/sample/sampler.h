@@ -85,6 +85,13 @@ struct IndirectGuide {
   double alpha = 1.0;
 };
 
+// A factored bake's first-vertex weights per colour (TransportFactored): the diffuse part's
+// lobe, and the glossy terms' share of each channel.
+struct FactorWeights {
+  PhongLobe brdf[3];
+  double lobe[3] = {1.0, 1.0, 1.0};
+};
+
 struct Counters {
   std::atomic<uint64_t> rays{0}, below{0}, samples_below{0};
 };
@@ -131,9 +138,12 @@ class Sampler {
   // set of rays: out[0] exactly what Transport writes (the diffuse part), out[k] for
   // k = 1..K−1 the texels' ∫ V·cos·f_k(ω in the row's tangent frame) dω, f[k] the incident
   // factor tables of the row's material (f_k / cos θ). With bounces, each term gains its
-  // indirect part from one set of paths (IndirectFactored).
+  // indirect part from one set of paths (IndirectFactored). rgb (`--channels rgb
+  // --factor K`): 3K outputs, out[3k + c] term k of channel c — term 0 exactly what
+  // TransportChannels writes, a lobe term times the lobe's channel c (ks_c / ks), and the
+  // bounces per channel.
   void TransportFactored(uint64_t row, const RowPoint& rp, const std::vector<const brdf::ParabolicTable*>& f,
-                         float* const* out, RowScratch& sc, Counters& cnt) const;
+                         float* const* out, RowScratch& sc, Counters& cnt, bool rgb = false) const;
 
   // Sparse sampling (docs/SPARSE.md). The direct term of the texels c with select[c] != 0
   // into out[c] (the others are left alone), estimated exactly as Transport estimates it
@@ -200,11 +210,12 @@ class Sampler {
   uint64_t Indirect(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, const glm::dvec3& origin, uint64_t paths,
                     double* acc) const;
   // A factored bake's indirect term: Indirect's paths, each term's throughput from its own
-  // first-vertex factor (term 0 the diffuse part, brdf; term j the table f[j−1] in the frame
-  // t, b, n), added into acc (term j at [j·6R², (j+1)·6R²)). Diffuse at the bounces.
-  uint64_t IndirectFactored(uint64_t row, const RowPoint& rp, const PhongLobe& brdf,
+  // first-vertex factor (term 0 the diffuse part, fw.brdf; term j the table f[j−1] in the
+  // frame t, b, n, times fw.lobe), added into acc (term j, colour c at [(j·C + c)·6R², ...),
+  // C = 3 with rgb, else 1). Diffuse at the bounces.
+  uint64_t IndirectFactored(uint64_t row, const RowPoint& rp, const FactorWeights& fw,
                             const std::vector<const brdf::ParabolicTable*>& f, const glm::dvec3& t, const glm::dvec3& b,
-                            uint64_t paths, double* acc) const;
+                            uint64_t paths, bool rgb, double* acc) const;
   // Paths k0..k1−1: β/divisor into acc at the texel each leaves through, β² into acc2 (if any).
   uint64_t IndirectPaths(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, const glm::dvec3& origin, uint64_t k0,
                          uint64_t k1, double divisor, double* acc, double* acc2,

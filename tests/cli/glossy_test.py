@@ -11,14 +11,16 @@ against independent oracles.
    factored render's relative L2 error on the object falls with K (the table is printed),
    for Phong exponent 4 below a bound at K = 8, and for exponent 32 it falls too. With
    --bounces 1, term 0 is the plain vertex bake with the bounce (content_hash) and the set
-   converges to the brute force with the bounce.
+   converges to the brute force with the bounce; so does a colour set (`--channels rgb
+   --factor 8 --bounces 1`, term 0 the `--channels rgb` bake), through a stage and a recipe.
 4. An orbit writes one image a view; the set goes through row-transform, transpose,
    column-transform and quantize (100% budget, 16 bits) and renders within 1% of the raw set;
    cpca of the set renders too.
    A recipe with [sample] factor and [relight] eye bakes a term a step (each equal to the
    one-pass bake's term) and renders; its rerun skips everything.
 5. Refusals naming the files: a missing term, a term of another bake (another K), a factored
-   set relit without --eye, --factor in image mode, or with --bounces in a coloured scene.
+   set relit without --eye, --factor in image mode, a monochrome --factor with --bounces in
+   a coloured scene, --channel with --factor and no --factor-term.
 
 usage: glossy_test.py PATH_TO_LTBAKE
 """
@@ -262,6 +264,42 @@ def main():
                 f"--factor 8 --bounces 1: {e_b:.4f} off the brute force with one bounce (bound 0.12), the "
                 f"direct-only set {e_d:.4f} (should be > 1.5x), the bounce in term 0 only {e_m:.4f} (> 1.3x)")
 
+        # 3c. In colour with the bounce (a red plastic over a green floor: colour bleeds, so one
+        # matrix per channel): term 0 of `--channels rgb --factor 8` is the `--channels rgb` bake, bit for
+        # bit, and the set converges to the image-mode brute force in colour in every channel.
+        ctext = SCENE.replace("albedo = 0.3", "albedo = [0.35, 0.12, 0.08]", 1).replace("albedo = 0.7",
+                                                                                     "albedo = [0.2, 0.6, 0.3]", 1)
+        cv = t.write(j("cv.toml"), ctext.format(mode="vertex", output='objects = ["ball"]', ks=0.6, exponent=4.0,
+                                               obj=j("ball.obj")))
+        cb = t.write(j("cb.toml"), ctext.format(mode="image", output=CAMERA, ks=0.6, exponent=4.0, obj=j("ball.obj")))
+        t.run("sample", cv, "-o", j("cf.ltm"), "--factor", 8, "--channels", "rgb", "--bounces", 1, "-q")
+        t.run("sample", cv, "-o", j("cp.ltm"), "--channels", "rgb", "--bounces", 1, "-q")
+        t.check(all(matrix_hash(j(f"cf.k0.{c}.ltm")) == matrix_hash(j(f"cp.{c}.ltm")) for c in "rgb"),
+                "term 0 of --channels rgb --factor 8 --bounces 1 is not the --channels rgb bake")
+        t.run("sample", cb, "-o", j("cbf.ltm"), "--channels", "rgb", "--bounces", 1, "-q")
+        t.run("relight", j("cbf.ltm"), "--env", city, "--clamp", "--terms", "all", "-o", j("cbf.npy"), "-q")
+        t.run("relight", j("cf.ltm"), "--env", city, "--clamp", *VIEW, "-o", j("cf.npy"), "-q")
+        a = np.load(j("cf.npy")).reshape(SIZE, SIZE, 3).astype(np.float64)
+        r = np.load(j("cbf.npy")).reshape(SIZE, SIZE, 3).astype(np.float64)
+        e_c = [float(np.linalg.norm(a[ball][:, c] - r[ball][:, c]) / np.linalg.norm(r[ball][:, c])) for c in range(3)]
+        print("red Phong(4) plastic on a green floor, K = 8, one bounce, against the brute force per channel:",
+              ", ".join(f"{x:.4f}" for x in e_c))
+        t.check(max(e_c) < 0.12, f"--channels rgb --factor 8 --bounces 1: {e_c} off the brute force (bound 0.12)")
+        # Its terms through a stage (each term a colour set: X.k0.r.ltm ...) and the recipe's
+        # [sample] channels = "rgb" with factor: a step per term and channel, each the one-pass file.
+        t.run("row-transform", j("cf.ltm"), "-o", j("cfrows.ltm"), "-q")
+        t.run("relight", j("cfrows.ltm"), "--env", city, "--clamp", *VIEW, "-o", j("cfrows.npy"), "-q")
+        e = float(np.linalg.norm(np.load(j("cfrows.npy")) - np.load(j("cf.npy"))) / np.linalg.norm(np.load(j("cf.npy"))))
+        t.check(os.path.exists(j("cfrows.k7.b.ltm")) and e < 1e-4, f"the colour set's rows render {e:.2e} off it")
+        t.run("sample", cv, "-o", j("c2.ltm"), "--factor", 2, "--channels", "rgb", "-q")
+        recipe = t.write(j("c2_bake.toml"), f'scene = "{cv}"\nworkdir = "{j("wc2")}"\ntargets = ["sample"]\n'
+                         '[sample]\nfactor = 2\nchannels = "rgb"\n')
+        t.run("run", recipe, "--progress", "never")
+        t.check(all(matrix_hash(j("wc2", f"raw.k{k}.{c}.ltm")) == matrix_hash(j(f"c2.k{k}.{c}.ltm"))
+                    for k in range(2) for c in "rgb"), "a recipe's colour factored terms differ from the one-pass bake's")
+        p = t.run("sample", cv, "-o", j("x.ltm"), "--factor", 2, "--channel", "r", expect=1)
+        t.check("--factor-term" in p.stderr, f"--factor with --channel and no --factor-term: {p.stderr}")
+
         # 4. An orbit; the set through the stages.
         t.run("relight", j("g32.ltm"), "--env", city, "--clamp", *VIEW, "--orbit", "90:4", "-o", j("orbit_%02d.npy"),
               "-q")
@@ -370,8 +408,8 @@ size = [{SIZE}, {SIZE}]
         p = t.run("sample", scene("img.toml", "image"), "-o", j("img.ltm"), "--factor", 4, expect=1)
         t.check("vertex" in p.stderr, f"--factor in image mode: {p.stderr}")
         p = t.run("sample", j("plastic.toml"), "-o", j("b.ltm"), "--factor", 4, "--bounces", 1, expect=1)
-        t.check("--bounces" in p.stderr and "grey" in p.stderr and "plastic.toml" in p.stderr,
-                f"--factor with --bounces in a coloured scene: {p.stderr}")
+        t.check("--bounces" in p.stderr and "--channels rgb" in p.stderr and "plastic.toml" in p.stderr,
+                f"a monochrome --factor with --bounces in a coloured scene: {p.stderr}")
     t.finish()
 
 
