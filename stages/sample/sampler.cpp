@@ -637,12 +637,12 @@ void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vec
   uint64_t below = 0, samples_below = 0, rays = 0;
   FactorWeights fw;
   PhongLobe unit = MakeBrdf(rp);
+  const sample::Material& mat = s_.materials[rp.material];
   for (size_t c = 0; c < colours; ++c) {
     fw.brdf[c] = rgb ? MakeBrdfChannel(rp, static_cast<int>(c)) : unit;
     // The lobe's share of channel c (ks_c / ks: the lobe's colour); 1 for a monochrome bake,
     // whose lobe colour is its terms' reflectance table.
-    const sample::Material& m = s_.materials[rp.material];
-    fw.lobe[c] = rgb && m.ks > 0 ? m.ks_rgb[c] / m.ks : 1.0;
+    fw.lobe[c] = rgb && mat.ks > 0 ? mat.ks_rgb[c] / mat.ks : 1.0;
   }
   unit.diffuse = 1.0;  // ray values w·cos (w·cos·1.0, then ·diffuse: Transport's product, bit for bit)
   std::vector<double>& acc = sc.sum_value;

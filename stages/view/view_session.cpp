@@ -151,7 +151,7 @@ namespace {
 // first file of a set).
 Result<bool> RowsAreVertices(const std::string& path) {
   LTB_ASSIGN_OR_RETURN(std::vector<SetMember> members, ChannelFiles(path));
-  const std::string first = members.empty() ? path : members.front().path;
+  const std::string first = members.empty() ? path : SetLeaf(members.front().path);  // a colour term: its red file
   LTB_ASSIGN_OR_RETURN(io::ContainerReader r, io::ContainerReader::Open(first));
   const nlohmann::json& j = r.metadata().json;
   return j.contains("basis") && j["basis"].contains("rows") && j["basis"]["rows"].value("kind", "") == "vertices";
