@@ -143,16 +143,24 @@ SparseRowOutcome ReconstructRow(const Context& c, const sp::PointGrid& grid, std
   // Traced like a dense row instead: no dense row anywhere near, or a fit that does not
   // match its own traced texels.
   auto fallback = [&](double why, uint64_t traced_before, uint64_t rays_before) {
+    // The direct term traced like a dense row's; the indirect, smooth across the surface, the
+    // mean of the dense neighbours' (traced when there are none).
+    const bool traced_indirect = c.p.bounces > 0 && nb.empty();
     ind_scratch.assign(c.p.bounces > 0 ? cols : 0, 0.0f);
     DenseRowResult d =
-        TraceDenseRow(c.s, row, rp, cols, ds, out, c.p.bounces > 0 ? ind_scratch.data() : nullptr, nullptr);
+        TraceDenseRow(c.s, row, rp, cols, ds, out, traced_indirect ? ind_scratch.data() : nullptr, nullptr);
+    if (c.p.bounces > 0 && !nb.empty()) {
+      for (const sp::DenseView& v : nb)
+        for (uint64_t k = 0; k < cols; ++k) ind_scratch[k] += v.indirect[k];
+      for (uint64_t k = 0; k < cols; ++k) ind_scratch[k] /= static_cast<float>(nb.size());
+    }
     for (uint64_t k = 0; k < ind_scratch.size(); ++k)
       out[k] = static_cast<float>(double{out[k]} + double{ind_scratch[k]});
     return SparseRowOutcome{kDense, static_cast<float>(why), static_cast<uint32_t>(traced_before + d.traced),
                             rays_before + d.rays};
   };
-  if (nb_idx.empty()) return fallback(1.0, 0, 0);
   nb.clear();
+  if (nb_idx.empty()) return fallback(1.0, 0, 0);
   for (uint32_t k : nb_idx) nb.push_back(views[k]);
   relevant.resize(cols);
   for (uint64_t k = 0; k < cols; ++k) relevant[k] = c.s.BelowHorizon(rp.n, k) ? 0 : 1;
