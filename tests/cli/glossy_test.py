@@ -291,6 +291,11 @@ def main():
         t.run("relight", j("cfrows.ltm"), "--env", city, "--clamp", *VIEW, "-o", j("cfrows.npy"), "-q")
         e = float(np.linalg.norm(np.load(j("cfrows.npy")) - np.load(j("cf.npy"))) / np.linalg.norm(np.load(j("cf.npy"))))
         t.check(os.path.exists(j("cfrows.k7.b.ltm")) and e < 1e-4, f"the colour set's rows render {e:.2e} off it")
+        t.run("convert", j("cf.ltm"), j("cf_all.npy"), "-q")
+        t.run("convert", j("cf.k2.g.ltm"), j("cf_k2g.npy"), "-q")
+        whole = np.load(j("cf_all.npy"), mmap_mode="r")
+        t.check(whole.shape == (24, len(v), 384) and np.array_equal(whole[3 * 2 + 1], np.load(j("cf_k2g.npy"))),
+                f"convert of the colour factored set: shape {whole.shape}, [7] not term 2's green matrix")
         t.run("sample", cv, "-o", j("c2.ltm"), "--factor", 2, "--channels", "rgb", "-q")
         recipe = t.write(j("c2_bake.toml"), f'scene = "{cv}"\nworkdir = "{j("wc2")}"\ntargets = ["sample"]\n'
                          '[sample]\nfactor = 2\nchannels = "rgb"\n')
