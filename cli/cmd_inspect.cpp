@@ -109,9 +109,14 @@ class InspectCommand : public Command {
     }
     if (!out["basis"].is_null()) std::cout << "  basis: " << JsonText(out["basis"]) << "\n";
     if (!out["provenance"].is_null()) std::cout << "  provenance: " << JsonText(out["provenance"]) << "\n";
-    if (out.contains("channel")) {
-      std::cout << "  colour channel: " << out["channel"].value("name", std::string("?"))
-                << " of a set (docs/COLOUR.md)\n";
+    // A set member: a colour channel, a factored bake's term, or both (docs/COLOUR.md, docs/GLOSSY.md).
+    for (const char* key : {"channel", "term"}) {
+      if (!out.contains(key) || !out[key].is_object()) continue;
+      const json& m = out[key];
+      const bool term = m.contains("factor");
+      std::cout << "  " << (term ? "factored term: " : "colour channel: ") << m.value("name", std::string("?"))
+                << " of " << (m.contains("names") && m["names"].is_array() ? m["names"].size() : 0)
+                << (term ? " (docs/GLOSSY.md)\n" : " (docs/COLOUR.md)\n");
     }
     PrintStageSummaries(out);
     if (out["uncommitted_tail_bytes"].get<uint64_t>() > 0) {

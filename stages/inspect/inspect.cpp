@@ -278,6 +278,7 @@ Result<json> InspectContainer(const std::string& path, const InspectOptions& opt
   out["basis"] = meta.json.value("basis", json(nullptr));
   out["provenance"] = meta.json.value("provenance", json(nullptr));
   if (meta.json.contains("channel")) out["channel"] = meta.json["channel"];  // docs/COLOUR.md
+  if (meta.json.contains("term")) out["term"] = meta.json["term"];  // a colour factored bake's (docs/GLOSSY.md)
   out["arrays"] = json::array();
   for (uint32_t i = 0; i < meta.arrays.size(); ++i) {
     const ArraySpec& a = meta.arrays[i];
