@@ -150,9 +150,13 @@ SparseRowOutcome ReconstructRow(const Context& c, const sp::PointGrid& grid, std
     DenseRowResult d =
         TraceDenseRow(c.s, row, rp, cols, ds, out, traced_indirect ? ind_scratch.data() : nullptr, nullptr);
     if (c.p.bounces > 0 && !nb.empty()) {
-      for (const sp::DenseView& v : nb)
+      float used = 0;
+      for (const sp::DenseView& v : nb) {
+        if (v.indirect == nullptr) continue;
         for (uint64_t k = 0; k < cols; ++k) ind_scratch[k] += v.indirect[k];
-      for (uint64_t k = 0; k < cols; ++k) ind_scratch[k] /= static_cast<float>(nb.size());
+        used += 1;
+      }
+      for (uint64_t k = 0; used > 0 && k < cols; ++k) ind_scratch[k] /= used;
     }
     for (uint64_t k = 0; k < ind_scratch.size(); ++k)
       out[k] = static_cast<float>(double{out[k]} + double{ind_scratch[k]});
