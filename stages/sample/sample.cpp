@@ -653,19 +653,15 @@ struct BlockSampler {
       }
       const std::vector<const ParabolicTable*>* f = plan ? &plan->tables[static_cast<size_t>(rp.material)] : nullptr;
       Counters row_cnt;  // this row's, for its sample_rays entry (then added to the bake's)
-      if (p.rgb_factor && f != nullptr && !f->empty()) {  // every term of every channel from one set of rays
-        thread_local std::vector<float*> plane_out;
-        plane_out.assign(1, mat + i * cols);
-        for (uint64_t k = 0; k < extra_terms; ++k) plane_out.push_back(buf->extra.data() + (k * n + i) * cols);
-        sampler.TransportFactored(r0 + i, rp, *f, plane_out.data(), sc, row_cnt, true);
+      // Row i of every plane of the block (OutSlot): the matrix buffer, then the extra planes.
+      thread_local std::vector<float*> planes;
+      planes.assign(1, mat + i * cols);
+      for (uint64_t k = 0; k < extra_terms; ++k) planes.push_back(buf->extra.data() + (k * n + i) * cols);
+      const bool glossy_factored = f != nullptr && !f->empty();
+      if (glossy_factored) {  // a glossy material of a factored bake: every term (and channel) from one set of rays
+        sampler.TransportFactored(r0 + i, rp, *f, planes.data(), sc, row_cnt, p.rgb_factor);
       } else if (o.rgb || p.rgb_factor) {  // the three channels from one set of rays (a factored bake's term 0)
-        float* const out3[3] = {mat + i * cols, buf->extra.data() + i * cols, buf->extra.data() + (n + i) * cols};
-        sampler.TransportChannels(r0 + i, rp, out3, sc, row_cnt);
-      } else if (f != nullptr && !f->empty()) {  // a glossy material of a factored bake: K terms from one set of rays
-        thread_local std::vector<float*> term_out;
-        term_out.assign(1, mat + i * cols);
-        for (uint64_t k = 0; k < extra_terms; ++k) term_out.push_back(buf->extra.data() + (k * n + i) * cols);
-        sampler.TransportFactored(r0 + i, rp, *f, term_out.data(), sc, row_cnt);
+        sampler.TransportChannels(r0 + i, rp, planes.data(), sc, row_cnt);
       } else if (!levels.empty()) {  // converged sampling: each texel to the level its error needs
         thread_local sample::ConvergedScratch cs;
         const sample::ConvergedRow cr = sample::TraceConverged(levels, r0 + i, rp, pilot, mat + i * cols, sc, cs);

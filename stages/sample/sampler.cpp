@@ -68,8 +68,8 @@ glm::dvec3 CosineSample(const glm::dvec3& n, Rng& rng) {
 // The rest of one indirect path after its first direction d from o: at each of up to
 // `bounces` hits, scale(hit) (the hit's albedo on the path's throughput) and a cosine draw
 // from rng about the hit's shading normal; leave(column) when the path escapes after at
-// least one bounce. Returns the rays traced. Indirect, IndirectChannels and the factored
-// bake's indirect term walk their paths with it (the same rays, the same arithmetic).
+// least one bounce. Returns the rays traced. Indirect and IndirectFactored (a factored bake's
+// terms, and the colour channels of TransportChannels) walk their paths with it (the same rays, the same arithmetic).
 template <class Scale, class Leave>
 uint64_t WalkPath(const Geometry& g, uint32_t bounces, uint32_t r, glm::dvec3 o, glm::dvec3 d, Rng& rng, Scale&& scale,
                   Leave&& leave) {
@@ -594,40 +594,15 @@ void Sampler::TransportChannels(uint64_t row, const RowPoint& rp, float* const* 
   const double h = 2.0 / r_, stratum_area = h * h / spp_;
   for (uint64_t k = 0; k < 3 * cols; ++k) acc[k] *= stratum_area;
   if (bounces_ > 0) {
-    double* const accs[3] = {acc.data(), acc.data() + cols, acc.data() + 2 * cols};
-    rays += IndirectChannels(row, rp, b, Origin(rp), DefaultPaths(), accs);
+    FactorWeights fw;  // no lobe terms: the three channels' diffuse (or image-mode Phong) parts
+    for (int c = 0; c < 3; ++c) fw.brdf[c] = b[c];
+    rays += IndirectFactored(row, rp, fw, {}, DefaultPaths(), true, acc.data());
   }
   for (int c = 0; c < 3; ++c)
     for (uint64_t t = 0; t < cols; ++t) out[c][t] = static_cast<float>(acc[c * cols + t]);
   cnt.rays += rays;
   cnt.below += below;
   cnt.samples_below += samples_below;
-}
-
-uint64_t Sampler::IndirectChannels(uint64_t row, const RowPoint& rp, const PhongLobe* brdf, const glm::dvec3& origin,
-                                   uint64_t paths, double* const* acc) const {
-  const uint64_t cols = texels_.size();
-  uint64_t rays = 0;
-  for (uint64_t k = 0; k < paths; ++k) {
-    Rng rng(seed_, row, cols + k);
-    glm::dvec3 d = CosineSample(rp.n, rng);
-    double beta[3];
-    for (int c = 0; c < 3; ++c) beta[c] = brdf[c].Eval(d) * M_PI;  // as Indirect, per channel
-    rays += WalkPath(
-        g_, bounces_, r_, origin, d, rng,
-        [&](const Hit& hit) {
-          const glm::dvec3& albedo = s_.materials[g_.geom_material[hit.geom_id]].albedo_rgb;
-          const glm::dvec3 colour = g_.HitColour(hit);
-          for (int c = 0; c < 3; ++c) {
-            beta[c] *= albedo[c];
-            beta[c] *= colour[c];
-          }
-        },
-        [&](uint64_t col) {
-          for (int c = 0; c < 3; ++c) acc[c][col] += beta[c] / static_cast<double>(paths);
-        });
-  }
-  return rays;
 }
 
 void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vector<const brdf::ParabolicTable*>& f,
@@ -658,15 +633,17 @@ void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vec
     const size_t texels = sc.n / spp_;
     for (size_t m = 0; m < texels; ++m) {
       const uint64_t c = sc.texel[m];
+      double s0[3] = {acc[c], colours == 3 ? acc[cols + c] : 0.0, colours == 3 ? acc[2 * cols + c] : 0.0};
       for (uint64_t i = 0; i < spp_; ++i) {
         const size_t slot = m * spp_ + i;
         if (tf[slot] < 0) continue;  // occluded, or below the horizon
-        for (size_t ch = 0; ch < colours; ++ch) acc[ch * cols + c] += val[slot] * fw.brdf[ch].diffuse;
+        for (size_t ch = 0; ch < colours; ++ch) s0[ch] += val[slot] * fw.brdf[ch].diffuse;
         const glm::dvec3 d(sc.batch.dir_x[slot], sc.batch.dir_y[slot], sc.batch.dir_z[slot]);
         const brdf::ParabolicCoords pc(res, glm::dvec3(glm::dot(t, d), glm::dot(b, d), glm::dot(rp.n, d)));
         // A lobe term's sum is the same for every colour (its colour is fw.lobe): kept in colour 0.
         for (size_t k = 1; k < terms; ++k) acc[k * colours * cols + c] += val[slot] * f[k - 1]->At(pc);
       }
+      for (size_t ch = 0; ch < colours; ++ch) acc[ch * cols + c] = s0[ch];
     }
     rays += sc.active;
   }
@@ -682,7 +659,7 @@ void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vec
       for (uint64_t c = 0; c < cols; ++c) a0[ch * cols + c] = a0[c] * fw.lobe[ch];
     }
   }
-  if (bounces_ > 0) rays += IndirectFactored(row, rp, fw, f, t, b, DefaultPaths(), rgb, acc.data());
+  if (bounces_ > 0) rays += IndirectFactored(row, rp, fw, f, DefaultPaths(), rgb, acc.data());
   for (size_t k = 0; k < terms * colours; ++k)
     for (uint64_t c = 0; c < cols; ++c) out[k][c] = static_cast<float>(acc[k * cols + c]);
   cnt.rays += rays;
@@ -691,11 +668,13 @@ void Sampler::TransportFactored(uint64_t row, const RowPoint& rp, const std::vec
 }
 
 uint64_t Sampler::IndirectFactored(uint64_t row, const RowPoint& rp, const FactorWeights& fw,
-                                   const std::vector<const brdf::ParabolicTable*>& f, const glm::dvec3& t,
-                                   const glm::dvec3& b, uint64_t paths, bool rgb, double* acc) const {
+                                   const std::vector<const brdf::ParabolicTable*>& f, uint64_t paths, bool rgb,
+                                   double* acc) const {
   const uint64_t cols = texels_.size();
   const size_t terms = f.size() + 1, colours = rgb ? 3 : 1, n = terms * colours;
   const uint32_t res = f.empty() ? 0 : f.front()->res;
+  glm::dvec3 t, b;
+  if (!f.empty()) brdf::TangentFrame(rp.n, &t, &b);
   thread_local std::vector<double> beta;
   beta.resize(n);
   uint64_t rays = 0;
@@ -704,16 +683,18 @@ uint64_t Sampler::IndirectFactored(uint64_t row, const RowPoint& rp, const Facto
     const glm::dvec3 d = CosineSample(rp.n, rng);
     for (size_t c = 0; c < colours; ++c) beta[c] = fw.brdf[c].Eval(d) * M_PI;
     // Term j ≥ 1: f_j cos / pdf with pdf = cos / π, f_j·cos read from its table over cos.
-    const brdf::ParabolicCoords pc(res, glm::dvec3(glm::dot(t, d), glm::dot(b, d), glm::dot(rp.n, d)));
-    for (size_t j = 1; j < terms; ++j) {
-      const double v = f[j - 1]->At(pc) * M_PI;
-      for (size_t c = 0; c < colours; ++c) beta[j * colours + c] = v * fw.lobe[c];
+    if (!f.empty()) {
+      const brdf::ParabolicCoords pc(res, glm::dvec3(glm::dot(t, d), glm::dot(b, d), glm::dot(rp.n, d)));
+      for (size_t j = 1; j < terms; ++j) {
+        const double v = f[j - 1]->At(pc) * M_PI;
+        for (size_t c = 0; c < colours; ++c) beta[j * colours + c] = v * fw.lobe[c];
+      }
     }
     rays += WalkPath(
         g_, bounces_, r_, Origin(rp), d, rng,
         [&](const Hit& hit) {
           const sample::Material& m = s_.materials[g_.geom_material[hit.geom_id]];
-          if (rgb) {  // as IndirectChannels, per channel
+          if (rgb) {  // per channel, vertex colours multiplying the albedo
             const glm::dvec3 colour = g_.HitColour(hit);
             for (size_t i = 0; i < n; ++i) {
               beta[i] *= m.albedo_rgb[static_cast<int>(i % 3)];
@@ -721,10 +702,9 @@ uint64_t Sampler::IndirectFactored(uint64_t row, const RowPoint& rp, const Facto
             }
             return;
           }
-          for (size_t i = 0; i < n; ++i) {
-            beta[i] *= m.albedo;
-            if (s_.channel >= 0) beta[i] *= g_.HitColour(hit)[s_.channel];
-          }
+          // Monochrome: the scene's scalar albedo (a factored bake of one channel goes through
+          // the colour path, so no channel's vertex colour applies here).
+          for (size_t i = 0; i < n; ++i) beta[i] *= m.albedo;
         },
         [&](uint64_t c) {
           for (size_t i = 0; i < n; ++i) acc[i * cols + c] += beta[i] / static_cast<double>(paths);

@@ -85,8 +85,8 @@ struct IndirectGuide {
   double alpha = 1.0;
 };
 
-// A factored bake's first-vertex weights per colour (TransportFactored): the diffuse part's
-// lobe, and the glossy terms' share of each channel.
+// The first-vertex weights per colour of IndirectFactored: term 0's lobe (a factored bake's
+// diffuse part, or a colour channel's BRDF), and the glossy terms' share of each channel.
 struct FactorWeights {
   PhongLobe brdf[3];
   double lobe[3] = {1.0, 1.0, 1.0};
@@ -209,13 +209,14 @@ class Sampler {
   void AccumulateVisibility(const RowScratch& sc, std::vector<double>& acc, std::vector<double>& total) const;
   uint64_t Indirect(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, const glm::dvec3& origin, uint64_t paths,
                     double* acc) const;
-  // A factored bake's indirect term: Indirect's paths, each term's throughput from its own
-  // first-vertex factor (term 0 the diffuse part, fw.brdf; term j the table f[j−1] in the
-  // frame t, b, n, times fw.lobe), added into acc (term j, colour c at [(j·C + c)·6R², ...),
-  // C = 3 with rgb, else 1). Diffuse at the bounces.
+  // The indirect term of a factored bake's terms, or (f empty, rgb) of the three colour
+  // channels of TransportChannels: Indirect's paths, each term's throughput from its own
+  // first-vertex factor (term 0 fw.brdf; term j the table f[j−1] in the row's tangent frame,
+  // times fw.lobe), added into acc (term j, colour c at [(j·C + c)·6R², ...), C = 3 with
+  // rgb, else 1). Diffuse at the bounces.
   uint64_t IndirectFactored(uint64_t row, const RowPoint& rp, const FactorWeights& fw,
-                            const std::vector<const brdf::ParabolicTable*>& f, const glm::dvec3& t, const glm::dvec3& b,
-                            uint64_t paths, bool rgb, double* acc) const;
+                            const std::vector<const brdf::ParabolicTable*>& f, uint64_t paths, bool rgb,
+                            double* acc) const;
   // Paths k0..k1−1: β/divisor into acc at the texel each leaves through, β² into acc2 (if any).
   uint64_t IndirectPaths(uint64_t row, const RowPoint& rp, const PhongLobe& brdf, const glm::dvec3& origin, uint64_t k0,
                          uint64_t k1, double divisor, double* acc, double* acc2,
@@ -226,9 +227,6 @@ class Sampler {
                    glm::dvec3* d, double* beta) const;
   // Channel c's BRDF at a row point (MakeBrdf of ChannelScene(scene, c)).
   PhongLobe MakeBrdfChannel(const RowPoint& rp, int c) const;
-  // Indirect for the three channels from the same paths: acc[c] gains channel c's.
-  uint64_t IndirectChannels(uint64_t row, const RowPoint& rp, const PhongLobe* brdf, const glm::dvec3& origin,
-                            uint64_t paths, double* const* acc) const;
 
   const SceneDesc& s_;
   const Geometry& g_;
