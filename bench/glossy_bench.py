@@ -148,10 +148,13 @@ def plot_curve(res, png):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    ks = sorted(int(k) for k in next(iter(res["errors"].values())))
-    errs = np.array([[e[k] if k in e else e[str(k)] for k in ks] for e in res["errors"].values()])
-    fe = res["bakes"][str(max(ks))]["factor_errors"] if str(max(ks)) in res["bakes"] else res["bakes"][max(ks)][
-        "factor_errors"]
+    # Keys are ints in a run and strings once through JSON: one form here.
+    errors = {m: {int(k): v for k, v in e.items()} for m, e in res["errors"].items()}
+    bakes = {int(k): v for k, v in res["bakes"].items()}
+    frames = {int(k): v for k, v in res.get("frames", {}).items()}
+    ks = sorted(next(iter(errors.values())))
+    errs = np.array([[e[k] for k in ks] for e in errors.values()])
+    fe = bakes[max(ks)]["factor_errors"]
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     ax.plot(ks, np.median(errs, 0), "o-", label="image vs brute force (median of maps)")
     ax.fill_between(ks, errs.min(0), errs.max(0), alpha=0.2)
@@ -162,7 +165,6 @@ def plot_curve(res, png):
     ax.set_yscale("log")
     ax.set_xlabel("K (terms)")
     ax.set_ylabel("relative L2")
-    frames = res.get("frames", {})
     if frames:
         ax.set_title("views/s at 256x256: " + ", ".join(f"K={k} {frames[k]['fps']:.0f}" for k in frames), fontsize=9)
     ax.legend(fontsize=8)
