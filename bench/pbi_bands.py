@@ -50,7 +50,7 @@ def bands_of(cols):
     return band, area, int(np.log2(r))
 
 
-def applied(tmp, m, method, terms, frames):
+def applied(tmp, m, method, terms):
     pattern = os.path.join(tmp, f"{method}{terms}_%04d.npy")
     rep = json.loads(run(LTB, "relight", MATRIX, "--env", m, "--clamp", "--sequence", SEQ, "--method", method,
                          "--terms", terms, "-o", os.path.join(tmp, "img_%04d.npy"), "--applied-lighting", pattern,
@@ -59,7 +59,7 @@ def applied(tmp, m, method, terms, frames):
     got = np.stack([np.load(pattern % f).astype(np.float64) for f in range(n)])
     for f in range(n):
         os.remove(pattern % f)
-    return got if frames is None else got[:frames], rep
+    return got, rep
 
 
 def main():
@@ -67,12 +67,12 @@ def main():
     for m in MAPS:
         name = os.path.splitext(os.path.basename(m))[0]
         with tempfile.TemporaryDirectory() as tmp:
-            truth, _ = applied(tmp, m, "nwa", "all", None)
+            truth, _ = applied(tmp, m, "nwa", "all")
             band, area, nb = bands_of(truth.shape[1])
             norm = (np.linalg.norm(truth, axis=2) * area).sum(1)
             res["maps"][name] = {}
             for method, terms in METHODS:
-                got, rep = applied(tmp, m, method, terms, truth.shape[0])
+                got, rep = applied(tmp, m, method, terms)
                 err = np.linalg.norm(got - truth, axis=2) * area
                 per = np.stack([err[:, band == b].sum(1) for b in range(nb)], 1)
                 res["maps"][name][f"{method}{terms}"] = {
